@@ -1,0 +1,37 @@
+# Two commands do everything on a fresh machine (README):
+#   make demo   -> set up, then run the full demo headless on a bundled scan
+#   make test   -> set up, then run the test suite (what .ci/run calls)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.arsurf-installed
+OUT    ?= out/demo
+
+.PHONY: demo test setup system bench scans clean
+
+setup: system $(STAMP)
+
+# Debian packages for offscreen rendering (Mesa/OSMesa); only installs what is missing.
+system:
+	@sh tools/install-system-deps.sh
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[all,test]"
+	touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/arsurf demo --out $(OUT)
+
+test: setup
+	$(PY) -m pytest -q -p no:cacheprovider $(PYTEST_ARGS)
+
+bench: setup
+	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+scans: setup
+	$(VENV)/bin/arsurf synth --out scans
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

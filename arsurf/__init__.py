@@ -1,0 +1,77 @@
+"""arsurf: an augmented-reality surface-model engine for AFM nanomanipulation.
+
+A scanned height map is levelled, smoothed and fitted with a bicubic B-spline; a spherical tip
+is projected onto it (Newton), dents it (Maugis-Dugdale), and the contact normal turns the two
+measured cantilever angles into a 3D force for a haptic loop and a 3D view.
+
+The public names below are imported lazily (PEP 562), so ``import arsurf`` is cheap, compiles no
+kernel and never imports the viewer (pyvista/VTK).
+
+Example
+-------
+>>> import arsurf
+>>> scan = arsurf.synthetic.sinusoid(shape=(32, 32), pixel=10e-9, amplitude=5e-9, period=160e-9)
+>>> surface = arsurf.fit_surface(scan)
+>>> contact = arsurf.collide(surface, center=(150e-9, 150e-9, 30e-9), radius=20e-9)
+"""
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+# public name -> module that defines it (the pipeline order: scan, spline, contact, force,
+# haptics, manipulation, replay)
+_EXPORTS = {
+    # errors
+    "ArsurfError": "arsurf.errors",
+    "ScanError": "arsurf.errors",
+    # scan
+    "Scan": "arsurf.scan.scan",
+    "load_scan": "arsurf.scan.io",
+    "save_scan": "arsurf.scan.io",
+    "level": "arsurf.scan.level",
+    "smooth": "arsurf.scan.smooth",
+    "inpaint": "arsurf.scan.inpaint",
+    # spline
+    "BSplineSurface": "arsurf.spline.surface",
+    "fit_surface": "arsurf.spline.fit",
+    # contact
+    "Projection": "arsurf.contact.projection",
+    "Contact": "arsurf.contact.projection",
+    "project": "arsurf.contact.projection",
+    "project_many": "arsurf.contact.projection",
+    "collide": "arsurf.contact.projection",
+    "collide_many": "arsurf.contact.projection",
+    "Hertz": "arsurf.contact.models",
+    "DMT": "arsurf.contact.models",
+    "JKR": "arsurf.contact.models",
+    "MaugisDugdale": "arsurf.contact.maugis_dugdale",
+    "Material": "arsurf.contact.materials",
+    "MATERIALS": "arsurf.contact.materials",
+    "effective_modulus": "arsurf.contact.materials",
+    "Deformer": "arsurf.contact.deformation",
+    # force
+    "Cantilever": "arsurf.force.cantilever",
+    "ForceEstimate": "arsurf.force.decoupling",
+    "decouple": "arsurf.force.decoupling",
+    "decouple_by_motion": "arsurf.force.decoupling",
+}
+_SUBMODULES = {"synthetic": "arsurf.scan.synthetic"}
+
+__all__ = sorted([*_EXPORTS, *_SUBMODULES])
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(_SUBMODULES[name])
+    else:
+        raise AttributeError(f"module 'arsurf' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

@@ -1,0 +1,121 @@
+"""The :class:`Scan` record: one height channel of an AFM image, in SI units.
+
+Convention (DESIGN.md): ``heights[iy, ix]`` float64 metres, x grows with the column index ix,
+y with the row index iy; ``dx``, ``dy`` are the pixel spacings (centre to centre) in metres.
+Pixel (ix, iy) sits at x = ix*dx, y = iy*dy: the origin is the centre of the first pixel.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from arsurf.errors import InvalidHeights
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """A height map in metres with its pixel spacing.
+
+    Parameters
+    ----------
+    heights : (ny, nx) float64, metres
+        Height of pixel (iy, ix). NaN marks a missing pixel (see :func:`arsurf.inpaint`).
+    dx, dy : float, metres
+        Pixel spacing along x (columns) and y (rows); non-square pixels are allowed.
+    channel : str
+        Name of the channel as the file calls it (e.g. ``"Height"``, ``"Z raw"``).
+    metadata : dict
+        Everything else: instrument, format, and the processing history under ``"history"``.
+    source : str
+        Where the data came from (a path, or ``"synthetic:<name>"``).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> s = Scan(np.zeros((4, 5)), dx=1e-9, dy=2e-9)
+    >>> s.shape, s.size
+    ((4, 5), (4e-09, 6e-09))
+    """
+
+    heights: np.ndarray
+    dx: float
+    dy: float
+    channel: str = "Height"
+    metadata: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        h = np.array(self.heights, dtype=np.float64, copy=True, order="C")
+        if h.ndim != 2:
+            raise InvalidHeights(
+                f"heights must be a 2-D array (ny, nx) (got shape {h.shape}) in {self.source or 'scan'}"
+            )
+        if h.shape[0] < 1 or h.shape[1] < 1:
+            raise InvalidHeights(f"heights is empty (shape {h.shape}) in {self.source or 'scan'}")
+        if np.isinf(h).any():
+            raise InvalidHeights(
+                f"heights has {int(np.isinf(h).sum())} infinite pixels in {self.source or 'scan'}; "
+                "replace them with NaN and use arsurf.inpaint(), or crop them away"
+            )
+        for name in ("dx", "dy"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value > 0.0):
+                raise InvalidHeights(
+                    f"{name} must be a positive, finite pixel spacing in metres (got {value!r}) "
+                    f"in {self.source or 'scan'}"
+                )
+            object.__setattr__(self, name, value)
+        h.setflags(write=False)
+        object.__setattr__(self, "heights", h)
+        object.__setattr__(self, "metadata", dict(self.metadata))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(ny, nx) pixels."""
+        return self.heights.shape  # type: ignore[return-value]
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """Physical extent (x, y) in metres, centre of first pixel to centre of last."""
+        ny, nx = self.shape
+        return ((nx - 1) * self.dx, (ny - 1) * self.dy)
+
+    @property
+    def x(self) -> np.ndarray:
+        """(nx,) x coordinate of each column, metres."""
+        return np.arange(self.shape[1]) * self.dx
+
+    @property
+    def y(self) -> np.ndarray:
+        """(ny,) y coordinate of each row, metres."""
+        return np.arange(self.shape[0]) * self.dy
+
+    @property
+    def nan_count(self) -> int:
+        """Number of missing (NaN) pixels."""
+        return int(np.isnan(self.heights).sum())
+
+    @property
+    def history(self) -> list:
+        """Processing steps applied so far (levelling, smoothing, inpainting...)."""
+        return list(self.metadata.get("history", []))
+
+    def with_heights(self, heights: np.ndarray, step: dict | None = None, **changes) -> "Scan":
+        """A new Scan with other heights (same spacing), appending ``step`` to the history."""
+        meta = dict(self.metadata)
+        if step is not None:
+            meta["history"] = [*self.metadata.get("history", []), step]
+        return replace(self, heights=heights, metadata=meta, **changes)
+
+    def __repr__(self) -> str:
+        ny, nx = self.shape
+        finite = self.heights[np.isfinite(self.heights)]
+        zr = (finite.max() - finite.min()) if finite.size else float("nan")
+        return (
+            f"Scan({self.channel!r}, {nx}x{ny} px, {self.size[0] * 1e9:.4g} x {self.size[1] * 1e9:.4g} nm, "
+            f"dx={self.dx * 1e9:.4g} nm, dy={self.dy * 1e9:.4g} nm, z range {zr * 1e9:.4g} nm, "
+            f"source={self.source!r})"
+        )
