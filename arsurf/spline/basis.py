@@ -1,0 +1,179 @@
+"""Cubic B-spline basis on clamped uniform knots, and surface evaluation kernels (numba).
+
+The basis is the Cox-de Boor triangle (Piegl & Tiller, *The NURBS Book*, A2.2) unrolled for
+degree 3 with scalar temporaries, so a kernel call allocates nothing. Derivatives follow
+
+.. math:: N'_{k,p} = p\\Big(\\frac{N_{k,p-1}}{t_{k+p}-t_k} - \\frac{N_{k+1,p-1}}{t_{k+p+1}-t_{k+1}}\\Big)
+
+applied once (first) and twice (second). A surface point is the 4x4 tensor contraction
+
+.. math:: S(u, v) = \\sum_{a=0}^{3}\\sum_{b=0}^{3} N_{i-3+a}(u)\\,N_{j-3+b}(v)\\,P_{i-3+a,\\,j-3+b}.
+
+Kernels take plain float64 arrays: ``ctrl`` (nu, nv, 3), ``ku`` (nu + 4,), ``kv`` (nv + 4,).
+Parameters outside the domain are clamped to it.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# rows of the (6, 3) derivative block written by the kernels
+S, SU, SV, SUU, SUV, SVV = 0, 1, 2, 3, 4, 5
+
+
+@njit(cache=True, inline="always")
+def find_span(knots, u):
+    """Knot span index i with t[i] <= u < t[i+1] (O(1) on uniform knots); u clamped to the domain."""
+    n = knots.size - 4  # control points
+    a = knots[3]
+    b = knots[n]
+    m = n - 3  # spans
+    k = int((u - a) / (b - a) * m) if b > a else 0
+    if k < 0:
+        k = 0
+    elif k > m - 1:
+        k = m - 1
+    return k + 3
+
+
+@njit(cache=True, inline="always")
+def clamp(u, knots):
+    n = knots.size - 4
+    if u < knots[3]:
+        return knots[3]
+    if u > knots[n]:
+        return knots[n]
+    return u
+
+
+@njit(cache=True)
+def cubic_basis(knots, i, u):
+    """Values, first and second derivatives of the 4 cubic basis functions nonzero on span i.
+
+    Returns a 12-tuple (N0..N3, dN0..dN3, ddN0..ddN3) for N_{i-3} .. N_i at u.
+    """
+    t = knots
+    L1 = u - t[i]
+    L2 = u - t[i - 1]
+    L3 = u - t[i - 2]
+    R1 = t[i + 1] - u
+    R2 = t[i + 2] - u
+    R3 = t[i + 3] - u
+    # degree 1: N_{i-1,1}, N_{i,1}
+    d = R1 + L1
+    a0 = R1 / d
+    a1 = L1 / d
+    # degree 2: N_{i-2,2}, N_{i-1,2}, N_{i,2}
+    d12 = R1 + L2
+    d21 = R2 + L1
+    tmp = a0 / d12
+    b0 = R1 * tmp
+    saved = L2 * tmp
+    tmp = a1 / d21
+    b1 = saved + R2 * tmp
+    b2 = L1 * tmp
+    # degree 3: N_{i-3,3} .. N_{i,3}
+    d13 = R1 + L3
+    d22 = R2 + L2
+    d31 = R3 + L1
+    tmp = b0 / d13
+    c0 = R1 * tmp
+    saved = L3 * tmp
+    tmp = b1 / d22
+    c1 = saved + R2 * tmp
+    saved = L2 * tmp
+    tmp = b2 / d31
+    c2 = saved + R3 * tmp
+    c3 = L1 * tmp
+    # first derivatives from the degree-2 functions
+    e0 = 3.0 * b0 / d13
+    e1 = 3.0 * b1 / d22
+    e2 = 3.0 * b2 / d31
+    # second derivatives from the degree-1 functions
+    f0 = 2.0 * a0 / d12
+    f1 = 2.0 * a1 / d21
+    g0 = -3.0 * f0 / d13
+    g1 = 3.0 * (f0 - f1) / d22
+    g2 = 3.0 * f1 / d31
+    return (c0, c1, c2, c3,
+            -e0, e0 - e1, e1 - e2, e2,
+            -g0, g0 - g1, g1 - g2, g2)
+
+
+@njit(cache=True)
+def basis_row(knots, u, out):
+    """Write the 4 basis values at u into ``out`` and return the first column index (span - 3)."""
+    u = clamp(u, knots)
+    i = find_span(knots, u)
+    r = cubic_basis(knots, i, u)
+    out[0] = r[0]
+    out[1] = r[1]
+    out[2] = r[2]
+    out[3] = r[3]
+    return i - 3
+
+
+@njit(cache=True)
+def surface_point(ctrl, ku, kv, u, v, order, out):
+    """Evaluate S and its derivatives up to ``order`` (0, 1, 2) at (u, v) into ``out`` (6, 3).
+
+    Rows of ``out``: S, S_u, S_v, S_uu, S_uv, S_vv (rows beyond ``order`` are left untouched).
+    """
+    u = clamp(u, ku)
+    v = clamp(v, kv)
+    iu = find_span(ku, u)
+    iv = find_span(kv, v)
+    bu = cubic_basis(ku, iu, u)
+    bv = cubic_basis(kv, iv, v)
+    nrow = 1 if order == 0 else (3 if order == 1 else 6)
+    for r in range(nrow):
+        for c in range(3):
+            out[r, c] = 0.0
+    for a in range(4):
+        nu0 = bu[a]
+        nu1 = bu[4 + a]
+        nu2 = bu[8 + a]
+        for b in range(4):
+            nv0 = bv[b]
+            p = ctrl[iu - 3 + a, iv - 3 + b]
+            w00 = nu0 * nv0
+            for c in range(3):
+                out[0, c] += w00 * p[c]
+            if order >= 1:
+                nv1 = bv[4 + b]
+                w10 = nu1 * nv0
+                w01 = nu0 * nv1
+                for c in range(3):
+                    out[1, c] += w10 * p[c]
+                    out[2, c] += w01 * p[c]
+                if order >= 2:
+                    w20 = nu2 * nv0
+                    w11 = nu1 * nv1
+                    w02 = nu0 * bv[8 + b]
+                    for c in range(3):
+                        out[3, c] += w20 * p[c]
+                        out[4, c] += w11 * p[c]
+                        out[5, c] += w02 * p[c]
+
+
+@njit(cache=True)
+def surface_points(ctrl, ku, kv, us, vs, order, out):
+    """Batch of :func:`surface_point`: ``out`` (n, 6, 3) for parameters ``us``, ``vs`` (n,)."""
+    for k in range(us.size):
+        surface_point(ctrl, ku, kv, us[k], vs[k], order, out[k])
+
+
+@njit(cache=True)
+def collocation(knots, x, cols, vals):
+    """Basis rows at sites ``x``: ``vals[k, :]`` are N_{cols[k]..cols[k]+3}(x[k])."""
+    for k in range(x.size):
+        cols[k] = basis_row(knots, x[k], vals[k])
+
+
+def basis_matrix_rows(knots: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First column and the 4 nonzero basis values of each row of the collocation matrix."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    cols = np.empty(x.size, dtype=np.int64)
+    vals = np.empty((x.size, 4), dtype=np.float64)
+    collocation(knots, x, cols, vals)
+    return cols, vals

@@ -1,0 +1,210 @@
+"""The :class:`BSplineSurface`: a bicubic tensor-product B-spline S(u, v) in R^3.
+
+Built by :func:`arsurf.fit_surface` (or directly from a control net); evaluation never refits.
+On the undeformed surface the control points sit on the Greville abscissae so x(u) = u and
+y(v) = v (metres); after a deformation (:mod:`arsurf.contact.deformation`) the net moves and
+S is a general parametric surface. :meth:`BSplineSurface.reset` restores the rest shape exactly.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from arsurf.errors import SurfaceError
+from arsurf.spline import basis
+from arsurf.spline.knots import check_clamped_uniform, clamped_uniform_knots, greville
+
+
+@njit(cache=True)
+def _fill_height_net(gu, gv, z, ctrl, rest):
+    """ctrl[i, j] = rest[i, j] = (gu[i], gv[j], z[i, j]) in one pass."""
+    for i in range(gu.size):
+        for j in range(gv.size):
+            ctrl[i, j, 0] = rest[i, j, 0] = gu[i]
+            ctrl[i, j, 1] = rest[i, j, 1] = gv[j]
+            ctrl[i, j, 2] = rest[i, j, 2] = z[i, j]
+
+
+class BSplineSurface:
+    """Bicubic B-spline surface on clamped uniform knots.
+
+    .. math:: S(u, v) = \\sum_{i=0}^{n_u-1}\\sum_{j=0}^{n_v-1} N_i(u) N_j(v) P_{ij}
+
+    Parameters
+    ----------
+    control_points : (nu, nv, 3) float, metres
+        Control net; axis 0 runs along u (x), axis 1 along v (y).
+    knots_u, knots_v : (nu + 4,), (nv + 4,) float, metres
+        Clamped uniform cubic knot vectors.
+
+    Attributes
+    ----------
+    control_points : (nu, nv, 3) read-only view of the current net.
+    rest_control_points : (nu, nv, 3) read-only view of the rest net (as fitted).
+    domain : ((u0, u1), (v0, v1)) parameter domain, metres.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> s = BSplineSurface.from_heights(np.zeros((4, 5)), (0.0, 3e-9), (0.0, 4e-9))
+    >>> s.evaluate(1e-9, 2e-9)
+    array([1.e-09, 2.e-09, 0.e+00])
+    """
+
+    def __init__(self, control_points, knots_u, knots_v):
+        ctrl = np.array(control_points, dtype=np.float64, order="C", copy=True)
+        if ctrl.ndim != 3 or ctrl.shape[2] != 3:
+            raise SurfaceError(f"control_points must have shape (nu, nv, 3) (got {ctrl.shape})")
+        if not np.isfinite(ctrl).all():
+            bad = int((~np.isfinite(ctrl)).any(axis=2).sum())
+            raise SurfaceError(
+                f"control_points has {bad} non-finite (NaN/inf) points; fit from a scan without NaN "
+                "(see arsurf.inpaint) or repair the net"
+            )
+        ku = check_clamped_uniform(knots_u, "knots_u")
+        kv = check_clamped_uniform(knots_v, "knots_v")
+        if ku.size != ctrl.shape[0] + 4 or kv.size != ctrl.shape[1] + 4:
+            raise SurfaceError(
+                f"knot vectors of length {ku.size}, {kv.size} do not match a {ctrl.shape[0]}x{ctrl.shape[1]} "
+                "net (need nu + 4 and nv + 4)"
+            )
+        self._adopt(ctrl, ku, kv)
+
+    def _adopt(self, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray, rest: np.ndarray | None = None) -> None:
+        self._ctrl = ctrl
+        self._rest = ctrl.copy() if rest is None else rest
+        self._ku = ku
+        self._kv = kv
+
+    @classmethod
+    def construct_fast(cls, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
+                       rest: np.ndarray | None = None) -> "BSplineSurface":
+        """Build without validation or copy (scipy's ``construct_fast`` pattern): the caller
+        guarantees a finite (nu, nv, 3) float64 C array (and rest net) and matching knots."""
+        self = object.__new__(cls)
+        self._adopt(ctrl, ku, kv, rest)
+        return self
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def from_heights(cls, z_net, u_range, v_range) -> "BSplineSurface":
+        """Height-field net: z control values (nu, nv) on Greville x, y over the given domain."""
+        z = np.asarray(z_net, dtype=np.float64)
+        if z.ndim != 2:
+            raise SurfaceError(f"z_net must be 2-D (nu, nv) (got shape {z.shape})")
+        if not np.isfinite(z).all():
+            raise SurfaceError(f"z_net has {int((~np.isfinite(z)).sum())} non-finite values")
+        ku = clamped_uniform_knots(z.shape[0], *u_range)
+        kv = clamped_uniform_knots(z.shape[1], *v_range)
+        ctrl = np.empty(z.shape + (3,))
+        rest = np.empty(z.shape + (3,))
+        _fill_height_net(greville(ku), greville(kv), z, ctrl, rest)
+        return cls.construct_fast(ctrl, ku, kv, rest)
+
+    def copy(self) -> "BSplineSurface":
+        """An independent copy with the same current and rest nets."""
+        new = BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv)
+        new._rest[...] = self._rest
+        return new
+
+    def reset(self) -> None:
+        """Restore the rest shape exactly (undo every deformation)."""
+        self._ctrl[...] = self._rest
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def control_points(self) -> np.ndarray:
+        view = self._ctrl.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def rest_control_points(self) -> np.ndarray:
+        view = self._rest.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def knots_u(self) -> np.ndarray:
+        return self._ku.copy()
+
+    @property
+    def knots_v(self) -> np.ndarray:
+        return self._kv.copy()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(nu, nv) control points."""
+        return self._ctrl.shape[0], self._ctrl.shape[1]
+
+    @property
+    def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        return (float(self._ku[0]), float(self._ku[-1])), (float(self._kv[0]), float(self._kv[-1]))
+
+    @property
+    def spacing(self) -> tuple[float, float]:
+        """Knot spacing (h_u, h_v), metres."""
+        (u0, u1), (v0, v1) = self.domain
+        return (u1 - u0) / (self.shape[0] - 3), (v1 - v0) / (self.shape[1] - 3)
+
+    @property
+    def is_deformed(self) -> bool:
+        return not np.array_equal(self._ctrl, self._rest)
+
+    def kernel_arrays(self):
+        """(ctrl, rest, knots_u, knots_v) as the float64 C arrays the numba kernels take.
+
+        ``ctrl`` is the live, writable net: only :mod:`arsurf.contact.deformation` writes to it.
+        """
+        return self._ctrl, self._rest, self._ku, self._kv
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def evaluate(self, u, v, derivatives: int = 0):
+        """Point and derivatives of the surface.
+
+        Parameters
+        ----------
+        u, v : float or array_like (same shape), metres
+            Parameters; values outside :attr:`domain` are clamped to it.
+        derivatives : {0, 1, 2}
+            0 returns S; 1 returns (S, S_u, S_v); 2 returns (S, S_u, S_v, S_uu, S_uv, S_vv).
+
+        Returns
+        -------
+        ndarray (..., 3) or tuple of them, metres (derivatives are dimensionless / 1/m).
+        """
+        if derivatives not in (0, 1, 2):
+            raise SurfaceError(f"derivatives must be 0, 1 or 2 (got {derivatives!r})")
+        nout = (1, 3, 6)[derivatives]
+        if np.isscalar(u) and np.isscalar(v):
+            uf, vf = float(u), float(v)
+            if not (np.isfinite(uf) and np.isfinite(vf)):
+                raise SurfaceError(f"u and v must be finite (got u={u!r}, v={v!r})")
+            out = np.empty((6, 3))
+            basis.surface_point(self._ctrl, self._ku, self._kv, uf, vf, derivatives, out)
+            return out[0].copy() if derivatives == 0 else tuple(out[k].copy() for k in range(nout))
+        uu, vv = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+        if not (np.isfinite(uu).all() and np.isfinite(vv).all()):
+            raise SurfaceError("u and v must be finite (got NaN or inf in the parameter arrays)")
+        shape = uu.shape
+        us = np.ascontiguousarray(uu.ravel())
+        vs = np.ascontiguousarray(vv.ravel())
+        out = np.empty((us.size, 6, 3))
+        basis.surface_points(self._ctrl, self._ku, self._kv, us, vs, derivatives, out)
+        res = tuple(out[:, k].reshape(shape + (3,)) for k in range(nout))
+        return res[0] if derivatives == 0 else res
+
+    def evaluate_grid(self, nu_samples: int, nv_samples: int) -> np.ndarray:
+        """Surface points on a regular (u, v) grid: (nv_samples, nu_samples, 3), row = v."""
+        (u0, u1), (v0, v1) = self.domain
+        u = np.linspace(u0, u1, int(nu_samples))
+        v = np.linspace(v0, v1, int(nv_samples))
+        uu, vv = np.meshgrid(u, v)
+        return self.evaluate(uu, vv)
+
+    def __repr__(self) -> str:
+        (u0, u1), (v0, v1) = self.domain
+        return (
+            f"BSplineSurface({self.shape[0]}x{self.shape[1]} control points, "
+            f"u in [{u0:.4g}, {u1:.4g}] m, v in [{v0:.4g}, {v1:.4g}] m, deformed={self.is_deformed})"
+        )
