@@ -32,7 +32,7 @@ from scipy.linalg import lapack, solveh_banded
 from arsurf.errors import InvalidHeights, SurfaceError
 from arsurf.scan.scan import Scan
 from arsurf.spline.basis import basis_matrix_rows, cubic_basis
-from arsurf.spline.knots import clamped_uniform_knots
+from arsurf.spline.knots import clamped_uniform_knots, greville
 from arsurf.spline.surface import BSplineSurface
 
 
@@ -106,22 +106,33 @@ def _lu_solve_rows(lu, piv, kl, ku, b):
             b[i, c] *= d
 
 
-def _normal_banded(cols: np.ndarray, vals: np.ndarray, n: int, penalty: float) -> np.ndarray:
+def _penalty_rows(knots: np.ndarray) -> np.ndarray:
+    """Second divided differences of the control values on their Greville abscissae, (n-2, 3).
+
+    Row k acts on P[k..k+2]; it is scaled by the knot spacing squared so that it is the plain
+    second difference [1, -2, 1]/2 in the uniform interior. Its null space is exactly the linear
+    functions (which the Greville net represents), so the penalty never bends planes.
+    """
+    g = greville(knots)
+    h = knots[4] - knots[3]
+    d0 = np.diff(g)[:-1]
+    d1 = np.diff(g)[1:]
+    span = g[2:] - g[:-2]
+    return h * h * np.stack([1.0 / (d0 * span), -(1.0 / d0 + 1.0 / d1) / span, 1.0 / (d1 * span)], axis=1)
+
+
+def _normal_banded(cols: np.ndarray, vals: np.ndarray, n: int, knots: np.ndarray, penalty: float) -> np.ndarray:
     """Upper band storage (4, n) of BᵀB + λ DᵀD (bandwidth 3) for solveh_banded."""
     ab = np.zeros((4, n))
     for a in range(4):  # (BᵀB)[c+a, c+b] += vals[:, a] vals[:, b]
         for b in range(a, 4):
             np.add.at(ab[3 - (b - a)], cols + b, vals[:, a] * vals[:, b])
     if penalty > 0.0:
-        # D: second differences (n-2, n); DᵀD has the stencil [1, -4, 6, -4, 1], trimmed at the ends
-        diag = np.full(n, 6.0)
-        diag[[0, -1]] = 1.0
-        diag[[1, -2]] = 5.0
-        off1 = np.full(n - 1, -4.0)
-        off1[[0, -1]] = -2.0
-        ab[3] += penalty * diag
-        ab[2, 1:] += penalty * off1
-        ab[1, 2:] += penalty
+        d = _penalty_rows(knots)
+        start = np.arange(n - 2)
+        for a in range(3):
+            for b in range(a, 3):
+                np.add.at(ab[3 - (b - a)], start + b, penalty * d[:, a] * d[:, b])
     return ab
 
 
@@ -144,7 +155,7 @@ def _solve_axis(knots: np.ndarray, sites: np.ndarray, rhs: np.ndarray, n: int, s
         _lu_solve_rows(lu, piv.astype(np.int64), _KL, _KU, padded)
         return padded
     cols, vals = basis_matrix_rows(knots, sites)
-    ab = _normal_banded(cols, vals, n, smoothing)
+    ab = _normal_banded(cols, vals, n, knots, smoothing)
     return solveh_banded(ab, _bt_times(cols, vals, n, rhs), overwrite_ab=True, check_finite=False)
 
 
