@@ -158,9 +158,14 @@ def surface_point(ctrl, ku, kv, u, v, order, out):
 
 @njit(cache=True)
 def surface_points(ctrl, ku, kv, us, vs, order, out):
-    """Batch of :func:`surface_point`: ``out`` (n, 6, 3) for parameters ``us``, ``vs`` (n,)."""
+    """Batch of :func:`surface_point`: ``out`` (1, 3 or 6 rows, n, 3) for ``us``, ``vs`` (n,)."""
+    scratch = np.empty((6, 3))
+    nrow = out.shape[0]
     for k in range(us.size):
-        surface_point(ctrl, ku, kv, us[k], vs[k], order, out[k])
+        surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
+        for r in range(nrow):
+            for c in range(3):
+                out[r, k, c] = scratch[r, c]
 
 
 @njit(cache=True)
