@@ -1,0 +1,264 @@
+"""Load and save AFM/STM scan files: :func:`load_scan` and :func:`save_scan`.
+
+:func:`load_scan` detects the format from the file's content (magic bytes, header, TIFF tags,
+Igor checksum) and falls back to the extension only when the content says nothing, so a
+renamed file is still read right. Every reader returns a :class:`~arsurf.scan.scan.Scan` in
+the project convention: ``heights[iy, ix]`` float64 metres, ``dx``/``dy`` in metres, x grows
+with the column, y with the row, **row 0 is the bottom of the image** (y up, z out of the
+sample: a right-handed frame). Formats that store the top row first are flipped;
+``metadata["rows_flipped"]`` says whether this file was.
+
+Supported formats (module in :mod:`arsurf.scan.readers`, library used):
+
+=================  ===============================  ===========================================
+format             extensions                       reader
+=================  ===============================  ===========================================
+``gwy``            .gwy                             own parser (gwyfile is unsafe on damaged files)
+``gsf``            .gsf                             own parser and writer (checked against gsffile)
+``sxm``            .sxm                             own parser (nanonispy broken, pySPM hangs)
+``ibw``            .ibw                             igor2
+``nanoscope``      .spm, .000-.999                  own parser (pySPM hangs on damaged files)
+``jpk``            .jpk                             tifffile + own JPK calibration slots
+``park-tiff``      .tiff, .tif                      tifffile + own Park header
+``nid``            .nid                             own parser
+``wsxm``           .top, .stp, .tom                 own parser
+``ascii-matrix``   .txt, .asc, .dat, .csv           own (numpy)
+``xyz``            .xyz                             own (numpy)
+``npy``/``npz``    .npy, .npz                       numpy (no pickle)
+=================  ===============================  ===========================================
+
+Default channel: the first height/topography channel recorded forward (trace), else the first
+without a direction, else the first recorded backward (retrace); ``metadata["channels"]``
+lists them all, ``metadata["direction"]`` says which was read. NaN pixels are kept (counted
+in ``metadata["nan_count"]``; infinite values become NaN): fill them with
+:func:`arsurf.inpaint` before fitting.
+
+Errors are :class:`arsurf.errors.ScanError` subclasses naming the file and the problem:
+:class:`~arsurf.errors.ScanFileNotFound`, :class:`~arsurf.errors.UnknownFormat`,
+:class:`~arsurf.errors.CorruptScan` (truncated or inconsistent; any exception of a
+third-party parser is wrapped in it), :class:`~arsurf.errors.ChannelNotFound` (lists the
+channels), :class:`~arsurf.errors.InvalidHeights` (e.g. no finite pixel) and
+:class:`MissingCalibration` (a bare matrix without spacing or unit).
+"""
+from __future__ import annotations
+
+import importlib
+import inspect
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arsurf.errors import (
+    ArsurfError,
+    CorruptScan,
+    InvalidHeights,
+    MissingDependency,
+    ScanError,
+    ScanFileNotFound,
+    UnknownFormat,
+)
+from arsurf.scan.readers._common import MissingCalibration
+
+__all__ = ["load_scan", "save_scan", "detect_format", "FORMATS", "MissingCalibration"]
+
+#: format name -> reader module, in sniffing order (strong binary magics first, text last)
+FORMATS: dict[str, str] = {
+    "npy": "arsurf.scan.readers.npy",
+    "npz": "arsurf.scan.readers.npz",
+    "gwy": "arsurf.scan.readers.gwy",
+    "gsf": "arsurf.scan.readers.gsf",
+    "sxm": "arsurf.scan.readers.sxm",
+    "nanoscope": "arsurf.scan.readers.nanoscope",
+    "nid": "arsurf.scan.readers.nid",
+    "wsxm": "arsurf.scan.readers.wsxm",
+    "jpk": "arsurf.scan.readers.jpk",
+    "park-tiff": "arsurf.scan.readers.park",
+    "ibw": "arsurf.scan.readers.ibw",
+    "xyz": "arsurf.scan.readers.xyz",
+    "ascii-matrix": "arsurf.scan.readers.ascii_matrix",
+}
+_TEXT_FORMATS = ("xyz", "ascii-matrix")
+_WRITERS = {".gsf": "gsf", ".npz": "npz", ".npy": "npy"}
+HEAD_BYTES = 1 << 16
+
+
+def _module(fmt: str):
+    return importlib.import_module(FORMATS[fmt])
+
+
+def _ext_map() -> dict[str, str]:
+    out: dict[str, str] = {}
+    for fmt in FORMATS:
+        for ext in _module(fmt).EXTENSIONS:
+            out.setdefault(ext, fmt)
+    return out
+
+
+def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
+    """The format name of ``path``: by content first, by extension when the content is silent.
+
+    Raises
+    ------
+    ScanFileNotFound, UnknownFormat
+    """
+    path = Path(path)
+    if head is None:
+        head = _head(path)
+    for fmt in FORMATS:
+        if fmt in _TEXT_FORMATS:
+            continue
+        if _module(fmt).sniff(head):
+            return fmt
+    ext = path.suffix.lower()
+    ext_fmt = _ext_map().get(ext)
+    text_fmt = next((f for f in _TEXT_FORMATS if _module(f).sniff(head)), None)
+    if text_fmt is not None:
+        # a numeric table: the extension decides between XYZ and matrix when it names one
+        return ext_fmt if ext_fmt in _TEXT_FORMATS else text_fmt
+    if ext_fmt is not None and ext_fmt not in _TEXT_FORMATS:
+        return ext_fmt
+    known = ", ".join(sorted({e for e in _ext_map() if not e[1:].isdigit()}))
+    raise UnknownFormat(
+        f"{path}: neither the content nor the extension {ext or '(none)'!r} identify a supported scan "
+        f"format; supported: {', '.join(FORMATS)} (extensions {known}, NanoScope .000-.999)"
+    )
+
+
+def _head(path: Path) -> bytes:
+    if not path.exists():
+        raise ScanFileNotFound(f"scan file {str(path)!r} does not exist; check the path")
+    if not path.is_file():
+        raise ScanFileNotFound(f"{str(path)!r} is not a file (a directory?); give the path of a scan file")
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(HEAD_BYTES)
+    except OSError as exc:
+        raise ScanFileNotFound(f"scan file {str(path)!r} cannot be opened: {exc}") from exc
+
+
+def load_scan(
+    path: str | os.PathLike,
+    channel: str | None = None,
+    *,
+    dx: float | None = None,
+    dy: float | None = None,
+    xy_unit: str | None = None,
+    z_unit: str | None = None,
+):
+    """Read one channel of a scan file as a :class:`~arsurf.scan.scan.Scan` in SI units.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The scan file; its format is detected from its content (see the module docstring).
+    channel : str, optional
+        Channel name as listed in ``metadata["channels"]`` (case-insensitive; the name without
+        its ``" (direction)"`` suffix works when unique). Default: the topography channel,
+        forward/trace if recorded, else retrace.
+    dx, dy : float, optional, metres
+        Pixel spacing, only for files that do not state it (bare ASCII matrix, ``.npy``).
+    xy_unit, z_unit : str, optional
+        Units of the coordinates/values, only for files that do not state them (``"nm"``...).
+
+    Returns
+    -------
+    Scan
+        ``heights`` (ny, nx) float64 in metres (other channels in their SI unit, see
+        ``metadata["z_unit"]``), NaN for missing pixels; ``metadata`` has ``format``,
+        ``channels``, ``direction``, ``nan_count``, ``rows_flipped`` and ``instrument``.
+
+    Raises
+    ------
+    ScanFileNotFound, UnknownFormat, CorruptScan, ChannelNotFound, InvalidHeights, MissingCalibration
+        All are :class:`arsurf.errors.ScanError`; :class:`arsurf.errors.MissingDependency` when
+        the format needs an optional package (``pip install 'arsurf[formats]'``).
+
+    Example
+    -------
+    >>> scan = load_scan("Veeco_20160622.003")  # doctest: +SKIP
+    >>> scan.metadata["format"], scan.channel  # doctest: +SKIP
+    ('nanoscope', 'Height (Retrace)')
+    """
+    path = Path(path)
+    head = _head(path)
+    fmt = detect_format(path, head)
+    mod = _module(fmt)
+    options = {k: v for k, v in (("dx", dx), ("dy", dy), ("xy_unit", xy_unit), ("z_unit", z_unit)) if v is not None}
+    accepted = set(inspect.signature(mod.read).parameters)
+    extra = sorted(set(options) - accepted)
+    if extra:
+        raise ScanError(
+            f"{path}: the {fmt} format states its own calibration; {', '.join(extra)} apply only to formats "
+            f"that do not (ASCII matrix/XYZ, .npy/.npz); remove them"
+        )
+    try:
+        scan = mod.read(path, channel, **options)
+    except (ScanError, MissingDependency):
+        raise
+    except ArsurfError as exc:
+        raise CorruptScan(f"{path}: cannot be read as {fmt}: {exc}") from exc
+    except MemoryError as exc:
+        raise CorruptScan(f"{path}: cannot be read as {fmt}: the header asks for more memory than exists") from exc
+    except RecursionError as exc:
+        raise CorruptScan(f"{path}: cannot be read as {fmt}: structure nested too deeply (corrupt file)") from exc
+    except Exception as exc:  # third-party parsers raise anything on damaged files: wrap it
+        raise CorruptScan(
+            f"{path}: cannot be read as {fmt} ({type(exc).__name__}: {exc}); the file is truncated or corrupt"
+        ) from exc
+    finite = int(np.isfinite(scan.heights).sum())
+    if finite == 0:
+        raise InvalidHeights(
+            f"{path}: channel {scan.channel!r} has no finite pixel (all {scan.heights.size} are NaN); "
+            f"choose another channel from {scan.metadata.get('channels')}"
+        )
+    return scan
+
+
+def save_scan(scan, path: str | os.PathLike) -> Path:
+    """Write ``scan`` to ``path``; the format comes from the extension.
+
+    ``.npz``: heights float64 + metadata as JSON, bit-exact round trip. ``.npy``: the heights
+    array plus a ``<file>.npy.json`` sidecar with spacing and metadata, bit-exact. ``.gsf``:
+    Gwyddion Simple Field, float32 by the spec (round trip exact to float32, i.e. relative
+    2**-24; spacings exact), readable by Gwyddion; rows are written top-first as Gwyddion
+    expects and flipped back by :func:`load_scan`.
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    UnknownFormat
+        The extension is not one of ``.gsf``, ``.npz``, ``.npy``.
+
+    Example
+    -------
+    >>> save_scan(scan, "out.npz")  # doctest: +SKIP
+    """
+    from arsurf.scan.scan import Scan
+
+    if not isinstance(scan, Scan):
+        raise InvalidHeights(f"save_scan needs an arsurf Scan (got {type(scan).__name__}); build one with arsurf.Scan")
+    path = Path(path)
+    fmt = _WRITERS.get(path.suffix.lower())
+    if fmt is None:
+        raise UnknownFormat(
+            f"cannot save {str(path)!r}: the extension {path.suffix or '(none)'!r} is not a writable format; "
+            f"use one of {sorted(_WRITERS)}"
+        )
+    _module(fmt).write(scan, path)
+    return path
+
+
+def _format_table() -> list[dict[str, Any]]:
+    """Format name, extensions and reader module docstring summary (for the CLI / docs)."""
+    rows = []
+    for fmt in FORMATS:
+        mod = _module(fmt)
+        rows.append({"format": fmt, "extensions": [e for e in mod.EXTENSIONS if not e[1:].isdigit()],
+                     "summary": (mod.__doc__ or "").strip().splitlines()[0]})
+    return rows

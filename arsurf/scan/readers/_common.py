@@ -1,0 +1,326 @@
+"""Helpers shared by the scan-file readers: channels, units, orientation, guarded binary reads.
+
+Every reader in :mod:`arsurf.scan.readers` returns a :class:`~arsurf.scan.scan.Scan` in the
+project convention (DESIGN.md): ``heights[iy, ix]`` float64, x grows with the column, y with
+the row, and **row 0 is the bottom of the image** (the smallest y), so that (x, y, z) is a
+right-handed frame with z out of the sample when the image is seen from above as the
+instrument software shows it. Formats that store the top row first (Gwyddion, WSxM, ASCII
+matrix exports, Nanonis "down" scans) are flipped on reading; each reader module says what its
+format stores.
+
+Readers raise only :class:`arsurf.errors.ScanError` subclasses for bad files;
+:func:`arsurf.scan.io.load_scan` wraps anything else a third-party parser throws.
+"""
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from arsurf.errors import ChannelNotFound, CorruptScan, ScanError
+
+#: Largest image a reader accepts (pixels); a corrupt header must not make us allocate GiB.
+MAX_PIXELS = 1 << 28
+
+
+class MissingCalibration(ScanError):
+    """The file does not state its pixel spacing or height unit, and none was passed."""
+
+
+@dataclass
+class Channel:
+    """One image channel in a file, before it is read.
+
+    Parameters
+    ----------
+    name : str
+        The name shown to the user and listed in ``metadata["channels"]``.
+    key : Any
+        Whatever the reader needs to find the data again (an index, a tag, an offset).
+    unit : str
+        The unit of the stored values as the file writes it (``"m"``, ``"nm"``, ``"V"``...).
+    direction : {"forward", "backward", None}
+        Trace (forward) or retrace (backward), when the file says.
+    extra : dict
+        Reader-specific details.
+    """
+
+    name: str
+    key: Any = None
+    unit: str = ""
+    direction: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def is_height(self) -> bool:
+        """Whether the channel is topography: a length unit and a height-like name."""
+        return is_length_unit(self.unit) and looks_like_height(self.name)
+
+
+_HEIGHT_RE = re.compile(r"(^|[^a-z])(z|height|topograph|topo|zsensor)", re.IGNORECASE)
+
+
+def looks_like_height(name: str) -> bool:
+    """True for channel names such as ``Z``, ``Z raw``, ``R-Z C``, ``HeightRetrace``, ``Topography``."""
+    return bool(_HEIGHT_RE.search(name.replace("_", " ")))
+
+
+def direction_from_name(name: str) -> str | None:
+    """``"backward"`` for retrace/backward names (and neaspec's ``R-`` prefix), ``"forward"`` for trace/forward."""
+    s = name.lower()
+    if "retrace" in s or "backward" in s or s.startswith("r-"):
+        return "backward"
+    if "trace" in s or "forward" in s:
+        return "forward"
+    return None
+
+
+def select_channel(path: Path | str, channels: Sequence[Channel], requested: str | None) -> Channel:
+    """Pick the channel the user asked for, or the default topography channel.
+
+    Default: the first height channel recorded forward (trace); else the first height channel
+    without a direction; else the first height channel recorded backward (retrace); a file with a
+    single channel gives that channel. A requested name is matched case-insensitively, first
+    exactly, then on the name without its ``" (direction)"`` suffix when that is unique.
+
+    Raises
+    ------
+    ChannelNotFound
+        The name is not in the file, or no channel is topography; the message lists the channels.
+    """
+    if not channels:
+        raise CorruptScan(f"{path}: the file holds no image channel")
+    names = [c.name for c in channels]
+    if requested is not None:
+        want = str(requested).strip().lower()
+        for c in channels:
+            if c.name.lower() == want:
+                return c
+        base = [c for c in channels if c.name.split(" (")[0].lower() == want]
+        if len(base) == 1:
+            return base[0]
+        if len(base) > 1:
+            raise ChannelNotFound(
+                f"channel {requested!r} is ambiguous in {path}: it matches {[c.name for c in base]}; "
+                f"name one of them exactly (channels: {names})"
+            )
+        raise ChannelNotFound(f"channel {requested!r} is not in {path}; the channels are: {names}")
+    if len(channels) == 1:
+        return channels[0]
+    heights = [c for c in channels if c.is_height]
+    for wanted in ("forward", None, "backward"):
+        for c in heights:
+            if c.direction == wanted:
+                return c
+    raise ChannelNotFound(
+        f"{path} has no height/topography channel (a length unit and a name like Z/Height/Topography); "
+        f"name the one to load with channel=...; the channels are: {names}"
+    )
+
+
+# --------------------------------------------------------------------------------------- units
+_PREFIX = {
+    "Y": 1e24, "Z": 1e21, "E": 1e18, "P": 1e15, "T": 1e12, "G": 1e9, "M": 1e6, "k": 1e3,
+    "h": 1e2, "da": 1e1, "d": 1e-1, "c": 1e-2, "m": 1e-3, "u": 1e-6, "\u00b5": 1e-6, "\u03bc": 1e-6,
+    "~": 1e-6, "n": 1e-9, "p": 1e-12, "f": 1e-15, "a": 1e-18, "z": 1e-21, "y": 1e-24,
+}
+_BASE_UNITS = ("m", "V", "A", "N", "Hz", "s", "deg", "rad", "W", "F", "Pa", "S", "Ohm", "%", "")
+
+
+def parse_unit(unit: str) -> tuple[float, str]:
+    """Split a unit string into (factor to SI, SI base unit): ``"nm" -> (1e-9, "m")``.
+
+    Handles the SI prefixes, ``µ``/``u``/``~`` for micro (NanoScope writes ``~m``), ``Å``,
+    ``um``-style spellings and a leading power of ten (``"1e-9 m"``). Unknown units come back
+    with factor 1 and the string unchanged.
+
+    Example
+    -------
+    >>> parse_unit("~m")
+    (1e-06, 'm')
+    """
+    u = (unit or "").strip()
+    factor = 1.0
+    m = re.match(r"^([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)\s*(.*)$", u)
+    if m and m.group(2):
+        factor = float(m.group(1))
+        u = m.group(2).strip()
+    if u in ("\u00c5", "\u212b", "Angstrom", "angstrom", "Ang"):
+        return factor * 1e-10, "m"
+    if u in ("deg", "\u00b0", "\u00ba", "degree", "degrees"):
+        return factor, "deg"
+    if u in _BASE_UNITS or u in ("Ohm",):
+        return factor, u
+    for base in ("Hz", "Pa", "Ohm", "rad", "m", "V", "A", "N", "s", "W", "F", "S"):
+        if u.endswith(base) and len(u) > len(base):
+            prefix = u[: -len(base)]
+            if prefix in _PREFIX:
+                return factor * _PREFIX[prefix], base
+    return factor, u
+
+
+def is_length_unit(unit: str) -> bool:
+    """True when the unit is a length (m with any prefix, Å)."""
+    return parse_unit(unit)[1] == "m"
+
+
+# ------------------------------------------------------------------------------ binary helpers
+def check_shape(path: Path | str, nx: int, ny: int) -> None:
+    """Reject non-positive or absurd image sizes read from a header."""
+    if not (isinstance(nx, (int, np.integer)) and isinstance(ny, (int, np.integer))):
+        raise CorruptScan(f"{path}: image size is not an integer ({nx!r} x {ny!r})")
+    if nx < 1 or ny < 1 or nx * ny > MAX_PIXELS:
+        raise CorruptScan(
+            f"{path}: the header gives an image of {nx} x {ny} pixels, which is not a valid size "
+            "(truncated or corrupt header)"
+        )
+
+
+def take(path: Path | str, buf: bytes | memoryview, offset: int, nbytes: int, what: str) -> memoryview:
+    """``buf[offset:offset+nbytes]`` or :class:`CorruptScan` saying the file is too short."""
+    if offset < 0 or nbytes < 0 or offset + nbytes > len(buf):
+        raise CorruptScan(
+            f"{path}: {what} needs bytes {offset}..{offset + nbytes} but the file has {len(buf)} bytes "
+            "(truncated or corrupt file)"
+        )
+    return memoryview(buf)[offset : offset + nbytes]
+
+
+def frombuffer(path, buf, offset: int, dtype, count: int, what: str) -> np.ndarray:
+    """A bounds-checked ``np.frombuffer`` returning a float64 copy."""
+    dt = np.dtype(dtype)
+    raw = take(path, buf, offset, dt.itemsize * count, what)
+    return np.frombuffer(raw, dtype=dt, count=count).astype(np.float64)
+
+
+def parse_float(path, text: str, what: str) -> float:
+    """``float(text)`` or :class:`CorruptScan` naming the field."""
+    try:
+        value = float(str(text).strip().replace(",", "."))
+    except (TypeError, ValueError):
+        raise CorruptScan(f"{path}: {what} is not a number (got {text!r})") from None
+    return value
+
+
+def parse_int(path, text: str, what: str) -> int:
+    """``int(text)`` or :class:`CorruptScan` naming the field."""
+    try:
+        return int(str(text).strip())
+    except (TypeError, ValueError):
+        try:
+            f = float(str(text).strip())
+        except (TypeError, ValueError):
+            raise CorruptScan(f"{path}: {what} is not an integer (got {text!r})") from None
+        if not f.is_integer():
+            raise CorruptScan(f"{path}: {what} is not an integer (got {text!r})") from None
+        return int(f)
+
+
+def positive_length(path, value: float, what: str) -> float:
+    """Check a physical size read from a header is a positive finite number."""
+    v = float(value)
+    if not (np.isfinite(v) and v > 0.0):
+        raise CorruptScan(f"{path}: {what} must be a positive length (got {value!r})")
+    return v
+
+
+def tiff_first_ifd_tags(head: bytes) -> dict[int, tuple[int, int, bytes]]:
+    """Tags of the first TIFF directory found in ``head``: ``{code: (type, count, 4 value bytes)}``.
+
+    Only classic TIFF; returns ``{}`` when ``head`` is not a TIFF or the directory lies past it.
+    Used by the sniffers to tell JPK and Park TIFFs apart without a TIFF library.
+    """
+    if len(head) < 8 or head[:4] not in (b"II*\x00", b"MM\x00*"):
+        return {}
+    bo = "<" if head[:2] == b"II" else ">"
+    (off,) = struct.unpack(bo + "I", head[4:8])
+    if off + 2 > len(head):
+        return {}
+    (n,) = struct.unpack(bo + "H", head[off : off + 2])
+    tags = {}
+    for i in range(n):
+        p = off + 2 + 12 * i
+        if p + 12 > len(head):
+            break
+        code, typ, count = struct.unpack(bo + "HHI", head[p : p + 8])
+        tags[code] = (typ, count, head[p + 8 : p + 12])
+    return tags
+
+
+def flip_rows(a: np.ndarray) -> np.ndarray:
+    """Reverse the row order (top-first storage -> row 0 at the bottom)."""
+    return np.ascontiguousarray(a[::-1, :])
+
+
+def jsonable(value: Any) -> Any:
+    """Metadata values made JSON-friendly (numpy scalars/arrays, bytes, tuples)."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, bytes):
+        return value.decode("latin-1")
+    if isinstance(value, float) or isinstance(value, (int, str, bool)) or value is None:
+        return value
+    return str(value)
+
+
+def make_scan(
+    path: Path | str,
+    fmt: str,
+    data: np.ndarray,
+    dx: float,
+    dy: float,
+    chan: Channel,
+    channels: Sequence[Channel],
+    *,
+    rows_flipped: bool,
+    z_factor: float | None = None,
+    z_unit: str | None = None,
+    instrument: dict | None = None,
+    extra: dict | None = None,
+):
+    """Build the :class:`Scan` a reader returns, with the metadata every reader fills.
+
+    ``data`` is the channel in file units, already in the project orientation (row 0 = bottom).
+    It is multiplied by ``z_factor`` (default: the SI factor of ``chan.unit``), infinite pixels
+    become NaN (missing), and ``metadata`` gets ``format``, ``channels``, ``direction``,
+    ``z_unit``, ``rows_flipped``, ``row0`` (always ``"bottom"``), ``nan_count`` and ``instrument``.
+    """
+    from arsurf.scan.scan import Scan
+
+    if z_factor is None:
+        z_factor, base = parse_unit(chan.unit)
+        z_unit = base if z_unit is None else z_unit
+    h = np.asarray(data, dtype=np.float64) * float(z_factor)
+    if h.ndim != 2:
+        raise CorruptScan(f"{path}: channel {chan.name!r} is not a 2-D image (shape {h.shape})")
+    bad = ~np.isfinite(h)
+    inf_count = int(np.isinf(h).sum())
+    if inf_count:
+        h = np.where(np.isinf(h), np.nan, h)
+    dx = positive_length(path, dx, "the x pixel spacing")
+    dy = positive_length(path, dy, "the y pixel spacing")
+    meta: dict[str, Any] = {
+        "format": fmt,
+        "channels": [c.name for c in channels],
+        "direction": chan.direction,
+        "z_unit": z_unit if z_unit is not None else parse_unit(chan.unit)[1],
+        "file_z_unit": chan.unit,
+        "row0": "bottom",
+        "rows_flipped": bool(rows_flipped),
+        "nan_count": int(bad.sum()),
+        "inf_count": inf_count,
+        "instrument": jsonable(instrument or {}),
+    }
+    if extra:
+        meta.update(jsonable(extra))
+    return Scan(h, dx=dx, dy=dy, channel=chan.name, metadata=meta, source=str(path))
