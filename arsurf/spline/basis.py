@@ -51,8 +51,33 @@ def cubic_basis(knots, i, u):
     """Values, first and second derivatives of the 4 cubic basis functions nonzero on span i.
 
     Returns a 12-tuple (N0..N3, dN0..dN3, ddN0..ddN3) for N_{i-3} .. N_i at u.
+    Interior spans (all six knots involved equally spaced) use the uniform closed form in
+    t = (u - t_i)/h: N = ((1-t)^3, 3t^3 - 6t^2 + 4, -3t^3 + 3t^2 + 3t + 1, t^3)/6, which needs
+    no division; the three spans at each clamped end use the general triangle.
     """
     t = knots
+    n = knots.size - 4
+    if 5 <= i <= n - 3:
+        h = t[i + 1] - t[i]
+        ih = 1.0 / h
+        s = (u - t[i]) * ih
+        s2 = s * s
+        s3 = s2 * s
+        r = 1.0 - s
+        sixth = 1.0 / 6.0
+        ih2 = ih * ih
+        return (r * r * r * sixth,
+                (3.0 * s3 - 6.0 * s2 + 4.0) * sixth,
+                (-3.0 * s3 + 3.0 * s2 + 3.0 * s + 1.0) * sixth,
+                s3 * sixth,
+                -0.5 * r * r * ih,
+                (1.5 * s2 - 2.0 * s) * ih,
+                (-1.5 * s2 + s + 0.5) * ih,
+                0.5 * s2 * ih,
+                r * ih2,
+                (3.0 * s - 2.0) * ih2,
+                (-3.0 * s + 1.0) * ih2,
+                s * ih2)
     L1 = u - t[i]
     L2 = u - t[i - 1]
     L3 = u - t[i - 2]
@@ -115,45 +140,86 @@ def basis_row(knots, u, out):
 
 @njit(cache=True)
 def surface_point(ctrl, ku, kv, u, v, order, out):
-    """Evaluate S and its derivatives up to ``order`` (0, 1, 2) at (u, v) into ``out`` (6, 3).
+    """Evaluate S and its derivatives up to ``order`` (0, 1, 2) at (u, v) into ``out`` (>= rows, 3).
 
     Rows of ``out``: S, S_u, S_v, S_uu, S_uv, S_vv (rows beyond ``order`` are left untouched).
+    Accumulates in scalars (no aliasing through ``out``), one pass over the 4x4 patch.
     """
     u = clamp(u, ku)
     v = clamp(v, kv)
-    iu = find_span(ku, u)
-    iv = find_span(kv, v)
-    bu = cubic_basis(ku, iu, u)
-    bv = cubic_basis(kv, iv, v)
-    nrow = 1 if order == 0 else (3 if order == 1 else 6)
-    for r in range(nrow):
-        for c in range(3):
-            out[r, c] = 0.0
-    for a in range(4):
-        nu0 = bu[a]
-        nu1 = bu[4 + a]
-        nu2 = bu[8 + a]
-        for b in range(4):
-            nv0 = bv[b]
-            p = ctrl[iu - 3 + a, iv - 3 + b]
-            w00 = nu0 * nv0
-            for c in range(3):
-                out[0, c] += w00 * p[c]
+    iu = find_span(ku, u) - 3
+    iv = find_span(kv, v) - 3
+    bu = cubic_basis(ku, iu + 3, u)
+    bv = cubic_basis(kv, iv + 3, v)
+    x0 = y0 = z0 = 0.0
+    xu = yu = zu = xv = yv = zv = 0.0
+    xuu = yuu = zuu = xuv = yuv = zuv = xvv = yvv = zvv = 0.0
+    for b in range(4):
+        j = iv + b
+        # contract along u first: row sums with the u-basis, per derivative order
+        r0x = r0y = r0z = r1x = r1y = r1z = r2x = r2y = r2z = 0.0
+        for a in range(4):
+            i = iu + a
+            px = ctrl[i, j, 0]
+            py = ctrl[i, j, 1]
+            pz = ctrl[i, j, 2]
+            n0 = bu[a]
+            r0x += n0 * px
+            r0y += n0 * py
+            r0z += n0 * pz
             if order >= 1:
-                nv1 = bv[4 + b]
-                w10 = nu1 * nv0
-                w01 = nu0 * nv1
-                for c in range(3):
-                    out[1, c] += w10 * p[c]
-                    out[2, c] += w01 * p[c]
+                n1 = bu[4 + a]
+                r1x += n1 * px
+                r1y += n1 * py
+                r1z += n1 * pz
                 if order >= 2:
-                    w20 = nu2 * nv0
-                    w11 = nu1 * nv1
-                    w02 = nu0 * bv[8 + b]
-                    for c in range(3):
-                        out[3, c] += w20 * p[c]
-                        out[4, c] += w11 * p[c]
-                        out[5, c] += w02 * p[c]
+                    n2 = bu[8 + a]
+                    r2x += n2 * px
+                    r2y += n2 * py
+                    r2z += n2 * pz
+        m0 = bv[b]
+        x0 += m0 * r0x
+        y0 += m0 * r0y
+        z0 += m0 * r0z
+        if order >= 1:
+            m1 = bv[4 + b]
+            xu += m0 * r1x
+            yu += m0 * r1y
+            zu += m0 * r1z
+            xv += m1 * r0x
+            yv += m1 * r0y
+            zv += m1 * r0z
+            if order >= 2:
+                m2 = bv[8 + b]
+                xuu += m0 * r2x
+                yuu += m0 * r2y
+                zuu += m0 * r2z
+                xuv += m1 * r1x
+                yuv += m1 * r1y
+                zuv += m1 * r1z
+                xvv += m2 * r0x
+                yvv += m2 * r0y
+                zvv += m2 * r0z
+    out[0, 0] = x0
+    out[0, 1] = y0
+    out[0, 2] = z0
+    if order >= 1:
+        out[1, 0] = xu
+        out[1, 1] = yu
+        out[1, 2] = zu
+        out[2, 0] = xv
+        out[2, 1] = yv
+        out[2, 2] = zv
+        if order >= 2:
+            out[3, 0] = xuu
+            out[3, 1] = yuu
+            out[3, 2] = zuu
+            out[4, 0] = xuv
+            out[4, 1] = yuv
+            out[4, 2] = zuv
+            out[5, 0] = xvv
+            out[5, 1] = yvv
+            out[5, 2] = zvv
 
 
 @njit(cache=True)
