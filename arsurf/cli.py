@@ -1,0 +1,158 @@
+"""The ``arsurf`` command: ``arsurf <subcommand> ...`` (``arsurf --help`` lists them).
+
+Units at this edge: lengths on the command line are in nanometres (flags end in ``-nm``),
+forces in nanonewtons; everything inside is SI.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from arsurf.errors import ArsurfError
+
+
+def _scan_summary(scan) -> dict:
+    finite = scan.heights[np.isfinite(scan.heights)]
+    ny, nx = scan.shape
+    return {
+        "file": scan.source,
+        "format": scan.metadata.get("format"),
+        "channel": scan.channel,
+        "channels": scan.metadata.get("channels"),
+        "pixels": f"{nx} x {ny}",
+        "pixel_size_nm": [scan.dx * 1e9, scan.dy * 1e9],
+        "physical_size_nm": [nx * scan.dx * 1e9, ny * scan.dy * 1e9],
+        "z_min_nm": float(finite.min() * 1e9) if finite.size else None,
+        "z_max_nm": float(finite.max() * 1e9) if finite.size else None,
+        "z_range_nm": float(np.ptp(finite) * 1e9) if finite.size else None,
+        "nan_pixels": scan.nan_count,
+        "units": {"stored": scan.metadata.get("z_unit_in_file", scan.metadata.get("z_unit")), "reported": "nm"},
+    }
+
+
+def _print(obj: dict, as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(obj, indent=2, default=str))
+        return
+    width = max(len(k) for k in obj)
+    for key, value in obj.items():
+        if isinstance(value, float):
+            value = f"{value:.6g}"
+        elif isinstance(value, list) and value and isinstance(value[0], float):
+            value = " x ".join(f"{v:.6g}" for v in value)
+        print(f"{key:<{width}}  {value}")
+
+
+def cmd_info(args) -> int:
+    from arsurf.scan.io import load_scan
+
+    scan = load_scan(args.scan, channel=args.channel)
+    _print(_scan_summary(scan), args.json)
+    return 0
+
+
+def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True):
+    """load -> inpaint NaN (optional) -> level -> smooth: the front of the pipeline."""
+    from arsurf.scan.io import load_scan
+    from arsurf.scan.level import level
+    from arsurf.scan.smooth import smooth
+
+    scan = load_scan(path, channel=channel)
+    if scan.nan_count and inpaint:
+        from arsurf.scan.inpaint import inpaint as fill
+
+        scan = fill(scan)
+    if level_method and level_method != "none":
+        scan = level(scan, level_method)
+    if sigma > 0.0:
+        scan = smooth(scan, sigma)
+    return scan
+
+
+def cmd_fit(args) -> int:
+    from arsurf.spline.fit import fit_surface
+    from arsurf.spline.storage import save_surface
+
+    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint)
+    t0 = time.perf_counter()
+    control = tuple(args.control) if args.control else None
+    surface = fit_surface(scan, control_shape=control, smoothing=args.smoothing)
+    elapsed = time.perf_counter() - t0
+    xx, yy = np.meshgrid(scan.x, scan.y)
+    resid = surface.evaluate(xx, yy)[..., 2] - scan.heights
+    out = save_surface(surface, args.output, metadata={"scan": str(args.scan), "history": scan.history})
+    _print({
+        "scan": str(args.scan),
+        "processing": " -> ".join(step.get("operation", step.get("method", "?")) for step in scan.history) or "none",
+        "control_points": f"{surface.shape[0]} x {surface.shape[1]}",
+        "fit_time_ms": elapsed * 1e3,
+        "rms_residual_nm": float(np.sqrt(np.mean(resid**2)) * 1e9),
+        "max_residual_nm": float(np.abs(resid).max() * 1e9),
+        "written": str(out),
+    }, args.json)
+    return 0
+
+
+def cmd_synth(args) -> int:
+    from arsurf.scan.synthetic import write_demo_scans
+
+    for path in write_demo_scans(args.out):
+        print(path)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="arsurf", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range")
+    s.add_argument("scan")
+    s.add_argument("--channel", help="channel name (default: topography/height)")
+    s.add_argument("--json", action="store_true", help="print JSON")
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("fit", help="level, smooth and fit a bicubic B-spline; write it as .npz")
+    s.add_argument("scan")
+    s.add_argument("-o", "--output", required=True, help="output surface file (.npz)")
+    s.add_argument("--channel")
+    s.add_argument("--level", default="plane",
+                   help="plane | plane-robust | polynomial | rows-median | rows-trimmed | scars | none")
+    s.add_argument("--sigma-nm", type=float, default=0.0, help="Gaussian smoothing width in nm (0: none)")
+    s.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
+    s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
+    s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_fit)
+
+    s = sub.add_parser("synth", help="write the synthetic demo scans (gratings, tubes, particles...)")
+    s.add_argument("--out", default="scans")
+    s.set_defaults(func=cmd_synth)
+
+    for register in _EXTRA_COMMANDS:
+        register(sub)
+    return p
+
+
+#: later pipeline stages add their subcommands here (demo, replay, view, export)
+_EXTRA_COMMANDS: list = []
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ArsurfError as exc:
+        print(f"arsurf {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # pragma: no cover
+        print(f"arsurf {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
