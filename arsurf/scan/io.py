@@ -204,8 +204,10 @@ def load_scan(
     except RecursionError as exc:
         raise CorruptScan(f"{path}: cannot be read as {fmt}: structure nested too deeply (corrupt file)") from exc
     except Exception as exc:  # third-party parsers raise anything on damaged files: wrap it
+        text = str(exc)
+        text = text if len(text) <= 200 else text[:200] + "..."
         raise CorruptScan(
-            f"{path}: cannot be read as {fmt} ({type(exc).__name__}: {exc}); the file is truncated or corrupt"
+            f"{path}: cannot be read as {fmt} ({type(exc).__name__}: {text}); the file is truncated or corrupt"
         ) from exc
     finite = int(np.isfinite(scan.heights).sum())
     if finite == 0:

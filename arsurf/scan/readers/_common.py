@@ -13,6 +13,8 @@ Readers raise only :class:`arsurf.errors.ScanError` subclasses for bad files;
 """
 from __future__ import annotations
 
+import contextlib
+import logging
 import re
 import struct
 from dataclasses import dataclass, field
@@ -324,3 +326,15 @@ def make_scan(
     if extra:
         meta.update(jsonable(extra))
     return Scan(h, dx=dx, dy=dy, channel=chan.name, metadata=meta, source=str(path))
+
+
+@contextlib.contextmanager
+def quiet_logger(name: str):
+    """Silence a library's logger below ERROR for the duration (restores its level after)."""
+    logger = logging.getLogger(name)
+    old = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(old)

@@ -2,12 +2,12 @@
 
 Library: our own bounds-checked parser of the GWY serialisation, cross-checked against
 ``gwyfile`` on the real 58-channel file in the tests (every channel identical).
-Why not ``gwyfile.load``: it is correct on good files but not safe on damaged ones. A string
-array (type ``S``) takes its item count from the file and loops that many times even past the
-end of the buffer (``buf.find`` returns -1 and the loop restarts at offset 0), so one flipped
-bit in a count makes it loop for up to 2**32 iterations while growing a list; a flipped type
-code ``s`` -> ``S`` (a single bit, 0x73 -> 0x53) is enough. It also copies the remaining
-buffer at every component (``buf[component_size:]``), which is quadratic in the file size.
+Why not ``gwyfile.load``: it is correct on good files but not on damaged ones. A string
+array (type ``S``) takes its item count from the file and, once past the end of the buffer,
+``buf.find`` returns -1 and the loop restarts at offset 0: it then either loops up to that count
+(2**32 at worst) or fails with an unrelated ``UnicodeDecodeError``; a single flipped bit turns a
+string ``s`` into ``S`` (0x73 -> 0x53), which we checked on the real file. It also copies the
+remaining buffer at every component (``buf[component_size:]``), quadratic in the file size.
 
 Format (gwyddion.net, "Gwyddion native file format"): magic ``GWYP``, then one serialised
 object: ``name\\0``, uint32 size, components; a component is ``name\\0``, a type character and

@@ -31,6 +31,7 @@ from arsurf.scan.readers._common import (
     check_shape,
     flip_rows,
     make_scan,
+    quiet_logger,
     select_channel,
     tiff_first_ifd_tags,
 )
@@ -83,7 +84,7 @@ def read(path: Path | str, channel: str | None = None):
     ``"height (retrace)"``, ``"measuredHeight (trace)"``.
     """
     tifffile = require("tifffile", "formats", "reading JPK .jpk images")
-    with tifffile.TiffFile(str(path)) as tif:
+    with quiet_logger("tifffile"), tifffile.TiffFile(str(path)) as tif:
         pages = list(tif.pages)
         if len(pages) < 2:
             raise CorruptScan(f"{path}: a JPK image needs a thumbnail page and at least one channel page")

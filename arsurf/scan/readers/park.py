@@ -28,6 +28,7 @@ from arsurf.scan.readers._common import (
     Channel,
     check_shape,
     make_scan,
+    quiet_logger,
     parse_unit,
     select_channel,
     tiff_first_ifd_tags,
@@ -66,7 +67,7 @@ def _as_bytes(value) -> bytes:
 def read(path: Path | str, channel: str | None = None):
     """Read the height image of a Park Systems TIFF (one channel per file)."""
     tifffile = require("tifffile", "formats", "reading Park Systems TIFF files")
-    with tifffile.TiffFile(str(path)) as tif:
+    with quiet_logger("tifffile"), tifffile.TiffFile(str(path)) as tif:
         tags = tif.pages[0].tags
         magic = tags.get(TAG_MAGIC)
         if magic is None or magic.value != MAGIC_NUMBER:
