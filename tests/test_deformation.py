@@ -1,0 +1,114 @@
+"""Control-net dents: on the sphere inside the contact radius, nothing inside the tip, local, reversible."""
+import numpy as np
+import pytest
+
+from arsurf.contact.deformation import Deformer
+from arsurf.errors import ContactError
+from arsurf.scan.scan import Scan
+from arsurf.spline.fit import fit_surface
+from arsurf.spline.surface import BSplineSurface
+
+H = 4e-9  # net spacing (the issue's 4 nm grid)
+
+
+@pytest.fixture
+def flat():
+    return BSplineSurface.from_heights(np.zeros((103, 103)), (0.0, 100 * H), (0.0, 100 * H))
+
+
+def _rho(points, c, n):
+    rel = points - c
+    s = rel @ n
+    return np.linalg.norm(rel - s[..., None] * n, axis=-1), s
+
+
+@pytest.mark.parametrize("R, depth, a", [(20e-9, 2e-9, 10e-9), (50e-9, 5e-9, 30e-9), (5e-9, 1e-9, 4e-9)])
+def test_points_within_contact_radius_lie_on_the_sphere_and_none_inside(flat, R, depth, a):
+    c = np.array([200e-9 + 1.3e-9, 200e-9 - 0.7e-9, R - depth])
+    n = np.array([0.0, 0.0, 1.0])
+    res = Deformer(flat).apply(c, R, n, a)
+    P = flat.control_points.reshape(-1, 3)
+    P0 = flat.rest_control_points.reshape(-1, 3)
+    rho, _ = _rho(P0, c, n)
+    dist = np.linalg.norm(P - c, axis=1)
+    inner = rho < a
+    np.testing.assert_allclose(dist[inner], R, rtol=1e-12)          # adhered zone on the sphere
+    assert dist.min() >= R * (1 - 1e-12)                              # nothing inside the tip
+    moved = np.any(P != P0, axis=1)
+    assert moved.sum() == res.moved > 0
+    # the dent's rim: the largest radial distance of a moved point is max(a, geometric radius)
+    geometric = np.sqrt(2 * R * depth - depth**2)
+    assert abs(rho[moved].max() - max(a, geometric)) <= np.sqrt(2) * H
+
+
+def test_points_outside_the_patch_are_bitwise_unchanged_and_cost_is_local(flat):
+    before = flat.control_points.copy()
+    d = Deformer(flat)
+    res = d.apply((150e-9, 150e-9, 18e-9), 20e-9, (0, 0, 1), 12e-9)
+    i0, i1, j0, j1 = res.patch
+    assert (i1 - i0) * (j1 - j0) <= (2 * 20e-9 / H + 5) ** 2            # O((2R/h)^2), not O(net)
+    mask = np.ones(flat.shape, bool)
+    mask[i0:i1, j0:j1] = False
+    assert np.array_equal(flat.control_points[mask], before[mask])
+
+
+def test_moving_tip_leaves_no_trace_and_release_restores_bitwise(flat):
+    d = Deformer(flat)
+    for x in np.linspace(100e-9, 300e-9, 25):
+        d.apply((x, 200e-9, 17e-9), 20e-9, (0, 0, 1), 10e-9)
+    # only the last dent remains
+    P = flat.control_points
+    moved = np.argwhere(np.any(P != flat.rest_control_points, axis=2))
+    assert np.all(np.abs(flat.rest_control_points[moved[:, 0], moved[:, 1], 0] - 300e-9) < 20e-9 + H)
+    d.release()
+    assert np.array_equal(flat.control_points, flat.rest_control_points) and not flat.is_deformed
+
+
+def test_tilted_normal_and_adhesive_neck_pulls_points_up(rng):
+    y, x = np.mgrid[0:60, 0:60] * H
+    s = fit_surface(Scan(0.3 * x + rng.normal(size=x.shape) * 0.1e-9, dx=H, dy=H))
+    n = np.array([-0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0)
+    foot = np.array([120e-9, 120e-9, 0.3 * 120e-9])
+    R, a = 20e-9, 8e-9
+    c = foot + n * (R + 1e-9)  # tip 1 nm ABOVE the surface: only adhesion (a > 0) holds the neck
+    d = Deformer(s)
+    d.apply(c, R, n, a)
+    P, P0 = s.control_points, s.rest_control_points
+    rho, sax = _rho(P0.reshape(-1, 3), c, n)
+    inner = rho < a
+    assert inner.any()
+    lifted = (P.reshape(-1, 3) - P0.reshape(-1, 3))[inner] @ n
+    assert np.all(lifted > 0)                                            # pulled towards the tip
+    np.testing.assert_allclose(np.linalg.norm(P.reshape(-1, 3)[inner] - c, axis=1), R, rtol=1e-12)
+
+
+def test_approach_retract_cycle_returns_to_rest(flat):
+    d = Deformer(flat)
+    for z in np.r_[np.linspace(25e-9, 15e-9, 11), np.linspace(15e-9, 25e-9, 11)]:
+        a = np.sqrt(max(20e-9 * (20e-9 - z), 0.0))  # Hertz-like radius from the depth
+        d.apply((200e-9, 200e-9, z), 20e-9, (0, 0, 1), a)
+    assert not flat.is_deformed  # tip 5 nm above at the end: nothing touched
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"radius": -1e-9}, "radius` must be positive"),
+        ({"radius": 0.0}, "radius` must be positive"),
+        ({"contact_radius": np.nan}, "contact_radius"),
+        ({"normal": (0, 0, 2)}, "unit vector"),
+        ({"center": (np.nan, 0, 0)}, "center` must be finite"),
+    ],
+)
+def test_bad_input(flat, kwargs, match):
+    args = {"center": (100e-9, 100e-9, 10e-9), "radius": 20e-9, "normal": (0, 0, 1), "contact_radius": 5e-9}
+    args.update(kwargs)
+    with pytest.raises(ContactError, match=match):
+        Deformer(flat).apply(**args)
+
+
+def test_refuses_a_net_that_is_not_a_height_field(flat):
+    ctrl = flat.control_points.copy()
+    ctrl[5, 5, 0] += 1e-10
+    with pytest.raises(ContactError, match="height-field net"):
+        Deformer(BSplineSurface(ctrl, flat.knots_u, flat.knots_v))
