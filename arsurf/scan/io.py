@@ -117,7 +117,7 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
     if text_fmt is not None:
         # a numeric table: the extension decides between XYZ and matrix when it names one
         return ext_fmt if ext_fmt in _TEXT_FORMATS else text_fmt
-    if ext_fmt is not None and ext_fmt not in _TEXT_FORMATS:
+    if ext_fmt is not None:  # the content is silent: trust the extension (the reader says what is wrong)
         return ext_fmt
     known = ", ".join(sorted({e for e in _ext_map() if not e[1:].isdigit()}))
     raise UnknownFormat(

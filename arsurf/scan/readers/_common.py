@@ -196,7 +196,8 @@ def frombuffer(path, buf, offset: int, dtype, count: int, what: str) -> np.ndarr
     """A bounds-checked ``np.frombuffer`` returning a float64 copy."""
     dt = np.dtype(dtype)
     raw = take(path, buf, offset, dt.itemsize * count, what)
-    return np.frombuffer(raw, dtype=dt, count=count).astype(np.float64)
+    with np.errstate(invalid="ignore"):  # signalling-NaN payloads of damaged floats
+        return np.frombuffer(raw, dtype=dt, count=count).astype(np.float64)
 
 
 def parse_float(path, text: str, what: str) -> float:
@@ -330,11 +331,41 @@ def make_scan(
 
 @contextlib.contextmanager
 def quiet_logger(name: str):
-    """Silence a library's logger below ERROR for the duration (restores its level after)."""
+    """Silence a library's logger for the duration (restores its level after).
+
+    tifffile and igor2 log every defect of a damaged file (igor2 logs the whole data buffer);
+    the reader turns those defects into one :class:`CorruptScan` instead.
+    """
     logger = logging.getLogger(name)
     old = logger.level
-    logger.setLevel(logging.ERROR)
+    logger.setLevel(logging.CRITICAL)
     try:
         yield
     finally:
         logger.setLevel(old)
+
+
+def check_tiff_chain(path, filename) -> None:
+    """Walk the directory chain of a classic TIFF and raise :class:`CorruptScan` if it is cut.
+
+    tifffile stops quietly at a directory offset past the end of a truncated file and returns
+    the pages before it, so a truncated multi-page file would silently lose channels.
+    """
+    with open(filename, "rb") as fh:
+        buf = fh.read()
+    if len(buf) < 8 or buf[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise CorruptScan(f"{path}: not a classic TIFF file")
+    bo = "<" if buf[:2] == b"II" else ">"
+    (off,) = struct.unpack(bo + "I", buf[4:8])
+    seen = set()
+    while off:
+        if off in seen or len(seen) > 100000:
+            raise CorruptScan(f"{path}: the TIFF directory chain loops (corrupt file)")
+        seen.add(off)
+        if off + 2 > len(buf):
+            raise CorruptScan(f"{path}: TIFF directory at byte {off} lies past the end ({len(buf)} bytes; truncated)")
+        (n,) = struct.unpack(bo + "H", buf[off : off + 2])
+        end = off + 2 + 12 * n + 4
+        if end > len(buf):
+            raise CorruptScan(f"{path}: TIFF directory at byte {off} runs past the end of the file (truncated)")
+        (off,) = struct.unpack(bo + "I", buf[end - 4 : end])

@@ -31,6 +31,7 @@ from arsurf.scan.readers._common import (
     check_shape,
     direction_from_name,
     make_scan,
+    quiet_logger,
     parse_unit,
     select_channel,
 )
@@ -85,7 +86,8 @@ def read(path: Path | str, channel: str | None = None):
     >>> scan = read("AR_20211011.ibw", channel="ZSensorRetrace")  # doctest: +SKIP
     """
     bw = require("igor2.binarywave", "formats", "reading Igor/Asylum .ibw files")
-    wave = bw.load(str(path))["wave"]
+    with quiet_logger("igor2"):
+        wave = bw.load(str(path))["wave"]
     wh = wave["wave_header"]
     data = np.asarray(wave["wData"])
     if data.ndim not in (2, 3):

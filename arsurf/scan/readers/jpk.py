@@ -29,6 +29,7 @@ from arsurf.errors import CorruptScan, require
 from arsurf.scan.readers._common import (
     Channel,
     check_shape,
+    check_tiff_chain,
     flip_rows,
     make_scan,
     quiet_logger,
@@ -84,6 +85,7 @@ def read(path: Path | str, channel: str | None = None):
     ``"height (retrace)"``, ``"measuredHeight (trace)"``.
     """
     tifffile = require("tifffile", "formats", "reading JPK .jpk images")
+    check_tiff_chain(path, path)
     with quiet_logger("tifffile"), tifffile.TiffFile(str(path)) as tif:
         pages = list(tif.pages)
         if len(pages) < 2:
@@ -108,6 +110,14 @@ def read(path: Path | str, channel: str | None = None):
         slot, mult, off, unit = _slot(path, page)
         ny, nx = page.shape
         check_shape(path, int(nx), int(ny))
+        # tifffile fills strips that lie past the end of a truncated file with zeros: refuse
+        size = tif.filehandle.size
+        ends = [o + c for o, c in zip(page.dataoffsets, page.databytecounts)]
+        if not ends or max(ends) > size or sum(page.databytecounts) < nx * ny * page.dtype.itemsize:
+            raise CorruptScan(
+                f"{path}: channel {chan.name!r} needs bytes up to {max(ends, default=0)} but the file has "
+                f"{size} (truncated)"
+            )
         raw = page.asarray().astype(np.float64)
         reflect = bool(_tag(p0, TAG_REFLECT, 0))
         info = {

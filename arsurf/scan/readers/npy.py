@@ -97,7 +97,7 @@ def read(path: Path | str, channel: str | None = None, *, dx: float | None = Non
 def header_info(scan) -> dict:
     """What the sidecar (npy) or the ``arsurf_meta`` entry (npz) stores besides the heights."""
     return {"dx": scan.dx, "dy": scan.dy, "channel": scan.channel, "source": scan.source,
-            "metadata": jsonable(scan.metadata)}
+            "z_unit": str(scan.metadata.get("z_unit") or "m"), "metadata": jsonable(scan.metadata)}
 
 
 def write(scan, path: Path | str) -> None:

@@ -27,6 +27,7 @@ from arsurf.errors import CorruptScan, require
 from arsurf.scan.readers._common import (
     Channel,
     check_shape,
+    check_tiff_chain,
     make_scan,
     quiet_logger,
     parse_unit,
@@ -67,6 +68,7 @@ def _as_bytes(value) -> bytes:
 def read(path: Path | str, channel: str | None = None):
     """Read the height image of a Park Systems TIFF (one channel per file)."""
     tifffile = require("tifffile", "formats", "reading Park Systems TIFF files")
+    check_tiff_chain(path, path)
     with quiet_logger("tifffile"), tifffile.TiffFile(str(path)) as tif:
         tags = tif.pages[0].tags
         magic = tags.get(TAG_MAGIC)
