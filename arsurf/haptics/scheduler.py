@@ -1,0 +1,384 @@
+"""The servo-loop scheduler: runs ``step(state, inputs, dt)`` at a fixed rate in its own thread.
+
+The loop is split in two (CHAI3D's habit): a pure, deterministic ``step`` that tests run
+thousands of times without sleeping (:meth:`Scheduler.run_ticks`), and this scheduler, which owns
+the thread, the clock and the timing statistics. The scheduler knows nothing of devices or
+physics; per tick it does::
+
+    inputs = source()                 # e.g. device.read_state   (None: inputs = None)
+    output = step(state, inputs, dt)  # the pipeline tick, dt is the nominal period
+    sink(output)                      # e.g. device.command_force (None: ignored)
+    publish snapshot(state, inputs, output) for the viewer   (at most snapshot_rate per second)
+
+**Timing.** Deadlines are absolute, :math:`t_k = t_0 + k\\,T` on :func:`time.perf_counter_ns`, so
+errors do not accumulate. The wait before a deadline is hybrid: ``time.sleep`` until ``spin``
+seconds before it (the OS wakes a sleeper tens of microseconds late), then a busy spin on the
+clock. A tick whose work ends after its own deadline is an *overrun*; deadlines that passed
+entirely are *skipped* (the grid is kept: the next tick starts at once, less than one period late,
+and there is no burst of catch-up ticks). Statistics are kept in
+preallocated ring buffers: compute time per tick, start-to-start period, and jitter (period minus
+nominal).
+
+**Snapshot.** The viewer (30-60 Hz, another thread) reads a consistent copy of what the step
+published: the loop copies the arrays returned by ``snapshot`` into a preallocated buffer under a
+lock, and :meth:`Scheduler.snapshot` copies them out under the same lock, so a reader never sees
+half of one tick and half of the next. The loop only *tries* the lock: if the viewer is copying,
+that tick's publication is skipped (the servo thread never waits for the viewer).
+
+Python caveat: the loop holds the GIL while it runs Python code, and another busy Python thread can
+delay it by up to the interpreter's switch interval (5 ms by default). The scheduler lowers
+:func:`sys.setswitchinterval` to a quarter of the period while it runs (restored on stop), and the
+step should spend its time in compiled kernels, which is what makes 1-10 kHz reachable.
+
+Example
+-------
+>>> import numpy as np
+>>> def step(state, inputs, dt):
+...     state["x"] += dt
+...     return state["x"]
+>>> sched = Scheduler(step, {"x": 0.0}, rate=1000.0, snapshot=lambda s, i, o: {"x": np.array([s["x"]])})
+>>> sched.run_ticks(500)            # deterministic, no sleeping
+>>> snap = sched.snapshot()
+>>> snap.tick, round(float(snap.values["x"][0]), 9)
+(499, 0.5)
+"""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from arsurf.errors import ArsurfError, HapticsError
+
+__all__ = ["LoopError", "Scheduler", "Snapshot", "TimingStats"]
+
+
+class LoopError(ArsurfError):
+    """The step function raised inside the servo thread; the loop stopped (the cause is chained)."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A consistent copy of what one tick published.
+
+    Attributes
+    ----------
+    tick : int
+        Index of the tick that published it.
+    time : float, s
+        Loop time of that tick (seconds since start; ``tick * dt`` in :meth:`Scheduler.run_ticks`).
+    values : dict[str, np.ndarray]
+        Copies of the published arrays.
+    """
+
+    tick: int
+    time: float
+    values: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class TimingStats:
+    """Timing of a scheduler run (over the last ``history`` ticks for the distributions).
+
+    Times in seconds. ``rate`` is the achieved tick rate over the whole run.
+    """
+
+    ticks: int
+    duration: float
+    rate: float
+    nominal_rate: float
+    compute_median: float
+    compute_p99: float
+    compute_max: float
+    period_median: float
+    jitter_p99: float
+    jitter_max: float
+    overruns: int
+    skipped: int
+    snapshots_published: int
+    snapshots_skipped: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return dict(self.__dict__)
+
+
+class Scheduler:
+    """Run ``step(state, inputs, dt)`` at a fixed rate in a thread, with statistics and snapshots.
+
+    Parameters
+    ----------
+    step : callable
+        ``step(state, inputs, dt) -> output``; may mutate ``state`` in place.
+    state : object
+        Passed to every call of ``step`` (and to ``snapshot``).
+    rate : float, Hz
+        Tick rate, 1 to 20000 (default 1000; the seeds' loops run at 1-10 kHz).
+    source : callable, optional
+        ``source() -> inputs`` called at the start of each tick (e.g. ``device.read_state``).
+    sink : callable, optional
+        ``sink(output)`` called after each step (e.g. ``device.command_force``).
+    snapshot : callable, optional
+        ``snapshot(state, inputs, output) -> {name: array}``: what the viewer may read. Names and
+        shapes are fixed by the first call; the arrays are copied, never kept.
+    snapshot_rate : float, Hz
+        Largest publication rate (default 240: enough for a 60 Hz viewer).
+    on_stop : callable, optional
+        ``on_stop()`` called in the loop thread when the loop ends (normally or on an error),
+        e.g. to command zero force.
+    spin : float, s
+        Busy-wait margin before each deadline (default 2e-4 s).
+    history : int
+        Ticks kept for the timing distributions (default 65536).
+
+    Example
+    -------
+    >>> sched = Scheduler(lambda s, i, dt: None, None, rate=1000.0)
+    >>> stats = sched.run_for(0.2)
+    >>> stats.ticks > 150, stats.nominal_rate
+    (True, 1000.0)
+    """
+
+    def __init__(self, step: Callable[[Any, Any, float], Any], state: Any = None, *, rate: float = 1000.0,
+                 source: Callable[[], Any] | None = None, sink: Callable[[Any], Any] | None = None,
+                 snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
+                 snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
+                 spin: float = 2e-4, history: int = 65536) -> None:
+        if not callable(step):
+            raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
+        for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
+            if f is not None and not callable(f):
+                raise HapticsError(f"{name} must be callable or None (got {type(f).__name__})")
+        rate = float(rate)
+        if not (1.0 <= rate <= 20000.0):
+            raise HapticsError(f"rate must be between 1 and 20000 Hz (got {rate!r}); the servo loop runs at 1-10 kHz")
+        snapshot_rate = float(snapshot_rate)
+        if not (snapshot_rate > 0.0 and math.isfinite(snapshot_rate)):
+            raise HapticsError(f"snapshot_rate must be a positive rate in Hz (got {snapshot_rate!r})")
+        spin = float(spin)
+        if not (0.0 <= spin <= 0.01):
+            raise HapticsError(f"spin must be between 0 and 0.01 s (got {spin!r})")
+        if not isinstance(history, int) or history < 16:
+            raise HapticsError(f"history must be an integer >= 16 (got {history!r})")
+        self.step, self.state = step, state
+        self.source, self.sink, self.snapshot_fn, self.on_stop = source, sink, snapshot, on_stop
+        self.rate = rate
+        self.dt = 1.0 / rate
+        self._period_ns = int(round(1e9 / rate))
+        self._spin_ns = int(spin * 1e9)
+        self._snap_every_ns = int(1e9 / snapshot_rate)
+        self._history = history
+        self._compute = np.zeros(history, dtype=np.int64)
+        self._period = np.zeros(history, dtype=np.int64)
+        self._lock = threading.Lock()
+        self._snap_buf: dict[str, np.ndarray] | None = None
+        self._snap_tick = -1
+        self._snap_time = math.nan
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+        self._reset_counters()
+
+    def _reset_counters(self) -> None:
+        self.ticks = 0
+        self.overruns = 0
+        self.skipped = 0
+        self.snapshots_published = 0
+        self.snapshots_skipped = 0
+        self._t_start = 0
+        self._t_end = 0
+        self._last_snap_ns = None
+        self._n_period = 0
+
+    # -- snapshot ---------------------------------------------------------------------------
+    def _publish(self, inputs, output, tick: int, t: float, blocking: bool) -> None:
+        values = self.snapshot_fn(self.state, inputs, output)
+        if not self._lock.acquire(blocking=blocking):
+            self.snapshots_skipped += 1
+            return
+        try:
+            buf = self._snap_buf
+            if buf is None:
+                buf = {}
+                for k, v in values.items():
+                    buf[k] = np.array(v, copy=True)
+                self._snap_buf = buf
+            else:
+                for k, v in values.items():
+                    dst = buf[k]
+                    dst[...] = v
+            self._snap_tick = tick
+            self._snap_time = t
+            self.snapshots_published += 1
+        finally:
+            self._lock.release()
+
+    def snapshot(self) -> Snapshot | None:
+        """A consistent copy of the last published values (None before the first publication)."""
+        with self._lock:
+            if self._snap_buf is None:
+                return None
+            return Snapshot(self._snap_tick, self._snap_time, {k: v.copy() for k, v in self._snap_buf.items()})
+
+    # -- deterministic run --------------------------------------------------------------------
+    def run_ticks(self, n: int) -> None:
+        """Run ``n`` ticks back to back in the calling thread, no clock, no sleeping.
+
+        Every tick publishes its snapshot (time ``tick * dt``). Exceptions from ``step`` propagate.
+        """
+        if self.is_running:
+            raise HapticsError("the scheduler thread is running; stop() it before run_ticks()")
+        if not isinstance(n, (int, np.integer)) or n < 0:
+            raise HapticsError(f"n must be a non-negative integer (got {n!r})")
+        step, dt, source, sink = self.step, self.dt, self.source, self.sink
+        for _ in range(int(n)):
+            inputs = source() if source is not None else None
+            out = step(self.state, inputs, dt)
+            if sink is not None:
+                sink(out)
+            if self.snapshot_fn is not None:
+                self._publish(inputs, out, self.ticks, self.ticks * dt, blocking=True)
+            self.ticks += 1
+
+    # -- threaded run -------------------------------------------------------------------------
+    @property
+    def is_running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> "Scheduler":
+        """Start the loop thread (statistics restart from zero)."""
+        if self.is_running:
+            raise HapticsError("the scheduler is already running")
+        self._reset_counters()
+        self.error = None
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="arsurf-servo", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> TimingStats:
+        """Stop the loop and return its statistics; raises :class:`LoopError` if ``step`` failed."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                raise HapticsError(f"the servo thread did not stop within {timeout} s (a step is blocking)")
+            self._thread = None
+        if self.error is not None:
+            err, self.error = self.error, None
+            raise LoopError(f"step raised {type(err).__name__}: {err}; the servo loop stopped") from err
+        return self.stats()
+
+    def run_for(self, seconds: float) -> TimingStats:
+        """Start, let the loop run for ``seconds`` of wall time, stop; returns the statistics."""
+        self.start()
+        try:
+            deadline = time.perf_counter() + float(seconds)
+            while time.perf_counter() < deadline and self.is_running:
+                time.sleep(min(0.05, max(0.0, deadline - time.perf_counter())))
+        finally:
+            stats = self.stop()
+        return stats
+
+    def __enter__(self) -> "Scheduler":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def elapsed(self) -> float:
+        """Seconds since the loop started (the loop's clock)."""
+        return (time.perf_counter_ns() - self._t_start) * 1e-9
+
+    def _run(self) -> None:
+        old_switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(old_switch, max(1e-5, self.dt / 4.0)))
+        clock = time.perf_counter_ns
+        sleep = time.sleep
+        period = self._period_ns
+        spin = self._spin_ns
+        step, dt, source, sink = self.step, self.dt, self.source, self.sink
+        publish = self.snapshot_fn is not None
+        hist = self._history
+        compute, periods = self._compute, self._period
+        try:
+            t0 = clock()
+            self._t_start = t0
+            deadline = t0
+            last_start = None
+            k = 0
+            while not self._stop.is_set():
+                start = clock()
+                if last_start is not None:
+                    periods[self._n_period % hist] = start - last_start
+                    self._n_period += 1
+                last_start = start
+                inputs = source() if source is not None else None
+                out = step(self.state, inputs, dt)
+                if sink is not None:
+                    sink(out)
+                end = clock()
+                compute[k % hist] = end - start
+                if publish and (self._last_snap_ns is None or end - self._last_snap_ns >= self._snap_every_ns):
+                    self._publish(inputs, out, k, (start - t0) * 1e-9, blocking=False)
+                    self._last_snap_ns = end
+                k += 1
+                self.ticks = k
+                deadline += period
+                now = clock()
+                if now > deadline:  # this tick ended after the next one should have started
+                    self.overruns += 1
+                    missed = (now - deadline) // period
+                    if missed:  # whole periods lost: skip those slots, stay on the grid
+                        self.skipped += int(missed)
+                        deadline += missed * period
+                # hybrid wait: sleep most of it, spin the end
+                remaining = deadline - clock()
+                if remaining > spin:
+                    sleep((remaining - spin) * 1e-9)
+                while clock() < deadline:
+                    pass
+        except BaseException as exc:  # reported by stop()
+            self.error = exc
+        finally:
+            self._t_end = clock()
+            sys.setswitchinterval(old_switch)
+            if self.on_stop is not None:
+                try:
+                    self.on_stop()
+                except BaseException as exc:  # pragma: no cover - reported, never swallowed
+                    if self.error is None:
+                        self.error = exc
+
+    # -- statistics ---------------------------------------------------------------------------
+    def stats(self) -> TimingStats:
+        """Timing statistics of the current or last run."""
+        k = self.ticks
+        end = self._t_end if not self.is_running and self._t_end else time.perf_counter_ns()
+        duration = max(0.0, (end - self._t_start) * 1e-9) if self._t_start else 0.0
+        nc = min(k, self._history)
+        npd = min(self._n_period, self._history)
+        comp = self._compute[:nc] * 1e-9 if nc else np.zeros(1)
+        per = self._period[:npd] * 1e-9 if npd else np.full(1, self.dt)
+        jit = np.abs(per - self.dt)
+        return TimingStats(
+            ticks=k,
+            duration=duration,
+            rate=(k / duration) if duration > 0 else 0.0,
+            nominal_rate=self.rate,
+            compute_median=float(np.median(comp)),
+            compute_p99=float(np.percentile(comp, 99)),
+            compute_max=float(comp.max()),
+            period_median=float(np.median(per)),
+            jitter_p99=float(np.percentile(jit, 99)),
+            jitter_max=float(jit.max()),
+            overruns=self.overruns,
+            skipped=self.skipped,
+            snapshots_published=self.snapshots_published,
+            snapshots_skipped=self.snapshots_skipped,
+        )
