@@ -209,3 +209,15 @@ def test_content_wins_over_a_lying_extension(tmp_path, name, fake):
     a, b = load_scan(src), load_scan(dst)
     assert a.metadata["format"] == b.metadata["format"]
     np.testing.assert_array_equal(a.heights, b.heights)
+
+
+@pytest.mark.parametrize("name, module", [(IBW, "igor2.binarywave"), (JPK, "tifffile"), (PARK, "tifffile")])
+def test_missing_optional_package_names_the_extra(monkeypatch, name, module):
+    import sys
+
+    from arsurf.errors import MissingDependency
+
+    path = real_scan_path(name)
+    monkeypatch.setitem(sys.modules, module, None)  # makes "import module" raise ImportError
+    with pytest.raises(MissingDependency, match=r"pip install 'arsurf\[formats\]'"):
+        load_scan(path)

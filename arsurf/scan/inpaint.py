@@ -109,7 +109,7 @@ def inpaint(scan, mask: np.ndarray | None = None):
     >>> z = np.add.outer(np.arange(4.0), np.arange(5.0)) * 1e-9   # a plane
     >>> z[1, 2] = np.nan
     >>> out = inpaint(Scan(z, dx=1e-9, dy=1e-9))
-    >>> round(out.heights[1, 2] * 1e9, 12)
+    >>> float(round(out.heights[1, 2] * 1e9, 12))
     3.0
     """
     import scipy.sparse as sp

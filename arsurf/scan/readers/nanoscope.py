@@ -37,8 +37,6 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import numpy as np
-
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
     Channel,

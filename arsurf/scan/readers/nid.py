@@ -24,8 +24,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
