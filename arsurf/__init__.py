@@ -33,9 +33,13 @@ _EXPORTS = {
     "level": "arsurf.scan.level",
     "smooth": "arsurf.scan.smooth",
     "inpaint": "arsurf.scan.inpaint",
+    "dropout_mask": "arsurf.scan.inpaint",
+    "detect_format": "arsurf.scan.io",
     # spline
     "BSplineSurface": "arsurf.spline.surface",
     "fit_surface": "arsurf.spline.fit",
+    "save_surface": "arsurf.spline.storage",
+    "load_surface": "arsurf.spline.storage",
     # contact
     "Projection": "arsurf.contact.projection",
     "Contact": "arsurf.contact.projection",
@@ -50,12 +54,16 @@ _EXPORTS = {
     "Material": "arsurf.contact.materials",
     "MATERIALS": "arsurf.contact.materials",
     "effective_modulus": "arsurf.contact.materials",
-    "Deformer": "arsurf.contact.deformation",
     # force
     "Cantilever": "arsurf.force.cantilever",
     "ForceEstimate": "arsurf.force.decoupling",
     "decouple": "arsurf.force.decoupling",
     "decouple_by_motion": "arsurf.force.decoupling",
+    "decouple_many": "arsurf.force.decoupling",
+    "DecouplingFlag": "arsurf.force.decoupling",
+    "Photodiode": "arsurf.force.photodiode",
+    "signal_to_haptic_force_gain": "arsurf.force.scaling",
+    "Deformer": "arsurf.contact.deformation",
 }
 _SUBMODULES = {"synthetic": "arsurf.scan.synthetic"}
 
