@@ -87,7 +87,8 @@ class ReplayDevice(Device):
         if n > 1 and not (np.diff(t) > 0).all():
             i = int(np.argmin(np.diff(t)))
             raise HapticsError(
-                f"t must be strictly increasing (t[{i}] = {t[i]!r} s, t[{i + 1}] = {t[i + 1]!r} s); sort the recording"
+                f"t must be strictly increasing (t[{i}] = {float(t[i])!r} s, t[{i + 1}] = {float(t[i + 1])!r} s); "
+                "sort the recording"
             )
         if buttons is None:
             buttons = np.zeros(n, dtype=np.int64)
