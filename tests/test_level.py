@@ -1,8 +1,6 @@
 """level(): exact planes and polynomials, robustness, row alignment, scars, masks, NaN, real scans."""
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -114,6 +112,14 @@ def test_huber_loss_is_better_than_least_squares_but_tukey_is_best(rng):
                             ("tukey", "plane-robust", {})]
     }
     assert err["tukey"] < 1e-3 * err["huber"] < 1e-3 * err["ls"]
+
+
+def test_robust_fit_that_runs_out_of_iterations_warns_and_says_so(rng):
+    plane, z, out = _plane_with_outliers(rng)
+    z = z + rng.normal(0, 0.3e-9, z.shape)
+    with pytest.warns(RuntimeWarning, match="did not converge in 1 iterations per phase.*raise `max_iter`"):
+        s = level(Scan(z, dx=2e-9, dy=2e-9), "plane-robust", max_iter=1)
+    assert s.history[-1]["converged"] is False and s.history[-1]["iterations"] == 2
 
 
 def test_single_scan_line_levels_to_a_line():
@@ -323,6 +329,17 @@ def test_scar_removal_restores_planted_scars(rng):
     assert step["scars"] == 4 and step["scar_pixels"] == int(changed.sum())
 
 
+def test_scar_removal_with_nan_holes_keeps_them(rng):
+    clean = _smooth_surface(rng)
+    z = clean.copy()
+    z[30, 40:80] += 6e-9
+    z[rng.random(z.shape) < 0.03] = np.nan
+    out = level(Scan(z, dx=1e-9, dy=1e-9), "scars").heights
+    assert np.array_equal(np.isnan(out), np.isnan(z))
+    ok = np.isfinite(z[30, 40:80])
+    assert np.abs(out[30, 40:80][ok] - clean[30, 40:80][ok]).max() < 0.6e-9
+
+
 def test_scar_removal_leaves_a_clean_surface_untouched(rng):
     z = _smooth_surface(rng, noise=0.2e-9)
     out = level(Scan(z, dx=1e-9, dy=1e-9), "scars")
@@ -334,7 +351,7 @@ def test_scar_removal_respects_the_mask_and_min_length(rng):
     clean = _smooth_surface(rng)
     z = clean.copy()
     z[20, 10:50] += 6e-9  # a scar, or a thin tube lying along x: protect it with the mask
-    z[40, 70:75] += 6e-9  # five pixels: shorter than min_length=8
+    z[40, 70:75] += 6e-9  # five pixels: shorter than the default min_length=16
     mask = np.zeros(z.shape, bool)
     mask[19:22, 5:55] = True
     out = level(Scan(z, dx=1e-9, dy=1e-9), "scars", mask=mask)
@@ -424,3 +441,42 @@ def test_jpk_bow_needs_a_polynomial_then_row_alignment():
     assert np.std(plane) > 8e-9  # a plane leaves the bow
     assert np.std(cubic.heights) < 2e-9
     assert np.std(both) < 1.2e-9 and np.ptp(both) < 14e-9  # ~3 nm features left
+
+
+@pytest.mark.realscan
+@pytest.mark.parametrize(
+    "name", ["2018-02-09_1506_PH_dt20nmwindow1_Z_C.gsf", "AR_20211011.ibw", "Park_20210916_034.tiff",
+             "STM_nanonis_generic_4_5.sxm"],
+)
+def test_scar_removal_leaves_real_scans_without_scars_untouched(name):
+    from arsurf.scan.io import load_scan
+
+    rows = level(load_scan(real_scan_path(name)), "rows-median")
+    out = level(rows, "scars")
+    assert out.history[-1]["scar_pixels"] == 0 and np.array_equal(out.heights, rows.heights)
+
+
+@pytest.mark.realscan
+def test_scar_removal_finds_the_two_bad_lines_of_the_pmma_wedge():
+    from arsurf.scan.io import load_scan
+
+    raw = load_scan(real_scan_path("2024-08-21_132732_PH_pmma_wedge_on_gold_thick_1600nm_Z_raw.gsf"))
+    rows = level(raw, "rows-median")
+    out = level(rows, "scars")
+    changed = out.heights != rows.heights
+    per_row = changed.sum(axis=1)
+    assert out.history[-1]["scars"] == 2 and np.count_nonzero(per_row) == 2
+    assert per_row[per_row > 0].min() > 100  # two long partial lines (of 400 px)
+
+
+@pytest.mark.realscan
+def test_thin_real_lines_along_x_are_kept_with_a_smaller_max_width():
+    # the e-beam dose-test lines are ~3 rows thick and run along x: with the default
+    # max_width=3 they look like scars; max_width=2 (or a mask) keeps them
+    from arsurf.scan.io import load_scan
+
+    name = "2022-04-28_1518_PH_trivial_dose1,1_FB_horizontal_interf_synchronize_nanoFTIR_Z.gsf"
+    rows = level(load_scan(real_scan_path(name)), "rows-median")
+    out = level(rows, "scars", max_width=2)
+    assert out.history[-1]["scar_pixels"] == 0
+    assert np.array_equal(np.isnan(out.heights), np.isnan(rows.heights))

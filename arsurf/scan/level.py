@@ -70,10 +70,14 @@ _DEFAULTS: dict[str, Any] = {
     "tuning": None,
     "max_iter": 50,
     "trim": 0.25,
+    # scars: min_length is Gwyddion's default; max_width 3 (Gwyddion: 4) and the thresholds in
+    # robust sigmas were chosen on the real test scans (shared/scans-real): they remove the
+    # Veeco and PMMA-wedge scars and leave the other seven scans untouched, except features
+    # that are themselves <= 3 rows thin along x (slits, lithographic lines)
     "threshold": 6.0,
     "threshold_low": 3.0,
-    "min_length": 8,
-    "max_width": 4,
+    "min_length": 16,
+    "max_width": 3,
 }
 # A reweighting loop has converged when the background moved by less than this fraction of the
 # residual scale (or by less than _CONV_ABS of the height range, the float64 floor).
@@ -115,15 +119,28 @@ def level(
     Row alignment (``"rows-median"``, ``"rows-trimmed"``) estimates the offset between adjacent
     rows as a robust location of the differences :math:`z_{i+1,j} - z_{i,j}` over the columns j
     where both pixels are valid, accumulates the offsets down the image and subtracts them
-    (their mean is zero, so the mean height is kept). Rows that share no valid column with the
-    previous usable row are tied to it by the difference of the row medians.
+    (their mean is zero, so the mean height is kept; Gwyddion also removes their linear trend,
+    which keeps a y tilt for a later plane fit: here the y tilt goes with the row offsets). Rows
+    that share no valid column with the previous usable row are tied to it by the difference of
+    the row medians; rows without any valid pixel get interpolated offsets.
 
-    Scar removal (``"scars"``) compares every pixel with the median of its column window of
-    :math:`2\,\mathrm{max\_width} + 1` rows; pixels whose deviation exceeds ``threshold`` robust
-    standard deviations (``threshold_low`` to extend a streak along x; one- and two-pixel gaps
-    are bridged) and that form runs of at least ``min_length`` pixels along x are replaced by
-    linear interpolation along y between the nearest unmarked pixels above and below. Apply it
-    after row alignment (an unaligned row is one long scar).
+    Scar removal (``"scars"``) looks, in every column, for bands of k <= ``max_width`` rows lying
+    entirely above (or entirely below) both rows that bracket them,
+
+    .. math::
+
+        e = \frac{\min_{band} z - \max(z_{above}, z_{below})}{s_v} \quad\text{(or the
+        mirror for a dip)}, \qquad s_v = 1.4826\,\mathrm{MAD}(z_{i+1,j} - z_{i,j}),
+
+    as Gwyddion's *Mark scars* does, but sign-agnostic and with a robust scale. Pixels with
+    :math:`e \ge` ``threshold`` seed a streak, which extends along x over pixels with
+    :math:`e \ge` ``threshold_low`` (gaps of one or two pixels, where a streak crosses the level
+    of its neighbours, are bridged); streaks shorter than ``min_length`` pixels are dropped. The
+    rest are replaced by linear interpolation along y between the nearest unmarked pixels above
+    and below, and detection repeats on the result (at most 4 passes) until nothing new is
+    found. Apply it after row alignment (an unaligned row is one long scar). A real feature
+    thinner than ``max_width`` rows and lying along x (a thin tube) looks exactly like a scar:
+    protect it with ``mask``.
 
     Parameters
     ----------
@@ -149,12 +166,12 @@ def level(
         ``"rows-trimmed"`` only: fraction cut from EACH end of the sorted differences,
         0 <= trim < 0.5 (default 0.25; 0 is the mean, -> 0.5 the median).
     threshold, threshold_low : float, optional
-        ``"scars"`` only: detection and extension thresholds in robust standard deviations of
-        the deviation from the column median (defaults 6 and 3).
+        ``"scars"`` only: detection and extension thresholds, in robust standard deviations
+        :math:`s_v` of the row-to-row differences (defaults 6 and 3).
     min_length : int, optional
-        ``"scars"`` only: shortest streak along x, pixels (default 8).
+        ``"scars"`` only: shortest streak along x, pixels (default 16).
     max_width : int, optional
-        ``"scars"`` only: widest streak across y, rows (default 4).
+        ``"scars"`` only: widest streak across y, rows (default 3).
 
     Returns
     -------
@@ -549,6 +566,9 @@ def _trimmed_mean(a: np.ndarray, trim: float) -> np.ndarray:
 # Scar removal repeats detection on its own output (a streak only partly replaced can stand out
 # of the interpolated rows next to it) until nothing new is found, at most this many times.
 _SCAR_PASSES = 4
+# Longest gap (pixels along x) inside one streak: where it crosses its neighbours' level, or
+# where NaN pixels leave its score unknown.
+_SCAR_GAP = 2
 
 
 def _remove_scars(z, valid, thr, thr_low, min_len, width):
@@ -606,18 +626,23 @@ def _scar_pass(z, valid, thr, thr_low, min_len, width, sigma):
     eligible = valid  # never mark masked or NaN pixels
     high = (score >= thr) & eligible
     low = (score >= thr_low) & eligible
-    # bridge gaps of one or two pixels along x (a streak that crosses its neighbours' level)
-    low |= ndimage.binary_closing(low, structure=np.ones((1, 3), bool)) & eligible
+    # pixels whose score is unknown (NaN themselves, or next to a NaN row pixel) may link the
+    # parts of a streak when they form short gaps; gaps of one or two pixels are bridged too
+    # (a streak that crosses the level of its neighbours)
+    unknown = ~finite
+    unknown[1:-1] |= ~finite[:-2] | ~finite[2:]
+    link = low | (unknown & (_run_length_x(unknown) <= _SCAR_GAP))
+    link |= ndimage.binary_closing(link, structure=np.ones((1, _SCAR_GAP + 1), bool))
     row = np.zeros((3, 3), bool)
     row[1, :] = True
-    labels, n = ndimage.label(low, structure=row)
+    labels, n = ndimage.label(link, structure=row)
     if n == 0:
         return nothing
     idx = np.arange(1, n + 1)
     lengths = ndimage.sum_labels(np.ones(z.shape), labels, idx)
     seeded = ndimage.maximum(high.astype(np.float64), labels, idx) > 0
     keep = np.concatenate([[False], (lengths >= min_len) & seeded])
-    marked = keep[labels]
+    marked = keep[labels] & eligible
     if not marked.any():
         return nothing
     good = finite & ~marked
@@ -633,3 +658,14 @@ def _scar_pass(z, valid, thr, thr_low, min_len, width, sigma):
     fill = np.where(has_a & has_b, za + t * (zb - za), np.where(has_a, za, zb))
     ok = marked & (has_a | has_b)
     return np.where(ok, fill, z), ok, sigma
+
+
+def _run_length_x(m: np.ndarray) -> np.ndarray:
+    """For each True pixel, the length of its run of True along x (0 elsewhere)."""
+    row = np.zeros((3, 3), bool)
+    row[1, :] = True
+    labels, n = ndimage.label(m, structure=row)
+    if n == 0:
+        return np.zeros(m.shape, np.int64)
+    sizes = np.concatenate([[0], ndimage.sum_labels(np.ones(m.shape), labels, np.arange(1, n + 1))])
+    return sizes[labels].astype(np.int64)
