@@ -493,7 +493,7 @@ def _demo_specs() -> list[tuple[str, Any]]:
         ("nanotubes", lambda: nanotubes((256, 256), 4e-9, diameter=15e-9, count=3, noise=0.3e-9, tilt=tilt, seed=3)),
         (
             "nanoparticles",
-            lambda: nanoparticles((256, 256), 4e-9, radius=10e-9, count=12, noise=0.3e-9, tilt=tilt, seed=4),
+            lambda: nanoparticles((256, 256), 4e-9, radius=15e-9, count=15, noise=0.3e-9, tilt=tilt, seed=4),
         ),
         ("rough", lambda: rough((256, 256), 4e-9, rms=1e-9, correlation_length=20e-9, noise=0.1e-9, seed=5)),
     ]
