@@ -6,6 +6,8 @@ import json
 import math
 
 import numpy as np
+
+from arsurf.scan.io import load_scan
 import pytest
 
 import arsurf
@@ -222,12 +224,9 @@ def test_demo_scans_are_written_small_and_load_back(tmp_path):
     assert sum(p.stat().st_size for p in paths) < 3e6
     steps = {}
     for p in paths:
-        with np.load(p) as f:
-            assert set(f.files) == {"heights", "dx", "dy", "channel", "metadata_json"}
-            h = f["heights"]
-            assert h.dtype == np.float64 and h.shape[0] <= 256 and h.shape[1] <= 256
-            meta = json.loads(str(f["metadata_json"]))
-            scan = Scan(h, dx=float(f["dx"]), dy=float(f["dy"]), channel=str(f["channel"]), metadata=meta)
+        scan = load_scan(p)
+        meta = scan.metadata
+        assert scan.heights.shape[0] <= 256 and scan.heights.shape[1] <= 256
         assert meta["synthetic"]["generator"] in ("calibration_grating", "sinusoid", "nanotubes",
                                                   "nanoparticles", "rough")
         assert scan.channel == "Height" and meta["synthetic"]["noise"] > 0
@@ -238,8 +237,7 @@ def test_demo_scans_are_written_small_and_load_back(tmp_path):
         assert measured == pytest.approx(true, rel=0.01)
     again = syn.write_demo_scans(tmp_path / "again")  # deterministic
     for a, b in zip(paths, again):
-        with np.load(a) as fa, np.load(b) as fb:
-            assert np.array_equal(fa["heights"], fb["heights"])
+        assert np.array_equal(load_scan(a).heights, load_scan(b).heights)
 
 
 # ---------------------------------------------------------------------------------------------

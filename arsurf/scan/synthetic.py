@@ -507,9 +507,9 @@ DEMO_SCANS = tuple(name for name, _ in _demo_specs())
 def write_demo_scans(out_dir: str | Path) -> list[Path]:
     """Write the demo scans to ``out_dir`` as ``<name>.npz``; return their paths.
 
-    Each file holds ``heights`` ((ny, nx) float64, m), ``dx``, ``dy`` (float64, m), ``channel``
-    (str) and ``metadata_json`` (the Scan metadata as a JSON string, with the generator and its
-    parameters under ``"synthetic"``), written with :func:`numpy.savez`. The set: the three seed
+    Each file is written by :func:`arsurf.save_scan` (``.npz``, bit-exact, metadata as JSON
+    with the generator and its parameters under ``"synthetic"``) and reads back with
+    :func:`arsurf.load_scan`. The set: the three seed
     000 calibration gratings (20, 101.8 and 500 nm steps), a sinusoid, nanotubes, nanoparticles
     and a rough surface, with noise and tilt; about 2 MB in total.
 
@@ -525,19 +525,11 @@ def write_demo_scans(out_dir: str | Path) -> list[Path]:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SyntheticError(f"cannot create the output folder {str(out)!r}: {exc}; choose another --out") from exc
+    from arsurf.scan.io import save_scan
+
     paths = []
     for name, make in _demo_specs():
-        scan = make()
-        path = out / f"{name}.npz"
-        np.savez(
-            path,
-            heights=scan.heights,
-            dx=np.float64(scan.dx),
-            dy=np.float64(scan.dy),
-            channel=np.str_(scan.channel),
-            metadata_json=np.str_(json.dumps(_jsonable(scan.metadata))),
-        )
-        paths.append(path)
+        paths.append(save_scan(make(), out / f"{name}.npz"))
     return paths
 
 
