@@ -49,23 +49,24 @@ reports because the closed-loop simulation shows they matter:
     \\quad(\\text{joint}).
 
 Derivation (damping :math:`B_v` neglected, it adds to :math:`B_{fp}` to first order). With the
-force held over a tick, the master gives :math:`X_m = -\frac{T_e^2}{2M_v}\frac{z+1}{(z-1)^2}F_c`,
-:math:`V_m = -\frac{T_e}{M_v(z-1)}F_c`; the slave gives
-:math:`A_d X_c = \frac{g T_e}{z - 1 + G_n k_e T_e}F_c` with :math:`g = G_n A_d/A_f`, and the
+force held over a tick, the master gives :math:`X_m = -\\frac{T_e^2}{2M_v}\\frac{z+1}{(z-1)^2}F_c`,
+:math:`V_m = -\\frac{T_e}{M_v(z-1)}F_c`; the slave gives
+:math:`A_d X_c = \\frac{g T_e}{z - 1 + G_n k_e T_e}F_c` with :math:`g = G_n A_d/A_f`, and the
 loop closes through :math:`F_c = K_{fp}(X_m - A_d X_c) + B_{fp}(V_m - A_d X_c (1-z^{-1})/T_e)`:
 
 .. math::
 
-    1 + \frac{K_{fp}T_e^2}{2M_v}\frac{z+1}{(z-1)^2} + \frac{B_{fp}T_e}{M_v(z-1)}
-      + \frac{g\,\big(K_{fp}T_e + B_{fp}(1-z^{-1})\big)}{z-1+G_nk_eT_e} = 0 .
+    1 + \\frac{K_{fp}T_e^2}{2M_v}\\frac{z+1}{(z-1)^2} + \\frac{B_{fp}T_e}{M_v(z-1)}
+      + \\frac{g\\,\\big(K_{fp}T_e + B_{fp}(1-z^{-1})\\big)}{z-1+G_nk_eT_e} = 0 .
 
 Master alone (:math:`g = 0`): :math:`z^2 + (K_{fp}T_e^2/2M_v + B_{fp}T_e/M_v - 2)z + 1 +
 K_{fp}T_e^2/2M_v - B_{fp}T_e/M_v = 0`; Jury's conditions give :math:`B_{fp} > K_{fp}T_e/2` and
 :math:`B_{fp} < 2M_v/T_e`, hence :math:`K_{fp} < 4M_v/T_e^2`. With the slave, the left side at
 :math:`z = -1` (oscillation at half the sampling rate) is
-:math:`1 - \frac{B_{fp}T_e}{2M_v} - \frac{g(B_{fp} + K_{fp}T_e/2)}{1 - G_nk_eT_e/2}`, which changes
-sign on the joint bound. Table II's :math:`G_n` bound is its limit for a master that does not move
-(:math:`M_v \to \infty`) and a free slave (:math:`k_e = 0`); with a light master both loops share
+:math:`1 - \\frac{B_{fp}T_e}{2M_v} - \\frac{g(B_{fp} + K_{fp}T_e/2)}{1 - G_nk_eT_e/2}`, which changes
+sign on the joint bound. The master-side bounds are the worst case of a slave that does not
+follow (stiff contact); in free space a fast slave relieves the master. Table II's :math:`G_n` bound is its limit for a master that does not move
+(:math:`M_v \\to \\infty`) and a free slave (:math:`k_e = 0`); with a light master both loops share
 the same margin and the slave gain must be lower. These bounds hold for slave time constants short
 against :math:`T_e` (lags reduce the loop gain at :math:`z = -1`, so they stay conservative there);
 :func:`simulate_force_position` measures the behaviour for any setting.
@@ -595,9 +596,9 @@ _DIVERGED = 1e6  # m or N: far outside anything physical, the simulation stops
 def envelope_decay_ratio(signal, window: float = 0.2) -> float:
     """How the oscillation envelope of ``signal`` evolves: late envelope / early envelope.
 
-    The envelope is the largest tick-to-tick change :math:`|s_k - s_{k-1}|` in a window (so a
-    constant or steadily drifting signal has none); the ratio compares the last ``window`` fraction
-    of the record with the first. Below 1: the motion dies out (stable rendering); about 1:
+    The envelope is the largest tick-to-tick change :math:`|s_k - s_{k-1}|` in a window (a
+    constant offset does not count; a steady drift gives 1); the ratio compares the last ``window``
+    fraction of the record with the first. Below 1: the motion dies out (stable rendering); about 1:
     sustained oscillation; above 1: growth. ``inf`` if the record is not finite.
 
     Example
