@@ -548,11 +548,18 @@ def jkr_radius_from_depth_kernel(delta_bar):
         else:
             y_lo = y
         dg = (4.0 * y ** 3 - _JKR_K) / (2.0 * math.sqrt(f))
-        yn = y - g / dg if dg > 0.0 else 0.5 * (y_lo + y_hi)
+        newton = dg > 0.0
+        yn = y - g / dg if newton else 0.5 * (y_lo + y_hi)
         if not (y_lo <= yn <= y_hi):
             yn = 0.5 * (y_lo + y_hi)
-        if abs(yn - y) <= 1e-15 * yn or g == 0.0:
+            newton = False
+        if g == 0.0 or y_hi - y_lo <= 4e-16 * y:
             return 0, yn * yn
+        if newton:
+            # rounding noise of g next to the fold limits the attainable step
+            noise = 4.4e-16 * (y ** 4 + _JKR_K * y - _JKR_D_FOLD) / (2.0 * math.sqrt(f) * dg)
+            if abs(yn - y) <= max(1e-9 * y, 4.0 * noise):
+                return 0, yn * yn
         y = yn
     return -2, y * y
 
@@ -617,6 +624,10 @@ class JKR(ContactModel):
         A = np.empty_like(depth)
         status = np.empty(depth.shape, np.int64)
         _jkr_depth_many(depth / self.depth_scale, A, status)
+        if (status < 0).any():
+            i = int(np.argmax(status < 0))
+            raise ContactError(f"JKR solver failed (status {int(status[i])}) for depth {float(depth[i])!r} m; "
+                               "this is a bug, please report it with this number")
         P = A ** 3 - np.sqrt(6.0 * A ** 3)
         contact = status == 0
         return A * self.radius_scale, np.where(contact, P * self.load_scale, 0.0), status
