@@ -15,6 +15,7 @@ from arsurf.contact.maugis_dugdale import (
     MaugisDugdale,
     MDState,
     md_contact_from_depth_kernel,
+    md_contact_hysteresis_kernel,
     md_load_from_depth_kernel,
     md_radius_from_depth_kernel,
     md_solve_depth,
@@ -303,6 +304,30 @@ def test_approach_retract_hysteresis(lam):
     assert np.all(f_ret <= f_app + 1e-18)
     assert np.any(f_ret < f_app)
     assert np.all(np.isfinite(f_app)) and np.all(np.isfinite(f_ret))
+
+
+@pytest.mark.parametrize("lam", [0.3, 3.0])
+def test_hysteresis_kernel_cycle_matches_api(lam):
+    md = md_for_lambda(lam)
+    lo, hi = md.jump_out_depth(), md.jump_in_depth()
+    down = np.sort(np.concatenate([np.linspace(3 * lo, 2e-9, 80), np.linspace(lo, hi, 8)[1:-1]]))
+    path = np.concatenate([down, down[::-1]])                 # approach, press, retract
+    interacting = False
+    loads = []
+    for i, d in enumerate(path):
+        status, a, p = md_contact_hysteresis_kernel(d, interacting, *md.kernel_args)
+        approaching = i < down.size
+        ref = md.contact_state(depth=d, approach=approaching and not interacting)
+        assert (a, p) == (ref.radius, ref.load)
+        interacting = status in (0, 1)
+        loads.append(p)
+    loads = np.array(loads)
+    assert loads[0] == 0.0 and loads[-1] == 0.0                # starts and ends separated
+    app, ret = loads[:down.size], loads[down.size:][::-1]      # the same depths, both ways
+    assert np.all(ret <= app) and np.any(ret < app)
+    dissipated = np.sum((app - ret)[1:] * np.diff(down))         # area of the loop, J
+    assert dissipated > 0.0
+    assert md_contact_hysteresis_kernel(math.nan, True, *md.kernel_args)[0] == -1
 
 
 def test_no_contact_results_are_flagged_not_nan():

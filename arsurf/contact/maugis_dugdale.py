@@ -67,16 +67,20 @@ Newton iteration (bracket + bisection fallback) on
 :math:`\\ln(\\bar\\Delta(t) - \\bar\\Delta_0)` when it does not. Both are close to linear in *t* at both ends
 (:math:`\\bar\\Delta \\sim A^2 \\sim s^{-3}` for large contacts, a square-root fold or
 :math:`A^2 \\sim s^{-2}` at the other end), so a cold start from the large-contact asymptote
-converges in 3-6 iterations (no table to build or to trust). The stopping rule is a Newton step
-below 1e-7 in *t* (or below the rounding noise of the residual), after which the error in *A* is
-O(step^2) ~ 1e-14 relative. The fold location is precomputed once per model (scipy brentq on
-:math:`d\\bar\\Delta/dt = 0`) and passed in as a scalar. Measured (bench/contact_mechanics.py):
-~0.3-0.5 us per solve inside a kernel, max relative error ~1e-12 against a plain brentq
-reference over :math:`\\lambda \\in [0.01, 100]` - the only larger errors are where the problem
-itself is ill-conditioned (A < 1e-4 at the a -> 0 end, where :math:`dA/d\\bar\\Delta \\sim 1/A`).
+converges in 3 evaluations on average (rarely 5; no table to build or to trust). The stopping
+rule is a Newton step below 1e-5 in *t* (or below the rounding noise of the residual); the error
+left is O(step^2), and the last step is applied to A to first order. The fold location is
+precomputed once per model (scipy brentq on :math:`d\\bar\\Delta/dt = 0`) and passed in as a scalar.
+
+Measured (bench/contact_mechanics.py, on a shared 2-core machine): 0.3-0.8 us median per solve
+inside an ``@njit`` loop for :math:`\\lambda` = 0.01 ... 100, about 1500-5000 times faster than a plain
+nested scipy brentq; relative error of the radius <= 2e-10 against that reference over
+:math:`\\lambda \\in [0.01, 100]` (and <= 3e-10 against a 40-digit mpmath solution). Errors grow only
+where the problem itself is ill-conditioned: A < 1e-4 at the a -> 0 end of a fold-free branch,
+where :math:`dA/d\\bar\\Delta \\sim 1/A` amplifies the rounding of :math:`\\bar\\Delta` itself.
 
 Sources: D. Maugis, J. Colloid Interface Sci. 150, 243 (1992); K. L. Johnson & J. A. Greenwood,
-J. Colloid Interface Sci. 192, 326 (1997) (adhesion map; their Eq. 5-7 in the notation above);
+J. Colloid Interface Sci. 192, 326 (1997) (adhesion map, the notation above);
 K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.29; seed 002 (MD drives the contact radius).
 """
 from __future__ import annotations
@@ -104,6 +108,7 @@ __all__ = [
     "MDState",
     "MaugisDugdale",
     "md_contact_from_depth_kernel",
+    "md_contact_hysteresis_kernel",
     "md_curve",
     "md_load_from_depth_kernel",
     "md_radius_from_depth_kernel",
@@ -357,6 +362,37 @@ def md_contact_from_depth_kernel(depth, depth_scale, radius_scale, load_scale, l
         -1 invalid input, -2 not converged.
     """
     st, A, P, c = md_solve_depth(depth / depth_scale, lam, t_fold, delta_fold)
+    return st, A * radius_scale, P * load_scale
+
+
+@njit(cache=True)
+def md_contact_hysteresis_kernel(depth, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
+                                 delta_fold):
+    """One tick of a displacement-controlled tip with approach/retract hysteresis.
+
+    ``interacting`` is the state of the previous tick (True if its status was 0 contact or 1
+    cohesive). A tip that was not interacting stays separated until the jump-in depth
+    :math:`-h_0` (:math:`\\bar\\Delta = -2/\\lambda\\pi`); an interacting one follows the branch connected
+    to contact down to the jump-out depth. Feed the returned status back:
+    ``interacting = status == 0 or status == 1``.
+
+    Returns
+    -------
+    (status, radius, load) : as :func:`md_contact_from_depth_kernel`.
+
+    Example
+    -------
+    >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 2e9)
+    >>> d = 0.5 * (md.jump_out_depth() + md.jump_in_depth())      # inside the hysteresis loop
+    >>> md_contact_hysteresis_kernel(d, False, *md.kernel_args)[0], md_contact_hysteresis_kernel(d, True, *md.kernel_args)[0]
+    (2, 0)
+    """
+    if not math.isfinite(depth):
+        return STATUS_INVALID, 0.0, 0.0
+    db = depth / depth_scale
+    if not interacting and db < -2.0 / (lam * math.pi):
+        return _SEPARATED, 0.0, 0.0
+    st, A, P, c = md_solve_depth(db, lam, t_fold, delta_fold)
     return st, A * radius_scale, P * load_scale
 
 
