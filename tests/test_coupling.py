@@ -261,6 +261,16 @@ def test_force_position_clutch_freezes_the_slave_and_reanchors_without_a_jolt():
     assert np.abs(c.coupling_error([-0.03, 0, 0])).max() < 1e-6
 
 
+def test_force_position_can_hold_the_force_while_clutching_as_in_seed003():
+    g = suggest_gains(**SYSTEM)
+    c = ForcePositionCoupling(**g, A_f=AF, A_d=AD, dt=T, hold_force_on_clutch=True)
+    c.hand_force([0.0, 0, 0], [0, 0, 0], 0, np.zeros(3))
+    f_last = c.hand_force([1e-4, 0, 0], [0, 0, 0], 0, np.array([-1e-8, 0, 0]))
+    assert f_last[0] < 0
+    for x in (0.0, -0.01, -0.02):
+        np.testing.assert_array_equal(c.hand_force([x, 0, 0], [0, 0, 0], BUTTON_1, np.zeros(3)), f_last)
+
+
 def test_force_position_refuses_inadmissible_gains_unless_told():
     with pytest.raises(HapticsError, match=r"not admissible: K_fp_max \(x\)"):
         ForcePositionCoupling(1e6, 1.0, 1.0, A_f=AF, A_d=AD, dt=T, mass=M, damping=BV)

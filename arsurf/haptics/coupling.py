@@ -107,28 +107,30 @@ __all__ = [
     "suggest_gains",
 ]
 
-CLUTCHED = 1  #: clutch held: no force, slave frozen
+CLUTCHED = 1  #: clutch held: slave frozen (no force, or the last one held)
 CLAMPED = 2  #: slave clamped to the probe range
 NONFINITE = 8  #: non-finite master state (no force, slave frozen) or probe force (slave frozen)
 
 # params layout of ForcePositionCoupling (per axis blocks of 3)
 _P_K, _P_B, _P_G, _P_AF, _P_AD, _P_LO, _P_HI = 0, 3, 6, 9, 12, 15, 18
 _P_DT = 21
-_NP = 22
+_P_HOLD = 22  # 1: hold the last force while the clutch is held (seed 003), 0: zero force (seed 001)
+_NP = 23
 # state layout: slave states (3 per axis: x, v, a), previous x, offset, flags
 _S_SL = 0  # (3 axes x 3 states) = 9
 _S_XPREV = 9
 _S_OFF = 12
 _S_CLUTCH = 15
 _S_ANCHOR = 16
-_NS = 17
+_S_FLAST = 17  # last force sent (3)
+_NS = 20
 
 
 @njit(cache=True)
 def fp_step(params, phi, gamma, state, x_m, v_m, f_probe, clutched, force_out, probe_out):
     """One tick of the force-position coupling (module docstring); returns flags.
 
-    ``params`` (22,), ``phi`` (3, 3, 3) and ``gamma`` (3, 3) slave ZOH matrices, ``state`` (17,)
+    ``params`` (23,), ``phi`` (3, 3, 3) and ``gamma`` (3, 3) slave ZOH matrices, ``state`` (20,)
     (updated), ``x_m``, ``v_m`` (3,) master position m and velocity m/s, ``f_probe`` (3,) N,
     ``clutched`` bool, ``force_out`` (3,) N on the handle, ``probe_out`` (3,) next probe position.
     """
@@ -147,12 +149,15 @@ def fp_step(params, phi, gamma, state, x_m, v_m, f_probe, clutched, force_out, p
             state[_S_XPREV + j] = state[_S_SL + 3 * j]
         state[_S_ANCHOR] = 1.0
     if clutched or not master_ok:
-        # no force, slave stopped where it is; re-anchor on release
+        # slave stopped where it is; no force (or the last one held while clutching, seed 003);
+        # re-anchor on release
+        hold = clutched and params[_P_HOLD] != 0.0
         if clutched:
             flags |= CLUTCHED
             state[_S_CLUTCH] = 1.0
         for j in range(3):
-            force_out[j] = 0.0
+            force_out[j] = state[_S_FLAST + j] if hold else 0.0
+            state[_S_FLAST + j] = force_out[j]
             x = state[_S_SL + 3 * j]
             state[_S_SL + 3 * j + 1] = 0.0
             state[_S_SL + 3 * j + 2] = 0.0
@@ -170,6 +175,7 @@ def fp_step(params, phi, gamma, state, x_m, v_m, f_probe, clutched, force_out, p
         e = x_m[j] - ad * x - state[_S_OFF + j]
         fc = params[_P_K + j] * e + params[_P_B + j] * (v_m[j] - ad * vc)
         force_out[j] = 0.0 - fc  # (0 - fc, not -fc: no negative zero)
+        state[_S_FLAST + j] = force_out[j]
         if probe_ok:
             vs = params[_P_G + j] * (fc / params[_P_AF + j] + f_probe[j])
         else:
@@ -438,7 +444,11 @@ class ForcePositionCoupling:
     probe_limits : None or (lower (3,), upper (3,)), m
         Slave range; the slave is clamped to it.
     clutch_mask : int
-        Buttons that hold the clutch (no force, slave frozen, re-anchor on release).
+        Buttons that hold the clutch (slave frozen, re-anchor on release).
+    hold_force_on_clutch : bool
+        While clutching, keep rendering the last force (seed 003: "the force sent back to the user
+        is constant during this operation") instead of none (default; seed 001: the button
+        "temporarily disables the force").
     mass, damping : float or (3,), optional
         Master :math:`M_v`, :math:`B_v`; when given (and ``check``), the gains are checked with
         :func:`check_gains` and refused if not admissible.
@@ -464,7 +474,8 @@ class ForcePositionCoupling:
 
     def __init__(self, K_fp, B_fp, G_n, *, A_f, A_d, dt: float, slave_tau=(0.0, 0.0),
                  probe_origin=(0.0, 0.0, 0.0), probe_limits=None, clutch_mask: int = BUTTON_1,
-                 mass=None, damping=None, env_stiffness=0.0, check: bool = True) -> None:
+                 hold_force_on_clutch: bool = False, mass=None, damping=None, env_stiffness=0.0,
+                 check: bool = True) -> None:
         m_chk = 1.0 if mass is None else mass
         b_chk = 0.0 if damping is None else damping
         K, B, G, Af, Ad, M, Bv, T, ke = _gain_arrays(K_fp, B_fp, G_n, A_f, A_d, m_chk, b_chk, dt, env_stiffness)
@@ -509,6 +520,7 @@ class ForcePositionCoupling:
             p[_P_LO:_P_LO + 3] = lo
             p[_P_HI:_P_HI + 3] = hi
         p[_P_DT] = T
+        p[_P_HOLD] = 1.0 if hold_force_on_clutch else 0.0
         self.params = p
         if not isinstance(clutch_mask, (int, np.integer)) or clutch_mask < 0:
             raise HapticsError(f"clutch_mask must be a non-negative button bitmask (got {clutch_mask!r})")

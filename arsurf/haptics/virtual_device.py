@@ -235,6 +235,16 @@ class VirtualDevice(Device):
     workspace : (3,) float, m
         Workspace extents for :attr:`info` (default: Touch X).
 
+    Attributes
+    ----------
+    phi : (3, 4, 4) float64
+        Per-axis transition matrices :math:`\\Phi` of :math:`z = (p, \\dot p, x, \\dot x)`.
+    gamma : (3, 4, 2) float64
+        Per-axis input matrices :math:`\\Gamma` for :math:`u = (r, F)`.
+    z : (3, 4) float64
+        The state; with ``phi`` and ``gamma`` the arguments of :func:`virtual_device_advance`
+        for a compiled simulation loop.
+
     Notes
     -----
     ``info.max_stiffness`` is :math:`4 M_v/\\Delta t^2` and ``info.max_damping`` is
@@ -285,8 +295,8 @@ class VirtualDevice(Device):
             max_stiffness=4.0 * self.mass / dt**2,
             max_damping=np.maximum(2.0 * self.mass / dt - self.damping, 0.0),
         )
-        self._phi = np.empty((3, 4, 4))
-        self._gamma = np.empty((3, 4, 2))
+        self.phi = np.empty((3, 4, 4))
+        self.gamma = np.empty((3, 4, 2))
         kh = self.hand.stiffness if self.hand is not None else np.zeros(3)
         bh = self.hand.damping if self.hand is not None else np.zeros(3)
         wh = 2.0 * math.pi * (self.hand.bandwidth if self.hand is not None else HAND_BANDWIDTH)
@@ -299,8 +309,8 @@ class VirtualDevice(Device):
                 [kh[a] / m, bh[a] / m, -kh[a] / m, -(b + bh[a]) / m],
             ])
             B = np.array([[0.0, 0.0], [wh * wh, 0.0], [0.0, 0.0], [0.0, 1.0 / m]])
-            self._phi[a], self._gamma[a] = discretize_zoh(A, B, dt)
-        self._z = np.zeros((3, 4))
+            self.phi[a], self.gamma[a] = discretize_zoh(A, B, dt)
+        self.z = np.zeros((3, 4))
         self._r = np.empty(3)
         self._f = np.zeros(3)
         self.ticks = 0
@@ -317,10 +327,10 @@ class VirtualDevice(Device):
     def reset(self, position=None) -> None:
         """Back to rest at ``position`` (default: the initial position), time 0."""
         p = self.initial_position if position is None else _vec3(position, "position")
-        self._z[:, 0] = p
-        self._z[:, 1] = 0.0
-        self._z[:, 2] = p
-        self._z[:, 3] = 0.0
+        self.z[:, 0] = p
+        self.z[:, 1] = 0.0
+        self.z[:, 2] = p
+        self.z[:, 3] = 0.0
         self._hold = p.copy()
         self.ticks = 0
 
@@ -331,8 +341,8 @@ class VirtualDevice(Device):
         pass
 
     def _read(self, out: DeviceState) -> None:
-        out.position[:] = self._z[:, 2]
-        out.velocity[:] = self._z[:, 3]
+        out.position[:] = self.z[:, 2]
+        out.velocity[:] = self.z[:, 3]
         t = self.now()
         out.buttons = int(self.buttons(t)) if callable(self.buttons) else int(self.buttons)
         out.timestamp = t
@@ -348,5 +358,5 @@ class VirtualDevice(Device):
         f[:] = force
         if self.external_force is not None:
             f += np.asarray(self.external_force(t), dtype=np.float64)
-        virtual_device_advance(self._phi, self._gamma, self._z, r, f)
+        virtual_device_advance(self.phi, self.gamma, self.z, r, f)
         self.ticks += 1
