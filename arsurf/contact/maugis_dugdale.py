@@ -495,8 +495,8 @@ def _fold(lam: float, which: int) -> tuple[float, float]:
         prev = cur
     if which == 0:   # lambda a hair above the transition: the fold sits at A < 1e-13, i.e. at a = 0
         return math.inf, d0
-    raise ContactError(f"Maugis-Dugdale: no pull-off point found for lambda = {lam!r}; "
-                       "lambda must lie in about [1e-6, 1e6] (got outside the solvable range?)")
+    raise ContactError(f"Maugis-Dugdale: no pull-off point found for lambda = {lam!r} in ln s = [-40, 40]; "
+                       "this should not happen for lambda in [1e-6, 1e6], please report these numbers")
 
 
 @dataclass(frozen=True)
