@@ -27,7 +27,7 @@ Example
 >>> round(effective_modulus(tip, sample) / 1e9, 3)
 3.742
 >>> round(work_of_adhesion(tip, sample), 4)
-0.0722
+0.0718
 """
 from __future__ import annotations
 
