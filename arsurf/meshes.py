@@ -1,7 +1,11 @@
-r"""Triangle meshes of the probe and of nano-objects (trimesh), in metres, and the files in meshes/.
+r"""Triangle meshes of the probe and of nano-objects (trimesh), and the files in meshes/.
 
-Every builder returns a watertight :class:`trimesh.Trimesh` in **metres** (SI inside) in the
-*probe frame*: the origin is the centre of the tip's apex sphere (the sphere the contact model
+Dimensions are given in metres (SI, like the rest of arsurf); every builder returns a watertight
+:class:`trimesh.Trimesh` whose coordinates are in **nanometres** (``mesh.units ==
+"nanometers"``; ``mesh.convert_units("meters")`` gives SI). The conversion happens here, at the
+edge to trimesh, because trimesh's tolerances are absolute (``trimesh.tol.zero`` = 1e-12,
+``trimesh.tol.merge`` = 1e-8): a nanometre object in metres has zero face normals and its
+vertices collapse whenever trimesh processes it. The meshes are in the *probe frame*: the origin is the centre of the tip's apex sphere (the sphere the contact model
 uses), +z points up along the tip axis, away from the sample, and the cantilever runs along x
 with its free end towards +x. The pieces therefore assemble without transforms:
 
@@ -13,15 +17,9 @@ with its free end towards +x. The pieces therefore assemble without transforms:
 - :func:`nanotube` - a capsule (cylinder with hemispherical caps) along x, centred at the origin,
   the same shape :func:`arsurf.synthetic.nanotubes` draws into a height map.
 
-trimesh's tolerances are absolute (``trimesh.tol.merge`` = 1e-8): a nanometre mesh in metres
-must never be re-processed (``Trimesh(v, f)`` with the default ``process=True``,
-``merge_vertices``) or its vertices collapse; build with ``process=False`` or scale to nm first.
-The builders here take care of it.
-
 Files (:func:`write_meshes`, ``python -m arsurf.meshes meshes/``) are binary STL in
-**nanometres**: STL has no unit field, and viewers and slicers handle numbers of order 1-10⁴
-well but lose 10⁻⁹-sized ones below their tolerances. Read them back in SI with
-``trimesh.load(path).apply_scale(1e-9)``.
+nanometres too: STL has no unit field, and viewers and slicers handle numbers of order 1-10⁴
+well but lose 10⁻⁹-sized ones below their tolerances. :func:`load_mesh` reads them back.
 
 Geometry of the pyramidal tip: a face with outward normal
 :math:`\mathbf n_k = (\cos θ\,\mathbf e_k, -\sin θ)` (:math:`\mathbf e_k` horizontal, θ the angle
@@ -38,8 +36,8 @@ Example
 -------
 >>> from arsurf.meshes import pyramidal_tip
 >>> tip = pyramidal_tip(apex_radius=20e-9, height=2e-6)
->>> tip.is_watertight, round(float(tip.bounds[0, 2]) * 1e9, 1)
-(True, -20.0)
+>>> tip.is_watertight, round(float(tip.bounds[0, 2]), 6), tip.units   # nanometres
+(True, -20.0, 'nanometers')
 """
 from __future__ import annotations
 
@@ -55,7 +53,7 @@ from arsurf.errors import ArsurfError, require
 __all__ = [
     "MeshError",
     "MESH_FILES",
-    "FILE_SCALE",
+    "MESH_SCALE",
     "spherical_tip",
     "pyramidal_tip",
     "cantilever",
@@ -76,8 +74,9 @@ TIP_SETBACK = 15e-6  #: distance of the tip axis from the free end, m (RTESPA-30
 TUBE_RADIUS = 7.5e-9  #: m, a 15 nm MWCNT (seed 000 manipulates 10-20 nm tubes)
 TUBE_LENGTH = 500e-9  #: m, axis end to end, caps excluded
 
-#: Units of the files written by :func:`write_meshes`: coordinates = metres * FILE_SCALE (nm).
-FILE_SCALE = 1e9
+#: Coordinates of the trimesh objects and files per metre (nanometres).
+MESH_SCALE = 1e9
+MESH_UNITS = "nanometers"
 
 #: The files in meshes/ (name -> file name) and what they hold.
 MESH_FILES = {
@@ -94,6 +93,15 @@ class MeshError(ArsurfError, ValueError):
 
 def _trimesh():
     return require("trimesh", "mesh", "building probe and nano-object meshes")
+
+
+def _nm(mesh, length: float):
+    """Scale a mesh built in units of ``length`` (metres) to nanometres and label it.
+
+    Shapes are built at unit size because trimesh's tolerances are absolute."""
+    mesh.apply_scale(length * MESH_SCALE)
+    mesh.units = MESH_UNITS
+    return mesh
 
 
 def _positive(name: str, value, what: str) -> float:
@@ -117,18 +125,18 @@ def spherical_tip(radius: float = TIP_RADIUS, subdivisions: int = 3):
 
     Returns
     -------
-    trimesh.Trimesh, metres, watertight.
+    trimesh.Trimesh, nanometres, watertight.
 
     Example
     -------
-    >>> round(float(spherical_tip(10e-9).bounds[1, 0]) * 1e9, 3)
+    >>> round(float(spherical_tip(10e-9).bounds[1, 0]), 6)
     10.0
     """
     trimesh = _trimesh()
     r = _positive("radius", radius, "the tip radius in metres")
     if int(subdivisions) != subdivisions or not 0 <= subdivisions <= 6:
         raise MeshError(f"`subdivisions` must be an integer in 0..6 (got {subdivisions!r})")
-    return trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=r)
+    return _nm(trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=1.0), r)
 
 
 def pyramidal_tip(apex_radius: float = TIP_RADIUS, height: float = TIP_HEIGHT,
@@ -155,13 +163,13 @@ def pyramidal_tip(apex_radius: float = TIP_RADIUS, height: float = TIP_HEIGHT,
 
     Returns
     -------
-    trimesh.Trimesh, metres, watertight and convex; lowest point at z = -R.
+    trimesh.Trimesh, nanometres, watertight and convex; lowest point at z = -R.
 
     Example
     -------
     >>> t = pyramidal_tip(10e-9, height=1e-6)
-    >>> round(float(t.bounds[1, 2]) * 1e6, 3)
-    1.0
+    >>> round(float(t.bounds[1, 2]), 6)
+    1000.0
     """
     trimesh = _trimesh()
     r = _positive("apex_radius", apex_radius, "the radius of the rounded apex in metres")
@@ -191,8 +199,7 @@ def pyramidal_tip(apex_radius: float = TIP_RADIUS, height: float = TIP_HEIGHT,
                                np.full(sides, -math.sin(th))])
     mesh = trimesh.convex.convex_hull(np.vstack([cap, tangent, top]))
     mesh.fix_normals()
-    mesh.apply_scale(r)
-    return mesh
+    return _nm(mesh, r)
 
 
 def cantilever(length: float = CANTILEVER_LENGTH, width: float = CANTILEVER_WIDTH,
@@ -214,13 +221,13 @@ def cantilever(length: float = CANTILEVER_LENGTH, width: float = CANTILEVER_WIDT
 
     Returns
     -------
-    trimesh.Trimesh, metres, a watertight box (12 triangles).
+    trimesh.Trimesh, nanometres, a watertight box (12 triangles).
 
     Example
     -------
     >>> b = cantilever(100e-6, 30e-6, 2e-6, tip_height=10e-6, tip_setback=5e-6)
-    >>> [round(float(v) * 1e6, 3) for v in b.bounds[:, 0]]
-    [-95.0, 5.0]
+    >>> [round(float(v), 6) for v in b.bounds[:, 0]]   # nm
+    [-95000.0, 5000.0]
     """
     trimesh = _trimesh()
     L = _positive("length", length, "the cantilever length in metres")
@@ -233,8 +240,10 @@ def cantilever(length: float = CANTILEVER_LENGTH, width: float = CANTILEVER_WIDT
         raise MeshError(f"`tip_setback` must be a number (got {tip_setback!r})") from None
     if not (math.isfinite(s) and 0.0 <= s < L):
         raise MeshError(f"`tip_setback` must be in [0, length) = [0, {L:g}) m (got {tip_setback!r})")
-    bounds = np.array([[s - L, -0.5 * w, h], [s, 0.5 * w, h + t]])
-    return trimesh.creation.box(bounds=bounds)
+    bounds = np.array([[s - L, -0.5 * w, h], [s, 0.5 * w, h + t]]) * MESH_SCALE
+    mesh = trimesh.creation.box(bounds=bounds)
+    mesh.units = MESH_UNITS
+    return mesh
 
 
 def nanotube(length: float = TUBE_LENGTH, radius: float = TUBE_RADIUS, sections: int = 32):
@@ -252,12 +261,12 @@ def nanotube(length: float = TUBE_LENGTH, radius: float = TUBE_RADIUS, sections:
 
     Returns
     -------
-    trimesh.Trimesh, metres, watertight.
+    trimesh.Trimesh, nanometres, watertight.
 
     Example
     -------
     >>> t = nanotube(100e-9, 5e-9)
-    >>> [round(float(v) * 1e9, 3) for v in t.bounds[:, 0]]
+    >>> [round(float(v), 6) for v in t.bounds[:, 0]]
     [-55.0, 55.0]
     """
     trimesh = _trimesh()
@@ -273,8 +282,7 @@ def nanotube(length: float = TUBE_LENGTH, radius: float = TUBE_RADIUS, sections:
     # trimesh's capsule runs along z with `height` = distance between the cap centres
     to_x = np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], dtype=float)
     mesh = trimesh.creation.capsule(height=L / r, radius=1.0, count=[int(sections), int(sections)], transform=to_x)
-    mesh.apply_scale(r)  # built in units of r: trimesh merges vertices closer than 1e-8
-    return mesh
+    return _nm(mesh, r)
 
 
 def probe_meshes(apex_radius: float = TIP_RADIUS, tip_height: float = TIP_HEIGHT, **cantilever_kw) -> dict:
@@ -310,23 +318,22 @@ def write_meshes(folder: str | os.PathLike) -> list[Path]:
     paths = []
     for name, mesh in _default_meshes().items():
         path = out / MESH_FILES[name]
-        scaled = mesh.copy()
-        scaled.apply_scale(FILE_SCALE)
         tmp = path.with_name(path.name + ".part")
-        tmp.write_bytes(scaled.export(file_type="stl"))
+        tmp.write_bytes(mesh.export(file_type="stl"))
         os.replace(tmp, path)
         paths.append(path)
     return paths
 
 
 def load_mesh(path: str | os.PathLike):
-    """Read a mesh file written in nanometres (meshes/, :func:`arsurf.export.export_surface`) back in metres."""
+    """Read a mesh file in nanometres (meshes/, :func:`arsurf.export.export_surface`) as a Trimesh
+    with ``units = "nanometers"`` (``.convert_units("meters")`` for SI)."""
     trimesh = _trimesh()
     p = Path(path)
     if not p.is_file():
         raise MeshError(f"mesh file {str(p)!r} does not exist; regenerate meshes/ with `python -m arsurf.meshes meshes`")
     mesh = trimesh.load(p, force="mesh")
-    mesh.apply_scale(1.0 / FILE_SCALE)
+    mesh.units = MESH_UNITS
     return mesh
 
 

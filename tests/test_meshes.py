@@ -17,9 +17,13 @@ from arsurf.meshes import MeshError  # noqa: E402
 MESH_DIR = Path(__file__).resolve().parents[1] / "meshes"
 
 
+NM = 1e9  # the meshes are in nanometres (trimesh's tolerances are absolute)
+
+
 def test_spherical_tip_is_a_closed_sphere():
-    r = 20e-9
-    s = meshes.spherical_tip(r)
+    r = 20.0
+    s = meshes.spherical_tip(r / NM)
+    assert s.units == "nanometers"
     assert s.is_watertight and s.is_winding_consistent
     dist = np.linalg.norm(s.vertices, axis=1)
     np.testing.assert_allclose(dist, r, rtol=1e-12)  # every vertex on the sphere
@@ -34,8 +38,8 @@ def _big_faces(mesh, n):
 
 
 def test_pyramidal_tip_faces_are_tangent_to_the_apex_sphere():
-    r, h, th = 20e-9, 2e-6, math.radians(20.0)
-    t = meshes.pyramidal_tip(r, h, th, sides=4)
+    r, h, th = 20.0, 2000.0, math.radians(20.0)
+    t = meshes.pyramidal_tip(r / NM, h / NM, th, sides=4)
     assert t.is_watertight and t.is_convex and t.volume > 0
     # the four largest triangles are the faces: normal (cos th e_k, -sin th), plane n.x = R
     normals, points = _big_faces(t, 6)
@@ -58,9 +62,9 @@ def test_pyramidal_tip_faces_are_tangent_to_the_apex_sphere():
 
 
 @settings(max_examples=15, deadline=None)
-@given(r=st.floats(2e-9, 100e-9), ratio=st.floats(5.0, 2000.0), deg=st.floats(5.0, 45.0), sides=st.integers(3, 6))
+@given(r=st.floats(2.0, 100.0), ratio=st.floats(5.0, 2000.0), deg=st.floats(5.0, 45.0), sides=st.integers(3, 6))
 def test_pyramidal_tip_properties(r, ratio, deg, sides):
-    t = meshes.pyramidal_tip(r, r * ratio, math.radians(deg), sides=sides)
+    t = meshes.pyramidal_tip(r / NM, r * ratio / NM, math.radians(deg), sides=sides)
     assert t.is_watertight and t.is_winding_consistent
     assert t.bounds[0, 2] == pytest.approx(-r, rel=1e-9)
     assert t.bounds[1, 2] == pytest.approx(r * ratio, rel=1e-9)
@@ -74,18 +78,19 @@ def test_pyramidal_tip_properties(r, ratio, deg, sides):
 def test_cantilever_box_and_tip_offset():
     b = meshes.cantilever(200e-6, 30e-6, 3e-6, tip_height=12e-6, tip_setback=15e-6)
     assert b.is_watertight
-    np.testing.assert_allclose(b.bounds, [[-185e-6, -15e-6, 12e-6], [15e-6, 15e-6, 15e-6]], rtol=1e-12)
-    assert b.volume == pytest.approx(200e-6 * 30e-6 * 3e-6, rel=1e-12)
+    um = 1e3  # nm per micrometre
+    np.testing.assert_allclose(b.bounds, np.array([[-185, -15, 12], [15, 15, 15]]) * um, rtol=1e-12)
+    assert b.volume == pytest.approx(200 * 30 * 3 * um**3, rel=1e-12)
     # the default probe assembles: beam underside at the tip's top
     parts = meshes.probe_meshes()
     assert parts["cantilever"].bounds[0, 2] == pytest.approx(parts["tip_pyramid"].bounds[1, 2], rel=1e-12)
 
 
 def test_nanotube_is_a_capsule():
-    L, r = 300e-9, 6e-9
-    t = meshes.nanotube(L, r)
+    L, r = 300.0, 6.0
+    t = meshes.nanotube(L / NM, r / NM)
     assert t.is_watertight
-    np.testing.assert_allclose(t.bounds, [[-L / 2 - r, -r, -r], [L / 2 + r, r, r]], rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(t.bounds, [[-L / 2 - r, -r, -r], [L / 2 + r, r, r]], rtol=1e-9, atol=1e-9)
     v = math.pi * r**2 * L + 4.0 / 3.0 * math.pi * r**3
     assert 0.97 * v < t.volume <= v  # polygonal sections are inscribed
     # every vertex is at distance r from the axis segment
@@ -125,10 +130,15 @@ def test_written_files_match_the_committed_meshes(tmp_path):
     assert "nanometres" in (MESH_DIR / "README.md").read_text()
 
 
-def test_load_mesh_reads_nanometre_files_back_in_metres(tmp_path):
+def test_load_mesh_reads_the_nanometre_files(tmp_path):
     meshes.write_meshes(tmp_path)
     tip = meshes.load_mesh(tmp_path / meshes.MESH_FILES["tip_pyramid"])
     ref = meshes.pyramidal_tip()
+    assert tip.units == "nanometers"
     np.testing.assert_allclose(tip.bounds, ref.bounds, rtol=1e-6)  # STL stores float32
+    np.testing.assert_allclose(ref.bounds[:, 2], [-meshes.TIP_RADIUS * NM, meshes.TIP_HEIGHT * NM], rtol=1e-12)
+    si = tip.copy()
+    si.convert_units("meters")
+    np.testing.assert_allclose(si.bounds, ref.bounds / NM, rtol=1e-6)
     with pytest.raises(MeshError, match="does not exist"):
         meshes.load_mesh(tmp_path / "nope.stl")

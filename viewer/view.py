@@ -1,0 +1,610 @@
+r"""The 3D view of the live model: deformed surface, tip, contact, force arrow and HUD (pyvista).
+
+:class:`SurfaceView` builds every actor once and :meth:`SurfaceView.update` changes them in
+place from a :class:`~arsurf_viewer.state.SceneState` (points and scalars written into the
+existing VTK arrays, actors moved with their ``user_matrix``, text set), so a frame costs the
+re-sampling of the changed part of the surface plus one render.
+
+**The scene is in nanometres**: the engine's metres are multiplied by 1e9 at this edge. VTK's
+camera, clipping planes and picking use absolute tolerances tuned for coordinates of order
+1-10⁴; a 500 nm scan in metres (5e-7) breaks them. :meth:`SurfaceView.world_to_pixel` takes
+metres and does the conversion itself.
+
+What is drawn
+    * ``surface`` - S(u, v) sampled on a regular (u, v) grid (a ``pyvista.StructuredGrid``) with
+      the exact normals :math:`\mathbf n = S_u \times S_v / |S_u \times S_v|` for smooth shading,
+      coloured by height z (nm, 'afmhot', the AFM convention; fixed range = the rest surface's) or
+      by deformation :math:`|S(u, v) - S_{rest}(u, v)|` (nm, from a rest copy evaluated once).
+    * ``tip`` - the tip sphere (translucent, so the dent under it shows).
+    * ``contact`` - the contact point and the normal there (green arrow, length 1.8 R).
+    * ``force`` - the force on the tip, a magenta arrow from the tip surface along F, of length
+      :math:`L = 2R \log_2(1 + |F| / F_0)` (F₀ = ``force_scale``, 1 nN by default: 1 nN → 2R,
+      3 nN → 4R, 1 µN → 20R), hidden when :math:`|F| <` ``force_threshold``.
+    * ``hud`` - F components in nN, |F|, depth and contact radius in nm, λ, loop rate, device.
+    * ``probe`` (off by default) - the pyramidal tip and the cantilever, drawn schematically:
+      truncated at ``probe_height`` (default 1.5 × the scan size), since a real tip (10-15 µm) and
+      cantilever (~200 µm) dwarf a sub-micron scan.
+    * ``tubes`` - nano-objects (capsules) from the state.
+    * ``colorbar`` - the colour scale.
+
+Example
+-------
+>>> import numpy as np
+>>> from arsurf.spline.surface import BSplineSurface
+>>> from arsurf_viewer import SceneState, SurfaceView
+>>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 100e-9), (0.0, 100e-9))
+>>> view = SurfaceView(s, off_screen=True, window_size=(320, 240))
+>>> view.update(SceneState(s, tip_center=(50e-9, 50e-9, 25e-9), tip_radius=20e-9))
+>>> view.screenshot().shape
+(240, 320, 3)
+>>> view.close()
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from arsurf.errors import require
+from arsurf.spline.surface import BSplineSurface
+
+from .backend import choose_backend
+from .state import SceneState, ViewerError
+
+__all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
+
+#: Scene units per metre (the scene is in nanometres).
+SCENE_SCALE = 1e9
+#: Layers that :meth:`SurfaceView.set_layer` switches, and whether each is on by default.
+LAYERS = {"surface": True, "tip": True, "contact": True, "force": True, "hud": True,
+          "probe": False, "tubes": True, "colorbar": True}
+#: Colours (chosen to be told apart from the 'afmhot' surface, whose pixels have r >= g >= b).
+COLORS = {
+    "tip": "#5aa9e6",  # steel blue: b > r
+    "contact": "#fff275",
+    "normal": "#2ecc40",  # green: g > r, b
+    "force": "#ff2bd6",  # magenta: r, b >> g
+    "probe": "#b8c4d0",
+    "tubes": "#6b6b6b",
+    "hud": "#f2f2f2",
+    "background": "#202124",
+    "background_top": "#4a4c50",
+}
+_SURFACE_CMAPS = {"height": "afmhot", "deformation": "YlOrBr"}
+
+
+def _mono_font() -> str | None:
+    """DejaVu Sans Mono from matplotlib (has λ, ·, ±), or None for VTK's built-in Courier."""
+    try:
+        import matplotlib
+
+        path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSansMono.ttf")
+        return path if os.path.isfile(path) else None
+    except ImportError:
+        return None
+
+
+def _frame(direction: np.ndarray) -> np.ndarray:
+    """3x3 rotation whose first column is the unit vector ``direction``."""
+    d = direction / np.linalg.norm(direction)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    a = np.cross(d, helper)
+    a /= np.linalg.norm(a)
+    b = np.cross(d, a)
+    return np.column_stack([d, a, b])
+
+
+class _Arrow:
+    """An arrow as two actors (shaft cylinder, head cone) whose sizes are set independently,
+    so long arrows keep a fixed head and thickness."""
+
+    def __init__(self, plotter, pv, color: str):
+        shaft = pv.Cylinder(center=(0.5, 0.0, 0.0), direction=(1.0, 0.0, 0.0), radius=1.0, height=1.0,
+                            resolution=24, capping=True)
+        head = pv.Cone(center=(0.5, 0.0, 0.0), direction=(1.0, 0.0, 0.0), height=1.0, radius=1.0,
+                       resolution=24, capping=True)
+        kw = dict(color=color, smooth_shading=True, specular=0.3, ambient=0.25, reset_camera=False,
+                  pickable=False)
+        self.shaft = plotter.add_mesh(shaft, **kw)
+        self.head = plotter.add_mesh(head, **kw)
+        self.actors = (self.shaft, self.head)
+
+    def place(self, start: np.ndarray, direction: np.ndarray, length: float, width: float) -> None:
+        rot = _frame(direction)
+        head_len = min(0.45 * length, 3.5 * width)
+        shaft_len = length - head_len
+        m = np.eye(4)
+        m[:3, :3] = rot * np.array([shaft_len, width, width])
+        m[:3, 3] = start
+        self.shaft.user_matrix = m
+        m2 = np.eye(4)
+        m2[:3, :3] = rot * np.array([head_len, 2.2 * width, 2.2 * width])
+        m2[:3, 3] = start + rot[:, 0] * shaft_len
+        self.head.user_matrix = m2
+
+    def set_visible(self, on: bool) -> None:
+        for a in self.actors:
+            a.SetVisibility(bool(on))
+
+
+class SurfaceView:
+    """A pyvista scene of the model that updates in place (see the module notes).
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The surface to show (the same object the loop deforms).
+    resolution : int or (nu, nv)
+        Samples of S(u, v) along u and v (default 128 per axis, capped by 4 per control point).
+    color_by : {"height", "deformation"}
+    off_screen : bool, optional
+        Render without a window; default: True when there is no display.
+    window_size : (width, height) pixels
+    camera : {"oblique", "top"}
+        Initial camera: a perspective view from the front-left, or a top-down parallel view.
+    tip_opacity : float
+        Opacity of the tip sphere (translucent by default so the dent shows through it).
+    force_scale : float, newtons
+        F₀ of the arrow length law (see the module notes).
+    force_threshold : float, newtons
+        Below this |F| the arrow is hidden.
+    probe_height : float, metres, optional
+        Height at which the schematic pyramid/cantilever (layer ``probe``) are cut.
+    layers : dict[str, bool], optional
+        Initial visibility per layer (defaults: :data:`LAYERS`).
+    anti_aliasing : {"auto", None, "fxaa", "msaa", "ssaa"}
+        "auto": FXAA with a display (a GPU, cheap), none on the headless software backends
+        (EGL/OSMesa with Mesa's llvmpipe, where SSAA multiplies the ~0.1 s frame by ~5); pass
+        "ssaa" for the best still pictures.
+    """
+
+    def __init__(self, surface: BSplineSurface, *, resolution=128, color_by: str = "height",
+                 off_screen: bool | None = None, window_size=(960, 720), camera: str = "oblique",
+                 tip_opacity: float = 0.55, force_scale: float = 1e-9, force_threshold: float = 1e-12,
+                 probe_height: float | None = None, layers: dict | None = None, anti_aliasing: str | None = "auto",
+                 title: str = "arsurf"):
+        if not isinstance(surface, BSplineSurface):
+            raise ViewerError(f"`surface` must be a BSplineSurface (got {type(surface).__name__})")
+        if color_by not in _SURFACE_CMAPS:
+            raise ViewerError(f"`color_by` must be one of {sorted(_SURFACE_CMAPS)} (got {color_by!r})")
+        if camera not in ("oblique", "top"):
+            raise ViewerError(f"`camera` must be 'oblique' or 'top' (got {camera!r})")
+        for name, val in (("force_scale", force_scale), ("force_threshold", force_threshold)):
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+                raise ViewerError(f"`{name}` must be a positive force in newtons (got {val!r})")
+        if not (0.0 < float(tip_opacity) <= 1.0):
+            raise ViewerError(f"`tip_opacity` must be in (0, 1] (got {tip_opacity!r})")
+        if anti_aliasing not in ("auto", None, "fxaa", "msaa", "ssaa"):
+            raise ViewerError(f"`anti_aliasing` must be 'auto', None, 'fxaa', 'msaa' or 'ssaa' (got {anti_aliasing!r})")
+        w, h = (int(v) for v in window_size)
+        if w < 16 or h < 16:
+            raise ViewerError(f"`window_size` must be at least 16 x 16 pixels (got {window_size!r})")
+        self.backend = choose_backend()
+        pv = require("pyvista", "viewer", "the 3D viewer")
+        self._pv = pv
+        if off_screen is None:
+            off_screen = not self.backend.interactive
+        self.off_screen = bool(off_screen)
+        self.color_by = color_by
+        self.force_scale = float(force_scale)
+        self.force_threshold = float(force_threshold)
+        self._tip_opacity = float(tip_opacity)
+        self._probe_height = probe_height
+        self._layers = dict(LAYERS)
+        for name, on in (layers or {}).items():
+            self._check_layer(name)
+            self._layers[name] = bool(on)
+        self.plotter = pv.Plotter(off_screen=self.off_screen, window_size=(w, h), title=title)
+        self.plotter.set_background(COLORS["background"], top=COLORS["background_top"])
+        if anti_aliasing == "auto":
+            anti_aliasing = "fxaa" if self.backend.name in ("native", "x11", "xvfb") else None
+        if anti_aliasing is not None:
+            self.plotter.enable_anti_aliasing(anti_aliasing)
+        self._tubes: list = []
+        self._probe_actors: tuple = ()
+        self._probe_radius = None
+        self._last_state: SceneState | None = None
+        self._build_surface(surface, resolution)
+        self._build_markers()
+        self._build_hud()
+        self.set_camera(camera)
+        self._apply_layers()
+
+    # -- construction -------------------------------------------------------------------------
+    def _check_layer(self, name: str) -> None:
+        if name not in LAYERS:
+            raise ViewerError(f"unknown layer {name!r}; layers are {', '.join(LAYERS)}")
+
+    def _build_surface(self, surface: BSplineSurface, resolution) -> None:
+        pv = self._pv
+        nu_c, nv_c = surface.shape
+        if np.ndim(resolution) == 0:
+            resolution = (resolution, resolution)
+        try:
+            nu, nv = (int(r) for r in resolution)
+        except (TypeError, ValueError):
+            raise ViewerError(f"`resolution` must be an int or (nu, nv) (got {resolution!r})") from None
+        if nu < 2 or nv < 2:
+            raise ViewerError(f"`resolution` must be at least 2 samples per axis (got {resolution!r})")
+        nu, nv = min(nu, 4 * nu_c), min(nv, 4 * nv_c)
+        self.surface = surface
+        self.resolution = (nu, nv)
+        (u0, u1), (v0, v1) = surface.domain
+        self._u = np.linspace(u0, u1, nu)
+        self._v = np.linspace(v0, v1, nv)
+        ctrl, rest, ku, kv = surface.kernel_arrays()
+        self._ku, self._kv = ku, kv
+        self._last_ctrl = np.array(ctrl, copy=True)
+        uu, vv = np.meshgrid(self._u, self._v)
+        rest_surface = BSplineSurface.construct_fast(np.array(rest, copy=True), ku, kv)
+        self._rest_points = rest_surface.evaluate(uu, vv) * SCENE_SCALE  # (nv, nu, 3) nm
+        grid = pv.StructuredGrid()
+        grid.points = np.zeros((nu * nv, 3))
+        grid.dimensions = (nu, nv, 1)
+        grid.point_data["height_nm"] = np.zeros(nu * nv)
+        grid.point_data["deformation_nm"] = np.zeros(nu * nv)
+        grid.point_data["Normals"] = np.zeros((nu * nv, 3))
+        grid.point_data.active_normals_name = "Normals"
+        self.grid = grid
+        # views into the VTK arrays: written in place every frame
+        self._pts = grid.points.reshape(nv, nu, 3)
+        self._height = grid.point_data["height_nm"].reshape(nv, nu)
+        self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
+        self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
+        self._resample(0, nu, 0, nv)
+        zr = self._rest_points[..., 2]
+        lo, hi = float(zr.min()), float(zr.max())
+        if hi - lo < 1e-3:
+            lo, hi = lo - 1.0, hi + 1.0
+        # the bottom of 'afmhot' is black: start the scale below the lowest point so the
+        # substrate reads as dark brown, not a black hole, under the lights
+        self._height_clim = (lo - 0.25 * (hi - lo), hi)
+        self._extent_nm = max(u1 - u0, v1 - v0) * SCENE_SCALE
+        self.surface_actor = self.plotter.add_mesh(
+            grid, scalars="height_nm", cmap=_SURFACE_CMAPS["height"], clim=self._height_clim,
+            show_scalar_bar=False, specular=0.25, specular_power=20.0, ambient=0.12, diffuse=0.9,
+            reset_camera=False, pickable=False,
+        )
+        self._mapper = self.surface_actor.mapper
+        size = max(10, int(self.plotter.window_size[1] / 40))
+        bar_args = dict(title="z (nm)", vertical=True, position_x=0.89, position_y=0.12, height=0.6,
+                        width=0.045, color=COLORS["hud"], title_font_size=size + 2, label_font_size=size,
+                        n_labels=5, fmt="%.1f", font_family="courier")
+        self.scalar_bar = self.plotter.add_scalar_bar(mapper=self._mapper, **bar_args)
+        self.set_color_by(self.color_by)
+
+    def _build_markers(self) -> None:
+        pv = self._pv
+        sphere = pv.Sphere(radius=1.0, theta_resolution=64, phi_resolution=48)
+        self.tip_actor = self.plotter.add_mesh(
+            sphere, color=COLORS["tip"], opacity=self._tip_opacity, smooth_shading=True, specular=0.6,
+            specular_power=40.0, reset_camera=False, pickable=False,
+        )
+        self.contact_actor = self.plotter.add_mesh(
+            pv.Sphere(radius=1.0, theta_resolution=24, phi_resolution=16), color=COLORS["contact"],
+            smooth_shading=True, ambient=0.4, reset_camera=False, pickable=False,
+        )
+        self.normal_arrow = _Arrow(self.plotter, pv, COLORS["normal"])
+        self.force_arrow = _Arrow(self.plotter, pv, COLORS["force"])
+        for a in (self.tip_actor, self.contact_actor, *self.normal_arrow.actors, *self.force_arrow.actors):
+            a.SetVisibility(False)
+        self._tip_on = self._contact_on = self._force_on = False
+
+    def _build_hud(self) -> None:
+        import vtkmodules.vtkRenderingFreeType  # noqa: F401  (registers the FreeType text renderer)
+        from vtkmodules.vtkRenderingCore import vtkTextActor, vtkTextRenderer
+
+        # VTK's default text backend hands strings to matplotlib's mathtext when it is present,
+        # which drops "|" and ignores the font file; plain FreeType is exact and faster per frame
+        renderer = vtkTextRenderer.GetInstance()
+        if renderer is not None:
+            renderer.SetDefaultBackend(1)  # vtkTextRenderer::FreeType
+        actor = vtkTextActor()
+        prop = actor.GetTextProperty()
+        font = _mono_font()
+        if font:
+            prop.SetFontFamily(4)  # VTK_FONT_FILE
+            prop.SetFontFile(font)
+        else:
+            prop.SetFontFamilyToCourier()
+        prop.SetFontSize(max(11, int(self.plotter.window_size[1] / 44)))
+        prop.SetColor(*self._pv.Color(COLORS["hud"]).float_rgb)
+        prop.SetBackgroundColor(0.0, 0.0, 0.0)
+        prop.SetBackgroundOpacity(0.45)
+        prop.SetFrameWidth(0)
+        prop.SetVerticalJustificationToTop()
+        prop.SetLineSpacing(1.15)
+        actor.GetPositionCoordinate().SetCoordinateSystemToNormalizedViewport()
+        actor.GetPositionCoordinate().SetValue(0.015, 0.985)
+        self.plotter.add_actor(actor, reset_camera=False, pickable=False)
+        self.hud_actor = actor
+        self._lambda_glyph = "λ" if font else "lambda"
+        actor.SetInput(self._hud_text(None))
+
+    # -- public API ---------------------------------------------------------------------------
+    @property
+    def layers(self) -> dict:
+        """Current visibility of each layer (a copy)."""
+        return dict(self._layers)
+
+    def set_layer(self, name: str, visible: bool) -> None:
+        """Show or hide one layer (see :data:`LAYERS`)."""
+        self._check_layer(name)
+        self._layers[name] = bool(visible)
+        if name == "probe" and visible and self._last_state is not None:
+            self._update_probe(self._last_state)
+        self._apply_layers()
+
+    def toggle_layer(self, name: str) -> bool:
+        """Flip one layer; returns its new visibility."""
+        self._check_layer(name)
+        self.set_layer(name, not self._layers[name])
+        return self._layers[name]
+
+    def set_color_by(self, mode: str) -> None:
+        """Colour the surface by ``"height"`` (nm) or ``"deformation"`` (|S - S_rest|, nm)."""
+        if mode not in _SURFACE_CMAPS:
+            raise ViewerError(f"`color_by` must be one of {sorted(_SURFACE_CMAPS)} (got {mode!r})")
+        self.color_by = mode
+        name = "height_nm" if mode == "height" else "deformation_nm"
+        self.grid.point_data.active_scalars_name = name
+        self._mapper.SetScalarModeToUsePointFieldData()
+        self._mapper.SelectColorArray(name)
+        self._mapper.lookup_table.cmap = _SURFACE_CMAPS[mode]
+        self.scalar_bar.SetTitle("z (nm)" if mode == "height" else "dent (nm)")
+        self._update_clim()
+
+    def _update_clim(self) -> None:
+        if self.color_by == "height":
+            self._mapper.scalar_range = self._height_clim
+        else:
+            self._mapper.scalar_range = (0.0, max(float(self._deform.max()), 0.5))
+
+    def set_camera(self, mode: str = "oblique") -> None:
+        """Frame the surface: ``"oblique"`` (perspective from the front-left, 35° elevation) or
+        ``"top"`` (parallel projection looking down -z, x to the right, y up)."""
+        cam = self.plotter.camera
+        pts = self._rest_points
+        lo = pts.reshape(-1, 3).min(axis=0)
+        hi = pts.reshape(-1, 3).max(axis=0)
+        centre = 0.5 * (lo + hi)
+        ext = float(max(hi[0] - lo[0], hi[1] - lo[1], 1e-6))
+        w, h = self.plotter.window_size
+        if mode == "top":
+            cam.parallel_projection = True
+            cam.focal_point = tuple(centre)
+            cam.position = (centre[0], centre[1], centre[2] + 4.0 * ext)
+            cam.up = (0.0, 1.0, 0.0)
+            half_h = 0.5 * (hi[1] - lo[1])
+            half_w = 0.5 * (hi[0] - lo[0])
+            cam.parallel_scale = 1.06 * max(half_h, half_w * h / w, 1e-6)
+        elif mode == "oblique":
+            cam.parallel_projection = False
+            cam.view_angle = 30.0
+            direction = np.array([-0.45, -1.0, 0.85])
+            direction /= np.linalg.norm(direction)
+            dist = 1.05 * ext / (2.0 * math.tan(math.radians(15.0)))
+            cam.focal_point = tuple(centre - np.array([0.0, 0.0, 0.0]))
+            cam.position = tuple(centre + dist * direction)
+            cam.up = (0.0, 0.0, 1.0)
+        else:
+            raise ViewerError(f"camera must be 'oblique' or 'top' (got {mode!r})")
+        self.camera_mode = mode
+        self.plotter.renderer.ResetCameraClippingRange()
+
+    def update(self, state: SceneState, render: bool = True) -> None:
+        """Show ``state``: move what moved, re-sample what the deformation changed, set the HUD.
+
+        Nothing is re-created per frame. If ``state.surface`` is a different surface object
+        the surface actor is rebuilt once.
+        """
+        if not isinstance(state, SceneState):
+            raise ViewerError(f"update() takes a SceneState (got {type(state).__name__})")
+        if state.surface is not self.surface:
+            self.plotter.remove_actor(self.surface_actor, render=False)
+            self.plotter.remove_scalar_bar()
+            self._build_surface(state.surface, self.resolution)
+        self._sync_surface()
+        s = SCENE_SCALE
+        r = state.tip_radius * s
+        c = state.tip_center * s
+        m = np.diag([r, r, r, 1.0])
+        m[:3, 3] = c
+        self.tip_actor.user_matrix = m
+        self._tip_on = True
+        if state.contact_point is not None:
+            p = state.contact_point * s
+            rc = 0.09 * r
+            mc = np.diag([rc, rc, rc, 1.0])
+            mc[:3, 3] = p
+            self.contact_actor.user_matrix = mc
+            if state.contact_normal is not None:
+                self.normal_arrow.place(p, state.contact_normal, 1.8 * r, 0.035 * r)
+            self._contact_on = True
+            self._normal_on = state.contact_normal is not None
+        else:
+            self._contact_on = self._normal_on = False
+        fmag = state.force_magnitude
+        if fmag >= self.force_threshold:
+            d = state.force / fmag
+            length = min(2.0 * r * math.log2(1.0 + fmag / self.force_scale), 0.4 * self._extent_nm)
+            length = max(length, 0.5 * r)
+            self.force_arrow.place(c + d * r, d, length, 0.07 * r)
+            self._force_on = True
+        else:
+            self._force_on = False
+        self._update_tubes(state.tubes)
+        if self._layers["probe"]:
+            self._update_probe(state)
+        self.hud_actor.SetInput(self._hud_text(state))
+        self._last_state = state
+        self._apply_layers()
+        if render:
+            self.render()
+
+    def render(self) -> None:
+        """Render the current scene (clipping planes follow the moving actors)."""
+        self.plotter.renderer.ResetCameraClippingRange()
+        self.plotter.render()
+
+    def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:
+        """Render and return the picture (height, width, 3) uint8; also write a PNG to ``path``."""
+        self.render()
+        img = self.plotter.screenshot(None, return_img=True)
+        if path is not None:
+            p = Path(path)
+            if p.suffix.lower() != ".png":
+                raise ViewerError(f"screenshots are PNG files (got {p.name!r}); use a .png name")
+            imageio = require("imageio.v3", "viewer", "writing PNG screenshots")
+            tmp = p.with_name(p.name + ".part.png")
+            imageio.imwrite(tmp, img)
+            os.replace(tmp, p)
+        return img
+
+    def world_to_pixel(self, points) -> np.ndarray:
+        """Pixel positions (row, col) in :meth:`screenshot` images of world points in **metres**.
+
+        Parameters
+        ----------
+        points : (3,) or (n, 3) float, metres
+
+        Returns
+        -------
+        (2,) or (n, 2) float: row from the top, column from the left (pixel centres at integers).
+        """
+        p = np.asarray(points, dtype=np.float64)
+        single = p.ndim == 1
+        p = np.atleast_2d(p) * SCENE_SCALE
+        ren = self.plotter.renderer
+        h = self.plotter.window_size[1]
+        out = np.empty((p.shape[0], 2))
+        for k, q in enumerate(p):  # a handful of points (tests, picking): not a hot path
+            ren.SetWorldPoint(q[0], q[1], q[2], 1.0)
+            ren.WorldToDisplay()
+            x, y, _ = ren.GetDisplayPoint()
+            out[k] = (h - y - 0.5, x - 0.5)
+        return out[0] if single else out
+
+    def close(self) -> None:
+        """Release the render window."""
+        self.plotter.close()
+
+    # -- per-frame work -----------------------------------------------------------------------
+    def _sync_surface(self) -> None:
+        """Re-sample the part of the grid whose control points changed since the last frame."""
+        ctrl, _, ku, kv = self.surface.kernel_arrays()
+        changed = np.not_equal(ctrl, self._last_ctrl).any(axis=2)
+        if not changed.any():
+            return
+        ii = np.flatnonzero(changed.any(axis=1))
+        jj = np.flatnonzero(changed.any(axis=0))
+        # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
+        iu0 = int(np.searchsorted(self._u, ku[ii[0]], side="left"))
+        iu1 = int(np.searchsorted(self._u, ku[ii[-1] + 4], side="right"))
+        jv0 = int(np.searchsorted(self._v, kv[jj[0]], side="left"))
+        jv1 = int(np.searchsorted(self._v, kv[jj[-1] + 4], side="right"))
+        self._last_ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1] = ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1]
+        self._resample(iu0, iu1, jv0, jv1)
+        self._update_clim()
+
+    def _resample(self, iu0: int, iu1: int, jv0: int, jv1: int) -> None:
+        if iu1 <= iu0 or jv1 <= jv0:
+            return
+        uu, vv = np.meshgrid(self._u[iu0:iu1], self._v[jv0:jv1])
+        S, Su, Sv = self.surface.evaluate(uu, vv, 1)
+        n = np.cross(Su, Sv)
+        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+        pts = S * SCENE_SCALE
+        self._pts[jv0:jv1, iu0:iu1] = pts
+        self._normals[jv0:jv1, iu0:iu1] = n
+        self._height[jv0:jv1, iu0:iu1] = pts[..., 2]
+        self._deform[jv0:jv1, iu0:iu1] = np.linalg.norm(pts - self._rest_points[jv0:jv1, iu0:iu1], axis=-1)
+        g = self.grid
+        g.GetPoints().GetData().Modified()
+        g.GetPoints().Modified()
+        pd = g.GetPointData()
+        for name in ("height_nm", "deformation_nm", "Normals"):
+            pd.GetArray(name).Modified()
+        g.Modified()
+
+    def _update_tubes(self, tubes) -> None:
+        pv = self._pv
+        s = SCENE_SCALE
+        while len(self._tubes) > len(tubes):
+            actor, _ = self._tubes.pop()
+            self.plotter.remove_actor(actor, render=False)
+        for k, tube in enumerate(tubes):
+            key = (tube.length, tube.radius)
+            if k >= len(self._tubes) or self._tubes[k][1] != key:
+                mesh = pv.Capsule(center=(0.0, 0.0, 0.0), direction=(1.0, 0.0, 0.0), radius=tube.radius * s,
+                                  cylinder_length=tube.length * s, resolution=32)
+                actor = self.plotter.add_mesh(mesh, color=COLORS["tubes"], smooth_shading=True, specular=0.4,
+                                              reset_camera=False, pickable=False)
+                if k < len(self._tubes):
+                    self.plotter.remove_actor(self._tubes[k][0], render=False)
+                    self._tubes[k] = (actor, key)
+                else:
+                    self._tubes.append((actor, key))
+            m = np.eye(4)
+            m[:3, :3] = _frame(tube.axis)
+            m[:3, 3] = tube.centre * s
+            self._tubes[k][0].user_matrix = m
+
+    def _update_probe(self, state: SceneState) -> None:
+        if self._probe_radius != state.tip_radius:
+            self._build_probe(state.tip_radius)
+        m = np.eye(4)
+        m[:3, 3] = state.tip_center * SCENE_SCALE
+        for a in self._probe_actors:
+            a.user_matrix = m
+
+    def _build_probe(self, tip_radius: float) -> None:
+        from arsurf import meshes
+
+        for a in self._probe_actors:
+            self.plotter.remove_actor(a, render=False)
+        height = self._probe_height or max(1.5 * self._extent_nm / SCENE_SCALE, 6.0 * tip_radius)
+        tip = meshes.pyramidal_tip(apex_radius=tip_radius, height=height)
+        beam = meshes.cantilever(length=3.0 * height, width=0.9 * height, thickness=0.08 * height,
+                                 tip_height=height, tip_setback=0.25 * height)
+        actors = []
+        for mesh in (tip, beam):
+            poly = self._pv.PolyData.from_regular_faces(np.asarray(mesh.vertices), mesh.faces)  # nm already
+            actors.append(self.plotter.add_mesh(poly, color=COLORS["probe"], specular=0.5, smooth_shading=False,
+                                                reset_camera=False, pickable=False))
+        self._probe_actors = tuple(actors)
+        self._probe_radius = tip_radius
+
+    def _apply_layers(self) -> None:
+        L = self._layers
+        self.surface_actor.SetVisibility(L["surface"])
+        self.scalar_bar.SetVisibility(L["colorbar"] and L["surface"])
+        self.tip_actor.SetVisibility(L["tip"] and self._tip_on)
+        self.contact_actor.SetVisibility(L["contact"] and self._contact_on)
+        self.normal_arrow.set_visible(L["contact"] and self._contact_on and getattr(self, "_normal_on", False))
+        self.force_arrow.set_visible(L["force"] and self._force_on)
+        self.hud_actor.SetVisibility(L["hud"])
+        for actor, _ in self._tubes:
+            actor.SetVisibility(L["tubes"])
+        for a in self._probe_actors:
+            a.SetVisibility(L["probe"])
+
+    def _hud_text(self, st: SceneState | None) -> str:
+        if st is None:
+            return "no state yet"
+        f = st.force * 1e9
+
+        def num(x, fmt):
+            return "   -" if math.isnan(x) else format(x, fmt)
+
+        lines = [
+            f"F  [nN]  x {f[0]:+8.3f}  y {f[1]:+8.3f}  z {f[2]:+8.3f}   |F| {np.linalg.norm(f):7.3f}",
+            f"depth {st.depth * 1e9:+7.2f} nm    contact radius {st.contact_radius * 1e9:6.2f} nm",
+            f"{self._lambda_glyph} {num(st.maugis_lambda, '6.3f')}    loop {num(st.loop_rate_hz, '7.0f')} Hz"
+            + ("" if math.isnan(st.time) else f"    t {st.time:8.3f} s"),
+        ]
+        if st.device_status:
+            lines.append(f"device: {st.device_status}")
+        return "\n".join(lines)
