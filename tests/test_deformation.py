@@ -112,3 +112,24 @@ def test_refuses_a_net_that_is_not_a_height_field(flat):
     ctrl[5, 5, 0] += 1e-10
     with pytest.raises(ContactError, match="height-field net"):
         Deformer(BSplineSurface(ctrl, flat.knots_u, flat.knots_v))
+
+
+def test_projection_stays_exact_on_the_dented_surface(rng):
+    """After a dent (the net is no longer a height field) the projection still finds the global
+    closest point: compared with a dense sampling polished by Newton (brute force)."""
+    from arsurf.contact.projection import project
+
+    y, x = np.mgrid[0:40, 0:40] * H
+    s = fit_surface(Scan(2e-9 * np.sin(x / 20e-9) * np.cos(y / 30e-9), dx=H, dy=H))
+    project(s, (80e-9, 80e-9, 30e-9))  # build the projector before deforming: it must be refreshed
+    d = Deformer(s)
+    c = np.array([80e-9, 80e-9, s.evaluate(80e-9, 80e-9)[2] + 20e-9 - 4e-9])
+    d.apply(c, 20e-9, (0, 0, 1), 12e-9)
+    uu, vv = np.meshgrid(np.linspace(0, 39 * H, 400), np.linspace(0, 39 * H, 400))
+    dense = s.evaluate(uu, vv).reshape(-1, 3)
+    for q in [c, c + [3e-9, -2e-9, -1e-9], c + [12e-9, 5e-9, 5e-9]] + list(c + rng.normal(size=(20, 3)) * 8e-9):
+        p = project(s, q)
+        brute = np.linalg.norm(dense - q, axis=1).min()
+        assert abs(p.distance) <= brute + 1e-15        # never worse than any sample
+        assert brute - abs(p.distance) < 0.5e-9        # and within the sampling resolution
+        assert abs(np.linalg.norm(np.asarray(p.point) - q) - abs(p.distance)) < 1e-15

@@ -169,12 +169,24 @@ class Deformer:
         norm = float(np.linalg.norm(n))
         if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-6):
             raise ContactError(f"`normal` must be a unit vector (got {n}, |n| = {norm:.6g})")
+        before = self.patch.copy()
         ctrl, rest, ku, kv = self.surface.kernel_arrays()
         moved = deform_kernel(ctrl, rest, ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2],
                               contact_radius, self.patch)
+        self._refresh(before)
         return DeformationResult(int(moved), tuple(int(p) for p in self.patch))
 
     def release(self) -> None:
         """Put the last dented patch back to its rest positions (bitwise)."""
+        before = self.patch.copy()
         ctrl, rest, ku, kv = self.surface.kernel_arrays()
         deform_kernel(ctrl, rest, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, self.patch)
+        self._refresh(before)
+
+    def _refresh(self, before: np.ndarray) -> None:
+        """Tell the projection's hull boxes which index boxes changed (old and new patch), O(patch)."""
+        from arsurf.contact.projection import refresh_region
+
+        for box in (before, self.patch):
+            if box[1] > box[0] and box[3] > box[2]:
+                refresh_region(self.surface, int(box[0]), int(box[1]), int(box[2]), int(box[3]))

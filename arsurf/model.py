@@ -1,0 +1,275 @@
+r"""The augmented-reality surface model: one tick of tip -> contact -> dent -> 3D force.
+
+This is the part of the pipeline shared by the live haptic loop and offline replay
+(DESIGN.md, "The pipeline"): given the tip centre C and velocity v (and, when an AFM is
+attached or a session is replayed, the measured bending and torsion angles),
+
+1. **collide** C (radius R) with the *rest* surface (Newton projection, :mod:`arsurf.contact.projection`):
+   closest point, normal n, indentation depth δ = R − d. The rest surface is used because the
+   dent is the model's own answer to δ: measuring δ on the dented net would feed the dent back
+   into itself;
+2. **contact mechanics**: Maugis-Dugdale with approach/retract hysteresis under displacement
+   control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
+   and load P (> 0 compressive);
+3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`);
+4. **force on the tip**: *simulated* F = P n + μ max(P, 0) t̂, t̂ the unit tangential direction
+   opposite to the tip's motion (Amontons friction, zero when v has no tangential part);
+   *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
+   :mod:`arsurf.force.decoupling`); the model reports both.
+
+All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
+arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from arsurf.contact import projection as pj
+from arsurf.contact.deformation import deform_kernel
+from arsurf.contact.maugis_dugdale import MaugisDugdale, md_contact_hysteresis_kernel
+from arsurf.errors import ContactError
+from arsurf.force.cantilever import Cantilever
+from arsurf.force.decoupling import decouple_kernel, decoupling_parameters
+from arsurf.spline.surface import BSplineSurface
+
+# layout of the model output vector
+(M_PX, M_PY, M_PZ, M_NX, M_NY, M_NZ, M_U, M_V, M_DISTANCE, M_DEPTH, M_RADIUS, M_LOAD,
+ M_SIM_FX, M_SIM_FY, M_SIM_FZ, M_MEAS_FX, M_MEAS_FY, M_MEAS_FZ, M_CONDITION,
+ M_COLLIDE_STATUS, M_MD_STATUS, M_DECOUPLE_STATUS, M_MOVED, M_IN_CONTACT) = range(24)
+M_SIZE = 24
+# model state vector: warm-start hint and the hysteresis memory
+S_HINT_U, S_HINT_V, S_INTERACTING = 0, 1, 2
+S_SIZE = 3
+
+MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
+
+
+@njit(cache=True)
+def model_tick_kernel(ctrl_rest, ku, kv, nodes, levels, work,            # projection of the rest surface
+                      live_ctrl, live_rest, patch,                       # deformation of the live surface
+                      md_args, dec_params, tip_radius, friction, deform,
+                      cx, cy, cz, vx, vy, vz, bending, torsion, have_signals,
+                      state, coll, dec, out):
+    """One model tick; writes ``out`` (M_SIZE,) and updates ``state`` (S_SIZE,). Returns the
+    collision status (< 0: no answer; ``out`` then holds zero forces). ``coll`` (OUT_SIZE,) and
+    ``dec`` (4,) are scratch vectors of the collision and the decoupling."""
+    for k in range(M_SIZE):
+        out[k] = 0.0
+    st = pj.collide_kernel(ctrl_rest, ku, kv, nodes, levels, work, cx, cy, cz, tip_radius,
+                           state[S_HINT_U], state[S_HINT_V], coll)
+    out[M_COLLIDE_STATUS] = st
+    if st < 0:
+        return st
+    state[S_HINT_U] = coll[pj.OUT_U]
+    state[S_HINT_V] = coll[pj.OUT_V]
+    nx = coll[pj.OUT_NX]
+    ny = coll[pj.OUT_NY]
+    nz = coll[pj.OUT_NZ]
+    out[M_PX] = coll[pj.OUT_PX]
+    out[M_PY] = coll[pj.OUT_PY]
+    out[M_PZ] = coll[pj.OUT_PZ]
+    out[M_NX] = nx
+    out[M_NY] = ny
+    out[M_NZ] = nz
+    out[M_U] = coll[pj.OUT_U]
+    out[M_V] = coll[pj.OUT_V]
+    out[M_DISTANCE] = coll[pj.OUT_DISTANCE]
+    depth = coll[pj.OUT_DEPTH]
+    out[M_DEPTH] = depth
+    # contact mechanics with hysteresis
+    md_st, a, load = md_contact_hysteresis_kernel(depth, state[S_INTERACTING] > 0.5, md_args[0], md_args[1],
+                                                  md_args[2], md_args[3], md_args[4], md_args[5])
+    out[M_MD_STATUS] = md_st
+    if md_st < 0:
+        a = 0.0
+        load = 0.0
+    state[S_INTERACTING] = 1.0 if (md_st == MD_CONTACT or md_st == MD_COHESIVE) else 0.0
+    out[M_RADIUS] = a
+    out[M_LOAD] = load
+    out[M_IN_CONTACT] = 1.0 if md_st == MD_CONTACT else 0.0
+    # dent the live net (restores the previous patch first)
+    if deform:
+        r_dent = tip_radius if md_st == MD_CONTACT else 0.0
+        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, cx, cy, cz, r_dent, nx, ny, nz, a, patch)
+    # simulated force: normal load plus Amontons friction against the tangential motion
+    fx = load * nx
+    fy = load * ny
+    fz = load * nz
+    if load > 0.0 and friction > 0.0:
+        vn = vx * nx + vy * ny + vz * nz
+        tx = vx - vn * nx
+        ty = vy - vn * ny
+        tz = vz - vn * nz
+        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+        if tn > 1e-12:
+            f = friction * load / tn
+            fx -= f * tx
+            fy -= f * ty
+            fz -= f * tz
+    out[M_SIM_FX] = fx
+    out[M_SIM_FY] = fy
+    out[M_SIM_FZ] = fz
+    # measured force from the two angles, decoupled with the contact normal
+    if have_signals:
+        ds = decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, dec_params, dec)
+        out[M_DECOUPLE_STATUS] = ds
+        out[M_MEAS_FX] = dec[0]
+        out[M_MEAS_FY] = dec[1]
+        out[M_MEAS_FZ] = dec[2]
+        out[M_CONDITION] = dec[3]
+    return st
+
+
+@dataclass(frozen=True)
+class ModelTick:
+    """One tick of the model (SI units).
+
+    ``point``, ``normal``, ``uv``, ``distance``, ``depth``: the collision on the rest surface;
+    ``contact_radius``, ``load`` (N, > 0 compressive), ``in_contact``, ``md_status`` (0 contact,
+    1 cohesive, 2 separated); ``simulated_force`` and ``measured_force`` (N, on the tip; the
+    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points.
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+    uv: np.ndarray
+    distance: float
+    depth: float
+    contact_radius: float
+    load: float
+    in_contact: bool
+    md_status: int
+    simulated_force: np.ndarray
+    measured_force: np.ndarray
+    decoupling_flags: int
+    condition: float
+    moved: int
+    collide_status: int
+
+
+class ARModel:
+    """The live model: a surface, a spherical tip, a contact law and a cantilever.
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The fitted surface; it is dented in place (``surface.reset()`` undoes it). A private rest
+        copy is used for collision.
+    tip_radius : float, metres
+    contact : MaugisDugdale
+        Contact law (its tip radius must equal ``tip_radius``).
+    cantilever : Cantilever
+        For the decoupling of measured signals and for simulated signals.
+    friction : float
+        Coefficient μ of the simulated friction (>= 0).
+    deform : bool
+        Dent the surface (False: only compute contacts and forces).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from arsurf.spline.surface import BSplineSurface
+    >>> from arsurf.force.cantilever import Cantilever
+    >>> s = BSplineSurface.from_heights(np.zeros((40, 40)), (0, 148e-9), (0, 148e-9))
+    >>> md = MaugisDugdale(20e-9, 50e9, 0.05)
+    >>> m = ARModel(s, 20e-9, md, Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    >>> t = m.step((70e-9, 70e-9, 19.5e-9))
+    >>> t.in_contact and t.load > 0 and s.is_deformed
+    True
+    """
+
+    def __init__(self, surface: BSplineSurface, tip_radius: float, contact: MaugisDugdale,
+                 cantilever: Cantilever, friction: float = 0.2, deform: bool = True):
+        if not isinstance(surface, BSplineSurface):
+            raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
+        tip_radius = float(tip_radius)
+        if not (math.isfinite(tip_radius) and tip_radius > 0.0):
+            raise ContactError(f"`tip_radius` must be positive (got {tip_radius!r} m); it is the tip sphere radius")
+        if not isinstance(contact, MaugisDugdale):
+            raise ContactError(f"contact must be an arsurf.MaugisDugdale (got {type(contact).__name__})")
+        if not math.isclose(contact.tip_radius, tip_radius, rel_tol=1e-12):
+            raise ContactError(
+                f"the contact law's tip radius ({contact.tip_radius!r} m) differs from tip_radius ({tip_radius!r} m)")
+        friction = float(friction)
+        if not (math.isfinite(friction) and friction >= 0.0):
+            raise ContactError(f"`friction` must be >= 0 (got {friction!r}); it is the coefficient mu")
+        from arsurf.contact.deformation import Deformer
+
+        self.surface = surface
+        self.rest_surface = surface.copy()
+        self.rest_surface.reset()
+        self._deformer = Deformer(surface)  # validates the height-field rest net
+        self.tip_radius = tip_radius
+        self.contact = contact
+        self.cantilever = cantilever
+        self.friction = friction
+        self.deform = bool(deform)
+        proj = pj.projector(self.rest_surface)
+        live_ctrl, live_rest, _, _ = surface.kernel_arrays()
+        self._proj_args = proj.kernel_args()
+        self._md_args = np.array(contact.kernel_args, dtype=np.float64)
+        self._dec = decoupling_parameters(cantilever)
+        self._live = (live_ctrl, live_rest, self._deformer.patch)
+        self.state = np.array([np.nan, np.nan, 0.0])
+        self._coll = np.empty(pj.OUT_SIZE)
+        self._decout = np.empty(4)
+        self.out = np.zeros(M_SIZE)
+
+    def reset(self) -> None:
+        """Forget the contact history and restore the surface to rest."""
+        self._deformer.release()
+        self.surface.reset()
+        self.state[:] = (np.nan, np.nan, 0.0)
+
+    def tick(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> np.ndarray:
+        """Unchecked fast path: run the kernel, return the output vector (M_SIZE,) (reused)."""
+        cx, cy, cz = center
+        vx, vy, vz = velocity
+        if signals is None:
+            b = t = 0.0
+            have = False
+        else:
+            b, t = signals
+            have = True
+        ctrl, ku, kv, nodes, levels, work = self._proj_args
+        model_tick_kernel(ctrl, ku, kv, nodes, levels, work, self._live[0], self._live[1], self._live[2],
+                          self._md_args, self._dec, self.tip_radius, self.friction, self.deform,
+                          float(cx), float(cy), float(cz), float(vx), float(vy), float(vz),
+                          float(b), float(t), have, self.state, self._coll, self._decout, self.out)
+        return self.out
+
+    def step(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> ModelTick:
+        """Validated tick: tip centre (3,) m, velocity (3,) m/s, optional (bending, torsion) rad."""
+        c = np.asarray(center, dtype=np.float64).reshape(-1)
+        v = np.asarray(velocity, dtype=np.float64).reshape(-1)
+        if c.shape != (3,) or not np.isfinite(c).all():
+            raise ContactError(f"`center` must be 3 finite coordinates in metres (got {center!r})")
+        if v.shape != (3,) or not np.isfinite(v).all():
+            raise ContactError(f"`velocity` must be 3 finite components in m/s (got {velocity!r})")
+        if signals is not None:
+            sig = np.asarray(signals, dtype=np.float64).reshape(-1)
+            if sig.shape != (2,) or not np.isfinite(sig).all():
+                raise ContactError(f"`signals` must be (bending, torsion) in radians, finite (got {signals!r})")
+            signals = (sig[0], sig[1])
+        o = self.tick(c, v, signals)
+        if o[M_COLLIDE_STATUS] < 0:
+            raise ContactError(f"collision failed with status {int(o[M_COLLIDE_STATUS])} "
+                               f"({pj.STATUS_TEXT.get(int(o[M_COLLIDE_STATUS]), '?')})")
+        return self.record(o, have_signals=signals is not None)
+
+    @staticmethod
+    def record(o: np.ndarray, have_signals: bool = True) -> ModelTick:
+        """The :class:`ModelTick` of an output vector."""
+        meas = o[M_MEAS_FX:M_MEAS_FZ + 1].copy() if have_signals else np.full(3, np.nan)
+        return ModelTick(
+            point=o[M_PX:M_PZ + 1].copy(), normal=o[M_NX:M_NZ + 1].copy(), uv=o[M_U:M_V + 1].copy(),
+            distance=float(o[M_DISTANCE]), depth=float(o[M_DEPTH]), contact_radius=float(o[M_RADIUS]),
+            load=float(o[M_LOAD]), in_contact=bool(o[M_IN_CONTACT]), md_status=int(o[M_MD_STATUS]),
+            simulated_force=o[M_SIM_FX:M_SIM_FZ + 1].copy(), measured_force=meas,
+            decoupling_flags=int(o[M_DECOUPLE_STATUS]), condition=float(o[M_CONDITION]),
+            moved=int(o[M_MOVED]), collide_status=int(o[M_COLLIDE_STATUS]),
+        )

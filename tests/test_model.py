@@ -1,0 +1,74 @@
+"""The per-tick model: collision on the rest surface, MD with hysteresis, dent, both forces."""
+import numpy as np
+import pytest
+
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.errors import ContactError
+from arsurf.force.cantilever import Cantilever
+from arsurf.model import ARModel
+from arsurf.spline.surface import BSplineSurface
+
+R = 20e-9
+LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
+
+
+@pytest.fixture
+def flat():
+    return BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))
+
+
+@pytest.fixture
+def md():
+    return MaugisDugdale(R, 50e9, 0.1)
+
+
+def test_pressing_on_a_flat_gives_the_md_load_along_z_and_a_dent(flat, md):
+    m = ARModel(flat, R, md, LEVER, friction=0.0)
+    t = m.step((100e-9, 100e-9, R - 1e-9))
+    assert t.in_contact and t.md_status == 0
+    np.testing.assert_allclose(t.normal, [0, 0, 1], atol=1e-14)
+    assert t.depth == pytest.approx(1e-9, rel=1e-12)
+    assert t.load == pytest.approx(md.load(1e-9), rel=1e-9)
+    assert t.contact_radius == pytest.approx(md.contact_radius(depth=1e-9), rel=1e-9)
+    np.testing.assert_allclose(t.simulated_force, [0, 0, t.load], atol=1e-24)
+    assert t.moved > 0 and flat.is_deformed
+    assert np.isnan(t.measured_force).all()
+
+
+def test_approach_retract_hysteresis_and_return_to_rest(flat):
+    md = MaugisDugdale(R, 2e9, 0.1)  # a soft polymer: lambda = 1.42, jump-out well below jump-in
+    assert md.jump_out_depth() < 2 * md.jump_in_depth() < 0
+    m = ARModel(flat, R, md, LEVER)
+    zs = np.r_[np.linspace(R + 3e-9, R - 1e-9, 201), np.linspace(R - 1e-9, R + 3e-9, 201)]
+    loads = np.array([m.step((100e-9, 100e-9, z)).load for z in zs])
+    approach, retract = loads[:201], loads[201:][::-1]
+    # on retraction the adhesive neck holds: tensile loads where the approach saw none
+    assert retract.min() < 0.0 and retract.min() <= md.pull_off_force() * 0.9
+    assert np.any((approach == 0.0) & (retract < 0.0))
+    assert loads[-1] == 0.0 and not flat.is_deformed
+
+
+def test_measured_force_recovers_the_simulated_one_through_the_cantilever(flat, md):
+    m = ARModel(flat, R, md, LEVER, friction=0.3)
+    c = np.array([100e-9, 100e-9, R - 1.5e-9])
+    v = np.array([0.3e-6, 1e-6, 0.0])  # sliding obliquely to the beam: well conditioned
+    sim = m.step(c, v).simulated_force
+    assert sim[1] < 0 and sim[0] < 0  # friction opposes the motion
+    m.reset()
+    t = m.step(c, v, signals=LEVER.angles(sim))
+    np.testing.assert_allclose(t.measured_force, sim, rtol=1e-9)
+    assert t.decoupling_flags == 0
+
+
+def test_bad_input(flat, md):
+    with pytest.raises(ContactError, match="tip_radius` must be positive"):
+        ARModel(flat, 0.0, md, LEVER)
+    with pytest.raises(ContactError, match="differs from tip_radius"):
+        ARModel(flat, 10e-9, md, LEVER)
+    with pytest.raises(ContactError, match="friction"):
+        ARModel(flat, R, md, LEVER, friction=-1)
+    m = ARModel(flat, R, md, LEVER)
+    with pytest.raises(ContactError, match="center"):
+        m.step((np.nan, 0, 0))
+    with pytest.raises(ContactError, match="signals"):
+        m.step((1e-7, 1e-7, 1e-8), signals=(np.nan, 0.0))
