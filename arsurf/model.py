@@ -49,8 +49,8 @@ MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
 
 
 @njit(cache=True)
-def model_tick_kernel(ctrl_rest, ku, kv, nodes, levels, work,            # projection of the rest surface
-                      live_ctrl, live_rest, patch,                       # deformation of the live surface
+def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
+                      live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, vx, vy, vz, bending, torsion, have_signals,
                       state, coll, dec, out):
@@ -59,8 +59,7 @@ def model_tick_kernel(ctrl_rest, ku, kv, nodes, levels, work,            # proje
     ``dec`` (4,) are scratch vectors of the collision and the decoupling."""
     for k in range(M_SIZE):
         out[k] = 0.0
-    st = pj.collide_kernel(ctrl_rest, ku, kv, nodes, levels, work, cx, cy, cz, tip_radius,
-                           state[S_HINT_U], state[S_HINT_V], coll)
+    st = pj.collide_kernel(*proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
     out[M_COLLIDE_STATUS] = st
     if st < 0:
         return st
@@ -209,11 +208,11 @@ class ARModel:
         self.friction = friction
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
-        live_ctrl, live_rest, _, _ = surface.kernel_arrays()
+        live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
         self._proj_args = proj.kernel_args()
         self._md_args = np.array(contact.kernel_args, dtype=np.float64)
         self._dec = decoupling_parameters(cantilever)
-        self._live = (live_ctrl, live_rest, self._deformer.patch)
+        self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.array([np.nan, np.nan, 0.0])
         self._coll = np.empty(pj.OUT_SIZE)
         self._decout = np.empty(4)
@@ -235,8 +234,8 @@ class ARModel:
         else:
             b, t = signals
             have = True
-        ctrl, ku, kv, nodes, levels, work = self._proj_args
-        model_tick_kernel(ctrl, ku, kv, nodes, levels, work, self._live[0], self._live[1], self._live[2],
+        live_ctrl, live_rest, ku, kv, patch = self._live
+        model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
                           self._md_args, self._dec, self.tip_radius, self.friction, self.deform,
                           float(cx), float(cy), float(cz), float(vx), float(vy), float(vz),
                           float(b), float(t), have, self.state, self._coll, self._decout, self.out)
