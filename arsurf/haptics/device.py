@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from arsurf.errors import HapticsError
 
@@ -41,6 +42,7 @@ __all__ = [
     "DeviceInfo",
     "DeviceState",
     "HapticsWarning",
+    "sanitize_force",
 ]
 
 class HapticsWarning(UserWarning):
@@ -179,6 +181,34 @@ class DeviceState:
         return out
 
 
+@njit(cache=True)
+def sanitize_force(force, fmax, out):
+    """Copy ``force`` (3,) into ``out`` (3,): zero if not finite (returns 1), norm clamped to
+    ``fmax`` (returns 2), else unchanged (returns 0)."""
+    f0 = force[0]
+    f1 = force[1]
+    f2 = force[2]
+    if not (math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)):
+        out[0] = 0.0
+        out[1] = 0.0
+        out[2] = 0.0
+        return 1
+    n = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    if n > fmax:
+        s = fmax / n
+        out[0] = f0 * s
+        out[1] = f1 * s
+        out[2] = f2 * s
+        return 2
+    out[0] = f0
+    out[1] = f1
+    out[2] = f2
+    return 0
+
+
+_NAN3 = np.full(3, np.nan)  # stands for an unusable force argument
+
+
 class Device(abc.ABC):
     """Abstract haptic device: open, read the stylus, command a force, close.
 
@@ -231,6 +261,7 @@ class Device(abc.ABC):
     def open(self) -> "Device":
         """Open the device (idempotent); returns ``self``."""
         if not self._is_open:
+            self._max_force = float(self.info.max_force)
             self._open()
             self._is_open = True
         return self
@@ -268,7 +299,8 @@ class Device(abc.ABC):
         -------
         DeviceState
         """
-        self._require_open()
+        if not self._is_open:
+            self._require_open()
         if out is None:
             out = DeviceState()
         self._read(out)
@@ -281,23 +313,19 @@ class Device(abc.ABC):
         ``info.max_force`` is scaled down to it (``clamped_forces`` += 1). This method never raises
         on the force values, so it is safe in the servo loop.
         """
-        self._require_open()
+        if not self._is_open:
+            self._require_open()
         f = self._force
-        try:
-            f[0] = force[0]
-            f[1] = force[1]
-            f[2] = force[2]
-        except (TypeError, IndexError, ValueError):
-            f[:] = 0.0
+        if not (isinstance(force, np.ndarray) and force.dtype == np.float64 and force.shape == (3,)):
+            try:
+                force = np.asarray(force, dtype=np.float64)
+                if force.shape != (3,):
+                    raise ValueError
+            except (TypeError, ValueError):
+                force = _NAN3
+        code = sanitize_force(force, self._max_force, f)
+        if code == 1:
             self.rejected_forces += 1
-        else:
-            if not (math.isfinite(f[0]) and math.isfinite(f[1]) and math.isfinite(f[2])):
-                f[:] = 0.0
-                self.rejected_forces += 1
-            else:
-                n = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
-                fmax = self.info.max_force
-                if n > fmax:
-                    f *= fmax / n
-                    self.clamped_forces += 1
+        elif code == 2:
+            self.clamped_forces += 1
         self._apply_force(f)

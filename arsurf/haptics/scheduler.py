@@ -131,8 +131,10 @@ class Scheduler:
     on_stop : callable, optional
         ``on_stop()`` called in the loop thread when the loop ends (normally or on an error),
         e.g. to command zero force.
-    spin : float, s
-        Busy-wait margin before each deadline (default 2e-4 s).
+    spin : float, s, optional
+        Busy-wait margin before each deadline (default: 2e-4 s, at most half a period). Spinning a
+        whole period is counter-productive on a shared machine: the OS scheduler then preempts
+        the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
     history : int
         Ticks kept for the timing distributions (default 65536).
 
@@ -148,19 +150,27 @@ class Scheduler:
                  source: Callable[[], Any] | None = None, sink: Callable[[Any], Any] | None = None,
                  snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
                  snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
-                 spin: float = 2e-4, history: int = 65536) -> None:
+                 spin: float | None = None, history: int = 65536) -> None:
         if not callable(step):
             raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
         for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
             if f is not None and not callable(f):
                 raise HapticsError(f"{name} must be callable or None (got {type(f).__name__})")
-        rate = float(rate)
+        try:
+            rate = float(rate)
+        except (TypeError, ValueError) as exc:
+            raise HapticsError(f"rate must be a number of ticks per second (got {rate!r})") from exc
         if not (1.0 <= rate <= 20000.0):
             raise HapticsError(f"rate must be between 1 and 20000 Hz (got {rate!r}); the servo loop runs at 1-10 kHz")
         snapshot_rate = float(snapshot_rate)
         if not (snapshot_rate > 0.0 and math.isfinite(snapshot_rate)):
             raise HapticsError(f"snapshot_rate must be a positive rate in Hz (got {snapshot_rate!r})")
-        spin = float(spin)
+        if spin is None:
+            spin = min(2e-4, 0.5 / rate)
+        try:
+            spin = float(spin)
+        except (TypeError, ValueError) as exc:
+            raise HapticsError(f"spin must be a time in seconds or None (got {spin!r})") from exc
         if not (0.0 <= spin <= 0.01):
             raise HapticsError(f"spin must be between 0 and 0.01 s (got {spin!r})")
         if not isinstance(history, int) or history < 16:

@@ -289,6 +289,7 @@ class UdpBridgeDevice(Device):
         self._last_cmd = None
         self._tx_seq = 0
         self._last_flags = 0
+        self._seen_clamped = self.clamped_forces
 
     # -- Device -----------------------------------------------------------------------------
     @property
@@ -354,7 +355,7 @@ class UdpBridgeDevice(Device):
             self._gain = min(1.0, self._gain + dt / self.ramp_up) if self._gain < 1.0 else 1.0
         if 0.0 < self._gain < 1.0:
             flags |= FLAG_RAMPING
-        if self.clamped_forces != getattr(self, "_seen_clamped", 0):
+        if self.clamped_forces != self._seen_clamped:  # the base class clamped this force
             flags |= FLAG_CLAMPED
             self._seen_clamped = self.clamped_forces
         self._last_flags = flags

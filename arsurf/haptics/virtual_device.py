@@ -106,6 +106,13 @@ def discretize_zoh(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
+def _read_kernel(z, position, velocity):
+    for a in range(3):
+        position[a] = z[a, 2]
+        velocity[a] = z[a, 3]
+
+
+@njit(cache=True)
 def virtual_device_advance(phi, gamma, z, r, f):
     """Advance the per-axis state ``z`` (3, 4) by one tick: z <- Phi z + Gamma (r, f). No allocation."""
     for a in range(3):
@@ -286,7 +293,7 @@ class VirtualDevice(Device):
         self.external_force = external_force
         if not (callable(buttons) or isinstance(buttons, (int, np.integer))):
             raise HapticsError(f"buttons must be an int bitmask or a callable t -> int (got {buttons!r})")
-        self.buttons = buttons
+        self.buttons = buttons if callable(buttons) else int(buttons)
         self.initial_position = _vec3(initial_position, "initial_position")
         self._info = DeviceInfo(
             name=name,
@@ -331,7 +338,7 @@ class VirtualDevice(Device):
         self.z[:, 1] = 0.0
         self.z[:, 2] = p
         self.z[:, 3] = 0.0
-        self._hold = p.copy()
+        self._r[:] = p  # the hand set point when no trajectory is given
         self.ticks = 0
 
     def _open(self) -> None:
@@ -341,22 +348,23 @@ class VirtualDevice(Device):
         pass
 
     def _read(self, out: DeviceState) -> None:
-        out.position[:] = self.z[:, 2]
-        out.velocity[:] = self.z[:, 3]
-        t = self.now()
-        out.buttons = int(self.buttons(t)) if callable(self.buttons) else int(self.buttons)
+        _read_kernel(self.z, out.position, out.velocity)
+        t = self.ticks * self.dt
+        b = self.buttons
+        out.buttons = int(b(t)) if callable(b) else b
         out.timestamp = t
 
     def _apply_force(self, force: np.ndarray) -> None:
-        t = self.now()
+        t = self.ticks * self.dt
         r = self._r
-        if self.hand is not None and self.hand._fill is not None:
-            self.hand._fill(t, r)
-        else:
-            r[:] = self._hold
-        f = self._f
-        f[:] = force
+        hand = self.hand
+        if hand is not None and hand._fill is not None:
+            hand._fill(t, r)  # otherwise r holds the initial position (set by reset)
         if self.external_force is not None:
+            f = self._f
+            f[:] = force
             f += np.asarray(self.external_force(t), dtype=np.float64)
+        else:
+            f = force
         virtual_device_advance(self.phi, self.gamma, self.z, r, f)
         self.ticks += 1
