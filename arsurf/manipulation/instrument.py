@@ -1,0 +1,330 @@
+r"""A virtual AFM: stages, a sample, a cantilever spring and a noisy photodiode, in simulated time.
+
+The instrument of seed 001 (Fig. 3.1): the micro stage and the nano stage raise the sample under
+the tip, the PicoCube carries the probe. The simulation runs at the real-time loop rate (10 kHz in
+seed 001) and records every sample: stage positions, gap, deflection, true force and the
+measured vertical signal.
+
+Vertical model (contact mode, no adhesion; the sample is much stiffer than the lever):
+
+.. math::
+
+    g = z_{tip} - z_{surface}, \qquad \delta = \max(0, -g), \qquad F = k\,\delta, \qquad
+    V_v = \operatorname{clip}\big(V_0 + \delta / S_n + n(t),\ -1, 1\big)
+
+with :math:`z_{tip} = h_{probe} - z_{pico}` (the tip apex when the lever is straight; the PicoCube
+extends the probe towards the sample) and
+:math:`z_{surface} = h(x, y) + z_{micro} + z_{nano}`. The normalised vertical signal saturates at
+:math:`\pm 1` (seed 001, Sec. 4.2.2). Seed 001's rectangular lever: k = 0.3 N/m (Table 4.1),
+:math:`|S_n|` = 1117 nm/V (Sec. 4.1.1; the sign depends on the detector mounting, seed 001
+finds it negative).
+
+Photodiode noise (seed 001, Fig. 4.4): with the sample away from the lever the vertical signal
+spans 0.0140 V peak to peak over 5 s for the rectangular cantilever, 0.0195 V for the triangular
+one, which also shows low-frequency noise below 60 Hz. :class:`PhotodiodeNoise` is white
+Gaussian noise (plus an optional first-order low-pass component) whose standard deviation is set
+so that the *expected* peak-to-peak over that window equals the measured one. Noise is drawn from
+a seeded generator: a run is reproducible.
+
+Example
+-------
+>>> afm = VirtualAFM(surface=0.0, probe_height=5e-6, seed=1)
+>>> afm.gap() == 5e-6
+True
+>>> signal = afm.dwell(0.01)            # 10 ms of the free lever's signal
+>>> signal.size, bool(abs(signal.mean()) < 2e-3)
+(100, True)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+from scipy.special import ndtr
+
+from arsurf.manipulation.errors import InstrumentError
+from arsurf.manipulation.lspb import LSPB
+from arsurf.manipulation.stages import MICRO_STAGE, NANO_STAGE, PICOCUBE, Stage
+from arsurf.scan.scan import Scan
+
+
+def expected_range(n: int) -> float:
+    """Expected peak-to-peak (max - min) of ``n`` independent standard normal samples.
+
+    .. math:: E[R_n] = \\int_{-\\infty}^{\\infty} \\big(1 - \\Phi(x)^n - (1 - \\Phi(x))^n\\big)\\,dx
+
+    Example
+    -------
+    >>> round(expected_range(2), 6)    # 2 / sqrt(pi)
+    1.128379
+    """
+    n = int(n)
+    if n < 2:
+        raise InstrumentError(f"the range needs at least 2 samples (got {n})")
+    x = np.linspace(-12.0, 12.0, 240_001)
+    p = ndtr(x)
+    f = 1.0 - p**n - (1.0 - p) ** n
+    return float(np.sum(0.5 * (f[1:] + f[:-1])) * (x[1] - x[0]))
+
+
+@dataclass(frozen=True)
+class PhotodiodeNoise:
+    """Noise of the vertical photodiode signal, specified as seed 001 measures it.
+
+    Parameters
+    ----------
+    peak_to_peak : float, volts (signal units)
+        Expected max - min over ``window`` seconds sampled at ``rate``.
+    window : float, seconds
+        Length of the record the peak-to-peak refers to (5 s in seed 001, Fig. 4.4).
+    rate : float, Hz
+        Sampling rate of the record (the 10 kHz real-time loop).
+    low_frequency_fraction : float in [0, 1)
+        Share of the noise variance in a first-order low-pass component with corner ``corner``.
+    corner : float, Hz
+
+    Example
+    -------
+    >>> round(RECTANGULAR_NOISE.sigma * 1e3, 3)     # mV rms
+    1.655
+    """
+
+    peak_to_peak: float
+    window: float = 5.0
+    rate: float = 10e3
+    low_frequency_fraction: float = 0.0
+    corner: float = 60.0
+    _sigma: float = field(init=False, repr=False, compare=False, default=0.0)
+
+    def __post_init__(self) -> None:
+        for f in ("peak_to_peak", "window", "rate", "corner"):
+            v = float(getattr(self, f))
+            if not (math.isfinite(v) and v > 0.0):
+                raise InstrumentError(f"{f} must be positive and finite (got {getattr(self, f)!r})")
+            object.__setattr__(self, f, v)
+        lf = float(self.low_frequency_fraction)
+        if not 0.0 <= lf < 1.0:
+            raise InstrumentError(f"low_frequency_fraction must be in [0, 1) (got {self.low_frequency_fraction!r})")
+        object.__setattr__(self, "low_frequency_fraction", lf)
+        object.__setattr__(self, "_sigma", self.peak_to_peak / expected_range(self.samples))
+
+    @property
+    def samples(self) -> int:
+        """Samples in the reference window."""
+        return max(2, int(round(self.window * self.rate)))
+
+    @property
+    def sigma(self) -> float:
+        """Total rms noise (signal units) giving the specified expected peak-to-peak.
+
+        The low-frequency share is correlated, so it spreads less over the window than white
+        noise of the same variance; the calibration below is exact for the white part and treats
+        the whole variance as white (conservative: the realised peak-to-peak is slightly lower
+        when ``low_frequency_fraction > 0``).
+        """
+        return self._sigma
+
+    def generate(self, n: int, rng: np.random.Generator, state: float = 0.0) -> tuple[np.ndarray, float]:
+        """``n`` samples at ``rate`` and the low-pass state to continue from (seeded, reproducible)."""
+        n = int(n)
+        s = self.sigma
+        white = rng.standard_normal(n) * s * math.sqrt(1.0 - self.low_frequency_fraction)
+        if self.low_frequency_fraction == 0.0 or n == 0:
+            return white, state
+        # exact discretisation of a first-order low-pass driven by white noise (AR(1)),
+        # stationary variance lf * sigma^2
+        alpha = math.exp(-2.0 * math.pi * self.corner / self.rate)
+        drive = rng.standard_normal(n) * s * math.sqrt(self.low_frequency_fraction * (1.0 - alpha * alpha))
+        lf, _ = lfilter([1.0], [1.0, -alpha], drive, zi=[alpha * state])
+        return white + lf, float(lf[-1])
+
+
+# Seed 001 Sec. 4 (Fig. 4.4): disengaged vertical signal over 5 s.
+RECTANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0140)
+# The triangular lever's 0.0195 V includes noise below 60 Hz; its share is not given (assumed 1/2).
+TRIANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0195, low_frequency_fraction=0.5, corner=60.0)
+
+
+@dataclass(frozen=True)
+class InstrumentHistory:
+    """Every simulated sample of a run (all arrays of the same length).
+
+    Attributes
+    ----------
+    time : seconds
+    micro, nano, pico : metres, stage positions
+    gap : metres, tip-to-surface distance with a straight lever (negative in contact)
+    deflection : metres
+    force : newtons, true force on the tip (k * deflection)
+    signal : normalised vertical photodiode signal (with noise, clipped to [-1, 1])
+    """
+
+    time: np.ndarray
+    micro: np.ndarray
+    nano: np.ndarray
+    pico: np.ndarray
+    gap: np.ndarray
+    deflection: np.ndarray
+    force: np.ndarray
+    signal: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.time.size)
+
+
+_FIELDS = ("time", "micro", "nano", "pico", "gap", "deflection", "force", "signal")
+
+
+class VirtualAFM:
+    """Simulated AFM for the engage procedure and replay-style tests.
+
+    Parameters
+    ----------
+    surface : float, Scan or callable (x, y) -> z
+        Sample height under the tip (metres): a constant, a scan (bilinear at ``tip_xy``, which
+        must be inside it) or a function.
+    probe_height : float, metres
+        Tip apex height (straight lever) with the PicoCube at 0; with the stages at 0 the gap is
+        ``probe_height - surface``. Every stage closes the gap when its position grows: the
+        micro and nano stages raise the sample, the PicoCube lowers the probe.
+    tip_xy : (2,) float, metres
+        Lateral tip position over the sample.
+    spring_constant : float, N/m
+        Normal stiffness k (seed 001 Table 4.1: 0.3 N/m).
+    deflection_sensitivity : float, metres per signal unit
+        S_n: deflection per unit of normalised signal (seed 001: 1117 nm/V); its sign is the
+        detector's mounting.
+    signal_offset : float
+        Free-lever signal V_0 (the laser is rarely centred perfectly).
+    noise : PhotodiodeNoise
+    rate : float, Hz
+        Simulation (real-time loop) rate.
+    micro, nano, pico : Stage
+    seed : int
+        Seed of the noise generator.
+    """
+
+    def __init__(self, surface=0.0, *, probe_height: float, tip_xy=(0.0, 0.0), spring_constant: float = 0.3,
+                 deflection_sensitivity: float = 1117e-9, signal_offset: float = 0.0,
+                 noise: PhotodiodeNoise = RECTANGULAR_NOISE, rate: float = 10e3,
+                 micro: Stage = MICRO_STAGE, nano: Stage = NANO_STAGE, pico: Stage = PICOCUBE,
+                 seed: int = 0) -> None:
+        xy = np.asarray(tip_xy, dtype=np.float64)
+        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+            raise InstrumentError(f"tip_xy must be (x, y) in metres (got {tip_xy!r})")
+        self.surface_height = self._surface(surface, float(xy[0]), float(xy[1]))
+        self.probe_height = self._real("probe_height", probe_height)
+        self.tip_xy = xy
+        self.spring_constant = self._real("spring_constant", spring_constant, positive=True)
+        s = self._real("deflection_sensitivity", deflection_sensitivity)
+        if s == 0.0:
+            raise InstrumentError("deflection_sensitivity must be non-zero (metres per signal unit, e.g. 1117e-9)")
+        self.deflection_sensitivity = s
+        self.signal_offset = self._real("signal_offset", signal_offset)
+        if abs(self.signal_offset) >= 1.0:
+            raise InstrumentError(f"signal_offset must be within the signal range (-1, 1) (got {signal_offset!r})")
+        if not isinstance(noise, PhotodiodeNoise):
+            raise InstrumentError(f"noise must be a PhotodiodeNoise (got {type(noise).__name__})")
+        self.noise = noise
+        self.rate = self._real("rate", rate, positive=True)
+        self.stages = {"micro": micro, "nano": nano, "pico": pico}
+        self.position = {"micro": 0.0, "nano": 0.0, "pico": 0.0}
+        self.time = 0.0
+        self._rng = np.random.default_rng(seed)
+        self._noise_state = 0.0
+        self._chunks: list[tuple[np.ndarray, ...]] = []
+
+    # -- construction helpers -------------------------------------------------------------------
+    @staticmethod
+    def _real(name: str, value, positive: bool = False) -> float:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InstrumentError(f"{name} must be a real number (got {value!r})") from None
+        if not math.isfinite(v) or (positive and v <= 0.0):
+            raise InstrumentError(f"{name} must be {'positive and ' if positive else ''}finite (got {value!r})")
+        return v
+
+    @staticmethod
+    def _surface(surface, x: float, y: float) -> float:
+        if isinstance(surface, Scan):
+            ny, nx = surface.shape
+            fx, fy = x / surface.dx, y / surface.dy
+            if not (0.0 <= fx <= nx - 1 and 0.0 <= fy <= ny - 1):
+                raise InstrumentError(
+                    f"tip_xy ({x:.4g}, {y:.4g}) m is outside the scan (0..{surface.size[0]:.4g}, "
+                    f"0..{surface.size[1]:.4g}) m; place the tip over the scanned area"
+                )
+            ix, iy = min(int(fx), max(nx - 2, 0)), min(int(fy), max(ny - 2, 0))
+            tx, ty = fx - ix, fy - iy
+            h = surface.heights
+            ix1, iy1 = min(ix + 1, nx - 1), min(iy + 1, ny - 1)
+            z = ((1 - tx) * (1 - ty) * h[iy, ix] + tx * (1 - ty) * h[iy, ix1]
+                 + (1 - tx) * ty * h[iy1, ix] + tx * ty * h[iy1, ix1])
+        elif callable(surface):
+            z = surface(x, y)
+        else:
+            z = surface
+        z = float(z)
+        if not math.isfinite(z):
+            raise InstrumentError(
+                f"the surface height under the tip is not finite ({z!r}); inpaint the scan or move the tip"
+            )
+        return z
+
+    # -- physics ------------------------------------------------------------------------------------
+    def gap(self, micro=None, nano=None, pico=None):
+        """Tip-to-surface distance with a straight lever, metres (negative: the lever is bent)."""
+        m = self.position["micro"] if micro is None else micro
+        n = self.position["nano"] if nano is None else nano
+        p = self.position["pico"] if pico is None else pico
+        return (self.probe_height - p) - (self.surface_height + m + n)
+
+    def _record(self, micro: np.ndarray, nano: np.ndarray, pico: np.ndarray) -> np.ndarray:
+        """Append samples (one per loop tick) and return their measured signals."""
+        n = micro.size
+        g = self.gap(micro, nano, pico)
+        d = np.maximum(-g, 0.0)
+        f = self.spring_constant * d
+        noise, self._noise_state = self.noise.generate(n, self._rng, self._noise_state)
+        sig = np.clip(self.signal_offset + d / self.deflection_sensitivity + noise, -1.0, 1.0)
+        t = self.time + np.arange(1, n + 1) / self.rate
+        self.time = float(t[-1]) if n else self.time
+        self._chunks.append((t, micro, nano, pico, g, d, f, sig))
+        return sig
+
+    # -- operations -----------------------------------------------------------------------------------
+    def move(self, stage: str, target: float) -> np.ndarray:
+        """Move one stage to ``target`` (rounded to its resolution) along an LSPB profile sampled at
+        the loop rate; returns the vertical signal of every tick of the move."""
+        if stage not in self.stages:
+            raise InstrumentError(f"stage must be one of {sorted(self.stages)} (got {stage!r})")
+        st = self.stages[stage]
+        profile: LSPB = st.move(self.position[stage], target)
+        n = max(1, int(math.ceil(profile.duration * self.rate - 1e-9)))
+        t = np.arange(1, n + 1) / self.rate
+        q = profile.evaluate(t)[0][:, 0]
+        others = {k: np.full(n, v) for k, v in self.position.items()}
+        others[stage] = q
+        sig = self._record(others["micro"], others["nano"], others["pico"])
+        self.position[stage] = float(profile.end[0])
+        return sig
+
+    def dwell(self, duration: float) -> np.ndarray:
+        """Stay still for ``duration`` seconds; returns the vertical signal of every tick."""
+        n = int(round(self._real("duration", duration) * self.rate))
+        if n < 1:
+            raise InstrumentError(f"duration {duration!r} s is shorter than one tick (1/{self.rate:g} s)")
+        return self._record(*(np.full(n, self.position[k]) for k in ("micro", "nano", "pico")))
+
+    def history(self) -> InstrumentHistory:
+        """Every sample recorded so far."""
+        if not self._chunks:
+            return InstrumentHistory(*(np.empty(0) for _ in _FIELDS))
+        return InstrumentHistory(*(np.concatenate([c[i] for c in self._chunks]) for i in range(len(_FIELDS))))
+
+    def force_from_signal(self, signal, baseline: float):
+        """Force estimated from the vertical signal as seed 001 Eq. 7 does: k S_n (V - V_0)."""
+        return self.spring_constant * self.deflection_sensitivity * (np.asarray(signal) - baseline)
