@@ -12,8 +12,9 @@ attached or a session is replayed, the measured bending and torsion angles),
    control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
    and load P (> 0 compressive);
 3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`);
-4. **force on the tip**: *simulated* F = P n + μ max(P, 0) t̂, t̂ the unit tangential direction
-   opposite to the tip's motion (Amontons friction, zero when v has no tangential part);
+4. **force on the tip**: *simulated* F = P n − μ max(P, 0) t̂, t̂ the unit tangent whose horizontal
+   part is the tip's horizontal motion (Amontons friction; the same friction direction the
+   decoupling assumes, DESIGN.md; zero when the tip does not move sideways);
    *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
    :mod:`arsurf.force.decoupling`); the model reports both.
 
@@ -98,11 +99,12 @@ def model_tick_kernel(proj,                                              # Proje
     fx = load * nx
     fy = load * ny
     fz = load * nz
-    if load > 0.0 and friction > 0.0:
-        vn = vx * nx + vy * ny + vz * nz
-        tx = vx - vn * nx
-        ty = vy - vn * ny
-        tz = vz - vn * nz
+    if load > 0.0 and friction > 0.0 and nz > 1e-2:
+        # sliding direction: the tangent whose horizontal part is the tip's horizontal motion
+        # (seed 002 / DESIGN.md, the same f the decoupling assumes)
+        tx = vx
+        ty = vy
+        tz = -(vx * nx + vy * ny) / nz
         tn = math.sqrt(tx * tx + ty * ty + tz * tz)
         if tn > 1e-12:
             f = friction * load / tn
