@@ -75,6 +75,17 @@ COLORS = {
 _SURFACE_CMAPS = {"height": "afmhot", "deformation": "YlOrBr"}
 
 
+def _check_resolution(resolution) -> tuple[int, int]:
+    vals = (resolution, resolution) if np.ndim(resolution) == 0 else tuple(np.ravel(resolution))
+    try:
+        nu, nv = (int(r) for r in vals)
+    except (TypeError, ValueError):
+        raise ViewerError(f"`resolution` must be an int or (nu, nv) samples (got {resolution!r})") from None
+    if nu < 2 or nv < 2 or nu > 4096 or nv > 4096:
+        raise ViewerError(f"`resolution` must be 2..4096 samples per axis (got {resolution!r})")
+    return nu, nv
+
+
 def _mono_font() -> str | None:
     """DejaVu Sans Mono from matplotlib (has λ, ·, ±), or None for VTK's built-in Courier."""
     try:
@@ -181,6 +192,7 @@ class SurfaceView:
         w, h = (int(v) for v in window_size)
         if w < 16 or h < 16:
             raise ViewerError(f"`window_size` must be at least 16 x 16 pixels (got {window_size!r})")
+        self._requested_resolution = _check_resolution(resolution)
         self.backend = choose_backend()
         pv = require("pyvista", "viewer", "the 3D viewer")
         self._pv = pv
@@ -206,7 +218,7 @@ class SurfaceView:
         self._probe_actors: tuple = ()
         self._probe_radius = None
         self._last_state: SceneState | None = None
-        self._build_surface(surface, resolution)
+        self._build_surface(surface)
         self._build_markers()
         self._build_hud()
         self.set_camera(camera)
@@ -217,17 +229,10 @@ class SurfaceView:
         if name not in LAYERS:
             raise ViewerError(f"unknown layer {name!r}; layers are {', '.join(LAYERS)}")
 
-    def _build_surface(self, surface: BSplineSurface, resolution) -> None:
+    def _build_surface(self, surface: BSplineSurface) -> None:
         pv = self._pv
         nu_c, nv_c = surface.shape
-        if np.ndim(resolution) == 0:
-            resolution = (resolution, resolution)
-        try:
-            nu, nv = (int(r) for r in resolution)
-        except (TypeError, ValueError):
-            raise ViewerError(f"`resolution` must be an int or (nu, nv) (got {resolution!r})") from None
-        if nu < 2 or nv < 2:
-            raise ViewerError(f"`resolution` must be at least 2 samples per axis (got {resolution!r})")
+        nu, nv = self._requested_resolution
         nu, nv = min(nu, 4 * nu_c), min(nv, 4 * nv_c)
         self.surface = surface
         self.resolution = (nu, nv)
@@ -267,12 +272,22 @@ class SurfaceView:
             show_scalar_bar=False, specular=0.25, specular_power=20.0, ambient=0.12, diffuse=0.9,
             reset_camera=False, pickable=False,
         )
+        # pyvista sets flat shading unless it computes normals itself (on a copy, which would
+        # break the in-place updates): use ours, the exact S_u x S_v, with Phong interpolation
+        self.surface_actor.prop.interpolation = "phong"
         self._mapper = self.surface_actor.mapper
         size = max(10, int(self.plotter.window_size[1] / 40))
-        bar_args = dict(title="z (nm)", vertical=True, position_x=0.89, position_y=0.12, height=0.6,
-                        width=0.045, color=COLORS["hud"], title_font_size=size + 2, label_font_size=size,
+        bar_args = dict(title="z (nm)", vertical=True, position_x=0.885, position_y=0.12, height=0.62,
+                        width=0.1, color=COLORS["hud"], title_font_size=size + 2, label_font_size=size,
                         n_labels=5, fmt="%.1f", font_family="courier")
         self.scalar_bar = self.plotter.add_scalar_bar(mapper=self._mapper, **bar_args)
+        # the same dark, translucent box as the HUD, so the labels read on a pale surface too
+        self.scalar_bar.DrawBackgroundOn()
+        self.scalar_bar.GetBackgroundProperty().SetColor(0.0, 0.0, 0.0)
+        self.scalar_bar.GetBackgroundProperty().SetOpacity(0.45)
+        self.scalar_bar.SetBarRatio(0.4)
+        for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
+            prop.ShadowOn()
         self.set_color_by(self.color_by)
 
     def _build_markers(self) -> None:
@@ -391,6 +406,7 @@ class SurfaceView:
             cam.up = (0.0, 0.0, 1.0)
         else:
             raise ViewerError(f"camera must be 'oblique' or 'top' (got {mode!r})")
+        cam.is_set = True  # keep pyvista from resetting it at the first render
         self.camera_mode = mode
         self.plotter.renderer.ResetCameraClippingRange()
 
@@ -405,7 +421,7 @@ class SurfaceView:
         if state.surface is not self.surface:
             self.plotter.remove_actor(self.surface_actor, render=False)
             self.plotter.remove_scalar_bar()
-            self._build_surface(state.surface, self.resolution)
+            self._build_surface(state.surface)
         self._sync_surface()
         s = SCENE_SCALE
         r = state.tip_radius * s
@@ -421,7 +437,7 @@ class SurfaceView:
             mc[:3, 3] = p
             self.contact_actor.user_matrix = mc
             if state.contact_normal is not None:
-                self.normal_arrow.place(p, state.contact_normal, 1.8 * r, 0.035 * r)
+                self.normal_arrow.place(p, state.contact_normal, 1.8 * r, 0.06 * r)
             self._contact_on = True
             self._normal_on = state.contact_normal is not None
         else:
@@ -572,8 +588,8 @@ class SurfaceView:
         actors = []
         for mesh in (tip, beam):
             poly = self._pv.PolyData.from_regular_faces(np.asarray(mesh.vertices), mesh.faces)  # nm already
-            actors.append(self.plotter.add_mesh(poly, color=COLORS["probe"], specular=0.5, smooth_shading=False,
-                                                reset_camera=False, pickable=False))
+            actors.append(self.plotter.add_mesh(poly, color=COLORS["probe"], specular=0.5, ambient=0.3,
+                                                smooth_shading=False, reset_camera=False, pickable=False))
         self._probe_actors = tuple(actors)
         self._probe_radius = tip_radius
 

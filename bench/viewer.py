@@ -1,0 +1,73 @@
+"""Benchmark: the viewer's per-frame cost (in-place update, patch re-sampling, render).
+
+Peers timed in the same run: re-sampling the whole grid every frame (what a naive viewer does)
+against :class:`SurfaceView`'s patch re-sampling after a local dent; the render itself on the
+backend at hand (llvmpipe software rendering when headless).
+
+Run: .venv/bin/python bench/viewer.py   (prints JSON)
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import emit, stats, time_calls  # noqa: E402
+
+from arsurf.spline.surface import BSplineSurface  # noqa: E402
+from arsurf_viewer import SceneState, SurfaceView  # noqa: E402
+
+
+def main() -> None:
+    n = 258  # the net of an interpolating fit of a 256 x 256 scan
+    length = 1e-6
+    x = np.linspace(0.0, length, n)
+    z = 5e-9 * np.sin(2 * np.pi * x[:, None] / 200e-9) * np.cos(2 * np.pi * x[None, :] / 300e-9)
+    surface = BSplineSurface.from_heights(z, (0.0, length), (0.0, length))
+    results = {}
+    for res in (128, 256):
+        view = SurfaceView(surface, resolution=res, off_screen=True, window_size=(960, 720), anti_aliasing=None)
+        ctrl = surface.kernel_arrays()[0]
+        rest = ctrl.copy()
+        centre = np.array([0.5 * length, 0.5 * length, 0.0])
+        state = SceneState(surface, centre + [0, 0, 25e-9], 20e-9, force=(0, 0, 1e-9))
+        k = [0]
+
+        def move_only():
+            state.tip_center[0] += 1e-12
+            view.update(state, render=False)
+
+        def dent_and_move():  # a 5 x 5 patch of the net moves every frame, as under the tip
+            k[0] += 1
+            ctrl[127:132, 127:132, 2] = rest[127:132, 127:132, 2] - 1e-9 * (1 + (k[0] % 2))
+            view.update(state, render=False)
+
+        def full_resample():  # the peer: re-sample everything
+            ctrl[127:132, 127:132, 2] = rest[127:132, 127:132, 2] - 1e-9 * (1 + (k[0] % 2))
+            k[0] += 1
+            view._resample(0, view.resolution[0], 0, view.resolution[1])
+
+        t_move = time_calls(move_only, 30)
+        t_dent = time_calls(dent_and_move, 30)
+        t_full = time_calls(full_resample, 15)
+        view.screenshot()  # the first picture compiles the shaders; pyvista renders only after it
+        t_render = time_calls(view.render, 10, warmup=2)
+        t_shot = time_calls(view.screenshot, 10, warmup=1)
+        ctrl[...] = rest
+        results[f"grid_{res}x{res}"] = {
+            "update_tip_moves_only": stats(t_move),
+            "update_with_local_dent": stats(t_dent),
+            "full_resample_peer": stats(t_full),
+            "speedup_patch_vs_full": float(np.median(t_full) / np.median(t_dent)),
+            "render_960x720": stats(t_render),
+            "screenshot_960x720": stats(t_shot),
+            "backend": view.backend.name,
+        }
+        view.close()
+    emit("viewer", results)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,485 @@
+"""The viewer (arsurf_viewer): offscreen pictures checked pixel by pixel.
+
+Rendering tests are marked ``viewer`` and skip only when no OpenGL context can be made here
+(arsurf_viewer.backend.probe renders a sphere in a child process and says why not).
+"""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from arsurf.spline.surface import BSplineSurface
+from arsurf_viewer.interactive import LAYER_SETS, StylusController, scripted_path
+from arsurf_viewer.state import SceneState, Tube, ViewerError
+
+R = 12e-9  # tip radius
+SIZE = (320, 240)  # small windows: llvmpipe renders them in a few ms
+
+
+def sinusoid_surface(n=24, length=200e-9, amp=3e-9):
+    x = np.linspace(0.0, length, n)
+    z = amp * np.sin(2 * np.pi * x[:, None] / (0.6 * length)) * np.cos(2 * np.pi * x[None, :] / length)
+    return BSplineSurface.from_heights(z, (0.0, length), (0.0, length))
+
+
+def push_down(surface, x, y, depth, radius):
+    """Dent the net as the deformation module does: only control points within ``radius`` of
+    (x, y) move (a compact bump, so the patch the view re-samples is local)."""
+    ctrl = surface.kernel_arrays()[0]
+    d2 = (ctrl[..., 0] - x) ** 2 + (ctrl[..., 1] - y) ** 2
+    ctrl[..., 2] -= depth * np.clip(1.0 - d2 / radius**2, 0.0, None) ** 2
+
+
+def above(surface, x, y, gap):
+    return np.array([x, y, float(surface.evaluate(x, y)[2]) + R + gap])
+
+
+# -- colour classes (the view's colours are chosen to be separable from 'afmhot') ---------------
+def magenta(img):
+    r, g, b = (img[..., k].astype(int) for k in range(3))
+    return (r > g + 60) & (b > g + 60)
+
+
+def green(img):
+    r, g, b = (img[..., k].astype(int) for k in range(3))
+    return (g > r + 40) & (g > b + 40)
+
+
+def changed(a, b, threshold=24):
+    return np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > threshold
+
+
+# -- no OpenGL needed ------------------------------------------------------------------------
+def test_engine_and_state_do_not_import_pyvista():
+    code = ("import sys, arsurf, arsurf.export, arsurf.meshes; import arsurf_viewer.state; "
+            "print('pyvista' in sys.modules or 'vtk' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_scene_state_validates_and_normalises():
+    s = sinusoid_surface()
+    st = SceneState(s, (1e-8, 2e-8, 3e-8), R, contact_normal=(0, 0, 5), force=(3e-9, 4e-9, 0),
+                    tubes=[((0, 0, 0), (2, 0, 0), 1e-7, 5e-9)])
+    np.testing.assert_array_equal(st.contact_normal, [0, 0, 1])
+    assert st.force_magnitude == pytest.approx(5e-9)
+    assert isinstance(st.tubes[0], Tube) and st.tubes[0].axis.tolist() == [1.0, 0.0, 0.0]
+    assert math.isnan(st.maugis_lambda)
+    for kwargs, match in [
+        (dict(tip_center=(1, 2)), "tip_center.*(3,)"),
+        (dict(tip_center=(0, 0, np.nan)), "tip_center.*finite"),
+        (dict(tip_radius=-1e-9), "tip_radius.*positive"),
+        (dict(contact_normal=(0, 0, 0)), "contact_normal.*non-zero"),
+        (dict(contact_radius=-1e-9), "contact_radius.*non-negative"),
+        (dict(tubes=[(0, 0, 0)]), "a tube must be"),
+    ]:
+        args = dict(tip_center=(0, 0, 0), tip_radius=R) | kwargs
+        with pytest.raises(ViewerError, match=match):
+            SceneState(s, **args)
+    with pytest.raises(ViewerError, match="BSplineSurface"):
+        SceneState(np.zeros((3, 3)), (0, 0, 0), R)
+
+
+def test_scene_state_from_a_contact_record():
+    class Contact:  # duck-typed like arsurf.contact.projection.Contact
+        point = np.array([1e-8, 1e-8, 0.0])
+        normal = np.array([0.0, 0.0, 1.0])
+        depth = 2e-9
+
+    st = SceneState.from_contact(sinusoid_surface(), (1e-8, 1e-8, 1e-8), R, Contact(), contact_radius=4e-9)
+    assert st.depth == 2e-9 and st.contact_point.tolist() == [1e-8, 1e-8, 0.0] and st.contact_radius == 4e-9
+
+
+def test_stylus_keys_move_reset_and_pause():
+    s = sinusoid_surface()
+    released = []
+    ctl = StylusController(s, (1e-7, 1e-7, 2e-8), step=2e-9, z_step=5e-10, on_reset=lambda: released.append(1))
+    for key in ("Right", "Right", "Up", "Prior", "Next", "Next"):
+        ctl.handle_key(key)
+    np.testing.assert_allclose(ctl.tip_center, [1.04e-7, 1.02e-7, 1.95e-8], rtol=1e-12)
+    ctl.handle_key("bracketleft")
+    ctl.handle_key("Left")
+    assert ctl.tip_center[0] == pytest.approx(1.03e-7)
+    push_down(s, 1e-7, 1e-7, 3e-9, 2e-8)
+    assert s.is_deformed
+    assert ctl.handle_key("r") == "surface reset" and not s.is_deformed and released == [1]
+    assert ctl.handle_key("p") == "paused" and ctl.paused
+    assert ctl.handle_key("p") == "running" and not ctl.paused
+    assert ctl.handle_key("q") == "quit" and ctl.quit
+    with pytest.raises(ViewerError, match="steps must be positive"):
+        StylusController(s, (0, 0, 0), step=-1.0)
+
+
+def test_scripted_path_approaches_indents_and_retracts():
+    s = sinusoid_surface()
+    path = scripted_path(s, R, frames=40, indent=3e-9)
+    gap = path[:, 2] - s.evaluate(path[:, 0], path[:, 1])[:, 2] - R  # > 0 above, < 0 indenting
+    assert gap[0] == pytest.approx(1.5 * R) and gap[-1] == pytest.approx(1.5 * R)
+    assert gap.min() == pytest.approx(-3e-9)
+    assert np.ptp(path[:, 0]) == pytest.approx(0.2 * 200e-9)  # the slide
+    with pytest.raises(ViewerError, match="frames"):
+        scripted_path(s, R, frames=2)
+
+
+def test_backend_choice_errors_name_the_way_out(monkeypatch):
+    from arsurf_viewer import backend
+
+    with pytest.raises(backend.RenderingUnavailable, match="'bogus' is not a backend; use one of native, x11, egl"):
+        backend._choose.__wrapped__("bogus")
+    monkeypatch.setattr(backend, "_candidates", lambda: [])
+    with pytest.raises(backend.RenderingUnavailable, match="no OpenGL context.*libegl1 libegl-mesa0 libgl1-mesa-dri"):
+        backend._choose.__wrapped__(None)
+
+
+# -- rendering -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def gl():
+    from arsurf_viewer.backend import probe
+
+    result = probe()
+    if not result.ok:
+        pytest.skip(f"no OpenGL context can be made here: {result.detail}")
+    return result
+
+
+def make_view(surface, **kw):
+    from arsurf_viewer import SurfaceView
+
+    kw.setdefault("window_size", SIZE)
+    kw.setdefault("off_screen", True)
+    kw.setdefault("anti_aliasing", None)
+    return SurfaceView(surface, **kw)
+
+
+@pytest.mark.viewer
+def test_picture_is_not_blank_and_hud_reads_the_state(gl, tmp_path):
+    s = sinusoid_surface()
+    view = make_view(s)
+    try:
+        st = SceneState(s, above(s, 1e-7, 1e-7, -1e-9), R, depth=1e-9, contact_radius=3.5e-9,
+                        force=(1e-9, -2e-9, 4e-9), maugis_lambda=0.82, loop_rate_hz=1000.0,
+                        device_status="virtual ok", time=1.5)
+        view.update(st)
+        img = view.screenshot(tmp_path / "frame.png")
+        assert img.shape == (SIZE[1], SIZE[0], 3) and img.dtype == np.uint8
+        colours = np.unique(img.reshape(-1, 3), axis=0)
+        assert len(colours) > 500  # shaded surface, gradient background, text
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        afmhot = (r >= g) & (g >= b) & (r - b > 40)
+        assert afmhot.mean() > 0.2  # the surface fills a good part of the frame
+        import imageio.v3 as iio
+
+        np.testing.assert_array_equal(iio.imread(tmp_path / "frame.png")[..., :3], img)
+        text = view.hud_actor.GetInput()
+        for piece in ("+1.000", "-2.000", "+4.000", "|F|   4.583", "+1.00 nm", "3.50 nm", "0.820", "1000 Hz",
+                      "1.500 s", "device: virtual ok"):
+            assert piece in text, (piece, text)
+        with pytest.raises(ViewerError, match="PNG"):
+            view.screenshot(tmp_path / "frame.jpg")
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_tip_is_where_the_camera_puts_it(gl):
+    s = sinusoid_surface()
+    view = make_view(s, camera="top", tip_opacity=1.0)
+    try:
+        w, h = SIZE
+        cam = view.plotter.camera
+        for x, y in ((60e-9, 130e-9), (140e-9, 50e-9)):
+            c = above(s, x, y, 8e-9)
+            view.set_layer("tip", True)
+            view.update(SceneState(s, c, R))
+            with_tip = view.screenshot()
+            view.set_layer("tip", False)
+            without = view.screenshot()
+            mask = changed(with_tip, without)
+            rows, cols = np.nonzero(mask)
+            # independent reference: top-down parallel projection, nm scene, pixel centres at +0.5
+            scale = (h / 2) / cam.parallel_scale  # pixels per nm
+            fx, fy, _ = cam.focal_point
+            expected = (h / 2 - (c[1] * 1e9 - fy) * scale - 0.5, w / 2 + (c[0] * 1e9 - fx) * scale - 0.5)
+            assert rows.mean() == pytest.approx(expected[0], abs=0.75)
+            assert cols.mean() == pytest.approx(expected[1], abs=0.75)
+            # the silhouette of a sphere seen from above is a disc of radius R
+            assert math.sqrt(mask.sum() / math.pi) == pytest.approx(R * 1e9 * scale, abs=1.0)
+            np.testing.assert_allclose(view.world_to_pixel(c), expected, atol=0.05)
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_tip_projection_in_perspective(gl):
+    s = sinusoid_surface()
+    view = make_view(s, camera="oblique", tip_opacity=1.0, layers={"hud": False, "colorbar": False})
+    try:
+        c = above(s, 80e-9, 120e-9, 5e-9)
+        view.update(SceneState(s, c, R))
+        a = view.screenshot()
+        view.set_layer("tip", False)
+        mask = changed(a, view.screenshot())
+        rows, cols = np.nonzero(mask)
+        row, col = view.world_to_pixel(c)
+        # the centroid of a sphere's perspective image sits within a pixel of its centre's projection
+        assert rows.mean() == pytest.approx(row, abs=1.0) and cols.mean() == pytest.approx(col, abs=1.0)
+        assert mask.sum() > 200
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+@pytest.mark.parametrize("color_by", ["height", "deformation"])
+def test_dent_shows_where_the_net_was_pushed_and_goes_away_on_reset(gl, color_by):
+    s = sinusoid_surface(n=32)
+    view = make_view(s, color_by=color_by, layers={"tip": False, "hud": False, "colorbar": False})
+    try:
+        x, y = 110e-9, 90e-9
+        c = above(s, x, y, 0.0)
+        view.update(SceneState(s, c, R))
+        before = view.screenshot()
+        push_down(s, x, y, 6e-9, 20e-9)
+        view.update(SceneState(s, c, R))
+        after = view.screenshot()
+        # the in-place, patch-wise re-sampling equals a full re-sampling
+        nu, nv = view.resolution
+        np.testing.assert_allclose(view.grid.points, s.evaluate_grid(nu, nv).reshape(-1, 3) * 1e9, rtol=0, atol=1e-9)
+        mask = changed(before, after)
+        assert mask.sum() > 150
+        rows, cols = np.nonzero(mask)
+        row, col = view.world_to_pixel((x, y, float(s.evaluate(x, y)[2])))
+        assert abs(np.median(rows) - row) < 8 and abs(np.median(cols) - col) < 8
+        # local: nothing changes far from the dent (the B-spline patch is local)
+        far = np.hypot(*np.mgrid[: SIZE[1], : SIZE[0]] - np.array([row, col])[:, None, None]) > 70
+        assert not (mask & far).any()
+        if color_by == "deformation":  # undeformed is the palest colour; the dent is darker
+            assert after[mask].sum(axis=1).mean() < before[mask].sum(axis=1).mean() - 30
+        s.reset()
+        view.update(SceneState(s, c, R))
+        np.testing.assert_array_equal(view.screenshot(), before)
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_shading_uses_the_exact_surface_normals(gl):
+    s = sinusoid_surface(n=12, amp=20e-9)
+    view = make_view(s, resolution=(20, 15), layers={"tip": False, "hud": False, "colorbar": False})
+    try:
+        view.update(SceneState(s, (1e-7, 1e-7, 1e-6), R))
+        (u0, u1), (v0, v1) = s.domain
+        uu, vv = np.meshgrid(np.linspace(u0, u1, 20), np.linspace(v0, v1, 15))
+        _, su, sv = s.evaluate(uu, vv, 1)
+        n = np.cross(su, sv)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        np.testing.assert_allclose(view.grid.point_data["Normals"], n.reshape(-1, 3), atol=1e-12)
+        assert (n[..., 2] > 0).all()  # out of the sample
+        a = view.screenshot()
+        view._normals[...] = (0.0, 0.0, 1.0)  # the renderer must use them: flat normals look different
+        view.grid.GetPointData().GetArray("Normals").Modified()
+        assert changed(a, view.screenshot()).sum() > 1000
+    finally:
+        view.close()
+
+
+def test_view_refuses_bad_settings():
+    from arsurf_viewer import SurfaceView
+
+    s = sinusoid_surface()
+    for kwargs, match in [(dict(color_by="slope"), "color_by"), (dict(camera="side"), "camera"),
+                          (dict(force_scale=0.0), "force_scale"), (dict(tip_opacity=0.0), "tip_opacity"),
+                          (dict(anti_aliasing="4x"), "anti_aliasing"), (dict(window_size=(8, 8)), "window_size"),
+                          (dict(resolution=1), "resolution.*2..4096")]:
+        with pytest.raises(ViewerError, match=match):
+            SurfaceView(s, **kwargs)
+    with pytest.raises(ViewerError, match="BSplineSurface"):
+        SurfaceView(np.zeros((3, 3)))
+
+
+@pytest.mark.viewer
+def test_force_arrow_appears_points_along_the_force_and_hides(gl):
+    s = sinusoid_surface()
+    view = make_view(s, camera="top", layers={"hud": False, "colorbar": False}, force_threshold=1e-12)
+    try:
+        c = above(s, 100e-9, 100e-9, 5e-9)
+        view.update(SceneState(s, c, R))
+        assert magenta(view.screenshot()).sum() == 0
+        view.update(SceneState(s, c, R, force=(0.0, 0.0, 1e-13)))  # below the threshold
+        assert magenta(view.screenshot()).sum() == 0
+        row0, col0 = view.world_to_pixel(c)
+        for force, drow, dcol in (((5e-9, 0, 0), 0, 1), ((0, -5e-9, 0), 1, 0), ((-2e-9, 2e-9, 0), -1, -1)):
+            view.update(SceneState(s, c, R, force=force))
+            m = magenta(view.screenshot())
+            assert m.sum() > 40, force
+            rows, cols = np.nonzero(m)
+            if drow:
+                assert np.sign(rows.mean() - row0) == drow
+            if dcol:
+                assert np.sign(cols.mean() - col0) == dcol
+        # longer for a larger force (logarithmic law)
+        view.update(SceneState(s, c, R, force=(1e-9, 0, 0)))
+        small = np.nonzero(magenta(view.screenshot()))[1].max()
+        view.update(SceneState(s, c, R, force=(30e-9, 0, 0)))
+        large = np.nonzero(magenta(view.screenshot()))[1].max()
+        assert large > small + 10
+        view.set_layer("force", False)
+        assert magenta(view.screenshot()).sum() == 0
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_contact_normal_arrow_and_layers(gl):
+    s = sinusoid_surface()
+    view = make_view(s, camera="oblique", tip_opacity=0.3, layers={"hud": False})
+    try:
+        c = above(s, 100e-9, 100e-9, -1e-9)
+        p = s.evaluate(100e-9, 100e-9)
+        view.update(SceneState(s, c, R))
+        assert green(view.screenshot()).sum() == 0
+        view.update(SceneState(s, c, R, contact_point=p, contact_normal=(0, 0, 1)))
+        g = green(view.screenshot())
+        assert g.sum() > 20
+        rows, _ = np.nonzero(g)
+        top = view.world_to_pixel(p + np.array([0, 0, 1.8 * R]))
+        assert rows.min() == pytest.approx(top[0], abs=3)  # the arrow ends 1.8 R along n
+        view.set_layer("contact", False)
+        assert green(view.screenshot()).sum() == 0
+        view.set_layer("surface", False)
+        img = view.screenshot()
+        r, g_, b = (img[..., k].astype(int) for k in range(3))
+        assert ((r >= g_) & (g_ >= b) & (r - b > 40)).mean() < 0.01
+        with pytest.raises(ViewerError, match="unknown layer 'nope'"):
+            view.set_layer("nope", True)
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_update_is_in_place(gl):
+    s = sinusoid_surface()
+    view = make_view(s)
+    try:
+        tube = ((50e-9, 50e-9, 5e-9), (1, 1, 0), 60e-9, 5e-9)
+        view.update(SceneState(s, above(s, 1e-7, 1e-7, 2e-9), R, contact_point=(1e-7, 1e-7, 0),
+                               contact_normal=(0, 0, 1), force=(0, 0, 2e-9), tubes=[tube]))
+        actors = dict(view.plotter.renderer.actors)
+        grid, tip, tube_actor = view.grid, view.tip_actor, view._tubes[0][0]
+        points = view.grid.GetPoints().GetData()
+        for k in range(5):
+            push_down(s, 1e-7, 1e-7, 0.5e-9, 15e-9)
+            moved = ((60e-9 + k * 1e-9, 50e-9, 5e-9), (1, 1, 0), 60e-9, 5e-9)
+            view.update(SceneState(s, above(s, 1e-7 + k * 1e-9, 1e-7, 2e-9), R, contact_point=(1e-7, 1e-7, 0),
+                                   contact_normal=(0, 1, 1), force=(k * 1e-9, 0, 2e-9), tubes=[moved]))
+        assert dict(view.plotter.renderer.actors).keys() == actors.keys()
+        assert view.grid is grid and view.tip_actor is tip and view._tubes[0][0] is tube_actor
+        assert view.grid.GetPoints().GetData() is points
+        np.testing.assert_allclose(np.asarray(view.tip_actor.user_matrix)[:3, 3], (np.array([1.04e-7, 1e-7, 0]) +
+                                   [0, 0, above(s, 1.04e-7, 1e-7, 2e-9)[2]]) * 1e9)
+        np.testing.assert_allclose(np.asarray(tube_actor.user_matrix)[:3, 3], [64.0, 50.0, 5.0])
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_color_by_and_layer_sets(gl):
+    s = sinusoid_surface()
+    view = make_view(s)
+    try:
+        view.update(SceneState(s, above(s, 1e-7, 1e-7, 5e-9), R))
+        ctl = StylusController(s, (1e-7, 1e-7, 3e-8), view=view)
+        assert ctl.handle_key("c") == "colour by deformation"
+        assert view.grid.point_data.active_scalars_name == "deformation_nm"
+        assert ctl.handle_key("t") == f"layers: {LAYER_SETS[1][0]}"
+        assert view.layers["tip"] is False and view.layers["surface"] is True
+        assert ctl.handle_key("2") == "tip on"
+        assert ctl.handle_key("v") == "camera top" and view.plotter.camera.parallel_projection
+        with pytest.raises(ViewerError, match="color_by"):
+            view.set_color_by("slope")
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_probe_layer_draws_the_pyramid_over_the_tip(gl):
+    pytest.importorskip("trimesh")
+    s = sinusoid_surface()
+    view = make_view(s, camera="top", layers={"hud": False, "colorbar": False})
+    try:
+        c = above(s, 100e-9, 100e-9, 5e-9)
+        view.update(SceneState(s, c, R))
+        a = view.screenshot()
+        view.set_layer("probe", True)
+        b = view.screenshot()
+        mask = changed(a, b)
+        # seen from above, the pyramid hides a square around the tip, wider than the tip
+        rows, cols = np.nonzero(mask)
+        row, col = view.world_to_pixel(c)
+        assert rows.min() < row - 20 < row + 20 < rows.max() and cols.min() < col - 20 < col + 20 < cols.max()
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_render_frames_writes_pngs_and_a_movie(gl, tmp_path):
+    from arsurf_viewer.frames import movie_support, render_frames
+
+    s = sinusoid_surface()
+    path = scripted_path(s, R, frames=8)
+    states = (SceneState(s, c, R, force=(0, 0, 1e-9 * k)) for k, c in enumerate(path))
+    out = render_frames(states, tmp_path / "out", fps=10, window_size=(160, 120), anti_aliasing=None)
+    assert [p.name for p in out.paths] == [f"frame_{k:05d}.png" for k in range(8)]
+    assert not list((tmp_path / "out").glob("*.part*"))
+    first, last = (np.asarray(__import__("imageio.v3").v3.imread(p)) for p in (out.paths[0], out.paths[-1]))
+    assert changed(first, last).sum() > 20  # the tip moved
+    if movie_support() is None:
+        import imageio.v3 as iio
+
+        frames = iio.imread(out.movie, index=None)
+        assert frames.shape[0] == 8 and frames.shape[1:3] == (120, 160)
+    else:
+        assert out.movie is None and "no movie" in out.note
+    with pytest.raises(ViewerError, match="no states"):
+        render_frames(iter(()), tmp_path / "empty", movie=None)
+
+
+@pytest.mark.viewer
+def test_without_a_display_the_viewer_renders_offscreen(gl, tmp_path, monkeypatch, capsys):
+    import arsurf_viewer.interactive as inter
+
+    monkeypatch.setattr(inter, "has_display", lambda: False)
+    s = sinusoid_surface()
+    poses = iter([above(s, 1e-7, 1e-7, 6e-9), above(s, 1e-7, 1e-7, 3e-9), None, above(s, 1e-7, 1e-7, 1e-9)])
+    seen = []
+
+    def physics(center, dt):  # the lead's loop plugs in here; duck-typed
+        seen.append(np.array(center))
+        return SceneState(s, center, R, loop_rate_hz=1.0 / dt)
+
+    res = inter.run_interactive(s, tip_radius=R, physics=physics, pose_source=lambda: next(poses, None),
+                                out_dir=tmp_path / "view", frames=4, window_size=(160, 120), anti_aliasing=None)
+    assert "no display" in capsys.readouterr().err
+    assert len(res.paths) == 4 and all(p.is_file() for p in res.paths)
+    assert len(seen) == 4
+    np.testing.assert_array_equal(seen[2], seen[1])  # a None pose keeps the last one
+
+
+@pytest.mark.viewer
+def test_contact_physics_dents_and_releases(gl):
+    pytest.importorskip("arsurf.contact.projection")
+    from arsurf_viewer.interactive import ContactPhysics
+
+    s = BSplineSurface.from_heights(np.zeros((30, 30)), (0.0, 200e-9), (0.0, 200e-9))
+    phys = ContactPhysics(s, R)
+    free = phys((1e-7, 1e-7, R + 5e-9), 1e-3)
+    assert free.depth == pytest.approx(-5e-9, abs=1e-15) and not s.is_deformed
+    st = phys((1e-7, 1e-7, R - 2e-9), 1e-3)
+    assert st.depth == pytest.approx(2e-9, abs=1e-15)
+    assert st.force[2] > 0 and abs(st.force[0]) < 1e-15 and st.contact_radius > 0
+    assert s.is_deformed and s.evaluate(1e-7, 1e-7)[2] < -0.25 * 2e-9  # dented under the tip
+    phys((1e-7, 1e-7, R + 30e-9), 1e-3)
+    assert not s.is_deformed

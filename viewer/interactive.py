@@ -1,0 +1,343 @@
+"""Driving the tip by hand: keyboard and mouse as a stand-in for a stylus, or a pose callable.
+
+:func:`run_interactive` opens a window on the surface. Each timer tick (``fps``) it takes the
+tip pose - from ``pose_source()`` when given (the haptic loop or the UDP bridge: a callable
+returning the tip centre (3,) in metres, or None to keep the keyboard pose), else from the
+keys - runs ``physics(tip_center, dt) -> SceneState`` and updates the view in place.
+
+Keys (:class:`StylusController`)
+    ←/→ move x, ↑/↓ move y, Page Up/Page Down move z; ``[`` / ``]`` halve/double the step;
+    ``r`` resets the surface, ``p`` pauses/resumes, ``t`` cycles layer sets, ``1``-``8`` toggle
+    single layers (surface, tip, contact, force, hud, probe, tubes, colorbar), ``c`` switches the
+    colouring (height/deformation), ``v`` the camera (oblique/top), ``q`` quits.
+    Right-click on the surface puts the tip there, just touching.
+
+The default physics, :class:`ContactPhysics`, is the model without a cantilever: the tip sphere
+is collided with the *rest* surface (so the dent it makes does not hide the indentation),
+Maugis-Dugdale gives the contact radius and the load P, the force shown is P·n, and the net
+is dented with :class:`arsurf.contact.deformation.Deformer`. The live loop replaces it with its
+own ``physics`` (decoupled, measured force).
+
+Without a display (Linux with no reachable X server) the same scene is rendered offscreen
+along the pose source, or along a scripted approach-indent-slide-retract path, into PNG frames
+and a movie, and a message says so.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from arsurf.spline.surface import BSplineSurface
+
+from .backend import choose_backend, has_display
+from .state import SceneState, ViewerError
+
+__all__ = ["StylusController", "ContactPhysics", "scripted_path", "run_interactive", "view_scan", "LAYER_SETS"]
+
+#: Layer sets that the ``t`` key cycles through (name -> visible layers).
+LAYER_SETS = (
+    ("all", {"surface", "tip", "contact", "force", "hud", "tubes", "colorbar"}),
+    ("surface only", {"surface", "colorbar"}),
+    ("no arrows", {"surface", "tip", "hud", "tubes", "colorbar"}),
+    ("with probe", {"surface", "tip", "contact", "force", "hud", "tubes", "colorbar", "probe"}),
+)
+_LAYER_KEYS = ("surface", "tip", "contact", "force", "hud", "probe", "tubes", "colorbar")
+
+
+class StylusController:
+    """Keyboard state of the stand-in stylus: the tip centre, step sizes, pause and layers.
+
+    Pure logic (no window): :meth:`handle_key` takes VTK key symbols, so tests drive it directly.
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        Reset by ``r``.
+    tip_center : (3,) float, metres
+        Start position.
+    step : float, metres, optional
+        Lateral step per key press (default: 1/50 of the scan size).
+    z_step : float, metres, optional
+        Vertical step (default: step / 4, fine enough to control an indentation).
+    view : SurfaceView, optional
+        Receives the layer, colouring and camera keys.
+    on_reset : callable, optional
+        Called after ``r`` (e.g. to release a deformer).
+    """
+
+    def __init__(self, surface: BSplineSurface, tip_center, *, step: float | None = None,
+                 z_step: float | None = None, view=None, on_reset: Callable[[], None] | None = None):
+        self.surface = surface
+        self.tip_center = np.asarray(tip_center, dtype=np.float64).reshape(3).copy()
+        (u0, u1), (v0, v1) = surface.domain
+        self.step = float(step) if step is not None else max(u1 - u0, v1 - v0) / 50.0
+        self.z_step = float(z_step) if z_step is not None else self.step / 4.0
+        if not (self.step > 0 and self.z_step > 0 and math.isfinite(self.step) and math.isfinite(self.z_step)):
+            raise ViewerError(f"steps must be positive lengths in metres (got step={step!r}, z_step={z_step!r})")
+        self.view = view
+        self.on_reset = on_reset
+        self.paused = False
+        self.quit = False
+        self.layer_set = 0
+
+    def handle_key(self, key: str) -> str:
+        """Apply one key (a VTK keysym: "Left", "Prior", "r", "bracketleft", "3"...); returns what it did."""
+        moves = {"Left": (0, -1.0), "Right": (0, 1.0), "Down": (1, -1.0), "Up": (1, 1.0),
+                 "Next": (2, -1.0), "Prior": (2, 1.0)}
+        if key in moves:
+            axis, sign = moves[key]
+            self.tip_center[axis] += sign * (self.z_step if axis == 2 else self.step)
+            return f"tip at ({', '.join(f'{c * 1e9:.1f}' for c in self.tip_center)}) nm"
+        if key == "bracketleft":
+            self.step /= 2.0
+            self.z_step /= 2.0
+            return f"step {self.step * 1e9:.3g} nm, z step {self.z_step * 1e9:.3g} nm"
+        if key == "bracketright":
+            self.step *= 2.0
+            self.z_step *= 2.0
+            return f"step {self.step * 1e9:.3g} nm, z step {self.z_step * 1e9:.3g} nm"
+        if key == "r":
+            self.surface.reset()
+            if self.on_reset is not None:
+                self.on_reset()
+            return "surface reset"
+        if key == "p":
+            self.paused = not self.paused
+            return "paused" if self.paused else "running"
+        if key == "q":
+            self.quit = True
+            return "quit"
+        if self.view is None:
+            return ""
+        if key == "t":
+            self.layer_set = (self.layer_set + 1) % len(LAYER_SETS)
+            name, on = LAYER_SETS[self.layer_set]
+            for layer in _LAYER_KEYS:
+                self.view.set_layer(layer, layer in on)
+            return f"layers: {name}"
+        if key in "12345678" and len(key) == 1:
+            layer = _LAYER_KEYS[int(key) - 1]
+            return f"{layer} {'on' if self.view.toggle_layer(layer) else 'off'}"
+        if key == "c":
+            self.view.set_color_by("deformation" if self.view.color_by == "height" else "height")
+            return f"colour by {self.view.color_by}"
+        if key == "v":
+            self.view.set_camera("top" if self.view.camera_mode == "oblique" else "oblique")
+            return f"camera {self.view.camera_mode}"
+        return ""
+
+
+class ContactPhysics:
+    """The model without a cantilever, for driving the tip by hand (see the module notes).
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The live surface (dented in place).
+    tip_radius : float, metres
+    tip_material, sample_material : str or Material
+        Names in :data:`arsurf.MATERIALS` (default Si tip on polystyrene, soft enough to dent).
+    deform : bool
+        Dent the net (``False``: a rigid sample).
+    """
+
+    def __init__(self, surface: BSplineSurface, tip_radius: float, *, tip_material="Si",
+                 sample_material="polystyrene", deform: bool = True):
+        from arsurf.contact.deformation import Deformer
+        from arsurf.contact.materials import effective_modulus, work_of_adhesion
+        from arsurf.contact.maugis_dugdale import MaugisDugdale
+
+        self.surface = surface
+        self.tip_radius = float(tip_radius)
+        self.model = MaugisDugdale(self.tip_radius, effective_modulus(tip_material, sample_material),
+                                   work_of_adhesion(tip_material, sample_material))
+        ctrl, rest, ku, kv = surface.kernel_arrays()
+        self.rest_surface = BSplineSurface.construct_fast(np.array(rest, copy=True), ku, kv)
+        self.deformer = Deformer(surface) if deform else None
+        self._hint = None
+        self.status = f"keyboard · {tip_material} on {sample_material}"
+
+    def release(self) -> None:
+        """Forget the dent (after ``surface.reset()``)."""
+        if self.deformer is not None:
+            self.deformer.release()
+
+    def __call__(self, tip_center, dt: float) -> SceneState:
+        from arsurf.contact.projection import collide
+
+        c = np.asarray(tip_center, dtype=np.float64)
+        contact = collide(self.rest_surface, c, self.tip_radius, hint=self._hint)
+        self._hint = contact.uv
+        state = self.model.contact_state(depth=float(contact.depth))
+        a = float(state.radius)
+        n = np.asarray(contact.normal, dtype=np.float64)
+        if self.deformer is not None:
+            if bool(state.in_contact):
+                self.deformer.apply(c, self.tip_radius, n, a)
+            else:
+                self.deformer.release()
+        rate = 1.0 / dt if dt > 0 else math.nan
+        return SceneState.from_contact(
+            self.surface, c, self.tip_radius, contact, contact_radius=a, force=float(state.load) * n,
+            maugis_lambda=self.model.maugis_parameter, loop_rate_hz=rate, device_status=self.status,
+        )
+
+
+def scripted_path(surface: BSplineSurface, tip_radius: float, frames: int = 60, indent: float | None = None) -> np.ndarray:
+    """Tip centres (frames, 3) m: approach above the centre, indent, slide 20 % of the scan, retract.
+
+    ``indent`` (default R/4) is the depth below the rest surface reached at the bottom.
+    """
+    if frames < 4:
+        raise ViewerError(f"`frames` must be at least 4 (got {frames!r})")
+    (u0, u1), (v0, v1) = surface.domain
+    d = 0.25 * tip_radius if indent is None else float(indent)
+    n1 = frames // 4
+    n3 = frames // 4
+    n2 = frames - n1 - n3
+    x0, y = u0 + 0.4 * (u1 - u0), v0 + 0.5 * (v1 - v0)
+    xs = np.concatenate([np.full(n1, x0), np.linspace(x0, x0 + 0.2 * (u1 - u0), n2), np.full(n3, x0 + 0.2 * (u1 - u0))])
+    ys = np.full(frames, y)
+    zs_surf = surface.evaluate(xs, ys)[:, 2]
+    lift = np.concatenate([np.linspace(1.5 * tip_radius, -d, n1), np.full(n2, -d), np.linspace(-d, 1.5 * tip_radius, n3)])
+    return np.column_stack([xs, ys, zs_surf + tip_radius + lift])
+
+
+def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physics=None,
+                    pose_source: Callable[[], object] | None = None, fps: float = 30.0, start=None,
+                    out_dir: str | Path = "out/view", frames: int = 90, **view_kwargs):
+    """Open the interactive viewer (or render offscreen when there is no display).
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+    tip_radius : float, metres
+    physics : callable (tip_center (3,) m, dt s) -> SceneState, optional
+        One tick of the model; default :class:`ContactPhysics`. The haptic loop passes its own.
+    pose_source : callable () -> (3,) metres or None, optional
+        Polled every frame; a pose overrides the keyboard (stylus, UDP bridge, replay).
+    fps : float
+        View refresh rate (30-60 Hz; the haptic loop runs separately at its own rate).
+    start : (3,) metres, optional
+        Initial tip centre (default: above the middle of the surface, 1.5 R clear of it).
+    out_dir, frames
+        Headless fallback: where to write PNG frames and the movie, and how many frames.
+    view_kwargs
+        Passed to :class:`SurfaceView`.
+
+    Returns
+    -------
+    None after the window closes, or the :class:`~arsurf_viewer.frames.Frames` written headless.
+    """
+    from .frames import render_frames
+    from .view import SurfaceView
+
+    if not isinstance(surface, BSplineSurface):
+        raise ViewerError(f"`surface` must be a BSplineSurface (got {type(surface).__name__})")
+    if not (isinstance(fps, (int, float)) and 1 <= fps <= 240):
+        raise ViewerError(f"`fps` must be between 1 and 240 (got {fps!r})")
+    physics = physics if physics is not None else ContactPhysics(surface, tip_radius)
+    (u0, u1), (v0, v1) = surface.domain
+    if start is None:
+        cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+        start = (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
+    dt = 1.0 / fps
+    choose_backend()
+    if not has_display():
+        out = Path(out_dir)
+        print(f"arsurf view: no display (DISPLAY is unset or unreachable), so no window can open; rendering "
+              f"{frames} frames offscreen to {out}/ instead "
+              f"({'following the pose source' if pose_source else 'along a scripted approach-indent-slide-retract path'}).",
+              file=sys.stderr)
+        poses = scripted_path(surface, tip_radius, frames) if pose_source is None else None
+
+        def states():  # one at a time: each state shows the live surface as dented at that tick
+            last = np.asarray(start, dtype=np.float64)
+            for k in range(frames):
+                pose = poses[k] if poses is not None else pose_source()
+                last = last if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+                yield physics(last, dt)
+
+        view_kwargs.setdefault("off_screen", True)
+        return render_frames(states(), out, fps=fps, **view_kwargs)
+
+    view = SurfaceView(surface, off_screen=False, **view_kwargs)
+    ctl = StylusController(surface, start, view=view,
+                           on_reset=getattr(physics, "release", None))
+    plotter = view.plotter
+    state = physics(ctl.tip_center, dt)
+    view.update(state, render=False)
+    last_tick = [time.perf_counter()]
+
+    def tick(_step=None):
+        now = time.perf_counter()
+        elapsed, last_tick[0] = now - last_tick[0], now
+        if ctl.quit:
+            plotter.close()
+            return
+        if ctl.paused:
+            return
+        if pose_source is not None:
+            pose = pose_source()
+            if pose is not None:
+                ctl.tip_center[:] = np.asarray(pose, dtype=np.float64).reshape(3)
+        view.update(physics(ctl.tip_center, elapsed if elapsed > 0 else dt))
+
+    keys = ("Left", "Right", "Up", "Down", "Prior", "Next", "bracketleft", "bracketright",
+            "r", "p", "t", "c", "v", *"12345678")
+    for key in keys:
+        plotter.clear_events_for_key(key, raise_on_missing=False)
+        plotter.add_key_event(key, lambda k=key: _announce(ctl.handle_key(k)))
+    # VTK's own one-letter shortcuts (r: reset camera, p: pick, t: trackball...) would fire too
+    style = plotter.iren.interactor.GetInteractorStyle()
+    if style is not None:
+        style.AddObserver("CharEvent", lambda *_: None)
+
+    def clicked(point):
+        if point is None:
+            return
+        x, y = float(point[0]) * 1e-9, float(point[1]) * 1e-9
+        z = float(surface.evaluate(x, y)[2])
+        ctl.tip_center[:] = (x, y, z + tip_radius)
+
+    plotter.track_click_position(clicked, side="right")
+    plotter.iren.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(round(1000 * dt))), callback=tick)
+    print("arsurf view: arrows move x/y, PgUp/PgDn z, [ ] step, r reset, p pause, t layers, "
+          "1-8 layer, c colours, v camera, right-click place, q quit", file=sys.stderr)
+    plotter.show()
+    return None
+
+
+def _announce(message: str) -> None:
+    if message:
+        print(f"arsurf view: {message}", file=sys.stderr)
+
+
+def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "plane", control_shape=None,
+              smoothing: float = 0.0, **kwargs):
+    """What ``arsurf view [SCAN]`` runs: load (a path or a Scan), level, fit and open the viewer.
+
+    Parameters
+    ----------
+    scan : path-like or Scan
+    tip_radius : float, metres
+    level_method : str or None
+        :func:`arsurf.level` method (None: use the heights as they are).
+    control_shape, smoothing
+        Passed to :func:`arsurf.fit_surface`.
+    kwargs
+        Passed to :func:`run_interactive`.
+    """
+    import arsurf
+
+    if not isinstance(scan, arsurf.Scan):
+        scan = arsurf.load_scan(scan)
+    if level_method is not None:
+        scan = arsurf.level(scan, level_method)
+    surface = arsurf.fit_surface(scan, control_shape=control_shape, smoothing=smoothing)
+    return run_interactive(surface, tip_radius=tip_radius, **kwargs)
