@@ -47,8 +47,9 @@ Scene integration: which one the live loop uses
 The tube offers both ways of joining the scene, and they have different jobs:
 
 * :meth:`Nanotube.tip_overlap` + :func:`push` (an object): the live loop should use this. The test
-  is analytic (distance from the tip-sphere centre to the axis segment, O(1), well under a
-  microsecond in the kernel), the tube's edges stay sharp, and moving the tube changes only its
+  is analytic (distance from the tip-sphere centre to the axis segment, O(1): about 1 us per
+  call from Python, and a push in contact about 6 us per 1 kHz tick, bench/manipulation.py),
+  the tube's edges stay sharp, and moving the tube changes only its
   pose - no refit of the B-spline surface, whose smoothing would round the tube off and whose
   local refit at the old and new positions would cost O(patch) per haptic step. The viewer draws
   the tube as its own actor and moves it with :meth:`Nanotube.transform` each frame.
@@ -717,7 +718,10 @@ def push(tube: Nanotube, tip_center, tip_displacement, tip_radius: float = 0.0, 
          max_substeps: int = 100_000) -> PushResult:
     """Move a tip sphere by ``tip_displacement`` from ``tip_center`` and push the tube out of its way.
 
-    The tip path is split into sub-steps (at most ``max_substep`` long, default L/50). In each, the
+    The tip path is split into sub-steps, at most ``max_substep`` long (default L/50: the pivot
+    follows the contact as it slides) and at most half the in-plane contact radius (so that the
+    tip cannot cross the axis within one sub-step; a floor of 1 % of ``R + r`` bounds their number
+    when the tip grazes the very top of the tube). In each, the
     deepest point of the tip path into the tube (the point closest to the axis) is found; if the
     tip sphere would overlap the tube there, the contact point and normal are taken where the tip
     first touches, and the tube moves by the Eq. 9 motion (rotation about

@@ -120,6 +120,9 @@ def plan_z_pushes(tube: Nanotube, goal, tip_radius: float, *, position_tolerance
        so that small corrections need small turns), then translate sideways (a "Z");
     2. otherwise turn to the goal angle.
 
+    Turns leave a small axial drift of the centre (higher order in the rotation per push); when
+    a round does not shrink the position error by 30 %, the rotation per push is halved.
+
     Parameters
     ----------
     tube : Nanotube
