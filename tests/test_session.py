@@ -1,0 +1,367 @@
+"""Session files: writer/reader round trip, atomic writing, reproducible bytes, every bad input."""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import time
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.errors import ScanFileNotFound, SessionError
+from arsurf.force.cantilever import Cantilever
+from arsurf.replay import session as sm
+from arsurf.replay.session import (
+    TICK_FIELDS,
+    SessionFileNotFound,
+    SessionWriter,
+    load_session,
+    scan_sha256,
+    session_metadata,
+)
+
+R = 20e-9
+LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
+MD = MaugisDugdale(R, 50e9, 0.1)
+SCAN = {"path": "scans/sinusoid.npz", "sha256": "ab" * 32, "channel": None,
+        "processing": {"level": "plane", "sigma": 2e-9, "inpaint": True}}
+FIELDS = {f.name: f for f in TICK_FIELDS}
+
+
+def meta(**over):
+    kw = dict(scan=SCAN, tip_radius=R, contact=MD, cantilever=LEVER, friction=0.25,
+              calibration={"vertical_sensitivity": -1.3e-2, "gains": [1.5, 2.0]},
+              haptics={"device": "virtual", "position_scale": 1e-6}, loop_rate=1000.0)
+    kw.update(over)
+    return session_metadata(**kw)
+
+
+def write(path, n=5, **over):
+    with SessionWriter(path, meta(), **over) as w:
+        for k in range(n):
+            w.append(t=k * 1e-3, probe_position=(1e-7, 2e-7, 3e-8 - 1e-9 * k), probe_velocity=(1e-6, 0, -1e-6),
+                     force=(0.0, 0.0, k * 1e-9), buttons=k % 2, in_contact=int(k > 2), md_status=0)
+    return path
+
+
+def _equal(a, b):
+    """Bitwise equality (NaN payloads and signed zeros included)."""
+    a = np.ascontiguousarray(a)
+    b = np.ascontiguousarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+# ---------------------------------------------------------------------------------------------
+# round trip
+
+
+def _field_arrays(draw, n, names):
+    out = {}
+    for name in names:
+        f = FIELDS[name]
+        shape = (n,) if f.width == 0 else (n, f.width)
+        if f.dtype == "f8":
+            elems = st.floats(allow_nan=True, allow_infinity=True, width=64)
+        else:
+            elems = st.integers(-2**31, 2**31 - 1)
+        out[name] = draw(hnp.arrays(np.dtype(f.dtype), shape, elements=elems))
+    return out
+
+
+@st.composite
+def recordings(draw):
+    n = draw(st.integers(0, 12))
+    optional = [f.name for f in TICK_FIELDS if f.name not in ("t", "probe_position")]
+    given_names = draw(st.lists(st.sampled_from(optional), unique=True))
+    arrays = _field_arrays(draw, n, ["t", "probe_position", *given_names])
+    capacity = draw(st.integers(1, 8))
+    return n, arrays, capacity
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(rec=recordings())
+def test_round_trip_keeps_every_value_bit_for_bit_and_fills_missing_fields(tmp_path, rec):
+    n, arrays, capacity = rec
+    path = tmp_path / "s.h5"
+    with SessionWriter(path, meta(), capacity=capacity) as w:
+        for k in range(n):
+            w.append(**{name: a[k] for name, a in arrays.items()})
+        assert w.n_ticks == n
+    s = load_session(path)
+    assert s.n_ticks == n
+    assert set(s.ticks) == set(FIELDS)
+    for f in TICK_FIELDS:
+        got = s.ticks[f.name]
+        assert got.dtype == np.dtype(f.dtype)
+        assert got.shape == ((n,) if f.width == 0 else (n, f.width))
+        if f.name in arrays:
+            assert _equal(got, arrays[f.name]), f.name
+        else:  # the documented fill value
+            want = np.full(got.shape, f.fill, dtype=np.dtype(f.dtype))
+            assert _equal(got, want), f.name
+
+
+@settings(max_examples=25, deadline=None)
+@given(x=st.floats(allow_nan=False, allow_infinity=False, min_value=1e-300, max_value=1e300),
+       text=st.text(max_size=20))
+def test_metadata_free_values_round_trip_exactly(tmp_path_factory, x, text):
+    path = tmp_path_factory.mktemp("m") / "s.h5"
+    m = meta(calibration={"k": x, "note": text, "nested": {"list": [x, -x, 1, None, True]}})
+    with SessionWriter(path, m) as w:
+        w.append(t=0.0, probe_position=(0.0, 0.0, 1e-8))
+    got = load_session(path).metadata
+    assert got == m
+    assert got["calibration"]["k"] == x and got["calibration"]["note"] == text
+
+
+def test_metadata_builds_the_recorded_model_objects_exactly():
+    m = meta()
+    assert m["cantilever"] == {"length": 450e-6, "width": 50e-6, "thickness": 2.5e-6, "tip_height": 15e-6,
+                               "youngs_modulus": 169e9, "poisson_ratio": 0.27,
+                               "normal_stiffness": LEVER.normal_stiffness,
+                               "torsional_stiffness": LEVER.torsional_stiffness, "beta": LEVER.beta}
+    tip, md, lever, friction, deform = sm._model_parts(json.loads(json.dumps(m)))
+    assert lever == LEVER  # dataclass equality: every field identical after the JSON round trip
+    assert md.kernel_args == MD.kernel_args and tip == R and friction == 0.25 and deform is True
+    assert m["contact"]["dugdale_stress"] == MD.dugdale_stress
+
+
+def test_root_attributes_and_growth(tmp_path):
+    path = write(tmp_path / "s.h5", n=37, capacity=1)
+    s = load_session(path)
+    assert s.n_ticks == 37
+    np.testing.assert_array_equal(s.ticks["t"], np.arange(37) * 1e-3)
+    np.testing.assert_array_equal(s.ticks["buttons"], np.arange(37) % 2)
+    a = s.attrs
+    assert a["format"] == "arsurf-session" and a["format_version"] == 1 and a["units"] == "SI"
+    assert a["complete"] is True and a["n_ticks"] == 37
+    import arsurf
+
+    assert a["arsurf_version"] == arsurf.__version__
+    created = datetime.datetime.fromisoformat(a["created"])
+    assert created.tzinfo is not None
+    assert abs((datetime.datetime.now(datetime.timezone.utc) - created).total_seconds()) < 600
+    with h5py.File(path) as f:  # no timestamps on any object
+        for obj in (f, f["metadata"], f["ticks"], *f["ticks"].values()):
+            info = h5py.h5o.get_info(obj.id)
+            assert (info.atime, info.mtime, info.ctime, info.btime) == (0, 0, 0, 0)
+
+
+def test_same_content_and_created_give_identical_bytes(tmp_path):
+    a = write(tmp_path / "a.h5", created="2026-01-02T03:04:05+00:00")
+    time.sleep(1.1)  # HDF5 timestamps have a resolution of one second
+    b = write(tmp_path / "b.h5", created="2026-01-02T03:04:05+00:00")
+    assert a.read_bytes() == b.read_bytes()
+    c = write(tmp_path / "c.h5")  # only `created` differs
+    assert c.read_bytes() != a.read_bytes()
+    assert load_session(c).ticks.keys() == load_session(a).ticks.keys()
+
+
+def test_close_is_atomic_and_leaves_no_part_file(tmp_path, monkeypatch):
+    path = write(tmp_path / "s.h5", n=3)
+    before = path.read_bytes()
+    assert not (tmp_path / "s.h5.part").exists()
+    # a failure while writing the new file keeps the old one intact
+    w = SessionWriter(path, meta())
+    w.append(t=0.0, probe_position=(0, 0, 1e-8))
+
+    def boom(*args, **kwargs):
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", boom)
+    with pytest.raises(OSError, match="disk full"):
+        w.close()
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert not (tmp_path / "s.h5.part").exists()
+
+
+def test_aborted_recording_is_marked_incomplete(tmp_path):
+    path = tmp_path / "s.h5"
+    with pytest.raises(RuntimeError, match="device lost"):
+        with SessionWriter(path, meta()) as w:
+            w.append(t=0.0, probe_position=(0, 0, 1e-8))
+            w.append(t=1e-3, probe_position=(0, 0, 1e-8))
+            raise RuntimeError("device lost")
+    with pytest.raises(SessionError, match=r"incomplete .*RuntimeError: device lost.*allow_incomplete=True"):
+        load_session(path)
+    s = load_session(path, allow_incomplete=True)
+    assert s.n_ticks == 2 and s.attrs["complete"] is False
+
+
+def test_scan_sha256_is_the_hash_of_the_file_bytes(tmp_path, rng):
+    p = tmp_path / "scan.bin"
+    data = rng.bytes(3 * (1 << 20) + 17)  # more than one read block
+    p.write_bytes(data)
+    assert scan_sha256(p) == hashlib.sha256(data).hexdigest()
+    with pytest.raises(ScanFileNotFound, match="does not exist"):
+        scan_sha256(tmp_path / "nope.npz")
+
+
+def test_session_metadata_hashes_a_scan_path(tmp_path):
+    p = tmp_path / "scan.npz"
+    p.write_bytes(b"not really a scan, but bytes to hash")
+    m = meta(scan=p, level="rows-median", sigma=1e-9, inpaint=False, control_shape=(12, 10), smoothing=0.5)
+    assert m["scan"] == {"path": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest(), "channel": None,
+                         "processing": {"level": "rows-median", "sigma": 1e-9, "inpaint": False,
+                                        "control_shape": [12, 10], "smoothing": 0.5}}
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: writer
+
+
+def test_writer_rejects_bad_metadata_before_recording(tmp_path):
+    with pytest.raises(SessionError, match="lacks"):
+        SessionWriter(tmp_path / "s.h5", {"scan": SCAN})
+    with pytest.raises(SessionError, match="valid model.*tip_radius"):
+        meta(tip_radius=-1e-9)
+    with pytest.raises(SessionError, match="friction must be >= 0"):
+        meta(friction=-0.1)
+    with pytest.raises(SessionError, match="sha256 must be 64"):
+        meta(scan={**SCAN, "sha256": "abc"})
+    with pytest.raises(SessionError, match="sigma must be >= 0"):
+        meta(scan={**SCAN, "processing": {"level": "plane", "sigma": -1e-9, "inpaint": True}})
+    with pytest.raises(SessionError, match="lacks scan.processing.inpaint"):
+        meta(scan={**SCAN, "processing": {"level": "plane", "sigma": 0.0}})
+    with pytest.raises(SessionError, match="JSON has no NaN"):
+        meta(calibration={"gain": float("nan")})
+    with pytest.raises(SessionError, match="which JSON cannot hold"):
+        meta(calibration={"fn": print})
+    with pytest.raises(SessionError, match="unknown arguments"):
+        meta(cantilever={"length": 1e-4, "colour": "red"})
+    with pytest.raises(SessionError, match="does not exist; create it"):
+        SessionWriter(tmp_path / "missing" / "s.h5", meta())
+    with pytest.raises(SessionError, match="is a directory"):
+        SessionWriter(tmp_path, meta())
+
+
+def test_append_rejects_bad_ticks_and_keeps_the_row_clean(tmp_path):
+    w = SessionWriter(tmp_path / "s.h5", meta())
+    with pytest.raises(SessionError, match=r"unknown session field\(s\) \['forse'\]"):
+        w.append(t=0.0, probe_position=(0, 0, 0), forse=(1, 2, 3))
+    with pytest.raises(SessionError, match="'force' must be 3 numbers per tick"):
+        w.append(t=0.0, probe_position=(0, 0, 0), force=(1.0, 2.0))
+    with pytest.raises(SessionError, match="needs `t`"):
+        w.append(probe_position=(0, 0, 0), force=(1.0, 2.0, 3.0))
+    # the failed appends left nothing behind in the row that is now used
+    w.append(t=0.5, probe_position=(0, 0, 1e-8))
+    assert w.n_ticks == 1
+    w.close()
+    with pytest.raises(SessionError, match="closed"):
+        w.append(t=1.0, probe_position=(0, 0, 1e-8))
+    s = load_session(tmp_path / "s.h5")
+    assert np.isnan(s.ticks["force"]).all() and s.ticks["t"].tolist() == [0.5]
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: reader
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(SessionFileNotFound, match="does not exist"):
+        load_session(tmp_path / "nope.h5")
+    with pytest.raises(SessionError, match="is a directory"):
+        load_session(tmp_path)
+
+
+def test_not_hdf5(tmp_path):
+    p = tmp_path / "s.h5"
+    p.write_text("t,x,y,z\n0,1,2,3\n")
+    with pytest.raises(SessionError, match="not a readable HDF5 session file"):
+        load_session(p)
+
+
+@pytest.mark.parametrize("keep", [0.0, 0.1, 0.5, 0.9, 0.99])
+def test_truncated_file(tmp_path, keep):
+    good = write(tmp_path / "good.h5", n=200)
+    data = good.read_bytes()
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(SessionError, match="truncated"):
+        load_session(cut)
+
+
+def _edit(path, fn):
+    with h5py.File(path, "r+") as f:
+        fn(f)
+    return path
+
+
+def test_wrong_format(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("format", "netcdf-thing"))
+    with pytest.raises(SessionError, match="not an arsurf-session file .*'netcdf-thing'"):
+        load_session(p)
+    q = tmp_path / "other.h5"
+    with h5py.File(q, "w") as f:
+        f["x"] = np.arange(3)
+    with pytest.raises(SessionError, match="format attribute is None"):
+        load_session(q)
+
+
+@pytest.mark.parametrize("version", [0, 2, 99])
+def test_unknown_version(tmp_path, version):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("format_version", np.int64(version)))
+    with pytest.raises(SessionError, match=rf"format_version {version}.*supported versions: 1"):
+        load_session(p)
+
+
+def test_missing_dataset(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f["ticks"].__delitem__("depth"))
+    with pytest.raises(SessionError, match=r"lacks the per-tick dataset\(s\) \['depth'\]"):
+        load_session(p)
+
+
+def test_inconsistent_lengths(tmp_path):
+    def shorten(f):
+        del f["ticks"]["load"]
+        f["ticks"].create_dataset("load", data=np.zeros(3))
+
+    p = _edit(write(tmp_path / "s.h5", n=5), shorten)
+    with pytest.raises(SessionError, match="inconsistent.*'load': 3"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5", n=5), lambda f: f.attrs.__setitem__("n_ticks", np.int64(7)))
+    with pytest.raises(SessionError, match="inconsistent: n_ticks=7"):
+        load_session(q)
+
+
+def test_wrong_shape_and_dtype(tmp_path):
+    def flat_force(f):
+        del f["ticks"]["force"]
+        f["ticks"].create_dataset("force", data=np.zeros(5))
+
+    p = _edit(write(tmp_path / "s.h5", n=5), flat_force)
+    with pytest.raises(SessionError, match=r"/ticks/force .* shape \(5,\), expected \(n, 3\)"):
+        load_session(p)
+
+    def text_buttons(f):
+        del f["ticks"]["buttons"]
+        f["ticks"].create_dataset("buttons", data=np.zeros(5))
+
+    q = _edit(write(tmp_path / "q.h5", n=5), text_buttons)
+    with pytest.raises(SessionError, match="/ticks/buttons .* dtype float64, expected int32"):
+        load_session(q)
+
+
+def test_complete_flag_must_be_true(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("complete", np.bool_(False)))
+    with pytest.raises(SessionError, match="incomplete"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f.attrs.__delitem__("complete"))
+    with pytest.raises(SessionError, match=r"incomplete \(complete=None"):
+        load_session(q)
+
+
+def test_broken_metadata(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f["metadata"].attrs.__setitem__("friction", "{not json"))
+    with pytest.raises(SessionError, match="metadata 'friction' .* not valid JSON"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f["metadata"].attrs.__delitem__("cantilever"))
+    with pytest.raises(SessionError, match=r"lacks \['cantilever'\]"):
+        load_session(q)
