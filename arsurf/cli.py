@@ -6,6 +6,7 @@ forces in nanonewtons; everything inside is SI.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -133,13 +134,50 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="scans")
     s.set_defaults(func=cmd_synth)
 
-    for register in _EXTRA_COMMANDS:
-        register(sub)
+    s = sub.add_parser("view", help="open the interactive 3D viewer (offscreen PNG without a display)")
+    s.add_argument("scan", nargs="?", default=None, help="scan file (default: the bundled nanotubes)")
+    s.add_argument("--tip-radius-nm", type=float, default=20.0)
+    s.add_argument("--sigma-nm", type=float, default=0.0)
+    s.add_argument("--level", default="plane")
+    s.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("export", help="write a fitted surface (.npz from `arsurf fit`) as STL/PLY/GLB")
+    s.add_argument("surface", help="surface file written by `arsurf fit`")
+    s.add_argument("-o", "--output", required=True, help="output mesh (.stl, .ply, .glb)")
+    s.add_argument("--resolution", type=int, nargs=2, metavar=("NU", "NV"), help="samples along u and v")
+    s.add_argument("--solid", action="store_true", help="close the surface into a watertight solid")
+    s.set_defaults(func=cmd_export)
+
+    for module in _EXTRA_COMMANDS:
+        importlib.import_module(module).register(sub)
     return p
 
 
-#: later pipeline stages add their subcommands here (demo, replay, view, export)
-_EXTRA_COMMANDS: list = []
+#: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay"]
+
+
+def cmd_view(args) -> int:
+    from arsurf.errors import require
+
+    require("pyvista", "viewer", "arsurf view")
+    from arsurf_viewer import view_scan
+    from arsurf.demo import BUNDLED_SCAN
+
+    view_scan(args.scan or str(BUNDLED_SCAN), tip_radius=args.tip_radius_nm * 1e-9,
+              level_method=None if args.level == "none" else args.level,
+              sigma=args.sigma_nm * 1e-9 if args.sigma_nm > 0 else None)
+    return 0
+
+
+def cmd_export(args) -> int:
+    from arsurf.export import export_surface
+    from arsurf.spline.storage import load_surface
+
+    surface = load_surface(args.surface)
+    path = export_surface(surface, args.output, tuple(args.resolution) if args.resolution else None, solid=args.solid)
+    print(path)
+    return 0
 
 
 def main(argv=None) -> int:
