@@ -780,3 +780,7 @@ def push(tube: Nanotube, tip_center, tip_displacement, tip_radius: float = 0.0, 
         px, py, pz, ex, ey, ez, R, step, band, int(max_substeps))
     new = tube.with_pose(cx, cy, th) if contacts else tube
     return PushResult(new, bool(contacts), int(contacts), float(last_l), float(last_s), int(n), _STATUS[int(status)])
+
+
+#: Alias of :func:`push` for the top-level API, where a bare ``push`` would be ambiguous.
+push_tube = push
