@@ -468,8 +468,7 @@ def test_without_a_display_the_viewer_renders_offscreen(gl, tmp_path, monkeypatc
     np.testing.assert_array_equal(seen[2], seen[1])  # a None pose keeps the last one
 
 
-@pytest.mark.viewer
-def test_contact_physics_dents_and_releases(gl):
+def test_contact_physics_dents_and_releases():
     pytest.importorskip("arsurf.contact.projection")
     from arsurf_viewer.interactive import ContactPhysics
 
@@ -483,3 +482,18 @@ def test_contact_physics_dents_and_releases(gl):
     assert s.is_deformed and s.evaluate(1e-7, 1e-7)[2] < -0.25 * 2e-9  # dented under the tip
     phys((1e-7, 1e-7, R + 30e-9), 1e-3)
     assert not s.is_deformed
+
+
+@pytest.mark.viewer
+def test_view_scan_levels_smooths_fits_and_falls_back_offscreen(gl, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("arsurf.contact.projection")
+    import arsurf
+    import arsurf_viewer.interactive as inter
+
+    monkeypatch.setattr(inter, "has_display", lambda: False)
+    z = np.fromfunction(lambda i, j: 2e-9 * np.sin(i / 4.0) + 1e-10 * j, (40, 40))  # with a tilt
+    scan = arsurf.Scan(z, dx=5e-9, dy=5e-9)
+    res = inter.view_scan(scan, tip_radius=R, sigma=5e-9, out_dir=tmp_path, frames=4, window_size=(160, 120),
+                          anti_aliasing=None, movie=None)
+    assert [p.name for p in res.paths] == [f"frame_{k:05d}.png" for k in range(4)]
+    assert "rendering 4 frames offscreen" in capsys.readouterr().err

@@ -318,9 +318,9 @@ def _announce(message: str) -> None:
         print(f"arsurf view: {message}", file=sys.stderr)
 
 
-def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "plane", control_shape=None,
-              smoothing: float = 0.0, **kwargs):
-    """What ``arsurf view [SCAN]`` runs: load (a path or a Scan), level, fit and open the viewer.
+def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "plane", sigma: float | None = None,
+              control_shape=None, smoothing: float = 0.0, **kwargs):
+    """What ``arsurf view [SCAN]`` runs: load (a path or a Scan), level, smooth, fit, open the viewer.
 
     Parameters
     ----------
@@ -328,6 +328,8 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
     tip_radius : float, metres
     level_method : str or None
         :func:`arsurf.level` method (None: use the heights as they are).
+    sigma : float, metres, optional
+        Gaussian smoothing width (:func:`arsurf.smooth`) before the fit; None: no smoothing.
     control_shape, smoothing
         Passed to :func:`arsurf.fit_surface`.
     kwargs
@@ -339,5 +341,7 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
         scan = arsurf.load_scan(scan)
     if level_method is not None:
         scan = arsurf.level(scan, level_method)
+    if sigma is not None:
+        scan = arsurf.smooth(scan, sigma)
     surface = arsurf.fit_surface(scan, control_shape=control_shape, smoothing=smoothing)
     return run_interactive(surface, tip_radius=tip_radius, **kwargs)
