@@ -1,0 +1,29 @@
+"""Packaging promises: every public name resolves, the engine never imports the viewer,
+every package folder is listed in pyproject.toml."""
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import arsurf
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_public_name_resolves():
+    for name in arsurf.__all__:
+        assert getattr(arsurf, name) is not None, name
+
+
+def test_import_arsurf_does_not_import_pyvista_or_compile_anything():
+    code = ("import sys, arsurf; arsurf.fit_surface; arsurf.collide; arsurf.HapticLoop; "
+            "print('pyvista' in sys.modules, 'vtk' in sys.modules, 'matplotlib' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "False", "False"]
+
+
+def test_every_package_folder_is_listed_in_pyproject():
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "arsurf").rglob("__init__.py")}
+    found.add("arsurf_viewer")
+    assert found <= listed, found - listed
