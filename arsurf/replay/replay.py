@@ -1,0 +1,518 @@
+r"""Offline replay: re-run the model over a recorded session and write what it computes.
+
+:func:`replay` (and ``arsurf replay SESSION --scan SCAN --out DIR``) loads a session
+(:mod:`arsurf.replay.session`), checks that the scan file is the one it was recorded on (SHA-256
+of the bytes), rebuilds the surface and the :class:`~arsurf.model.ARModel` exactly as recorded
+(:func:`~arsurf.replay.session.build_model`), runs the model over every recorded tick - tip
+centre, tip velocity and, where both are finite, the measured (bending, torsion) signals - and
+writes into ``DIR``:
+
+=====================  =======================================================================
+file                   content
+=====================  =======================================================================
+``replay.h5``          per tick: recomputed contact (point, normal, uv, distance, depth, radius,
+                       load, status) and forces (simulated, measured) with the recorded force,
+                       format ``arsurf-replay`` version 1 (schema below, style of the session)
+``forces.csv``         ``t``, recorded / simulated / measured force xyz, ``depth``,
+                       ``contact_radius``, ``load``, ``in_contact``; SI units, floats written
+                       with ``repr`` (shortest exact round trip), ``nan`` where absent
+``summary.json``       tick count, duration, peaks, agreement with the recorded contact
+``forces.png``         force components in nN vs time, contact shaded (seed 000 Fig. 10)
+``coupled_motion.png`` probe z / device F_z / probe y / device F_y vs time (seed 001 Fig. 4.21)
+``path.png``           the probe path over the processed height map (nm, colour bar)
+``frames/``            ``frame_NNNNN.png``, only with ``frames > 0`` and :mod:`arsurf_viewer`
+=====================  =======================================================================
+
+The same session and scan give byte-identical files (no timestamps anywhere: the session's
+``created`` is not copied, HDF5 datasets carry no times, PNGs no text chunks). Everything is
+written into a hidden sibling folder that is renamed to ``DIR`` only at the end, so an
+interrupted replay leaves ``DIR`` absent (or, with ``overwrite``, as it was).
+
+``replay.h5`` per-tick datasets (``/ticks``; root attributes ``format="arsurf-replay"``,
+``format_version=1``, ``arsurf_version``, ``units="SI"``, ``complete``, ``n_ticks``,
+``session_sha256``, ``scan_sha256``; ``/metadata`` is the session's):
+
+=====================  ========  =====  =====================================================
+dataset                shape     dtype  meaning
+=====================  ========  =====  =====================================================
+``t``                  (n,)      f8     recorded time, s
+``probe_position``     (n, 3)    f8     recorded tip centre, m
+``probe_velocity``     (n, 3)    f8     recorded tip velocity, m/s
+``signals``            (n, 2)    f8     recorded (bending, torsion), rad (NaN: none)
+``recorded_force``     (n, 3)    f8     the force the live loop used, N
+``simulated_force``    (n, 3)    f8     replayed model force P n + friction, N
+``measured_force``     (n, 3)    f8     replayed decoupling of the signals, N (NaN: none)
+``contact_point``      (n, 3)    f8     closest point on the rest surface, m
+``contact_normal``     (n, 3)    f8     unit normal there
+``uv``                 (n, 2)    f8     surface parameters of the closest point, m
+``distance``           (n,)      f8     signed distance of the tip centre, m
+``depth``              (n,)      f8     indentation depth R - distance, m
+``contact_radius``     (n,)      f8     Maugis-Dugdale contact radius, m
+``load``               (n,)      f8     Maugis-Dugdale load, N (> 0 compressive)
+``condition``          (n,)      f8     condition number of the decoupling (NaN: none)
+``in_contact``         (n,)      i4     1 when touching
+``md_status``          (n,)      i4     0 contact, 1 cohesive, 2 separated, < 0 error
+``decoupling_flags``   (n,)      i4     DecouplingFlag bits
+``collide_status``     (n,)      i4     collision status (< 0: failed, contact fields NaN)
+``moved``              (n,)      i4     control points moved by the dent
+=====================  ========  =====  =====================================================
+
+Example
+-------
+>>> # result = replay("run.h5", "scans/nanotubes.npz", "run-replay", frames=20)
+>>> # result.files -> ('coupled_motion.png', 'forces.csv', 'forces.png', 'frames/frame_00000.png', ...)
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from arsurf.errors import SessionError, require
+from arsurf.replay.session import (
+    MD_STATUS_NOT_GIVEN,
+    Session,
+    TickField,
+    build_model,
+    load_session,
+    read_h5,
+    scan_sha256,
+    write_h5,
+)
+
+__all__ = ["replay", "ReplayResult", "load_replay", "REPLAY_FIELDS", "REPLAY_FORMAT", "register", "cmd_replay"]
+
+REPLAY_FORMAT = "arsurf-replay"
+REPLAY_FORMAT_VERSION = 1
+_NAN = math.nan
+#: the per-tick datasets of replay.h5, in file order
+REPLAY_FIELDS: tuple[TickField, ...] = (
+    TickField("t", 0, "f8", _NAN, "recorded time, s"),
+    TickField("probe_position", 3, "f8", _NAN, "recorded tip centre, m"),
+    TickField("probe_velocity", 3, "f8", _NAN, "recorded tip velocity, m/s"),
+    TickField("signals", 2, "f8", _NAN, "recorded (bending, torsion), rad"),
+    TickField("recorded_force", 3, "f8", _NAN, "force the live loop used, N"),
+    TickField("simulated_force", 3, "f8", _NAN, "replayed model force, N"),
+    TickField("measured_force", 3, "f8", _NAN, "replayed decoupled force, N"),
+    TickField("contact_point", 3, "f8", _NAN, "closest point on the rest surface, m"),
+    TickField("contact_normal", 3, "f8", _NAN, "unit contact normal"),
+    TickField("uv", 2, "f8", _NAN, "surface parameters of the closest point, m"),
+    TickField("distance", 0, "f8", _NAN, "signed distance of the tip centre, m"),
+    TickField("depth", 0, "f8", _NAN, "indentation depth, m"),
+    TickField("contact_radius", 0, "f8", _NAN, "contact radius, m"),
+    TickField("load", 0, "f8", _NAN, "Maugis-Dugdale load, N"),
+    TickField("condition", 0, "f8", _NAN, "decoupling condition number"),
+    TickField("in_contact", 0, "i4", 0, "1 when touching"),
+    TickField("md_status", 0, "i4", 0, "MD status"),
+    TickField("decoupling_flags", 0, "i4", 0, "DecouplingFlag bits"),
+    TickField("collide_status", 0, "i4", 0, "collision status"),
+    TickField("moved", 0, "i4", 0, "control points moved"),
+)
+_CSV_COLUMNS = ("t", "F_recorded_x", "F_recorded_y", "F_recorded_z", "F_simulated_x", "F_simulated_y",
+                "F_simulated_z", "F_measured_x", "F_measured_y", "F_measured_z", "depth", "contact_radius",
+                "load", "in_contact")
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What :func:`replay` wrote and found (SI units).
+
+    ``files``: paths relative to ``out_dir``, sorted; ``frames``: PNG frames written;
+    ``notes``: why something was skipped; ``peak_force``: largest |simulated force| (N);
+    ``peak_measured_force`` (N, NaN without signals); ``max_depth``, ``max_contact_radius`` (m);
+    ``depth_difference``, ``load_difference``: largest |replayed - recorded| where the session
+    recorded them (NaN: never); ``contact_mismatches``: ticks whose recorded contact state
+    (md_status) differs from the replay; ``collision_failures``: ticks the collision could not
+    answer; ``elapsed``: wall time (s, not written to any file).
+    """
+
+    out_dir: Path
+    n_ticks: int
+    files: tuple[str, ...]
+    frames: int
+    notes: tuple[str, ...]
+    peak_force: float
+    peak_measured_force: float
+    max_depth: float
+    max_contact_radius: float
+    depth_difference: float
+    load_difference: float
+    contact_mismatches: int
+    collision_failures: int
+    elapsed: float
+
+
+class _Progress:
+    """tqdm when importable, else a plain stderr line every 5 %; nothing when disabled."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total = total
+        self.enabled = enabled
+        self.bar = None
+        self.done = 0
+        self._next_line = 0
+        if not enabled:
+            return
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            return
+        self.bar = tqdm(total=total, desc="replay", unit="tick", file=sys.stderr, mininterval=0.25,
+                        dynamic_ncols=True)
+
+    def update(self, n: int) -> None:
+        self.done += n
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.update(n)
+        elif self.done >= self._next_line:
+            pct = 100.0 * self.done / max(self.total, 1)
+            print(f"\rreplay: {self.done}/{self.total} ticks ({pct:3.0f} %)", end="", file=sys.stderr, flush=True)
+            self._next_line = self.done + max(self.total // 20, 1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        elif self.enabled:
+            print(file=sys.stderr)
+
+
+def _finite_rows(name: str, a: np.ndarray, session_path) -> None:
+    bad = ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise SessionError(f"session {str(session_path)!r}: {name} is not finite at {int(bad.sum())} tick(s), "
+                           f"first at tick {k} ({a[k].tolist()}); the replay needs it at every tick")
+
+
+def _csv(path: Path, columns: list[np.ndarray]) -> None:
+    """One row per tick, floats as repr (exact), integers as integers; '\\n' line ends."""
+    table = np.column_stack(columns[:-1])
+    ints = columns[-1]
+    with open(path, "w", encoding="ascii", newline="\n") as fh:
+        fh.write(",".join(_CSV_COLUMNS) + "\n")
+        for row, flag in zip(table.tolist(), ints.tolist()):
+            fh.write(",".join(map(repr, row)))
+            fh.write(f",{flag}\n")
+
+
+def _max_abs(a: np.ndarray) -> float:
+    a = np.abs(a[np.isfinite(a)])
+    return float(a.max()) if a.size else _NAN
+
+
+def _json_number(x: float):
+    return None if not math.isfinite(x) else x
+
+
+def _rmtree(path: Path) -> None:
+    if path.exists():
+        shutil.rmtree(path, ignore_errors=False)
+
+
+def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_dir: str | os.PathLike, *,
+           frames: int = 0, progress: bool = True, overwrite: bool = False,
+           frame_size: tuple[int, int] = (800, 600)) -> ReplayResult:
+    """Re-run the model over a recorded session and write forces, contacts, plots and frames.
+
+    Parameters
+    ----------
+    session_path : path-like
+        A session file (:class:`~arsurf.replay.session.SessionWriter`).
+    scan_path : path-like
+        The scan file the session was recorded on (its SHA-256 must match the session's).
+    out_dir : path-like
+        Output folder; must not exist unless ``overwrite`` (it is then replaced, only at the end).
+    frames : int
+        Number of offscreen PNG frames, evenly spread over the ticks (0: none). Needs the
+        viewer (:mod:`arsurf_viewer`, pyvista) and an OpenGL context; without them the frames
+        are skipped with a note.
+    progress : bool
+        Show a progress bar (tqdm, else a plain line) and notes on stderr.
+    overwrite : bool
+        Replace an existing ``out_dir``.
+    frame_size : (width, height) int, pixels
+
+    Returns
+    -------
+    ReplayResult
+
+    Raises
+    ------
+    SessionError
+        Unreadable session (see :func:`~arsurf.replay.session.load_session`), scan hash
+        mismatch (both hashes named), non-finite probe position/velocity, no ticks,
+        ``out_dir`` exists without ``overwrite``.
+    ScanError
+        The scan file is missing or unreadable.
+    """
+    t_start = time.perf_counter()
+    require("matplotlib.style", "viewer", "replay plots")  # before any work, not after it
+    out = Path(out_dir)
+    frames = int(frames)
+    if frames < 0:
+        raise SessionError(f"`frames` must be >= 0 (got {frames}); 0 writes no frames")
+    if out.exists() and not overwrite:
+        raise SessionError(f"output folder {str(out)!r} exists; choose another folder or pass overwrite=True "
+                           "(--overwrite) to replace it")
+    if out.exists() and not out.is_dir():
+        raise SessionError(f"output path {str(out)!r} is a file, not a folder")
+    session = load_session(session_path)
+    expected = session.metadata["scan"]["sha256"]
+    actual = scan_sha256(scan_path)
+    if actual != expected:
+        raise SessionError(
+            f"scan {str(scan_path)!r} has SHA-256 {actual}, but session {str(session_path)!r} was recorded on "
+            f"{session.metadata['scan']['path']!r} with SHA-256 {expected}; pass the scan file the session was "
+            "recorded on")
+    n = session.n_ticks
+    if n == 0:
+        raise SessionError(f"session {str(session_path)!r} has no ticks; there is nothing to replay")
+    ticks = session.ticks
+    for name in ("t", "probe_position", "probe_velocity"):
+        _finite_rows(name, ticks[name], session_path)
+    session_hash = scan_sha256(session_path)
+    setup = build_model(session.metadata, scan_path)
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.replay-{os.getpid()}.part"
+    _rmtree(tmp)
+    tmp.mkdir()
+    notes: list[str] = []
+    try:
+        rec = _run(session, setup, tmp, frames, frame_size, progress, notes)
+        stats = _write_outputs(tmp, session, setup, rec, session_hash, actual)
+        files = tuple(sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file()))
+        _install(tmp, out, overwrite)
+    except BaseException:
+        _rmtree(tmp)
+        raise
+    if progress:
+        for note in notes:
+            print(f"arsurf replay: {note}", file=sys.stderr)
+    return ReplayResult(out_dir=out, n_ticks=n, files=files, frames=rec["frames"], notes=tuple(notes),
+                        elapsed=time.perf_counter() - t_start, **stats)
+
+
+def _install(tmp: Path, out: Path, overwrite: bool) -> None:
+    """Rename the finished temporary folder to ``out`` (the old one aside first, deleted after)."""
+    if not out.exists():
+        os.rename(tmp, out)
+        return
+    if not overwrite:
+        raise SessionError(f"output folder {str(out)!r} appeared during the replay; nothing was written to it")
+    old = out.parent / f".{out.name}.replay-{os.getpid()}.old"
+    _rmtree(old)
+    os.rename(out, old)
+    try:
+        os.rename(tmp, out)
+    except BaseException:
+        os.rename(old, out)
+        raise
+    _rmtree(old)
+
+
+def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: bool, notes: list) -> dict:
+    """Run the model over every tick; render frames on the way when asked and possible."""
+    from arsurf.model import M_COLLIDE_STATUS, M_SIZE
+
+    n = session.n_ticks
+    ticks = session.ticks
+    pos = ticks["probe_position"]
+    vel = ticks["probe_velocity"]
+    sig = ticks["signals"]
+    have = np.isfinite(sig).all(axis=1)
+    model = setup.model
+    model.reset()
+    outs = np.empty((n, M_SIZE))
+    frame_ticks = np.unique(np.linspace(0, n - 1, frames).round().astype(np.int64)) if frames > 0 else np.empty(0, int)
+    viewer = None
+    if frame_ticks.size:
+        try:
+            viewer = importlib.import_module("arsurf_viewer")
+            state_cls, render = viewer.SceneState, viewer.render_frames
+        except (ImportError, AttributeError) as exc:
+            notes.append(f"frames skipped: the viewer (arsurf_viewer) cannot be imported ({exc}); "
+                         "install it with pip install 'arsurf[viewer]'")
+            frame_ticks = np.empty(0, int)
+    is_frame = np.zeros(n, bool)
+    is_frame[frame_ticks] = True
+    bar = _Progress(n, progress)
+    failure: dict = {}
+    lam = setup.model.contact.maugis_parameter
+    radius = setup.model.tip_radius
+
+    def states():
+        tick = model.tick
+        try:
+            step = 256
+            for k0 in range(0, n, step):
+                for k in range(k0, min(k0 + step, n)):
+                    outs[k] = tick(pos[k], vel[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
+                    if is_frame[k]:
+                        yield _scene_state(state_cls, model.surface, outs[k], pos[k], radius, lam, ticks["t"][k],
+                                           have[k])
+                bar.update(min(k0 + step, n) - k0)
+        except BaseException as exc:
+            failure["exc"] = exc
+            raise
+
+    gen = states()
+    n_frames = 0
+    try:
+        if frame_ticks.size:
+            frames_dir = tmp / "frames"
+            try:
+                n_frames = len(render(gen, frames_dir, movie=None, window_size=tuple(frame_size)).paths)
+            except Exception as exc:
+                if failure.get("exc") is exc:
+                    raise
+                notes.append(f"frames skipped: the viewer could not render ({type(exc).__name__}: {exc})")
+                _rmtree(frames_dir)
+                n_frames = 0
+        for _ in gen:  # the whole run without frames, or the rest of it after a rendering failure
+            pass
+    finally:
+        bar.close()
+    failed = outs[:, M_COLLIDE_STATUS] < 0
+    return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames}
+
+
+def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals):
+    from arsurf.model import (M_COLLIDE_STATUS, M_DEPTH, M_MEAS_FX, M_MEAS_FZ, M_NX, M_NZ, M_PX, M_PZ, M_RADIUS,
+                              M_SIM_FX, M_SIM_FZ)
+
+    ok = o[M_COLLIDE_STATUS] >= 0
+    normal = o[M_NX:M_NZ + 1]
+    force = o[M_MEAS_FX:M_MEAS_FZ + 1] if have_signals else o[M_SIM_FX:M_SIM_FZ + 1]
+    return state_cls(surface, tip_center=center, tip_radius=radius,
+                     contact_point=o[M_PX:M_PZ + 1].copy() if ok else None,
+                     contact_normal=normal.copy() if ok and np.any(normal) else None,
+                     depth=float(o[M_DEPTH]) if ok else 0.0, contact_radius=float(o[M_RADIUS]),
+                     force=force.copy() if np.isfinite(force).all() else np.zeros(3),
+                     maugis_lambda=lam, device_status="replay", time=float(t))
+
+
+def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: str, scan_hash: str) -> dict:
+    """replay.h5, forces.csv, summary.json and the plots into ``tmp``; return the statistics."""
+    from arsurf import __version__
+    from arsurf.model import (M_COLLIDE_STATUS, M_CONDITION, M_DECOUPLE_STATUS, M_DEPTH, M_DISTANCE, M_IN_CONTACT,
+                              M_LOAD, M_MD_STATUS, M_MEAS_FX, M_MEAS_FZ, M_MOVED, M_NX, M_NZ, M_PX, M_PZ, M_RADIUS,
+                              M_SIM_FX, M_SIM_FZ, M_U, M_V)
+    from arsurf.replay import plots
+
+    o = rec["outs"]
+    have = rec["have_signals"]
+    failed = rec["failed"]
+    ticks = session.ticks
+    n = session.n_ticks
+
+    def geo(a):
+        a = a.copy()
+        a[failed] = np.nan
+        return a
+
+    measured = o[:, M_MEAS_FX:M_MEAS_FZ + 1].copy()
+    measured[~have] = np.nan
+    condition = o[:, M_CONDITION].copy()
+    condition[~have] = np.nan
+    data = {
+        "t": ticks["t"], "probe_position": ticks["probe_position"], "probe_velocity": ticks["probe_velocity"],
+        "signals": ticks["signals"], "recorded_force": ticks["force"],
+        "simulated_force": o[:, M_SIM_FX:M_SIM_FZ + 1].copy(), "measured_force": measured,
+        "contact_point": geo(o[:, M_PX:M_PZ + 1]), "contact_normal": geo(o[:, M_NX:M_NZ + 1]),
+        "uv": geo(o[:, M_U:M_V + 1]), "distance": geo(o[:, M_DISTANCE]), "depth": geo(o[:, M_DEPTH]),
+        "contact_radius": o[:, M_RADIUS].copy(), "load": o[:, M_LOAD].copy(), "condition": condition,
+        "in_contact": o[:, M_IN_CONTACT].astype(np.int32), "md_status": o[:, M_MD_STATUS].astype(np.int32),
+        "decoupling_flags": o[:, M_DECOUPLE_STATUS].astype(np.int32),
+        "collide_status": o[:, M_COLLIDE_STATUS].astype(np.int32), "moved": o[:, M_MOVED].astype(np.int32),
+    }
+    data = {f.name: np.ascontiguousarray(data[f.name], dtype=np.dtype(f.dtype)) for f in REPLAY_FIELDS}
+    attrs = {"format": REPLAY_FORMAT, "format_version": np.int64(REPLAY_FORMAT_VERSION),
+             "arsurf_version": __version__, "units": "SI", "complete": np.bool_(True), "n_ticks": np.int64(n),
+             "session_sha256": session_hash, "scan_sha256": scan_hash,
+             "session_format_version": np.int64(session.attrs["format_version"])}
+    write_h5(tmp / "replay.h5", attrs, session.metadata, data)
+
+    _csv(tmp / "forces.csv", [data["t"], data["recorded_force"], data["simulated_force"], data["measured_force"],
+                              data["depth"], data["contact_radius"], data["load"], data["in_contact"]])
+
+    recorded_given = ticks["md_status"] != MD_STATUS_NOT_GIVEN
+    recorded_contact = ticks["md_status"] == 0
+    stats = {
+        "peak_force": _max_abs(np.linalg.norm(data["simulated_force"], axis=1)),
+        "peak_measured_force": _max_abs(np.linalg.norm(measured, axis=1)),
+        "max_depth": _max_abs(np.maximum(data["depth"], 0.0)),
+        "max_contact_radius": _max_abs(data["contact_radius"]),
+        "depth_difference": _max_abs(data["depth"] - ticks["depth"]),
+        "load_difference": _max_abs(data["load"] - ticks["load"]),
+        "contact_mismatches": int(np.count_nonzero(recorded_given & (recorded_contact != (data["in_contact"] == 1)))),
+        "collision_failures": int(np.count_nonzero(failed)),
+    }
+    t = data["t"]
+    summary = {
+        "format": "arsurf-replay-summary", "units": "SI", "n_ticks": n,
+        "duration": float(t[-1] - t[0]), "ticks_in_contact": int(np.count_nonzero(data["in_contact"])),
+        "ticks_with_signals": int(np.count_nonzero(have)), "frames": rec["frames"],
+        "scan": {"path": session.metadata["scan"]["path"], "sha256": scan_hash}, "session_sha256": session_hash,
+        "peak_recorded_force": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
+        **{k: _json_number(v) if isinstance(v, float) else v for k, v in stats.items()},
+    }
+    (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+
+    contact = data["in_contact"] == 1
+    plots.plot_forces(tmp / "forces.png", t, {"recorded": data["recorded_force"],
+                                              "simulated": data["simulated_force"], "measured": measured},
+                      contact, title="Force on the tip (cf. seed 000 Fig. 10)")
+    plots.plot_coupled_motion(tmp / "coupled_motion.png", t, data["probe_position"], ticks["device_force"], contact)
+    scan = setup.scan
+    plots.plot_path(tmp / "path.png", scan.heights, scan.dx, scan.dy, data["probe_position"], contact)
+    return stats
+
+
+def load_replay(path: str | os.PathLike) -> Session:
+    """Read a ``replay.h5`` written by :func:`replay` (checked like a session)."""
+    return read_h5(path, fmt=REPLAY_FORMAT, versions=(REPLAY_FORMAT_VERSION,), fields=REPLAY_FIELDS,
+                   what="replay")
+
+
+# ---------------------------------------------------------------------------------------------
+# command line
+
+
+def cmd_replay(args) -> int:
+    """``arsurf replay``: run :func:`replay` and print what it wrote."""
+    result = replay(args.session, args.scan, args.out, frames=args.frames, progress=not args.quiet,
+                    overwrite=args.overwrite)
+    if not args.quiet:
+        print(f"replayed {result.n_ticks} ticks in {result.elapsed:.2f} s -> {result.out_dir}")
+        print(f"  peak force {result.peak_force * 1e9:.6g} nN, max depth {result.max_depth * 1e9:.6g} nm, "
+              f"max contact radius {result.max_contact_radius * 1e9:.6g} nm")
+        if math.isfinite(result.depth_difference):
+            print(f"  vs recording: max |depth diff| {result.depth_difference:.3g} m, "
+                  f"contact-state mismatches {result.contact_mismatches}")
+        for name in result.files:
+            print(f"  {name}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``arsurf replay SESSION --scan SCAN --out DIR [--frames N] [--overwrite] [--quiet]``."""
+    s = subparsers.add_parser("replay", help="re-run the model over a recorded session; write forces, contacts, "
+                                             "plots and frames")
+    s.add_argument("session", help="session file (.h5) recorded by the live loop or arsurf demo")
+    s.add_argument("--scan", required=True, help="the scan file the session was recorded on (hash-checked)")
+    s.add_argument("--out", required=True, help="output folder (must not exist unless --overwrite)")
+    s.add_argument("--frames", type=int, default=0, help="offscreen PNG frames to render (needs the viewer)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    s.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    s.set_defaults(func=cmd_replay)
