@@ -98,12 +98,15 @@ _EXPORTS = {
     "LSPB": "arsurf.manipulation.lspb",
     "VirtualAFM": "arsurf.manipulation.instrument",
     "engage": "arsurf.manipulation.engage",
+    # export
+    "surface_mesh": "arsurf.export",
+    "export_surface": "arsurf.export",
     # sessions
     "SessionWriter": "arsurf.replay.session",
     "load_session": "arsurf.replay.session",
     "replay": "arsurf.replay.replay",
 }
-_SUBMODULES = {"synthetic": "arsurf.scan.synthetic"}
+_SUBMODULES = {"synthetic": "arsurf.scan.synthetic", "meshes": "arsurf.meshes"}
 
 __all__ = sorted([*_EXPORTS, *_SUBMODULES])
 

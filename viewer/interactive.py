@@ -133,7 +133,8 @@ class StylusController:
 
 
 class ContactPhysics:
-    """The model without a cantilever, for driving the tip by hand (see the module notes).
+    """The model driven by hand: an :class:`arsurf.model.ARModel` (collision on the rest surface,
+    Maugis-Dugdale with hysteresis, dent of the live net) turned into :class:`SceneState` frames.
 
     Parameters
     ----------
@@ -148,44 +149,31 @@ class ContactPhysics:
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, *, tip_material="Si",
                  sample_material="polystyrene", deform: bool = True):
-        from arsurf.contact.deformation import Deformer
         from arsurf.contact.materials import effective_modulus, work_of_adhesion
         from arsurf.contact.maugis_dugdale import MaugisDugdale
+        from arsurf.demo import LEVER
+        from arsurf.force.cantilever import Cantilever
+        from arsurf.model import ARModel
 
         self.surface = surface
         self.tip_radius = float(tip_radius)
-        self.model = MaugisDugdale(self.tip_radius, effective_modulus(tip_material, sample_material),
-                                   work_of_adhesion(tip_material, sample_material))
-        ctrl, rest, ku, kv = surface.kernel_arrays()
-        self.rest_surface = BSplineSurface.construct_fast(np.array(rest, copy=True), ku, kv)
-        self.deformer = Deformer(surface) if deform else None
-        self._hint = None
+        self.contact = MaugisDugdale(self.tip_radius, effective_modulus(tip_material, sample_material),
+                                     work_of_adhesion(tip_material, sample_material))
+        self.model = ARModel(surface, self.tip_radius, self.contact, Cantilever(**LEVER), deform=deform)
         self.status = f"keyboard · {tip_material} on {sample_material}"
 
     def release(self) -> None:
-        """Forget the dent (after ``surface.reset()``)."""
-        if self.deformer is not None:
-            self.deformer.release()
+        """Forget the dent and the contact history (after ``surface.reset()``)."""
+        self.model.reset()
 
     def __call__(self, tip_center, dt: float) -> SceneState:
-        from arsurf.contact.projection import collide
-
         c = np.asarray(tip_center, dtype=np.float64)
-        contact = collide(self.rest_surface, c, self.tip_radius, hint=self._hint)
-        self._hint = contact.uv
-        state = self.model.contact_state(depth=float(contact.depth))
-        a = float(state.radius)
-        n = np.asarray(contact.normal, dtype=np.float64)
-        if self.deformer is not None:
-            if bool(state.in_contact):
-                self.deformer.apply(c, self.tip_radius, n, a)
-            else:
-                self.deformer.release()
+        t = self.model.step(c)
         rate = 1.0 / dt if dt > 0 else math.nan
-        return SceneState.from_contact(
-            self.surface, c, self.tip_radius, contact, contact_radius=a, force=float(state.load) * n,
-            maugis_lambda=self.model.maugis_parameter, loop_rate_hz=rate, device_status=self.status,
-        )
+        return SceneState(self.surface, c, self.tip_radius, contact_point=t.point, contact_normal=t.normal,
+                          depth=t.depth, contact_radius=t.contact_radius, force=t.simulated_force,
+                          maugis_lambda=self.contact.maugis_parameter, loop_rate_hz=rate,
+                          device_status=self.status)
 
 
 def scripted_path(surface: BSplineSurface, tip_radius: float, frames: int = 60, indent: float | None = None) -> np.ndarray:
