@@ -13,7 +13,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import emit, stats, time_calls  # noqa: E402
 
-from arsurf.contact.deformation import Deformer  # noqa: E402
+from arsurf.contact.deformation import Deformer, deform_kernel  # noqa: E402
 from arsurf.spline.surface import BSplineSurface  # noqa: E402
 
 H = 4e-9
@@ -45,7 +45,6 @@ def main() -> None:
 
         def tick_kernel():
             state["x"] += 0.1e-9
-            from arsurf.contact.deformation import deform_kernel
             deform_kernel(ctrl, rest, ku, kv, state["x"], 500e-9, 0.9 * R, R, 0.0, 0.0, 1.0, a, d.patch)
 
         def tick_numpy():
