@@ -37,6 +37,9 @@ WORK_OF_ADHESION = 0.1
 LEVER = dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6, youngs_modulus=169e9, poisson_ratio=0.27)
 RATE = 1000.0
 SCALE = 1e-5  # probe metres per stylus metre (1 mm -> 10 nm)
+#: hand newtons per probe newton: the hand feels the contact stiffness (~2E*a ~ 200 N/m) as
+#: FORCE_GAIN x 200 x SCALE = 200 N/m, passive with the 200 Hz filter; 1e6 made the stylus chatter
+FORCE_GAIN = 1e5
 
 
 def _tube_top(scan, surface):
@@ -75,18 +78,19 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     lever = Cantilever(**LEVER)
     meta = session_metadata(scan=scan_path, tip_radius=TIP_RADIUS, contact=contact, cantilever=lever, friction=0.2,
                             level="plane", sigma=2e-9, loop_rate=RATE,
-                            haptics={"coupling": "direct", "scale": SCALE, "force_gain": 1e6, "source": "blended",
+                            haptics={"coupling": "direct", "scale": SCALE, "force_gain": FORCE_GAIN, "source": "blended",
                                      "filter_cutoff": 200.0, "signal_noise": 2e-7})
     setup = build_model(meta)  # the same construction replay uses: bit-identical re-runs
     scan, surface, model = setup.scan, setup.surface, setup.model
     progress(f"scan {scan_path} ({scan.shape[1]}x{scan.shape[0]} px) fitted: {surface.shape[0]}x{surface.shape[1]} "
              f"control points; Maugis lambda = {contact.maugis_parameter:.3f}")
     x0, y0 = _tube_top(scan, surface)
-    x0 -= 40e-9  # start beside the tube, slide across it
-    z_surf = surface.evaluate(x0, y0)[2]
-    origin = (x0, y0, z_surf + TIP_RADIUS + 8e-9)
-    dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, 80e-9))).open()
-    loop = HapticLoop.direct(model, dev.info, origin, scale=SCALE, force_gain=1e6,
+    x0 -= 80e-9  # start beside the tube, slide across it
+    # hover 8 nm above the highest point the sphere could touch
+    z_near = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
+    origin = (x0, y0, z_near + TIP_RADIUS + 8e-9)
+    dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, 160e-9))).open()
+    loop = HapticLoop.direct(model, dev.info, origin, scale=SCALE, force_gain=FORCE_GAIN,
                              config=LoopConfig(rate=RATE, source="blended", filter_cutoff=200.0, signal_noise=2e-7,
                                                seed=7), ramp_time=0.2)
     n = int(seconds * RATE)

@@ -68,7 +68,7 @@ def test_probe_follows_the_scaled_master_and_the_hand_feels_the_scaled_force():
     in_contact = out[:, 8 + 2] > 0
     assert in_contact.any()
     k = np.flatnonzero(in_contact)[-1]
-    np.testing.assert_allclose(out[k, 14:17], 1e6 * out[k, 11:14], rtol=1e-12)  # hand = K_f x filtered
+    np.testing.assert_allclose(out[k, 14:17], 1e5 * out[k, 11:14], rtol=1e-12)  # hand = K_f x filtered
 
 
 def test_measured_source_recovers_the_simulated_force_without_noise():

@@ -217,7 +217,7 @@ class HapticLoop:
         self._source = SOURCES[config.source]
 
     @classmethod
-    def direct(cls, model: ARModel, device_info, probe_origin, *, scale: float = 1e-5, force_gain: float = 1e6,
+    def direct(cls, model: ARModel, device_info, probe_origin, *, scale: float = 1e-5, force_gain: float = 1e5,
                config: LoopConfig | None = None, **safety_kwargs) -> "HapticLoop":
         """The usual assembly: direct coupling (master displacement x ``scale`` -> probe, probe
         force x ``force_gain`` -> hand) and a safety layer saturating at the device's max force.
@@ -227,8 +227,10 @@ class HapticLoop:
 
         Stability: the hand feels the contact stiffness k_c (N/m at the probe, ~E* a) as
         K_f k_c s N/m; a sampled loop renders at most 4 M_v / T² (corrected Table II, seed 003:
-        13 kN/m for a 3.3 g stylus at 1 kHz). With k_c ~ 100 N/m, K_f = 1e6 and s = 1e-5 give
-        1 kN/m; seed 001's K_f = 15e6 at this scale would not be passive.
+        13 kN/m for a 3.3 g stylus at 1 kHz), less with a filter's delay in the loop: with
+        k_c ~ 200 N/m and s = 1e-5, K_f = 1e5 renders 200 N/m and is stable with a 200 Hz
+        low-pass, K_f = 1e6 (2 kN/m) chatters (measured in the demo); seed 001's K_f = 15e6
+        at this scale would not be passive.
         """
         from arsurf.haptics.scaling import ForceScaling, PositionScaling
 
