@@ -32,6 +32,7 @@ _EXPORTS = {
     "save_scan": "arsurf.scan.io",
     "level": "arsurf.scan.level",
     "smooth": "arsurf.scan.smooth",
+    "prepare_scan": "arsurf.scan.prepare",
     "inpaint": "arsurf.scan.inpaint",
     "dropout_mask": "arsurf.scan.inpaint",
     "detect_format": "arsurf.scan.io",

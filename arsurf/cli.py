@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import ArsurfError
+from arsurf.scan.prepare import prepare_scan
 
 
 def _scan_summary(scan) -> dict:
@@ -55,24 +56,6 @@ def cmd_info(args) -> int:
     scan = load_scan(args.scan, channel=args.channel)
     _print(_scan_summary(scan), args.json)
     return 0
-
-
-def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True):
-    """load -> inpaint NaN (optional) -> level -> smooth: the front of the pipeline."""
-    from arsurf.scan.io import load_scan
-    from arsurf.scan.level import level
-    from arsurf.scan.smooth import smooth
-
-    scan = load_scan(path, channel=channel)
-    if scan.nan_count and inpaint:
-        from arsurf.scan.inpaint import inpaint as fill
-
-        scan = fill(scan)
-    if level_method and level_method != "none":
-        scan = level(scan, level_method)
-    if sigma > 0.0:
-        scan = smooth(scan, sigma)
-    return scan
 
 
 def cmd_fit(args) -> int:

@@ -267,7 +267,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     scan : path-like or dict
         The scan file (its SHA-256 is computed here, and the processing is taken from
         ``channel``, ``level``, ``sigma``, ``inpaint``, ``control_shape``, ``smoothing``: the
-        arguments of :func:`arsurf.cli.prepare_scan` and :func:`arsurf.fit_surface`), or a
+        arguments of :func:`arsurf.scan.prepare.prepare_scan` and :func:`arsurf.fit_surface`), or a
         complete ``scan`` dict as in the schema.
     tip_radius : float, metres
     contact : MaugisDugdale or dict
@@ -403,7 +403,7 @@ class ModelSetup:
 def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
     """Rebuild the recording's model: prepare the scan as recorded, fit it, make the ARModel.
 
-    The steps are exactly those of the recording (:func:`arsurf.cli.prepare_scan` with the
+    The steps are exactly those of the recording (:func:`arsurf.scan.prepare.prepare_scan` with the
     recorded channel, levelling, smoothing and inpainting, then :func:`arsurf.fit_surface`
     with the recorded control shape and smoothing). A live loop that builds its model with this
     function is guaranteed to be replayed bit for bit.
@@ -421,7 +421,7 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
     ModelSetup
     """
     check_metadata(metadata)
-    from arsurf.cli import prepare_scan  # the one definition of the scan preprocessing
+    from arsurf.scan.prepare import prepare_scan  # the one definition of the scan preprocessing
     from arsurf.model import ARModel
     from arsurf.spline.fit import fit_surface
 

@@ -1,0 +1,40 @@
+"""The front of the pipeline in one call: load -> inpaint NaN -> level -> smooth."""
+from __future__ import annotations
+
+
+def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True):
+    """Load a scan file and make it ready for :func:`arsurf.fit_surface`.
+
+    Parameters
+    ----------
+    path : path-like
+    channel : str, optional
+        Channel name (default: the topography).
+    level_method : str or None
+        :func:`arsurf.level` method, or ``None``/``"none"`` for no levelling.
+    sigma : float, metres
+        Gaussian smoothing width (0: none).
+    inpaint : bool
+        Fill NaN pixels by :func:`arsurf.inpaint` (False: leave them; the fit then refuses).
+
+    Returns
+    -------
+    Scan
+        With every step recorded in ``metadata["history"]``. The CLI (``arsurf fit``), the demo
+        and :func:`arsurf.replay.session.build_model` all call this one function, so a replay
+        rebuilds exactly the surface the recording used.
+    """
+    from arsurf.scan.io import load_scan
+    from arsurf.scan.level import level
+    from arsurf.scan.smooth import smooth
+
+    scan = load_scan(path, channel=channel)
+    if scan.nan_count and inpaint:
+        from arsurf.scan.inpaint import inpaint as fill
+
+        scan = fill(scan)
+    if level_method and level_method != "none":
+        scan = level(scan, level_method)
+    if sigma > 0.0:
+        scan = smooth(scan, sigma)
+    return scan
