@@ -15,7 +15,7 @@ Parameters outside the domain are clamped to it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # rows of the (6, 3) derivative block written by the kernels
 S, SU, SV, SUU, SUV, SVV = 0, 1, 2, 3, 4, 5
@@ -222,16 +222,22 @@ def surface_point(ctrl, ku, kv, u, v, order, out):
             out[5, 2] = zvv
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def surface_points(ctrl, ku, kv, us, vs, order, out):
-    """Batch of :func:`surface_point`: ``out`` (1, 3 or 6 rows, n, 3) for ``us``, ``vs`` (n,)."""
-    scratch = np.empty((6, 3))
+    """Batch of :func:`surface_point`: ``out`` (1, 3 or 6 rows, n, 3) for ``us``, ``vs`` (n,).
+
+    Chunks of 256 points run in parallel threads (batches serve the viewer and replay, not the
+    haptic tick, which calls :func:`surface_point`)."""
     nrow = out.shape[0]
-    for k in range(us.size):
-        surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
-        for r in range(nrow):
-            for c in range(3):
-                out[r, k, c] = scratch[r, c]
+    n = us.size
+    chunk = 256
+    for b in prange((n + chunk - 1) // chunk):
+        scratch = np.empty((6, 3))
+        for k in range(b * chunk, min(n, (b + 1) * chunk)):
+            surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
+            for r in range(nrow):
+                for c in range(3):
+                    out[r, k, c] = scratch[r, c]
 
 
 @njit(cache=True)
