@@ -122,6 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tip-radius-nm", type=float, default=20.0)
     s.add_argument("--sigma-nm", type=float, default=0.0)
     s.add_argument("--level", default="plane")
+    s.add_argument("--bridge-port", type=int, default=None,
+                   help="drive the tip from a haptic device through the UDP bridge on 127.0.0.1:PORT "
+                        "(protocol in the README; tools/haptic_client.py is a reference client)")
+    s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted surface (.npz from `arsurf fit`) as STL/PLY/GLB")
@@ -147,10 +151,39 @@ def cmd_view(args) -> int:
     from arsurf_viewer import view_scan
     from arsurf.demo import BUNDLED_SCAN
 
-    view_scan(args.scan or str(BUNDLED_SCAN), tip_radius=args.tip_radius_nm * 1e-9,
-              level_method=None if args.level == "none" else args.level,
-              sigma=args.sigma_nm * 1e-9 if args.sigma_nm > 0 else None)
+    from arsurf.spline.fit import fit_surface
+
+    tip_radius = args.tip_radius_nm * 1e-9
+    scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
+    extra = {}
+    if args.bridge_port is not None:
+        surface = fit_surface(scan)
+        (u0, u1), (v0, v1) = surface.domain
+        cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+        start = np.array([cx, cy, surface.evaluate(cx, cy)[2] + 2.5 * tip_radius])
+        extra = {"pose_source": bridge_pose_source(args.bridge_port, args.scale, start), "start": start}
+    view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, **extra)
     return 0
+
+
+def bridge_pose_source(port: int, scale: float, start):
+    """A viewer pose source fed by the UDP bridge: ``start`` + ``scale`` x (stylus position -
+    its first received position), metres; None until poses arrive."""
+    from arsurf.haptics.udp_bridge import UdpBridgeDevice
+
+    dev = UdpBridgeDevice(port=port).open()
+    origin = []
+
+    def pose():
+        st = dev.read_state()
+        if st.timestamp <= 0.0 or not np.isfinite(st.position).all():
+            return None
+        if not origin:
+            origin.append(st.position.copy())
+        return np.asarray(start) + scale * (st.position - origin[0])
+
+    pose.device = dev
+    return pose
 
 
 def cmd_export(args) -> int:
