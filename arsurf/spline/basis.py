@@ -46,6 +46,58 @@ def clamp(u, knots):
     return u
 
 
+@njit(cache=True, inline="always")
+def locate(knots, u):
+    """(span i, local coordinate s in [0, 1], 1/h, clamped u) in one division-free step per call
+    (one division for 1/h)."""
+    n = knots.size - 4
+    a = knots[3]
+    b = knots[n]
+    m = n - 3
+    inv_h = m / (b - a)
+    if u < a:
+        u = a
+    elif u > b:
+        u = b
+    x = (u - a) * inv_h
+    k = int(x)
+    if k > m - 1:
+        k = m - 1
+    return k + 3, x - k, inv_h, u
+
+
+@njit(cache=True, inline="always")
+def uniform_basis(s, ih):
+    """The 12-tuple of :func:`cubic_basis` on an interior span, from s = (u - t_i)/h and 1/h."""
+    s2 = s * s
+    s3 = s2 * s
+    r = 1.0 - s
+    sixth = 1.0 / 6.0
+    ih2 = ih * ih
+    return (r * r * r * sixth,
+            (3.0 * s3 - 6.0 * s2 + 4.0) * sixth,
+            (-3.0 * s3 + 3.0 * s2 + 3.0 * s + 1.0) * sixth,
+            s3 * sixth,
+            -0.5 * r * r * ih,
+            (1.5 * s2 - 2.0 * s) * ih,
+            (-1.5 * s2 + s + 0.5) * ih,
+            0.5 * s2 * ih,
+            r * ih2,
+            (3.0 * s - 2.0) * ih2,
+            (-3.0 * s + 1.0) * ih2,
+            s * ih2)
+
+
+@njit(cache=True, inline="always")
+def basis_at(knots, u):
+    """(first control index i - 3, 12-tuple of basis values and derivatives) at u (clamped)."""
+    i, s, ih, u = locate(knots, u)
+    n = knots.size - 4
+    if 5 <= i <= n - 3:
+        return i - 3, uniform_basis(s, ih)
+    return i - 3, cubic_basis(knots, i, u)
+
+
 @njit(cache=True)
 def cubic_basis(knots, i, u):
     """Values, first and second derivatives of the 4 cubic basis functions nonzero on span i.
@@ -58,26 +110,8 @@ def cubic_basis(knots, i, u):
     t = knots
     n = knots.size - 4
     if 5 <= i <= n - 3:
-        h = t[i + 1] - t[i]
-        ih = 1.0 / h
-        s = (u - t[i]) * ih
-        s2 = s * s
-        s3 = s2 * s
-        r = 1.0 - s
-        sixth = 1.0 / 6.0
-        ih2 = ih * ih
-        return (r * r * r * sixth,
-                (3.0 * s3 - 6.0 * s2 + 4.0) * sixth,
-                (-3.0 * s3 + 3.0 * s2 + 3.0 * s + 1.0) * sixth,
-                s3 * sixth,
-                -0.5 * r * r * ih,
-                (1.5 * s2 - 2.0 * s) * ih,
-                (-1.5 * s2 + s + 0.5) * ih,
-                0.5 * s2 * ih,
-                r * ih2,
-                (3.0 * s - 2.0) * ih2,
-                (-3.0 * s + 1.0) * ih2,
-                s * ih2)
+        ih = 1.0 / (t[i + 1] - t[i])
+        return uniform_basis((u - t[i]) * ih, ih)
     L1 = u - t[i]
     L2 = u - t[i - 1]
     L3 = u - t[i - 2]
@@ -145,12 +179,8 @@ def surface_point(ctrl, ku, kv, u, v, order, out):
     Rows of ``out``: S, S_u, S_v, S_uu, S_uv, S_vv (rows beyond ``order`` are left untouched).
     Accumulates in scalars (no aliasing through ``out``), one pass over the 4x4 patch.
     """
-    u = clamp(u, ku)
-    v = clamp(v, kv)
-    iu = find_span(ku, u) - 3
-    iv = find_span(kv, v) - 3
-    bu = cubic_basis(ku, iu + 3, u)
-    bv = cubic_basis(kv, iv + 3, v)
+    iu, bu = basis_at(ku, u)
+    iv, bv = basis_at(kv, v)
     x0 = y0 = z0 = 0.0
     xu = yu = zu = xv = yv = zv = 0.0
     xuu = yuu = zuu = xuv = yuv = zuv = xvv = yvv = zvv = 0.0
