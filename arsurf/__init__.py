@@ -16,9 +16,36 @@ Example
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
+import os
+import sys
+from pathlib import Path
 
 __version__ = "0.1.0"
+
+
+def _configure_numba_cache() -> None:
+    """Cache compiled kernels in a folder named after a hash of arsurf's sources.
+
+    numba's ``cache=True`` checks only the timestamp of the file that defines a kernel, so a
+    kernel that inlines another module's kernel keeps the stale machine code after that module
+    changes. Keying the cache folder on the sources recompiles everything once after any change
+    (an upgrade, a local edit) and never runs stale code. A user-set ``NUMBA_CACHE_DIR`` wins.
+    """
+    if "NUMBA_CACHE_DIR" in os.environ:
+        return
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.rglob("*.py")):
+        digest.update(path.read_bytes())
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    folder = str(base / "arsurf" / f"numba-{__version__}-{digest.hexdigest()[:16]}")
+    os.environ["NUMBA_CACHE_DIR"] = folder
+    if "numba" in sys.modules:  # numba read its config already: set it there too
+        sys.modules["numba"].config.CACHE_DIR = folder
+
+
+_configure_numba_cache()
 
 # public name -> module that defines it (the pipeline order: scan, spline, contact, force,
 # haptics, manipulation, replay)

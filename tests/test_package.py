@@ -27,3 +27,17 @@ def test_every_package_folder_is_listed_in_pyproject():
     found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "arsurf").rglob("__init__.py")}
     found.add("arsurf_viewer")
     assert found <= listed, found - listed
+
+
+def test_numba_cache_is_keyed_on_the_sources(tmp_path):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["XDG_CACHE_HOME"] = str(tmp_path)
+    code = "import os, arsurf; print(os.environ['NUMBA_CACHE_DIR'])"
+    folder = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                            check=True).stdout.strip()
+    assert folder.startswith(str(tmp_path / "arsurf" / f"numba-{arsurf.__version__}-")) and len(folder.split("-")[-1]) == 16
+    env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
+    kept = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert kept.stdout.strip() == str(tmp_path / "mine")
