@@ -60,11 +60,12 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.candidates import (
-    RHO, TREE_ID, VERSION, HullTree, cell_net, extents_bounds2, net_convexity_radius, net_extents, net_split,
+    LO_T, RHO, TREE_ID, VERSION, HullTree, cell_net, extents_bounds2, net_convexity_radius, net_extents, net_split,
     node_bounds2, node_distance2,
 )
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import find_span, surface_point
+from arsurf.spline.surface import BSplineSurface
 
 # --- kernel constants ---------------------------------------------------------------------------
 # layout of the output vector written by the kernels (float64, OUT_SIZE)
@@ -430,6 +431,8 @@ def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, cx, cy, cz, bu, bv
     near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
     if not (near2 < bd2 * TIE):
         return bu, bv, bd2, bconv, bi, bj, 0, 0, False
+    if nodes[node, LO_T] == -np.inf:  # a cell whose Bézier net is not finite (see candidates)
+        return bu, bv, bd2, bconv, bi, bj, 0, 1, True
     i = node // nj0
     j = node - i * nj0
     rho = nodes[node, RHO]
@@ -490,7 +493,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
     Warm queries keep a candidate list in ``work``: every cell whose box is within
     :math:`R_0 = d^*(C_0) + m` of the point :math:`C_0` where it was built (m = CACHE_MARGIN x
     knot spacing), sorted by that distance. A later query at C with first bound d (from Newton at
-    the hint) may use it while :math:`|C - C_0| + d \le R_0`: any cell nearer to C than d is then
+    the hint) may use it while :math:`|C - C_0| + d \\le R_0`: any cell nearer to C than d is then
     nearer to :math:`C_0` than :math:`R_0`, so it is in the list, and the scan stops at the first
     entry farther than :math:`d + |C - C_0|`. A refresh of the pyramid (deformation) bumps its
     version and invalidates the list.
@@ -846,23 +849,32 @@ _PROJECTORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 def projector(surface) -> Projector:
     """The :class:`Projector` of ``surface`` (built at the first call, then cached per surface)."""
-    try:
-        return _PROJECTORS[surface]
-    except KeyError:
-        pass
-    except TypeError:
-        raise SurfaceError(f"expected an arsurf BSplineSurface (got {type(surface).__name__})") from None
-    if not hasattr(surface, "kernel_arrays"):
+    if not isinstance(surface, BSplineSurface):
         raise SurfaceError(f"expected an arsurf BSplineSurface (got {type(surface).__name__})")
-    proj = Projector(surface)
-    _PROJECTORS[surface] = proj
+    proj = _PROJECTORS.get(surface)
+    if proj is None:
+        proj = Projector(surface)
+        _PROJECTORS[surface] = proj
     return proj
+
+
+def _lookup(surface) -> Projector:
+    try:
+        proj = _PROJECTORS.get(surface)
+    except TypeError:  # not weak-referenceable: certainly not a surface
+        proj = None
+    return proj if proj is not None else projector(surface)
 
 
 def refresh_region(surface, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
     """Tell the projection that control points ``[iu0:iu1, iv0:iv1]`` of ``surface`` moved (O(patch))."""
-    proj = _PROJECTORS.get(surface)
-    if proj is not None:  # no projector yet: it will be built from the current net
+    try:
+        proj = _PROJECTORS.get(surface)
+    except TypeError:
+        proj = None
+    if proj is None:  # no projector yet: it will be built from the current net
+        projector(surface)
+    else:
         proj.refresh_region(iu0, iu1, iv0, iv1)
 
 
@@ -941,7 +953,7 @@ def project(surface, point, hint=None) -> Projection:
     >>> round(p.distance * 1e9, 9), p.point.tolist()
     (-3.0, [1e-08, 2e-08, 0.0])
     """
-    proj = _PROJECTORS.get(surface) or projector(surface)
+    proj = _lookup(surface)
     x, y, z = _xyz(point, "point")
     hu, hv = _hint(hint)
     out = np.empty(OUT_SIZE)
@@ -982,7 +994,7 @@ def collide(surface, center, radius, hint=None) -> Contact:
     >>> c.in_contact, round(c.depth * 1e9, 9)
     (True, 1.0)
     """
-    proj = _PROJECTORS.get(surface) or projector(surface)
+    proj = _lookup(surface)
     x, y, z = _xyz(center, "center")
     r = _radius(radius)
     hu, hv = _hint(hint)
@@ -997,7 +1009,7 @@ def collide(surface, center, radius, hint=None) -> Contact:
 
 
 def _batch(surface, points, hints, chain, radius, where):
-    proj = _PROJECTORS.get(surface) or projector(surface)
+    proj = _lookup(surface)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim == 1 and pts.size == 3:
         pts = pts.reshape(1, 3)
