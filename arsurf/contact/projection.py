@@ -53,14 +53,14 @@ Example
 from __future__ import annotations
 
 import math
-import weakref
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit
 
 from arsurf.contact.candidates import (
-    LO_T, RHO, TREE_ID, VERSION, HullTree, cell_net, extents_bounds2, net_convexity_radius, net_extents, net_split,
+    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, cell_net, extents_bounds2, net_convexity_radius, net_extents, net_split,
     node_bounds2, node_distance2,
 )
 from arsurf.errors import ContactError, SurfaceError
@@ -514,17 +514,25 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
     tol_v = STEP_TOL * hv
     ev = work[0:6]
     warm = hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0
+    nj0 = levels[0, 2]
     if warm:
         su, sv = hint_u, hint_v
     else:
-        su, sv = cx, cy
+        # cold: the foot of C on the mid-plane of the cell below it (on the undeformed surface
+        # u = x, v = y), one or two Newton steps closer than the point straight below
+        i, j = _cell_of(ku, kv, cx, cy)
+        node = i * nj0 + j
+        lift = (nodes[node, 0] * cx + nodes[node, 1] * cy + nodes[node, 2] * cz
+                - 0.5 * (nodes[node, LO_N] + nodes[node, HI_N]))
+        su, sv = cx - lift * nodes[node, 0], cy - lift * nodes[node, 1]
+        if not (su - su == 0.0 and sv - sv == 0.0):  # a non-finite cell
+            su, sv = cx, cy
     bu, bv, bd2, iters, bconv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, su, sv,
                                            lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h, MAX_ITER_DOMAIN)
     _keep(work)
     nonfinite = not (bd2 - bd2 == 0.0)
     if nonfinite:
         bd2 = np.inf
-    nj0 = levels[0, 2]
     bi, bj = _cell_of(ku, kv, bu, bv)
     cells = 0
     # --- the candidate cache of warm queries
@@ -793,8 +801,8 @@ class ContactBatch(NamedTuple):
 class Projector:
     """Per-surface state of the projection: the hull-box pyramid and the kernel workspace.
 
-    Created once per surface by :func:`projector` (kept on the surface, built lazily at the first
-    query, O(N)). When control points move, call :meth:`refresh_region` with the index range
+    Created once per surface by :func:`projector` (kept on the surface as an instance attribute,
+    built lazily at the first query, O(N)). When control points move, call :meth:`refresh_region` with the index range
     that moved (O(patch)); after :meth:`BSplineSurface.reset` call :meth:`refresh`.
     The workspace makes a projector single-threaded: use one per thread.
 
@@ -826,6 +834,8 @@ class Projector:
         self.work[CACHE_ROW, 0] = -1.0  # no candidate list yet
         self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.levels,
                       self.work)
+        self._project = _entry_point(project_kernel, self._args, 5)
+        self._collide = _entry_point(collide_kernel, self._args, 6)
 
     def kernel_args(self) -> tuple:
         """``(ctrl, ku, kv, boxes, levels, work)``: the leading arguments of the kernels."""
@@ -844,34 +854,43 @@ class Projector:
         self.tree.refresh()
 
 
-_PROJECTORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+def _entry_point(kernel, args, nscalars):
+    """The compiled entry of ``kernel`` for exactly these argument types (validated once here).
+
+    Calling it skips the dispatcher's per-call type resolution (~0.3-1 us of a few-us call);
+    the Python API always passes these same types. Falls back to the dispatcher."""
+    out = np.empty(OUT_SIZE)
+    scalars = (0.0,) * nscalars
+    kernel(*args, *scalars, out)  # compiles (or loads from the cache) this signature
+    try:
+        sig = tuple(numba.typeof(a) for a in (*args, *scalars, out))
+        return kernel.overloads[sig].entry_point
+    except (KeyError, AttributeError):  # pragma: no cover - numba internals changed
+        return kernel
+
+
+_ATTR = "_arsurf_projector"  # where a surface keeps its Projector (an instance attribute)
 
 
 def projector(surface) -> Projector:
     """The :class:`Projector` of ``surface`` (built at the first call, then cached per surface)."""
     if not isinstance(surface, BSplineSurface):
         raise SurfaceError(f"expected an arsurf BSplineSurface (got {type(surface).__name__})")
-    proj = _PROJECTORS.get(surface)
-    if proj is None:
+    proj = surface.__dict__.get(_ATTR)
+    if proj is None or proj.ctrl is not surface.kernel_arrays()[0]:
         proj = Projector(surface)
-        _PROJECTORS[surface] = proj
+        setattr(surface, _ATTR, proj)
     return proj
 
 
 def _lookup(surface) -> Projector:
-    try:
-        proj = _PROJECTORS.get(surface)
-    except TypeError:  # not weak-referenceable: certainly not a surface
-        proj = None
+    proj = getattr(surface, _ATTR, None)
     return proj if proj is not None else projector(surface)
 
 
 def refresh_region(surface, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
     """Tell the projection that control points ``[iu0:iu1, iv0:iv1]`` of ``surface`` moved (O(patch))."""
-    try:
-        proj = _PROJECTORS.get(surface)
-    except TypeError:
-        proj = None
+    proj = getattr(surface, _ATTR, None)
     if proj is None:  # no projector yet: it will be built from the current net
         projector(surface)
     else:
@@ -953,15 +972,24 @@ def project(surface, point, hint=None) -> Projection:
     >>> round(p.distance * 1e9, 9), p.point.tolist()
     (-3.0, [1e-08, 2e-08, 0.0])
     """
-    proj = _lookup(surface)
-    x, y, z = _xyz(point, "point")
-    hu, hv = _hint(hint)
+    proj = getattr(surface, _ATTR, None) or _lookup(surface)
+    try:
+        x, y, z = point
+        x = float(x)
+        y = float(y)
+        z = float(z)
+    except (TypeError, ValueError):
+        x = y = z = math.nan
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        _xyz(point, "point")  # raises the precise error
+    hu, hv = (math.nan, math.nan) if hint is None else _hint(hint)
     out = np.empty(OUT_SIZE)
-    status = project_kernel(*proj._args, x, y, z, hu, hv, out)
+    status = proj._project(*proj._args, x, y, z, hu, hv, out)
     if status < 0:
         _raise_status(status, "project")
-    return Projection(out[0:2], out[2:5], out[5:8], float(out[OUT_DISTANCE]), bool(out[OUT_CONVERGED]),
-                      int(out[OUT_ITERATIONS]), bool(out[OUT_BOUNDARY]), status, int(out[OUT_CELLS]))
+    o = out.tolist()
+    return Projection(out[0:2], out[2:5], out[5:8], o[OUT_DISTANCE], o[OUT_CONVERGED] > 0.0,
+                      int(o[OUT_ITERATIONS]), o[OUT_BOUNDARY] > 0.0, status, int(o[OUT_CELLS]))
 
 
 def collide(surface, center, radius, hint=None) -> Contact:
@@ -994,18 +1022,26 @@ def collide(surface, center, radius, hint=None) -> Contact:
     >>> c.in_contact, round(c.depth * 1e9, 9)
     (True, 1.0)
     """
-    proj = _lookup(surface)
-    x, y, z = _xyz(center, "center")
-    r = _radius(radius)
-    hu, hv = _hint(hint)
+    proj = getattr(surface, _ATTR, None) or _lookup(surface)
+    try:
+        x, y, z = center
+        x = float(x)
+        y = float(y)
+        z = float(z)
+    except (TypeError, ValueError):
+        x = y = z = math.nan
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        _xyz(center, "center")  # raises the precise error
+    r = radius if isinstance(radius, float) and 0.0 < radius < math.inf else _radius(radius)
+    hu, hv = (math.nan, math.nan) if hint is None else _hint(hint)
     out = np.empty(OUT_SIZE)
-    status = collide_kernel(*proj._args, x, y, z, r, hu, hv, out)
+    status = proj._collide(*proj._args, x, y, z, r, hu, hv, out)
     if status < 0:
         _raise_status(status, "collide")
-    depth = float(out[OUT_DEPTH])
-    return Contact(out[2:5], out[5:8], out[0:2], depth, depth > 0.0, float(out[OUT_DISTANCE]), r,
-                   bool(out[OUT_CONVERGED]), int(out[OUT_ITERATIONS]), bool(out[OUT_BOUNDARY]), status,
-                   int(out[OUT_CELLS]))
+    o = out.tolist()
+    depth = o[OUT_DEPTH]
+    return Contact(out[2:5], out[5:8], out[0:2], depth, depth > 0.0, o[OUT_DISTANCE], r, o[OUT_CONVERGED] > 0.0,
+                   int(o[OUT_ITERATIONS]), o[OUT_BOUNDARY] > 0.0, status, int(o[OUT_CELLS]))
 
 
 def _batch(surface, points, hints, chain, radius, where):
