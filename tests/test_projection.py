@@ -378,6 +378,35 @@ def test_far_above_stays_correct_and_reports_the_cost(rng):
         check_against(s, pts, res)
 
 
+def test_smallest_surface_and_non_square_pixels(rng):
+    """A 4 x 4 scan (3 x 3 knot cells, the pyramid is 3 levels deep) and 1 nm x 4 nm pixels."""
+    tiny = fit_surface(Scan(rng.normal(size=(4, 4)) * 1e-9, H, H))
+    pts = queries(tiny, rng, 400)
+    check_against(tiny, pts, project_many(tiny, pts))
+    y, x = np.mgrid[0:12, 0:40]
+    wide = fit_surface(Scan(2e-9 * np.sin(x / 3.0) * np.cos(y / 2.0), 1e-9, 4e-9))
+    assert wide.spacing == pytest.approx((1e-9, 4e-9))
+    pts = queries(wide, rng, 1500)
+    err, _, _ = check_against(wide, pts, project_many(wide, pts))
+    assert err <= TOL
+
+
+def test_degenerate_normal_is_flagged():
+    """A net whose first control row collapses to one point (an apex: S_v = 0 there). A point
+    beyond the apex projects onto it; the normal is undefined and taken along C - S."""
+    s = fit_surface(rough_scan(10))
+    ctrl = s.control_points.copy()
+    apex = np.array([-2e-9, 4.5e-9, 0.0])
+    ctrl[0, :, :] = apex
+    cone = BSplineSurface(ctrl, s.knots_u, s.knots_v)
+    c = apex + [-3e-9, 0.0, 0.5e-9]
+    p = project(cone, c)
+    np.testing.assert_allclose(p.point, apex, atol=1e-18)
+    assert p.status == pj.STATUS_DEGENERATE and p.on_boundary
+    np.testing.assert_allclose(p.normal, (c - apex) / np.linalg.norm(c - apex), atol=1e-9)
+    assert p.distance == pytest.approx(np.linalg.norm(c - apex), rel=1e-12)
+
+
 # --------------------------------------------------------------------------------------------
 # warm start
 def test_warm_start_never_hides_a_closer_basin():

@@ -104,6 +104,9 @@ STEP_TOL = 1e-9
 # remaining error near K QUAD_TOL^2 h (K h ~ 1e-2 on scans: ~1e-12 h, far below 1e-20 m for nm
 # knots; the distance error is second order in it): stop one step early.
 QUAD_TOL = 1e-5
+# ... or once the free gradient components are below GRAD_TOL |r| max(|S_u|, |S_v|): rounding
+# noise (~1e-16 relative), e.g. along a degenerate edge where S_v = 0
+GRAD_TOL = 1e-13
 # A box must beat the best squared distance by this factor to be searched: a cell that could
 # only be closer by a relative 5e-13 (< 1e-20 m at nm distances) is not worth a Newton run, and
 # exact ties (a flat or tilted plane, whose boxes touch the ball of radius d*) are pruned.
@@ -185,6 +188,11 @@ def newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, lo_u, hi_u, lo_v, hi_v, tol_u
         hvv = c + ev[5, 0] * rx + ev[5, 1] * ry + ev[5, 2] * rz
         free_u = hi_u > lo_u and not ((u <= lo_u and gu > 0.0) or (u >= hi_u and gu < 0.0))
         free_v = hi_v > lo_v and not ((v <= lo_v and gv > 0.0) or (v >= hi_v and gv < 0.0))
+        # stationary to rounding: the free gradient is noise next to |r| |S_u|, |r| |S_v|
+        gtol = GRAD_TOL * math.sqrt(d2 * max(a, c))
+        if (not free_u or abs(gu) <= gtol) and (not free_v or abs(gv) <= gtol):
+            converged = True
+            break
         du = 0.0
         dv = 0.0
         if free_u and free_v:
@@ -388,7 +396,8 @@ def _finish(ev, cx, cy, cz, u, v, out):
     wy = cy - py
     wz = cz - pz
     dist = math.sqrt(wx * wx + wy * wy + wz * wz)
-    scale = math.sqrt((sux * sux + suy * suy + suz * suz) * (svx * svx + svy * svy + svz * svz))
+    # degenerate when |S_u x S_v| is rounding noise next to the longer tangent (a collapsed edge)
+    scale = max(sux * sux + suy * suy + suz * suz, svx * svx + svy * svy + svz * svz)
     status = STATUS_OK
     if nn > 1e-12 * scale and nn > 0.0:
         nx /= nn
@@ -417,18 +426,17 @@ def _finish(ev, cx, cy, cz, u, v, out):
 
 
 @njit(cache=True)
-def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, cx, cy, cz, bu, bv, bd2, bconv, bi, bj,
-                lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
+def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2, bconv,
+                bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Search knot cell ``node`` (a leaf of the pyramid) for a point closer than the best.
 
     Skipped when its box is not nearer than the best distance, or when D is certified convex on
     the rectangle spanned by the cell and the best point's cell (the best point, a local minimum,
     is then the minimum there). A certified cell gets one Newton run restricted to it (convex:
     its minimum is found from any seed); an uncertified one is subdivided
-    (:func:`_search_subdivided`). Returns ``(bu, bv, bd2, bconv, bi, bj, iterations, searched,
-    nonfinite)``.
+    (:func:`_search_subdivided`). ``near2, far2, lift`` are :func:`node_bounds2` of the cell.
+    Returns ``(bu, bv, bd2, bconv, bi, bj, iterations, searched, nonfinite)``.
     """
-    near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
     if not (near2 < bd2 * TIE):
         return bu, bv, bd2, bconv, bi, bj, 0, 0, False
     if nodes[node, LO_T] == -np.inf:  # a cell whose Bézier net is not finite (see candidates)
@@ -555,10 +563,11 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
             if work[row, 1] - dc >= math.sqrt(bd2):
                 break  # sorted: no later entry can be nearer than the best
             node = int(work[row, 0])
-            if not (node_distance2(nodes, node, cx, cy, cz) < bd2 * TIE):
+            near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+            if not (near2 < bd2 * TIE):
                 continue
             bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
-                ctrl, ku, kv, mu, mv, nodes, nj0, work, node, cx, cy, cz, bu, bv, bd2, bconv,
+                ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2, bconv,
                 bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
             iters += it
             cells += searched
@@ -584,7 +593,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
             j = int(work[sp, 2])
             if lev == 0:
                 node = i * nj0 + j
-                near2 = node_distance2(nodes, node, cx, cy, cz)
+                near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
                 if build and near2 < reach2:
                     if count < CACHE_CAP:
                         work[CACHE_LIST + count, 0] = node
@@ -595,8 +604,8 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
                 if not (near2 < bd2 * TIE):
                     continue
                 bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
-                    ctrl, ku, kv, mu, mv, nodes, nj0, work, node, cx, cy, cz, bu, bv, bd2, bconv,
-                    bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
+                    ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
+                    bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
                 iters += it
                 cells += searched
                 nonfinite = nonfinite or nf
