@@ -15,6 +15,11 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    PI controller :math:`C(s) = B_{fp} + K_{fp}/s` and P slave controller (seed 003);
 6. **safety**: saturation, ramp, rate limit, watchdog, disengage (:mod:`arsurf.haptics.safety`).
 
+With a scene of nano-objects (``HapticLoop(..., scene=TubeScene)``, :mod:`arsurf.manipulation.scene`)
+the scene is stepped between 3 and 4 - the tip's move pushes the objects, their resistance joins
+the probe force before the filter - as three compiled calls (steps 1-3, the scene, steps 4-6):
+the haptics layer cannot import the manipulation models into its kernel.
+
 :meth:`HapticLoop.step` is pure given its state (no clock, no sleeping, no I/O): tests run it
 10⁴ times in a row; :class:`~arsurf.haptics.scheduler.Scheduler` runs it in real time.
 """
@@ -47,18 +52,16 @@ L_SIZE = 23
 
 
 @njit(cache=True)
-def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
-                     source, blend, coupling_mode, clutch_mask,
-                     pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
-                     gain, alpha, filt_state, safety_params, safety_state,
-                     proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                     bending_compliance, coupling_coef, torsion_compliance,
-                     model_state, coll, dec, mout, prev_probe, out):
-    """One tick (module docstring). Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the
-    safety flags. ``ext_signals`` (2,) measured (bending, torsion), NaN when none; ``noise`` (2,)
-    radians added to synthesised signals."""
+def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
+                      pos_params, pos_state, fp_state,
+                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                      bending_compliance, coupling_coef, torsion_compliance,
+                      model_state, coll, dec, mout, prev_probe, out):
+    """Steps 1-3 of a tick (module docstring): probe position, model, force on the probe.
+
+    Writes ``out[L_PROBE:L_F_FILT]`` and ``mout``, sets ``prev_probe`` to the new probe position;
+    returns the collision status."""
     probe = out[L_PROBE:L_PROBE + 3]
-    clutched = (buttons & clutch_mask) != 0
     if coupling_mode == 0:
         position_map_step(pos_params, pos_state, x_m, buttons, clutch_mask, probe)
     else:
@@ -97,6 +100,17 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
         out[L_SIGNALS + 1] = math.nan
         for j in range(3):
             f[j] = sim[j] if st >= 0 else 0.0
+    return st
+
+
+@njit(cache=True)
+def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma, fp_state,
+                       gain, alpha, filt_state, safety_params, safety_state, out):
+    """Steps 4-6 of a tick: filter the probe force ``out[L_F_PROBE:]``, couple, saturate.
+
+    Writes ``out[L_F_FILT:]``; returns the safety flags."""
+    clutched = (buttons & clutch_mask) != 0
+    f = out[L_F_PROBE:L_F_PROBE + 3]
     filt = out[L_F_FILT:L_F_FILT + 3]
     lowpass1_step(alpha, filt_state, f, filt)
     hand = out[L_F_HAND:L_F_HAND + 3]
@@ -113,6 +127,27 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
     flags = safety_step(safety_params, safety_state, hand, now, age, buttons, dev)
     out[L_SAFETY_FLAGS] = flags
     return flags
+
+
+@njit(cache=True)
+def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
+                     source, blend, coupling_mode, clutch_mask,
+                     pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
+                     gain, alpha, filt_state, safety_params, safety_state,
+                     proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                     bending_compliance, coupling_coef, torsion_compliance,
+                     model_state, coll, dec, mout, prev_probe, out):
+    """One tick (module docstring): :func:`loop_model_kernel` then :func:`loop_output_kernel`.
+    Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the safety flags. ``ext_signals``
+    (2,) measured (bending, torsion), NaN when none; ``noise`` (2,) radians added to
+    synthesised signals."""
+    loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
+                      pos_params, pos_state, fp_state,
+                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                      bending_compliance, coupling_coef, torsion_compliance,
+                      model_state, coll, dec, mout, prev_probe, out)
+    return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
+                              fp_state, gain, alpha, filt_state, safety_params, safety_state, out)
 
 
 @dataclass
@@ -167,13 +202,25 @@ class HapticLoop:
     coupling : DirectCoupling or ForcePositionCoupling
     safety : SafetyLayer
     config : LoopConfig
+    scene : object, optional
+        Nano-objects the probe pushes (:class:`arsurf.manipulation.scene.TubeScene`). Any object
+        with ``tick(prev, probe, tip_radius, add_to)`` - move the objects the tip sphere meets
+        from ``prev`` to ``probe`` ((3,) m; ``prev`` NaN on the first tick) and add their force
+        on the tip (N) to ``add_to`` (3,) - will do; the haptics layer does not import the
+        manipulation models. With a scene each tick runs the model part of the compiled tick
+        (:func:`loop_model_kernel`), the scene, then the filter/coupling/safety part
+        (:func:`loop_output_kernel`): the objects' force joins the probe force *before* the
+        filter, and the probe force recorded in :attr:`out` includes it. The angles synthesised
+        for ``"measured"``/``"blended"`` sources come from the surface contact only. Without a
+        scene the tick is the single compiled call it always was (bit-identical outputs).
 
     Example
     -------
     >>> # see arsurf.demo for a complete assembly with a VirtualDevice
     """
 
-    def __init__(self, model: ARModel, coupling, safety: SafetyLayer, config: LoopConfig | None = None):
+    def __init__(self, model: ARModel, coupling, safety: SafetyLayer, config: LoopConfig | None = None,
+                 scene=None):
         config = config or LoopConfig()
         config.validate()
         if not isinstance(model, ARModel):
@@ -215,15 +262,21 @@ class HapticLoop:
         self.prev_probe = np.full(3, np.nan)
         self.out = np.zeros(L_SIZE)
         self._source = SOURCES[config.source]
+        if scene is not None and not callable(getattr(scene, "tick", None)):
+            raise HapticsError(f"scene must have a tick(prev, probe, tip_radius, add_to) method, like "
+                               f"arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")
+        self.scene = scene
+        self._scene_prev = np.full(3, np.nan)
 
     @classmethod
     def direct(cls, model: ARModel, device_info, probe_origin, *, scale: float = 1e-5, force_gain: float = 1e5,
-               config: LoopConfig | None = None, **safety_kwargs) -> "HapticLoop":
+               config: LoopConfig | None = None, scene=None, **safety_kwargs) -> "HapticLoop":
         """The usual assembly: direct coupling (master displacement x ``scale`` -> probe, probe
         force x ``force_gain`` -> hand) and a safety layer saturating at the device's max force.
 
         ``probe_origin`` (3,) m is where the probe is when the master is at its origin; ``scale``
-        is probe metres per master metre (1e-5: 1 mm -> 10 nm); ``force_gain`` N per N.
+        is probe metres per master metre (1e-5: 1 mm -> 10 nm); ``force_gain`` N per N;
+        ``scene`` the optional nano-objects (see the class).
 
         Stability: the hand feels the contact stiffness k_c (N/m at the probe, ~E* a) as
         K_f k_c s N/m; a sampled loop renders at most 4 M_v / T² (corrected Table II, seed 003:
@@ -238,7 +291,7 @@ class HapticLoop:
         config.validate()
         coupling = DirectCoupling(PositionScaling(scale, probe_origin=probe_origin), ForceScaling(force_gain))
         safety = SafetyLayer.for_device(device_info, 1.0 / config.rate, **safety_kwargs)
-        return cls(model, coupling, safety, config)
+        return cls(model, coupling, safety, config, scene=scene)
 
     def step(self, inputs: DeviceState, now: float, signals=None) -> np.ndarray:
         """One tick from a device sample; returns the device force (3,) N (a reused array).
@@ -258,14 +311,27 @@ class HapticLoop:
         m = self.model
         live_ctrl, live_rest, ku, kv, patch = m._live
         fp_params, fp_phi, fp_gamma, fp_state = self._fp
-        loop_tick_kernel(x, v, int(inputs.buttons), float(now), float(now - inputs.timestamp), self.dt,
-                         self._ext, self._noise, self._source, self.config.blend, self._mode, self._pos[2],
-                         self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
-                         self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
-                         m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
-                         m.friction, m.deform, *self._lever, m.state, m._coll, m._decout, m.out, self.prev_probe,
-                         self.out)
-        return self.out[L_F_DEVICE:L_F_DEVICE + 3]
+        if self.scene is None:
+            loop_tick_kernel(x, v, int(inputs.buttons), float(now), float(now - inputs.timestamp), self.dt,
+                             self._ext, self._noise, self._source, self.config.blend, self._mode, self._pos[2],
+                             self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
+                             self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
+                             m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
+                             m.friction, m.deform, *self._lever, m.state, m._coll, m._decout, m.out, self.prev_probe,
+                             self.out)
+            return self.out[L_F_DEVICE:L_F_DEVICE + 3]
+        out = self.out
+        buttons = int(inputs.buttons)
+        self._scene_prev[:] = self.prev_probe  # the model part overwrites prev_probe
+        loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
+                          self._pos[2], self._pos[0], self._pos[1], fp_state,
+                          m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
+                          m.friction, m.deform, *self._lever, m.state, m._coll, m._decout, m.out, self.prev_probe, out)
+        self.scene.tick(self._scene_prev, out[L_PROBE:L_PROBE + 3], m.tip_radius, out[L_F_PROBE:L_F_PROBE + 3])
+        loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
+                           fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
+                           self.safety.params, self.safety.state, out)
+        return out[L_F_DEVICE:L_F_DEVICE + 3]
 
     def scheduler_step(self, state, inputs: DeviceState, dt: float) -> np.ndarray:
         """``step(state, inputs, dt)`` signature for :class:`~arsurf.haptics.scheduler.Scheduler`
