@@ -55,7 +55,17 @@ dataset                shape     dtype  meaning
 ``decoupling_flags``   (n,)      i4     DecouplingFlag bits
 ``collide_status``     (n,)      i4     collision status (< 0: failed, contact fields NaN)
 ``moved``              (n,)      i4     control points moved by the dent
+``tube_poses``         (n,k,3)   f8     only with a tube scene: the poses the replayed scene
+                                        computed (x, y m, angle rad) after each tick
 =====================  ========  =====  =====================================================
+
+Tube scene: when the session's metadata has ``tubes`` (:mod:`arsurf.manipulation.scene`), the
+surface is the substrate (as recorded) and the scene is re-run over the recorded probe
+positions - tick k pushes with the tip moving from ``probe_position[k-1]`` to
+``probe_position[k]`` (no move at tick 0), exactly what :class:`~arsurf.haptics.loop.HapticLoop`
+did live - so the poses come back bit for bit; the summary gives the largest difference from
+the recorded ``tube_poses`` (``tube_pose_difference``, 0 for a faithful replay), each tube's
+displacement and rotation, and the frames draw the tubes where they are.
 
 Example
 -------
@@ -131,7 +141,9 @@ class ReplayResult:
     ``depth_difference``, ``load_difference``: largest |replayed - recorded| where the session
     recorded them (NaN: never); ``contact_mismatches``: ticks whose recorded contact state
     (md_status) differs from the replay; ``collision_failures``: ticks the collision could not
-    answer; ``elapsed``: wall time (s, not written to any file).
+    answer; ``elapsed``: wall time (s, not written to any file); ``tube_poses`` (n, k, 3) the
+    replayed poses (None without a tube scene); ``tube_pose_difference`` largest |replayed -
+    recorded| pose component (NaN: nothing to compare).
     """
 
     out_dir: Path
@@ -148,6 +160,8 @@ class ReplayResult:
     contact_mismatches: int
     collision_failures: int
     elapsed: float
+    tube_poses: np.ndarray | None = None
+    tube_pose_difference: float = _NAN
 
 
 class _Progress:
@@ -300,7 +314,7 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
         for note in notes:
             print(f"arsurf replay: {note}", file=sys.stderr)
     return ReplayResult(out_dir=out, n_ticks=n, files=files, frames=rec["frames"], notes=tuple(notes),
-                        elapsed=time.perf_counter() - t_start, **stats)
+                        elapsed=time.perf_counter() - t_start, tube_poses=rec["tube_poses"], **stats)
 
 
 def _install(tmp: Path, out: Path, overwrite: bool) -> None:
@@ -350,6 +364,13 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     failure: dict = {}
     lam = setup.model.contact.maugis_parameter
     radius = setup.model.tip_radius
+    scene = setup.scene
+    poses = None
+    if scene is not None:
+        scene.reset()
+        poses = np.empty((n, len(scene), 3))
+        prev = np.full(3, np.nan)  # tick 0: no previous probe position, as in the live loop
+        here = np.empty(3)
 
     def states():
         tick = model.tick
@@ -358,9 +379,14 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
             for k0 in range(0, n, step):
                 for k in range(k0, min(k0 + step, n)):
                     outs[k] = tick(pos[k], vel[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
+                    if scene is not None:
+                        here[:] = pos[k]
+                        scene.tick(prev, here, radius)
+                        poses[k] = scene.poses
+                        prev[:] = here
                     if is_frame[k]:
                         yield _scene_state(state_cls, model.surface, outs[k], pos[k], radius, lam, ticks["t"][k],
-                                           have[k])
+                                           have[k], scene)
                 bar.update(min(k0 + step, n) - k0)
         except BaseException as exc:
             failure["exc"] = exc
@@ -384,10 +410,10 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     finally:
         bar.close()
     failed = outs[:, M_COLLIDE_STATUS] < 0
-    return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames}
+    return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames, "tube_poses": poses}
 
 
-def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals):
+def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals, scene=None):
     from arsurf.model import (M_COLLIDE_STATUS, M_DEPTH, M_MEAS_FX, M_MEAS_FZ, M_NX, M_NZ, M_PX, M_PZ, M_RADIUS,
                               M_SIM_FX, M_SIM_FZ)
 
@@ -399,7 +425,8 @@ def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have
                      contact_normal=normal.copy() if ok and np.any(normal) else None,
                      depth=float(o[M_DEPTH]) if ok else 0.0, contact_radius=float(o[M_RADIUS]),
                      force=force.copy() if np.isfinite(force).all() else np.zeros(3),
-                     maugis_lambda=lam, device_status="replay", time=float(t))
+                     maugis_lambda=lam, device_status="replay", time=float(t),
+                     tubes=scene.viewer_tubes() if scene is not None else ())
 
 
 def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: str, scan_hash: str) -> dict:
@@ -437,6 +464,9 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         "collide_status": o[:, M_COLLIDE_STATUS].astype(np.int32), "moved": o[:, M_MOVED].astype(np.int32),
     }
     data = {f.name: np.ascontiguousarray(data[f.name], dtype=np.dtype(f.dtype)) for f in REPLAY_FIELDS}
+    poses = rec["tube_poses"]
+    if poses is not None:
+        data["tube_poses"] = poses
     attrs = {"format": REPLAY_FORMAT, "format_version": np.int64(REPLAY_FORMAT_VERSION),
              "arsurf_version": __version__, "units": "SI", "complete": np.bool_(True), "n_ticks": np.int64(n),
              "session_sha256": session_hash, "scan_sha256": scan_hash,
@@ -458,6 +488,19 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         "contact_mismatches": int(np.count_nonzero(recorded_given & (recorded_contact != (data["in_contact"] == 1)))),
         "collision_failures": int(np.count_nonzero(failed)),
     }
+    tubes_summary = None
+    if poses is not None:
+        recorded = ticks.get("tube_poses")
+        stats["tube_pose_difference"] = (_max_abs(poses - recorded) if recorded is not None and
+                                         recorded.shape == poses.shape else _NAN)
+        scene = setup.scene  # its poses are the last tick's
+        start = np.array([t.pose for t in scene.initial]).reshape(1, len(scene), 3)
+        tubes_summary = {
+            "count": len(scene), "tube_pose_difference": _json_number(stats["tube_pose_difference"]),
+            "ticks_pushing": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0, axis=(1, 2)))),
+            "displacement": [scene.motion(i).displacement for i in range(len(scene))],
+            "rotation": [scene.motion(i).rotation for i in range(len(scene))],
+        }
     t = data["t"]
     summary = {
         "format": "arsurf-replay-summary", "units": "SI", "n_ticks": n,
@@ -465,8 +508,10 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         "ticks_with_signals": int(np.count_nonzero(have)), "frames": rec["frames"],
         "scan": {"path": session.metadata["scan"]["path"], "sha256": scan_hash}, "session_sha256": session_hash,
         "peak_recorded_force": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
-        **{k: _json_number(v) if isinstance(v, float) else v for k, v in stats.items()},
+        **{k: _json_number(v) if isinstance(v, float) else v for k, v in stats.items() if k != "tube_pose_difference"},
     }
+    if tubes_summary is not None:
+        summary["tubes"] = tubes_summary
     (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
     contact = data["in_contact"] == 1

@@ -43,6 +43,13 @@ key                         JSON value
 ``calibration``             free object (photodiode sensitivities, gains...)
 ``haptics``                 free object (device, scaling, filter, coupling settings)
 ``loop_rate``               Hz (nominal rate of the loop), or null
+``tubes``                   optional: the nano-objects the loop pushed, as
+                            :meth:`arsurf.manipulation.scene.TubeScene.to_metadata` writes
+                            them: ``{"tubes": [{"length", "diameter", "x", "y", "angle",
+                            "base"}, ...] (the initial poses, m and rad), "friction_per_length"
+                            (N/m), "middle_band", "max_substep" (m|null), "max_substeps",
+                            "substrate_margin" (m|null)}``. :func:`build_model` then fits the
+                            substrate (tube pixels masked and inpainted) and rebuilds the scene
 any other key               free JSON, kept as is
 ==========================  ===================================================================
 
@@ -72,7 +79,15 @@ dataset                   shape     dtype   fill   meaning
 ``md_status``             (n,)      i4      -99    MD status: 0 contact, 1 cohesive,
                                                    2 separated, < 0 solver error, -99 not given
 ``decoupling_flags``      (n,)      i4      0      :class:`~arsurf.force.decoupling.DecouplingFlag`
+``tube_poses``            (n, k, 3) f8      NaN    optional, only with a ``tubes`` scene of k
+                                                   tubes: each tube's pose after the tick,
+                                                   x, y (m), axis angle (rad)
 ========================  ========  ======  =====  ===========================================
+
+``tube_poses`` is the only optional dataset: the writer adds it when the metadata has a
+``tubes`` scene, and readers accept its absence (sessions without nano-objects, and files
+written before it existed), so ``format_version`` stays 1. When present its shape is checked
+against the scene (k rows of 3 per tick).
 
 Writing is cheap and atomic: :class:`SessionWriter` fills preallocated numpy buffers (doubling
 when full) and writes the whole file once, at :meth:`SessionWriter.close`, to ``<path>.part``,
@@ -126,6 +141,7 @@ __all__ = [
     "contact_fields",
     "build_model",
     "ModelSetup",
+    "TUBE_POSES",
 ]
 
 FORMAT = "arsurf-session"
@@ -180,6 +196,8 @@ TICK_FIELDS: tuple[TickField, ...] = (
     TickField("md_status", 0, "i4", MD_STATUS_NOT_GIVEN, "MD status (0 contact, 1 cohesive, 2 separated)"),
     TickField("decoupling_flags", 0, "i4", 0, "DecouplingFlag bits"),
 )
+#: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
+TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick")
 _REQUIRED_TICK = ("t", "probe_position")
 _REQUIRED_META = ("scan", "tip_radius", "contact", "friction", "cantilever")
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
@@ -370,6 +388,27 @@ def check_metadata(meta: Mapping) -> None:
     for k in ("effective_modulus", "work_of_adhesion"):
         _need(meta["contact"], k, "contact")
     _model_parts(meta)  # builds the contact law and the cantilever: their own checks apply
+    _tube_scene(meta)
+
+
+def _tube_scene(meta: Mapping):
+    """The :class:`~arsurf.manipulation.scene.TubeScene` of the metadata (None without ``tubes``)."""
+    spec = meta.get("tubes")
+    if spec is None:
+        return None
+    from arsurf.errors import ArsurfError
+    from arsurf.manipulation.scene import TubeScene
+
+    try:
+        return TubeScene.from_metadata(spec)
+    except (ArsurfError, TypeError, ValueError) as exc:
+        raise SessionError(f"metadata tubes does not describe a tube scene: {exc}") from exc
+
+
+def _tube_count(meta: Mapping) -> int | None:
+    """Number of tubes of the metadata's scene (None without ``tubes``); metadata checked."""
+    spec = meta.get("tubes")
+    return None if spec is None else len(spec["tubes"])
 
 
 def _model_parts(meta: Mapping):
@@ -393,11 +432,13 @@ def _model_parts(meta: Mapping):
 
 @dataclass(frozen=True)
 class ModelSetup:
-    """What :func:`build_model` made: the processed scan, the fitted (live) surface, the model."""
+    """What :func:`build_model` made: the processed scan (the substrate when there is a tube scene),
+    the fitted (live) surface, the model, and the tube scene (None without ``tubes`` metadata)."""
 
     scan: Any
     surface: Any
     model: Any
+    scene: Any = None
 
 
 def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
@@ -429,12 +470,15 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
     proc = scan_meta["processing"]
     path = scan_meta["path"] if scan_path is None else scan_path
     scan = prepare_scan(path, scan_meta.get("channel"), proc["level"], float(proc["sigma"]), bool(proc["inpaint"]))
+    scene = _tube_scene(metadata)
+    if scene is not None:  # the tubes are scene objects: the spline holds only the substrate
+        scan = scene.substrate(scan)
     cs = proc.get("control_shape")
     surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
                           smoothing=float(proc.get("smoothing", 0.0)))
     tip_radius, md, lever, friction, deform = _model_parts(metadata)
     model = ARModel(surface, tip_radius, md, lever, friction=friction, deform=deform)
-    return ModelSetup(scan, surface, model)
+    return ModelSetup(scan, surface, model, scene)
 
 
 def contact_fields(tick) -> dict:
@@ -547,13 +591,18 @@ class SessionWriter:
         self._created = created
         self._n = 0
         self._cap = capacity
-        self._buf = {f.name: self._alloc(f, capacity) for f in TICK_FIELDS}
+        k = _tube_count(self.metadata)
+        # field -> row shape; tube_poses only with a tube scene (k rows of x, y, angle)
+        self._rows = {f.name: (() if f.width == 0 else (f.width,)) for f in TICK_FIELDS}
+        self._fields = {f.name: f for f in TICK_FIELDS}
+        if k is not None:
+            self._rows[TUBE_POSES.name] = (k, TUBE_POSES.width)
+            self._fields[TUBE_POSES.name] = TUBE_POSES
+        self._buf = {name: self._alloc(f, capacity) for name, f in self._fields.items()}
         self._closed = False
 
-    @staticmethod
-    def _alloc(f: TickField, n: int) -> np.ndarray:
-        shape = (n,) if f.width == 0 else (n, f.width)
-        return np.full(shape, f.fill, dtype=np.dtype(f.dtype))
+    def _alloc(self, f: TickField, n: int) -> np.ndarray:
+        return np.full((n, *self._rows[f.name]), f.fill, dtype=np.dtype(f.dtype))
 
     @property
     def n_ticks(self) -> int:
@@ -562,14 +611,14 @@ class SessionWriter:
 
     def _grow(self) -> None:
         cap = 2 * self._cap
-        for f in TICK_FIELDS:
+        for f in self._fields.values():
             new = self._alloc(f, cap)
             new[: self._n] = self._buf[f.name][: self._n]
             self._buf[f.name] = new
         self._cap = cap
 
     def _clear_row(self, i: int) -> None:
-        for f in TICK_FIELDS:
+        for f in self._fields.values():
             self._buf[f.name][i] = f.fill
 
     def append(self, **fields) -> None:
@@ -579,7 +628,8 @@ class SessionWriter:
         ----------
         **fields
             ``t`` (s) and ``probe_position`` ((3,) m) are required; every other field of
-            :data:`TICK_FIELDS` is optional (missing: NaN, or the integer fill value).
+            :data:`TICK_FIELDS` is optional (missing: NaN, or the integer fill value), and so is
+            ``tube_poses`` ((k, 3): x, y, angle per tube) when the metadata has a tube scene.
 
         Raises
         ------
@@ -598,12 +648,15 @@ class SessionWriter:
         except KeyError:
             self._clear_row(i)
             unknown = sorted(set(fields) - set(buf))
+            hint = (" (tube_poses needs a tube scene in the metadata: tubes=TubeScene.to_metadata())"
+                    if TUBE_POSES.name in unknown else "")
             raise SessionError(f"unknown session field(s) {unknown}; the fields are "
-                               f"{[f.name for f in TICK_FIELDS]}") from None
+                               f"{list(self._fields)}{hint}") from None
         except (ValueError, TypeError) as exc:
             self._clear_row(i)
-            bad = {f.name: f for f in TICK_FIELDS}[name]
-            raise SessionError(f"session field {name!r} must be {bad.row_text} per tick "
+            bad = self._fields[name]
+            rows = bad.row_text if name != TUBE_POSES.name else f"{self._rows[name][0]} x 3 numbers"
+            raise SessionError(f"session field {name!r} must be {rows} per tick "
                                f"({bad.doc}); got {value!r}: {exc}") from None
         if "t" not in fields or "probe_position" not in fields:
             self._clear_row(i)
@@ -622,7 +675,7 @@ class SessionWriter:
                  "complete": np.bool_(complete), "n_ticks": np.int64(n)}
         if not complete:
             attrs["aborted"] = reason or "the recording stopped before the writer was closed"
-        write_h5(self.path, attrs, self.metadata, {f.name: self._buf[f.name][:n] for f in TICK_FIELDS})
+        write_h5(self.path, attrs, self.metadata, {name: self._buf[name][:n] for name in self._fields})
         self._closed = True
         return self.path
 
@@ -743,7 +796,8 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False) -> 
     Returns
     -------
     Session
-        ``metadata`` (dict), ``ticks`` (dict name -> array, see :data:`TICK_FIELDS`),
+        ``metadata`` (dict), ``ticks`` (dict name -> array, see :data:`TICK_FIELDS`; plus
+        ``tube_poses`` (n, k, 3) when the session recorded a tube scene),
         ``n_ticks``, ``attrs`` (root attributes), ``path``.
 
     Raises
@@ -759,4 +813,11 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False) -> 
         check_metadata(s.metadata)
     except SessionError as exc:
         raise SessionError(f"session {str(path)!r}: {exc}") from exc
+    poses = s.ticks.get(TUBE_POSES.name)
+    if poses is not None:  # optional: checked against the scene when present
+        k = _tube_count(s.metadata)
+        if k is None or poses.dtype.kind != "f" or poses.shape != (s.n_ticks, k, 3):
+            raise SessionError(f"session {str(path)!r}: /ticks/tube_poses has shape {poses.shape} and dtype "
+                               f"{poses.dtype}, expected float ({s.n_ticks}, k, 3) with k the number of tubes of "
+                               f"the metadata's tube scene ({'none' if k is None else k})")
     return s
