@@ -497,3 +497,40 @@ def test_view_scan_levels_smooths_fits_and_falls_back_offscreen(gl, tmp_path, mo
                           anti_aliasing=None, movie=None)
     assert [p.name for p in res.paths] == [f"frame_{k:05d}.png" for k in range(4)]
     assert "rendering 4 frames offscreen" in capsys.readouterr().err
+
+
+@pytest.mark.viewer
+def test_a_pushed_tube_is_drawn_where_the_scene_moved_it(gl):
+    """The tube scene feeds SceneState.tubes: after an end push the tube's pixels move at the
+    pushed end and stay at the pivot (seed 000's rotation about s(l))."""
+    from arsurf.manipulation.nanotube import Nanotube, rotation_centre
+    from arsurf.manipulation.scene import TubeScene
+
+    s = BSplineSurface.from_heights(np.zeros((12, 12)), (0.0, 200e-9), (0.0, 200e-9))
+    tube = Nanotube(120e-9, 10e-9, x=100e-9, y=90e-9, angle=0.0)
+    scene = TubeScene([tube])
+    view = make_view(s, camera="top", layers={"hud": False, "colorbar": False, "tip": False})
+    try:
+        tip = np.array([100e-9 + 0.45 * tube.length, 90e-9 - 17.5e-9, 12e-9])
+        view.update(SceneState(s, tip, R, tubes=scene.viewer_tubes()))
+        before = view.screenshot()
+        step = scene.step(tip, tip + [0.0, 45e-9, 0.0], R)
+        view.update(SceneState(s, tip + [0.0, 45e-9, 0.0], R, tubes=scene.viewer_tubes()))
+        after = view.screenshot()
+        moved = scene.tubes[0]
+        assert step.touched[0] and moved.angle > 0.3
+        mask = changed(before, after)
+        old_end, new_end = (view.world_to_pixel(t.point_at(0.97 * t.length)) for t in (tube, moved))
+        pivot = view.world_to_pixel(tube.point_at(float(rotation_centre(0.95 * tube.length, tube.length))))
+
+        def window(point):  # changed pixels in the 5 x 5 pixels around a projected point
+            r, c = (int(round(v)) for v in point)
+            return mask[r - 2:r + 3, c - 2:c + 3]
+
+        for end in (old_end, new_end):  # the end left its old place and is drawn at the new one
+            assert window(end).mean() > 0.6
+        # the tube turned about the pivot: there only the edges' shading changes
+        assert not mask[tuple(int(round(v)) for v in pivot)] and window(pivot).mean() < 0.4
+        assert mask.sum() > 100
+    finally:
+        view.close()

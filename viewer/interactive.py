@@ -16,7 +16,9 @@ The default physics, :class:`ContactPhysics`, is the model without a cantilever:
 is collided with the *rest* surface (so the dent it makes does not hide the indentation),
 Maugis-Dugdale gives the contact radius and the load P, the force shown is P·n, and the net
 is dented with :class:`arsurf.contact.deformation.Deformer`. The live loop replaces it with its
-own ``physics`` (decoupled, measured force).
+own ``physics`` (decoupled, measured force). With a tube scene (:mod:`arsurf.manipulation.scene`;
+``view_scan(..., tubes=True)`` on a synthetic nanotubes scan) the tip's moves push the tubes,
+their resistance is added to the force and the tubes are drawn where they are, frame by frame.
 
 Without a display (Linux with no reachable X server) the same scene is rendered offscreen
 along the pose source, or along a scripted approach-indent-slide-retract path, into PNG frames
@@ -145,10 +147,14 @@ class ContactPhysics:
         Names in :data:`arsurf.MATERIALS` (default Si tip on polystyrene, soft enough to dent).
     deform : bool
         Dent the net (``False``: a rigid sample).
+    scene : TubeScene, optional
+        Nano-objects pushed by the tip (:class:`arsurf.manipulation.scene.TubeScene`): each call
+        pushes them with the tip moving from the previous call's centre to this one, adds their
+        force to the shown force and draws them at their poses; ``release`` puts them back.
     """
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, *, tip_material="Si",
-                 sample_material="polystyrene", deform: bool = True):
+                 sample_material="polystyrene", deform: bool = True, scene=None):
         from arsurf.contact.materials import effective_modulus, work_of_adhesion
         from arsurf.contact.maugis_dugdale import MaugisDugdale
         from arsurf.demo import LEVER
@@ -161,19 +167,31 @@ class ContactPhysics:
                                      work_of_adhesion(tip_material, sample_material))
         self.model = ARModel(surface, self.tip_radius, self.contact, Cantilever(**LEVER), deform=deform)
         self.status = f"keyboard · {tip_material} on {sample_material}"
+        if scene is not None and not (callable(getattr(scene, "tick", None)) and hasattr(scene, "viewer_tubes")):
+            raise ViewerError(f"`scene` must be an arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")
+        self.scene = scene
+        self._prev = np.full(3, np.nan)
 
     def release(self) -> None:
-        """Forget the dent and the contact history (after ``surface.reset()``)."""
+        """Forget the dent and the contact history (after ``surface.reset()``); tubes back home."""
         self.model.reset()
+        if self.scene is not None:
+            self.scene.reset()
+            self._prev[:] = np.nan
 
     def __call__(self, tip_center, dt: float) -> SceneState:
-        c = np.asarray(tip_center, dtype=np.float64)
+        c = np.array(tip_center, dtype=np.float64).reshape(3)
         t = self.model.step(c)
         rate = 1.0 / dt if dt > 0 else math.nan
+        force, tubes = t.simulated_force, ()
+        if self.scene is not None:
+            force = force + self.scene.tick(self._prev, c, self.tip_radius)
+            self._prev[:] = c
+            tubes = self.scene.viewer_tubes()
         return SceneState(self.surface, c, self.tip_radius, contact_point=t.point, contact_normal=t.normal,
-                          depth=t.depth, contact_radius=t.contact_radius, force=t.simulated_force,
+                          depth=t.depth, contact_radius=t.contact_radius, force=force,
                           maugis_lambda=self.contact.maugis_parameter, loop_rate_hz=rate,
-                          device_status=self.status)
+                          device_status=self.status, tubes=tubes)
 
 
 def scripted_path(surface: BSplineSurface, tip_radius: float, frames: int = 60, indent: float | None = None) -> np.ndarray:
@@ -307,7 +325,7 @@ def _announce(message: str) -> None:
 
 
 def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "plane", sigma: float | None = None,
-              control_shape=None, smoothing: float = 0.0, **kwargs):
+              control_shape=None, smoothing: float = 0.0, tubes: bool = False, **kwargs):
     """What ``arsurf view [SCAN]`` runs: load (a path or a Scan), level, smooth, fit, open the viewer.
 
     Parameters
@@ -320,6 +338,10 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
         Gaussian smoothing width (:func:`arsurf.smooth`) before the fit; None: no smoothing.
     control_shape, smoothing
         Passed to :func:`arsurf.fit_surface`.
+    tubes : bool
+        Make the tubes of a synthetic nanotubes scan pushable objects
+        (:meth:`arsurf.manipulation.scene.TubeScene.from_scan`): the surface is fitted to the
+        substrate (tube pixels inpainted) and the tip pushes the tubes live.
     kwargs
         Passed to :func:`run_interactive`.
     """
@@ -331,5 +353,13 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
         scan = arsurf.level(scan, level_method)
     if sigma is not None:
         scan = arsurf.smooth(scan, sigma)
+    scene = None
+    if tubes:
+        from arsurf.manipulation.scene import TubeScene
+
+        scene = TubeScene.from_scan(scan)
+        scan = scene.substrate(scan)
     surface = arsurf.fit_surface(scan, control_shape=control_shape, smoothing=smoothing)
+    if scene is not None and kwargs.get("physics") is None:
+        kwargs["physics"] = ContactPhysics(surface, tip_radius, scene=scene)
     return run_interactive(surface, tip_radius=tip_radius, **kwargs)
