@@ -1,21 +1,34 @@
 """``arsurf demo``: the whole system on a bundled scan, headless, in well under a minute.
 
-A scripted operator (a :class:`~arsurf.haptics.virtual_device.HandModel` on a
-:class:`~arsurf.haptics.virtual_device.VirtualDevice`) approaches a nanotube of the bundled
-synthetic scan ``scans/nanotubes.npz``, indents it, slides across it and retracts, through the
-full loop at 1 kHz: position scaling, Newton collision on the B-spline, Maugis-Dugdale with
-approach/retract hysteresis, control-net dent, angular signals synthesised from the force through
-the cantilever model (plus photodiode noise) and decoupled with the contact normal, blended with
-the model force, low-pass filter, direct coupling, safety layer. The session is recorded
-(HDF5), replayed offline, and the output folder receives:
+1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.manipulation.engage`):
+   the tip starts 5 um above the sample beside a nanotube of the bundled synthetic scan
+   ``scans/nanotubes.npz`` and is brought into contact by nano/micro stage steps under a force
+   limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
+   to hover 8 nm above it);
+2. **haptic session**: a scripted operator (a :class:`~arsurf.haptics.virtual_device.HandModel`
+   on a :class:`~arsurf.haptics.virtual_device.VirtualDevice`) approaches the substrate, indents
+   it, then slides sideways into the tube near one end and pushes that end about 50 nm, so that
+   the tube turns about the corrected Eq. 9 pivot (about 0.29 L from the other end), then
+   retracts - through the full loop at 1 kHz: position scaling, Newton collision on the
+   B-spline of the substrate, Maugis-Dugdale with approach/retract hysteresis, control-net dent,
+   angular signals synthesised from the force through the cantilever model (plus photodiode
+   noise) and decoupled with the contact normal, blended with the model force, the tube scene
+   (:mod:`arsurf.manipulation.scene`: the tube is an object, pushed every tick, its friction
+   resistance added to the probe force), low-pass filter, direct coupling, safety layer;
+3. the session (HDF5, with the tube poses of every tick) is **replayed** offline, which
+   re-runs the scene and must give back the poses bit for bit.
 
-``summary.json`` (peak forces, depth, contact radius, loop timing), ``session.h5``,
-``replay/`` (forces.csv, replay.h5, plots), and PNG views of the dented surface
-(``view_*.png``, when the viewer extra and an OpenGL context are available).
+The output folder receives ``summary.json`` (engage, peak forces, depth, contact radius, the
+tube's displacement, rotation and rotation pole, loop timing, replay agreement),
+``session.h5``, ``replay/`` (forces.csv, replay.h5, plots), and PNG views of the dented surface
+with the tube where it is (``view_*.png``, when the viewer extra and an OpenGL context are
+available). A scan without a synthetic tube record (``--scan``) runs the session without
+a scene: approach, indent, a 160 nm slide along x and retract.
 """
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -40,65 +53,168 @@ SCALE = 1e-5  # probe metres per stylus metre (1 mm -> 10 nm)
 #: hand newtons per probe newton: the hand feels the contact stiffness (~2E*a ~ 200 N/m) as
 #: FORCE_GAIN x 200 x SCALE = 200 N/m, passive with the 200 Hz filter; 1e6 made the stylus chatter
 FORCE_GAIN = 1e5
+#: how far the scripted operator pushes the tube's end sideways (contact-point travel)
+PUSH = 50e-9
+#: the tip starts this far (centre to tube axis) beside the tube, and pushes this far from its end
+PUSH_START_OFFSET = 60e-9
+PUSH_END_MARGIN = 20e-9
+#: engage (seed 001 Fig. 3.10): start height above the sample, set point (normalised signal
+#: change: 0.05 x 1117 nm/V = 56 nm of lever deflection, 17 nN on the 0.3 N/m lever), force limit
+ENGAGE_FROM = 5e-6
+ENGAGE_SETPOINT = 0.05
+ENGAGE_FORCE_LIMIT = 30e-9
 
 
 def _tube_top(scan, surface):
-    """(x, y) of the highest ridge point along the middle row, and the ridge's direction."""
+    """(x, y) of the highest ridge point along the middle row (scans without a tube scene)."""
     row = scan.heights[scan.shape[0] // 2]
     ix = int(np.argmax(row))
     return ix * scan.dx, (scan.shape[0] // 2) * scan.dy
 
 
-def hand_trajectory(approach_from: float, indent: float, slide: float):
-    """Stylus set points (device frame, m): hover, approach, indent, slide across, retract."""
+def hand_trajectory(approach_from: float, indent: float, slide: float, direction=(1.0, 0.0)):
+    """Stylus set points (device frame, m): hover, approach, indent, slide ``slide`` metres (probe)
+    along the unit ``direction`` (x, y), retract."""
     z_touch = -approach_from / SCALE
     z_in = -(approach_from + indent) / SCALE
+    dx, dy = (slide / SCALE) * np.asarray(direction, dtype=np.float64)
     times = np.array([0.0, 0.3, 1.5, 2.3, 4.3, 5.0, 6.0])
     pts = np.array([
         [0.0, 0.0, 0.0],
         [0.0, 0.0, 0.0],
         [0.0, 0.0, z_touch],
         [0.0, 0.0, z_in],
-        [slide / SCALE, 0.0, z_in],
-        [slide / SCALE, 0.0, 0.6 * z_in],
-        [slide / SCALE, 0.0, 0.0],
+        [dx, dy, z_in],
+        [dx, dy, 0.6 * z_in],
+        [dx, dy, 0.0],
     ])
     return times, pts
 
 
+def plan_end_push(scene, scan, tip_radius: float):
+    """Choose the tube end and side for a sideways push with the most room around it.
+
+    For each tube, end and side, the tip starts :data:`PUSH_START_OFFSET` from the axis, beside
+    the point :data:`PUSH_END_MARGIN` from the end, and moves along the tube normal until the
+    contact point has travelled :data:`PUSH`. The score is the smallest distance from the tip's
+    start and end and the pushed end's new position to the other tubes and to the scan border;
+    the best candidate wins (deterministic).
+
+    Returns
+    -------
+    dict: ``tube`` (index), ``end`` ("A"/"B"), ``contact`` (arc-length, m), ``start`` (x, y),
+    ``direction`` (unit (x, y)), ``slide`` (m, tip travel), ``clearance`` (m).
+    """
+    from arsurf.manipulation.nanotube import _seg_dist
+
+    w, h = (scan.shape[1] - 1) * scan.dx, (scan.shape[0] - 1) * scan.dy
+    best = None
+    for i, tube in enumerate(scene.initial):
+        reach = tip_radius + tube.radius
+        slide = PUSH_START_OFFSET - reach + PUSH
+        u = tube.direction
+        normal = np.array([-u[1], u[0]])
+        for end, arc in (("A", PUSH_END_MARGIN), ("B", tube.length - PUSH_END_MARGIN)):
+            c = tube.point_at(arc)[:2]
+            tip_end = tube.endpoints[0 if end == "A" else 1][:2]
+            for side in (1.0, -1.0):
+                n = side * normal
+                start = c - PUSH_START_OFFSET * n
+                pts = (start, start + slide * n, tip_end + PUSH * n)
+                room = min(min(p[0], w - p[0], p[1], h - p[1]) for p in pts)
+                for j, other in enumerate(scene.initial):
+                    if j == i:
+                        continue
+                    a = other.endpoints[0]
+                    for p in pts:
+                        d = _seg_dist(p[0], p[1], a[0], a[1], other.direction[0], other.direction[1],
+                                      other.length)[3]
+                        room = min(room, d - other.radius - tip_radius)
+                if best is None or room > best["clearance"]:
+                    best = {"tube": i, "end": end, "contact": arc, "start": start, "direction": n, "slide": slide,
+                            "clearance": room}
+    return best
+
+
+def engage_at(scan, x: float, y: float, seed: int = 5):
+    r"""Engage the virtual AFM (seed 001 Fig. 3.10) from :data:`ENGAGE_FROM` above ``scan`` at (x, y).
+
+    Returns ``(EngageResult, surface_found)``: the surface height the engage found (metres, scan
+    frame) from the stage positions and the deflection read on the photodiode,
+    :math:`z = h_{probe} - z_{pico} - z_{micro} - z_{nano} + |S_n| \Delta V`.
+    """
+    from arsurf.manipulation.engage import engage
+    from arsurf.manipulation.instrument import VirtualAFM
+
+    z0 = VirtualAFM(scan, probe_height=0.0, tip_xy=(x, y)).surface_height
+    afm = VirtualAFM(scan, probe_height=z0 + ENGAGE_FROM, tip_xy=(x, y), seed=seed)
+    result = engage(afm, setpoint=ENGAGE_SETPOINT, force_limit=ENGAGE_FORCE_LIMIT)
+    pos = afm.position
+    found = (afm.probe_height - pos["pico"] - pos["micro"] - pos["nano"]
+             + abs(afm.deflection_sensitivity) * result.signal)
+    return result, found
+
+
 def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=print) -> dict:
     """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary."""
+    from arsurf.manipulation.errors import ManipulationError
+    from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
     from arsurf.replay.session import SessionWriter, build_model, contact_fields, session_metadata
+    from arsurf.scan.prepare import prepare_scan
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     contact = MaugisDugdale(TIP_RADIUS, EFFECTIVE_MODULUS, WORK_OF_ADHESION)
     lever = Cantilever(**LEVER)
+    level, sigma = "plane", 2e-9
+    prepared = prepare_scan(scan_path, None, level, sigma, True)  # the scan the instrument and the tubes see
+    try:
+        tubes = TubeScene.from_scan(prepared).to_metadata()
+    except ManipulationError:
+        tubes = None  # not a synthetic nanotubes scan: a session without a scene
     meta = session_metadata(scan=scan_path, tip_radius=TIP_RADIUS, contact=contact, cantilever=lever, friction=0.2,
-                            level="plane", sigma=2e-9, loop_rate=RATE,
+                            level=level, sigma=sigma, loop_rate=RATE,
                             haptics={"coupling": "direct", "scale": SCALE, "force_gain": FORCE_GAIN, "source": "blended",
-                                     "filter_cutoff": 200.0, "signal_noise": 2e-7})
+                                     "filter_cutoff": 200.0, "signal_noise": 2e-7},
+                            **({"tubes": tubes} if tubes is not None else {}))
     setup = build_model(meta)  # the same construction replay uses: bit-identical re-runs
-    scan, surface, model = setup.scan, setup.surface, setup.model
+    scan, surface, model, scene = setup.scan, setup.surface, setup.model, setup.scene
     progress(f"scan {scan_path} ({scan.shape[1]}x{scan.shape[0]} px) fitted: {surface.shape[0]}x{surface.shape[1]} "
-             f"control points; Maugis lambda = {contact.maugis_parameter:.3f}")
-    x0, y0 = _tube_top(scan, surface)
-    x0 -= 80e-9  # start beside the tube, slide across it
-    # hover 8 nm above the highest point the sphere could touch
-    z_near = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
-    origin = (x0, y0, z_near + TIP_RADIUS + 8e-9)
-    dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, 160e-9))).open()
+             f"control points; Maugis lambda = {contact.maugis_parameter:.3f}"
+             + (f"; {len(scene)} tubes are scene objects (the spline holds the substrate)" if scene else ""))
+    if scene is not None:
+        plan = plan_end_push(scene, scan, TIP_RADIUS)
+        (x0, y0), direction, slide = plan["start"], plan["direction"], plan["slide"]
+    else:
+        plan = None
+        x0, y0 = _tube_top(scan, surface)
+        x0 -= 80e-9  # start beside the ridge, slide across it
+        direction, slide = (1.0, 0.0), 160e-9
+    # engage from 5 um above, then hand over: hover 8 nm above the surface the engage found
+    t_engage = time.perf_counter()
+    eng, z_found = engage_at(prepared, x0, y0)
+    t_engage = time.perf_counter() - t_engage
+    z_spline = float(surface.evaluate(x0, y0)[2])
+    progress(f"engage from {ENGAGE_FROM * 1e6:.0f} um: {eng.reason} after {eng.coarse_steps} micro and "
+             f"{eng.fine_steps} nano steps ({eng.duration:.2f} s simulated, {t_engage:.2f} s wall), max force "
+             f"{eng.max_force * 1e9:.1f} nN; surface found {(z_found - z_spline) * 1e9:+.2f} nm from the model")
+    if not eng.engaged:
+        z_found = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
+    origin = (x0, y0, z_found + TIP_RADIUS + 8e-9)
+    dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
     loop = HapticLoop.direct(model, dev.info, origin, scale=SCALE, force_gain=FORCE_GAIN,
                              config=LoopConfig(rate=RATE, source="blended", filter_cutoff=200.0, signal_noise=2e-7,
-                                               seed=7), ramp_time=0.2)
+                                               seed=7), scene=scene, ramp_time=0.2)
     n = int(seconds * RATE)
     writer = SessionWriter(out / "session.h5", meta)
     compute = np.empty(n)
     views = {}
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
     clock = time.perf_counter_ns
+    tube_force = np.zeros(n)
+    extra = {}
     for k in range(n):
         st = dev.read_state()
         t0 = clock()
@@ -106,19 +222,49 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         compute[k] = clock() - t0
         dev.command_force(f)
         o, mo = loop.out, model.out
+        if scene is not None:
+            extra["tube_poses"] = scene.poses
+            tube_force[k] = math.hypot(scene.force[0], scene.force[1])
         writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
                       probe_position=o[0:3], probe_velocity=o[3:6], signals=o[6:8], force=o[8:11],
-                      device_force=o[17:20], **contact_fields(model.record(mo)))
+                      device_force=o[17:20], **contact_fields(model.record(mo)), **extra)
         for name, tick in marks.items():
             if k == tick:
-                views[name] = _scene(model, loop, contact, RATE)
+                views[name] = _scene(model, loop, contact, RATE, scene)
     writer.close()
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
+    tube_summary = None
+    if scene is not None:
+        i = plan["tube"]
+        motion = scene.motion(i)
+        L = scene.initial[i].length
+        from arsurf.manipulation.nanotube import rotation_centre
+
+        e = 0 if plan["end"] == "A" else 1
+        end_move = float(np.hypot(*(scene.tubes[i].endpoints[e, :2] - scene.initial[i].endpoints[e, :2])))
+        tube_summary = {
+            "pushed_tube": i, "end": plan["end"], "length_nm": L * 1e9,
+            "displacement_nm": motion.displacement * 1e9, "end_displacement_nm": end_move * 1e9,
+            "rotation_deg": math.degrees(motion.rotation),
+            "pole_arc_fraction": motion.pole_arc_length / L,
+            "pivot_arc_fraction (Eq. 9, first contact)": float(rotation_centre(plan["contact"], L)) / L,
+            "pole_offset_nm": motion.pole_offset * 1e9,
+            "ticks_pushing": int(np.count_nonzero(tube_force)),
+            "peak_tube_force_nN": float(tube_force.max() * 1e9),
+            "median_tube_force_while_pushing_nN": float(np.median(tube_force[tube_force > 0]) * 1e9)
+            if tube_force.any() else 0.0,
+            "other_tubes_moved": [j for j in range(len(scene)) if j != i and scene.motion(j).displacement > 0.0],
+        }
+        progress(f"tube {i}: pushed at end {plan['end']} (which moved {end_move * 1e9:.1f} nm), centre moved "
+                 f"{motion.displacement * 1e9:.1f} nm, turned "
+                 f"{math.degrees(motion.rotation):+.2f} deg about the point {motion.pole_arc_length / L:.3f} L "
+                 f"from end A (Eq. 9 pivot {tube_summary['pivot_arc_fraction (Eq. 9, first contact)']:.3f} L)")
     result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True, progress=False)
-    progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches, "
-             f"files {', '.join(result.files)}")
+    progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches"
+             + (f", tube poses differ by {result.tube_pose_difference:g}" if scene is not None else "")
+             + f", files {', '.join(result.files)}")
     pngs = _render(views, out, progress) if images else []
     from arsurf.replay.session import load_session
 
@@ -129,6 +275,13 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         "ticks": n,
         "rate_hz": RATE,
         "maugis_lambda": contact.maugis_parameter,
+        "engage": {
+            "engaged": bool(eng.engaged), "reason": eng.reason, "from_um": ENGAGE_FROM * 1e6,
+            "micro_steps": int(eng.coarse_steps), "nano_steps": int(eng.fine_steps),
+            "simulated_time_s": eng.duration, "max_force_nN": eng.max_force * 1e9,
+            "force_limit_nN": ENGAGE_FORCE_LIMIT * 1e9, "surface_found_minus_model_nm": (z_found - z_spline) * 1e9,
+            "wall_time_s": t_engage,
+        },
         "peak_probe_force_nN": float(np.linalg.norm(force, axis=1).max() * 1e9),
         "peak_normal_load_nN": float(np.nanmax(ticks["load"]) * 1e9),
         "min_load_nN (adhesion)": float(np.nanmin(ticks["load"]) * 1e9),
@@ -143,17 +296,21 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         "images": [p.name for p in pngs],
         "wall_time_s": time.perf_counter() - t_start,
     }
+    if tube_summary is not None:
+        tube_summary["replay_pose_difference"] = float(result.tube_pose_difference)
+        summary["tube"] = tube_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-def _scene(model, loop, contact, rate):
-    """A snapshot for the viewer (copies: the live net keeps changing)."""
+def _scene(model, loop, contact, rate, scene=None):
+    """A snapshot for the viewer (copies: the live net keeps changing, so do the tube poses)."""
     o, mo = loop.out, model.out
     return dict(surface=model.surface.copy(), tip_center=o[0:3].copy(), tip_radius=model.tip_radius,
                 contact_point=mo[M_PX:M_PX + 3].copy(), contact_normal=mo[M_NX:M_NX + 3].copy(),
                 depth=float(mo[9]), contact_radius=float(mo[M_RADIUS]), force=o[8:11].copy(),
-                maugis_lambda=contact.maugis_parameter, loop_rate_hz=rate, device_status="virtual device (demo)")
+                maugis_lambda=contact.maugis_parameter, loop_rate_hz=rate, device_status="virtual device (demo)",
+                tubes=scene.viewer_tubes() if scene is not None else ())
 
 
 def _render(views: dict, out: Path, progress) -> list[Path]:
