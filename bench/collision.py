@@ -85,7 +85,7 @@ def _kernel_loop(args, pts, radius, warm, ticks, outs):
     hv = np.nan
     for k in range(pts.shape[0]):
         t0 = _cycles()
-        pj.collide_kernel(args[0], args[1], args[2], args[3], args[4], args[5], args[6], args[7],
+        pj.collide_kernel(args[0], args[1], args[2], args[3], args[4], args[5], args[6], args[7], args[8],
                           pts[k, 0], pts[k, 1], pts[k, 2], radius, hu, hv, outs[k])
         ticks[k] = _cycles() - t0
         if warm:

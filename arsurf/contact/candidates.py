@@ -32,7 +32,8 @@ Locality: moving control points ``P[iu0:iu1, iv0:iv1]`` changes only the cells
 ``[iu0-3, iu1) x [iv0-3, iv1)`` and their ancestors; :meth:`HullTree.refresh_region` (and the
 kernel :func:`refresh_region_kernel` for numba callers) recomputes exactly those, O(patch + log N).
 
-Memory: 13 float64 per node, ~17.3 per cell with the upper levels: ~145 MB for a 1024x1024 scan.
+Memory: 13 float64 per node (~17.3 per cell with the upper levels) and 10 float32 per cell:
+~185 MB for a 1024x1024 scan.
 """
 from __future__ import annotations
 
@@ -156,45 +157,14 @@ def cell_net(ctrl, mu, mv, a, b, net):
 
 
 @njit(cache=True)
-def net_convexity_radius(net, hu, hv):
-    """Radius ρ such that D = |S - C|²/2 is convex on the patch for every C with |S - C| < ρ.
+def net_sigma(net, hu, hv):
+    """Lower bound σ_lb of the smallest singular value of J = [S_u S_v] over a Bézier patch.
 
-    .. math:: H = J^TJ + \\sum_c r_c \\nabla^2 S_c \\succeq \\big(\\sigma_{lb}^2
-              - |r|\\,(\\max(|S_{uu}|, |S_{vv}|) + |S_{uv}|)\\big) I \\quad\\Rightarrow\\quad
-              \\rho = \\sigma_{lb}^2 / (\\max(|S_{uu}|, |S_{vv}|) + |S_{uv}|)
-
-    (Gershgorin on the curvature term). The norms are bounded by the Bézier nets of the
-    derivatives (convex hull), and σ_lb ≤ σ_min(J) by Weyl's inequality about the mean
-    tangents, for J and for its x-y block (J^TJ ⪰ J_xy^T J_xy; on an undeformed surface
-    J_xy = I exactly). ``net`` (16, 3) spans a (hu, hv) parameter rectangle.
+    Weyl's inequality about the mean tangents: σ_min(J(x)) ≥ σ_min(J̄) - ||J(x) - J̄||_F, the
+    spread bounded by the Bézier nets of S_u and S_v (convex hull); computed for J and for its
+    x-y block (J^TJ ⪰ J_xy^T J_xy; on an undeformed surface J_xy = I exactly), the larger kept.
+    ``net`` (16, 3) spans a (hu, hv) parameter rectangle. Returns 0 when no bound > 0 exists.
     """
-    # second derivatives
-    kuu = 0.0
-    for k in range(2):
-        for m in range(4):
-            q = 0.0
-            for c in range(3):
-                t = net[(k + 2) * 4 + m, c] - 2.0 * net[(k + 1) * 4 + m, c] + net[k * 4 + m, c]
-                q += t * t
-            kuu = max(kuu, q)
-    kvv = 0.0
-    for k in range(4):
-        for m in range(2):
-            q = 0.0
-            for c in range(3):
-                t = net[k * 4 + m + 2, c] - 2.0 * net[k * 4 + m + 1, c] + net[k * 4 + m, c]
-                q += t * t
-            kvv = max(kvv, q)
-    kuv = 0.0
-    for k in range(3):
-        for m in range(3):
-            q = 0.0
-            for c in range(3):
-                t = net[(k + 1) * 4 + m + 1, c] - net[(k + 1) * 4 + m, c] - net[k * 4 + m + 1, c] + net[k * 4 + m, c]
-                q += t * t
-            kuv = max(kuv, q)
-    curv = max(6.0 * math.sqrt(kuu) / (hu * hu), 6.0 * math.sqrt(kvv) / (hv * hv)) + 9.0 * math.sqrt(kuv) / (hu * hv)
-    # mean first derivatives and their spread, for the 3-D J and its x-y block
     mux = muy = muz = mvx = mvy = mvz = 0.0
     for k in range(3):
         for m in range(4):
@@ -237,12 +207,114 @@ def net_convexity_radius(net, hu, hv):
     lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) * (a - c) + b * b)
     s2 = math.sqrt(max(lam, 0.0)) - math.sqrt(spu2 + spv2)
     sig = max(s2, s3)
-    if not (sig > 0.0):  # also NaN
-        return 0.0
-    if curv == 0.0:
-        return np.inf
     # a relative margin of 1e-9 covers the rounding in the differences above
-    return sig * sig / curv * (1.0 - 1e-9)
+    return sig * (1.0 - 1e-9) if sig > 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _fold(lo, hi, t2max, nx, ny, nz, x, y, z):
+    """Running (min, max) of n·w and max |w - (n·w) n|² over the points w of a derivative net."""
+    p = nx * x + ny * y + nz * z
+    qx = x - p * nx
+    qy = y - p * ny
+    qz = z - p * nz
+    return min(lo, p), max(hi, p), max(t2max, qx * qx + qy * qy + qz * qz)
+
+
+@njit(cache=True)
+def net_curvature(net, hu, hv, nx, ny, nz):
+    """Signed curvature bounds of a patch along a unit direction n (the box normal).
+
+    Returns ``(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv, sigma2)``: the
+    ranges of n·S_uu, n·S_uv, n·S_vv, bounds of the norms of their parts orthogonal to n, and
+    σ_lb² (:func:`net_sigma`). With r = S - C = α n + r_⊥,
+
+    .. math:: r\\cdot S_{uu} \\ge \\min(\\alpha\\,[k_{uu}]) - |r_\\perp|\\, t_{uu}, \\quad
+              \\lambda_{min}(H) \\ge \\sigma_{lb}^2 + \\min(M_{11}, M_{22}) - |M_{12}|
+
+    (:func:`signed_convex`): far above a cap (α < 0, n·S_uu < 0) D stays convex however far C
+    is, where the unsigned radius of :func:`curvature_radius` gives up.
+    """
+    kuu_lo = kuv_lo = kvv_lo = np.inf
+    kuu_hi = kuv_hi = kvv_hi = -np.inf
+    tuu = tuv = tvv = 0.0
+    for k in range(2):
+        for m in range(4):
+            i0 = k * 4 + m
+            kuu_lo, kuu_hi, tuu = _fold(
+                kuu_lo, kuu_hi, tuu, nx, ny, nz,
+                net[i0 + 8, 0] - 2.0 * net[i0 + 4, 0] + net[i0, 0],
+                net[i0 + 8, 1] - 2.0 * net[i0 + 4, 1] + net[i0, 1],
+                net[i0 + 8, 2] - 2.0 * net[i0 + 4, 2] + net[i0, 2])
+    for k in range(4):
+        for m in range(2):
+            i0 = k * 4 + m
+            kvv_lo, kvv_hi, tvv = _fold(
+                kvv_lo, kvv_hi, tvv, nx, ny, nz,
+                net[i0 + 2, 0] - 2.0 * net[i0 + 1, 0] + net[i0, 0],
+                net[i0 + 2, 1] - 2.0 * net[i0 + 1, 1] + net[i0, 1],
+                net[i0 + 2, 2] - 2.0 * net[i0 + 1, 2] + net[i0, 2])
+    for k in range(3):
+        for m in range(3):
+            i0 = k * 4 + m
+            kuv_lo, kuv_hi, tuv = _fold(
+                kuv_lo, kuv_hi, tuv, nx, ny, nz,
+                net[i0 + 5, 0] - net[i0 + 4, 0] - net[i0 + 1, 0] + net[i0, 0],
+                net[i0 + 5, 1] - net[i0 + 4, 1] - net[i0 + 1, 1] + net[i0, 1],
+                net[i0 + 5, 2] - net[i0 + 4, 2] - net[i0 + 1, 2] + net[i0, 2])
+    fuu = 6.0 / (hu * hu)
+    fvv = 6.0 / (hv * hv)
+    fuv = 9.0 / (hu * hv)
+    sig = net_sigma(net, hu, hv)
+    # widen by a relative 1e-9 for the rounding of the differences and products above
+    lo = 1.0 - 1e-9
+    hi = 1.0 + 1e-9
+    return (min(kuu_lo * lo, kuu_lo * hi) * fuu, max(kuu_hi * lo, kuu_hi * hi) * fuu,
+            min(kuv_lo * lo, kuv_lo * hi) * fuv, max(kuv_hi * lo, kuv_hi * hi) * fuv,
+            min(kvv_lo * lo, kvv_lo * hi) * fvv, max(kvv_hi * lo, kvv_hi * hi) * fvv,
+            math.sqrt(tuu) * fuu * hi, math.sqrt(tuv) * fuv * hi, math.sqrt(tvv) * fvv * hi, sig * sig)
+
+
+@njit(cache=True, inline="always")
+def curvature_radius(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv, sigma2):
+    """Unsigned convexity radius ρ = σ_lb² / (max(|S_uu|, |S_vv|) + |S_uv|) from
+    :func:`net_curvature` (|S_uu|² ≤ max(n·S_uu)² + |S_uu,⊥|², ...): D is convex on the patch
+    for every C closer than ρ to all of it (Weyl, Gershgorin)."""
+    suu = math.sqrt(max(kuu_lo * kuu_lo, kuu_hi * kuu_hi) + tuu * tuu)
+    svv = math.sqrt(max(kvv_lo * kvv_lo, kvv_hi * kvv_hi) + tvv * tvv)
+    suv = math.sqrt(max(kuv_lo * kuv_lo, kuv_hi * kuv_hi) + tuv * tuv)
+    bound = max(suu, svv) + suv
+    if not (sigma2 > 0.0):
+        return 0.0
+    if bound == 0.0:
+        return np.inf
+    return sigma2 / bound * (1.0 - 1e-9)
+
+
+@njit(cache=True, inline="always")
+def signed_convex(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv, sigma2,
+                  lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, x, y, z):
+    """True if the Hessian of D is certified positive definite on a patch for the point (x, y, z).
+
+    Inputs: :func:`net_curvature` of the patch along the box normal n, and the patch's oriented
+    box (intervals along t, s = n x t, n). α = n·(S - C) ranges over [ln - n·C, hn - n·C];
+    |r_⊥| is bounded by the farthest corner of the box's (t, s) rectangle; then Weyl and
+    Gershgorin as in :func:`net_curvature`.
+    """
+    sx = ny * tz - nz * ty
+    sy = nz * tx - nx * tz
+    sz = nx * ty - ny * tx
+    pn = nx * x + ny * y + nz * z
+    pt = tx * x + ty * y + tz * z
+    ps = sx * x + sy * y + sz * z
+    a0 = ln - pn
+    a1 = hn - pn
+    rp = math.sqrt(max((lt - pt) ** 2, (ht - pt) ** 2) + max((ls - ps) ** 2, (hs - ps) ** 2))
+    m11 = min(a0 * kuu_lo, a0 * kuu_hi, a1 * kuu_lo, a1 * kuu_hi) - rp * tuu
+    m22 = min(a0 * kvv_lo, a0 * kvv_hi, a1 * kvv_lo, a1 * kvv_hi) - rp * tvv
+    m12 = max(abs(a0 * kuv_lo), abs(a0 * kuv_hi), abs(a1 * kuv_lo), abs(a1 * kuv_hi)) + rp * tuv
+    lam = sigma2 + min(m11, m22) - m12
+    return lam > 1e-9 * sigma2 and sigma2 > 0.0
 
 
 @njit(cache=True, inline="always")
@@ -317,8 +389,54 @@ def net_extents(net, n0, nrows, nx, ny, nz, tx, ty, tz):
     return lt - pad, ht + pad, ls - pad, hs + pad, ln - pad, hn + pad
 
 
+CURV_SIZE = 10   # columns of HullTree.curv: net_curvature of each cell along its box normal
+_ULP32 = 2.0 ** -20  # outward rounding margin for float32 storage (float32 rounds within 2^-24)
+
+
+@njit(cache=True, inline="always")
+def _lower32(x):
+    return np.float32(x - abs(x) * _ULP32 - 1e-37)
+
+
+@njit(cache=True, inline="always")
+def _upper32(x):
+    return np.float32(x + abs(x) * _ULP32 + 1e-37)
+
+
 @njit(cache=True)
-def _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, nj0, a0, a1, b0, b1, rows, bez):
+def _store_curvature(curv, node, vals):
+    """Store :func:`net_curvature` values in float32, rounded outwards (lower bounds down, upper
+    bounds and norms up, σ² down), so the certificate stays conservative."""
+    curv[node, 0] = _lower32(vals[0])
+    curv[node, 1] = _upper32(vals[1])
+    curv[node, 2] = _lower32(vals[2])
+    curv[node, 3] = _upper32(vals[3])
+    curv[node, 4] = _lower32(vals[4])
+    curv[node, 5] = _upper32(vals[5])
+    curv[node, 6] = _upper32(vals[6])
+    curv[node, 7] = _upper32(vals[7])
+    curv[node, 8] = _upper32(vals[8])
+    curv[node, 9] = max(_lower32(vals[9]), np.float32(0.0))
+
+
+@njit(cache=True, inline="always")
+def cell_certified(nodes, curv, node, far2, x, y, z):
+    """D certified convex on cell ``node`` for the point (x, y, z): within its convexity radius
+    (``far2`` = squared distance to the farthest point of its box) or by the signed test."""
+    rho = nodes[node, RHO]
+    if far2 < rho * rho:
+        return True
+    return signed_convex(np.float64(curv[node, 0]), np.float64(curv[node, 1]), np.float64(curv[node, 2]),
+                         np.float64(curv[node, 3]), np.float64(curv[node, 4]), np.float64(curv[node, 5]),
+                         np.float64(curv[node, 6]), np.float64(curv[node, 7]), np.float64(curv[node, 8]),
+                         np.float64(curv[node, 9]),
+                         nodes[node, LO_T], nodes[node, HI_T], nodes[node, LO_S], nodes[node, HI_S],
+                         nodes[node, LO_N], nodes[node, HI_N], nodes[node, N0], nodes[node, N1], nodes[node, N2],
+                         nodes[node, T0], nodes[node, T1], nodes[node, T2], x, y, z)
+
+
+@njit(cache=True)
+def _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, curv, nj0, a0, a1, b0, b1, rows, bez):
     """Oriented Bézier hull boxes of cells [a0, a1) x [b0, b1); returns the number of non-finite cells.
 
     ``rows`` (4, >= b1 - b0 + 3, 3) scratch: the u-converted control columns of one cell row;
@@ -356,6 +474,8 @@ def _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, nj0, a0, a1, b0, b1, rows, bez):
                     nodes[node, LO_T + 2 * e] = -np.inf
                     nodes[node, HI_T + 2 * e] = np.inf
                 nodes[node, RHO] = 0.0
+                for q in range(CURV_SIZE):
+                    curv[node, q] = 0.0  # sigma2 = 0: never certified
                 continue
             # mean tangents of the Bézier net: T_u = sum_m (B[3, m] - B[0, m]), T_v likewise
             tux = tuy = tuz = tvx = tvy = tvz = 0.0
@@ -376,7 +496,10 @@ def _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, nj0, a0, a1, b0, b1, rows, bez):
             nodes[node, HI_S] = hs
             nodes[node, LO_N] = ln
             nodes[node, HI_N] = hn
-            nodes[node, RHO] = net_convexity_radius(bez, hu, kv[b + 4] - kv[b + 3])
+            vals = net_curvature(bez, hu, kv[b + 4] - kv[b + 3], nodes[node, N0], nodes[node, N1], nodes[node, N2])
+            nodes[node, RHO] = curvature_radius(vals[0], vals[1], vals[2], vals[3], vals[4], vals[5], vals[6],
+                                                vals[7], vals[8], vals[9])
+            _store_curvature(curv, node, vals)
     return bad
 
 
@@ -466,7 +589,7 @@ def _parent_nodes(nodes, levels, a0, a1, b0, b1):
 
 
 @njit(cache=True)
-def refresh_region_kernel(ctrl, ku, kv, mu, mv, nodes, levels, rows, bez, iu0, iu1, iv0, iv1):
+def refresh_region_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, rows, bez, iu0, iu1, iv0, iv1):
     """Recompute the boxes touched by control points ``ctrl[iu0:iu1, iv0:iv1]`` (half-open).
 
     For numba callers (the deformation kernel): no allocation, O(patch + log N). ``rows`` and
@@ -482,7 +605,7 @@ def refresh_region_kernel(ctrl, ku, kv, mu, mv, nodes, levels, rows, bez, iu0, i
     nodes[nodes.shape[0] - 1, VERSION] += 1.0  # invalidates the candidate caches of the queries
     if a0 >= a1 or b0 >= b1:
         return 0
-    bad = _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, nj0, a0, a1, b0, b1, rows, bez)
+    bad = _leaf_nodes(ctrl, ku, kv, mu, mv, nodes, curv, nj0, a0, a1, b0, b1, rows, bez)
     _parent_nodes(nodes, levels, a0, a1, b0, b1)
     return bad
 
@@ -583,6 +706,9 @@ class HullTree:
     levels : (L, 3) int64
         ``(offset, ni, nj)`` of each level; level 0 holds the (nu-3) x (nv-3) knot cells, cell
         (a, b) = span [t_u[a+3], t_u[a+4]] x [t_v[b+3], t_v[b+4]].
+    curv : (n_cells, 10) float32
+        :func:`net_curvature` of each cell along its box normal, rounded outwards: the signed
+        convexity certificate (:func:`cell_certified`).
     mu, mv : (nu-3, 4, 4), (nv-3, 4, 4) float64
         B-spline-to-Bézier matrices per span.
     rows, bez : scratch arrays of the refresh kernel.
@@ -609,14 +735,15 @@ class HullTree:
         last = self.levels[-1]
         self.nodes = np.zeros((int(last[0] + last[1] * last[2]) + 1, NODE_SIZE))
         self.nodes[-1, TREE_ID] = float(next(_TREE_IDS))
+        self.curv = np.zeros((int(self.levels[0, 1] * self.levels[0, 2]), CURV_SIZE), dtype=np.float32)
         self.rows = np.empty((4, nv, 3))
         self.bez = np.empty((16, 3))
         self.refresh()
 
     def kernel_args(self) -> tuple:
-        """``(ctrl, ku, kv, mu, mv, nodes, levels, rows, bez)``: the leading arguments of
+        """``(ctrl, ku, kv, mu, mv, nodes, curv, levels, rows, bez)``: the leading arguments of
         :func:`refresh_region_kernel`."""
-        return self.ctrl, self.ku, self.kv, self.mu, self.mv, self.nodes, self.levels, self.rows, self.bez
+        return self.ctrl, self.ku, self.kv, self.mu, self.mv, self.nodes, self.curv, self.levels, self.rows, self.bez
 
     def refresh(self) -> None:
         """Rebuild every box from the current net (after :meth:`BSplineSurface.reset`), O(N)."""

@@ -60,8 +60,9 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.candidates import (
-    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, cell_net, extents_bounds2, net_convexity_radius, net_extents, net_split,
-    node_bounds2, node_distance2,
+    HI_N, LO_N, LO_T, TREE_ID, VERSION, HullTree, cell_certified, cell_net, curvature_radius, extents_bounds2,
+    net_curvature,
+    net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import find_span, surface_point
@@ -284,7 +285,7 @@ def _cell_of(ku, kv, u, v):
 
 
 @njit(cache=True)
-def _convex_block(nodes, nj0, i, j, bi, bj, cx, cy, cz):
+def _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
     """True if D is certified convex on every cell of the rectangle spanned by cells (i, j) and
     (bi, bj) (at most 3x3 cells): then the best point, a local minimum lying in that convex
     rectangle, is its minimum, and cell (i, j) cannot hold a closer point."""
@@ -298,8 +299,7 @@ def _convex_block(nodes, nj0, i, j, bi, bj, cx, cy, cz):
         for b in range(j0, j1 + 1):
             node = a * nj0 + b
             near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
-            rho = nodes[node, RHO]
-            if not (far2 < rho * rho):
+            if not cell_certified(nodes, curv, node, far2, cx, cy, cz):
                 return False
     return True
 
@@ -339,8 +339,13 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
         near2, far2, lift = extents_bounds2(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, cx, cy, cz)
         if not (near2 < bd2 * TIE):
             continue
-        rho = net_convexity_radius(work[e:e + 16], u1 - u0, v1 - v0)
-        convex = far2 < rho * rho
+        kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2 = net_curvature(work[e:e + 16], u1 - u0, v1 - v0,
+                                                                                nx, ny, nz)
+        # unsigned radius (Gershgorin with norms) or the signed test along the cell's normal
+        rho = curvature_radius(kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2)
+        convex = far2 < rho * rho or signed_convex(
+            kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz,
+            cx, cy, cz)
         if convex or depth >= MAX_SUBDIVISION or sp + 4 > SUB_CAP:
             if convex and u0 <= bu <= u1 and v0 <= bv <= v1:
                 continue  # convex piece holding the best point: that point is its minimum
@@ -426,8 +431,8 @@ def _finish(ev, cx, cy, cz, u, v, out):
 
 
 @njit(cache=True)
-def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2, bconv,
-                bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
+def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz,
+                bu, bv, bd2, bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Search knot cell ``node`` (a leaf of the pyramid) for a point closer than the best.
 
     Skipped when its box is not nearer than the best distance, or when D is certified convex on
@@ -443,15 +448,14 @@ def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift,
         return bu, bv, bd2, bconv, bi, bj, 0, 1, True
     i = node // nj0
     j = node - i * nj0
-    rho = nodes[node, RHO]
     iters = 0
-    if not (far2 < rho * rho):  # no convexity certificate: subdivide the cell
+    if not cell_certified(nodes, curv, node, far2, cx, cy, cz):  # no convexity certificate: subdivide
         bu, bv, bd2, bconv, iters, nf = _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, i, j,
                                                            cx, cy, cz, bu, bv, bd2, bconv,
                                                            lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
         bi, bj = _cell_of(ku, kv, bu, bv)
         return bu, bv, bd2, bconv, bi, bj, iters, 1, nf
-    if bconv and _convex_block(nodes, nj0, i, j, bi, bj, cx, cy, cz):
+    if bconv and _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
         return bu, bv, bd2, bconv, bi, bj, 0, 1, False
     cu0 = ku[i + 3]
     cu1 = ku[i + 4]
@@ -478,7 +482,7 @@ def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift,
 
 
 @njit(cache=True)
-def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u, hint_v, out):
+def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out):
     """Global closest point of the surface to (cx, cy, cz); writes ``out`` (OUT_SIZE,), returns a status.
 
     Parameters
@@ -567,8 +571,8 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
             if not (near2 < bd2 * TIE):
                 continue
             bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
-                ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2, bconv,
-                bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
+                ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
+                bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
             iters += it
             cells += searched
             nonfinite = nonfinite or nf
@@ -604,7 +608,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
                 if not (near2 < bd2 * TIE):
                     continue
                 bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
-                    ctrl, ku, kv, mu, mv, nodes, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
+                    ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
                     bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
                 iters += it
                 cells += searched
@@ -677,7 +681,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u
 
 
 @njit(cache=True)
-def collide_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, radius, hint_u, hint_v, out):
+def collide_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, radius, hint_u, hint_v, out):
     """Tip sphere (centre, radius) against the surface: :func:`project_kernel` plus the depth.
 
     Writes ``out[OUT_DEPTH] = radius - out[OUT_DISTANCE]`` (> 0: penetration). Returns the status
@@ -688,13 +692,13 @@ def collide_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, radius
     if not (radius > 0.0 and radius - radius == 0.0):
         out[OUT_STATUS] = STATUS_BAD_INPUT
         return STATUS_BAD_INPUT
-    status = project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, cx, cy, cz, hint_u, hint_v, out)
+    status = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out)
     out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
     return status
 
 
 @njit(cache=True)
-def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, points, hints, chain, radius, out):
+def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points, hints, chain, radius, out):
     """Many queries: ``points`` (n, 3); ``hints`` (n, 2) (NaN rows = cold) or (0, 2);
     ``chain`` warm-starts each query from the previous answer (trajectories). ``radius`` > 0
     fills the depth column. ``out`` (n, OUT_SIZE). Returns the worst (lowest) status."""
@@ -706,7 +710,7 @@ def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, points, hint
             hu = hints[k, 0]
             hv = hints[k, 1]
         row = out[k]
-        st = project_kernel(ctrl, ku, kv, mu, mv, nodes, levels, work, points[k, 0], points[k, 1], points[k, 2],
+        st = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points[k, 0], points[k, 1], points[k, 2],
                             hu, hv, row)
         row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
         if chain:
@@ -841,8 +845,8 @@ class Projector:
         self.tree = HullTree(ctrl, ku, kv)
         self.work = np.zeros((STACK_ROWS + 4 * self.tree.levels.shape[0] + 8, 3))
         self.work[CACHE_ROW, 0] = -1.0  # no candidate list yet
-        self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.levels,
-                      self.work)
+        self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.curv,
+                      self.tree.levels, self.work)
         self._project = _entry_point(project_kernel, self._args, 5)
         self._collide = _entry_point(collide_kernel, self._args, 6)
 
