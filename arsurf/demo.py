@@ -200,9 +200,11 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     progress(f"engage from {ENGAGE_FROM * 1e6:.0f} um: {eng.reason} after {eng.coarse_steps} micro and "
              f"{eng.fine_steps} nano steps ({eng.duration:.2f} s simulated, {t_engage:.2f} s wall), max force "
              f"{eng.max_force * 1e9:.1f} nN; surface found {(z_found - z_spline) * 1e9:+.2f} nm from the model")
-    if not eng.engaged:
-        z_found = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
-    origin = (x0, y0, z_found + TIP_RADIUS + 8e-9)
+    # hover 8 nm above the found surface, or above the highest point the sphere could touch when
+    # that is higher (a step beside the engage point, which a point measurement cannot see)
+    z_strip = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
+    z_hover = max(z_found, z_strip) if eng.engaged else z_strip
+    origin = (x0, y0, z_hover + TIP_RADIUS + 8e-9)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
     loop = HapticLoop.direct(model, dev.info, origin, scale=SCALE, force_gain=FORCE_GAIN,
                              config=LoopConfig(rate=RATE, source="blended", filter_cutoff=200.0, signal_noise=2e-7,
@@ -280,6 +282,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
             "micro_steps": int(eng.coarse_steps), "nano_steps": int(eng.fine_steps),
             "simulated_time_s": eng.duration, "max_force_nN": eng.max_force * 1e9,
             "force_limit_nN": ENGAGE_FORCE_LIMIT * 1e9, "surface_found_minus_model_nm": (z_found - z_spline) * 1e9,
+            "hover_reference": "engage" if z_hover == z_found else "model (higher point within the tip's reach)",
             "wall_time_s": t_engage,
         },
         "peak_probe_force_nN": float(np.linalg.norm(force, axis=1).max() * 1e9),
