@@ -811,3 +811,11 @@ def test_property_never_farther_than_any_sampled_point(c):
 def test_property_warm_and_cold_agree(c, hint):
     s, _ = _prop_surface()
     assert abs(project(s, c, hint=hint).distance - project(s, c).distance) <= TOL
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    for module in (pj, cd):
+        failed, attempted = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert attempted > 0 and failed == 0, module.__name__
