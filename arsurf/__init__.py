@@ -126,6 +126,8 @@ _EXPORTS = {
     "LSPB": "arsurf.manipulation.lspb",
     "VirtualAFM": "arsurf.manipulation.instrument",
     "engage": "arsurf.manipulation.engage",
+    "TubeScene": "arsurf.manipulation.scene",
+    "rigid_motion": "arsurf.manipulation.scene",
     # export
     "surface_mesh": "arsurf.export",
     "export_surface": "arsurf.export",
@@ -133,6 +135,9 @@ _EXPORTS = {
     "SessionWriter": "arsurf.replay.session",
     "load_session": "arsurf.replay.session",
     "replay": "arsurf.replay.replay",
+    "session_metadata": "arsurf.replay.session",
+    "build_model": "arsurf.replay.session",
+    "scan_sha256": "arsurf.replay.session",
 }
 _SUBMODULES = {"synthetic": "arsurf.scan.synthetic", "meshes": "arsurf.meshes"}
 

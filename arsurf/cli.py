@@ -126,6 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drive the tip from a haptic device through the UDP bridge on 127.0.0.1:PORT "
                         "(protocol in the README; tools/haptic_client.py is a reference client)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
+    s.add_argument("--tubes", action="store_true",
+                   help="make the nanotubes of a synthetic scan live objects the tip can push")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted surface (.npz from `arsurf fit`) as STL/PLY/GLB")
@@ -162,7 +164,7 @@ def cmd_view(args) -> int:
         cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
         start = np.array([cx, cy, surface.evaluate(cx, cy)[2] + 2.5 * tip_radius])
         extra = {"pose_source": bridge_pose_source(args.bridge_port, args.scale, start), "start": start}
-    view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, **extra)
+    view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, **extra)
     return 0
 
 

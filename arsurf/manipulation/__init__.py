@@ -9,6 +9,8 @@
 * :mod:`~arsurf.manipulation.stages` - micro stage, nano stage and PicoCube of seed 001.
 * :mod:`~arsurf.manipulation.instrument` - virtual AFM: stages, sample, lever spring, noisy photodiode.
 * :mod:`~arsurf.manipulation.engage` - the engage procedure of seed 001 (Fig. 3.10).
+* :mod:`~arsurf.manipulation.scene` - tubes as live scene objects of the haptic loop (push every
+  tick, friction resistance on the tip), the substrate under them for the spline.
 
 Nothing is imported here: ``import arsurf.manipulation`` stays cheap.
 """
