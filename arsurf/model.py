@@ -34,32 +34,45 @@ from arsurf.contact.deformation import deform_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale, md_contact_hysteresis_kernel
 from arsurf.errors import ContactError
 from arsurf.force.cantilever import Cantilever
-from arsurf.force.decoupling import decouple_kernel, decoupling_parameters
+from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, DecouplingFlag,
+                                     decouple_kernel, decoupling_parameters)
 from arsurf.spline.surface import BSplineSurface
 
 # layout of the model output vector
 (M_PX, M_PY, M_PZ, M_NX, M_NY, M_NZ, M_U, M_V, M_DISTANCE, M_DEPTH, M_RADIUS, M_LOAD,
  M_SIM_FX, M_SIM_FY, M_SIM_FZ, M_MEAS_FX, M_MEAS_FY, M_MEAS_FZ, M_CONDITION,
- M_COLLIDE_STATUS, M_MD_STATUS, M_DECOUPLE_STATUS, M_MOVED, M_IN_CONTACT) = range(24)
-M_SIZE = 24
+ M_COLLIDE_STATUS, M_MD_STATUS, M_DECOUPLE_STATUS, M_MOVED, M_IN_CONTACT, M_BENDING, M_TORSION) = range(26)
+M_SIZE = 26
+# how the measured angles reach the model tick
+SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 # model state vector: warm-start hint and the hysteresis memory
 S_HINT_U, S_HINT_V, S_INTERACTING = 0, 1, 2
 S_SIZE = 3
 
 MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
+FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
 
 
 @njit(cache=True)
 def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
-                      cx, cy, cz, vx, vy, vz, bending, torsion, have_signals,
+                      cx, cy, cz, vx, vy, vz, bending, torsion, signal_mode,
                       state, coll, dec, out):
     """One model tick; writes ``out`` (M_SIZE,) and updates ``state`` (S_SIZE,). Returns the
     collision status (< 0: no answer; ``out`` then holds zero forces). ``coll`` (OUT_SIZE,) and
-    ``dec`` (4,) are scratch vectors of the collision and the decoupling."""
+    ``dec`` (4,) are scratch vectors of the collision and the decoupling.
+
+    ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
+    are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
+    force through the cantilever model, ``bending``/``torsion`` being the noise added to them).
+    Out of contact (MD separated) there is no contact normal to decouple with: the measured force
+    is the classical reading F = (0, θ/c, α/g) (all bending taken as F_z), flagged
+    ``FALLBACK_DEGENERATE``."""
     for k in range(M_SIZE):
         out[k] = 0.0
+    out[M_BENDING] = math.nan
+    out[M_TORSION] = math.nan
     st = pj.collide_kernel(*proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
     out[M_COLLIDE_STATUS] = st
     if st < 0:
@@ -115,13 +128,27 @@ def model_tick_kernel(proj,                                              # Proje
     out[M_SIM_FY] = fy
     out[M_SIM_FZ] = fz
     # measured force from the two angles, decoupled with the contact normal
-    if have_signals:
-        ds = decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, dec_params, dec)
-        out[M_DECOUPLE_STATUS] = ds
-        out[M_MEAS_FX] = dec[0]
-        out[M_MEAS_FY] = dec[1]
-        out[M_MEAS_FZ] = dec[2]
-        out[M_CONDITION] = dec[3]
+    if signal_mode != SIGNALS_NONE:
+        g = dec_params[P_BENDING_COMPLIANCE]
+        c = dec_params[P_TORSION_COMPLIANCE]
+        if signal_mode == SIGNALS_SYNTHESISED:
+            bending = g * (fz + dec_params[P_COUPLING] * fx) + bending
+            torsion = c * fy + torsion
+        out[M_BENDING] = bending
+        out[M_TORSION] = torsion
+        if md_st == MD_SEPARATED or md_st < 0:
+            out[M_DECOUPLE_STATUS] = FALLBACK_DEGENERATE
+            out[M_MEAS_FX] = 0.0
+            out[M_MEAS_FY] = torsion / c
+            out[M_MEAS_FZ] = bending / g
+            out[M_CONDITION] = 1.0
+        else:
+            ds = decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, dec_params, dec)
+            out[M_DECOUPLE_STATUS] = ds
+            out[M_MEAS_FX] = dec[0]
+            out[M_MEAS_FY] = dec[1]
+            out[M_MEAS_FZ] = dec[2]
+            out[M_CONDITION] = dec[3]
     return st
 
 
@@ -232,15 +259,15 @@ class ARModel:
         vx, vy, vz = velocity
         if signals is None:
             b = t = 0.0
-            have = False
+            mode = SIGNALS_NONE
         else:
             b, t = signals
-            have = True
+            mode = SIGNALS_GIVEN
         live_ctrl, live_rest, ku, kv, patch = self._live
         model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
                           self._md_args, self._dec, self.tip_radius, self.friction, self.deform,
                           float(cx), float(cy), float(cz), float(vx), float(vy), float(vz),
-                          float(b), float(t), have, self.state, self._coll, self._decout, self.out)
+                          float(b), float(t), mode, self.state, self._coll, self._decout, self.out)
         return self.out
 
     def step(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> ModelTick:

@@ -72,3 +72,15 @@ def test_bad_input(flat, md):
         m.step((np.nan, 0, 0))
     with pytest.raises(ContactError, match="signals"):
         m.step((1e-7, 1e-7, 1e-8), signals=(np.nan, 0.0))
+
+
+def test_out_of_contact_the_measured_force_is_the_classical_reading(flat, md):
+    """No contact, no normal to decouple with: all bending is F_z, torsion is F_y (flagged)."""
+    from arsurf.force.decoupling import DecouplingFlag
+
+    m = ARModel(flat, R, md, LEVER)
+    t = m.step((100e-9, 100e-9, R + 10e-9), (1e-6, 0.0, 0.0), signals=(2e-6, -1e-7))
+    assert t.md_status == 2 and not t.in_contact
+    np.testing.assert_allclose(t.measured_force, [0.0, -1e-7 / LEVER.torsion_compliance, 2e-6 / LEVER.bending_compliance],
+                               rtol=1e-15)
+    assert t.decoupling_flags == DecouplingFlag.FALLBACK_DEGENERATE

@@ -7,8 +7,9 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    force-position coupling;
 2. **model**: collision, Maugis-Dugdale, dent, simulated force (:func:`arsurf.model.model_tick_kernel`);
 3. **force on the probe**: ``"simulated"`` (MD load along n + friction), ``"measured"`` (decoupled
-   from the two angles: given by an AFM / a session, or synthesised here from the simulated
-   force through the cantilever model plus noise) or ``"blended"``
+   from the two angles: given by an AFM / a session, or synthesised by the model from the
+   simulated force through the cantilever model plus photodiode noise; out of contact the
+   classical reading, see :func:`arsurf.model.model_tick_kernel`) or ``"blended"``
    :math:`F = w F_{meas} + (1 - w) F_{sim}` (seed 002's augmented reality);
 4. **filter**: first-order low-pass, exact ZOH discretisation (:mod:`arsurf.haptics.filters`);
 5. **coupling**: direct, :math:`F_h = K_f \odot F` (seed 001 Eq. 9-10), or force-position with the
@@ -32,15 +33,14 @@ import numpy as np
 from numba import njit
 
 from arsurf.errors import HapticsError
-from arsurf.force.decoupling import decouple_kernel
 from arsurf.haptics.coupling import DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
 from arsurf.haptics.filters import LowPass, lowpass1_step
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
 from arsurf.haptics.scaling import force_scale_step, position_map_step
-from arsurf.model import (M_CONDITION, M_DECOUPLE_STATUS, M_MEAS_FX, M_NX, M_NY, M_NZ, M_SIM_FX, ARModel,
-                          model_tick_kernel)
+from arsurf.model import (M_BENDING, M_MEAS_FX, M_SIM_FX, M_TORSION, SIGNALS_GIVEN, SIGNALS_NONE,
+                          SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
 COUPLINGS = {"direct": 0, "force-position": 1}
@@ -55,7 +55,6 @@ L_SIZE = 23
 def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
                       pos_params, pos_state, fp_state,
                       proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                      bending_compliance, coupling_coef, torsion_compliance,
                       model_state, coll, dec, mout, prev_probe, out):
     """Steps 1-3 of a tick (module docstring): probe position, model, force on the probe; the
     first half of :func:`loop_tick_kernel`, for a loop with a scene.
@@ -72,35 +71,27 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
         out[L_PROBE_V + j] = (probe[j] - prev_probe[j]) / dt if math.isfinite(prev_probe[j]) else 0.0
         prev_probe[j] = probe[j]
     have_ext = math.isfinite(ext_signals[0]) and math.isfinite(ext_signals[1])
+    if have_ext:
+        mode, b, t = SIGNALS_GIVEN, ext_signals[0], ext_signals[1]
+    elif source != 0:
+        mode, b, t = SIGNALS_SYNTHESISED, noise[0], noise[1]
+    else:
+        mode, b, t = SIGNALS_NONE, 0.0, 0.0
     st = model_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
                            deform, probe[0], probe[1], probe[2], out[L_PROBE_V], out[L_PROBE_V + 1],
-                           out[L_PROBE_V + 2], ext_signals[0], ext_signals[1], have_ext, model_state, coll, dec, mout)
+                           out[L_PROBE_V + 2], b, t, mode, model_state, coll, dec, mout)
     out[L_COLLIDE_STATUS] = st
+    out[L_SIGNALS] = mout[M_BENDING]
+    out[L_SIGNALS + 1] = mout[M_TORSION]
     f = out[L_F_PROBE:L_F_PROBE + 3]
-    sim = mout[M_SIM_FX:M_SIM_FX + 3]
-    if source != 0 and st >= 0:
-        if not have_ext:  # synthesise the two angles from the simulated force (cantilever model)
-            b = bending_compliance * (sim[2] + coupling_coef * sim[0]) + noise[0]
-            t = torsion_compliance * sim[1] + noise[1]
-            ds = decouple_kernel(b, t, mout[M_NX], mout[M_NY], mout[M_NZ], out[L_PROBE_V], out[L_PROBE_V + 1],
-                                 dec_params, dec)
-            mout[M_DECOUPLE_STATUS] = ds
-            for j in range(3):
-                mout[M_MEAS_FX + j] = dec[j]
-            mout[M_CONDITION] = dec[3]
-            out[L_SIGNALS] = b
-            out[L_SIGNALS + 1] = t
+    w = 0.0 if source == 0 else (1.0 if source == 1 else blend)
+    for j in range(3):
+        if st < 0:
+            f[j] = 0.0
+        elif w == 0.0:
+            f[j] = mout[M_SIM_FX + j]
         else:
-            out[L_SIGNALS] = ext_signals[0]
-            out[L_SIGNALS + 1] = ext_signals[1]
-        w = 1.0 if source == 1 else blend
-        for j in range(3):
-            f[j] = w * mout[M_MEAS_FX + j] + (1.0 - w) * sim[j]
-    else:
-        out[L_SIGNALS] = math.nan
-        out[L_SIGNALS + 1] = math.nan
-        for j in range(3):
-            f[j] = sim[j] if st >= 0 else 0.0
+            f[j] = w * mout[M_MEAS_FX + j] + (1.0 - w) * mout[M_SIM_FX + j]
     return st
 
 
@@ -137,7 +128,6 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
                      pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
                      gain, alpha, filt_state, safety_params, safety_state,
                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                     bending_compliance, coupling_coef, torsion_compliance,
                      model_state, coll, dec, mout, prev_probe, out):
     """One tick (module docstring). Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the
     safety flags. ``ext_signals`` (2,) measured (bending, torsion), NaN when none; ``noise`` (2,)
@@ -150,7 +140,7 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
     st = loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
                            pos_params, pos_state, fp_state,
                            proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                           deform, bending_compliance, coupling_coef, torsion_compliance,
+                           deform,
                            model_state, coll, dec, mout, prev_probe, out)
     return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
                               fp_state, gain, alpha, filt_state, safety_params, safety_state, out)
@@ -258,8 +248,6 @@ class HapticLoop:
         self.filter = LowPass(config.filter_cutoff, self.dt) if config.filter_cutoff else None
         self._alpha = self.filter.alpha if self.filter else 1.0
         self._filt_state = self.filter.state if self.filter else np.zeros(3)
-        lever = model.cantilever
-        self._lever = (lever.bending_compliance, lever.coupling, lever.torsion_compliance)
         self._rng = np.random.default_rng(config.seed)
         self._noise = np.zeros(2)
         self._noise_block = np.empty((1024, 2))
@@ -332,7 +320,7 @@ class HapticLoop:
                              self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
                              self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
                              m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
-                             m.friction, m.deform, *self._lever, m.state, m._coll, m._decout, m.out, self.prev_probe,
+                             m.friction, m.deform, m.state, m._coll, m._decout, m.out, self.prev_probe,
                              self.out)
             return self.out[L_F_DEVICE:L_F_DEVICE + 3]
         out = self.out
@@ -341,7 +329,7 @@ class HapticLoop:
         loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
                           self._pos[2], self._pos[0], self._pos[1], fp_state,
                           m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
-                          m.friction, m.deform, *self._lever, m.state, m._coll, m._decout, m.out, self.prev_probe, out)
+                          m.friction, m.deform, m.state, m._coll, m._decout, m.out, self.prev_probe, out)
         self.scene.tick(self._scene_prev, out[L_PROBE:L_PROBE + 3], m.tip_radius, out[L_F_PROBE:L_F_PROBE + 3])
         loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
                            fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
