@@ -331,6 +331,14 @@ def _render(views: dict, out: Path, progress) -> list[Path]:
             view.screenshot(path)
             view.close()
             paths.append(path)
+            if name == "indent":  # the dent itself: ~8 tip radii of field, surface sampled at ~1 nm
+                view = SurfaceView(kw["surface"], color_by="deformation", resolution=1024)
+                view.update(SceneState(**kw))
+                view.close_up(kw["tip_center"], 8 * kw["tip_radius"])
+                path = out / "view_indent_closeup.png"
+                view.screenshot(path)
+                view.close()
+                paths.append(path)
     except Exception as exc:  # no OpenGL context: the numbers are still there
         progress(f"no PNG views: rendering failed ({type(exc).__name__}: {exc})")
     return paths

@@ -534,3 +534,31 @@ def test_a_pushed_tube_is_drawn_where_the_scene_moved_it(gl):
         assert mask.sum() > 100
     finally:
         view.close()
+
+
+@pytest.mark.viewer
+def test_close_up_centres_the_tip_and_fills_the_frame(gl):
+    s = sinusoid_surface()
+    view = make_view(s, camera="oblique", tip_opacity=1.0, layers={"hud": False, "colorbar": False})
+    try:
+        c = above(s, 80e-9, 120e-9, 5e-9)
+        view.update(SceneState(s, c, R))
+        view.set_layer("tip", True)
+        far = view.screenshot()
+        view.set_layer("tip", False)
+        far_mask = changed(far, view.screenshot())
+        view.set_layer("tip", True)
+        view.close_up(c, 8 * R)
+        near = view.screenshot()
+        view.set_layer("tip", False)
+        near_mask = changed(near, view.screenshot())
+        h, w = near_mask.shape
+        row, col = view.world_to_pixel(c)
+        assert row == pytest.approx(h / 2, abs=2.0) and col == pytest.approx(w / 2, abs=2.0)
+        assert near_mask.sum() > 3 * far_mask.sum()  # the tip is larger in the close-up...
+        cols = np.nonzero(near_mask.any(axis=0))[0]
+        assert np.ptp(cols) + 1 == pytest.approx(w / 4, rel=0.35)  # ...2R across a field of 8R
+        with pytest.raises(ViewerError, match="positive width"):
+            view.close_up(c, 0.0)
+    finally:
+        view.close()

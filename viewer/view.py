@@ -410,6 +410,25 @@ class SurfaceView:
         self.camera_mode = mode
         self.plotter.renderer.ResetCameraClippingRange()
 
+    def close_up(self, center, width: float) -> None:
+        """Oblique camera on ``center`` (3,) m showing about ``width`` m of the scene (e.g. the
+        tip and its dent); sample the surface finely enough (``resolution``) for that width."""
+        c = np.asarray(center, dtype=np.float64).reshape(3) * 1e9  # the scene is in nm
+        w = float(width) * 1e9
+        if not (np.isfinite(c).all() and math.isfinite(w) and w > 0):
+            raise ViewerError(f"close_up needs a finite centre and a positive width in metres (got {center!r}, {width!r})")
+        cam = self.plotter.camera
+        cam.parallel_projection = False
+        cam.view_angle = 30.0
+        direction = np.array([-0.45, -1.0, 0.85])
+        direction /= np.linalg.norm(direction)
+        cam.focal_point = tuple(c)
+        cam.position = tuple(c + w / (2.0 * math.tan(math.radians(15.0))) * direction)
+        cam.up = (0.0, 0.0, 1.0)
+        cam.is_set = True
+        self.camera_mode = "close-up"
+        self.plotter.renderer.ResetCameraClippingRange()
+
     def update(self, state: SceneState, render: bool = True) -> None:
         """Show ``state``: move what moved, re-sample what the deformation changed, set the HUD.
 
