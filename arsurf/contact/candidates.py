@@ -230,7 +230,8 @@ def net_curvature(net, hu, hv, nx, ny, nz):
     σ_lb² (:func:`net_sigma`). With r = S - C = α n + r_⊥,
 
     .. math:: r\\cdot S_{uu} \\ge \\min(\\alpha\\,[k_{uu}]) - |r_\\perp|\\, t_{uu}, \\quad
-              \\lambda_{min}(H) \\ge \\sigma_{lb}^2 + \\min(M_{11}, M_{22}) - |M_{12}|
+              \\lambda_{min}(H) \\ge \\sigma_{lb}^2 + \\lambda_{min}\\begin{pmatrix} M_{11}^- & |M_{12}|^+ \\\\
+              |M_{12}|^+ & M_{22}^- \\end{pmatrix}
 
     (:func:`signed_convex`): far above a cap (α < 0, n·S_uu < 0) D stays convex however far C
     is, where the unsigned radius of :func:`curvature_radius` gives up.
@@ -277,13 +278,14 @@ def net_curvature(net, hu, hv, nx, ny, nz):
 
 @njit(cache=True, inline="always")
 def curvature_radius(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv, sigma2):
-    """Unsigned convexity radius ρ = σ_lb² / (max(|S_uu|, |S_vv|) + |S_uv|) from
-    :func:`net_curvature` (|S_uu|² ≤ max(n·S_uu)² + |S_uu,⊥|², ...): D is convex on the patch
-    for every C closer than ρ to all of it (Weyl, Gershgorin)."""
+    """Unsigned convexity radius ρ = σ_lb² / ρ_s from :func:`net_curvature`, ρ_s the spectral
+    radius of [[|S_uu|, |S_uv|], [|S_uv|, |S_vv|]] (|S_uu|² ≤ max(n·S_uu)² + |S_uu,⊥|², ...), which
+    bounds |λ(Σ r_c ∇²S_c)| / |r|: D is convex on the patch for every C closer than ρ to all of it."""
     suu = math.sqrt(max(kuu_lo * kuu_lo, kuu_hi * kuu_hi) + tuu * tuu)
     svv = math.sqrt(max(kvv_lo * kvv_lo, kvv_hi * kvv_hi) + tvv * tvv)
     suv = math.sqrt(max(kuv_lo * kuv_lo, kuv_hi * kuv_hi) + tuv * tuv)
-    bound = max(suu, svv) + suv
+    # spectral radius of [[|S_uu|, |S_uv|], [|S_uv|, |S_vv|]] bounds |lambda(M)| / |r|
+    bound = 0.5 * (suu + svv) + math.sqrt(0.25 * (suu - svv) ** 2 + suv * suv)
     if not (sigma2 > 0.0):
         return 0.0
     if bound == 0.0:
@@ -313,7 +315,10 @@ def signed_convex(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv,
     m11 = min(a0 * kuu_lo, a0 * kuu_hi, a1 * kuu_lo, a1 * kuu_hi) - rp * tuu
     m22 = min(a0 * kvv_lo, a0 * kvv_hi, a1 * kvv_lo, a1 * kvv_hi) - rp * tvv
     m12 = max(abs(a0 * kuv_lo), abs(a0 * kuv_hi), abs(a1 * kuv_lo), abs(a1 * kuv_hi)) + rp * tuv
-    lam = sigma2 + min(m11, m22) - m12
+    # smallest eigenvalue of [[m11, m12], [m12, m22]]: it grows with m11 and m22 and falls with
+    # |m12|, so the lower bounds of the diagonal and the upper bound of |m12| bound it from below
+    # (tighter than Gershgorin near the focal points of concave regions, where H is nearly singular)
+    lam = sigma2 + 0.5 * (m11 + m22) - math.sqrt(0.25 * (m11 - m22) ** 2 + m12 * m12)
     return lam > 1e-9 * sigma2 and sigma2 > 0.0
 
 

@@ -78,7 +78,7 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.candidates import (
-    HI_N, LO_N, LO_T, TREE_ID, VERSION, HullTree, cell_certified, cell_net, curvature_radius, extents_bounds2,
+    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, cell_certified, cell_net, curvature_radius, extents_bounds2,
     net_curvature,
     net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
@@ -323,6 +323,94 @@ def _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
 
 
 @njit(cache=True)
+def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1,
+                      tuu, tuv, tvv, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+    """True if D provably has no local minimum on the closed piece [u0, u1] x [v0, v1].
+
+    Two exclusion tests around one evaluation at the centre :math:`x_c` (order 2):
+
+    * no stationary point: :math:`|g_u(x_c)| > \max|H_{uu}|\,\Delta u/2 + \max|H_{uv}|\,\Delta v/2`
+      (or the same for :math:`g_v`), with :math:`|H_{uu}| \le |S_u|^2 + |S_{uu}|\,|r|`, ...;
+    * negative curvature everywhere: along the eigenvector w of the smallest eigenvalue of
+      :math:`H(x_c)`, :math:`w^THw = |Jw|^2 + r\cdot S_{ww} \le (|w_u||S_u| + |w_v||S_v|)^2
+      + \max(\alpha\,[n\cdot S_{ww}]) + |r_\perp|\,|S_{ww,\perp}| < 0` on the whole piece
+      (valleys and saddles seen from far above).
+
+    The norms come from the piece's Bézier derivative nets (``net[e:e+16]``) and the curvature
+    bounds of :func:`net_curvature` along the cell normal n; α = n·r and |r_⊥| from the piece's
+    oriented box. A piece inside the domain without a local minimum cannot hold the global one
+    (an interior minimum has g = 0 and H ⪰ 0), not even on its edges: it is pruned.
+    """
+    du = u1 - u0
+    dv = v1 - v0
+    su2 = 0.0
+    sv2 = 0.0
+    for k in range(3):
+        for m in range(4):
+            qx = net[e + (k + 1) * 4 + m, 0] - net[e + k * 4 + m, 0]
+            qy = net[e + (k + 1) * 4 + m, 1] - net[e + k * 4 + m, 1]
+            qz = net[e + (k + 1) * 4 + m, 2] - net[e + k * 4 + m, 2]
+            su2 = max(su2, qx * qx + qy * qy + qz * qz)
+            qx = net[e + m * 4 + k + 1, 0] - net[e + m * 4 + k, 0]
+            qy = net[e + m * 4 + k + 1, 1] - net[e + m * 4 + k, 1]
+            qz = net[e + m * 4 + k + 1, 2] - net[e + m * 4 + k, 2]
+            sv2 = max(sv2, qx * qx + qy * qy + qz * qz)
+    su = 3.0 * math.sqrt(su2) / du * (1.0 + 1e-9)
+    sv = 3.0 * math.sqrt(sv2) / dv * (1.0 + 1e-9)
+    suu = math.sqrt(max(kuu0 * kuu0, kuu1 * kuu1) + tuu * tuu)
+    svv = math.sqrt(max(kvv0 * kvv0, kvv1 * kvv1) + tvv * tvv)
+    suv = math.sqrt(max(kuv0 * kuv0, kuv1 * kuv1) + tuv * tuv)
+    rmax = math.sqrt(far2)
+    surface_point(ctrl, ku, kv, 0.5 * (u0 + u1), 0.5 * (v0 + v1), 2, ev)
+    rx = ev[0, 0] - cx
+    ry = ev[0, 1] - cy
+    rz = ev[0, 2] - cz
+    gu = ev[1, 0] * rx + ev[1, 1] * ry + ev[1, 2] * rz
+    gv = ev[2, 0] * rx + ev[2, 1] * ry + ev[2, 2] * rz
+    # margins: relative 1e-9 on the bounds, and the rounding of g itself (~1e-15 |S_u| |r|)
+    noise = 1e-14 * math.sqrt(rx * rx + ry * ry + rz * rz) * (su + sv)
+    huu = su * su + suu * rmax
+    huv = su * sv + suv * rmax
+    hvv = sv * sv + svv * rmax
+    if abs(gu) > (huu * 0.5 * du + huv * 0.5 * dv) * (1.0 + 1e-9) + noise:
+        return True
+    if abs(gv) > (huv * 0.5 * du + hvv * 0.5 * dv) * (1.0 + 1e-9) + noise:
+        return True
+    # Hessian at the centre and its most negative direction
+    a = ev[1, 0] * ev[1, 0] + ev[1, 1] * ev[1, 1] + ev[1, 2] * ev[1, 2] + ev[3, 0] * rx + ev[3, 1] * ry + ev[3, 2] * rz
+    b = ev[1, 0] * ev[2, 0] + ev[1, 1] * ev[2, 1] + ev[1, 2] * ev[2, 2] + ev[4, 0] * rx + ev[4, 1] * ry + ev[4, 2] * rz
+    c = ev[2, 0] * ev[2, 0] + ev[2, 1] * ev[2, 1] + ev[2, 2] * ev[2, 2] + ev[5, 0] * rx + ev[5, 1] * ry + ev[5, 2] * rz
+    lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    if not (lam < 0.0):
+        return False
+    # eigenvector of lam: (b, lam - a) or (lam - c, b), the better conditioned one
+    wu, wv = b, lam - a
+    if abs(lam - c) + abs(b) > abs(wu) + abs(wv):
+        wu, wv = lam - c, b
+    wn = math.sqrt(wu * wu + wv * wv)
+    if not (wn > 0.0):
+        return False
+    wu /= wn
+    wv /= wn
+    jw = abs(wu) * su + abs(wv) * sv
+    cuv = 2.0 * wu * wv
+    k_lo = wu * wu * kuu0 + wv * wv * kvv0 + min(cuv * kuv0, cuv * kuv1)
+    k_hi = wu * wu * kuu1 + wv * wv * kvv1 + max(cuv * kuv0, cuv * kuv1)
+    tw = wu * wu * tuu + abs(cuv) * tuv + wv * wv * tvv
+    sx = ny * tz - nz * ty
+    sy = nz * tx - nx * tz
+    sz = nx * ty - ny * tx
+    pn = nx * cx + ny * cy + nz * cz
+    pt = tx * cx + ty * cy + tz * cz
+    ps = sx * cx + sy * cy + sz * cz
+    a0 = ln - pn
+    a1 = hn - pn
+    rp = math.sqrt(max((lt - pt) ** 2, (ht - pt) ** 2) + max((ls - ps) ** 2, (hs - ps) ** 2))
+    bound = jw * jw + max(a0 * k_lo, a0 * k_hi, a1 * k_lo, a1 * k_hi) + rp * tw
+    return bound < -1e-9 * jw * jw
+
+
+@njit(cache=True)
 def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz, bu, bv, bd2, bconv,
                        lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Closest point in knot cell (a, b) when D is not certified convex there.
@@ -364,6 +452,10 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
         convex = far2 < rho * rho or signed_convex(
             kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz,
             cx, cy, cz)
+        if not convex and lo_u < u0 and u1 < hi_u and lo_v < v0 and v1 < hi_v and _no_local_minimum(
+                ctrl, ku, kv, ev, work, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv,
+                lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+            continue  # inside the domain and provably no local minimum of D on the piece
         if convex or depth >= MAX_SUBDIVISION or sp + 4 > SUB_CAP:
             if convex and u0 <= bu <= u1 and v0 <= bv <= v1:
                 continue  # convex piece holding the best point: that point is its minimum
@@ -632,6 +724,14 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
                 cells += searched
                 nonfinite = nonfinite or nf
                 continue
+            if not build and bconv and (bi >> lev) == i and (bj >> lev) == j:
+                # the best point (a local minimum) lies in this node: if D is certified convex on all
+                # of its cells (C within their smallest convexity radius), it is their minimum
+                node = levels[lev, 0] + i * levels[lev, 2] + j
+                near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+                rho = nodes[node, RHO]
+                if far2 < rho * rho:
+                    continue
             # children on level lev - 1, pushed farthest first so the nearest is searched first
             limit = max(bd2 * TIE, reach2)
             clev = lev - 1
