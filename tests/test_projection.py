@@ -761,6 +761,47 @@ def test_signed_certificate_far_above_caps(rng):
     assert not _certified(t2.nodes, t2.curv, 11 * t2.levels[0, 2] + 11, *c)[0]
 
 
+def test_excluded_pieces_hold_no_local_minimum(rng):
+    """Where the exclusion tests prune a piece (no stationary point, or negative curvature
+    everywhere), Newton started anywhere in it converges to a local minimum outside it."""
+    s = perturbed(fit_surface(rough_scan(24, seed=4)), rng, 0.1e-9, 0.2e-9)
+    tree = projector(s).tree
+    ctrl, _, ku, kv = s.kernel_arrays()
+    (lo_u, hi_u), (lo_v, hi_v) = s.domain
+    nj0 = tree.levels[0, 2]
+    ev = np.empty((6, 3))
+    net = np.empty((16, 3))
+    quarters = np.empty((64, 3))
+    excluded = 0
+    for _ in range(150):
+        a, b = rng.integers(1, tree.levels[0, 1] - 1), rng.integers(1, nj0 - 1)
+        node = a * nj0 + b
+        nx, ny, nz, tx, ty, tz = tree.nodes[node, :6]
+        cd.cell_net(ctrl, tree.mu, tree.mv, a, b, net)
+        cd.net_split(net, 0, quarters, 0, 16, 32, 48)
+        centre = s.evaluate(0.5 * (ku[a + 3] + ku[a + 4]), 0.5 * (kv[b + 3] + kv[b + 4]))
+        c = centre + rng.normal(size=3) * [3e-9, 3e-9, 1e-9] + [0, 0, rng.uniform(1e-9, 60e-9)]
+        u0, u1, v0, v1 = ku[a + 3], ku[a + 4], kv[b + 3], kv[b + 4]
+        um, vm = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+        pieces = [(net, 0, u0, u1, v0, v1)] + [(quarters, 16 * q, *rect) for q, rect in
+                                               enumerate([(u0, um, v0, vm), (um, u1, v0, vm), (u0, um, vm, v1),
+                                                          (um, u1, vm, v1)])]
+        for arr, e, p0, p1, q0, q1 in pieces:
+            ext = cd.net_extents(arr, e, 16, nx, ny, nz, tx, ty, tz)
+            far2 = cd.extents_bounds2(*ext, nx, ny, nz, tx, ty, tz, *c)[1]
+            vals = cd.net_curvature(arr[e:e + 16], p1 - p0, q1 - q0, nx, ny, nz)
+            if not pj._no_local_minimum(ctrl, ku, kv, ev, arr, e, p0, p1, q0, q1, *vals[:9], *ext,
+                                        nx, ny, nz, tx, ty, tz, far2, *c):
+                continue
+            excluded += 1
+            for su, sv in rng.uniform(0, 1, size=(6, 2)):
+                u, v, d2, it, conv = pj.newton_box(ctrl, ku, kv, ev, *c, p0 + su * (p1 - p0), q0 + sv * (q1 - q0),
+                                                   lo_u, hi_u, lo_v, hi_v, 1e-9 * H, 1e-9 * H, H, 200)
+                if conv:
+                    assert not (p0 - 1e-15 <= u <= p1 + 1e-15 and q0 - 1e-15 <= v <= q1 + 1e-15)
+    assert excluded > 100
+
+
 def test_bezier_matrices_are_a_partition_of_unity():
     s = fit_surface(rough_scan(12))
     m = cd.bezier_matrices(s.kernel_arrays()[2])
