@@ -325,7 +325,7 @@ def _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
 @njit(cache=True)
 def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1,
                       tuu, tuv, tvv, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
-    """True if D provably has no local minimum on the closed piece [u0, u1] x [v0, v1].
+    r"""True if D provably has no local minimum on the closed piece [u0, u1] x [v0, v1].
 
     Two exclusion tests around one evaluation at the centre :math:`x_c` (order 2):
 
