@@ -517,6 +517,19 @@ def test_full_refresh_after_the_whole_net_moved(rng):
     check_against(s, pts, project_many(s, pts))
 
 
+def test_surfaces_still_pickle_and_copies_get_their_own_projector():
+    import copy
+    import pickle
+
+    s = fit_surface(ridges_scan())
+    c = (20e-9, 20e-9, 9e-9)
+    first = project(s, c)
+    for twin in (pickle.loads(pickle.dumps(s)), copy.deepcopy(s), s.copy()):
+        again = project(twin, c)
+        assert again.distance == first.distance
+        assert projector(twin) is not projector(s)
+
+
 # --------------------------------------------------------------------------------------------
 # bad input
 def test_bad_inputs_raise_clear_errors():

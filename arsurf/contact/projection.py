@@ -968,8 +968,14 @@ class Projector:
         self._project = _entry_point(project_kernel, self._args, 5)
         self._collide = _entry_point(collide_kernel, self._args, 6)
 
+    def __reduce__(self):
+        # a pickled or deep-copied surface drops its projector (compiled entry points do not
+        # pickle): the copy builds its own at its first query
+        return _no_projector, ()
+
     def kernel_args(self) -> tuple:
-        """``(ctrl, ku, kv, boxes, levels, work)``: the leading arguments of the kernels."""
+        """``(ctrl, ku, kv, mu, mv, nodes, curv, levels, work)``: the leading arguments of the kernels
+        (:func:`collide_kernel`, :func:`project_kernel`, :func:`project_batch_kernel`)."""
         return self._args
 
     def refresh_region(self, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
@@ -1001,6 +1007,11 @@ def _entry_point(kernel, args, nscalars):
 
 
 _ATTR = "_arsurf_projector"  # where a surface keeps its Projector (an instance attribute)
+
+
+def _no_projector() -> None:
+    """What an unpickled projector becomes (see :meth:`Projector.__reduce__`)."""
+    return None
 
 
 def projector(surface) -> Projector:
