@@ -873,3 +873,26 @@ def test_docstring_examples_run():
     for module in (pj, cd):
         failed, attempted = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert attempted > 0 and failed == 0, module.__name__
+
+
+def test_reset_refreshes_the_projection():
+    """surface.reset() refreshes the projector it has (BSplineSurface.attach): after a dent and a
+    reset, projections equal those of a fresh copy of the surface."""
+    import numpy as np
+
+    from arsurf.contact.deformation import Deformer
+    from arsurf.contact.projection import project, projector
+    from arsurf.spline.surface import BSplineSurface
+
+    rng = np.random.default_rng(5)
+    s = BSplineSurface.from_heights(rng.normal(size=(30, 30)) * 2e-9, (0.0, 108e-9), (0.0, 108e-9))
+    proj = projector(s)
+    calls = []
+    original = proj.refresh
+    proj.refresh = lambda: (calls.append(1), original())[1]
+    Deformer(s).apply((54e-9, 54e-9, s.evaluate(54e-9, 54e-9)[2] + 16e-9), 20e-9, (0, 0, 1), 10e-9)
+    s.reset()
+    assert calls == [1]
+    fresh = s.copy()
+    for q in rng.uniform((30e-9, 30e-9, -2e-9), (80e-9, 80e-9, 15e-9), (200, 3)):
+        assert project(s, q).distance == project(fresh, q).distance

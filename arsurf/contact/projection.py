@@ -1022,6 +1022,7 @@ def projector(surface) -> Projector:
     if proj is None or proj.ctrl is not surface.kernel_arrays()[0]:
         proj = Projector(surface)
         setattr(surface, _ATTR, proj)
+        surface.attach(proj)  # reset() refreshes the boxes
     return proj
 
 

@@ -77,6 +77,7 @@ class BSplineSurface:
         self._rest = ctrl.copy() if rest is None else rest
         self._ku = ku
         self._kv = kv
+        self._derived = []  # structures built from the net (e.g. the projection's boxes)
 
     @classmethod
     def construct_fast(cls, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
@@ -110,8 +111,18 @@ class BSplineSurface:
         return new
 
     def reset(self) -> None:
-        """Restore the rest shape exactly (undo every deformation)."""
+        """Restore the rest shape exactly (undo every deformation) and refresh what was derived
+        from the net (:meth:`attach`)."""
         self._ctrl[...] = self._rest
+        for derived in self._derived:
+            derived.refresh()
+
+    def attach(self, derived) -> None:
+        """Register a structure built from the control net (an object with ``refresh()``, e.g.
+        the projection's hull boxes): :meth:`reset` refreshes it. Local edits (deformation)
+        refresh their own patch instead."""
+        if derived not in self._derived:
+            self._derived.append(derived)
 
     # -- properties ---------------------------------------------------------------------------
     @property
