@@ -18,13 +18,13 @@ from arsurf.spline.knots import check_clamped_uniform, clamped_uniform_knots, gr
 
 
 @njit(cache=True)
-def _fill_height_net(gu, gv, z, ctrl, rest):
-    """ctrl[i, j] = rest[i, j] = (gu[i], gv[j], z[i, j]) in one pass."""
+def _fill_height_net(gu, gv, z, ctrl):
+    """ctrl[i, j] = (gu[i], gv[j], z[i, j]) in one pass."""
     for i in range(gu.size):
         for j in range(gv.size):
-            ctrl[i, j, 0] = rest[i, j, 0] = gu[i]
-            ctrl[i, j, 1] = rest[i, j, 1] = gv[j]
-            ctrl[i, j, 2] = rest[i, j, 2] = z[i, j]
+            ctrl[i, j, 0] = gu[i]
+            ctrl[i, j, 1] = gv[j]
+            ctrl[i, j, 2] = z[i, j]
 
 
 class BSplineSurface:
@@ -74,7 +74,7 @@ class BSplineSurface:
 
     def _adopt(self, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray, rest: np.ndarray | None = None) -> None:
         self._ctrl = ctrl
-        self._rest = ctrl.copy() if rest is None else rest
+        self._rest_net = rest  # None: the net is at rest; the snapshot is taken at first need
         self._ku = ku
         self._kv = kv
         self._derived = []  # structures built from the net (e.g. the projection's boxes)
@@ -100,15 +100,20 @@ class BSplineSurface:
         ku = clamped_uniform_knots(z.shape[0], *u_range)
         kv = clamped_uniform_knots(z.shape[1], *v_range)
         ctrl = np.empty(z.shape + (3,))
-        rest = np.empty(z.shape + (3,))
-        _fill_height_net(greville(ku), greville(kv), z, ctrl, rest)
-        return cls.construct_fast(ctrl, ku, kv, rest)
+        _fill_height_net(greville(ku), greville(kv), z, ctrl)
+        return cls.construct_fast(ctrl, ku, kv)
 
     def copy(self) -> "BSplineSurface":
         """An independent copy with the same current and rest nets."""
-        new = BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv)
-        new._rest[...] = self._rest
-        return new
+        return BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv, self._rest.copy())
+
+    @property
+    def _rest(self) -> np.ndarray:
+        """The rest net, copied from the net the first time anything may move it (kernel_arrays,
+        reset...): fitting a surface does not pay for a snapshot nobody needs yet."""
+        if self._rest_net is None:
+            self._rest_net = self._ctrl.copy()
+        return self._rest_net
 
     def reset(self) -> None:
         """Restore the rest shape exactly (undo every deformation) and refresh what was derived
