@@ -2,7 +2,6 @@
 statistics, seeds, the demo set on disk, and bad parameters."""
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np

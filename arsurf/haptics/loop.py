@@ -137,11 +137,9 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
     compiled call from Python, while a loop with a scene calls the two halves separately around
     the scene's step. (Writing the halves out in one body saved ~0.3 µs of argument passing per
     tick, 3 %; one definition of each half is worth more.)"""
-    st = loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
-                           pos_params, pos_state, fp_state,
-                           proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                           deform,
-                           model_state, coll, dec, mout, prev_probe, out)
+    loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
+                      pos_params, pos_state, fp_state, proj, live_ctrl, live_rest, ku, kv, patch, md_args,
+                      dec_params, tip_radius, friction, deform, model_state, coll, dec, mout, prev_probe, out)
     return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
                               fp_state, gain, alpha, filt_state, safety_params, safety_state, out)
 

@@ -17,7 +17,6 @@ sphere or cylinder is undercut, the map shows a vertical wall at its equator.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
