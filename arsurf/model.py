@@ -13,8 +13,9 @@ attached or a session is replayed, the measured bending and torsion angles),
    and load P (> 0 compressive);
 3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`);
 4. **force on the tip**: *simulated* F = P n − μ max(P, 0) t̂, t̂ the unit tangent whose horizontal
-   part is the tip's horizontal motion (Amontons friction; the same friction direction the
-   decoupling assumes, DESIGN.md; zero when the tip does not move sideways);
+   part is the tip's horizontal motion (Amontons friction, regularised below
+   :data:`FRICTION_VELOCITY`; the same friction direction the decoupling assumes, DESIGN.md;
+   zero when the tip does not move sideways);
    *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
    :mod:`arsurf.force.decoupling`); the model reports both.
 
@@ -50,6 +51,11 @@ S_HINT_U, S_HINT_V, S_INTERACTING = 0, 1, 2
 S_SIZE = 3
 
 MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
+#: Sliding speed (m/s) below which friction is regularised (viscous, ∝ speed) instead of Coulomb:
+#: F_f = μP v/max(|v|, v_ε) (Karnopp-style). A haptic probe jitters around zero horizontal speed
+#: while pressing; plain Coulomb friction then flips sign every tick and the hand feels a buzz.
+#: 10 nm/s is below the slowest deliberate probe motion of the seeds (~50 nm/s, seed 000).
+FRICTION_VELOCITY = 10e-9
 FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
 
 
@@ -119,8 +125,8 @@ def model_tick_kernel(proj,                                              # Proje
         ty = vy
         tz = -(vx * nx + vy * ny) / nz
         tn = math.sqrt(tx * tx + ty * ty + tz * tz)
-        if tn > 1e-12:
-            f = friction * load / tn
+        if tn > 0.0:
+            f = friction * load / max(tn, FRICTION_VELOCITY)
             fx -= f * tx
             fy -= f * ty
             fz -= f * tz

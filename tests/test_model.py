@@ -84,3 +84,16 @@ def test_out_of_contact_the_measured_force_is_the_classical_reading(flat, md):
     np.testing.assert_allclose(t.measured_force, [0.0, -1e-7 / LEVER.torsion_compliance, 2e-6 / LEVER.bending_compliance],
                                rtol=1e-15)
     assert t.decoupling_flags == DecouplingFlag.FALLBACK_DEGENERATE
+
+
+def test_friction_is_coulomb_when_sliding_and_fades_out_when_standing_still(flat, md):
+    from arsurf.model import FRICTION_VELOCITY
+
+    m = ARModel(flat, R, md, LEVER, friction=0.3)
+    c = (100e-9, 100e-9, R - 1e-9)
+    fast = m.step(c, (5 * FRICTION_VELOCITY, 0.0, 0.0))
+    assert fast.simulated_force[0] == pytest.approx(-0.3 * fast.load, rel=1e-12)   # Coulomb: mu P
+    slow = m.step(c, (0.1 * FRICTION_VELOCITY, 0.0, 0.0))
+    assert slow.simulated_force[0] == pytest.approx(-0.03 * slow.load, rel=1e-12)  # viscous below v_eps
+    still = m.step(c, (0.0, 0.0, -1e-6))
+    assert still.simulated_force[0] == 0.0 and still.simulated_force[1] == 0.0
