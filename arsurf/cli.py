@@ -122,8 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sigma-nm", type=float, default=0.0)
     s.add_argument("--level", default="plane")
     s.add_argument("--bridge-port", type=int, default=None,
-                   help="drive the tip from a haptic device through the UDP bridge on 127.0.0.1:PORT "
-                        "(protocol in the README; tools/haptic_client.py is a reference client)")
+                   help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
+                        "(poses in, forces out; protocol in the README; tools/haptic_client.py is a reference client)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.add_argument("--tubes", action="store_true",
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
@@ -149,42 +149,30 @@ def cmd_view(args) -> int:
     from arsurf.errors import require
 
     require("pyvista", "viewer", "arsurf view")
-    from arsurf_viewer import view_scan
     from arsurf.demo import BUNDLED_SCAN
-
-    from arsurf.spline.fit import fit_surface
 
     tip_radius = args.tip_radius_nm * 1e-9
     scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
-    extra = {}
-    if args.bridge_port is not None:
-        surface = fit_surface(scan)
-        (u0, u1), (v0, v1) = surface.domain
-        cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
-        start = np.array([cx, cy, surface.evaluate(cx, cy)[2] + 2.5 * tip_radius])
-        extra = {"pose_source": bridge_pose_source(args.bridge_port, args.scale, start), "start": start}
-    view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, **extra)
+    if args.bridge_port is None:
+        from arsurf_viewer import view_scan
+
+        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes)
+        return 0
+    # real hardware: the full haptic loop runs at 1 kHz against the UDP bridge, the view follows it
+    from arsurf.spline.fit import fit_surface
+    from arsurf_viewer.interactive import run_interactive
+    from arsurf_viewer.live import bridge_loop
+
+    surface = fit_surface(scan)
+    live = bridge_loop(surface, tip_radius, port=args.bridge_port, scale=args.scale).start()
+    print(f"arsurf view: haptic loop running at 1 kHz, listening for stylus poses on UDP "
+          f"127.0.0.1:{args.bridge_port} (tools/haptic_client.py is a reference client)", file=sys.stderr)
+    try:
+        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose)
+    finally:
+        stats = live.stop()
+        print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
     return 0
-
-
-def bridge_pose_source(port: int, scale: float, start):
-    """A viewer pose source fed by the UDP bridge: ``start`` + ``scale`` x (stylus position -
-    its first received position), metres; None until poses arrive."""
-    from arsurf.haptics.udp_bridge import UdpBridgeDevice
-
-    dev = UdpBridgeDevice(port=port).open()
-    origin = []
-
-    def pose():
-        st = dev.read_state()
-        if st.timestamp <= 0.0 or not np.isfinite(st.position).all():
-            return None
-        if not origin:
-            origin.append(st.position.copy())
-        return np.asarray(start) + scale * (st.position - origin[0])
-
-    pose.device = dev
-    return pose
 
 
 def cmd_export(args) -> int:

@@ -1,14 +1,12 @@
 """The arsurf command: info, fit, synth, export, the UDP pose source of `arsurf view`."""
 import json
 import socket
-import struct
 import time
-import zlib
 
 import numpy as np
 import pytest
 
-from arsurf.cli import bridge_pose_source, main
+from arsurf.cli import main
 from arsurf.spline.storage import load_surface
 from conftest import real_scan_path
 
@@ -43,26 +41,38 @@ def test_errors_are_one_line_messages(tmp_path, capsys):
     assert "arsurf info: error:" in err and "missing.gwy" in err
 
 
-def test_bridge_pose_source_maps_stylus_motion_to_the_tip():
+def test_bridge_loop_feels_the_surface_through_udp():
+    """`arsurf view --bridge-port`'s loop: a client on loopback sends stylus poses, the 1 kHz loop
+    moves the tip into the surface and sends back a force pushing the stylus up."""
+    import sys as _sys
+    from pathlib import Path
+
+    from arsurf.spline.surface import BSplineSurface
+    from arsurf_viewer.live import bridge_loop
+
+    _sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from haptic_client import HapticClient
+
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    start = np.array([1e-7, 2e-7, 3e-8])
-    pose = bridge_pose_source(port, 1e-5, start)
+    s = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))
+    live = bridge_loop(s, 20e-9, port=port).start()   # tip starts 2.5 R above the middle
+    client = HapticClient(port=port)
     try:
-        assert pose() is None  # nothing received yet
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
-            for seq, x in enumerate((0.0, 2e-3)):
-                body = struct.pack("<4sBBHId3d3d4dI", b"ARSH", 1, 1, 0, seq + 1, time.monotonic() + seq,
-                                   x, 0.0, 0.0, np.nan, np.nan, np.nan, 1.0, 0.0, 0.0, 0.0, 0)
-                c.sendto(body + struct.pack("<I", zlib.crc32(body)), ("127.0.0.1", port))
-                deadline = time.monotonic() + 2.0
-                p = None
-                while time.monotonic() < deadline:
-                    p = pose()
-                    if p is not None and (seq == 0 or p[0] > start[0]):
-                        break
-                    time.sleep(0.01)
-        np.testing.assert_allclose(p, start + [2e-8, 0, 0], atol=1e-15)
+        deadline = time.monotonic() + 5.0
+        z = 0.0
+        while time.monotonic() < deadline:
+            z = max(z - 2e-6, -3.3e-3)                     # lower the stylus 3.3 mm -> the tip 33 nm
+            client.send_pose((0.0, 0.0, z))
+            time.sleep(0.002)
+            if client.poll()[2] > 1e-4 and z <= -3.3e-3:
+                break
+        force = client.poll()
+        scene = live.physics(np.zeros(3), 1 / 30)
     finally:
-        pose.device.close()
+        client.close()
+        stats = live.stop()
+    assert scene.depth > 0 and scene.force[2] > 0        # the tip is in the surface, pushed back
+    assert force[2] > 1e-4 and abs(force[2]) <= 7.9      # the hand feels it, within the device limit
+    assert stats.ticks > 100

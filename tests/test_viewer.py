@@ -562,3 +562,37 @@ def test_close_up_centres_the_tip_and_fills_the_frame(gl):
             view.close_up(c, 0.0)
     finally:
         view.close()
+
+
+def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
+    """The real-time loop (Scheduler thread, 1 kHz) drives the tip; the viewer hook returns scenes
+    built from the loop's snapshots while it runs."""
+    import time as _time
+
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.demo import LEVER
+    from arsurf.force.cantilever import Cantilever
+    from arsurf.haptics.loop import HapticLoop
+    from arsurf.haptics.virtual_device import HandModel, VirtualDevice
+    from arsurf.model import ARModel
+    from arsurf_viewer.live import LiveLoop
+
+    s = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))  # 4 nm net
+    model = ARModel(s, R, MaugisDugdale(R, 10e9, 0.1), Cantilever(**LEVER))
+    c = (100e-9, 100e-9)
+    origin = (*c, float(s.evaluate(*c)[2]) + R + 3e-9)
+    hand = HandModel((np.array([0.0, 0.3, 10.0]), np.array([[0, 0, 0], [0, 0, -0.6e-3], [0, 0, -0.6e-3]])))
+    dev = VirtualDevice(dt=1e-3, hand=hand)
+    live = LiveLoop(HapticLoop.direct(model, dev.info, origin), dev).start()
+    try:
+        first = live.physics(np.zeros(3), 1 / 30)
+        _time.sleep(0.8)
+        scene = live.physics(np.zeros(3), 1 / 30)
+        assert live.scheduler.ticks > 300 and scene.loop_rate_hz > 300
+        np.testing.assert_allclose(scene.tip_center, live.pose())
+        assert scene.depth > 0 and scene.force[2] > 0 and scene.contact_radius > 0   # pressed in by the hand
+        assert scene.surface is model.surface and s.is_deformed
+        assert first.time != scene.time
+    finally:
+        stats = live.stop()
+    assert stats.ticks > 300 and not dev.is_open

@@ -1,0 +1,116 @@
+"""The live system: the haptic loop in its own real-time thread, the view reading its snapshots.
+
+:class:`LiveLoop` runs a :class:`~arsurf.haptics.loop.HapticLoop` with a
+:class:`~arsurf.haptics.scheduler.Scheduler` (1 kHz by default) against a device (the UDP bridge
+for real hardware, a virtual device otherwise). The loop thread publishes a small snapshot
+(tip, contact, force, safety flags) at 60 Hz; the viewer polls it at its own 30-60 Hz through
+:meth:`LiveLoop.physics` / :meth:`LiveLoop.pose`, the hooks of
+:func:`~arsurf_viewer.interactive.run_interactive`. The surface is the loop's live (dented)
+surface, read while the loop may be writing a patch of it: a frame can show a dent one tick
+old, never a corrupt one (each control point is written whole).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from arsurf.haptics.scheduler import Scheduler
+from arsurf.model import M_DEPTH, M_NX, M_PX, M_RADIUS
+
+from .state import SceneState
+
+
+class LiveLoop:
+    """A haptic loop stepping a device in a real-time thread, seen by the viewer.
+
+    Parameters
+    ----------
+    loop : HapticLoop
+    device : Device
+        Opened here if it is not open yet (and closed by :meth:`stop`).
+    snapshot_rate : float, Hz
+        How often the loop thread publishes what the view shows.
+
+    Example
+    -------
+    >>> # live = LiveLoop(loop, UdpBridgeDevice(port=47474)).start()
+    >>> # run_interactive(loop.model.surface, physics=live.physics, pose_source=live.pose)
+    """
+
+    def __init__(self, loop, device, snapshot_rate: float = 60.0):
+        self.loop = loop
+        self.device = device
+        now = device.now  # the safety watchdog runs on the device's clock (a bridge sample's
+        # timestamp is its arrival time, which stops when packets stop: that is what ages it)
+        self.scheduler = Scheduler(lambda state, inputs, dt: loop.step(inputs, now()), loop, rate=loop.config.rate,
+                                   source=device.read_state, sink=device.command_force, snapshot=self._snapshot,
+                                   snapshot_rate=snapshot_rate)
+        self._status = getattr(device.info, "name", type(device).__name__)
+
+    def _snapshot(self, state, inputs, output) -> dict:
+        """Runs in the loop thread: only small copies."""
+        o, mo = self.loop.out, self.loop.model.out
+        return {"tip": o[0:3], "force": o[8:11], "point": mo[M_PX:M_PX + 3], "normal": mo[M_NX:M_NX + 3],
+                "scalars": np.array([mo[M_DEPTH], mo[M_RADIUS], o[20]])}
+
+    def start(self) -> "LiveLoop":
+        if not self.device.is_open:
+            self.device.open()
+        self.scheduler.start()
+        return self
+
+    def stop(self):
+        """Stop the thread (zero force sent by the device on close); return the timing stats."""
+        stats = self.scheduler.stop()
+        self.device.close()
+        return stats
+
+    def pose(self):
+        """The loop's current tip centre (3,) m, or None before the first tick."""
+        snap = self.scheduler.snapshot()
+        return None if snap is None else snap.values["tip"]
+
+    def physics(self, tip_center, dt: float) -> SceneState:
+        """The viewer's per-frame hook: the last snapshot as a scene (``tip_center`` is ignored:
+        the loop owns the tip)."""
+        snap = self.scheduler.snapshot()
+        m = self.loop.model
+        if snap is None:
+            return SceneState(m.surface, np.asarray(tip_center, dtype=np.float64), m.tip_radius,
+                              device_status=f"{self._status} · waiting for the loop")
+        v = snap.values
+        depth, radius, flags = v["scalars"]
+        elapsed = self.scheduler.elapsed()
+        rate = self.scheduler.ticks / elapsed if elapsed > 0 else math.nan
+        status = self._status + (f" · safety flags {int(flags)}" if int(flags) else " · ok")
+        return SceneState(m.surface, v["tip"], m.tip_radius, contact_point=v["point"], contact_normal=v["normal"],
+                          depth=float(depth), contact_radius=float(radius), force=v["force"],
+                          maugis_lambda=m.contact.maugis_parameter, loop_rate_hz=rate, device_status=status,
+                          time=snap.time)
+
+
+def bridge_loop(surface, tip_radius: float, *, port: int = 47474, scale: float = 1e-5, force_gain: float = 1e5,
+                contact=None, start=None):
+    """A :class:`LiveLoop` for real hardware: the UDP bridge device on 127.0.0.1:``port``, the
+    AR model on ``surface`` (Si tip on polystyrene unless ``contact`` is given) and the direct
+    coupling (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client
+    sends first maps to ``start`` (default: 2.5 R above the middle of the surface)."""
+    from arsurf.contact.materials import effective_modulus, work_of_adhesion
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.demo import LEVER
+    from arsurf.force.cantilever import Cantilever
+    from arsurf.haptics.loop import HapticLoop
+    from arsurf.haptics.udp_bridge import UdpBridgeDevice
+    from arsurf.model import ARModel
+
+    if contact is None:
+        contact = MaugisDugdale(tip_radius, effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene"))
+    model = ARModel(surface, tip_radius, contact, Cantilever(**LEVER))
+    if start is None:
+        (u0, u1), (v0, v1) = surface.domain
+        cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+        start = (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
+    device = UdpBridgeDevice(port=port)
+    loop = HapticLoop.direct(model, device.info, start, scale=scale, force_gain=force_gain)
+    return LiveLoop(loop, device)
