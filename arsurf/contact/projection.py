@@ -1040,6 +1040,31 @@ def refresh_region(surface, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
         proj.refresh_region(iu0, iu1, iv0, iv1)
 
 
+def _query(point, hint, what: str) -> tuple[float, float, float, float, float]:
+    """(x, y, z, hint_u, hint_v) as floats, NaN hints for a cold start: the fast path of the
+    single-query API; anything unusual goes to :func:`_xyz` / :func:`_hint` for the exact error."""
+    try:
+        x, y, z = point
+        x = float(x)
+        y = float(y)
+        z = float(z)
+    except (TypeError, ValueError):
+        x = y = z = math.nan
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        _xyz(point, what)  # raises the precise error
+    if hint is None:
+        return x, y, z, math.nan, math.nan
+    try:
+        hu, hv = hint
+        hu = float(hu)
+        hv = float(hv)
+    except (TypeError, ValueError):
+        hu = math.nan
+    if not (math.isfinite(hu) and math.isfinite(hv)):
+        hu, hv = _hint(hint)  # raises the precise error
+    return x, y, z, hu, hv
+
+
 def _xyz(point, what: str) -> tuple[float, float, float]:
     try:
         x, y, z = point
@@ -1116,26 +1141,7 @@ def project(surface, point, hint=None) -> Projection:
     (-3.0, [10.0, 20.0, 0.0])
     """
     proj = getattr(surface, _ATTR, None) or _lookup(surface)
-    try:
-        x, y, z = point
-        x = float(x)
-        y = float(y)
-        z = float(z)
-    except (TypeError, ValueError):
-        x = y = z = math.nan
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        _xyz(point, "point")  # raises the precise error
-    if hint is None:
-        hu = hv = math.nan
-    else:
-        try:
-            hu, hv = hint
-            hu = float(hu)
-            hv = float(hv)
-        except (TypeError, ValueError):
-            hu = math.nan
-        if not (math.isfinite(hu) and math.isfinite(hv)):
-            hu, hv = _hint(hint)  # raises the precise error
+    x, y, z, hu, hv = _query(point, hint, "point")
     out = np.empty(OUT_SIZE)
     status = proj._project(*proj._args, x, y, z, hu, hv, out)
     if status < 0:
@@ -1176,27 +1182,8 @@ def collide(surface, center, radius, hint=None) -> Contact:
     (True, 1.0)
     """
     proj = getattr(surface, _ATTR, None) or _lookup(surface)
-    try:
-        x, y, z = center
-        x = float(x)
-        y = float(y)
-        z = float(z)
-    except (TypeError, ValueError):
-        x = y = z = math.nan
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        _xyz(center, "center")  # raises the precise error
+    x, y, z, hu, hv = _query(center, hint, "center")
     r = radius if isinstance(radius, float) and 0.0 < radius < math.inf else _radius(radius)
-    if hint is None:
-        hu = hv = math.nan
-    else:
-        try:
-            hu, hv = hint
-            hu = float(hu)
-            hv = float(hv)
-        except (TypeError, ValueError):
-            hu = math.nan
-        if not (math.isfinite(hu) and math.isfinite(hv)):
-            hu, hv = _hint(hint)  # raises the precise error
     out = np.empty(OUT_SIZE)
     status = proj._collide(*proj._args, x, y, z, r, hu, hv, out)
     if status < 0:
