@@ -96,6 +96,18 @@ def test_nan_stylus_never_reaches_the_device():
     assert np.isfinite(f).all() and np.linalg.norm(f) <= 7.9
 
 
+def test_warm_up_compiles_on_a_copy_and_leaves_the_loop_untouched():
+    s, model, dev, loop = _setup()
+    _run(dev, loop, 3000)                                          # pressed: a dent, filter and ramp state
+    ctrl, state, out = model.surface.control_points.copy(), model.state.copy(), loop.out.copy()
+    assert loop.warm_up() is loop
+    assert np.array_equal(model.surface.control_points, ctrl) and np.array_equal(model.state, state)
+    assert np.array_equal(loop.out, out, equal_nan=True)
+    b = _setup()
+    cont, ref = _run(dev, loop, 1000), (_run(*b[2:], 3000), _run(*b[2:], 1000))[1]
+    assert np.array_equal(cont, ref, equal_nan=True)               # the run goes on as if never warmed
+
+
 def test_runs_under_the_scheduler_without_sleeping():
     _, _, dev, loop = _setup()
     sched = Scheduler(loop.scheduler_step, loop, rate=1000.0, source=dev.read_state, sink=dev.command_force)

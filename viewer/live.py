@@ -55,6 +55,7 @@ class LiveLoop:
                 "scalars": np.array([mo[M_DEPTH], mo[M_RADIUS], o[20]])}
 
     def start(self) -> "LiveLoop":
+        self.loop.warm_up()  # compile before the thread starts: a cold first tick takes seconds
         if not self.device.is_open:
             self.device.open()
         self.scheduler.start()

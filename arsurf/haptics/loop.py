@@ -334,6 +334,19 @@ class HapticLoop:
                            self.safety.params, self.safety.state, out)
         return out[L_F_DEVICE:L_F_DEVICE + 3]
 
+    def warm_up(self) -> "HapticLoop":
+        """Compile (or load from the cache) the tick's kernels on a throw-away copy of this loop.
+
+        Call it before handing the loop to a real-time thread: the first tick of a cold process
+        otherwise spends seconds in the numba compiler with the stylus live. This loop's state
+        (dent, filters, safety, scene) is not touched.
+        """
+        import copy
+
+        twin = copy.deepcopy(self)
+        twin.step(DeviceState(np.zeros(3), np.zeros(3), 0, 0.0), 0.0)
+        return self
+
     def scheduler_step(self, state, inputs: DeviceState, dt: float) -> np.ndarray:
         """``step(state, inputs, dt)`` signature for :class:`~arsurf.haptics.scheduler.Scheduler`
         (``state`` is this loop; the loop clock is the device sample time)."""
