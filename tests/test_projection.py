@@ -322,7 +322,7 @@ def test_trench_narrower_than_the_tip_touches_both_rims():
 
 def _batch_of(p):
     """A one-row batch record from a single Projection/Contact (for check_against)."""
-    return pj.ProjectionBatch(p.uv[None], p.point[None], p.normal[None], np.array([p.distance]), None, None,
+    return pj.ProjectionBatch(np.array(p.uv)[None], p.point[None], p.normal[None], np.array([p.distance]), None, None,
                               None, None, None)
 
 
