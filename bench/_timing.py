@@ -28,6 +28,22 @@ def stats(samples_s: np.ndarray, per: int = 1) -> dict:
     return {"median_us": float(np.median(s)), "p99_us": float(np.percentile(s, 99)), "n": int(s.size)}
 
 
+def best_round(rounds: list) -> dict:
+    """Statistics of the round with the lowest median (as :func:`stats`), plus every round's median.
+
+    A shared machine has slow phases longer than one round; the quietest round is the figure
+    that repeats (``timeit``'s advice), and the spread of the medians shows the noise."""
+    medians = [float(np.median(r)) for r in rounds]
+    best = rounds[int(np.argmin(medians))]
+    return {**stats(best), "round_medians_us": [round(m * 1e6, 2) for m in medians]}
+
+
+def round_ratio(slow: list, fast: list) -> float:
+    """Median over rounds of median(slow round) / median(fast round), the rounds interleaved
+    so that each pair saw the same state of the machine."""
+    return round(float(np.median([np.median(a) / np.median(b) for a, b in zip(slow, fast)])), 2)
+
+
 def emit(name: str, results: dict) -> None:
     """Print the benchmark's JSON document (one per script) on stdout."""
     doc = {

@@ -14,6 +14,10 @@ One JSON document on stdout. For 256^2, 512^2 and 1024^2 rough surfaces (Gaussia
   ``minimize`` (L-BFGS-B) on a ``RectBivariateSpline`` of the same heights;
 * how the cost grows with the height of the tip above the surface (cold kernel queries).
 
+The Python timings (ours cold and warm, VTK's) run in 5 interleaved rounds over the same queries:
+each reports its quietest round (median, p99, and every round's median to show the noise), and
+the Python ratios are medians over the rounds of the per-round ratios.
+
 Run: ``python bench/collision.py`` (about 1-2 minutes). The machine is shared: compare the ratios
 measured in the same run rather than absolute times across runs.
 """
@@ -31,7 +35,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _timing import emit, stats  # noqa: E402
+from _timing import best_round, emit, round_ratio, stats  # noqa: E402
 
 from arsurf.contact import projection as pj  # noqa: E402
 from arsurf.scan.scan import Scan  # noqa: E402
@@ -44,6 +48,7 @@ N_COLD = 4000
 N_WARM = 20000
 N_PY = 4000
 N_PEER = 2000
+ROUNDS = 5  # Python timings: ours and VTK's interleaved, round by round
 
 
 # --- a cycle counter for per-call times inside a kernel loop --------------------------------------
@@ -134,14 +139,13 @@ def time_python(s, pts, warm):
     clock = time.perf_counter_ns
     collide = pj.collide
     rows = [tuple(p) for p in pts]
-    for _ in range(2):  # the first pass warms the interpreter and the caches up; the second counts
-        hint = None
-        for k, c in enumerate(rows):
-            t0 = clock()
-            res = collide(s, c, RADIUS, hint)
-            out[k] = clock() - t0
-            if warm:
-                hint = res.uv
+    hint = None
+    for k, c in enumerate(rows):
+        t0 = clock()
+        res = collide(s, c, RADIUS, hint)
+        out[k] = clock() - t0
+        if warm:
+            hint = res.uv
     return out * 1e-9
 
 
@@ -168,7 +172,8 @@ def triangulated(s, z):
     return pts, faces
 
 
-def bench_vtk(verts, faces, pts):
+def vtk_locator(verts, faces):
+    """``(build seconds, query(pts) -> (seconds per call, distances))`` for vtkStaticCellLocator."""
     import vtk
     from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
 
@@ -189,16 +194,20 @@ def bench_vtk(verts, faces, pts):
     cell_id = vtk.reference(0)
     sub_id = vtk.reference(0)
     dist2 = vtk.reference(0.0)
-    times = np.empty(pts.shape[0])
-    dist = np.empty(pts.shape[0])
-    clock = time.perf_counter_ns
-    rows = [tuple(p) for p in pts]
-    for k, p in enumerate(rows):
-        t0 = clock()
-        loc.FindClosestPoint(p, closest, cell_id, sub_id, dist2)
-        times[k] = clock() - t0
-        dist[k] = math.sqrt(float(dist2))
-    return build, times * 1e-9, dist
+
+    def query(pts):
+        times = np.empty(pts.shape[0])
+        dist = np.empty(pts.shape[0])
+        clock = time.perf_counter_ns
+        rows = [tuple(p) for p in pts]
+        for k, p in enumerate(rows):
+            t0 = clock()
+            loc.FindClosestPoint(p, closest, cell_id, sub_id, dist2)
+            times[k] = clock() - t0
+            dist[k] = math.sqrt(float(dist2))
+        return times * 1e-9, dist
+
+    return build, query
 
 
 def bench_open3d(verts, faces, pts):
@@ -305,9 +314,19 @@ def main() -> None:
 
         kc, oc = time_kernel(s, cold, False, hz)
         kw, ow = time_kernel(s, warm, True, hz)
+        d_ours = np.abs(oc[:N_PEER, pj.OUT_DISTANCE])
+        verts, faces = triangulated(s, z)
+        vb, vtk_query = vtk_locator(verts, faces)
+        time_python(s, cold[:N_PY], False)  # warms the interpreter and the caches up
+        py_cold, py_warm, vtk_rounds = [], [], []
+        for _ in range(ROUNDS):
+            py_cold.append(time_python(s, cold[:N_PY], False))
+            py_warm.append(time_python(s, warm[:N_PY], True))
+            vt, vd = vtk_query(cold[:N_PEER])
+            vtk_rounds.append(vt)
         ours = {
-            "python_cold": stats(time_python(s, cold[:N_PY], False)),
-            "python_warm": stats(time_python(s, warm[:N_PY], True)),
+            "python_cold": best_round(py_cold),
+            "python_warm": best_round(py_warm),
             "kernel_cold": stats(kc),
             "kernel_warm": stats(kw),
             "cells_searched_cold_mean": round(float(oc[:, pj.OUT_CELLS].mean()), 2),
@@ -316,10 +335,7 @@ def main() -> None:
             "candidate_cache_hit_rate_warm": round(float(ow[:, pj.OUT_CACHED].mean()), 3),
         }
         entry["ours"] = ours
-        d_ours = np.abs(oc[:N_PEER, pj.OUT_DISTANCE])
-        verts, faces = triangulated(s, z)
-        vb, vt, vd = bench_vtk(verts, faces, cold[:N_PEER])
-        vtk_stats = stats(vt)
+        vtk_stats = best_round(vtk_rounds)
         entry["vtk_static_cell_locator"] = {
             "build_s": round(vb, 3), "python": vtk_stats,
             "abs_error_vs_spline_max_m": float(np.max(np.abs(vd - d_ours))),
@@ -344,9 +360,9 @@ def main() -> None:
                 "note": "FITPACK's s=0 cubic interpolant is the same not-a-knot spline; a local optimiser "
                         "started below C (it agrees here because the surface is smooth at the tip scale)",
             }
-        entry["ratios"] = {
-            "vtk_python_over_ours_python_cold": ratio(vtk_stats, ours["python_cold"]),
-            "vtk_python_over_ours_python_warm": ratio(vtk_stats, ours["python_warm"]),
+        entry["ratios"] = {  # Python against Python: median over the interleaved rounds
+            "vtk_python_over_ours_python_cold": round_ratio(vtk_rounds, py_cold),
+            "vtk_python_over_ours_python_warm": round_ratio(vtk_rounds, py_warm),
             "vtk_python_over_ours_kernel_warm": ratio(vtk_stats, ours["kernel_warm"]),
         }
         if n == SIZES[0]:
