@@ -60,10 +60,10 @@ def test_bridge_loop_feels_the_surface_through_udp():
     live = bridge_loop(s, 20e-9, port=port).start()   # tip starts 2.5 R above the middle
     client = HapticClient(port=port)
     try:
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 15.0                 # generous: CI machines are shared
         z = 0.0
         while time.monotonic() < deadline:
-            z = max(z - 2e-6, -3.3e-3)                     # lower the stylus 3.3 mm -> the tip 33 nm
+            z = max(z - 1e-5, -3.3e-3)                     # lower the stylus 3.3 mm (5 mm/s) -> the tip 33 nm
             client.send_pose((0.0, 0.0, z))
             time.sleep(0.002)
             if client.poll()[2] > 1e-4 and z <= -3.3e-3:
