@@ -568,6 +568,31 @@ def test_bad_inputs_raise_clear_errors():
         refresh_region(s, 0, 99, 0, 3)
 
 
+def test_any_numeric_input_gives_the_float_answer_and_bad_ones_the_precise_error():
+    """The single-query fast path hands the caller's numbers to the compiled entry as they are:
+    numpy scalars, arrays, ints must answer exactly as floats do; a bad hint still gets its error."""
+    s = fit_surface(rough_scan())
+    c, r = (40e-9, 50e-9, 12e-9), 10e-9
+    ref = collide(s, c, r, hint=(41e-9, 49e-9))
+    for centre, radius, hint in [(np.array(c), np.float64(r), np.array([41e-9, 49e-9])),
+                                 (list(c), r, [41e-9, 49e-9]),
+                                 (tuple(np.float64(v) for v in c), r, (np.float64(41e-9), 49e-9))]:
+        got = collide(s, centre, radius, hint=hint)
+        assert got.uv == ref.uv and got.depth == ref.depth and type(got.radius) is float
+        assert np.array_equal(got.point, ref.point) and np.array_equal(got.normal, ref.normal)
+    ints, floats = project(s, (0, 0, 1)), project(s, (0.0, 0.0, 1.0))
+    assert ints.uv == floats.uv and ints.distance == floats.distance
+    for bad in [(np.inf, 0.0), (0.0, -np.inf), np.array([np.nan, 0.0])]:
+        with pytest.raises(SurfaceError, match="hint must be finite"):
+            collide(s, c, r, hint=bad)
+    with pytest.raises(SurfaceError, match="hint must be None or"):
+        collide(s, c, r, hint=(1.0, 2.0, 3.0))
+    with pytest.raises(SurfaceError, match="center must be finite"):
+        collide(s, np.array([0.0, np.nan, 0.0]), r)
+    with pytest.raises(ContactError, match="radius must be positive"):
+        collide(s, c, np.float64(-1e-9))
+
+
 def test_nan_control_points_are_reported():
     ctrl = fit_surface(rough_scan(12)).control_points.copy()
     s = fit_surface(rough_scan(12))
