@@ -17,7 +17,11 @@ attached or a session is replayed, the measured bending and torsion angles),
    :data:`FRICTION_VELOCITY`; the same friction direction the decoupling assumes, DESIGN.md;
    zero when the tip does not move sideways);
    *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
-   :mod:`arsurf.force.decoupling`); the model reports both.
+   :mod:`arsurf.force.decoupling`); the model reports both. Below :data:`FRICTION_VELOCITY` the
+   tip is standing, not sliding: its jitter gives no friction direction, so the decoupling takes
+   its ``NO_MOTION`` fallback (force along n plus the torsion) instead of a direction that noise
+   chose - which could make the system ill-conditioned and amplify the signal noise a
+   hundredfold (a 360 nN spike at pull-off in the demo).
 
 All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
 arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
@@ -246,7 +250,7 @@ class ARModel:
         live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
         self._proj_args = proj.kernel_args()
         self._md_args = np.array(contact.kernel_args, dtype=np.float64)
-        self._dec = decoupling_parameters(cantilever)
+        self._dec = decoupling_parameters(cantilever, min_speed=FRICTION_VELOCITY)
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.array([np.nan, np.nan, 0.0])
         self._coll = np.empty(pj.OUT_SIZE)

@@ -97,3 +97,25 @@ def test_friction_is_coulomb_when_sliding_and_fades_out_when_standing_still(flat
     assert slow.simulated_force[0] == pytest.approx(-0.03 * slow.load, rel=1e-12)  # viscous below v_eps
     still = m.step(c, (0.0, 0.0, -1e-6))
     assert still.simulated_force[0] == 0.0 and still.simulated_force[1] == 0.0
+
+
+def test_no_friction_direction_is_guessed_from_jitter_below_the_friction_velocity(flat, md):
+    """Standing (|v_h| < FRICTION_VELOCITY) the tip's jitter gives no friction direction: the
+    decoupling must not take one from it. With 0.2 urad of signal noise, a jitter direction near the
+    beam axis made the system ill-conditioned and turned the noise into hundreds of nN at pull-off
+    in the demo. The fallback (force along the normal plus the torsion) can miss at most the small
+    regularised friction it cannot see, plus the noise."""
+    from arsurf.force.decoupling import DecouplingFlag
+    from arsurf.model import FRICTION_VELOCITY
+
+    rng = np.random.default_rng(5)
+    m = ARModel(flat, R, md, LEVER, friction=0.3)
+    c = (100e-9, 100e-9, R - 1e-9)
+    for _ in range(500):
+        angle = rng.uniform(0.0, 2 * np.pi)
+        v = 0.5 * FRICTION_VELOCITY * np.array([np.cos(angle), np.sin(angle), 0.0])
+        sim = m.step(c, v).simulated_force
+        t = m.step(c, v, signals=np.array(LEVER.angles(sim)) + rng.normal(0.0, 2e-7, 2))
+        assert t.decoupling_flags & DecouplingFlag.NO_MOTION
+        unseen = np.hypot(sim[0], sim[1])                    # the friction, 0.15 of the load here
+        assert np.abs(t.measured_force - sim).max() <= unseen + 3e-9
