@@ -74,7 +74,10 @@ def test_probe_follows_the_scaled_master_and_the_hand_feels_the_scaled_force():
 def test_measured_source_recovers_the_simulated_force_without_noise():
     from arsurf.model import M_DECOUPLE_STATUS, M_SIM_FX
 
-    _, model, dev, loop = _setup(source="measured")
+    # press 10 nm, then slide 30 nm in 1 s (30 nm/s: sliding, above the friction velocity)
+    slide = (np.array([0.0, 2.0, 3.0, 10.0]),
+             np.array([[0, 0, 0], [0, 0, -1e-3], [3e-3, 0.5e-3, -1e-3], [3e-3, 0.5e-3, -1e-3]]))
+    _, model, dev, loop = _setup(source="measured", trajectory=slide)
     rows = []
     for _ in range(5000):
         st = dev.read_state()
