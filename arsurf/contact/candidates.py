@@ -294,6 +294,21 @@ def curvature_radius(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, t
 
 
 @njit(cache=True, inline="always")
+def box_offsets(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, x, y, z):
+    """(α_lo, α_hi, r_max) of a point C against an oriented box (frame n, t, s = n x t): the range
+    [ln - n·C, hn - n·C] of α = n·(S - C) over the box, and the largest in-plane distance
+    |r_⊥| from C to a corner of its (t, s) rectangle."""
+    sx = ny * tz - nz * ty
+    sy = nz * tx - nx * tz
+    sz = nx * ty - ny * tx
+    pn = nx * x + ny * y + nz * z
+    pt = tx * x + ty * y + tz * z
+    ps = sx * x + sy * y + sz * z
+    rp = math.sqrt(max((lt - pt) ** 2, (ht - pt) ** 2) + max((ls - ps) ** 2, (hs - ps) ** 2))
+    return ln - pn, hn - pn, rp
+
+
+@njit(cache=True, inline="always")
 def signed_convex(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv, sigma2,
                   lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, x, y, z):
     """True if the Hessian of D is certified positive definite on a patch for the point (x, y, z).
@@ -303,15 +318,7 @@ def signed_convex(kuu_lo, kuu_hi, kuv_lo, kuv_hi, kvv_lo, kvv_hi, tuu, tuv, tvv,
     |r_⊥| is bounded by the farthest corner of the box's (t, s) rectangle; then Weyl and
     Gershgorin as in :func:`net_curvature`.
     """
-    sx = ny * tz - nz * ty
-    sy = nz * tx - nx * tz
-    sz = nx * ty - ny * tx
-    pn = nx * x + ny * y + nz * z
-    pt = tx * x + ty * y + tz * z
-    ps = sx * x + sy * y + sz * z
-    a0 = ln - pn
-    a1 = hn - pn
-    rp = math.sqrt(max((lt - pt) ** 2, (ht - pt) ** 2) + max((ls - ps) ** 2, (hs - ps) ** 2))
+    a0, a1, rp = box_offsets(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, x, y, z)
     m11 = min(a0 * kuu_lo, a0 * kuu_hi, a1 * kuu_lo, a1 * kuu_hi) - rp * tuu
     m22 = min(a0 * kvv_lo, a0 * kvv_hi, a1 * kvv_lo, a1 * kvv_hi) - rp * tvv
     m12 = max(abs(a0 * kuv_lo), abs(a0 * kuv_hi), abs(a1 * kuv_lo), abs(a1 * kuv_hi)) + rp * tuv

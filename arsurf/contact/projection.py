@@ -79,7 +79,7 @@ from numba import njit, types
 from numba.experimental import structref
 
 from arsurf.contact.candidates import (
-    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, cell_certified, cell_net, curvature_radius, extents_bounds2,
+    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, box_offsets, cell_certified, cell_net, curvature_radius, extents_bounds2,
     net_curvature,
     net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
@@ -398,15 +398,7 @@ def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0
     k_lo = wu * wu * kuu0 + wv * wv * kvv0 + min(cuv * kuv0, cuv * kuv1)
     k_hi = wu * wu * kuu1 + wv * wv * kvv1 + max(cuv * kuv0, cuv * kuv1)
     tw = wu * wu * tuu + abs(cuv) * tuv + wv * wv * tvv
-    sx = ny * tz - nz * ty
-    sy = nz * tx - nx * tz
-    sz = nx * ty - ny * tx
-    pn = nx * cx + ny * cy + nz * cz
-    pt = tx * cx + ty * cy + tz * cz
-    ps = sx * cx + sy * cy + sz * cz
-    a0 = ln - pn
-    a1 = hn - pn
-    rp = math.sqrt(max((lt - pt) ** 2, (ht - pt) ** 2) + max((ls - ps) ** 2, (hs - ps) ** 2))
+    a0, a1, rp = box_offsets(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, cx, cy, cz)
     bound = jw * jw + max(a0 * k_lo, a0 * k_hi, a1 * k_lo, a1 * k_hi) + rp * tw
     return bound < -1e-9 * jw * jw
 
