@@ -1,6 +1,6 @@
 """``arsurf demo``: the whole system on a bundled scan, headless, in well under a minute.
 
-1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.manipulation.engage`):
+1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.instrument.engage`):
    the tip starts 5 um above the sample beside a nanotube of the bundled synthetic scan
    ``scans/nanotubes.npz`` and is brought into contact by nano/micro stage steps under a force
    limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
@@ -143,8 +143,8 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
     frame) from the stage positions and the deflection read on the photodiode,
     :math:`z = h_{probe} - z_{pico} - z_{micro} - z_{nano} + |S_n| \Delta V`.
     """
-    from arsurf.manipulation.engage import engage
-    from arsurf.manipulation.instrument import VirtualAFM
+    from arsurf.instrument.engage import engage
+    from arsurf.instrument.instrument import VirtualAFM
 
     z0 = VirtualAFM(scan, probe_height=0.0, tip_xy=(x, y)).surface_height
     afm = VirtualAFM(scan, probe_height=z0 + ENGAGE_FROM, tip_xy=(x, y), seed=seed)
@@ -157,7 +157,7 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
 
 def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=print) -> dict:
     """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary."""
-    from arsurf.manipulation.errors import ManipulationError
+    from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
     from arsurf.replay.session import SessionWriter, build_model, contact_fields, session_metadata

@@ -1,4 +1,8 @@
-"""Exceptions of arsurf: one base class, one subclass per problem a user can act on.
+"""Exceptions and warnings of arsurf: one base class, one subclass per problem a user can act on.
+
+Every exception arsurf raises on purpose is defined here (and nowhere else), so a caller can
+catch :class:`ArsurfError` or one family (``ScanError``, ``SessionError``...) without importing
+the module that raised it.
 
 Every message says the rule, the value received and the way out.
 """
@@ -15,6 +19,8 @@ class ScanError(ArsurfError):
 
 class ScanFileNotFound(ScanError, FileNotFoundError):
     """The scan file does not exist."""
+
+
 
 
 class UnknownFormat(ScanError):
@@ -36,12 +42,36 @@ class InvalidHeights(ScanError):
     """The height map has NaN/inf pixels or an unusable shape (the message says how to proceed)."""
 
 
+class MissingCalibration(ScanError):
+    """The file does not state its pixel spacing or height unit, and none was passed."""
+
+
+class LevelingError(ScanError, ValueError):
+    """A levelling request cannot be carried out (bad method, option, mask or too few pixels)."""
+
+
+class SmoothingError(ScanError, ValueError):
+    """A smoothing request cannot be carried out (bad width, truncation or input)."""
+
+
+class SyntheticError(ScanError, ValueError):
+    """A synthetic surface cannot be built from the parameters given."""
+
+
 class MissingDependency(ArsurfError, ImportError):
     """An optional extra is needed for this feature (the message names the pip extra)."""
 
 
 class SurfaceError(ArsurfError, ValueError):
     """Invalid surface data or query (NaN control points, NaN query point, bad shape)."""
+
+
+class ExportError(ArsurfError, ValueError):
+    """The surface cannot be meshed or written as asked (resolution, base height, file type)."""
+
+
+class MeshError(ArsurfError, ValueError):
+    """A mesh cannot be built from the dimensions given."""
 
 
 class ContactError(ArsurfError, ValueError):
@@ -56,8 +86,36 @@ class HapticsError(ArsurfError, ValueError):
     """Invalid haptic-loop setting (unstable filter, gains outside the admissible range...)."""
 
 
+class HapticsWarning(UserWarning):
+    """A haptic setting that works but is probably not what was meant (ringing filter, tight gains)."""
+
+
+class LoopError(ArsurfError):
+    """The step function raised inside the servo thread; the loop stopped (the cause is chained)."""
+
+
 class SessionError(ArsurfError):
     """A recorded session cannot be read or does not match its scan."""
+
+
+class SessionFileNotFound(SessionError, FileNotFoundError):
+    """The session file does not exist."""
+
+
+class ManipulationError(ArsurfError, ValueError):
+    """Invalid nano-object model input (non-positive tube length, load point off the beam...)."""
+
+
+class InstrumentError(ArsurfError, ValueError):
+    """Invalid virtual-instrument input (target outside a stage's travel, bad LSPB limits...)."""
+
+
+class ViewerError(ArsurfError, ValueError):
+    """Invalid input to the viewer (a scene state with a bad shape, an unknown layer or colouring)."""
+
+
+class RenderingUnavailable(ArsurfError, RuntimeError):
+    """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 
 
 def require(module: str, extra: str, feature: str):

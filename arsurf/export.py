@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import ArsurfError, require
+from arsurf.errors import ExportError, require
 from arsurf.spline.surface import BSplineSurface
 
 __all__ = ["ExportError", "EXPORT_FORMATS", "UNITS", "MESH_SCALE", "surface_mesh", "export_surface", "grid_faces"]
@@ -55,10 +55,6 @@ MAX_RESOLUTION = 4096
 # at least this fraction of the larger lateral extent (so a flat surface still has a body).
 _BASE_MARGIN = 0.1
 _BASE_MARGIN_LATERAL = 0.05
-
-
-class ExportError(ArsurfError, ValueError):
-    """The surface cannot be meshed or written as asked (resolution, base height, file type)."""
 
 
 def _resolution(surface: BSplineSurface, resolution) -> tuple[int, int]:

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import ArsurfError, require
+from arsurf.errors import MeshError, require
 
 __all__ = [
     "MeshError",
@@ -85,10 +85,6 @@ MESH_FILES = {
     "cantilever": "cantilever.stl",
     "nanotube": "nanotube.stl",
 }
-
-
-class MeshError(ArsurfError, ValueError):
-    """A mesh cannot be built from the dimensions given."""
 
 
 def _trimesh():

@@ -25,7 +25,8 @@ from numba import njit
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from arsurf.haptics.coupling import ForcePositionCoupling, fp_step, suggest_gains  # noqa: E402
+from arsurf.haptics.coupling import ForcePositionCoupling, fp_step  # noqa: E402
+from arsurf.haptics.gains import suggest_gains  # noqa: E402
 from arsurf.haptics.filters import ButterworthLowPass, LowPass, lowpass1_step, sos_step  # noqa: E402
 from arsurf.haptics.safety import SafetyLayer, safety_step  # noqa: E402
 from arsurf.haptics.scaling import PositionScaling, position_map_step  # noqa: E402

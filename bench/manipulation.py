@@ -17,8 +17,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import emit, stats, time_calls  # noqa: E402
 
-from arsurf.manipulation.engage import engage  # noqa: E402
-from arsurf.manipulation.instrument import VirtualAFM  # noqa: E402
+from arsurf.instrument.engage import engage  # noqa: E402
+from arsurf.instrument.instrument import VirtualAFM  # noqa: E402
 from arsurf.manipulation.nanotube import Nanotube, overlap_kernel, push, push_kernel  # noqa: E402
 from arsurf.manipulation.z_strategy import plan_z_pushes  # noqa: E402
 

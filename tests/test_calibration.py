@@ -21,7 +21,7 @@ from arsurf.force.calibration import (
     wedge_calibration,
     wedge_from_slopes,
 )
-from arsurf.force.scaling import signal_to_haptic_force_gain
+from arsurf.force.haptic_gains import signal_to_haptic_force_gain
 from arsurf.force.simulate import (
     simulate_approach_curve,
     simulate_thermal_trace,

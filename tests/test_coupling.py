@@ -9,15 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from arsurf.errors import HapticsError
-from arsurf.haptics.coupling import (
-    CLUTCHED,
-    DirectCoupling,
-    ForcePositionCoupling,
-    check_gains,
-    envelope_decay_ratio,
-    simulate_force_position,
-    suggest_gains,
-)
+from arsurf.haptics.coupling import CLUTCHED, DirectCoupling, ForcePositionCoupling
+from arsurf.haptics.coupling_simulation import envelope_decay_ratio, simulate_force_position
+from arsurf.haptics.gains import check_gains, suggest_gains
 from arsurf.haptics.device import BUTTON_1
 from arsurf.haptics.scaling import ForceScaling, PositionScaling
 from arsurf.haptics.virtual_device import HandModel, discretize_zoh

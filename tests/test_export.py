@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 
 trimesh = pytest.importorskip("trimesh", reason="the [mesh] extra (trimesh) is not installed")
 
-from arsurf.export import ExportError, export_surface, surface_mesh  # noqa: E402
+from arsurf.export import export_surface, surface_mesh  # noqa: E402
+from arsurf.errors import ExportError
 from arsurf.spline.surface import BSplineSurface  # noqa: E402
 
 DOMAIN = ((10e-9, 130e-9), (-20e-9, 60e-9))  # 120 x 80 nm, not at the origin

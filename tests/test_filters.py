@@ -9,7 +9,7 @@ import pytest
 from scipy import signal
 
 from arsurf.errors import HapticsError
-from arsurf.haptics.device import HapticsWarning
+from arsurf.errors import HapticsWarning
 from arsurf.haptics.filters import (
     ButterworthLowPass,
     LowPass,

@@ -6,16 +6,16 @@ import math
 import numpy as np
 import pytest
 
-from arsurf.manipulation.engage import engage
-from arsurf.manipulation.errors import InstrumentError
-from arsurf.manipulation.instrument import (
+from arsurf.instrument.engage import engage
+from arsurf.errors import InstrumentError
+from arsurf.instrument.instrument import (
     RECTANGULAR_NOISE,
     TRIANGULAR_NOISE,
     PhotodiodeNoise,
     VirtualAFM,
     expected_range,
 )
-from arsurf.manipulation.stages import MICRO_STAGE, NANO_STAGE, NANO_STAGE_XY, PICOCUBE, Stage
+from arsurf.instrument.stages import MICRO_STAGE, NANO_STAGE, NANO_STAGE_XY, PICOCUBE, Stage
 from arsurf.scan.scan import Scan
 from conftest import real_scan_path
 

@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from arsurf.errors import ScanError
-from arsurf.scan.level import LevelingError, level
+from arsurf.scan.level import level
+from arsurf.errors import LevelingError
 from arsurf.scan.scan import Scan
 from conftest import real_scan_path
 

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from arsurf.manipulation.errors import InstrumentError
-from arsurf.manipulation.lspb import LSPB, minimum_duration
+from arsurf.errors import InstrumentError
+from arsurf.instrument.lspb import LSPB, minimum_duration
 
 
 def check_profile(move: LSPB, vmax, amax, n=4001):

@@ -22,7 +22,7 @@ from arsurf.contact.maugis_dugdale import (
     md_solve_load,
     md_zero_radius_limit,
 )
-from arsurf.contact.models import DMT, JKR, Hertz
+from arsurf.contact.mechanics import DMT, JKR, Hertz
 from arsurf.errors import ContactError
 
 R = 20e-9          # m

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 from arsurf.manipulation.nanotube import Nanotube, push, rotation_centre
 from arsurf.manipulation.z_strategy import plan_z_pushes
 from arsurf.scan.scan import Scan

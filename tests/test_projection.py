@@ -1,4 +1,4 @@
-"""Closest point / collision (arsurf.contact.projection, arsurf.contact.candidates).
+"""Closest point / collision (arsurf.contact.projection, arsurf.contact.hull_tree).
 
 References that live here: analytic closest points (plane, paraboloid: both reproduced exactly
 by the bicubic fit), bounded linear least squares (plane with a boundary), the cubic equation of
@@ -19,7 +19,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.optimize import lsq_linear
 from scipy.spatial import cKDTree
 
-from arsurf.contact import candidates as cd
+from arsurf.contact import hull_tree as cd
 from arsurf.contact import projection as pj
 from arsurf.contact.projection import collide, collide_many, project, project_many, projector, refresh_region
 from arsurf.errors import ContactError, SurfaceError

@@ -15,7 +15,7 @@ from arsurf.errors import HapticsError, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.haptics.loop import L_F_PROBE, L_PROBE, HapticLoop, LoopConfig
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 from arsurf.manipulation.nanotube import Nanotube, rotation_centre
 from arsurf.manipulation.scene import FRICTION_PER_LENGTH, TubeScene, rigid_motion, tube_mask
 from arsurf.model import M_SIM_FX, ARModel

@@ -10,7 +10,8 @@ import pytest
 
 from arsurf.errors import HapticsError
 from arsurf.haptics.safety import SafetyLayer
-from arsurf.haptics.scheduler import LoopError, Scheduler
+from arsurf.haptics.scheduler import Scheduler
+from arsurf.errors import LoopError
 from arsurf.haptics.virtual_device import VirtualDevice
 
 

@@ -17,14 +17,8 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.replay import session as sm
-from arsurf.replay.session import (
-    TICK_FIELDS,
-    SessionFileNotFound,
-    SessionWriter,
-    load_session,
-    scan_sha256,
-    session_metadata,
-)
+from arsurf.replay.session import TICK_FIELDS, SessionWriter, load_session, scan_sha256, session_metadata
+from arsurf.errors import SessionFileNotFound
 
 R = 20e-9
 LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)

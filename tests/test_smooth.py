@@ -8,7 +8,8 @@ from hypothesis import assume, given, settings, strategies as st
 from arsurf.errors import ScanError
 from arsurf.scan.level import level
 from arsurf.scan.scan import Scan
-from arsurf.scan.smooth import SmoothingError, smooth
+from arsurf.scan.smooth import smooth
+from arsurf.errors import SmoothingError
 from conftest import real_scan_path
 
 

@@ -14,7 +14,8 @@ from arsurf.errors import ScanError
 from arsurf.scan import synthetic as syn
 from arsurf.scan.level import level
 from arsurf.scan.scan import Scan
-from arsurf.scan.synthetic import SEED000_STEPS, SyntheticError
+from arsurf.scan.synthetic import SEED000_STEPS
+from arsurf.errors import SyntheticError
 
 
 def _measure_step(scan: Scan, axis: str = "x", guard_px: int = 6) -> float:

@@ -14,7 +14,8 @@ import pytest
 
 from arsurf.spline.surface import BSplineSurface
 from arsurf_viewer.interactive import LAYER_SETS, StylusController, scripted_path
-from arsurf_viewer.state import SceneState, Tube, ViewerError
+from arsurf_viewer.state import SceneState, Tube
+from arsurf.errors import ViewerError
 
 R = 12e-9  # tip radius
 SIZE = (320, 240)  # small windows: llvmpipe renders them in a few ms

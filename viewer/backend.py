@@ -44,7 +44,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 
-from arsurf.errors import ArsurfError
+from arsurf.errors import RenderingUnavailable
 
 __all__ = ["RenderingUnavailable", "Backend", "Probe", "BACKENDS", "choose_backend", "has_display", "probe"]
 
@@ -61,10 +61,6 @@ _INSTALL_HINT = (
     "install the Debian packages for headless rendering with `sh tools/install-system-deps.sh` "
     "(libegl1 libegl-mesa0 libgl1-mesa-dri), or run under a display"
 )
-
-
-class RenderingUnavailable(ArsurfError, RuntimeError):
-    """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,8 @@ import numpy as np
 
 from arsurf.errors import require
 
-from .state import SceneState, ViewerError
+from .state import SceneState
+from arsurf.errors import ViewerError
 
 __all__ = ["Frames", "render_frames", "movie_support"]
 

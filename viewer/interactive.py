@@ -37,7 +37,8 @@ import numpy as np
 from arsurf.spline.surface import BSplineSurface
 
 from .backend import choose_backend, has_display
-from .state import SceneState, ViewerError
+from .state import SceneState
+from arsurf.errors import ViewerError
 
 __all__ = ["StylusController", "ContactPhysics", "scripted_path", "run_interactive", "view_scan", "LAYER_SETS"]
 

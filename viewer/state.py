@@ -22,14 +22,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from arsurf.errors import ArsurfError
+from arsurf.errors import ViewerError
 from arsurf.spline.surface import BSplineSurface
 
 __all__ = ["ViewerError", "SceneState", "Tube"]
-
-
-class ViewerError(ArsurfError, ValueError):
-    """Invalid input to the viewer (a scene state with a bad shape, an unknown layer or colouring)."""
 
 
 def _vec3(name: str, value, allow_none: bool = False) -> np.ndarray | None:

@@ -51,7 +51,8 @@ from arsurf.errors import require
 from arsurf.spline.surface import BSplineSurface
 
 from .backend import choose_backend
-from .state import SceneState, ViewerError
+from .state import SceneState
+from arsurf.errors import ViewerError
 
 __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 

@@ -91,7 +91,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from arsurf.contact.models import (
+from arsurf.contact.mechanics import (
     STATUS_INVALID,
     STATUS_NOT_CONVERGED,
     Branch,
@@ -531,7 +531,7 @@ class MDCriticalPoints:
 
 @dataclass(frozen=True)
 class MDState(ContactState):
-    """A Maugis-Dugdale equilibrium: :class:`~arsurf.contact.models.ContactState` plus the
+    """A Maugis-Dugdale equilibrium: :class:`~arsurf.contact.mechanics.ContactState` plus the
     adhesive zone.
 
     Attributes
@@ -576,7 +576,7 @@ class MaugisDugdale(ContactModel):
         :math:`E^*` with :math:`1/E^* = (1-\\nu_1^2)/E_1 + (1-\\nu_2^2)/E_2` (K = 4E*/3 is the other
         convention; the class converts).
     work_of_adhesion : float, J/m^2
-        w > 0 (for w = 0 use :class:`~arsurf.contact.models.Hertz`).
+        w > 0 (for w = 0 use :class:`~arsurf.contact.mechanics.Hertz`).
     dugdale_stress : float, pascals, optional
         :math:`\\sigma_0`; default :func:`arsurf.contact.materials.default_dugdale_stress` (w),
         the Lennard-Jones-matched :math:`16w/(9\\sqrt3 z_0)`.
@@ -738,7 +738,7 @@ class MaugisDugdale(ContactModel):
         """The stable equilibrium as an :class:`MDState` (radius, load, depth, flags, zone c, m).
 
         Exactly one of ``depth`` (displacement control; ``approach`` as in
-        :meth:`~arsurf.contact.models.ContactModel.contact_radius`) or ``load`` (load control).
+        :meth:`~arsurf.contact.mechanics.ContactModel.contact_radius`) or ``load`` (load control).
 
         Example
         -------

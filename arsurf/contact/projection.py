@@ -18,7 +18,7 @@ certificates:
 
 1. Newton from the hint (last tick's (u, v)) or, cold, from the foot of C on the mid-plane of
    the cell below it gives a surface point, hence an upper bound :math:`d^*` of the distance.
-2. The oriented hull-box pyramid of :mod:`arsurf.contact.candidates` is walked nearest-first; a
+2. The oriented hull-box pyramid of :mod:`arsurf.contact.hull_tree` is walked nearest-first; a
    box farther than :math:`d^*` cannot hold a closer point and is pruned with its subtree. A
    hint only tightens the first bound, so warm starting never hides a closer basin.
 3. A knot cell that survives is *certified convex* for this C when the Hessian of D is
@@ -78,7 +78,7 @@ import numpy as np
 from numba import njit, types
 from numba.experimental import structref
 
-from arsurf.contact.candidates import (
+from arsurf.contact.hull_tree import (
     HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, HullTree, box_offsets, cell_certified, cell_net, curvature_radius, extents_bounds2,
     net_curvature,
     net_extents, net_split, node_bounds2, node_distance2, signed_convex,
@@ -592,7 +592,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     ----------
     ctrl, ku, kv : (nu, nv, 3), (nu+4,), (nv+4,) float64
         Live control net and knots (:meth:`BSplineSurface.kernel_arrays`).
-    mu, mv, nodes, levels : the hull pyramid (:class:`arsurf.contact.candidates.HullTree`),
+    mu, mv, nodes, levels : the hull pyramid (:class:`arsurf.contact.hull_tree.HullTree`),
         current with ``ctrl`` (refreshed after every change of the net).
     work : (WORK_ROWS + 4 L, 3) float64
         Scratch and the warm-start candidate cache; one per thread (and per surface).
@@ -1027,7 +1027,7 @@ class Projector:
     def refresh_region(self, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
         """Update after control points ``ctrl[iu0:iu1, iv0:iv1]`` (half-open) moved; O(patch).
 
-        Numba callers use :func:`arsurf.contact.candidates.refresh_region_kernel` with
+        Numba callers use :func:`arsurf.contact.hull_tree.refresh_region_kernel` with
         ``(ctrl, tree.mu, tree.mv, tree.boxes, tree.levels, tree.rows, iu0, iu1, iv0, iv1)``.
         """
         self.tree.refresh_region(iu0, iu1, iv0, iv1)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from arsurf.errors import HapticsError
+from arsurf.errors import HapticsError, HapticsWarning
 
 __all__ = [
     "BUTTON_1",
@@ -44,9 +44,6 @@ __all__ = [
     "HapticsWarning",
     "sanitize_force",
 ]
-
-class HapticsWarning(UserWarning):
-    """A haptic setting that works but is probably not what was meant (ringing filter, tight gains)."""
 
 
 #: Bit of the first (front) stylus button in ``DeviceState.buttons``.

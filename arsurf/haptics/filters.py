@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 
 from arsurf.errors import HapticsError
-from arsurf.haptics.device import HapticsWarning
+from arsurf.errors import HapticsWarning
 
 __all__ = [
     "ButterworthLowPass",

@@ -54,13 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from arsurf.errors import ArsurfError, HapticsError
+from arsurf.errors import HapticsError, LoopError
 
 __all__ = ["LoopError", "Scheduler", "Snapshot", "TimingStats"]
-
-
-class LoopError(ArsurfError):
-    """The step function raised inside the servo thread; the loop stopped (the cause is chained)."""
 
 
 @dataclass(frozen=True)

@@ -75,7 +75,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 from arsurf.scan.scan import Scan
 
 # ------------------------------------------------------------------------------------------------

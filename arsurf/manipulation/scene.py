@@ -80,7 +80,7 @@ from typing import Mapping, Sequence
 import numpy as np
 from numba import njit
 
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 from arsurf.manipulation.nanotube import (PUSH_FALLBACK, PUSH_OK, PUSH_SUBSTEP_CAP, Nanotube, _centre, _seg_dist,
                                           push_kernel)
 from arsurf.scan.scan import Scan

@@ -57,7 +57,7 @@ from typing import Callable
 
 import numpy as np
 
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 
 
 def _finite_array(name: str, value, what: str) -> np.ndarray:

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arsurf.manipulation.errors import ManipulationError
+from arsurf.errors import ManipulationError
 from arsurf.manipulation.nanotube import Nanotube, push, rotation_centre
 
 

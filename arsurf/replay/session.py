@@ -124,7 +124,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from arsurf.errors import ScanFileNotFound, SessionError, require
+from arsurf.errors import ScanFileNotFound, SessionError, SessionFileNotFound, require
 
 __all__ = [
     "FORMAT",
@@ -149,10 +149,6 @@ FORMAT_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 #: md_status of a tick for which the loop gave none
 MD_STATUS_NOT_GIVEN = -99
-
-
-class SessionFileNotFound(SessionError, FileNotFoundError):
-    """The session file does not exist."""
 
 
 @dataclass(frozen=True)

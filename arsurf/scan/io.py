@@ -59,7 +59,7 @@ from arsurf.errors import (
     ScanFileNotFound,
     UnknownFormat,
 )
-from arsurf.scan.readers._common import MissingCalibration
+from arsurf.errors import MissingCalibration
 
 __all__ = ["load_scan", "save_scan", "detect_format", "FORMATS", "MissingCalibration"]
 

@@ -37,14 +37,10 @@ from numpy.polynomial import legendre as _leg
 from numpy.polynomial import polynomial as _poly
 from scipy import ndimage
 
-from arsurf.errors import ScanError
+from arsurf.errors import LevelingError
 from arsurf.scan.scan import Scan
 
 __all__ = ["level", "LevelingError", "METHODS"]
-
-
-class LevelingError(ScanError, ValueError):
-    """A levelling request cannot be carried out (bad method, option, mask or too few pixels)."""
 
 
 #: Options each method accepts (besides ``mask``); any other option given is an error.

@@ -13,14 +13,10 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from arsurf.errors import ScanError
+from arsurf.errors import SmoothingError
 from arsurf.scan.scan import Scan
 
 __all__ = ["smooth", "SmoothingError"]
-
-
-class SmoothingError(ScanError, ValueError):
-    """A smoothing request cannot be carried out (bad width, truncation or input)."""
 
 
 # Kernel half-width in standard deviations (scipy.ndimage's default): the truncated tail holds

@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from arsurf.errors import ScanError
+from arsurf.errors import SyntheticError
 from arsurf.scan.scan import Scan
 
 __all__ = [
@@ -36,10 +36,6 @@ __all__ = [
     "rough",
     "write_demo_scans",
 ]
-
-
-class SyntheticError(ScanError, ValueError):
-    """A synthetic surface cannot be built from the parameters given."""
 
 
 #: Step heights (m) of the three Z calibration gratings of seed 000 (section 2.3.1, Fig. 3),

@@ -23,14 +23,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from arsurf.errors import ChannelNotFound, CorruptScan, ScanError
+from arsurf.errors import ChannelNotFound, CorruptScan
 
 #: Largest image a reader accepts (pixels); a corrupt header must not make us allocate GiB.
 MAX_PIXELS = 1 << 28
-
-
-class MissingCalibration(ScanError):
-    """The file does not state its pixel spacing or height unit, and none was passed."""
 
 
 @dataclass

@@ -20,15 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import (
-    Channel,
-    MissingCalibration,
-    check_shape,
-    flip_rows,
-    make_scan,
-    parse_unit,
-    select_channel,
-)
+from arsurf.scan.readers._common import Channel, check_shape, flip_rows, make_scan, parse_unit, select_channel
+from arsurf.errors import MissingCalibration
 
 EXTENSIONS = (".txt", ".asc", ".dat", ".csv", ".mat")
 FORMAT = "ascii-matrix"

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import Channel, MissingCalibration, check_shape, jsonable, make_scan, select_channel
+from arsurf.scan.readers._common import Channel, check_shape, jsonable, make_scan, select_channel
+from arsurf.errors import MissingCalibration
 
 EXTENSIONS = (".npy",)
 FORMAT = "npy"

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arsurf.manipulation.errors import InstrumentError
-from arsurf.manipulation.lspb import LSPB
+from arsurf.errors import InstrumentError
+from arsurf.instrument.lspb import LSPB
 
 
 @dataclass(frozen=True)

@@ -44,9 +44,9 @@ import numpy as np
 from scipy.signal import lfilter
 from scipy.special import ndtr
 
-from arsurf.manipulation.errors import InstrumentError
-from arsurf.manipulation.lspb import LSPB
-from arsurf.manipulation.stages import MICRO_STAGE, NANO_STAGE, PICOCUBE, Stage
+from arsurf.errors import InstrumentError
+from arsurf.instrument.lspb import LSPB
+from arsurf.instrument.stages import MICRO_STAGE, NANO_STAGE, PICOCUBE, Stage
 from arsurf.scan.scan import Scan
 
 

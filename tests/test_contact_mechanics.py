@@ -11,7 +11,7 @@ from scipy.optimize import brentq
 
 from arsurf.contact.materials import MATERIALS, effective_modulus, work_of_adhesion
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.models import (
+from arsurf.contact.mechanics import (
     DMT,
     JKR,
     ContactModel,

@@ -9,7 +9,7 @@ Starting with the sample a few micrometres below the tip, the procedure repeats:
 3. otherwise lower the nano stage back to 0 and raise the micro stage by 0.16 um (80 % of the
    nano sweep).
 
-Every move goes through the stage's LSPB profile (:mod:`arsurf.manipulation.lspb`). The coarse
+Every move goes through the stage's LSPB profile (:mod:`arsurf.instrument.lspb`). The coarse
 step is smaller than the fine sweep, so after each coarse step the fine sweep re-covers the
 last 0.04 um it already checked: no height is skipped and the surface can never come closer
 than it was at the previous (checked) fine step. The micro stage's 0.05 um resolution turns the
@@ -22,7 +22,7 @@ A safety layer watches the force estimated from every sample of the signal (seed
 
 Example
 -------
->>> from arsurf.manipulation.instrument import VirtualAFM
+>>> from arsurf.instrument.instrument import VirtualAFM
 >>> afm = VirtualAFM(surface=0.0, probe_height=0.5e-6, seed=3)
 >>> result = engage(afm, setpoint=0.05, force_limit=25e-9)
 >>> result.engaged, bool(result.max_force < 25e-9)
@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arsurf.manipulation.errors import InstrumentError
-from arsurf.manipulation.instrument import InstrumentHistory, VirtualAFM
+from arsurf.errors import InstrumentError
+from arsurf.instrument.instrument import InstrumentHistory, VirtualAFM
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arsurf.manipulation.errors import InstrumentError
+from arsurf.errors import InstrumentError
 
 
 def _axes(name: str, value, n: int | None = None, positive: bool = False) -> np.ndarray:

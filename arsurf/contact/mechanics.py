@@ -35,7 +35,7 @@ Interface Sci. 150, 243 (1992).
 
 Example
 -------
->>> from arsurf.contact.models import Hertz, JKR
+>>> from arsurf.contact.mechanics import Hertz, JKR
 >>> h = Hertz(tip_radius=20e-9, effective_modulus=50e9)
 >>> round(h.contact_radius(depth=1e-9) * 1e9, 6)   # a = sqrt(R d)
 4.472136
