@@ -138,9 +138,15 @@ _EXPORTS = {
     "SessionWriter": "arsurf.replay.session",
     "load_session": "arsurf.replay.session",
     "replay": "arsurf.replay.replay",
-    "session_metadata": "arsurf.replay.session",
-    "build_model": "arsurf.replay.session",
-    "scan_sha256": "arsurf.replay.session",
+    # model assembly
+    "PRESETS": "arsurf.assembly",
+    "Preset": "arsurf.assembly",
+    "preset_metadata": "arsurf.assembly",
+    "session_metadata": "arsurf.assembly",
+    "build_model": "arsurf.assembly",
+    "build_loop": "arsurf.assembly",
+    "make_model": "arsurf.assembly",
+    "scan_sha256": "arsurf.assembly",
 }
 _SUBMODULES = {"synthetic": "arsurf.scan.synthetic", "meshes": "arsurf.meshes"}
 

@@ -149,7 +149,7 @@ def cmd_view(args) -> int:
     from arsurf.errors import require
 
     require("pyvista", "viewer", "arsurf view")
-    from arsurf.demo import BUNDLED_SCAN
+    from arsurf.assembly import BUNDLED_SCAN
 
     tip_radius = args.tip_radius_nm * 1e-9
     scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)

@@ -34,25 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.force.cantilever import Cantilever
-from arsurf.haptics.loop import HapticLoop, LoopConfig
+from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.model import M_NX, M_PX, M_RADIUS
 
-BUNDLED_SCAN = Path(__file__).resolve().parents[1] / "scans" / "nanotubes.npz"
-TIP_RADIUS = 20e-9
-#: demo sample: a soft, adhesive film (E* = 10 GPa, w = 0.1 J/m^2: a polymer-like Maugis-Dugdale
-#: contact with lambda ~ 0.5 that dents visibly) - see arsurf.contact.materials for real presets
-EFFECTIVE_MODULUS = 10e9
-WORK_OF_ADHESION = 0.1
-#: a common rectangular silicon contact lever (450 x 50 x 2.5 um, 15 um tip; k ~ 0.2 N/m)
-LEVER = dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6, youngs_modulus=169e9, poisson_ratio=0.27)
-RATE = 1000.0
-SCALE = 1e-5  # probe metres per stylus metre (1 mm -> 10 nm)
-#: hand newtons per probe newton: the hand feels the contact stiffness (~2E*a ~ 200 N/m) as
-#: FORCE_GAIN x 200 x SCALE = 200 N/m, passive with the 200 Hz filter; 1e6 made the stylus chatter
-FORCE_GAIN = 1e5
+#: the demo's model and haptic settings (tip, sample, lever, scaling, filter): one named preset
+DEMO = PRESETS["demo"]
+TIP_RADIUS = DEMO.tip_radius
+RATE = DEMO.haptics["rate"]
+SCALE = DEMO.haptics["scale"]  # probe metres per stylus metre (1 mm -> 10 nm)
 #: how far the scripted operator pushes the tube's end sideways (contact-point travel)
 PUSH = 50e-9
 #: the tip starts this far (centre to tube axis) beside the tube, and pushes this far from its end
@@ -160,27 +150,21 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, build_model, contact_fields, session_metadata
+    from arsurf.replay.session import SessionWriter, contact_fields
     from arsurf.scan.prepare import prepare_scan
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    contact = MaugisDugdale(TIP_RADIUS, EFFECTIVE_MODULUS, WORK_OF_ADHESION)
-    lever = Cantilever(**LEVER)
-    level, sigma = "plane", 2e-9
-    prepared = prepare_scan(scan_path, None, level, sigma, True)  # the scan the instrument and the tubes see
+    prepared = prepare_scan(scan_path, None, DEMO.level, DEMO.sigma, True)  # the scan the instrument and the tubes see
     try:
         tubes = TubeScene.from_scan(prepared).to_metadata()
     except ManipulationError:
         tubes = None  # not a synthetic nanotubes scan: a session without a scene
-    meta = session_metadata(scan=scan_path, tip_radius=TIP_RADIUS, contact=contact, cantilever=lever, friction=0.2,
-                            level=level, sigma=sigma, loop_rate=RATE,
-                            haptics={"coupling": "direct", "scale": SCALE, "force_gain": FORCE_GAIN, "source": "blended",
-                                     "filter_cutoff": 200.0, "signal_noise": 2e-7},
-                            **({"tubes": tubes} if tubes is not None else {}))
+    meta = preset_metadata(scan_path, DEMO, **({"tubes": tubes} if tubes is not None else {}))
     setup = build_model(meta)  # the same construction replay uses: bit-identical re-runs
     scan, surface, model, scene = setup.scan, setup.surface, setup.model, setup.scene
+    contact = model.contact
     progress(f"scan {scan_path} ({scan.shape[1]}x{scan.shape[0]} px) fitted: {surface.shape[0]}x{surface.shape[1]} "
              f"control points; Maugis lambda = {contact.maugis_parameter:.3f}"
              + (f"; {len(scene)} tubes are scene objects (the spline holds the substrate)" if scene else ""))
@@ -206,9 +190,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     z_hover = max(z_found, z_strip) if eng.engaged else z_strip
     origin = (x0, y0, z_hover + TIP_RADIUS + 8e-9)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
-    loop = HapticLoop.direct(model, dev.info, origin, scale=SCALE, force_gain=FORCE_GAIN,
-                             config=LoopConfig(rate=RATE, source="blended", filter_cutoff=200.0, signal_noise=2e-7,
-                                               seed=7), scene=scene, ramp_time=0.2)
+    loop = build_loop(model, meta["haptics"], dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
     n = int(seconds * RATE)
     writer = SessionWriter(out / "session.h5", meta)
     compute = np.empty(n)

@@ -78,6 +78,14 @@ class ContactError(ArsurfError, ValueError):
     """Invalid contact-mechanics input (non-positive radius, modulus, NaN depth...)."""
 
 
+class PositionError(SurfaceError, ContactError):
+    """A position (tip centre, query point) is not 3 finite coordinates in metres.
+
+    One cause, one class, whichever stage finds it (the projection or the model tick); it is both
+    a :class:`SurfaceError` and a :class:`ContactError` so callers of either family catch it.
+    """
+
+
 class ForceError(ArsurfError, ValueError):
     """Invalid cantilever, photodiode or decoupling input."""
 

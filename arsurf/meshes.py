@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf import _validation
 from arsurf.errors import MeshError, require
 
 __all__ = [
@@ -101,13 +102,7 @@ def _nm(mesh, length: float):
 
 
 def _positive(name: str, value, what: str) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise MeshError(f"`{name}` must be a number (got {value!r}); it is {what}") from None
-    if not (math.isfinite(x) and x > 0.0):
-        raise MeshError(f"`{name}` must be positive and finite (got {value!r}); it is {what}")
-    return x
+    return _validation.positive(value, name, MeshError, hint=f"it is {what}")
 
 
 def spherical_tip(radius: float = TIP_RADIUS, subdivisions: int = 3):

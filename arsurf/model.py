@@ -37,7 +37,7 @@ from numba import njit
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import deform_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale, md_contact_hysteresis_kernel
-from arsurf.errors import ContactError
+from arsurf.errors import ContactError, PositionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, DecouplingFlag,
                                      decouple_kernel, decoupling_parameters)
@@ -285,7 +285,8 @@ class ARModel:
         c = np.asarray(center, dtype=np.float64).reshape(-1)
         v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         if c.shape != (3,) or not np.isfinite(c).all():
-            raise ContactError(f"`center` must be 3 finite coordinates in metres (got {center!r})")
+            raise PositionError(f"center must be 3 finite coordinates in metres (got {center!r}); check the tip "
+                                "position source")
         if v.shape != (3,) or not np.isfinite(v).all():
             raise ContactError(f"`velocity` must be 3 finite components in m/s (got {velocity!r})")
         if signals is not None:

@@ -27,8 +27,8 @@ from _timing import emit, stats  # noqa: E402
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
 from arsurf.replay.replay import replay  # noqa: E402
-from arsurf.replay.session import (SessionWriter, build_model, contact_fields, load_session,  # noqa: E402
-                                   session_metadata)
+from arsurf.assembly import build_model, session_metadata  # noqa: E402
+from arsurf.replay.session import SessionWriter, contact_fields, load_session  # noqa: E402
 from arsurf.scan import synthetic  # noqa: E402
 from arsurf.scan.io import save_scan  # noqa: E402
 

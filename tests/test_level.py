@@ -382,7 +382,7 @@ def test_history_records_each_step_in_order(rng):
         (dict(method="polynomial", order=-1), r"`order` must be an integer >= 0 \(got -1\)"),
         (dict(method="polynomial", order=(1, 2, 3)), "pair"),
         (dict(method="plane-robust", loss="cauchy"), "`loss` must be 'tukey' or 'huber'"),
-        (dict(method="plane-robust", tuning=-1.0), "`tuning` must be a positive"),
+        (dict(method="plane-robust", tuning=-1.0), "tuning must be positive"),
         (dict(method="scars", threshold=2.0, threshold_low=3.0), "must not exceed `threshold`"),
         (dict(method="scars", max_width=0), r"`max_width` must be an integer >= 1 \(got 0\)"),
         (dict(mask=np.zeros((3, 3), bool)), r"`mask` must have the scan's shape \(10, 12\) \(got \(3, 3\)\)"),

@@ -99,7 +99,7 @@ def test_tube_validation_messages():
         Nanotube(-1e-6, 10e-9)
     with pytest.raises(ManipulationError, match="angle must be finite"):
         Nanotube(1e-6, 10e-9, angle=float("nan"))
-    with pytest.raises(ManipulationError, match="diameter must be a real number"):
+    with pytest.raises(ManipulationError, match="diameter must be a number"):
         Nanotube(1e-6, "wide")
 
 

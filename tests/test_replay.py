@@ -19,7 +19,8 @@ from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.replay import plots
 from arsurf.replay.replay import REPLAY_FIELDS, load_replay, replay
-from arsurf.replay.session import SessionWriter, contact_fields, load_session, session_metadata
+from arsurf.assembly import session_metadata
+from arsurf.replay.session import SessionWriter, contact_fields, load_session
 from arsurf.scan import synthetic
 from arsurf.scan.io import save_scan
 from arsurf.spline.fit import fit_surface
@@ -269,7 +270,7 @@ def test_scan_hash_mismatch_names_both_hashes(recording, tmp_path):
     other = _sinusoid()
     other = type(other)(other.heights + 1e-12, dx=other.dx, dy=other.dy)
     wrong = save_scan(other, tmp_path / "other.npz")
-    from arsurf.replay.session import scan_sha256
+    from arsurf.assembly import scan_sha256
 
     with pytest.raises(SessionError, match=rf"SHA-256 {scan_sha256(wrong)}.*SHA-256 {recording.meta['scan']['sha256']}"):
         replay(recording.session, wrong, tmp_path / "out", progress=False)

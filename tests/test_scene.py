@@ -317,7 +317,8 @@ def test_loop_refuses_a_scene_without_tick():
 
 def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     from arsurf.replay.replay import load_replay, replay
-    from arsurf.replay.session import SessionWriter, build_model, contact_fields, load_session, session_metadata
+    from arsurf.assembly import build_model, session_metadata
+    from arsurf.replay.session import SessionWriter, contact_fields, load_session
     from arsurf.scan.io import save_scan
     from arsurf.scan.prepare import prepare_scan
 
@@ -361,7 +362,8 @@ SESSION_BASE = dict(scan={"path": "x.npz", "sha256": "0" * 64, "channel": None,
 def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
     import h5py
 
-    from arsurf.replay.session import SessionWriter, load_session, session_metadata
+    from arsurf.assembly import session_metadata
+    from arsurf.replay.session import SessionWriter, load_session
 
     scene = TubeScene.from_scan(one_tube_scan(far=True))
     meta = session_metadata(**SESSION_BASE, tubes=scene.to_metadata())
@@ -386,7 +388,8 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
 
 
 def test_session_tube_poses_need_a_scene(tmp_path):
-    from arsurf.replay.session import SessionWriter, session_metadata
+    from arsurf.assembly import session_metadata
+    from arsurf.replay.session import SessionWriter
 
     base = SESSION_BASE
     with pytest.raises(SessionError, match="tube_poses needs a tube scene"):

@@ -17,7 +17,8 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.replay import session as sm
-from arsurf.replay.session import TICK_FIELDS, SessionWriter, load_session, scan_sha256, session_metadata
+from arsurf.assembly import scan_sha256, session_metadata
+from arsurf.replay.session import TICK_FIELDS, SessionWriter, load_session
 from arsurf.errors import SessionFileNotFound
 
 R = 20e-9
@@ -120,7 +121,9 @@ def test_metadata_builds_the_recorded_model_objects_exactly():
                                "youngs_modulus": 169e9, "poisson_ratio": 0.27,
                                "normal_stiffness": LEVER.normal_stiffness,
                                "torsional_stiffness": LEVER.torsional_stiffness, "beta": LEVER.beta}
-    tip, md, lever, friction, deform = sm._model_parts(json.loads(json.dumps(m)))
+    from arsurf import assembly
+
+    tip, md, lever, friction, deform = assembly._model_parts(json.loads(json.dumps(m)))
     assert lever == LEVER  # dataclass equality: every field identical after the JSON round trip
     assert md.kernel_args == MD.kernel_args and tip == R and friction == 0.25 and deform is True
     assert m["contact"]["dugdale_stress"] == MD.dugdale_stress

@@ -571,7 +571,7 @@ def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
     import time as _time
 
     from arsurf.contact.maugis_dugdale import MaugisDugdale
-    from arsurf.demo import LEVER
+    from arsurf.assembly import LEVER
     from arsurf.force.cantilever import Cantilever
     from arsurf.haptics.loop import HapticLoop
     from arsurf.haptics.virtual_device import HandModel, VirtualDevice

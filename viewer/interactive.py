@@ -156,17 +156,15 @@ class ContactPhysics:
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, *, tip_material="Si",
                  sample_material="polystyrene", deform: bool = True, scene=None):
+        from arsurf.assembly import make_model
         from arsurf.contact.materials import effective_modulus, work_of_adhesion
-        from arsurf.contact.maugis_dugdale import MaugisDugdale
-        from arsurf.demo import LEVER
-        from arsurf.force.cantilever import Cantilever
-        from arsurf.model import ARModel
 
         self.surface = surface
         self.tip_radius = float(tip_radius)
-        self.contact = MaugisDugdale(self.tip_radius, effective_modulus(tip_material, sample_material),
-                                     work_of_adhesion(tip_material, sample_material))
-        self.model = ARModel(surface, self.tip_radius, self.contact, Cantilever(**LEVER), deform=deform)
+        self.model = make_model(surface, tip_radius=self.tip_radius,
+                                effective_modulus=effective_modulus(tip_material, sample_material),
+                                work_of_adhesion=work_of_adhesion(tip_material, sample_material), deform=deform)
+        self.contact = self.model.contact
         self.status = f"keyboard · {tip_material} on {sample_material}"
         if scene is not None and not (callable(getattr(scene, "tick", None)) and hasattr(scene, "viewer_tubes")):
             raise ViewerError(f"`scene` must be an arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")

@@ -97,21 +97,21 @@ def bridge_loop(surface, tip_radius: float, *, port: int = 47474, scale: float =
     AR model on ``surface`` (Si tip on polystyrene unless ``contact`` is given) and the direct
     coupling (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client
     sends first maps to ``start`` (default: 2.5 R above the middle of the surface)."""
-    from arsurf.contact.materials import effective_modulus, work_of_adhesion
-    from arsurf.contact.maugis_dugdale import MaugisDugdale
-    from arsurf.demo import LEVER
-    from arsurf.force.cantilever import Cantilever
-    from arsurf.haptics.loop import HapticLoop
+    from arsurf.assembly import PRESETS, build_loop, make_model
     from arsurf.haptics.udp_bridge import UdpBridgeDevice
-    from arsurf.model import ARModel
 
+    p = PRESETS["viewer"]
     if contact is None:
-        contact = MaugisDugdale(tip_radius, effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene"))
-    model = ARModel(surface, tip_radius, contact, Cantilever(**LEVER))
+        model = make_model(surface, tip_radius=tip_radius, effective_modulus=p.effective_modulus,
+                           work_of_adhesion=p.work_of_adhesion)
+    else:
+        model = make_model(surface, tip_radius=tip_radius, effective_modulus=contact.effective_modulus,
+                           work_of_adhesion=contact.work_of_adhesion, dugdale_stress=contact.dugdale_stress)
     if start is None:
         (u0, u1), (v0, v1) = surface.domain
         cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
         start = (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
     device = UdpBridgeDevice(port=port)
-    loop = HapticLoop.direct(model, device.info, start, scale=scale, force_gain=force_gain)
+    loop = build_loop(model, {"scale": scale, "force_gain": force_gain, "source": "simulated", "filter_cutoff": 200.0,
+                              "signal_noise": 0.0}, device.info, start)
     return LiveLoop(loop, device)

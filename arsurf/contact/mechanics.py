@@ -53,6 +53,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
+from arsurf import _validation
 from arsurf.errors import ContactError
 
 __all__ = [
@@ -129,25 +130,11 @@ class ContactState:
 # ---------------------------------------------------------------------------------------------
 
 def _positive(value, name: str, unit: str, meaning: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ContactError(f"`{name}` must be a number in {unit} (got {value!r}); it is {meaning}") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ContactError(f"`{name}` must be positive and finite (got {v!r} {unit}); it is {meaning}")
-    return v
+    return _validation.positive(value, name, ContactError, unit=unit, hint=f"it is {meaning}")
 
 
 def _non_negative(value, name: str, unit: str, meaning: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ContactError(f"`{name}` must be a number in {unit} (got {value!r}); it is {meaning}") from None
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ContactError(
-            f"`{name}` must be >= 0 and finite (got {v!r} {unit}); it is {meaning}"
-        )
-    return v
+    return _validation.non_negative(value, name, ContactError, unit=unit, hint=f"it is {meaning}")
 
 
 def _finite_array(value, name: str, meaning: str) -> tuple[np.ndarray, bool]:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from arsurf import _validation
 from arsurf.errors import ForceError
 
 __all__ = [
@@ -145,15 +146,7 @@ def torsional_stiffness_from_geometry(
 
 def _check_positive(**values: float) -> None:
     for name, value in values.items():
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ForceError(f"{name} must be a positive number (got {value!r})") from None
-        if not (math.isfinite(v) and v > 0.0):
-            raise ForceError(
-                f"{name} must be positive and finite (got {value!r}); cantilever geometry and "
-                "moduli are SI (metres, pascals)"
-            )
+        _validation.positive(value, name, ForceError, hint="cantilever geometry and moduli are SI (metres, pascals)")
 
 
 @dataclass(frozen=True)

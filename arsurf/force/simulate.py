@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf import _validation
 from arsurf.errors import ForceError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.photodiode import Photodiode, quadrants_from_signals
@@ -44,23 +45,11 @@ def _rng(seed) -> np.random.Generator:
 
 
 def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ForceError(f"{name} must be a positive number (got {value!r})") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ForceError(f"{name} must be positive and finite (got {value!r})")
-    return v
+    return _validation.positive(value, name, ForceError)
 
 
 def _non_negative(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ForceError(f"{name} must be a number >= 0 (got {value!r})") from None
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ForceError(f"{name} must be >= 0 and finite (got {value!r})")
-    return v
+    return _validation.non_negative(value, name, ForceError)
 
 
 @dataclass(frozen=True)

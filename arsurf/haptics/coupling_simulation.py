@@ -132,6 +132,7 @@ def simulate_force_position(coupling: ForcePositionCoupling, *, mass, damping, e
 
     Example
     -------
+    >>> from arsurf.haptics.gains import suggest_gains
     >>> g = suggest_gains(mass=1/300, damping=1/30, dt=1e-3, A_f=1e7, A_d=1e5, env_stiffness=10.0)
     >>> c = ForcePositionCoupling(**g, A_f=1e7, A_d=1e5, dt=1e-3, slave_tau=(1e-4, 2e-5))
     >>> sim = simulate_force_position(c, mass=1/300, damping=1/30, env_stiffness=10.0, duration=1.0)

@@ -42,6 +42,7 @@ import warnings
 import numpy as np
 from numba import njit
 
+from arsurf import _validation
 from arsurf.errors import HapticsError
 from arsurf.errors import HapticsWarning
 
@@ -60,13 +61,7 @@ _NONFINITE = 1
 
 
 def _positive(value, name: str, unit: str, hint: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise HapticsError(f"{name} must be a number in {unit} (got {value!r}); {hint}") from exc
-    if not (v > 0.0 and math.isfinite(v)):
-        raise HapticsError(f"{name} must be positive and finite (got {value!r} {unit}); {hint}")
-    return v
+    return _validation.positive(value, name, HapticsError, unit=unit, hint=hint)
 
 
 def lowpass_alpha(cutoff: float, dt: float) -> float:

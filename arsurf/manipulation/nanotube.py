@@ -75,6 +75,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
+from arsurf import _validation
 from arsurf.errors import ManipulationError
 from arsurf.scan.scan import Scan
 
@@ -378,20 +379,11 @@ def overlap_kernel(cx, cy, th, L, radius, zaxis, qx, qy, qz, tip_radius):
 
 
 def _finite(name: str, value, what: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ManipulationError(f"{name} must be a real number ({what}) (got {value!r})") from None
-    if not math.isfinite(v):
-        raise ManipulationError(f"{name} must be finite ({what}) (got {v!r})")
-    return v
+    return _validation.finite(value, name, ManipulationError, hint=f"it is {what}")
 
 
 def _positive(name: str, value, what: str) -> float:
-    v = _finite(name, value, what)
-    if v <= 0.0:
-        raise ManipulationError(f"{name} must be positive ({what}) (got {v!r})")
-    return v
+    return _validation.positive(value, name, ManipulationError, hint=f"it is {what}")
 
 
 def _wrap(angle: float) -> float:

@@ -3,7 +3,7 @@ r"""Offline replay: re-run the model over a recorded session and write what it c
 :func:`replay` (and ``arsurf replay SESSION --scan SCAN --out DIR``) loads a session
 (:mod:`arsurf.replay.session`), checks that the scan file is the one it was recorded on (SHA-256
 of the bytes), rebuilds the surface and the :class:`~arsurf.model.ARModel` exactly as recorded
-(:func:`~arsurf.replay.session.build_model`), runs the model over every recorded tick - tip
+(:func:`~arsurf.assembly.build_model`), runs the model over every recorded tick - tip
 centre, tip velocity and, where both are finite, the measured (bending, torsion) signals - and
 writes into ``DIR``:
 
@@ -87,16 +87,8 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import SessionError, require
-from arsurf.replay.session import (
-    MD_STATUS_NOT_GIVEN,
-    Session,
-    TickField,
-    build_model,
-    load_session,
-    read_h5,
-    scan_sha256,
-    write_h5,
-)
+from arsurf.assembly import build_model, scan_sha256
+from arsurf.replay.session import MD_STATUS_NOT_GIVEN, Session, TickField, load_session, read_h5, write_h5
 
 __all__ = ["replay", "ReplayResult", "load_replay", "REPLAY_FIELDS", "REPLAY_FORMAT", "register", "cmd_replay"]
 

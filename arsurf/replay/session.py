@@ -23,7 +23,7 @@ attribute            type      meaning
 ``aborted``          str       only when ``complete`` is False: why the recording stopped
 ===================  ========  ===============================================================
 
-Group ``/metadata``: one attribute per key, its value a JSON text (:func:`session_metadata`
+Group ``/metadata``: one attribute per key, its value a JSON text (:func:`arsurf.assembly.session_metadata`
 builds it):
 
 ==========================  ===================================================================
@@ -48,7 +48,7 @@ key                         JSON value
                             them: ``{"tubes": [{"length", "diameter", "x", "y", "angle",
                             "base"}, ...] (the initial poses, m and rad), "friction_per_length"
                             (N/m), "middle_band", "max_substep" (m|null), "max_substeps",
-                            "substrate_margin" (m|null)}``. :func:`build_model` then fits the
+                            "substrate_margin" (m|null)}``. :func:`arsurf.assembly.build_model` then fits the
                             substrate (tube pixels masked and inpainted) and rebuilds the scene
 any other key               free JSON, kept as is
 ==========================  ===================================================================
@@ -99,6 +99,7 @@ Example
 >>> from arsurf.force.cantilever import Cantilever
 >>> from arsurf.contact.maugis_dugdale import MaugisDugdale
 >>> d = tempfile.mkdtemp()
+>>> from arsurf.assembly import session_metadata
 >>> meta = session_metadata(scan={"path": "scan.npz", "sha256": "0" * 64, "channel": None,
 ...                               "processing": {"level": "plane", "sigma": 0.0, "inpaint": True}},
 ...                         tip_radius=20e-9, contact=MaugisDugdale(20e-9, 50e9, 0.1),
@@ -112,9 +113,7 @@ Example
 """
 from __future__ import annotations
 
-import dataclasses
 import datetime
-import hashlib
 import json
 import math
 import os
@@ -124,7 +123,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from arsurf.errors import ScanFileNotFound, SessionError, SessionFileNotFound, require
+from arsurf.assembly import _jsonable, check_metadata, tube_count
+from arsurf.errors import SessionError, SessionFileNotFound, require
 
 __all__ = [
     "FORMAT",
@@ -136,11 +136,7 @@ __all__ = [
     "SessionFileNotFound",
     "SessionWriter",
     "load_session",
-    "scan_sha256",
-    "session_metadata",
     "contact_fields",
-    "build_model",
-    "ModelSetup",
     "TUBE_POSES",
 ]
 
@@ -195,286 +191,11 @@ TICK_FIELDS: tuple[TickField, ...] = (
 #: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
 TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick")
 _REQUIRED_TICK = ("t", "probe_position")
-_REQUIRED_META = ("scan", "tip_radius", "contact", "friction", "cantilever")
-_CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
-                    "normal_stiffness", "torsional_stiffness", "beta")
 _INITIAL_CAPACITY = 1024
 
 
 def _h5py():
     return require("h5py", "core", "session files")
-
-
-# ---------------------------------------------------------------------------------------------
-# metadata
-
-
-def scan_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 (hex) of a file's bytes, read in 1 MiB blocks.
-
-    Raises
-    ------
-    ScanFileNotFound
-        The file does not exist.
-
-    Example
-    -------
-    >>> import tempfile, os
-    >>> p = os.path.join(tempfile.mkdtemp(), "x.bin")
-    >>> _ = open(p, "wb").write(b"abc")
-    >>> scan_sha256(p)[:16]
-    'ba7816bf8f01cfea'
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise ScanFileNotFound(f"scan file {str(p)!r} does not exist (or is not a file); pass the scan the "
-                               "session was recorded on")
-    h = hashlib.sha256()
-    with open(p, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _jsonable(obj: Any, where: str) -> Any:
-    """Plain JSON types from numpy scalars/arrays, tuples, paths, dataclasses; finite floats only."""
-    if isinstance(obj, Mapping):
-        out = {}
-        for k, v in obj.items():
-            if not isinstance(k, str):
-                raise SessionError(f"metadata keys must be strings (got {k!r} in {where})")
-            out[k] = _jsonable(v, f"{where}.{k}")
-        return out
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return _jsonable(dataclasses.asdict(obj), where)
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist(), where)
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        x = float(obj)
-        if not math.isfinite(x):
-            raise SessionError(f"metadata value {where} is {x!r}: JSON has no NaN/inf; use None for unknown values")
-        return x
-    if obj is None or isinstance(obj, str):
-        return obj
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    raise SessionError(f"metadata value {where} is a {type(obj).__name__} ({obj!r}), which JSON cannot hold; "
-                       "pass numbers, strings, booleans, None, lists or dicts")
-
-
-def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, contact, cantilever,
-                     friction: float = 0.2, deform: bool = True, channel: str | None = None,
-                     level: str = "plane", sigma: float = 0.0, inpaint: bool = True,
-                     control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
-                     calibration: Mapping | None = None, haptics: Mapping | None = None,
-                     loop_rate: float | None = None, **extra) -> dict:
-    """The metadata dict of a session, checked and JSON-ready.
-
-    Parameters
-    ----------
-    scan : path-like or dict
-        The scan file (its SHA-256 is computed here, and the processing is taken from
-        ``channel``, ``level``, ``sigma``, ``inpaint``, ``control_shape``, ``smoothing``: the
-        arguments of :func:`arsurf.scan.prepare.prepare_scan` and :func:`arsurf.fit_surface`), or a
-        complete ``scan`` dict as in the schema.
-    tip_radius : float, metres
-    contact : MaugisDugdale or dict
-        The contact law (or ``{"effective_modulus", "work_of_adhesion", "dugdale_stress"}``).
-    cantilever : Cantilever or dict
-        The cantilever (or its constructor arguments).
-    friction : float
-        Coefficient of the model's simulated friction.
-    deform : bool
-        Whether the model dents the surface.
-    calibration, haptics : dict, optional
-        Free JSON objects.
-    loop_rate : float, Hz, optional
-    **extra
-        More JSON values to keep.
-
-    Returns
-    -------
-    dict
-        Validated metadata (a model can be built from it: :func:`build_model`).
-
-    Raises
-    ------
-    SessionError
-        A required value is missing or invalid, or a value cannot be stored as JSON.
-    """
-    if isinstance(scan, Mapping):
-        scan_meta = dict(scan)
-    else:
-        scan_meta = {
-            "path": os.fspath(scan), "sha256": scan_sha256(scan), "channel": channel,
-            "processing": {"level": level, "sigma": sigma, "inpaint": inpaint,
-                           "control_shape": control_shape, "smoothing": smoothing},
-        }
-    if isinstance(contact, Mapping):
-        contact_meta = dict(contact)
-    else:
-        contact_meta = {"effective_modulus": contact.effective_modulus,
-                        "work_of_adhesion": contact.work_of_adhesion,
-                        "dugdale_stress": contact.dugdale_stress}
-    if isinstance(cantilever, Mapping):
-        lever_meta = dict(cantilever)
-    else:
-        lever_meta = {name: getattr(cantilever, name) for name in _CANTILEVER_ARGS}
-    meta = {"scan": scan_meta, "tip_radius": tip_radius, "contact": contact_meta, "friction": friction,
-            "deform": deform, "cantilever": lever_meta, "calibration": dict(calibration or {}),
-            "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
-    meta = _jsonable(meta, "metadata")
-    check_metadata(meta)
-    return meta
-
-
-def _need(d: Mapping, key: str, where: str):
-    if not isinstance(d, Mapping) or key not in d:
-        raise SessionError(f"session metadata lacks {where}.{key}; record it with arsurf.replay.session_metadata")
-    return d[key]
-
-
-def check_metadata(meta: Mapping) -> None:
-    """Raise :class:`SessionError` unless ``meta`` describes a model that can be rebuilt."""
-    if not isinstance(meta, Mapping):
-        raise SessionError(f"session metadata must be a dict (got {type(meta).__name__})")
-    missing = [k for k in _REQUIRED_META if k not in meta]
-    if missing:
-        raise SessionError(f"session metadata lacks {missing}; build it with arsurf.replay.session_metadata")
-    scan = meta["scan"]
-    path = _need(scan, "path", "scan")
-    if not isinstance(path, str) or not path:
-        raise SessionError(f"metadata scan.path must be a non-empty string (got {path!r})")
-    digest = _need(scan, "sha256", "scan")
-    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
-        raise SessionError(f"metadata scan.sha256 must be 64 lowercase hex digits (got {digest!r}); "
-                           "compute it with arsurf.replay.scan_sha256(path)")
-    channel = scan.get("channel")
-    if channel is not None and not isinstance(channel, str):
-        raise SessionError(f"metadata scan.channel must be a string or null (got {channel!r})")
-    proc = _need(scan, "processing", "scan")
-    lv = _need(proc, "level", "scan.processing")
-    if not isinstance(lv, str):
-        raise SessionError(f"metadata scan.processing.level must be a method name (got {lv!r})")
-    sg = _need(proc, "sigma", "scan.processing")
-    if isinstance(sg, bool) or not isinstance(sg, (int, float)) or not sg >= 0.0:
-        raise SessionError(f"metadata scan.processing.sigma must be >= 0 metres (got {sg!r})")
-    ip = _need(proc, "inpaint", "scan.processing")
-    if not isinstance(ip, bool):
-        raise SessionError(f"metadata scan.processing.inpaint must be true or false (got {ip!r})")
-    cs = proc.get("control_shape")
-    if cs is not None and not (isinstance(cs, (list, tuple)) and len(cs) == 2
-                               and all(isinstance(c, int) and not isinstance(c, bool) and c >= 4 for c in cs)):
-        raise SessionError(f"metadata scan.processing.control_shape must be null or two integers >= 4 (got {cs!r})")
-    sm = proc.get("smoothing", 0.0)
-    if isinstance(sm, bool) or not isinstance(sm, (int, float)) or not sm >= 0.0:
-        raise SessionError(f"metadata scan.processing.smoothing must be >= 0 (got {sm!r})")
-    lever = meta["cantilever"]
-    if not isinstance(lever, Mapping):
-        raise SessionError(f"metadata cantilever must be an object of constructor arguments (got {lever!r})")
-    unknown = sorted(set(lever) - set(_CANTILEVER_ARGS))
-    if unknown:
-        raise SessionError(f"metadata cantilever has unknown arguments {unknown}; allowed: {list(_CANTILEVER_ARGS)}")
-    for k in ("effective_modulus", "work_of_adhesion"):
-        _need(meta["contact"], k, "contact")
-    _model_parts(meta)  # builds the contact law and the cantilever: their own checks apply
-    _tube_scene(meta)
-
-
-def _tube_scene(meta: Mapping):
-    """The :class:`~arsurf.manipulation.scene.TubeScene` of the metadata (None without ``tubes``)."""
-    spec = meta.get("tubes")
-    if spec is None:
-        return None
-    from arsurf.errors import ArsurfError
-    from arsurf.manipulation.scene import TubeScene
-
-    try:
-        return TubeScene.from_metadata(spec)
-    except (ArsurfError, TypeError, ValueError) as exc:
-        raise SessionError(f"metadata tubes does not describe a tube scene: {exc}") from exc
-
-
-def _tube_count(meta: Mapping) -> int | None:
-    """Number of tubes of the metadata's scene (None without ``tubes``); metadata checked."""
-    spec = meta.get("tubes")
-    return None if spec is None else len(spec["tubes"])
-
-
-def _model_parts(meta: Mapping):
-    """(tip_radius, MaugisDugdale, Cantilever, friction, deform) from checked metadata."""
-    from arsurf.contact.maugis_dugdale import MaugisDugdale
-    from arsurf.errors import ArsurfError
-    from arsurf.force.cantilever import Cantilever
-
-    c = meta["contact"]
-    try:
-        tip_radius = float(meta["tip_radius"])
-        md = MaugisDugdale(tip_radius, c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"))
-        lever = Cantilever(**meta["cantilever"])
-        friction = float(meta["friction"])
-    except (ArsurfError, TypeError, ValueError) as exc:
-        raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
-    if not (math.isfinite(friction) and friction >= 0.0):
-        raise SessionError(f"metadata friction must be >= 0 (got {friction!r})")
-    return tip_radius, md, lever, friction, bool(meta.get("deform", True))
-
-
-@dataclass(frozen=True)
-class ModelSetup:
-    """What :func:`build_model` made: the processed scan (the substrate when there is a tube scene),
-    the fitted (live) surface, the model, and the tube scene (None without ``tubes`` metadata)."""
-
-    scan: Any
-    surface: Any
-    model: Any
-    scene: Any = None
-
-
-def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
-    """Rebuild the recording's model: prepare the scan as recorded, fit it, make the ARModel.
-
-    The steps are exactly those of the recording (:func:`arsurf.scan.prepare.prepare_scan` with the
-    recorded channel, levelling, smoothing and inpainting, then :func:`arsurf.fit_surface`
-    with the recorded control shape and smoothing). A live loop that builds its model with this
-    function is guaranteed to be replayed bit for bit.
-
-    Parameters
-    ----------
-    metadata : dict
-        Session metadata (:func:`session_metadata`).
-    scan_path : path-like, optional
-        The scan file; default ``metadata["scan"]["path"]``. Its hash is not checked here
-        (:func:`arsurf.replay.replay.replay` does).
-
-    Returns
-    -------
-    ModelSetup
-    """
-    check_metadata(metadata)
-    from arsurf.scan.prepare import prepare_scan  # the one definition of the scan preprocessing
-    from arsurf.model import ARModel
-    from arsurf.spline.fit import fit_surface
-
-    scan_meta = metadata["scan"]
-    proc = scan_meta["processing"]
-    path = scan_meta["path"] if scan_path is None else scan_path
-    scan = prepare_scan(path, scan_meta.get("channel"), proc["level"], float(proc["sigma"]), bool(proc["inpaint"]))
-    scene = _tube_scene(metadata)
-    if scene is not None:  # the tubes are scene objects: the spline holds only the substrate
-        scan = scene.substrate(scan)
-    cs = proc.get("control_shape")
-    surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
-                          smoothing=float(proc.get("smoothing", 0.0)))
-    tip_radius, md, lever, friction, deform = _model_parts(metadata)
-    model = ARModel(surface, tip_radius, md, lever, friction=friction, deform=deform)
-    return ModelSetup(scan, surface, model, scene)
 
 
 def contact_fields(tick) -> dict:
@@ -551,7 +272,7 @@ class SessionWriter:
     path : path-like
         The session file (``.h5``); written only at :meth:`close`, via ``<path>.part``.
     metadata : dict
-        Session metadata (:func:`session_metadata`); checked here, so a recording that could
+        Session metadata (:func:`arsurf.assembly.session_metadata`); checked here, so a recording that could
         not be replayed fails before it starts.
     capacity : int
         Initial number of ticks the buffers hold (they double when full).
@@ -587,7 +308,7 @@ class SessionWriter:
         self._created = created
         self._n = 0
         self._cap = capacity
-        k = _tube_count(self.metadata)
+        k = tube_count(self.metadata)
         # field -> row shape; tube_poses only with a tube scene (k rows of x, y, angle)
         self._rows = {f.name: (() if f.width == 0 else (f.width,)) for f in TICK_FIELDS}
         self._fields = {f.name: f for f in TICK_FIELDS}
@@ -811,7 +532,7 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False) -> 
         raise SessionError(f"session {str(path)!r}: {exc}") from exc
     poses = s.ticks.get(TUBE_POSES.name)
     if poses is not None:  # optional: checked against the scene when present
-        k = _tube_count(s.metadata)
+        k = tube_count(s.metadata)
         if k is None or poses.dtype.kind != "f" or poses.shape != (s.n_ticks, k, 3):
             raise SessionError(f"session {str(path)!r}: /ticks/tube_poses has shape {poses.shape} and dtype "
                                f"{poses.dtype}, expected float ({s.n_ticks}, k, 3) with k the number of tubes of "

@@ -28,7 +28,6 @@ back to plain monomials in metres for the history.
 """
 from __future__ import annotations
 
-import math
 import warnings
 from typing import Any
 
@@ -37,6 +36,7 @@ from numpy.polynomial import legendre as _leg
 from numpy.polynomial import polynomial as _poly
 from scipy import ndimage
 
+from arsurf import _validation
 from arsurf.errors import LevelingError
 from arsurf.scan.scan import Scan
 
@@ -341,13 +341,7 @@ def _check_int(name: str, value, lowest: int) -> int:
 
 
 def _check_positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise LevelingError(f"`{name}` must be a positive number (got {value!r})") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise LevelingError(f"`{name}` must be a positive, finite number (got {value!r})")
-    return v
+    return _validation.positive(value, name, LevelingError)
 
 
 def _check_loss(loss) -> str:

@@ -21,7 +21,7 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
     -------
     Scan
         With every step recorded in ``metadata["history"]``. The CLI (``arsurf fit``), the demo
-        and :func:`arsurf.replay.session.build_model` all call this one function, so a replay
+        and :func:`arsurf.assembly.build_model` all call this one function, so a replay
         rebuilds exactly the surface the recording used.
     """
     from arsurf.scan.io import load_scan

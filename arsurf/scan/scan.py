@@ -36,8 +36,8 @@ class Scan:
     -------
     >>> import numpy as np
     >>> s = Scan(np.zeros((4, 5)), dx=1e-9, dy=2e-9)
-    >>> s.shape, s.size
-    ((4, 5), (4e-09, 6e-09))
+    >>> s.shape, [round(x * 1e9, 9) for x in s.size]      # centre-to-centre extent, nm
+    ((4, 5), [4.0, 6.0])
     """
 
     heights: np.ndarray

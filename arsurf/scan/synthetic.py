@@ -23,6 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from arsurf import _validation
 from arsurf.errors import SyntheticError
 from arsurf.scan.scan import Scan
 
@@ -581,27 +582,15 @@ def _rng(seed) -> np.random.Generator:
 
 
 def _finite(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise SyntheticError(f"`{name}` must be a number (got {value!r})") from None
-    if not math.isfinite(v):
-        raise SyntheticError(f"`{name}` must be finite (got {value!r})")
-    return v
+    return _validation.finite(value, name, SyntheticError)
 
 
 def _positive(name: str, value) -> float:
-    v = _finite(name, value)
-    if v <= 0.0:
-        raise SyntheticError(f"`{name}` must be positive (got {value!r} m); lengths are in metres")
-    return v
+    return _validation.positive(value, name, SyntheticError, unit="m", hint="lengths are in metres")
 
 
 def _nonneg(name: str, value) -> float:
-    v = _finite(name, value)
-    if v < 0.0:
-        raise SyntheticError(f"`{name}` must be >= 0 (got {value!r}); lengths are in metres")
-    return v
+    return _validation.non_negative(value, name, SyntheticError, unit="m", hint="lengths are in metres")
 
 
 def _shape(shape) -> tuple[int, int]:

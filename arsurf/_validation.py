@@ -1,0 +1,61 @@
+"""Validators of scalar inputs shared by every module: one definition, one message shape.
+
+Each returns the value as a Python ``float`` or raises the caller's exception class (an
+:class:`arsurf.errors.ArsurfError` subclass) with a message that says the rule, the value received
+and, in ``hint``, what the value is or how to fix it:
+
+    radius must be positive and finite (got -2e-09 m); it is the tip radius
+
+Examples
+--------
+>>> from arsurf.errors import ContactError
+>>> positive(2e-8, "radius", ContactError, unit="m")
+2e-08
+>>> positive(-1, "radius", ContactError, unit="m", hint="it is the tip radius")
+Traceback (most recent call last):
+...
+arsurf.errors.ContactError: radius must be positive and finite (got -1 m); it is the tip radius
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["finite", "non_negative", "positive"]
+
+
+def _number(value, name: str, error: type[Exception], unit: str, hint: str) -> float:
+    if isinstance(value, bool):  # True is not a length
+        raise error(_message(f"{name} must be a number{' in ' + unit if unit else ''}", value, "", hint))
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise error(_message(f"{name} must be a number{' in ' + unit if unit else ''}", value, "", hint)) from None
+
+
+def _message(rule: str, value, unit: str, hint: str) -> str:
+    got = f"{value!r}{' ' + unit if unit else ''}"
+    return f"{rule} (got {got})" + (f"; {hint}" if hint else "")
+
+
+def finite(value, name: str, error: type[Exception], *, unit: str = "", hint: str = "") -> float:
+    """``float(value)`` if it is a finite real number, else ``error``."""
+    v = _number(value, name, error, unit, hint)
+    if not math.isfinite(v):
+        raise error(_message(f"{name} must be finite", value, unit, hint))
+    return v
+
+
+def positive(value, name: str, error: type[Exception], *, unit: str = "", hint: str = "") -> float:
+    """``float(value)`` if it is finite and > 0, else ``error``."""
+    v = _number(value, name, error, unit, hint)
+    if not (math.isfinite(v) and v > 0.0):
+        raise error(_message(f"{name} must be positive and finite", value, unit, hint))
+    return v
+
+
+def non_negative(value, name: str, error: type[Exception], *, unit: str = "", hint: str = "") -> float:
+    """``float(value)`` if it is finite and >= 0, else ``error``."""
+    v = _number(value, name, error, unit, hint)
+    if not (math.isfinite(v) and v >= 0.0):
+        raise error(_message(f"{name} must be >= 0 and finite", value, unit, hint))
+    return v

@@ -1,0 +1,538 @@
+r"""Model assembly: the one place where a scan, a tip, a contact law, a cantilever and a haptic
+loop are put together.
+
+Every caller that needs an AR model goes through here - the demo, the interactive viewer, the
+live bridge loop and offline replay - so a recorded session rebuilds exactly the model that ran:
+
+* :func:`session_metadata` (or :func:`preset_metadata` from a named :class:`Preset`) writes down
+  everything the model needs (scan and its processing, tip, contact law, friction, cantilever,
+  haptic settings, optional tube scene) as checked JSON - the ``/metadata`` group of a session;
+* :func:`build_model` turns that metadata into the processed scan, the fitted surface and the
+  :class:`~arsurf.model.ARModel` (and the tube scene); :func:`make_model` does the last step for
+  a surface that is already fitted; :func:`build_loop` adds the
+  :class:`~arsurf.haptics.loop.HapticLoop` from the recorded haptic settings.
+
+The steps of :func:`build_model` are those of the pipeline (DESIGN.md): load → level → smooth
+(Gaussian, :math:`\sigma` in metres) → fit (bicubic B-spline) → ARModel (tip sphere of radius R,
+Maugis-Dugdale contact with :math:`E^*, w, \sigma_0`, friction coefficient, cantilever).
+
+Examples
+--------
+>>> sorted(PRESETS)
+['demo', 'seed000', 'seed001', 'seed002', 'seed003', 'viewer']
+>>> p = PRESETS["seed003"]
+>>> round(p.cantilever["length"] * 1e6), p.haptics["coupling"]
+(220, 'force_position')
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import numpy as np
+
+from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
+
+__all__ = [
+    "BUNDLED_SCAN",
+    "LEVER",
+    "ModelSetup",
+    "PRESETS",
+    "Preset",
+    "build_loop",
+    "build_model",
+    "check_metadata",
+    "make_model",
+    "preset_metadata",
+    "scan_sha256",
+    "session_metadata",
+]
+
+#: the synthetic nanotubes scan the demo and the viewer open by default
+BUNDLED_SCAN = Path(__file__).resolve().parents[1] / "scans" / "nanotubes.npz"
+
+#: a common rectangular silicon contact lever (450 x 50 x 2.5 um, 15 um tip; k ~ 0.2 N/m)
+LEVER = MappingProxyType(dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6,
+                              youngs_modulus=169e9, poisson_ratio=0.27))
+
+_REQUIRED_META = ("scan", "tip_radius", "contact", "friction", "cantilever")
+_CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
+                    "normal_stiffness", "torsional_stiffness", "beta")
+_HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
+                "seed", "ramp_time")
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named set of model and haptic settings (SI units), with where each value comes from.
+
+    Attributes
+    ----------
+    name, description : str
+    tip_radius : float, m
+    effective_modulus : float, Pa
+        Contact modulus :math:`E^*` of tip and sample.
+    work_of_adhesion : float, J/m^2
+    cantilever : mapping
+        :class:`~arsurf.force.cantilever.Cantilever` constructor arguments.
+    friction : float
+        Coefficient of the simulated friction.
+    level : str
+        :func:`arsurf.level` method.
+    sigma : float, m
+        Gaussian smoothing width before the fit.
+    haptics : mapping
+        ``coupling`` ("direct" | "force_position"), ``scale`` (probe m per stylus m),
+        ``force_gain`` (hand N per probe N), ``rate`` (Hz), ``source``, ``filter_cutoff`` (Hz),
+        ``signal_noise`` (rad), and for the force-position coupling ``K_fp``, ``B_fp``, ``G_n``.
+    sources : str
+        Where the values come from; values a source does not give are the demo's, and said so.
+    """
+
+    name: str
+    description: str
+    tip_radius: float
+    effective_modulus: float
+    work_of_adhesion: float
+    cantilever: Mapping[str, float]
+    friction: float
+    level: str
+    sigma: float
+    haptics: Mapping[str, Any] = field(default_factory=dict)
+    sources: str = ""
+
+
+def _viewer_contact() -> tuple[float, float]:
+    from arsurf.contact.materials import effective_modulus, work_of_adhesion
+
+    return effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene")
+
+
+_DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
+                                  "source": "blended", "filter_cutoff": 200.0, "signal_noise": 2e-7})
+
+
+def _presets() -> dict[str, Preset]:
+    e_si_ps, w_si_ps = _viewer_contact()
+    demo = Preset(
+        "demo", "the demo: a 20 nm silicon tip on a soft adhesive polymer-like film (lambda ~ 0.5, dents visibly)",
+        tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER, friction=0.2,
+        level="plane", sigma=2e-9, haptics=_DEMO_HAPTICS,
+        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: README, Design notes)")
+    return {
+        "demo": demo,
+        "viewer": dataclasses.replace(
+            demo, name="viewer", description="the interactive viewer: Si tip on polystyrene (arsurf.MATERIALS)",
+            effective_modulus=e_si_ps, work_of_adhesion=w_si_ps, sigma=0.0,
+            sources="E* and w from the Si and polystyrene presets of arsurf.contact.materials; the rest is the demo's"),
+        "seed000": dataclasses.replace(
+            demo, name="seed000", description="MWCNT pushing with a calibrated contact lever (seed 000)",
+            cantilever=MappingProxyType(dict(LEVER, normal_stiffness=38.6, torsional_stiffness=8.56e-7)),
+            sources="seed 000 Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
+                    "are not given there: the demo's"),
+        "seed001": dataclasses.replace(
+            demo, name="seed001", description="force-feedback haptic interface (seed 001 thesis)",
+            cantilever=MappingProxyType(dict(LEVER, normal_stiffness=0.3)), sigma=0.0,
+            haptics=MappingProxyType(dict(_DEMO_HAPTICS, force_gain=15e6, source="measured", filter_cutoff=None)),
+            sources="seed 001 Tables 4.2-4.6: k = 0.3 N/m, K_f = 15e6; scale, tip and sample: the demo's"),
+        "seed002": dataclasses.replace(
+            demo, name="seed002", description="the spline AR interface (seed 002): smoothing, B-spline, MD, dent, "
+                                              "decoupling with the contact normal",
+            haptics=MappingProxyType(dict(_DEMO_HAPTICS, source="measured")),
+            sources="seed 002 gives the method, not the numbers: the demo's values with measured signals"),
+        "seed003": dataclasses.replace(
+            demo, name="seed003", description="2D rolling telemanipulation with a tipless beam (seed 003)",
+            tip_radius=25e-6, sigma=0.0,
+            cantilever=MappingProxyType(dict(length=220e-6, width=27e-6, thickness=2.9e-6, tip_height=0.0,
+                                             youngs_modulus=150e9, poisson_ratio=0.17)),
+            haptics=MappingProxyType({"coupling": "force_position", "scale": 1.0 / 50e3, "force_gain": 25e6,
+                                      "rate": 1000.0, "source": "measured", "filter_cutoff": None,
+                                      "signal_noise": 0.0, "K_fp": 100.0, "B_fp": 0.1, "G_n": 825.0}),
+            sources="seed 003 Table I (beam 220 x 27 x 2.9 um, E = 150 GPa, nu = 0.17), 25 um spheres, Fig. 5 gains "
+                    "(A_f = 25e6, A_d = 50e3, K_fp = 100 N/m, B_fp = 0.1 N s/m, G_n = 825); contact law: the demo's"),
+    }
+
+
+#: the named presets (read-only); :func:`preset_metadata` turns one into session metadata
+PRESETS: Mapping[str, Preset] = MappingProxyType(_presets())
+
+
+def preset(name: str | Preset) -> Preset:
+    """The :class:`Preset` called ``name`` (a Preset is returned as is)."""
+    if isinstance(name, Preset):
+        return name
+    try:
+        return PRESETS[name]
+    except (KeyError, TypeError):
+        raise SessionError(f"unknown preset {name!r}; presets are {sorted(PRESETS)}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# metadata
+
+
+def scan_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes, read in 1 MiB blocks.
+
+    Raises
+    ------
+    ScanFileNotFound
+        The file does not exist.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> p = os.path.join(tempfile.mkdtemp(), "x.bin")
+    >>> _ = open(p, "wb").write(b"abc")
+    >>> scan_sha256(p)[:16]
+    'ba7816bf8f01cfea'
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ScanFileNotFound(f"scan file {str(p)!r} does not exist (or is not a file); pass the scan the "
+                               "session was recorded on")
+    h = hashlib.sha256()
+    with open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _jsonable(obj: Any, where: str) -> Any:
+    """Plain JSON types from numpy scalars/arrays, tuples, paths, dataclasses; finite floats only."""
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise SessionError(f"metadata keys must be strings (got {k!r} in {where})")
+            out[k] = _jsonable(v, f"{where}.{k}")
+        return out
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return _jsonable(dataclasses.asdict(obj), where)
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist(), where)
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        if not math.isfinite(x):
+            raise SessionError(f"metadata value {where} is {x!r}: JSON has no NaN/inf; use None for unknown values")
+        return x
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise SessionError(f"metadata value {where} is a {type(obj).__name__} ({obj!r}), which JSON cannot hold; "
+                       "pass numbers, strings, booleans, None, lists or dicts")
+
+
+def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, contact, cantilever,
+                     friction: float = 0.2, deform: bool = True, channel: str | None = None,
+                     level: str = "plane", sigma: float = 0.0, inpaint: bool = True,
+                     control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
+                     calibration: Mapping | None = None, haptics: Mapping | None = None,
+                     loop_rate: float | None = None, **extra) -> dict:
+    """The metadata dict of a session, checked and JSON-ready.
+
+    Parameters
+    ----------
+    scan : path-like or dict
+        The scan file (its SHA-256 is computed here, and the processing is taken from
+        ``channel``, ``level``, ``sigma``, ``inpaint``, ``control_shape``, ``smoothing``: the
+        arguments of :func:`arsurf.scan.prepare.prepare_scan` and :func:`arsurf.fit_surface`), or a
+        complete ``scan`` dict as in the schema (:mod:`arsurf.replay.session`).
+    tip_radius : float, metres
+    contact : MaugisDugdale or dict
+        The contact law (or ``{"effective_modulus", "work_of_adhesion", "dugdale_stress"}``).
+    cantilever : Cantilever or dict
+        The cantilever (or its constructor arguments).
+    friction : float
+        Coefficient of the model's simulated friction.
+    deform : bool
+        Whether the model dents the surface.
+    calibration, haptics : dict, optional
+        Free JSON objects (:func:`build_loop` reads ``haptics``).
+    loop_rate : float, Hz, optional
+    **extra
+        More JSON values to keep.
+
+    Returns
+    -------
+    dict
+        Validated metadata (a model can be built from it: :func:`build_model`).
+
+    Raises
+    ------
+    SessionError
+        A required value is missing or invalid, or a value cannot be stored as JSON.
+    """
+    if isinstance(scan, Mapping):
+        scan_meta = dict(scan)
+    else:
+        scan_meta = {
+            "path": os.fspath(scan), "sha256": scan_sha256(scan), "channel": channel,
+            "processing": {"level": level, "sigma": sigma, "inpaint": inpaint,
+                           "control_shape": control_shape, "smoothing": smoothing},
+        }
+    if isinstance(contact, Mapping):
+        contact_meta = dict(contact)
+    else:
+        contact_meta = {"effective_modulus": contact.effective_modulus,
+                        "work_of_adhesion": contact.work_of_adhesion,
+                        "dugdale_stress": contact.dugdale_stress}
+    if isinstance(cantilever, Mapping):
+        lever_meta = dict(cantilever)
+    else:
+        lever_meta = {name: getattr(cantilever, name) for name in _CANTILEVER_ARGS}
+    meta = {"scan": scan_meta, "tip_radius": tip_radius, "contact": contact_meta, "friction": friction,
+            "deform": deform, "cantilever": lever_meta, "calibration": dict(calibration or {}),
+            "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
+    meta = _jsonable(meta, "metadata")
+    check_metadata(meta)
+    return meta
+
+
+def preset_metadata(scan: str | os.PathLike, preset_name: str | Preset = "demo", **overrides) -> dict:
+    """Session metadata of a model built on ``scan`` with the settings of a :class:`Preset`.
+
+    ``overrides`` replace any :func:`session_metadata` argument (``tip_radius``, ``friction``,
+    ``sigma``, ``haptics``, ``tubes``...); the preset's name is recorded under ``preset``.
+
+    Examples
+    --------
+    >>> meta = preset_metadata(BUNDLED_SCAN, "demo", friction=0.3)
+    >>> meta["preset"], meta["friction"], meta["contact"]["effective_modulus"]
+    ('demo', 0.3, 10000000000.0)
+    """
+    p = preset(preset_name)
+    args = dict(scan=scan, tip_radius=p.tip_radius, friction=p.friction, level=p.level, sigma=p.sigma,
+                contact={"effective_modulus": p.effective_modulus, "work_of_adhesion": p.work_of_adhesion,
+                         "dugdale_stress": None},
+                cantilever=dict(p.cantilever), haptics=dict(p.haptics),
+                loop_rate=p.haptics.get("rate"), preset=p.name)
+    args.update(overrides)
+    return session_metadata(**args)
+
+
+def _need(d: Mapping, key: str, where: str):
+    if not isinstance(d, Mapping) or key not in d:
+        raise SessionError(f"session metadata lacks {where}.{key}; record it with arsurf.session_metadata")
+    return d[key]
+
+
+def check_metadata(meta: Mapping) -> None:
+    """Raise :class:`SessionError` unless ``meta`` describes a model that can be rebuilt."""
+    if not isinstance(meta, Mapping):
+        raise SessionError(f"session metadata must be a dict (got {type(meta).__name__})")
+    missing = [k for k in _REQUIRED_META if k not in meta]
+    if missing:
+        raise SessionError(f"session metadata lacks {missing}; build it with arsurf.session_metadata")
+    scan = meta["scan"]
+    path = _need(scan, "path", "scan")
+    if not isinstance(path, str) or not path:
+        raise SessionError(f"metadata scan.path must be a non-empty string (got {path!r})")
+    digest = _need(scan, "sha256", "scan")
+    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
+        raise SessionError(f"metadata scan.sha256 must be 64 lowercase hex digits (got {digest!r}); "
+                           "compute it with arsurf.scan_sha256(path)")
+    channel = scan.get("channel")
+    if channel is not None and not isinstance(channel, str):
+        raise SessionError(f"metadata scan.channel must be a string or null (got {channel!r})")
+    proc = _need(scan, "processing", "scan")
+    lv = _need(proc, "level", "scan.processing")
+    if not isinstance(lv, str):
+        raise SessionError(f"metadata scan.processing.level must be a method name (got {lv!r})")
+    sg = _need(proc, "sigma", "scan.processing")
+    if isinstance(sg, bool) or not isinstance(sg, (int, float)) or not sg >= 0.0:
+        raise SessionError(f"metadata scan.processing.sigma must be >= 0 metres (got {sg!r})")
+    ip = _need(proc, "inpaint", "scan.processing")
+    if not isinstance(ip, bool):
+        raise SessionError(f"metadata scan.processing.inpaint must be true or false (got {ip!r})")
+    cs = proc.get("control_shape")
+    if cs is not None and not (isinstance(cs, (list, tuple)) and len(cs) == 2
+                               and all(isinstance(c, int) and not isinstance(c, bool) and c >= 4 for c in cs)):
+        raise SessionError(f"metadata scan.processing.control_shape must be null or two integers >= 4 (got {cs!r})")
+    sm = proc.get("smoothing", 0.0)
+    if isinstance(sm, bool) or not isinstance(sm, (int, float)) or not sm >= 0.0:
+        raise SessionError(f"metadata scan.processing.smoothing must be >= 0 (got {sm!r})")
+    lever = meta["cantilever"]
+    if not isinstance(lever, Mapping):
+        raise SessionError(f"metadata cantilever must be an object of constructor arguments (got {lever!r})")
+    unknown = sorted(set(lever) - set(_CANTILEVER_ARGS))
+    if unknown:
+        raise SessionError(f"metadata cantilever has unknown arguments {unknown}; allowed: {list(_CANTILEVER_ARGS)}")
+    for k in ("effective_modulus", "work_of_adhesion"):
+        _need(meta["contact"], k, "contact")
+    haptics = meta.get("haptics") or {}
+    if not isinstance(haptics, Mapping):
+        raise SessionError(f"metadata haptics must be an object (got {haptics!r})")
+    _model_parts(meta)  # builds the contact law and the cantilever: their own checks apply
+    _tube_scene(meta)
+
+
+def _tube_scene(meta: Mapping):
+    """The :class:`~arsurf.manipulation.scene.TubeScene` of the metadata (None without ``tubes``)."""
+    spec = meta.get("tubes")
+    if spec is None:
+        return None
+    from arsurf.manipulation.scene import TubeScene
+
+    try:
+        return TubeScene.from_metadata(spec)
+    except (ArsurfError, TypeError, ValueError) as exc:
+        raise SessionError(f"metadata tubes does not describe a tube scene: {exc}") from exc
+
+
+def tube_count(meta: Mapping) -> int | None:
+    """Number of tubes of the metadata's scene (None without ``tubes``); metadata checked."""
+    spec = meta.get("tubes")
+    return None if spec is None else len(spec["tubes"])
+
+
+def _model_parts(meta: Mapping):
+    """(tip_radius, MaugisDugdale, Cantilever, friction, deform) from checked metadata."""
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.force.cantilever import Cantilever
+
+    c = meta["contact"]
+    try:
+        tip_radius = float(meta["tip_radius"])
+        md = MaugisDugdale(tip_radius, c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"))
+        lever = Cantilever(**meta["cantilever"])
+        friction = float(meta["friction"])
+    except (ArsurfError, TypeError, ValueError) as exc:
+        raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
+    if not (math.isfinite(friction) and friction >= 0.0):
+        raise SessionError(f"metadata friction must be >= 0 (got {friction!r})")
+    return tip_radius, md, lever, friction, bool(meta.get("deform", True))
+
+
+# ---------------------------------------------------------------------------------------------
+# building
+
+
+@dataclass(frozen=True)
+class ModelSetup:
+    """What :func:`build_model` made: the processed scan (the substrate when there is a tube scene),
+    the fitted (live) surface, the model, the tube scene (None without ``tubes`` metadata) and the
+    metadata it was built from."""
+
+    scan: Any
+    surface: Any
+    model: Any
+    scene: Any = None
+    metadata: Mapping | None = None
+
+
+def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
+               dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
+               deform: bool = True):
+    """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+        The live surface (the model dents it in place when ``deform``).
+    tip_radius : float, m
+    effective_modulus : float, Pa
+    work_of_adhesion : float, J/m^2
+    dugdale_stress : float, Pa, optional
+        Maugis-Dugdale cohesive stress (default: from w and the equilibrium spacing).
+    cantilever : mapping, optional
+        :class:`~arsurf.force.cantilever.Cantilever` arguments (default :data:`LEVER`).
+    friction : float
+    deform : bool
+    """
+    meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform,
+            "contact": {"effective_modulus": effective_modulus, "work_of_adhesion": work_of_adhesion,
+                        "dugdale_stress": dugdale_stress},
+            "cantilever": dict(LEVER if cantilever is None else cantilever)}
+    from arsurf.model import ARModel
+
+    radius, md, lever, mu, dent = _model_parts(meta)
+    return ARModel(surface, radius, md, lever, friction=mu, deform=dent)
+
+
+def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
+    """Build the model a session describes: prepare the scan as recorded, fit it, make the ARModel.
+
+    The steps are exactly those of the recording (:func:`arsurf.scan.prepare.prepare_scan` with the
+    recorded channel, levelling, smoothing and inpainting, then :func:`arsurf.fit_surface`
+    with the recorded control shape and smoothing). A live loop that builds its model with this
+    function is guaranteed to be replayed bit for bit.
+
+    Parameters
+    ----------
+    metadata : dict
+        Session metadata (:func:`session_metadata`, :func:`preset_metadata`).
+    scan_path : path-like, optional
+        The scan file; default ``metadata["scan"]["path"]``. Its hash is not checked here
+        (:func:`arsurf.replay.replay.replay` does).
+
+    Returns
+    -------
+    ModelSetup
+    """
+    check_metadata(metadata)
+    from arsurf.model import ARModel
+    from arsurf.scan.prepare import prepare_scan
+    from arsurf.spline.fit import fit_surface
+
+    scan_meta = metadata["scan"]
+    proc = scan_meta["processing"]
+    path = scan_meta["path"] if scan_path is None else scan_path
+    scan = prepare_scan(path, scan_meta.get("channel"), proc["level"], float(proc["sigma"]), bool(proc["inpaint"]))
+    scene = _tube_scene(metadata)
+    if scene is not None:  # the tubes are scene objects: the spline holds only the substrate
+        scan = scene.substrate(scan)
+    cs = proc.get("control_shape")
+    surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
+                          smoothing=float(proc.get("smoothing", 0.0)))
+    tip_radius, md, lever, friction, deform = _model_parts(metadata)
+    model = ARModel(surface, tip_radius, md, lever, friction=friction, deform=deform)
+    return ModelSetup(scan, surface, model, scene, metadata)
+
+
+def build_loop(model, haptics: Mapping, device_info, probe_origin, *, scene=None, seed: int = 0, **safety_kwargs):
+    """The :class:`~arsurf.haptics.loop.HapticLoop` of recorded haptic settings (``metadata["haptics"]``).
+
+    Only the direct coupling is assembled here (``haptics["coupling"]`` absent or ``"direct"``):
+    ``scale`` probe m per stylus m, ``force_gain`` hand N per probe N, ``rate`` Hz, ``source``,
+    ``blend``, ``filter_cutoff`` Hz (None: off), ``signal_noise`` rad; missing keys take the demo's
+    values. ``safety_kwargs`` go to the safety layer (e.g. ``ramp_time``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from arsurf.spline.surface import BSplineSurface
+    >>> from arsurf.haptics.virtual_device import VirtualDevice
+    >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 100e-9), (0.0, 100e-9))
+    >>> m = make_model(s, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1)
+    >>> loop = build_loop(m, PRESETS["demo"].haptics, VirtualDevice().info, (50e-9, 50e-9, 30e-9))
+    >>> loop.dt
+    0.001
+    """
+    from arsurf.haptics.loop import HapticLoop, LoopConfig
+
+    h = {**_DEMO_HAPTICS, **dict(haptics or {})}
+    unknown = sorted(set(h) - set(_HAPTIC_KEYS) - {"K_fp", "B_fp", "G_n"})
+    if unknown:
+        raise SessionError(f"unknown haptic settings {unknown}; known: {list(_HAPTIC_KEYS)}")
+    if h["coupling"] != "direct":
+        raise SessionError(f"build_loop assembles the direct coupling (got coupling={h['coupling']!r}); build a "
+                           "force-position loop with arsurf.haptics.coupling.ForcePositionCoupling and HapticLoop")
+    config = LoopConfig(rate=float(h["rate"]), source=h["source"], blend=float(h.get("blend", 0.5)),
+                        filter_cutoff=h["filter_cutoff"], signal_noise=float(h["signal_noise"]),
+                        seed=int(h.get("seed", seed)))
+    return HapticLoop.direct(model, device_info, probe_origin, scale=float(h["scale"]),
+                             force_gain=float(h["force_gain"]), config=config, scene=scene, **safety_kwargs)
