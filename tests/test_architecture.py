@@ -7,7 +7,6 @@ which imports the viewer" fails here.
 from __future__ import annotations
 
 import ast
-import collections
 from pathlib import Path
 
 import pytest

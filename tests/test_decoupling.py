@@ -9,6 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from reference import reference_condition, reference_decouple, reference_matrix
+
 from arsurf.errors import ForceError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.decoupling import (
@@ -30,28 +32,6 @@ LEVERS = [
 ]
 ALL_DEGENERATE = (DecouplingFlag.NO_MOTION | DecouplingFlag.STEEP_NORMAL | DecouplingFlag.SINGULAR
                   | DecouplingFlag.ILL_CONDITIONED)
-
-
-# ---- slow, obviously right references -----------------------------------------------------------
-def reference_matrix(n, v, lever):
-    """The DESIGN.md system, written literally (division by n_z), in physical units."""
-    g, c = lever.bending_compliance, lever.torsion_compliance
-    kappa = 2 * lever.lever_arm / lever.length
-    f = np.array([-v[0], -v[1], (v[0] * n[0] + v[1] * n[1]) / n[2]])
-    p = np.cross(n, f)
-    return np.array([[0.0, c, 0.0], [g * kappa, 0.0, g], p]), p, kappa
-
-
-def reference_decouple(bending, torsion, n, v, lever):
-    m, _, _ = reference_matrix(n, v, lever)
-    return np.linalg.solve(m, np.array([torsion, bending, 0.0]))
-
-
-def reference_condition(n, v, lever):
-    """1-norm condition number of the row-scaled system (rows: tau, beta, unit p)."""
-    _, p, kappa = reference_matrix(n, v, lever)
-    p = p / np.linalg.norm(p)
-    return np.linalg.cond(np.array([[0.0, 1.0, 0.0], [kappa, 0.0, 1.0], p]), 1)
 
 
 def random_cases(rng, size, degenerate=False):

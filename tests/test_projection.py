@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from numba import njit
 from scipy.ndimage import gaussian_filter
 from scipy.optimize import lsq_linear
-from scipy.spatial import cKDTree
+
+from reference import DenseSampling, brute_force, polish  # noqa: F401 (re-exported to the sweep)
 
 from arsurf.contact import hull_tree as cd
 from arsurf.contact import projection as pj
@@ -29,104 +30,6 @@ from arsurf.spline.surface import BSplineSurface
 
 H = 1e-9          # pixel = knot spacing of the test surfaces
 TOL = 1e-12       # distance accuracy target, metres
-
-
-# --------------------------------------------------------------------------------------------
-# slow, obviously-right references
-def polish(surface, points, u, v, iters=60):
-    """Plain projected Newton on D = |S - C|^2 / 2 from (u, v), vectorised over the points; a
-    step is halved until D does not increase (no other safeguard). Points stop once their step
-    is below 1e-10 of the knot spacing."""
-    (u0, u1), (v0, v1) = surface.domain
-    tol = 1e-10 * max(surface.spacing)
-    u = np.array(u, dtype=float)
-    v = np.array(v, dtype=float)
-    d2 = ((surface.evaluate(u, v) - points) ** 2).sum(axis=1)
-    act = np.arange(u.size)
-    for _ in range(iters):
-        if act.size == 0:
-            break
-        ua, va, ca, da = u[act], v[act], points[act], d2[act]
-        s, su, sv, suu, suv, svv = surface.evaluate(ua, va, 2)
-        r = s - ca
-        gu = (su * r).sum(1)
-        gv = (sv * r).sum(1)
-        a = (su * su).sum(1)
-        b = (su * sv).sum(1)
-        c = (sv * sv).sum(1)
-        huu = a + (suu * r).sum(1)
-        huv = b + (suv * r).sum(1)
-        hvv = c + (svv * r).sum(1)
-        # one free variable (the other on a bound): 1-D Newton, Gauss-Newton if its curvature is <= 0
-        du1 = -gu / np.where(huu > 0, huu, a)
-        dv1 = -gv / np.where(hvv > 0, hvv, c)
-        # both free: Newton, Gauss-Newton where H is not positive definite
-        pd = (huu > 0) & (huu * hvv - huv * huv > 0)
-        huu, huv, hvv = np.where(pd, huu, a), np.where(pd, huv, b), np.where(pd, hvv, c)
-        det = huu * hvv - huv * huv
-        du = (huv * gv - hvv * gu) / det
-        dv = (huv * gu - huu * gv) / det
-        fix_u = ((ua <= u0) & (gu > 0)) | ((ua >= u1) & (gu < 0))
-        fix_v = ((va <= v0) & (gv > 0)) | ((va >= v1) & (gv < 0))
-        du, dv = np.where(fix_u, 0.0, np.where(fix_v, du1, du)), np.where(fix_v, 0.0, np.where(fix_u, dv1, dv))
-        alpha = np.ones_like(ua)
-        done = np.zeros(ua.size, bool)
-        moved = np.zeros(ua.size)
-        for _ in range(40):
-            ut = np.clip(ua + alpha * du, u0, u1)
-            vt = np.clip(va + alpha * dv, v0, v1)
-            dt = ((surface.evaluate(ut, vt) - ca) ** 2).sum(1)
-            ok = ~done & (dt <= da)
-            moved = np.where(ok, np.maximum(np.abs(ut - ua), np.abs(vt - va)), moved)
-            ua, va, da = np.where(ok, ut, ua), np.where(ok, vt, va), np.where(ok, dt, da)
-            done |= ok
-            if done.all():
-                break
-            alpha = np.where(done, alpha, 0.5 * alpha)
-        u[act], v[act], d2[act] = ua, va, da
-        act = act[done & (moved > tol)]
-    return u, v, np.sqrt(d2)
-
-
-class DenseSampling:
-    """The surface sampled ``per_cell`` x ``per_cell`` times per knot cell, in a KD-tree."""
-
-    def __init__(self, surface, per_cell=8):
-        (u0, u1), (v0, v1) = surface.domain
-        nu, nv = surface.shape
-        uu, vv = np.meshgrid(np.linspace(u0, u1, (nu - 3) * per_cell + 1),
-                             np.linspace(v0, v1, (nv - 3) * per_cell + 1), indexing="ij")
-        self.surface = surface
-        self.u = uu.ravel()
-        self.v = vv.ravel()
-        self.points = surface.evaluate(self.u, self.v)
-        self.tree = cKDTree(self.points)
-        self.cell = max(surface.spacing)
-
-    def nearest(self, points, k=1):
-        return self.tree.query(points, k=k)
-
-    def reference(self, points, k=8):
-        """Brute-force closest points: the nearest sample polished by Newton, and the other k-1
-        nearest samples too wherever one of them lies more than a cell away from the nearest
-        (another basin may be there); the best polished point is kept."""
-        dist, idx = self.nearest(points, k=k)
-        u, v, d = polish(self.surface, points, self.u[idx[:, 0]], self.v[idx[:, 0]])
-        far = ((np.abs(self.u[idx] - self.u[idx[:, :1]]) > self.cell)
-               | (np.abs(self.v[idx] - self.v[idx[:, :1]]) > self.cell))
-        rows, cols = np.nonzero(far)
-        if rows.size:
-            pu, pv, pd = polish(self.surface, points[rows], self.u[idx[rows, cols]], self.v[idx[rows, cols]])
-            order = np.argsort(pd)[::-1]  # so the best per row is written last
-            rows, pu, pv, pd = rows[order], pu[order], pv[order], pd[order]
-            better = pd < d[rows]
-            u[rows[better]], v[rows[better]], d[rows[better]] = pu[better], pv[better], pd[better]
-        return u, v, d, dist[:, 0]
-
-
-def brute_force(surface, points, per_cell=8, k=8):
-    """(u, v, distance, nearest-sample distance) of the closest points, by brute force."""
-    return DenseSampling(surface, per_cell).reference(np.asarray(points, dtype=float), k=k)
 
 
 def check_against(surface, points, ours, per_cell=8, k=8):

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference import DenseSampling
 from test_projection import (
-    SCANS, TOL, DenseSampling, check_against, perturbed, queries, ridges_scan, rough_scan,
+    SCANS, TOL, check_against, perturbed, queries, ridges_scan, rough_scan,
 )
 
 from arsurf.contact.projection import project_many
@@ -58,19 +59,19 @@ def _surfaces():
 def _sweep(name, surface, rng, scale):
     pts = queries(surface, rng, N_PER_SURFACE, margin=4 * scale, above=15 * scale, below=scale)
     res = project_many(surface, pts)
+    assert res.distance.shape == (len(pts),) and np.isfinite(res.distance).all(), f"{name}: unanswered queries"
     err, lower, ties = check_against(surface, pts, res)
     assert err <= TOL
     print(f"\n{name:>18}: {N_PER_SURFACE} queries, wrong basins 0, max |d - d_ref| (same point) {err:.1e} m, "
           f"ties (another point within 1e-12 m) {ties}, ours lower than the reference {lower}, "
           f"mean cells {res.cells.mean():.1f}, "
           f"mean Newton iterations {res.iterations.mean():.1f}, on boundary {res.on_boundary.mean():.2f}")
-    return N_PER_SURFACE
 
 
 def test_sweep_synthetic_and_deformed():
     rng = np.random.default_rng(SEED)
-    total = sum(_sweep(name, s, rng, 1e-9) for name, s in _surfaces().items())
-    assert total >= 6 * N_PER_SURFACE
+    for name, s in _surfaces().items():
+        _sweep(name, s, rng, 1e-9)
 
 
 @pytest.mark.realscan
@@ -79,10 +80,6 @@ def test_sweep_real_scans(name):
     scan = _real_scan(name)
     surface = fit_surface(scan)
     _sweep(name, surface, np.random.default_rng(SEED + len(name)), max(scan.dx, scan.dy))
-
-
-def test_total_query_count_is_at_least_100k():
-    assert N_PER_SURFACE * (len(SCANS) + 2 + len(REAL)) >= 100_000
 
 
 def test_warm_chains_equal_cold_answers():

@@ -16,7 +16,6 @@ from hypothesis.extra import numpy as hnp
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
-from arsurf.replay import session as sm
 from arsurf.assembly import scan_sha256, session_metadata
 from arsurf.replay.session import TICK_FIELDS, SessionWriter, load_session
 from arsurf.errors import SessionFileNotFound

@@ -74,7 +74,7 @@ precomputed once per model (scipy brentq on :math:`d\\bar\\Delta/dt = 0`) and pa
 
 Measured (bench/contact_mechanics.py, on a shared 2-core machine): 0.3-0.8 us median per solve
 inside an ``@njit`` loop for :math:`\\lambda` = 0.01 ... 100, about 1500-5000 times faster than a plain
-nested scipy brentq; relative error of the radius <= 2e-10 against that reference over
+nested scipy brentq; relative error of the radius <= 3e-10 against that reference over
 :math:`\\lambda \\in [0.01, 100]` (and <= 3e-10 against a 40-digit mpmath solution). Errors grow only
 where the problem itself is ill-conditioned: A < 1e-4 at the a -> 0 end of a fold-free branch,
 where :math:`dA/d\\bar\\Delta \\sim 1/A` amplifies the rounding of :math:`\\bar\\Delta` itself.
