@@ -53,7 +53,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from arsurf import _validation
+from arsurf import _validation, status
 from arsurf.errors import ContactError
 
 __all__ = [
@@ -83,10 +83,10 @@ class Branch(IntEnum):
     SEPARATED = 2
 
 
-#: kernel status: the input was NaN/inf (the kernels never raise)
-STATUS_INVALID = -1
+#: kernel status (:mod:`arsurf.status`): the input was NaN/inf (the kernels never raise)
+STATUS_INVALID = status.NON_FINITE
 #: kernel status: the iteration did not meet its tolerance (never observed; reported, not hidden)
-STATUS_NOT_CONVERGED = -2
+STATUS_NOT_CONVERGED = status.NOT_CONVERGED
 
 _BRANCH_NAMES = np.array(["contact", "cohesive", "separated"])
 
