@@ -36,7 +36,8 @@ import numpy as np
 
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
-from arsurf.model import M_NX, M_PX, M_RADIUS
+from arsurf.haptics.loop import LOOP_OUT
+from arsurf.model import MODEL_OUT
 
 #: the demo's model and haptic settings (tip, sample, lever, scaling, filter): one named preset
 DEMO = PRESETS["demo"]
@@ -206,12 +207,14 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         compute[k] = clock() - t0
         dev.command_force(f)
         o, mo = loop.out, model.out
+        get = LOOP_OUT.get
         if scene is not None:
             extra["tube_poses"] = scene.poses
             tube_force[k] = math.hypot(scene.force[0], scene.force[1])
         writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
-                      probe_position=o[0:3], probe_velocity=o[3:6], signals=o[6:8], force=o[8:11],
-                      device_force=o[17:20], **contact_fields(model.record(mo)), **extra)
+                      probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
+                      signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                      **contact_fields(model.record(mo)), **extra)
         for name, tick in marks.items():
             if k == tick:
                 views[name] = _scene(model, loop, contact, RATE, scene)
@@ -290,10 +293,10 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
 
 def _scene(model, loop, contact, rate, scene=None):
     """A snapshot for the viewer (copies: the live net keeps changing, so do the tube poses)."""
-    o, mo = loop.out, model.out
-    return dict(surface=model.surface.copy(), tip_center=o[0:3].copy(), tip_radius=model.tip_radius,
-                contact_point=mo[M_PX:M_PX + 3].copy(), contact_normal=mo[M_NX:M_NX + 3].copy(),
-                depth=float(mo[9]), contact_radius=float(mo[M_RADIUS]), force=o[8:11].copy(),
+    o, m = LOOP_OUT.record(loop.out), MODEL_OUT.record(model.out)
+    return dict(surface=model.surface.copy(), tip_center=o["probe"], tip_radius=model.tip_radius,
+                contact_point=m["point"], contact_normal=m["normal"],
+                depth=m["depth"], contact_radius=m["contact_radius"], force=o["probe_force"],
                 maugis_lambda=contact.maugis_parameter, loop_rate_hz=rate, device_status="virtual device (demo)",
                 tubes=scene.viewer_tubes() if scene is not None else ())
 

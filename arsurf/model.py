@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import deform_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale, md_contact_hysteresis_kernel
@@ -43,11 +44,23 @@ from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION
                                      decouple_kernel, decoupling_parameters)
 from arsurf.spline.surface import BSplineSurface
 
-# layout of the model output vector
-(M_PX, M_PY, M_PZ, M_NX, M_NY, M_NZ, M_U, M_V, M_DISTANCE, M_DEPTH, M_RADIUS, M_LOAD,
- M_SIM_FX, M_SIM_FY, M_SIM_FZ, M_MEAS_FX, M_MEAS_FY, M_MEAS_FZ, M_CONDITION,
- M_COLLIDE_STATUS, M_MD_STATUS, M_DECOUPLE_STATUS, M_MOVED, M_IN_CONTACT, M_BENDING, M_TORSION) = range(26)
-M_SIZE = 26
+#: the model output vector (``ARModel.out``): m, N, rad; statuses and counts as floats
+MODEL_OUT = Layout("model output", [
+    ("point", 3), ("normal", 3), ("uv", 2), ("distance", 1), ("depth", 1), ("contact_radius", 1), ("load", 1),
+    ("simulated_force", 3), ("measured_force", 3), ("condition", 1), ("collide_status", 1), ("md_status", 1),
+    ("decoupling_flags", 1), ("moved", 1), ("in_contact", 1), ("bending", 1), ("torsion", 1)])
+# the offsets as the kernels use them
+M_PX, M_NX, M_U = MODEL_OUT.offset("point"), MODEL_OUT.offset("normal"), MODEL_OUT.offset("uv")
+M_PY, M_PZ, M_NY, M_NZ, M_V = M_PX + 1, M_PX + 2, M_NX + 1, M_NX + 2, M_U + 1
+M_DISTANCE, M_DEPTH = MODEL_OUT.offset("distance"), MODEL_OUT.offset("depth")
+M_RADIUS, M_LOAD = MODEL_OUT.offset("contact_radius"), MODEL_OUT.offset("load")
+M_SIM_FX, M_MEAS_FX = MODEL_OUT.offset("simulated_force"), MODEL_OUT.offset("measured_force")
+M_SIM_FY, M_SIM_FZ, M_MEAS_FY, M_MEAS_FZ = M_SIM_FX + 1, M_SIM_FX + 2, M_MEAS_FX + 1, M_MEAS_FX + 2
+M_CONDITION, M_COLLIDE_STATUS = MODEL_OUT.offset("condition"), MODEL_OUT.offset("collide_status")
+M_MD_STATUS, M_DECOUPLE_STATUS = MODEL_OUT.offset("md_status"), MODEL_OUT.offset("decoupling_flags")
+M_MOVED, M_IN_CONTACT = MODEL_OUT.offset("moved"), MODEL_OUT.offset("in_contact")
+M_BENDING, M_TORSION = MODEL_OUT.offset("bending"), MODEL_OUT.offset("torsion")
+M_SIZE = MODEL_OUT.size
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 # model state vector: warm-start hint and the hysteresis memory
@@ -262,6 +275,15 @@ class ARModel:
         self._deformer.release()
         self.surface.reset()
         self.state[:] = (np.nan, np.nan, 0.0)
+
+    def kernel_args(self) -> tuple:
+        """The model's arguments of the compiled tick (:func:`model_tick_kernel` and the loop
+        kernels), in their order: the projector, the live net and dent patch, the contact law,
+        the decoupling, tip radius, friction, deform, state and the scratch and output vectors.
+        The arrays are the model's own (updated in place by every tick)."""
+        live_ctrl, live_rest, ku, kv, patch = self._live
+        return (self._proj_args, live_ctrl, live_rest, ku, kv, patch, self._md_args, self._dec, self.tip_radius,
+                self.friction, self.deform, self.state, self._coll, self._decout, self.out)
 
     def tick(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> np.ndarray:
         """Unchecked fast path: run the kernel, return the output vector (M_SIZE,) (reused)."""

@@ -17,7 +17,7 @@ from _timing import emit, stats, time_calls  # noqa: E402
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
-from arsurf.haptics.loop import HapticLoop, LoopConfig  # noqa: E402
+from arsurf.haptics.loop import L_F_PROBE, HapticLoop, LoopConfig  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice  # noqa: E402
 from arsurf.model import ARModel  # noqa: E402
@@ -55,7 +55,7 @@ def main() -> None:
         dev.command_force(loop.step(s, s.timestamp))
     st = dev.read_state()
     results = {"tick_512x512_python_call": stats(time_calls(tick, 20000)),
-               "in_contact_during_timing": bool(loop.out[10] > 0)}
+               "in_contact_during_timing": bool(loop.out[L_F_PROBE + 2] > 0)}
     for rate in (1000.0, 10000.0):
         dev, loop = build(rate)
         sched = Scheduler(loop.scheduler_step, loop, rate=rate, source=dev.read_state, sink=dev.command_force)

@@ -16,7 +16,8 @@ import math
 import numpy as np
 
 from arsurf.haptics.scheduler import Scheduler
-from arsurf.model import M_DEPTH, M_NX, M_PX, M_RADIUS
+from arsurf.haptics.loop import L_SAFETY_FLAGS, LOOP_OUT
+from arsurf.model import M_DEPTH, M_RADIUS, MODEL_OUT
 
 from .state import SceneState
 
@@ -51,8 +52,9 @@ class LiveLoop:
     def _snapshot(self, state, inputs, output) -> dict:
         """Runs in the loop thread: only small copies."""
         o, mo = self.loop.out, self.loop.model.out
-        return {"tip": o[0:3], "force": o[8:11], "point": mo[M_PX:M_PX + 3], "normal": mo[M_NX:M_NX + 3],
-                "scalars": np.array([mo[M_DEPTH], mo[M_RADIUS], o[20]])}
+        return {"tip": o[LOOP_OUT.slice("probe")], "force": o[LOOP_OUT.slice("probe_force")],
+                "point": mo[MODEL_OUT.slice("point")], "normal": mo[MODEL_OUT.slice("normal")],
+                "scalars": np.array([mo[M_DEPTH], mo[M_RADIUS], o[L_SAFETY_FLAGS]])}
 
     def start(self) -> "LiveLoop":
         self.loop.warm_up()  # compile before the thread starts: a cold first tick takes seconds

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 from arsurf.haptics.coupling import DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
@@ -45,10 +46,17 @@ from arsurf.model import (M_BENDING, M_MEAS_FX, M_SIM_FX, M_TORSION, SIGNALS_GIV
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
 COUPLINGS = {"direct": 0, "force-position": 1}
 
-# layout of the loop output vector
-(L_PROBE, L_PROBE_V, L_SIGNALS, L_F_PROBE, L_F_FILT, L_F_HAND, L_F_DEVICE) = (0, 3, 6, 8, 11, 14, 17)
-L_SAFETY_FLAGS, L_COUPLING_FLAGS, L_COLLIDE_STATUS = 20, 21, 22
-L_SIZE = 23
+#: the loop output vector (``HapticLoop.out``): m, m/s, rad, N; flags and status as floats
+LOOP_OUT = Layout("loop output", [
+    ("probe", 3), ("probe_velocity", 3), ("signals", 2), ("probe_force", 3), ("filtered_force", 3),
+    ("hand_force", 3), ("device_force", 3), ("safety_flags", 1), ("coupling_flags", 1), ("collide_status", 1)])
+# the offsets as the kernels use them
+L_PROBE, L_PROBE_V, L_SIGNALS = LOOP_OUT.offset("probe"), LOOP_OUT.offset("probe_velocity"), LOOP_OUT.offset("signals")
+L_F_PROBE, L_F_FILT = LOOP_OUT.offset("probe_force"), LOOP_OUT.offset("filtered_force")
+L_F_HAND, L_F_DEVICE = LOOP_OUT.offset("hand_force"), LOOP_OUT.offset("device_force")
+L_SAFETY_FLAGS, L_COUPLING_FLAGS = LOOP_OUT.offset("safety_flags"), LOOP_OUT.offset("coupling_flags")
+L_COLLIDE_STATUS = LOOP_OUT.offset("collide_status")
+L_SIZE = LOOP_OUT.size
 
 
 @njit(cache=True)
@@ -261,6 +269,7 @@ class HapticLoop:
                                f"arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")
         self.scene = scene
         self._scene_prev = np.full(3, np.nan)
+        self._model_args = model.kernel_args()
 
     @classmethod
     def direct(cls, model: ARModel, device_info, probe_origin, *, scale: float = 1e-5, force_gain: float = 1e5,
@@ -309,26 +318,21 @@ class HapticLoop:
             self._noise[0] = self._noise_block[k, 0]
             self._noise[1] = self._noise_block[k, 1]
             self._noise_i = k + 1
-        m = self.model
-        live_ctrl, live_rest, ku, kv, patch = m._live
         fp_params, fp_phi, fp_gamma, fp_state = self._fp
         if self.scene is None:
             loop_tick_kernel(x, v, int(inputs.buttons), float(now), float(now - inputs.timestamp), self.dt,
                              self._ext, self._noise, self._source, self.config.blend, self._mode, self._pos[2],
                              self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
                              self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
-                             m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
-                             m.friction, m.deform, m.state, m._coll, m._decout, m.out, self.prev_probe,
-                             self.out)
+                             *self._model_args, self.prev_probe, self.out)
             return self.out[L_F_DEVICE:L_F_DEVICE + 3]
         out = self.out
         buttons = int(inputs.buttons)
         self._scene_prev[:] = self.prev_probe  # the model part overwrites prev_probe
         loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
-                          self._pos[2], self._pos[0], self._pos[1], fp_state,
-                          m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
-                          m.friction, m.deform, m.state, m._coll, m._decout, m.out, self.prev_probe, out)
-        self.scene.tick(self._scene_prev, out[L_PROBE:L_PROBE + 3], m.tip_radius, out[L_F_PROBE:L_F_PROBE + 3])
+                          self._pos[2], self._pos[0], self._pos[1], fp_state, *self._model_args, self.prev_probe, out)
+        self.scene.tick(self._scene_prev, out[L_PROBE:L_PROBE + 3], self.model.tip_radius,
+                        out[L_F_PROBE:L_F_PROBE + 3])
         loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
                            fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
                            self.safety.params, self.safety.state, out)
@@ -354,6 +358,7 @@ class HapticLoop:
 
     def output(self) -> LoopOutput:
         """The last tick as a :class:`LoopOutput` record (copies)."""
-        o = self.out
-        return LoopOutput(o[0:3].copy(), o[3:6].copy(), o[6:8].copy(), o[8:11].copy(), o[11:14].copy(),
-                          o[14:17].copy(), o[17:20].copy(), int(o[L_SAFETY_FLAGS]), int(o[L_COLLIDE_STATUS]))
+        r = LOOP_OUT.record(self.out)
+        del r["coupling_flags"]
+        r["safety_flags"], r["collide_status"] = int(r["safety_flags"]), int(r["collide_status"])
+        return LoopOutput(**r)
