@@ -20,6 +20,28 @@ name                 code   meaning
 Kernels with their own *non-negative* results (Maugis-Dugdale returns the branch: 0 contact,
 1 cohesive, 2 separated) use only the negative codes of this table for their failures.
 
+The stages of the haptic loop (position scaling, coupling, safety) return **flag bits**; each bit
+means one thing wherever it appears, so the words of several stages can be OR-ed and read with
+one table:
+
+==================  =====  ===================================================================
+flag                bit    meaning
+==================  =====  ===================================================================
+``SATURATED``       1      force norm clamped to the device's maximum
+``RATE_LIMITED``    2      force change limited to the rate limit
+``RAMPING``         4      engagement gain between 0 and 1 (start-up ramp or fault fade-out)
+``STALE``           8      device sample older than the staleness limit
+``WATCHDOG``        16     the loop missed its deadlines repeatedly
+``DISENGAGED``      32     disengage button held
+``NONFINITE``       64     NaN/inf met in an input: the stage's safe output instead
+``CLUTCHED``        128    clutch held: the probe (or slave) frozen
+``CLAMPED``         256    probe (or slave) clamped to its range
+``MASTER_OUTSIDE``  512    master outside its workspace box
+==================  =====  ===================================================================
+
+The decoupling's bits (:class:`arsurf.force.decoupling.DecouplingFlag`) are a word of their own,
+recorded as such in session files.
+
 Examples
 --------
 >>> TEXT[NON_FINITE]
@@ -29,7 +51,9 @@ True
 """
 from __future__ import annotations
 
-__all__ = ["BAD_INPUT", "DEGENERATE", "ITERATION_LIMIT", "NON_FINITE", "NOT_CONVERGED", "OK", "TEXT"]
+__all__ = ["BAD_INPUT", "CLAMPED", "CLUTCHED", "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT",
+           "MASTER_OUTSIDE", "NONFINITE", "NON_FINITE", "NOT_CONVERGED", "OK", "RAMPING", "RATE_LIMITED", "SATURATED",
+           "STALE", "TEXT", "WATCHDOG", "flag_names"]
 
 OK = 0
 ITERATION_LIMIT = 1
@@ -47,3 +71,29 @@ TEXT = {
     BAD_INPUT: "input outside its domain",
     NOT_CONVERGED: "solver did not converge",
 }
+
+# flag bits of the haptic-loop stages
+SATURATED = 1
+RATE_LIMITED = 2
+RAMPING = 4
+STALE = 8
+WATCHDOG = 16
+DISENGAGED = 32
+NONFINITE = 64
+CLUTCHED = 128
+CLAMPED = 256
+MASTER_OUTSIDE = 512
+#: names of the flag bits, lowest bit first
+FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE", "CLUTCHED",
+              "CLAMPED", "MASTER_OUTSIDE")
+
+
+def flag_names(flags: int) -> list[str]:
+    """The names of the bits set in ``flags``.
+
+    Examples
+    --------
+    >>> flag_names(SATURATED | CLUTCHED)
+    ['SATURATED', 'CLUTCHED']
+    """
+    return [name for bit, name in enumerate(FLAG_NAMES) if int(flags) >> bit & 1]

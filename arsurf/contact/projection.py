@@ -83,7 +83,8 @@ from arsurf.contact.hull_tree import (
     net_curvature,
     net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
-from arsurf.errors import ContactError, SurfaceError
+from arsurf import status
+from arsurf.errors import ContactError, PositionError, SurfaceError
 from arsurf.spline.basis import find_span, surface_point
 from arsurf.spline.surface import BSplineSurface
 
@@ -102,12 +103,12 @@ OUT_STATUS = 14
 OUT_CACHED = 15       # 1.0 if the warm-start candidate list was used instead of the pyramid
 OUT_SIZE = 16
 
-# status codes (returned by the kernels and stored at OUT_STATUS)
-STATUS_OK = 0
-STATUS_NOT_CONVERGED = 1   # iteration limit hit: the answer is the best point found
-STATUS_DEGENERATE = 2      # S_u x S_v vanishes at the answer: normal taken along C - S (or +z)
-STATUS_NON_FINITE = -1     # NaN/inf met in the control net: no answer
-STATUS_BAD_INPUT = -2      # non-finite query point or radius <= 0 (kernel-level check)
+# status codes (returned by the kernels and stored at OUT_STATUS; the table is arsurf.status)
+STATUS_OK = status.OK
+STATUS_NOT_CONVERGED = status.ITERATION_LIMIT  # iteration limit hit: the answer is the best point found
+STATUS_DEGENERATE = status.DEGENERATE  # S_u x S_v vanishes at the answer: normal taken along C - S (or +z)
+STATUS_NON_FINITE = status.NON_FINITE  # NaN/inf met in the control net: no answer
+STATUS_BAD_INPUT = status.BAD_INPUT  # non-finite query point or radius <= 0 (kernel-level check)
 
 STATUS_TEXT = {
     STATUS_OK: "converged",
@@ -1122,9 +1123,9 @@ def _xyz(point, what: str) -> tuple[float, float, float]:
         x, y, z = point
         x, y, z = float(x), float(y), float(z)
     except (TypeError, ValueError):
-        raise SurfaceError(f"{what} must be 3 coordinates (x, y, z) in metres (got {point!r})") from None
+        raise PositionError(f"{what} must be 3 coordinates (x, y, z) in metres (got {point!r})") from None
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise SurfaceError(f"{what} must be finite (got ({x!r}, {y!r}, {z!r})); check the tip position source")
+        raise PositionError(f"{what} must be finite (got ({x!r}, {y!r}, {z!r})); check the tip position source")
     return x, y, z
 
 
@@ -1243,7 +1244,7 @@ def _batch(surface, points, hints, chain, radius, where):
         raise SurfaceError(f"points must have shape (n, 3) in metres (got {np.shape(points)})")
     if not np.isfinite(pts).all():
         bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
-        raise SurfaceError(f"points must be finite: {bad.size} rows hold NaN/inf (first: row {bad[0]})")
+        raise PositionError(f"points must be finite: {bad.size} rows hold NaN/inf (first: row {bad[0]})")
     if hints is None:
         hts = np.empty((0, 2))
     else:

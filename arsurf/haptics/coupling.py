@@ -39,6 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
+from arsurf import status
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, _vec3
 from arsurf.haptics.scaling import ForceScaling, PositionScaling
@@ -55,9 +56,9 @@ __all__ = [
     "fp_step",
 ]
 
-CLUTCHED = 1  #: clutch held: slave frozen (no force, or the last one held)
-CLAMPED = 2  #: slave clamped to the probe range
-NONFINITE = 8  #: non-finite master state (no force, slave frozen) or probe force (slave frozen)
+CLUTCHED = status.CLUTCHED  #: clutch held: slave frozen (no force, or the last one held)
+CLAMPED = status.CLAMPED  #: slave clamped to the probe range
+NONFINITE = status.NONFINITE  #: non-finite master state (no force, slave frozen) or probe force (slave frozen)
 
 # params layout of ForcePositionCoupling (per axis blocks of 3)
 _P_K, _P_B, _P_G, _P_AF, _P_AD, _P_LO, _P_HI = 0, 3, 6, 9, 12, 15, 18

@@ -49,6 +49,7 @@ import math
 import numpy as np
 from numba import njit
 
+from arsurf import status
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, DeviceInfo
 
@@ -65,14 +66,15 @@ __all__ = [
     "safety_step",
 ]
 
-SATURATED = 1  #: force norm clamped to max_force
-RATE_LIMITED = 2  #: force change limited to max_rate * dt
-RAMPING = 4  #: engagement gain between 0 and 1 (start-up / re-engage ramp or fault fade-out)
-STALE = 8  #: device sample older than stale_after
-WATCHDOG = 16  #: the loop missed its deadlines repeatedly
-DISENGAGED = 32  #: disengage button held
-NONFINITE = 64  #: NaN/inf in the input force: zero output
-FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE")
+# flags (one table for all loop stages: arsurf.status)
+SATURATED = status.SATURATED  #: force norm clamped to max_force
+RATE_LIMITED = status.RATE_LIMITED  #: force change limited to max_rate * dt
+RAMPING = status.RAMPING  #: engagement gain between 0 and 1 (start-up / re-engage ramp or fault fade-out)
+STALE = status.STALE  #: device sample older than stale_after
+WATCHDOG = status.WATCHDOG  #: the loop missed its deadlines repeatedly
+DISENGAGED = status.DISENGAGED  #: disengage button held
+NONFINITE = status.NONFINITE  #: NaN/inf in the input force: zero output
+FLAG_NAMES = status.FLAG_NAMES[:7]  # the safety layer's flags: the seven lowest bits
 
 # params layout
 _P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK = range(10)

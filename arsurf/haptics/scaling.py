@@ -37,6 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
+from arsurf import status
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, _vec3
 
@@ -59,11 +60,11 @@ HAND_RESOLUTION = 1e-3  # m
 #: Force scale of seed 001 (section 4.2.2): 15e6 (N on the hand per N on the probe).
 SEED001_K_F = 15e6
 
-# flags returned by the kernels
-CLUTCHED = 1  #: clutch held: probe frozen
-CLAMPED = 2  #: probe clamped to its range
-MASTER_OUTSIDE = 4  #: master outside its workspace box (re-centre with the clutch)
-NONFINITE = 8  #: non-finite input, previous output kept
+# flags returned by the kernels (one table for all loop stages: arsurf.status)
+CLUTCHED = status.CLUTCHED  #: clutch held: probe frozen
+CLAMPED = status.CLAMPED  #: probe clamped to its range
+MASTER_OUTSIDE = status.MASTER_OUTSIDE  #: master outside its workspace box (re-centre with the clutch)
+NONFINITE = status.NONFINITE  #: non-finite input, previous output kept
 
 # layout of PositionScaling.params and .state
 _P_SCALE, _P_LO, _P_HI, _P_WS = 0, 3, 6, 9
