@@ -20,8 +20,10 @@ from scipy.optimize import lsq_linear
 
 from reference import DenseSampling, brute_force, polish  # noqa: F401 (re-exported to the sweep)
 
+from arsurf.contact import closest_point as cp
 from arsurf.contact import hull_tree as cd
 from arsurf.contact import projection as pj
+from arsurf.contact.newton import newton_box
 from arsurf.contact.projection import collide, collide_many, project, project_many, projector, refresh_region
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.scan.scan import Scan
@@ -731,12 +733,12 @@ def test_excluded_pieces_hold_no_local_minimum(rng):
             ext = cd.net_extents(arr, e, 16, nx, ny, nz, tx, ty, tz)
             far2 = cd.extents_bounds2(*ext, nx, ny, nz, tx, ty, tz, *c)[1]
             vals = cd.net_curvature(arr[e:e + 16], p1 - p0, q1 - q0, nx, ny, nz)
-            if not pj._no_local_minimum(ctrl, ku, kv, ev, arr, e, p0, p1, q0, q1, *vals[:9], *ext,
+            if not cp._no_local_minimum(ctrl, ku, kv, ev, arr, e, p0, p1, q0, q1, *vals[:9], *ext,
                                         nx, ny, nz, tx, ty, tz, far2, *c):
                 continue
             excluded += 1
             for su, sv in rng.uniform(0, 1, size=(6, 2)):
-                u, v, d2, it, conv = pj.newton_box(ctrl, ku, kv, ev, *c, p0 + su * (p1 - p0), q0 + sv * (q1 - q0),
+                u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, *c, p0 + su * (p1 - p0), q0 + sv * (q1 - q0),
                                                    lo_u, hi_u, lo_v, hi_v, 1e-9 * H, 1e-9 * H, H, 200)
                 if conv:
                     assert not (p0 - 1e-15 <= u <= p1 + 1e-15 and q0 - 1e-15 <= v <= q1 + 1e-15)

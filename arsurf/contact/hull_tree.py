@@ -13,7 +13,7 @@ point C to the box bounds the distance to every surface point of the cell from b
 
 Any evaluated surface point bounds the closest distance from above, so only cells whose box is
 nearer than the best distance found so far can hold the global minimum
-(:mod:`arsurf.contact.projection` walks the pyramid nearest-first and runs Newton in them).
+(:mod:`arsurf.contact.closest_point` walks the pyramid nearest-first and runs Newton in them).
 
 Why oriented boxes of Bézier points: a cell's 4x4 B-spline points span three knot intervals
 sideways, its Bézier points only the cell, so hulls are ~3x tighter; and an axis-aligned box
@@ -50,7 +50,7 @@ from arsurf.spline.basis import cubic_basis
 N0, N1, N2, T0, T1, T2, LO_T, HI_T, LO_S, HI_S, LO_N, HI_N, RHO = range(13)
 NODE_SIZE = 13
 # the row after the last node holds (version, tree id): every refresh bumps the version, so a
-# query's cached candidate list (arsurf.contact.projection) knows when the boxes changed
+# query's cached candidate list (arsurf.contact.closest_point) knows when the boxes changed
 VERSION, TREE_ID = 0, 1
 _TREE_IDS = iter(range(1, 2**52))
 

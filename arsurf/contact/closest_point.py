@@ -1,0 +1,637 @@
+r"""The global closest point of a B-spline surface to the tip centre: the search kernels.
+
+The tip is a sphere (centre C, radius R). The closest surface point minimises
+
+.. math:: D(u, v) = \tfrac12\,|S(u, v) - C|^2, \qquad r = S - C,
+
+.. math:: g = \begin{pmatrix} S_u\cdot r \\ S_v\cdot r \end{pmatrix}, \qquad
+          H = \begin{pmatrix} S_u\cdot S_u + S_{uu}\cdot r & S_u\cdot S_v + S_{uv}\cdot r \\
+                              S_u\cdot S_v + S_{uv}\cdot r & S_v\cdot S_v + S_{vv}\cdot r \end{pmatrix}
+
+(DESIGN.md, "Closest point (Newton)"; seed 002). At the minimum :math:`r \parallel n`, the
+signed distance is :math:`d = (C - S)\cdot n` with the unit normal
+:math:`n = S_u \times S_v / |S_u \times S_v|` (out of the sample: +z on a height field) and the
+indentation depth is :math:`\delta = R - d` (> 0: the sphere penetrates).
+
+Global, not local. Newton finds *a* local minimum; the global one is found by bounds and
+certificates:
+
+1. Newton from the hint (last tick's (u, v)) or, cold, from the foot of C on the mid-plane of
+   the cell below it gives a surface point, hence an upper bound :math:`d^*` of the distance.
+2. The oriented hull-box pyramid of :mod:`arsurf.contact.hull_tree` is walked nearest-first; a
+   box farther than :math:`d^*` cannot hold a closer point and is pruned with its subtree. A
+   hint only tightens the first bound, so warm starting never hides a closer basin.
+3. A knot cell that survives is *certified convex* for this C when the Hessian of D is
+   positive definite on all of it: :math:`\lambda_{min}(H) \ge \sigma_{min}(J)^2 +
+   \lambda_{min}(\sum_c r_c \nabla^2 S_c) > 0`, bounded from the Bézier nets of the
+   derivatives (Weyl, Gershgorin), either through the cell's convexity radius or through the
+   signed curvature along its box normal (far above a cap D stays convex however far C is).
+   D convex on a cell: one Newton run restricted to the cell finds its minimum, and the cell is
+   skipped outright when it and the best point's cell span a certified rectangle (the best
+   point, a local minimum there, is that rectangle's minimum). Not certified (C farther than
+   the curvature radius, e.g. over a trench or a valley): the cell's Bézier patch is split into
+   quarters (de Casteljau) down to 3 levels, each quarter pruned by its own box and
+   certificate, Newton in the survivors.
+4. Every cell minimum that beats :math:`d^*` is polished by an unrestricted Newton run and
+   becomes the best.
+
+Safeguards of every Newton run: Newton step when H is positive definite, else the
+Gauss-Newton step :math:`-(J^TJ)^{-1} g` (always a descent direction), else a gradient step;
+the step is capped (trust length :math:`2(|r| + h)`), projected onto the parameter box (active
+set: a bound variable with an outward gradient is frozen) and backtracked until the Armijo
+condition :math:`D_{new} \le D + 10^{-4}\, g\cdot\Delta` holds; iterations and halvings are
+bounded, so no loop can run forever. The answer carries a status code.
+
+Warm start. A warm query also keeps in its work array the list of cells within
+:math:`d^* + h/2` of C (sorted by distance); later queries reuse it, without walking the
+pyramid, while :math:`|C - C_0| + d^*(C) \le R_0` guarantees it still holds every candidate
+(:func:`project_kernel`, Notes). A refresh of the pyramid (deformation) invalidates it.
+
+Cost (bench/collision.py). In contact, warm: one Newton run (2-3 iterations), a short list
+scan and 1-2 certified cells, ~1 us in a kernel loop. Cold: the pyramid walk (~4 box tests per
+level) plus 2-3 Newton iterations, 2-4 us. Far above the surface the admissible region is the
+set of cells within d* of C: over smooth surfaces it stays a few cells (the boxes are thin and
+the caps certified), over rough ones it grows with the height (more valley cells to subdivide):
+on the 5 nm rms bench surface, median 2.5 / 4.5 / 8 / 13 us at 1 / 5 / 25 / 125 tip radii above
+it, p99 up to ~0.1-0.2 ms. At worst it is bounded by the cells of the whole surface.
+
+Kernels (numba, ``cache=True``) take plain arrays, allocate nothing and return status codes;
+:func:`collide_kernel` is the entry point for the haptic-loop kernel. The Python functions
+validate once and turn the status into exceptions or flags.
+
+The Newton iteration is :mod:`arsurf.contact.newton`, the output and work-array layouts
+:mod:`arsurf.contact.layout`, the Python API (validation, records, the per-surface projector)
+:mod:`arsurf.contact.projection`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from arsurf.contact.hull_tree import (
+    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, box_offsets, cell_certified, cell_net, curvature_radius,
+    extents_bounds2, net_curvature, net_extents, net_split, node_bounds2, node_distance2, signed_convex,
+)
+from arsurf.contact.layout import (
+    BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
+    OUT_CACHED, OUT_CELLS, OUT_CONVERGED, OUT_DEPTH, OUT_DISTANCE, OUT_ITERATIONS, OUT_NX, OUT_NY, OUT_NZ,
+    OUT_PX, OUT_PY, OUT_PZ, OUT_STATUS, OUT_U, OUT_V, STACK_ROWS, STATUS_BAD_INPUT,
+    STATUS_DEGENERATE, STATUS_NON_FINITE, STATUS_NOT_CONVERGED, STATUS_OK, SUB_BASE, SUB_CAP, SUB_ENTRY,
+)
+from arsurf.contact.newton import MAX_ITER_CELL, MAX_ITER_DOMAIN, STEP_TOL, _clip, newton_box
+from arsurf.spline.basis import find_span, surface_point
+
+# A box must beat the best squared distance by this factor to be searched: a cell that could
+# only be closer by a relative 5e-13 (< 1e-20 m at nm distances) is not worth a Newton run, and
+# exact ties (a flat or tilted plane, whose boxes touch the ball of radius d*) are pruned.
+TIE = 1.0 - 1e-12
+
+
+# --- global search ------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _keep(work):
+    """Copy S, S_u, S_v of the last Newton answer (rows 0..2) to the best-point rows."""
+    for r in range(3):
+        for c in range(3):
+            work[BEST_ROW + r, c] = work[r, c]
+
+
+@njit(cache=True, inline="always")
+def _cell_of(ku, kv, u, v):
+    """Knot cell (a, b) holding the parameters (u, v)."""
+    return find_span(ku, u) - 3, find_span(kv, v) - 3
+
+
+@njit(cache=True)
+def _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
+    """True if D is certified convex on every cell of the rectangle spanned by cells (i, j) and
+    (bi, bj) (at most 3x3 cells): then the best point, a local minimum lying in that convex
+    rectangle, is its minimum, and cell (i, j) cannot hold a closer point."""
+    i0 = min(i, bi)
+    i1 = max(i, bi)
+    j0 = min(j, bj)
+    j1 = max(j, bj)
+    if i1 - i0 > 2 or j1 - j0 > 2:
+        return False
+    for a in range(i0, i1 + 1):
+        for b in range(j0, j1 + 1):
+            node = a * nj0 + b
+            near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+            if not cell_certified(nodes, curv, node, far2, cx, cy, cz):
+                return False
+    return True
+
+
+@njit(cache=True)
+def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1,
+                      tuu, tuv, tvv, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+    r"""True if D provably has no local minimum on the closed piece [u0, u1] x [v0, v1].
+
+    Two exclusion tests around one evaluation at the centre :math:`x_c` (order 2):
+
+    * no stationary point: :math:`|g_u(x_c)| > \max|H_{uu}|\,\Delta u/2 + \max|H_{uv}|\,\Delta v/2`
+      (or the same for :math:`g_v`), with :math:`|H_{uu}| \le |S_u|^2 + |S_{uu}|\,|r|`, ...;
+    * negative curvature everywhere: along the eigenvector w of the smallest eigenvalue of
+      :math:`H(x_c)`, :math:`w^THw = |Jw|^2 + r\cdot S_{ww} \le (|w_u||S_u| + |w_v||S_v|)^2
+      + \max(\alpha\,[n\cdot S_{ww}]) + |r_\perp|\,|S_{ww,\perp}| < 0` on the whole piece
+      (valleys and saddles seen from far above).
+
+    The norms come from the piece's Bézier derivative nets (``net[e:e+16]``) and the curvature
+    bounds of :func:`net_curvature` along the cell normal n; α = n·r and |r_⊥| from the piece's
+    oriented box. A piece inside the domain without a local minimum cannot hold the global one
+    (an interior minimum has g = 0 and H ⪰ 0), not even on its edges: it is pruned.
+    """
+    du = u1 - u0
+    dv = v1 - v0
+    su2 = 0.0
+    sv2 = 0.0
+    for k in range(3):
+        for m in range(4):
+            qx = net[e + (k + 1) * 4 + m, 0] - net[e + k * 4 + m, 0]
+            qy = net[e + (k + 1) * 4 + m, 1] - net[e + k * 4 + m, 1]
+            qz = net[e + (k + 1) * 4 + m, 2] - net[e + k * 4 + m, 2]
+            su2 = max(su2, qx * qx + qy * qy + qz * qz)
+            qx = net[e + m * 4 + k + 1, 0] - net[e + m * 4 + k, 0]
+            qy = net[e + m * 4 + k + 1, 1] - net[e + m * 4 + k, 1]
+            qz = net[e + m * 4 + k + 1, 2] - net[e + m * 4 + k, 2]
+            sv2 = max(sv2, qx * qx + qy * qy + qz * qz)
+    su = 3.0 * math.sqrt(su2) / du * (1.0 + 1e-9)
+    sv = 3.0 * math.sqrt(sv2) / dv * (1.0 + 1e-9)
+    suu = math.sqrt(max(kuu0 * kuu0, kuu1 * kuu1) + tuu * tuu)
+    svv = math.sqrt(max(kvv0 * kvv0, kvv1 * kvv1) + tvv * tvv)
+    suv = math.sqrt(max(kuv0 * kuv0, kuv1 * kuv1) + tuv * tuv)
+    rmax = math.sqrt(far2)
+    surface_point(ctrl, ku, kv, 0.5 * (u0 + u1), 0.5 * (v0 + v1), 2, ev)
+    rx = ev[0, 0] - cx
+    ry = ev[0, 1] - cy
+    rz = ev[0, 2] - cz
+    gu = ev[1, 0] * rx + ev[1, 1] * ry + ev[1, 2] * rz
+    gv = ev[2, 0] * rx + ev[2, 1] * ry + ev[2, 2] * rz
+    # margins: relative 1e-9 on the bounds, and the rounding of g itself (~1e-15 |S_u| |r|)
+    noise = 1e-14 * math.sqrt(rx * rx + ry * ry + rz * rz) * (su + sv)
+    huu = su * su + suu * rmax
+    huv = su * sv + suv * rmax
+    hvv = sv * sv + svv * rmax
+    if abs(gu) > (huu * 0.5 * du + huv * 0.5 * dv) * (1.0 + 1e-9) + noise:
+        return True
+    if abs(gv) > (huv * 0.5 * du + hvv * 0.5 * dv) * (1.0 + 1e-9) + noise:
+        return True
+    # Hessian at the centre and its most negative direction
+    a = ev[1, 0] * ev[1, 0] + ev[1, 1] * ev[1, 1] + ev[1, 2] * ev[1, 2] + ev[3, 0] * rx + ev[3, 1] * ry + ev[3, 2] * rz
+    b = ev[1, 0] * ev[2, 0] + ev[1, 1] * ev[2, 1] + ev[1, 2] * ev[2, 2] + ev[4, 0] * rx + ev[4, 1] * ry + ev[4, 2] * rz
+    c = ev[2, 0] * ev[2, 0] + ev[2, 1] * ev[2, 1] + ev[2, 2] * ev[2, 2] + ev[5, 0] * rx + ev[5, 1] * ry + ev[5, 2] * rz
+    lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    if not (lam < 0.0):
+        return False
+    # eigenvector of lam: (b, lam - a) or (lam - c, b), the better conditioned one
+    wu, wv = b, lam - a
+    if abs(lam - c) + abs(b) > abs(wu) + abs(wv):
+        wu, wv = lam - c, b
+    wn = math.sqrt(wu * wu + wv * wv)
+    if not (wn > 0.0):
+        return False
+    wu /= wn
+    wv /= wn
+    jw = abs(wu) * su + abs(wv) * sv
+    cuv = 2.0 * wu * wv
+    k_lo = wu * wu * kuu0 + wv * wv * kvv0 + min(cuv * kuv0, cuv * kuv1)
+    k_hi = wu * wu * kuu1 + wv * wv * kvv1 + max(cuv * kuv0, cuv * kuv1)
+    tw = wu * wu * tuu + abs(cuv) * tuv + wv * wv * tvv
+    a0, a1, rp = box_offsets(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, cx, cy, cz)
+    bound = jw * jw + max(a0 * k_lo, a0 * k_hi, a1 * k_lo, a1 * k_hi) + rp * tw
+    return bound < -1e-9 * jw * jw
+
+
+@njit(cache=True)
+def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz, bu, bv, bd2, bconv,
+                       lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
+    """Closest point in knot cell (a, b) when D is not certified convex there.
+
+    The cell's Bézier net is split into quarters (de Casteljau) down to ``MAX_SUBDIVISION``; each
+    piece is pruned by the distance to its box (in the cell's frame) and, once certified convex
+    or at the depth limit, searched by Newton restricted to its parameter rectangle. Returns the
+    updated best ``(bu, bv, bd2, bconv, iterations, nonfinite)``.
+    """
+    nx, ny, nz = nodes[node, 0], nodes[node, 1], nodes[node, 2]
+    tx, ty, tz = nodes[node, 3], nodes[node, 4], nodes[node, 5]
+    ev = work[0:6]
+    e = SUB_BASE
+    cell_net(ctrl, mu, mv, a, b, work[e:e + 16])
+    work[e + 16, 0] = ku[a + 3]
+    work[e + 16, 1] = ku[a + 4]
+    work[e + 16, 2] = kv[b + 3]
+    work[e + 17, 0] = kv[b + 4]
+    work[e + 17, 1] = 0.0
+    sp = 1
+    iters = 0
+    nonfinite = False
+    while sp > 0:
+        sp -= 1
+        e = SUB_BASE + sp * SUB_ENTRY
+        u0 = work[e + 16, 0]
+        u1 = work[e + 16, 1]
+        v0 = work[e + 16, 2]
+        v1 = work[e + 17, 0]
+        depth = int(work[e + 17, 1])
+        lt, ht, ls, hs, ln, hn = net_extents(work, e, 16, nx, ny, nz, tx, ty, tz)
+        near2, far2, lift = extents_bounds2(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, cx, cy, cz)
+        if not (near2 < bd2 * TIE):
+            continue
+        kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2 = net_curvature(work[e:e + 16], u1 - u0, v1 - v0,
+                                                                                nx, ny, nz)
+        # unsigned radius (Gershgorin with norms) or the signed test along the cell's normal
+        rho = curvature_radius(kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2)
+        convex = far2 < rho * rho or signed_convex(
+            kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz,
+            cx, cy, cz)
+        if not convex and lo_u < u0 and u1 < hi_u and lo_v < v0 and v1 < hi_v and _no_local_minimum(
+                ctrl, ku, kv, ev, work, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv,
+                lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+            continue  # inside the domain and provably no local minimum of D on the piece
+        if convex or depth >= MAX_SUBDIVISION or sp + 4 > SUB_CAP:
+            if convex and u0 <= bu <= u1 and v0 <= bv <= v1:
+                continue  # convex piece holding the best point: that point is its minimum
+            su = _clip(cx - lift * nx, u0, u1)
+            sv = _clip(cy - lift * ny, v0, v1)
+            u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, su, sv, u0, u1, v0, v1,
+                                            tol_u, tol_v, h, MAX_ITER_CELL)
+            iters += it
+            if not (d2 - d2 == 0.0):
+                nonfinite = True
+                continue
+            if d2 < bd2:
+                u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, lo_u, hi_u, lo_v, hi_v,
+                                                tol_u, tol_v, h, MAX_ITER_DOMAIN)
+                iters += it
+                if d2 < bd2:
+                    bu, bv, bd2, bconv = u, v, d2, conv
+                    _keep(work)
+            continue
+        # split into quarters: the parent's slot becomes the first child
+        for r in range(16):
+            for c in range(3):
+                work[NET_TMP + r, c] = work[e + r, c]
+        um = 0.5 * (u0 + u1)
+        vm = 0.5 * (v0 + v1)
+        e0 = e
+        e1 = e + SUB_ENTRY
+        e2 = e + 2 * SUB_ENTRY
+        e3 = e + 3 * SUB_ENTRY
+        net_split(work, NET_TMP, work, e0, e1, e2, e3)
+        for q in range(4):
+            eq = e + q * SUB_ENTRY
+            work[eq + 16, 0] = u0 if (q & 1) == 0 else um
+            work[eq + 16, 1] = um if (q & 1) == 0 else u1
+            work[eq + 16, 2] = v0 if q < 2 else vm
+            work[eq + 17, 0] = vm if q < 2 else v1
+            work[eq + 17, 1] = depth + 1
+        sp += 4
+    return bu, bv, bd2, bconv, iters, nonfinite
+
+
+@njit(cache=True)
+def _finish(ev, cx, cy, cz, u, v, out):
+    """Point, unit normal and signed distance from S, S_u, S_v in ``ev[:3]`` into ``out``; returns a status."""
+    px, py, pz = ev[0, 0], ev[0, 1], ev[0, 2]
+    sux, suy, suz = ev[1, 0], ev[1, 1], ev[1, 2]
+    svx, svy, svz = ev[2, 0], ev[2, 1], ev[2, 2]
+    nx = suy * svz - suz * svy
+    ny = suz * svx - sux * svz
+    nz = sux * svy - suy * svx
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    wx = cx - px
+    wy = cy - py
+    wz = cz - pz
+    dist = math.sqrt(wx * wx + wy * wy + wz * wz)
+    # degenerate when |S_u x S_v| is rounding noise next to the longer tangent (a collapsed edge)
+    scale = max(sux * sux + suy * suy + suz * suz, svx * svx + svy * svy + svz * svz)
+    status = STATUS_OK
+    if nn > 1e-12 * scale and nn > 0.0:
+        nx /= nn
+        ny /= nn
+        nz /= nn
+        signed = dist if (wx * nx + wy * ny + wz * nz) >= 0.0 else -dist
+    else:
+        status = STATUS_DEGENERATE
+        signed = dist
+        if dist > 0.0:
+            nx, ny, nz = wx / dist, wy / dist, wz / dist
+        else:
+            nx, ny, nz = 0.0, 0.0, 1.0
+    out[OUT_U] = u
+    out[OUT_V] = v
+    out[OUT_PX] = px
+    out[OUT_PY] = py
+    out[OUT_PZ] = pz
+    out[OUT_NX] = nx
+    out[OUT_NY] = ny
+    out[OUT_NZ] = nz
+    out[OUT_DISTANCE] = signed
+    if not (signed - signed == 0.0 and nx - nx == 0.0 and ny - ny == 0.0 and nz - nz == 0.0):
+        return STATUS_NON_FINITE
+    return status
+
+
+@njit(cache=True)
+def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz,
+                bu, bv, bd2, bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
+    """Search knot cell ``node`` (a leaf of the pyramid) for a point closer than the best.
+
+    Skipped when its box is not nearer than the best distance, or when D is certified convex on
+    the rectangle spanned by the cell and the best point's cell (the best point, a local minimum,
+    is then the minimum there). A certified cell gets one Newton run restricted to it (convex:
+    its minimum is found from any seed); an uncertified one is subdivided
+    (:func:`_search_subdivided`). ``near2, far2, lift`` are :func:`node_bounds2` of the cell.
+    Returns ``(bu, bv, bd2, bconv, bi, bj, iterations, searched, nonfinite)``.
+    """
+    if not (near2 < bd2 * TIE):
+        return bu, bv, bd2, bconv, bi, bj, 0, 0, False
+    if nodes[node, LO_T] == -np.inf:  # a cell whose Bézier net is not finite (see candidates)
+        return bu, bv, bd2, bconv, bi, bj, 0, 1, True
+    i = node // nj0
+    j = node - i * nj0
+    iters = 0
+    if not cell_certified(nodes, curv, node, far2, cx, cy, cz):  # no convexity certificate: subdivide
+        bu, bv, bd2, bconv, iters, nf = _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, i, j,
+                                                           cx, cy, cz, bu, bv, bd2, bconv,
+                                                           lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
+        bi, bj = _cell_of(ku, kv, bu, bv)
+        return bu, bv, bd2, bconv, bi, bj, iters, 1, nf
+    if bconv and _convex_block(nodes, curv, nj0, i, j, bi, bj, cx, cy, cz):
+        return bu, bv, bd2, bconv, bi, bj, 0, 1, False
+    cu0 = ku[i + 3]
+    cu1 = ku[i + 4]
+    cv0 = kv[j + 3]
+    cv1 = kv[j + 4]
+    # seed: the foot of C on the mid-plane of the cell's box, clamped to the cell
+    su = _clip(cx - lift * nodes[node, 0], cu0, cu1)
+    sv = _clip(cy - lift * nodes[node, 1], cv0, cv1)
+    ev = work[0:6]
+    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, su, sv, cu0, cu1, cv0, cv1,
+                                    tol_u, tol_v, h, MAX_ITER_CELL)
+    iters += it
+    if not (d2 - d2 == 0.0):
+        return bu, bv, bd2, bconv, bi, bj, iters, 1, True
+    if d2 < bd2:
+        u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v,
+                                        lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h, MAX_ITER_DOMAIN)
+        iters += it
+        if d2 < bd2:
+            bu, bv, bd2, bconv = u, v, d2, conv
+            bi, bj = _cell_of(ku, kv, bu, bv)
+            _keep(work)
+    return bu, bv, bd2, bconv, bi, bj, iters, 1, False
+
+
+@njit(cache=True)
+def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out):
+    """Global closest point of the surface to (cx, cy, cz); writes ``out`` (OUT_SIZE,), returns a status.
+
+    Parameters
+    ----------
+    ctrl, ku, kv : (nu, nv, 3), (nu+4,), (nv+4,) float64
+        Live control net and knots (:meth:`BSplineSurface.kernel_arrays`).
+    mu, mv, nodes, levels : the hull pyramid (:class:`arsurf.contact.hull_tree.HullTree`),
+        current with ``ctrl`` (refreshed after every change of the net).
+    work : (WORK_ROWS + 4 L, 3) float64
+        Scratch and the warm-start candidate cache; one per thread (and per surface).
+    cx, cy, cz : float, metres
+        Query point (tip centre).
+    hint_u, hint_v : float, metres
+        Warm start (last answer); NaN for a cold start from (cx, cy).
+    out : (OUT_SIZE,) float64
+        Result, see the ``OUT_*`` indices.
+
+    Notes
+    -----
+    Warm queries keep a candidate list in ``work``: every cell whose box is within
+    :math:`R_0 = d^*(C_0) + m` of the point :math:`C_0` where it was built (m = CACHE_MARGIN x
+    knot spacing), sorted by that distance. A later query at C with first bound d (from Newton at
+    the hint) may use it while :math:`|C - C_0| + d \\le R_0`: any cell nearer to C than d is then
+    nearer to :math:`C_0` than :math:`R_0`, so it is in the list, and the scan stops at the first
+    entry farther than :math:`d + |C - C_0|`. A refresh of the pyramid (deformation) bumps its
+    version and invalidates the list.
+    """
+    if not (cx - cx == 0.0 and cy - cy == 0.0 and cz - cz == 0.0):
+        out[OUT_STATUS] = STATUS_BAD_INPUT
+        return STATUS_BAD_INPUT
+    nu = ctrl.shape[0]
+    nv = ctrl.shape[1]
+    lo_u = ku[3]
+    hi_u = ku[nu]
+    lo_v = kv[3]
+    hi_v = kv[nv]
+    hu = (hi_u - lo_u) / (nu - 3)
+    hv = (hi_v - lo_v) / (nv - 3)
+    h = max(hu, hv)
+    tol_u = STEP_TOL * hu
+    tol_v = STEP_TOL * hv
+    ev = work[0:6]
+    warm = hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0
+    nj0 = levels[0, 2]
+    if warm:
+        su, sv = hint_u, hint_v
+    else:
+        # cold: the foot of C on the mid-plane of the cell below it (on the undeformed surface
+        # u = x, v = y), one or two Newton steps closer than the point straight below
+        i, j = _cell_of(ku, kv, cx, cy)
+        node = i * nj0 + j
+        lift = (nodes[node, 0] * cx + nodes[node, 1] * cy + nodes[node, 2] * cz
+                - 0.5 * (nodes[node, LO_N] + nodes[node, HI_N]))
+        su, sv = cx - lift * nodes[node, 0], cy - lift * nodes[node, 1]
+        if not (su - su == 0.0 and sv - sv == 0.0):  # a non-finite cell
+            su, sv = cx, cy
+    bu, bv, bd2, iters, bconv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, su, sv,
+                                           lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h, MAX_ITER_DOMAIN)
+    _keep(work)
+    nonfinite = not (bd2 - bd2 == 0.0)
+    if nonfinite:
+        bd2 = np.inf
+    bi, bj = _cell_of(ku, kv, bu, bv)
+    cells = 0
+    # --- the candidate cache of warm queries
+    vrow = nodes.shape[0] - 1
+    version = nodes[vrow, VERSION]
+    tree_id = nodes[vrow, TREE_ID]
+    count = int(work[CACHE_ROW, 2])
+    d0 = math.sqrt(bd2)
+    dc = 0.0
+    use_cache = False
+    if count > 0 and work[CACHE_ROW, 0] == version and work[CACHE_ROW, 1] == tree_id:
+        ddx = cx - work[CACHE_ROW + 1, 0]
+        ddy = cy - work[CACHE_ROW + 1, 1]
+        ddz = cz - work[CACHE_ROW + 1, 2]
+        dc = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz)
+        use_cache = dc + d0 <= work[CACHE_ROW + 2, 0]
+    if use_cache:
+        for k in range(count):
+            row = CACHE_LIST + k
+            if work[row, 1] - dc >= math.sqrt(bd2):
+                break  # sorted: no later entry can be nearer than the best
+            node = int(work[row, 0])
+            near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+            if not (near2 < bd2 * TIE):
+                continue
+            bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
+                ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
+                bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
+            iters += it
+            cells += searched
+            nonfinite = nonfinite or nf
+    else:
+        # --- the pyramid, nearest child first; a warm query also records the candidate list
+        build = warm and not nonfinite
+        reach = d0 + CACHE_MARGIN * h if build else 0.0
+        reach2 = reach * reach
+        count = 0
+        overflow = False
+        nlev = levels.shape[0]
+        cap = work.shape[0]
+        sp = STACK_ROWS
+        work[sp, 0] = nlev - 1
+        work[sp, 1] = 0.0
+        work[sp, 2] = 0.0
+        sp += 1
+        while sp > STACK_ROWS:
+            sp -= 1
+            lev = int(work[sp, 0])
+            i = int(work[sp, 1])
+            j = int(work[sp, 2])
+            if lev == 0:
+                node = i * nj0 + j
+                near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+                if build and near2 < reach2:
+                    if count < CACHE_CAP:
+                        work[CACHE_LIST + count, 0] = node
+                        work[CACHE_LIST + count, 1] = math.sqrt(near2)
+                        count += 1
+                    else:
+                        overflow = True
+                if not (near2 < bd2 * TIE):
+                    continue
+                bu, bv, bd2, bconv, bi, bj, it, searched, nf = _visit_leaf(
+                    ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz, bu, bv, bd2,
+                    bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h)
+                iters += it
+                cells += searched
+                nonfinite = nonfinite or nf
+                continue
+            if not build and bconv and (bi >> lev) == i and (bj >> lev) == j:
+                # the best point (a local minimum) lies in this node: if D is certified convex on all
+                # of its cells (C within their smallest convexity radius), it is their minimum
+                node = levels[lev, 0] + i * levels[lev, 2] + j
+                near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
+                rho = nodes[node, RHO]
+                if far2 < rho * rho:
+                    continue
+            # children on level lev - 1, pushed farthest first so the nearest is searched first
+            limit = max(bd2 * TIE, reach2)
+            clev = lev - 1
+            coff = levels[clev, 0]
+            cni = levels[clev, 1]
+            cnj = levels[clev, 2]
+            k0 = k1 = k2 = k3 = -1
+            e0 = e1 = e2 = e3 = np.inf
+            for k in range(4):
+                ci = 2 * i + (k >> 1)
+                cj = 2 * j + (k & 1)
+                if ci >= cni or cj >= cnj:
+                    continue
+                d = node_distance2(nodes, coff + ci * cnj + cj, cx, cy, cz)
+                if not (d < limit):
+                    continue
+                # insertion into the sorted quadruple (e0 <= e1 <= e2 <= e3)
+                if d < e3:
+                    e3, k3 = d, k
+                    if e3 < e2:
+                        e2, e3, k2, k3 = e3, e2, k3, k2
+                        if e2 < e1:
+                            e1, e2, k1, k2 = e2, e1, k2, k1
+                            if e1 < e0:
+                                e0, e1, k0, k1 = e1, e0, k1, k0
+            for kk in (k3, k2, k1, k0):
+                if kk >= 0 and sp < cap:
+                    work[sp, 0] = clev
+                    work[sp, 1] = 2 * i + (kk >> 1)
+                    work[sp, 2] = 2 * j + (kk & 1)
+                    sp += 1
+        if build and not overflow and count > 0:
+            # insertion sort of the list by distance (short lists; rebuilt every ~m/|step| ticks)
+            for a in range(CACHE_LIST + 1, CACHE_LIST + count):
+                kn = work[a, 0]
+                kd = work[a, 1]
+                b = a - 1
+                while b >= CACHE_LIST and work[b, 1] > kd:
+                    work[b + 1, 0] = work[b, 0]
+                    work[b + 1, 1] = work[b, 1]
+                    b -= 1
+                work[b + 1, 0] = kn
+                work[b + 1, 1] = kd
+            work[CACHE_ROW, 0] = version
+            work[CACHE_ROW, 1] = tree_id
+            work[CACHE_ROW, 2] = count
+            work[CACHE_ROW + 1, 0] = cx
+            work[CACHE_ROW + 1, 1] = cy
+            work[CACHE_ROW + 1, 2] = cz
+            work[CACHE_ROW + 2, 0] = reach
+        elif build:
+            work[CACHE_ROW, 2] = 0.0
+    out[OUT_ITERATIONS] = iters
+    out[OUT_CELLS] = cells
+    out[OUT_CACHED] = 1.0 if use_cache else 0.0
+    out[OUT_CONVERGED] = 1.0 if bconv else 0.0
+    out[OUT_BOUNDARY] = 1.0 if (bu <= lo_u or bu >= hi_u or bv <= lo_v or bv >= hi_v) else 0.0
+    status = _finish(work[BEST_ROW:BEST_ROW + 3], cx, cy, cz, bu, bv, out)
+    if nonfinite:
+        status = STATUS_NON_FINITE
+    elif status == STATUS_OK and not bconv:
+        status = STATUS_NOT_CONVERGED
+    out[OUT_STATUS] = status
+    return status
+
+
+@njit(cache=True)
+def collide_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, radius, hint_u, hint_v, out):
+    """Tip sphere (centre, radius) against the surface: :func:`project_kernel` plus the depth.
+
+    Writes ``out[OUT_DEPTH] = radius - out[OUT_DISTANCE]`` (> 0: penetration). Returns the status
+    (``STATUS_BAD_INPUT`` for a non-finite centre or radius <= 0). For the haptic-loop kernel:
+    call it with the arrays of :meth:`Projector.kernel_args` and the last ``out[OUT_U]``,
+    ``out[OUT_V]`` as the hint.
+    """
+    if not (radius > 0.0 and radius - radius == 0.0):
+        out[OUT_STATUS] = STATUS_BAD_INPUT
+        return STATUS_BAD_INPUT
+    status = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out)
+    out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
+    return status
+
+
+@njit(cache=True)
+def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points, hints, chain, radius, out):
+    """Many queries: ``points`` (n, 3); ``hints`` (n, 2) (NaN rows = cold) or (0, 2);
+    ``chain`` warm-starts each query from the previous answer (trajectories). ``radius`` > 0
+    fills the depth column. ``out`` (n, OUT_SIZE). Returns the worst (lowest) status."""
+    worst = STATUS_OK
+    hu = np.nan
+    hv = np.nan
+    for k in range(points.shape[0]):
+        if hints.shape[0] > 0:
+            hu = hints[k, 0]
+            hv = hints[k, 1]
+        row = out[k]
+        st = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points[k, 0], points[k, 1], points[k, 2],
+                            hu, hv, row)
+        row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
+        if chain:
+            if st >= 0:
+                hu = row[OUT_U]
+                hv = row[OUT_V]
+            else:
+                hu = np.nan
+                hv = np.nan
+        if st < 0 and st < worst:
+            worst = st
+    return worst
