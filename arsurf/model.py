@@ -96,7 +96,7 @@ def model_tick_kernel(proj,                                              # Proje
         out[k] = 0.0
     out[M_BENDING] = math.nan
     out[M_TORSION] = math.nan
-    st = pj.collide_kernel(*proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
+    st = pj.collide_any(proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
     out[M_COLLIDE_STATUS] = st
     if st < 0:
         return st
@@ -251,8 +251,10 @@ class ARModel:
         from arsurf.contact.deformation import Deformer
 
         self.surface = surface
-        self.rest_surface = surface.copy()
-        self.rest_surface.reset()
+        # collision runs on the rest net: the live surface's own rest snapshot, shared read-only
+        # (no copy of the whole net: a 4096^2 net is 400 MB)
+        live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
+        self.rest_surface = BSplineSurface.construct_fast(live_rest, ku, kv)
         self._deformer = Deformer(surface)  # validates the height-field rest net
         self.tip_radius = tip_radius
         self.contact = contact
@@ -260,7 +262,6 @@ class ARModel:
         self.friction = friction
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
-        live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
         self._proj_args = proj.kernel_args()
         self._md_args = np.array(contact.kernel_args, dtype=np.float64)
         self._dec = decoupling_parameters(cantilever, min_speed=FRICTION_VELOCITY)

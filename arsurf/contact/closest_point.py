@@ -69,15 +69,16 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from arsurf.contact.hull_tree import (
-    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, box_offsets, cell_certified, cell_net, curvature_radius,
+    HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, refresh_region_kernel, box_offsets, cell_certified, cell_net, curvature_radius,
     extents_bounds2, net_curvature, net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
 from arsurf.contact.layout import (
     BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
     OUT_CACHED, OUT_CELLS, OUT_CONVERGED, OUT_DEPTH, OUT_DISTANCE, OUT_ITERATIONS, OUT_NX, OUT_NY, OUT_NZ,
-    OUT_PX, OUT_PY, OUT_PZ, OUT_STATUS, OUT_U, OUT_V, STACK_ROWS, STATUS_BAD_INPUT,
+    OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, STACK_ROWS, STATUS_BAD_INPUT,
     STATUS_DEGENERATE, STATUS_NON_FINITE, STATUS_NOT_CONVERGED, STATUS_OK, SUB_BASE, SUB_CAP, SUB_ENTRY,
 )
 from arsurf.contact.newton import MAX_ITER_CELL, MAX_ITER_DOMAIN, STEP_TOL, _clip, newton_box
@@ -635,3 +636,245 @@ def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points
         if st < 0 and st < worst:
             worst = st
     return worst
+
+
+# --- tiles: the hull-box pyramid built lazily, tile by tile ------------------------------------
+# grid (int64) fields of a tiled projector
+G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS, G_USED, G_CLOCK, G_BUILDS = range(9)
+G_SIZE = 9
+# slot_info (int64) columns: the tile a slot holds, its pyramid depth, when it was last used
+SI_TI, SI_TJ, SI_LEVELS, SI_USED = range(4)
+
+
+@njit(cache=True)
+def tile_levels(ni, nj, levels):
+    """:func:`arsurf.contact.hull_tree.pyramid_levels` into ``levels`` (L, 3); returns (L, nodes)."""
+    k = 0
+    offset = 0
+    while True:
+        levels[k, 0] = offset
+        levels[k, 1] = ni
+        levels[k, 2] = nj
+        offset += ni * nj
+        k += 1
+        if ni == 1 and nj == 1:
+            break
+        ni = (ni + 1) // 2
+        nj = (nj + 1) // 2
+    return k, offset
+
+
+@njit(cache=True, inline="always")
+def _tile_span(grid, ti, tj):
+    """(i0, j0, ni, nj): first cell and cell counts of tile (ti, tj)."""
+    t = grid[G_TILE]
+    i0 = ti * t
+    j0 = tj * t
+    return i0, j0, min(t, grid[G_NCU] - i0), min(t, grid[G_NCV] - j0)
+
+
+@njit(cache=True, nogil=True)
+def build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, tile_slot, slot_info, ti, tj):
+    """Build the hull pyramid of tile (ti, tj) into a slot of the pool (the least recently used
+    one when the pool is full, whose tile is forgotten); returns the slot, or -1 - slot when the
+    tile's control net holds NaN/inf (the slot then stays empty). Cost O(tile cells)."""
+    if grid[G_USED] < grid[G_SLOTS]:
+        s = grid[G_USED]
+        grid[G_USED] += 1
+    else:
+        s = 0
+        for k in range(1, grid[G_SLOTS]):
+            if slot_info[k, SI_USED] < slot_info[s, SI_USED]:
+                s = k
+        tile_slot[slot_info[s, SI_TI], slot_info[s, SI_TJ]] = -1
+    i0, j0, ni, nj = _tile_span(grid, ti, tj)
+    nlev, nn = tile_levels(ni, nj, plevels[s])
+    nodes = pnodes[s, :nn + 1]
+    grid[G_BUILDS] += 1
+    nodes[nn, VERSION] = 0.0
+    nodes[nn, TREE_ID] = -float(grid[G_BUILDS])  # unique per build: stale caches are never reused
+    pwork[s, CACHE_ROW, 0] = -1.0  # no candidate list yet
+    bad = refresh_region_kernel(ctrl[i0:i0 + ni + 3, j0:j0 + nj + 3], ku[i0:i0 + ni + 7], kv[j0:j0 + nj + 7],
+                                mu[i0:i0 + ni], mv[j0:j0 + nj], nodes, pcurv[s, :ni * nj], plevels[s, :nlev],
+                                prows[s, :, :nj + 3], bez, 0, ni + 3, 0, nj + 3)
+    slot_info[s, SI_TI] = ti
+    slot_info[s, SI_TJ] = tj
+    slot_info[s, SI_LEVELS] = nlev
+    slot_info[s, SI_USED] = grid[G_CLOCK]
+    if bad:
+        slot_info[s, SI_USED] = -1  # reused first
+        return -1 - s
+    tile_slot[ti, tj] = s
+    return s
+
+
+@njit(cache=True, inline="always")
+def _lateral2(ku, kv, grid, ti, tj, slack, cx, cy):
+    """Squared horizontal distance from (cx, cy) to tile (ti, tj), less the slack: a lower bound
+    of the distance to every surface point of the tile (x(u) = u within ``slack``)."""
+    i0, j0, ni, nj = _tile_span(grid, ti, tj)
+    dx = max(ku[i0 + 3] - cx, cx - ku[i0 + ni + 3], 0.0) - slack
+    dy = max(kv[j0 + 3] - cy, cy - kv[j0 + nj + 3], 0.0) - slack
+    dx = max(dx, 0.0)
+    dy = max(dy, 0.0)
+    return dx * dx + dy * dy
+
+
+@njit(cache=True)
+def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
+                         slot_info, tmp, cx, cy, cz, hint_u, hint_v, out):
+    """:func:`project_kernel` over a surface cut into tiles whose pyramids are built on demand.
+
+    Tiles of ``grid[G_TILE]`` x ``grid[G_TILE]`` knot cells are visited in rings around the tile
+    under C. Every surface point of a tile lies horizontally within ``slack[0]`` of the tile's
+    parameter rectangle (x(u) = u on an undeformed surface; a deformation moves control points by
+    at most the slack, and by the partition of unity the surface moves no more), so the
+    horizontal distance from C to the rectangle, less the slack, bounds the distance to the
+    tile from below. A tile is searched (:func:`project_kernel` on its own pyramid, exact over
+    its closed parameter rectangle) only when that bound beats the best distance so far, and
+    ring r, whose tiles are at least (r - 1) tile widths away, ends the walk once that width
+    exceeds it: the minimum over the tiles searched is the global minimum. A tile not built
+    yet is built first (O(tile)); after the answer, at most one more unbuilt tile within half a
+    tile of C's reach is built ahead into a free slot, so a tip moving across tiles rarely waits
+    for two.
+
+    ``tmp`` (OUT_SIZE,) is scratch; the other arrays are :class:`TiledProjector`'s pool. The
+    result is ``out`` as for :func:`project_kernel` (iterations and cells summed over tiles).
+    """
+    if not (cx - cx == 0.0 and cy - cy == 0.0 and cz - cz == 0.0):
+        out[OUT_STATUS] = STATUS_BAD_INPUT
+        return STATUS_BAD_INPUT
+    grid[G_CLOCK] += 1
+    t = grid[G_TILE]
+    nti = grid[G_NTI]
+    ntj = grid[G_NTJ]
+    ncu = grid[G_NCU]
+    ncv = grid[G_NCV]
+    sl = slack[0]
+    width = min((ku[ncu + 3] - ku[3]) / ncu, (kv[ncv + 3] - kv[3]) / ncv) * t
+    ci, cj = _cell_of(ku, kv, cx, cy)
+    ti0 = ci // t
+    tj0 = cj // t
+    best = np.inf
+    status = STATUS_OK
+    iters = 0.0
+    cells = 0.0
+    r = 0
+    while r <= max(nti, ntj):
+        if best < np.inf and (r - 1) * width - sl > best:
+            break
+        for ti in range(max(ti0 - r, 0), min(ti0 + r, nti - 1) + 1):
+            for tj in range(max(tj0 - r, 0), min(tj0 + r, ntj - 1) + 1):
+                if max(abs(ti - ti0), abs(tj - tj0)) != r:
+                    continue
+                if _lateral2(ku, kv, grid, ti, tj, sl, cx, cy) >= best * best:
+                    continue
+                s = tile_slot[ti, tj]
+                if s < 0:
+                    s = build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid,
+                                   tile_slot, slot_info, ti, tj)
+                    if s < 0:
+                        out[OUT_STATUS] = STATUS_NON_FINITE
+                        return STATUS_NON_FINITE
+                slot_info[s, SI_USED] = grid[G_CLOCK]
+                nlev = slot_info[s, SI_LEVELS]
+                nn = plevels[s, nlev - 1, 0] + 1
+                if node_distance2(pnodes[s], nn - 1, cx, cy, cz) >= best * best:
+                    continue  # the tile's root hull box is farther than the answer so far
+                i0, j0, ni, nj = _tile_span(grid, ti, tj)
+                hu = hint_u
+                hv = hint_v
+                if not (ku[i0 + 3] <= hint_u <= ku[i0 + ni + 3] and kv[j0 + 3] <= hint_v <= kv[j0 + nj + 3]):
+                    hu = np.nan
+                    hv = np.nan
+                st = project_kernel(ctrl[i0:i0 + ni + 3, j0:j0 + nj + 3], ku[i0:i0 + ni + 7], kv[j0:j0 + nj + 7],
+                                    mu[i0:i0 + ni], mv[j0:j0 + nj], pnodes[s, :nn + 1], pcurv[s, :ni * nj],
+                                    plevels[s, :nlev], pwork[s], cx, cy, cz, hu, hv, tmp)
+                iters += tmp[OUT_ITERATIONS]
+                cells += tmp[OUT_CELLS]
+                if st < 0:
+                    out[OUT_STATUS] = st
+                    return st
+                d = abs(tmp[OUT_DISTANCE])
+                if d < best:
+                    best = d
+                    status = st
+                    for k in range(OUT_SIZE):
+                        out[k] = tmp[k]
+        r += 1
+    out[OUT_ITERATIONS] = iters
+    out[OUT_CELLS] = cells
+    bu = out[OUT_U]
+    bv = out[OUT_V]
+    out[OUT_BOUNDARY] = 1.0 if (bu <= ku[3] or bu >= ku[ncu + 3] or bv <= kv[3] or bv >= kv[ncv + 3]) else 0.0
+    out[OUT_STATUS] = status
+    # build ahead: one unbuilt neighbour within half a tile of the sphere of radius best
+    reach = best + 0.5 * width
+    for ti in range(max(ti0 - 1, 0), min(ti0 + 1, nti - 1) + 1):
+        for tj in range(max(tj0 - 1, 0), min(tj0 + 1, ntj - 1) + 1):
+            if tile_slot[ti, tj] < 0 and _lateral2(ku, kv, grid, ti, tj, sl, cx, cy) < reach * reach:
+                if grid[G_USED] < grid[G_SLOTS]:  # only into a free slot: building ahead never evicts
+                    build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, tile_slot,
+                               slot_info, ti, tj)
+                return status
+    return status
+
+
+@njit(cache=True)
+def tiled_collide_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
+                         slot_info, tmp, cx, cy, cz, radius, hint_u, hint_v, out):
+    """:func:`collide_kernel` on a tiled projector (:func:`tiled_project_kernel`)."""
+    if not (radius > 0.0 and radius - radius == 0.0):
+        out[OUT_STATUS] = STATUS_BAD_INPUT
+        return STATUS_BAD_INPUT
+    status = tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack,
+                                  tile_slot, slot_info, tmp, cx, cy, cz, hint_u, hint_v, out)
+    out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
+    return status
+
+
+@njit(cache=True)
+def tiled_batch_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
+                       slot_info, tmp, points, hints, chain, radius, out):
+    """:func:`project_batch_kernel` on a tiled projector."""
+    worst = STATUS_OK
+    hu = np.nan
+    hv = np.nan
+    for k in range(points.shape[0]):
+        if hints.shape[0] > 0:
+            hu = hints[k, 0]
+            hv = hints[k, 1]
+        row = out[k]
+        st = tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack,
+                                  tile_slot, slot_info, tmp, points[k, 0], points[k, 1], points[k, 2], hu, hv, row)
+        row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
+        if chain:
+            if st >= 0:
+                hu = row[OUT_U]
+                hv = row[OUT_V]
+            else:
+                hu = np.nan
+                hv = np.nan
+        if st < 0 and st < worst:
+            worst = st
+    return worst
+
+
+def collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
+    """:func:`collide_kernel` or :func:`tiled_collide_kernel`, chosen by the projector's
+    ``kernel_args()`` tuple (9 arrays: one pyramid; 16: tiles); compiled into numba callers."""
+    if len(proj) == 9:
+        return collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
+    return tiled_collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
+
+
+@overload(collide_any, jit_options={"cache": True})
+def _collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
+    if len(proj) == 9:
+        def one(proj, cx, cy, cz, radius, hint_u, hint_v, out):
+            return collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
+        return one
+
+    def tiled(proj, cx, cy, cz, radius, hint_u, hint_v, out):
+        return tiled_collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
+    return tiled

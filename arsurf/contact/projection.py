@@ -27,9 +27,13 @@ import numba
 import numpy as np
 from numba import njit, types
 from numba.experimental import structref
+from numba.extending import overload
 
-from arsurf.contact.closest_point import collide_kernel, project_batch_kernel, project_kernel  # noqa: F401
-from arsurf.contact.hull_tree import HullTree
+from arsurf.contact.closest_point import (  # noqa: F401 (collide_any, collide_kernel: for numba callers)
+    G_BUILDS, G_CLOCK, G_NCU, G_NCV, G_NTI, G_NTJ, G_SIZE, G_SLOTS, G_TILE, G_USED, SI_TI, SI_TJ, SI_USED,
+    collide_any, collide_kernel, project_batch_kernel, project_kernel, tiled_batch_kernel, tiled_project_kernel,
+)
+from arsurf.contact.hull_tree import CURV_SIZE, NODE_SIZE, HullTree, bezier_matrices, pyramid_levels, refresh_region_kernel
 from arsurf.contact.layout import (  # noqa: F401 (re-exported: callers read results by these names)
     OUT_U, OUT_V, OUT_PX, OUT_PY, OUT_PZ, OUT_NX, OUT_NY, OUT_NZ, OUT_DISTANCE, OUT_DEPTH, OUT_ITERATIONS,
     OUT_CELLS, OUT_CONVERGED, OUT_BOUNDARY, OUT_STATUS, OUT_CACHED, OUT_SIZE, STATUS_OK, STATUS_NOT_CONVERGED,
@@ -55,6 +59,41 @@ structref.define_proxy(KernelArrays, _KernelArraysType,
                        ["ctrl", "ku", "kv", "mu", "mv", "nodes", "curv", "levels", "work", "out"])
 
 
+@structref.register
+class _TiledArraysType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class TiledArrays(structref.StructRefProxy):
+    """The arrays of :meth:`TiledProjector.kernel_args` and an ``out`` scratch as one numba struct."""
+
+
+structref.define_proxy(TiledArrays, _TiledArraysType,
+                       ["ctrl", "ku", "kv", "mu", "mv", "pnodes", "pcurv", "plevels", "pwork", "prows", "bez", "grid",
+                        "slack", "tile_slot", "slot_info", "tmp", "out"])
+
+
+def _project_struct(a, cx, cy, cz, hint_u, hint_v, out):
+    """:func:`project_kernel` or :func:`tiled_project_kernel` on a packed projector (numba only)."""
+    raise NotImplementedError  # pragma: no cover - compiled through the overload below
+
+
+@overload(_project_struct, jit_options={"cache": True})
+def _project_struct_impl(a, cx, cy, cz, hint_u, hint_v, out):
+    if isinstance(a, _TiledArraysType):
+        def tiled(a, cx, cy, cz, hint_u, hint_v, out):
+            return tiled_project_kernel(a.ctrl, a.ku, a.kv, a.mu, a.mv, a.pnodes, a.pcurv, a.plevels, a.pwork,
+                                        a.prows, a.bez, a.grid, a.slack, a.tile_slot, a.slot_info, a.tmp,
+                                        cx, cy, cz, hint_u, hint_v, out)
+        return tiled
+
+    def one(a, cx, cy, cz, hint_u, hint_v, out):
+        return project_kernel(a.ctrl, a.ku, a.kv, a.mu, a.mv, a.nodes, a.curv, a.levels, a.work,
+                              cx, cy, cz, hint_u, hint_v, out)
+    return one
+
+
 @njit(cache=True)
 def _project_packed(a, cx, cy, cz, hint_u, hint_v, warm, point_normal):
     """:func:`project_kernel` for :func:`project`: ``point_normal`` (6,) gets S* and n*; returns
@@ -64,8 +103,7 @@ def _project_packed(a, cx, cy, cz, hint_u, hint_v, warm, point_normal):
     if warm and not (hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0):
         status = STATUS_BAD_INPUT
     else:
-        status = project_kernel(a.ctrl, a.ku, a.kv, a.mu, a.mv, a.nodes, a.curv, a.levels, a.work,
-                                cx, cy, cz, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
+        status = _project_struct(a, cx, cy, cz, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
     for k in range(6):
         point_normal[k] = out[OUT_PX + k]
     return ((out[OUT_U], out[OUT_V]), out[OUT_DISTANCE], out[OUT_CONVERGED] > 0.0, int(out[OUT_ITERATIONS]),
@@ -81,8 +119,11 @@ def _collide_packed(a, cx, cy, cz, radius, hint_u, hint_v, warm, point_normal):
     if warm and not (hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0):
         status = STATUS_BAD_INPUT
     else:
-        status = collide_kernel(a.ctrl, a.ku, a.kv, a.mu, a.mv, a.nodes, a.curv, a.levels, a.work,
-                                cx, cy, cz, radius, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
+        if radius > 0.0 and radius - radius == 0.0:
+            status = _project_struct(a, cx, cy, cz, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
+            out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
+        else:
+            status = STATUS_BAD_INPUT
     for k in range(6):
         point_normal[k] = out[OUT_PX + k]
     depth = out[OUT_DEPTH]
@@ -216,6 +257,7 @@ class Projector:
         self._packed = KernelArrays(*self._args, np.empty(OUT_SIZE))
         self._project = _entry_point(_project_packed, self._packed, 5)
         self._collide = _entry_point(_collide_packed, self._packed, 6)
+        self._batch_kernel = project_batch_kernel
 
     def __reduce__(self):
         # a pickled or deep-copied surface drops its projector (compiled entry points do not
@@ -240,6 +282,169 @@ class Projector:
         self.tree.refresh()
 
 
+#: surfaces with more knot cells than this get a :class:`TiledProjector` (the whole pyramid of
+#: 512 x 512 cells builds in ~0.2 s and takes ~47 MB; beyond, build time and memory grow with N)
+TILED_ABOVE = 512 * 512
+#: cells per tile side: a tile builds in ~0.2 ms (256 cells), well inside one 1 kHz tick
+TILE = 16
+#: memory the tile pool may use at most, bytes
+POOL_BYTES = 64 << 20
+
+
+class TiledProjector:
+    """The projection state of a large surface: hull-box pyramids built per tile, on demand.
+
+    The knot cells are cut into ``tile`` x ``tile`` tiles; a tile's pyramid is built the first
+    time a query needs it (:func:`arsurf.contact.closest_point.tiled_project_kernel`: O(tile) in
+    the query that needs it, plus at most one tile built ahead per query), kept in a pool of
+    slots and evicted least-recently-used when the pool (``pool_bytes``) is full. Results equal
+    those of :class:`Projector` (the same search runs in each tile; the tiles a query skips are
+    farther than its answer). Memory: the pool, plus 8 bytes per tile.
+
+    Parameters
+    ----------
+    surface : BSplineSurface
+    tile : int
+        Knot cells per tile side (>= 1).
+    pool_bytes : int
+        Memory budget of the tile pool (at least 4 slots are kept).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from arsurf.spline.surface import BSplineSurface
+    >>> s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 39e-9), (0.0, 39e-9))
+    >>> p = TiledProjector(s, tile=8)
+    >>> out = np.empty(OUT_SIZE)
+    >>> collide_any(p.kernel_args(), 20e-9, 20e-9, 5e-9, 10e-9, np.nan, np.nan, out), round(float(out[OUT_DEPTH]) * 1e9, 6)
+    (0, 5.0)
+    >>> p.tiles_built <= 9 < p.tile_count
+    True
+    """
+
+    def __init__(self, surface, tile: int = TILE, pool_bytes: int = POOL_BYTES):
+        ctrl, ku, kv = surface.net_arrays()
+        tile = int(tile)
+        if tile < 1:
+            raise SurfaceError(f"tile must be >= 1 knot cells (got {tile})")
+        nu, nv = ctrl.shape[0], ctrl.shape[1]
+        ncu, ncv = nu - 3, nv - 3
+        self.ctrl, self.ku, self.kv = ctrl, ku, kv
+        self.tile = tile
+        nti, ntj = -(-ncu // tile), -(-ncv // tile)
+        levels = pyramid_levels(min(tile, ncu), min(tile, ncv))
+        nlev = levels.shape[0]
+        n_nodes = int(levels[-1, 0] + levels[-1, 1] * levels[-1, 2])
+        work_rows = STACK_ROWS + 4 * nlev + 8
+        slot_bytes = ((n_nodes + 1) * NODE_SIZE * 8 + tile * tile * CURV_SIZE * 4 + work_rows * 24
+                      + 4 * (min(tile, ncv) + 3) * 24 + nlev * 24 + 32)
+        slots = int(min(nti * ntj, max(4, int(pool_bytes) // slot_bytes)))
+        self.pnodes = np.zeros((slots, n_nodes + 1, NODE_SIZE))
+        self.pcurv = np.zeros((slots, min(tile, ncu) * min(tile, ncv), CURV_SIZE), dtype=np.float32)
+        self.plevels = np.zeros((slots, nlev, 3), dtype=np.int64)
+        self.pwork = np.zeros((slots, work_rows, 3))
+        self.prows = np.zeros((slots, 4, min(tile, ncv) + 3, 3))
+        self.bez = np.zeros((16, 3))
+        self.grid = np.zeros(G_SIZE, dtype=np.int64)
+        self.grid[[G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS]] = (tile, nti, ntj, ncu, ncv, slots)
+        self.tile_slot = np.full((nti, ntj), -1, dtype=np.int64)
+        self.slot_info = np.zeros((slots, 4), dtype=np.int64)
+        self.slot_info[:, SI_USED] = -1
+        self.slack = np.zeros(1)
+        self._greville = (np.convolve(ku[1:-1], np.ones(3) / 3.0, "valid"), np.convolve(kv[1:-1], np.ones(3) / 3.0, "valid"))
+        self._surface_at_rest = surface.at_rest
+        if not self._surface_at_rest:
+            self._widen_slack(0, nu, 0, nv)
+        self.mu = bezier_matrices(ku)
+        self.mv = bezier_matrices(kv)
+        self._args = (ctrl, ku, kv, self.mu, self.mv, self.pnodes, self.pcurv, self.plevels, self.pwork, self.prows,
+                      self.bez, self.grid, self.slack, self.tile_slot, self.slot_info, np.empty(OUT_SIZE))
+        self._packed = TiledArrays(*self._args, np.empty(OUT_SIZE))
+        self._project = _entry_point(_project_packed, self._packed, 5)
+        self._collide = _entry_point(_collide_packed, self._packed, 6)
+        self._batch_kernel = tiled_batch_kernel
+
+    def __reduce__(self):
+        return _no_projector, ()
+
+    @property
+    def tile_count(self) -> int:
+        return int(self.grid[G_NTI] * self.grid[G_NTJ])
+
+    @property
+    def tiles_built(self) -> int:
+        """Tiles whose pyramid is in the pool now."""
+        return int((self.tile_slot >= 0).sum())
+
+    @property
+    def builds(self) -> int:
+        """Tile builds so far (evicted tiles built again count again)."""
+        return int(self.grid[G_BUILDS])
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the structure (pool, tile table, Bézier matrices), bytes."""
+        return int(sum(a.nbytes for a in (self.pnodes, self.pcurv, self.plevels, self.pwork, self.prows,
+                                          self.tile_slot, self.slot_info, self.mu, self.mv)))
+
+    def kernel_args(self) -> tuple:
+        """The leading arguments of :func:`arsurf.contact.closest_point.tiled_collide_kernel` (and of
+        :func:`arsurf.contact.closest_point.collide_any`, which takes the tuple)."""
+        return self._args
+
+    def _widen_slack(self, iu0, iu1, iv0, iv1) -> None:
+        """slack >= the horizontal displacement of control points [iu0:iu1, iv0:iv1] from their
+        Greville positions (where x(u) = u puts them at rest)."""
+        net = self.ctrl[iu0:iu1, iv0:iv1]
+        if net.size == 0:
+            return
+        gu, gv = self._greville
+        dev = max(float(np.max(np.abs(net[..., 0] - gu[iu0:iu1, None]))),
+                  float(np.max(np.abs(net[..., 1] - gv[None, iv0:iv1]))))
+        if not np.isfinite(dev):
+            return  # NaN points: the tiles holding them refuse to build
+        scale = max(float(np.max(np.abs(gu))), float(np.max(np.abs(gv))), 1e-300)
+        self.slack[0] = max(self.slack[0], dev + 1e-12 * scale)
+
+    def refresh_region(self, iu0: int, iu1: int, iv0: int, iv1: int) -> None:
+        """Update after control points ``ctrl[iu0:iu1, iv0:iv1]`` (half-open) moved; O(patch)."""
+        nu, nv = self.ctrl.shape[0], self.ctrl.shape[1]
+        iu0, iu1, iv0, iv1 = int(iu0), int(iu1), int(iv0), int(iv1)
+        if not (0 <= iu0 <= iu1 <= nu and 0 <= iv0 <= iv1 <= nv):
+            raise SurfaceError(f"refresh region [{iu0}:{iu1}, {iv0}:{iv1}] is not inside the {nu}x{nv} control net; "
+                               "pass half-open index ranges 0 <= i0 <= i1 <= n")
+        self._widen_slack(iu0, iu1, iv0, iv1)
+        t = self.tile
+        ncu, ncv = nu - 3, nv - 3
+        for ti in range(max(iu0 - 3, 0) // t, min(max(iu1 - 1, 0), ncu - 1) // t + 1):
+            for tj in range(max(iv0 - 3, 0) // t, min(max(iv1 - 1, 0), ncv - 1) // t + 1):
+                s = int(self.tile_slot[ti, tj])
+                if s < 0:
+                    continue
+                i0, j0 = ti * t, tj * t
+                ni, nj = min(t, ncu - i0), min(t, ncv - j0)
+                nlev = int(self.slot_info[s, 2])
+                nn = int(self.plevels[s, nlev - 1, 0]) + 1
+                bad = refresh_region_kernel(
+                    self.ctrl[i0:i0 + ni + 3, j0:j0 + nj + 3], self.ku[i0:i0 + ni + 7], self.kv[j0:j0 + nj + 7],
+                    self.mu[i0:i0 + ni], self.mv[j0:j0 + nj], self.pnodes[s, :nn + 1], self.pcurv[s, :ni * nj],
+                    self.plevels[s, :nlev], self.prows[s, :, :nj + 3], self.bez,
+                    max(iu0 - i0, 0), min(iu1 - i0, ni + 3), max(iv0 - j0, 0), min(iv1 - j0, nj + 3))
+                if bad:
+                    raise SurfaceError(f"the control net has non-finite (NaN/inf) points in {bad} knot cells of the "
+                                       f"region [{iu0}:{iu1}, {iv0}:{iv1}]; refit from a scan without NaN "
+                                       "(arsurf.inpaint) or reset() the surface")
+
+    def refresh(self) -> None:
+        """Forget every tile (rebuilt on demand from the current net), O(tiles)."""
+        self.tile_slot[:] = -1
+        self.slot_info[:, SI_USED] = -1
+        self.grid[G_USED] = 0
+        self.slack[0] = 0.0
+        nu, nv = self.ctrl.shape[0], self.ctrl.shape[1]
+        self._widen_slack(0, nu, 0, nv)
+
+
 def _entry_point(kernel, arrays, nscalars):
     """The compiled entry of ``kernel(arrays, *scalars, warm, point_normal)`` for exactly these
     argument types.
@@ -247,9 +452,9 @@ def _entry_point(kernel, arrays, nscalars):
     Calling it skips the dispatcher's per-call type resolution (~0.3-1 us of a few-us call);
     the Python API always passes these same types. Falls back to the dispatcher."""
     args = (arrays, *(1.0,) * nscalars, False, np.empty(6))
-    kernel(*args)  # compiles (or loads from the cache) this signature
     try:
         sig = tuple(numba.typeof(a) for a in args)
+        kernel.compile(sig)  # compiles (or loads from the cache) this signature, without running it
         return kernel.overloads[sig].entry_point
     except (KeyError, AttributeError):  # pragma: no cover - numba internals changed
         return kernel
@@ -268,8 +473,9 @@ def projector(surface) -> Projector:
     if not isinstance(surface, BSplineSurface):
         raise SurfaceError(f"expected an arsurf BSplineSurface (got {type(surface).__name__})")
     proj = surface.__dict__.get(_ATTR)
-    if proj is None or proj.ctrl is not surface.kernel_arrays()[0]:
-        proj = Projector(surface)
+    if proj is None or proj.ctrl is not surface.net_arrays()[0]:
+        nu, nv = surface.shape
+        proj = TiledProjector(surface) if (nu - 3) * (nv - 3) > TILED_ABOVE else Projector(surface)
         setattr(surface, _ATTR, proj)
         surface.attach(proj)  # reset() refreshes the boxes
     return proj
@@ -454,7 +660,7 @@ def _batch(surface, points, hints, chain, radius, where):
         if hts.shape != (pts.shape[0], 2):
             raise SurfaceError(f"hints must have shape ({pts.shape[0]}, 2) (got {hts.shape}); NaN rows mean cold")
     out = np.empty((pts.shape[0], OUT_SIZE))
-    worst = project_batch_kernel(*proj._args, pts, hts, bool(chain), radius, out)
+    worst = proj._batch_kernel(*proj._args, pts, hts, bool(chain), radius, out)
     if worst < 0:
         _raise_status(int(worst), where)
     return out

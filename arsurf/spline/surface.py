@@ -169,6 +169,17 @@ class BSplineSurface:
     def is_deformed(self) -> bool:
         return not np.array_equal(self._ctrl, self._rest)
 
+    def net_arrays(self):
+        """(ctrl, knots_u, knots_v): the live net and knots, without taking the rest snapshot
+        (for structures that only read the current net)."""
+        return self._ctrl, self._ku, self._kv
+
+    @property
+    def at_rest(self) -> bool:
+        """True when the net was never handed out for deformation (no rest snapshot yet): then it
+        is exactly the fitted net, checked in O(1) (:attr:`is_deformed` compares the nets, O(N))."""
+        return self._rest_net is None
+
     def kernel_arrays(self):
         """(ctrl, rest, knots_u, knots_v) as the float64 C arrays the numba kernels take.
 
