@@ -7,8 +7,8 @@ measured cantilever angles into a 3D force for a haptic loop and a 3D view.
 The public names below are imported lazily (PEP 562), so ``import arsurf`` is cheap, compiles no
 kernel and never imports the viewer (pyvista/VTK).
 
-Example
--------
+Examples
+--------
 >>> import arsurf
 >>> scan = arsurf.synthetic.sinusoid(shape=(32, 32), pixel=10e-9, amplitude=5e-9, period=160e-9)
 >>> surface = arsurf.fit_surface(scan)

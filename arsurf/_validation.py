@@ -59,3 +59,33 @@ def non_negative(value, name: str, error: type[Exception], *, unit: str = "", hi
     if not (math.isfinite(v) and v >= 0.0):
         raise error(_message(f"{name} must be >= 0 and finite", value, unit, hint))
     return v
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def check_memory(nbytes: float, what: str, error: type[Exception], hint: str = "") -> None:
+    """Raise ``error`` before an allocation of ``nbytes`` that cannot fit in the available memory.
+
+    Examples
+    --------
+    >>> from arsurf.errors import SurfaceError
+    >>> check_memory(1e3, "a tiny net", SurfaceError)
+    >>> check_memory(1e18, "a net of 1 EB", SurfaceError)
+    Traceback (most recent call last):
+    ...
+    arsurf.errors.SurfaceError: a net of 1 EB needs about 1000000000.0 GB but this machine has ... GB available
+    """
+    free = available_memory()
+    if free is not None and nbytes > free:
+        raise error(f"{what} needs about {nbytes / 1e9:.1f} GB but this machine has {free / 1e9:.1f} GB available"
+                    + (f"; {hint}" if hint else ""))

@@ -129,8 +129,8 @@ class RenderingUnavailable(ArsurfError, RuntimeError):
 def require(module: str, extra: str, feature: str):
     """Import an optional dependency or raise :class:`MissingDependency` naming the extra.
 
-    Example
-    -------
+    Examples
+    --------
     >>> np = require("numpy", "core", "arrays")
     """
     import importlib

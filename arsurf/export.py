@@ -21,8 +21,8 @@ The :class:`trimesh.Trimesh` objects are in nanometres as well (``mesh.units ==
 (``tol.zero`` = 1e-12, ``tol.merge`` = 1e-8), so a nanometre surface in metres would have zero
 face normals and collapsing vertices. Everything passed in (``base``) is in metres.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from arsurf.spline.surface import BSplineSurface
 >>> s = BSplineSurface.from_heights(np.full((6, 5), 2e-9), (0.0, 30e-9), (0.0, 20e-9))
@@ -116,8 +116,8 @@ def surface_mesh(surface: BSplineSurface, resolution=None, *, solid: bool = Fals
         surface samples (row-major, row = v); ``metadata`` holds ``resolution``, ``solid`` and
         ``base`` (metres, or None for a sheet).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((5, 5)), (0.0, 10e-9), (0.0, 10e-9))
@@ -198,8 +198,8 @@ def export_surface(surface: BSplineSurface, path: str | os.PathLike, resolution=
     -------
     pathlib.Path of the file written.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import tempfile, numpy as np, trimesh
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((5, 5)), (0.0, 10e-9), (0.0, 10e-9))

@@ -32,8 +32,8 @@ Sources: default dimensions of the cantilever from seed 003 (L = 220 µm, w = 27
 t = 2.9 µm); tip height and side angle from the datasheet of a common silicon tapping-mode
 probe (Bruker RTESPA-300: tip height 10-15 µm, side angle 20°, tip radius 8-12 nm).
 
-Example
--------
+Examples
+--------
 >>> from arsurf.meshes import pyramidal_tip
 >>> tip = pyramidal_tip(apex_radius=20e-9, height=2e-6)
 >>> tip.is_watertight, round(float(tip.bounds[0, 2]), 6), tip.units   # nanometres
@@ -118,8 +118,8 @@ def spherical_tip(radius: float = TIP_RADIUS, subdivisions: int = 3):
     -------
     trimesh.Trimesh, nanometres, watertight.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(float(spherical_tip(10e-9).bounds[1, 0]), 6)
     10.0
     """
@@ -156,8 +156,8 @@ def pyramidal_tip(apex_radius: float = TIP_RADIUS, height: float = TIP_HEIGHT,
     -------
     trimesh.Trimesh, nanometres, watertight and convex; lowest point at z = -R.
 
-    Example
-    -------
+    Examples
+    --------
     >>> t = pyramidal_tip(10e-9, height=1e-6)
     >>> round(float(t.bounds[1, 2]), 6)
     1000.0
@@ -214,8 +214,8 @@ def cantilever(length: float = CANTILEVER_LENGTH, width: float = CANTILEVER_WIDT
     -------
     trimesh.Trimesh, nanometres, a watertight box (12 triangles).
 
-    Example
-    -------
+    Examples
+    --------
     >>> b = cantilever(100e-6, 30e-6, 2e-6, tip_height=10e-6, tip_setback=5e-6)
     >>> [round(float(v), 6) for v in b.bounds[:, 0]]   # nm
     [-95000.0, 5000.0]
@@ -254,8 +254,8 @@ def nanotube(length: float = TUBE_LENGTH, radius: float = TUBE_RADIUS, sections:
     -------
     trimesh.Trimesh, nanometres, watertight.
 
-    Example
-    -------
+    Examples
+    --------
     >>> t = nanotube(100e-9, 5e-9)
     >>> [round(float(v), 6) for v in t.bounds[:, 0]]
     [-55.0, 55.0]
@@ -297,8 +297,8 @@ def write_meshes(folder: str | os.PathLike) -> list[Path]:
     Files are written to a temporary name and renamed, so an interrupted run leaves no partial
     file. Returns the paths written.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import tempfile
     >>> paths = write_meshes(tempfile.mkdtemp())
     >>> sorted(p.name for p in paths)

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import deform_kernel
@@ -220,8 +221,8 @@ class ARModel:
     deform : bool
         Dent the surface (False: only compute contacts and forces).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> from arsurf.force.cantilever import Cantilever
@@ -251,6 +252,10 @@ class ARModel:
         from arsurf.contact.deformation import Deformer
 
         self.surface = surface
+        nu, nv = surface.shape
+        if surface.at_rest:  # the rest snapshot below is a copy of the whole net
+            _validation.check_memory(24.0 * nu * nv, f"the rest copy of this {nu}x{nv} control net", ContactError,
+                                     "fit a cropped scan or fewer control points")
         # collision runs on the rest net: the live surface's own rest snapshot, shared read-only
         # (no copy of the whole net: a 4096^2 net is 400 MB)
         live_ctrl, live_rest, ku, kv = surface.kernel_arrays()

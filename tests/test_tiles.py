@@ -163,3 +163,15 @@ def test_the_model_tick_is_the_same_on_a_tiled_surface(monkeypatch):
         assert abs(a.depth - b.depth) <= TOL and a.md_status == b.md_status
         np.testing.assert_allclose(a.simulated_force, b.simulated_force, rtol=0,  # a 1e-15 m point error over R
                                    atol=1e-6 * np.linalg.norm(a.simulated_force) + 1e-20)
+
+
+def test_a_scan_too_large_for_this_machine_is_refused_before_fitting(monkeypatch):
+    from arsurf import _validation
+
+    monkeypatch.setattr(_validation, "available_memory", lambda: 1 << 20)  # 1 MB free
+    scan = Scan(np.zeros((300, 300)), H, H)
+    with pytest.raises(SurfaceError, match=r"fitting this 300x300 scan needs about .* GB but this machine has .* "
+                                           r"available; crop it"):
+        fit_surface(scan)
+    monkeypatch.setattr(_validation, "available_memory", lambda: None)  # unknown: no guard
+    assert fit_surface(Scan(np.zeros((8, 8)), H, H)).shape == (10, 10)

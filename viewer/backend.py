@@ -24,8 +24,8 @@ process and reports (once per process) whether a real picture came out; the view
 on its answer and only on it. ``tools/install-system-deps.sh`` installs the ``egl`` packages (the
 ones CI and headless servers need) and the ``x11`` ones for desktops.
 
-Example
--------
+Examples
+--------
 >>> from arsurf_viewer.backend import choose_backend
 >>> choose_backend().name in {"native", "x11", "egl", "osmesa", "xvfb"}
 True

@@ -6,8 +6,8 @@ it the frames are still written and the returned :class:`Frames` says why there 
 (the message is also printed to stderr). Files are written under temporary names and renamed,
 so an interrupted run leaves no truncated PNG or mp4 behind.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np, tempfile
 >>> from arsurf.spline.surface import BSplineSurface
 >>> from arsurf_viewer import SceneState, render_frames

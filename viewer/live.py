@@ -33,8 +33,8 @@ class LiveLoop:
     snapshot_rate : float, Hz
         How often the loop thread publishes what the view shows.
 
-    Example
-    -------
+    Examples
+    --------
     >>> # live = LiveLoop(loop, UdpBridgeDevice(port=47474)).start()
     >>> # run_interactive(loop.model.surface, physics=live.physics, pose_source=live.pose)
     """

@@ -4,8 +4,8 @@ Everything is SI (metres, newtons, hertz) like the engine; :class:`~arsurf_viewe
 converts to its nanometre scene and to the HUD's nN / nm at its edge. This module does not
 import pyvista, so the loop can build states without the viewer installed.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from arsurf.spline.surface import BSplineSurface
 >>> s = BSplineSurface.from_heights(np.zeros((6, 6)), (0.0, 50e-9), (0.0, 50e-9))

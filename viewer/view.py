@@ -27,8 +27,8 @@ What is drawn
     * ``tubes`` - nano-objects (capsules) from the state.
     * ``colorbar`` - the colour scale.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from arsurf.spline.surface import BSplineSurface
 >>> from arsurf_viewer import SceneState, SurfaceView

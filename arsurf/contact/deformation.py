@@ -120,8 +120,8 @@ class Deformer:
     surface : BSplineSurface
         Its rest net must be a height-field net (as :func:`arsurf.fit_surface` makes).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((20, 20)), (0, 17e-9), (0, 17e-9))

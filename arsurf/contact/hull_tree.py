@@ -725,8 +725,8 @@ class HullTree:
         B-spline-to-Bézier matrices per span.
     rows, bez : scratch arrays of the refresh kernel.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((6, 6)), (0.0, 3e-9), (0.0, 3e-9))

@@ -20,8 +20,8 @@ a measured surface energy exists it is used, otherwise the dispersion (Lifshitz-
 value :math:`\\gamma = A/24\\pi D_0^2` from the Hamaker constant, which is what a clean dry contact
 retains. Measure *w* (pull-off force) for quantitative work and pass it explicitly.
 
-Example
--------
+Examples
+--------
 >>> from arsurf.contact.materials import MATERIALS, effective_modulus, work_of_adhesion
 >>> tip, sample = MATERIALS["Si"], MATERIALS["polystyrene"]
 >>> round(effective_modulus(tip, sample) / 1e9, 3)
@@ -126,8 +126,8 @@ def surface_energy_from_hamaker(hamaker: float, cutoff: float = HAMAKER_CUTOFF) 
 
     Source: Israelachvili, Intermolecular and Surface Forces (3rd ed.), Eq. 13.16 and §13.5.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(surface_energy_from_hamaker(6.5e-20), 4)    # polystyrene: measured ~0.033 (dispersive)
     0.0317
     """
@@ -239,8 +239,8 @@ def effective_modulus(tip, sample) -> float:
     tip, sample : Material or str
         Materials or preset names from :data:`MATERIALS`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(effective_modulus("Si3N4", "mica") / 1e9, 2)
     51.23
     """
@@ -265,8 +265,8 @@ def work_of_adhesion(tip, sample) -> float:
     ContactError
         If either material has no surface energy.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(work_of_adhesion("HOPG", "HOPG"), 3)
     0.27
     """
@@ -286,8 +286,8 @@ def work_of_adhesion_hamaker(hamaker: float, cutoff: float = HAMAKER_CUTOFF) -> 
     Use the tip-sample Hamaker constant across the medium (vacuum/air: :math:`A_{12} \\approx
     \\sqrt{A_{11}A_{22}}`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(work_of_adhesion_hamaker(6.5e-20), 4)
     0.0633
     """
@@ -307,8 +307,8 @@ def default_dugdale_stress(work_of_adhesion: float, spacing: float = DEFAULT_EQU
     spacing : float, metres
         Equilibrium spacing :math:`z_0`; default :data:`DEFAULT_EQUILIBRIUM_SPACING` (0.3 nm).
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(default_dugdale_stress(0.1) / 1e6, 1)    # MPa
     342.1
     """

@@ -380,8 +380,8 @@ def md_contact_hysteresis_kernel(depth, interacting, depth_scale, radius_scale, 
     -------
     (status, radius, load) : as :func:`md_contact_from_depth_kernel`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 2e9)
     >>> d = 0.5 * (md.jump_out_depth() + md.jump_in_depth())      # inside the hysteresis loop
     >>> md_contact_hysteresis_kernel(d, False, *md.kernel_args)[0], md_contact_hysteresis_kernel(d, True, *md.kernel_args)[0]
@@ -400,8 +400,8 @@ def md_contact_hysteresis_kernel(depth, interacting, depth_scale, radius_scale, 
 def md_radius_from_depth_kernel(depth, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold):
     """Contact radius (m) from depth (m); ``(status, radius)``. See :func:`md_contact_from_depth_kernel`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 1e9)
     >>> status, a = md_radius_from_depth_kernel(1e-9, *md.kernel_args)
     >>> status, round(a * 1e9, 6) == round(md.contact_radius(depth=1e-9) * 1e9, 6)
@@ -581,8 +581,8 @@ class MaugisDugdale(ContactModel):
         :math:`\\sigma_0`; default :func:`arsurf.contact.materials.default_dugdale_stress` (w),
         the Lennard-Jones-matched :math:`16w/(9\\sqrt3 z_0)`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 1e9)
     >>> round(md.maugis_parameter, 4)
     0.4857
@@ -740,8 +740,8 @@ class MaugisDugdale(ContactModel):
         Exactly one of ``depth`` (displacement control; ``approach`` as in
         :meth:`~arsurf.contact.mechanics.ContactModel.contact_radius`) or ``load`` (load control).
 
-        Example
-        -------
+        Examples
+        --------
         >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 3e8)      # lambda < 0.938: DMT-like
         >>> st = md.contact_state(depth=md.critical_points().contact_loss_depth - 1e-11)
         >>> st.branch, st.in_contact, st.radius, st.load < 0

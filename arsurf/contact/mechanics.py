@@ -33,8 +33,8 @@ Sci. 53, 314 (1975) (DMT); K. L. Johnson, K. Kendall, A. D. Roberts, Proc. R. So
 (1971) (JKR); K. L. Johnson, *Contact Mechanics* (Cambridge 1985) ch. 4; D. Maugis, J. Colloid
 Interface Sci. 150, 243 (1992).
 
-Example
--------
+Examples
+--------
 >>> from arsurf.contact.mechanics import Hertz, JKR
 >>> h = Hertz(tip_radius=20e-9, effective_modulus=50e9)
 >>> round(h.contact_radius(depth=1e-9) * 1e9, 6)   # a = sqrt(R d)
@@ -397,8 +397,8 @@ class Hertz(ContactModel):
 
     Source: Johnson, *Contact Mechanics* (1985), Eq. 4.22-4.23.
 
-    Example
-    -------
+    Examples
+    --------
     >>> h = Hertz(10e-9, 100e9)
     >>> round(h.load(1e-9) * 1e9, 3)   # nN
     421.637
@@ -457,8 +457,8 @@ class DMT(ContactModel):
 
     Source: Derjaguin, Muller & Toporov, J. Colloid Interface Sci. 53, 314 (1975); Maugis (1992).
 
-    Example
-    -------
+    Examples
+    --------
     >>> m = DMT(20e-9, 50e9, 0.05)
     >>> round(m.pull_off_force() * 1e9, 4)    # -2 pi w R in nN
     -6.2832
@@ -587,8 +587,8 @@ class JKR(ContactModel):
     Source: Johnson, Kendall & Roberts, Proc. R. Soc. A 324, 301 (1971); Maugis (1992) for the
     non-dimensional form; Johnson, *Contact Mechanics* §5.5.
 
-    Example
-    -------
+    Examples
+    --------
     >>> j = JKR(20e-9, 50e9, 0.1)
     >>> a0 = j.contact_radius(load=0.0)   # zero-load radius (9 pi w R^2 / 2E*)^(1/3)
     >>> round(a0 * 1e9, 4)

@@ -226,8 +226,8 @@ class Projector:
     that moved (O(patch)); after :meth:`BSplineSurface.reset` call :meth:`refresh`.
     The workspace makes a projector single-threaded: use one per thread.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 50e-9), (0.0, 50e-9))
@@ -592,8 +592,8 @@ def project(surface, point, hint=None) -> Projection:
     SurfaceError
         Non-finite point or hint, or a surface with NaN/inf control points.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 50e-9), (0.0, 50e-9))
@@ -628,8 +628,8 @@ def collide(surface, center, radius, hint=None) -> Contact:
     SurfaceError, ContactError
         Non-finite centre or hint, NaN control points (SurfaceError); radius <= 0 (ContactError).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 50e-9), (0.0, 50e-9))
@@ -677,8 +677,8 @@ def project_many(surface, points, hints=None, chain: bool = False) -> Projection
     chain : bool
         Warm-start each query from the previous answer (a trajectory, as in replay).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 50e-9), (0.0, 50e-9))
@@ -696,8 +696,8 @@ def project_many(surface, points, hints=None, chain: bool = False) -> Projection
 def collide_many(surface, centers, radius, hints=None, chain: bool = False) -> ContactBatch:
     """:func:`collide` for an (n, 3) array of tip centres with one radius, in one kernel call.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.spline.surface import BSplineSurface
     >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 50e-9), (0.0, 50e-9))

@@ -134,8 +134,8 @@ def vertical_sensitivity_from_steps(step_heights, signal_changes, *, through_ori
     CalibrationResult
         ``value`` k_v (m/V); residuals in metres.
 
-    Example
-    -------
+    Examples
+    --------
     >>> r = vertical_sensitivity_from_steps([20e-9, 101.8e-9, 500e-9], [0.032, 0.156, 0.710])
     >>> round(r.value * 1e9)  # seed 000 quotes 706 nm/V
     702
@@ -184,8 +184,8 @@ def lateral_sensitivity_from_vertical(vertical_sensitivity: float, length: float
     length : float, metres
     model : {"end_load", "chord"}
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(lateral_sensitivity_from_vertical(706e-9, 125e-6, model="chord"), 5)
     0.00565
     """
@@ -290,8 +290,8 @@ def normal_sensitivity_from_curve(
         ``value`` S_n (m per signal unit, signed); residuals of the line fit (signal units);
         ``details``: contact_point (m), baseline, slope (1/m), intercept, n_fit.
 
-    Example
-    -------
+    Examples
+    --------
     >>> z = np.linspace(0.0, 400e-9, 400)
     >>> v = np.maximum(z - 150e-9, 0.0) / 1117e-9
     >>> r = normal_sensitivity_from_curve(z, v)
@@ -430,8 +430,8 @@ def wedge_from_slopes(
     other : (float, float) or None
         The other root (friction, lateral_gain) if it is admissible, else None.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import math
     >>> th, mu, gl, k = math.radians(12.0), 0.4, -63.78e-9, 335.1e-9
     >>> s_up = -math.tan(th + math.atan(mu)) * k / gl

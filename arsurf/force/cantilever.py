@@ -82,8 +82,8 @@ def torsion_coefficient(aspect: float, method: str = "series") -> float:
     float
         beta, dimensionless; 0.1406 for a square, 1/3 for a thin strip.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(torsion_coefficient(1.0), 4)
     0.1406
     """
@@ -130,8 +130,8 @@ def torsional_stiffness_from_geometry(
     -------
     float, N m / rad
 
-    Example
-    -------
+    Examples
+    --------
     >>> G = 150e9 / (2 * 1.17)
     >>> round(torsional_stiffness_from_geometry(220e-6, 27e-6, 2.9e-6, G, beta=1/3) * 1e9, 1)
     64.0
@@ -171,8 +171,8 @@ class Cantilever:
     beta : float, optional
         Torsion coefficient; default :func:`torsion_coefficient` (t / w). Seed 003 uses 1/3.
 
-    Example
-    -------
+    Examples
+    --------
     >>> lever = Cantilever(220e-6, 27e-6, 2.9e-6, 0.0, 150e9, 0.17, beta=1/3)
     >>> round(lever.normal_stiffness, 2), round(lever.torsional_stiffness * 1e9, 1)
     (2.32, 64.0)
@@ -318,8 +318,8 @@ class Cantilever:
 
         .. math:: F_z(x_p) = \\frac{2L^3}{x_p^2 (3L - x_p)}\\, k_z(L)\\, \\delta(L)
 
-        Example
-        -------
+        Examples
+        --------
         >>> lever = Cantilever(220e-6, 27e-6, 2.9e-6, 0.0, 150e9, 0.17, normal_stiffness=2.4)
         >>> round(lever.force_from_end_deflection(220e-6, 0.7e-6) * 1e6, 2)
         1.68
@@ -365,8 +365,8 @@ class Cantilever:
         -------
         bending, torsion : float or (n,) float, radians
 
-        Example
-        -------
+        Examples
+        --------
         >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
         >>> b, t = lever.angles([0.0, 1e-9, 0.0])
         >>> b == 0.0 and t > 0.0

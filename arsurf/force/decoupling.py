@@ -293,8 +293,8 @@ def decoupling_parameters(
     coupling : float, optional
         Override of kappa = 2a/l (see :func:`decouple_by_motion`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
     >>> params = decoupling_parameters(lever)
     >>> out = np.empty(4)
@@ -415,8 +415,8 @@ def decouple(
     ForceError
         NaN/inf signals, a zero or non-unit normal, a malformed velocity, a non-Cantilever.
 
-    Example
-    -------
+    Examples
+    --------
     >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
     >>> n = np.array([0.0, 0.0, 1.0]); v = np.array([0.0, 1e-6, 0.0])
     >>> est = decouple(*lever.angles([0.0, -3e-9, 10e-9]), n, v, lever)
@@ -484,8 +484,8 @@ def decouple_by_motion(
     -------
     ForceEstimate with method ``"motion_direction"`` or ``"bending_only"``.
 
-    Example
-    -------
+    Examples
+    --------
     >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
     >>> est = decouple_by_motion(*lever.angles([-1e-9, -1e-9, 20e-9]), [1e-6, 1e-6], lever)
     >>> est.method, np.allclose(est.force, [-1e-9, -1e-9, 20e-9], rtol=1e-12, atol=1e-21)

@@ -60,8 +60,8 @@ def signal_to_haptic_force_gain(
     length, tip_height : float, metres, optional
         Cantilever length l and tip height h, for :attr:`HapticForceGain.lateral_per_displacement`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> g = signal_to_haptic_force_gain(15e6, 0.3, 1117e-9, -63.78e-9, 450e-6, 15e-6)
     >>> round(g.normal_per_signal, 4), round(g.lateral_per_signal, 4)
     (5.0265, -0.9567)

@@ -63,8 +63,8 @@ def quadrant_signals(a, b, c, d, convention: str = "normalized"):
     ForceError
         NaN voltages, or a non-positive total in the normalized convention (no light on the cell).
 
-    Example
-    -------
+    Examples
+    --------
     >>> quadrant_signals(3.0, 3.0, 1.0, 1.0)
     (0.5, 0.0)
     >>> quadrant_signals(3.0, 3.0, 1.0, 1.0, convention="difference")
@@ -142,8 +142,8 @@ class Photodiode:
     convention : {"normalized", "difference"}
         Which signals the sensitivities refer to (see :func:`quadrant_signals`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> pd = Photodiode(0.01, 0.01)
     >>> pd.angles(0.2, -0.1)
     (0.002, -0.001)

@@ -90,8 +90,8 @@ def simulate_signals(
         Total light on the cell, for the quadrant voltages.
     seed : int or numpy.random.Generator, optional
 
-    Example
-    -------
+    Examples
+    --------
     >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
     >>> pd = Photodiode(0.02, 0.02)
     >>> sim = simulate_signals([[0.0, 1e-9, 5e-9]], lever, pd, noise=1e-4, seed=1)

@@ -159,8 +159,8 @@ class DirectCoupling:
     force : ForceScaling
         Probe -> hand force scale (:math:`K_f` or per-axis :math:`A_f`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> c = DirectCoupling(PositionScaling(1e-5), ForceScaling(1e7))
     >>> (c.probe_position([0.01, 0, 0]) * 1e9).round(6).tolist()
     [100.0, 0.0, 0.0]
@@ -224,8 +224,8 @@ class ForcePositionCoupling:
     params, phi, gamma, state : float64 arrays
         Arguments of :func:`fp_step` for a compiled tick.
 
-    Example
-    -------
+    Examples
+    --------
     >>> c = ForcePositionCoupling(K_fp=3000.0, B_fp=4.0, G_n=5.0, A_f=1e7, A_d=1e5, dt=1e-3,
     ...                           mass=1/300, damping=1/30)
     >>> c.probe_position().tolist()

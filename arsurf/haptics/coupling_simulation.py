@@ -29,8 +29,8 @@ def envelope_decay_ratio(signal, window: float = 0.2) -> float:
     fraction of the record with the first. Below 1: the motion dies out (stable rendering); about 1:
     sustained oscillation; above 1: growth. ``inf`` if the record is not finite.
 
-    Example
-    -------
+    Examples
+    --------
     >>> k = np.arange(2000)
     >>> round(envelope_decay_ratio(np.exp(-k / 200) * np.cos(0.3 * k)), 4)
     0.0003
@@ -130,8 +130,8 @@ def simulate_force_position(coupling: ForcePositionCoupling, *, mass, damping, e
     -------
     CouplingSimulation
 
-    Example
-    -------
+    Examples
+    --------
     >>> from arsurf.haptics.gains import suggest_gains
     >>> g = suggest_gains(mass=1/300, damping=1/30, dt=1e-3, A_f=1e7, A_d=1e5, env_stiffness=10.0)
     >>> c = ForcePositionCoupling(**g, A_f=1e7, A_d=1e5, dt=1e-3, slave_tau=(1e-4, 2e-5))

@@ -13,8 +13,8 @@ non-finite force (it sends zero and counts it in ``rejected_forces``) and clamps
 to ``info.max_force`` (counted in ``clamped_forces``). The real safety policy (ramps, rate limit,
 watchdog) lives in :mod:`arsurf.haptics.safety`; this is only the backstop.
 
-Example
--------
+Examples
+--------
 >>> from arsurf.haptics.virtual_device import VirtualDevice
 >>> with VirtualDevice(dt=1e-3) as dev:
 ...     s = dev.read_state()
@@ -84,8 +84,8 @@ class DeviceInfo:
     max_damping : (3,) float, N s/m, or None
         Largest virtual damping, per axis; None when the source gives none.
 
-    Example
-    -------
+    Examples
+    --------
     >>> TOUCH_X.max_force, TOUCH_X.workspace.tolist()
     (7.9, [0.12, 0.16, 0.12])
     """
@@ -153,8 +153,8 @@ class DeviceState:
         Time the sample was taken, in the device clock (:meth:`Device.now`); ``-inf`` before the
         first sample (its age is infinite, so the safety layer renders no force).
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = DeviceState()
     >>> s.position.tolist(), s.buttons, s.timestamp
     ([0.0, 0.0, 0.0], 0, -inf)

@@ -27,8 +27,8 @@ prewarped at the cutoff, so its frequency response is exactly
 Kernels take plain float64 arrays and return a status: 0 ok, 1 the input had a non-finite value
 (the filter then holds its previous output and keeps its state, so NaN never enters the state).
 
-Example
--------
+Examples
+--------
 >>> f = LowPass(cutoff=100.0, dt=1e-3)
 >>> y = f.step([1.0, 0.0, 0.0])
 >>> round(float(y[0]), 6) == round(1 - math.exp(-2 * math.pi * 100.0 * 1e-3), 6)
@@ -76,8 +76,8 @@ def lowpass_alpha(cutoff: float, dt: float) -> float:
     dt : float, s
         Sampling period :math:`\\Delta T`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(lowpass_alpha(5000.0, 1e-4), 6)   # seed 001's 5 kHz at 10 kHz: stable, alpha < 1
     0.956786
     """
@@ -91,8 +91,8 @@ def forward_euler_pole(cutoff: float, dt: float) -> float:
 
     Stable iff the pole is inside the unit circle, i.e. :math:`0 < \\omega_c\\Delta T < 2`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(forward_euler_pole(5000.0, 1e-4), 6)   # the thesis' setting: -(pi - 1)
     -2.141593
     """
@@ -121,8 +121,8 @@ def check_forward_euler(cutoff: float, dt: float, on_unstable: str = "raise") ->
     float
         :math:`\\omega_c\\Delta T`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> check_forward_euler(5000.0, 1e-4)
     Traceback (most recent call last):
     ...
@@ -242,8 +242,8 @@ class LowPass:
     nonfinite : int
         Number of ticks whose input was not finite (output held).
 
-    Example
-    -------
+    Examples
+    --------
     >>> f = LowPass(cutoff=50.0, dt=1e-3)
     >>> for _ in range(1000):
     ...     y = f.step([2.0, -1.0, 0.5])
@@ -318,8 +318,8 @@ class ButterworthLowPass:
     initial : float or (channels,)
         Initial output; the filter starts in the steady state at that value.
 
-    Example
-    -------
+    Examples
+    --------
     >>> f = ButterworthLowPass(cutoff=10.0, dt=1e-3)
     >>> ys = [float(f.step([1.0, 1.0, 1.0])[0]) for _ in range(1000)]
     >>> round(max(ys), 3), round(ys[-1], 6)   # 4.3 % overshoot of a 2nd-order Butterworth

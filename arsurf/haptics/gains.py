@@ -42,8 +42,8 @@ the same margin and the slave gain must be lower. These bounds hold for slave ti
 against :math:`T_e` (lags reduce the loop gain at :math:`z = -1`, so they stay conservative there);
 :func:`simulate_force_position` measures the behaviour for any setting.
 
-Example
--------
+Examples
+--------
 >>> g = suggest_gains(mass=1/300, damping=1/30, dt=1e-3, A_f=1e7, A_d=1e5)
 >>> check_gains(**g, mass=1/300, damping=1/30, dt=1e-3, A_f=1e7, A_d=1e5).ok
 True
@@ -179,8 +179,8 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
     GainCheck
         ``ok``, ``table_ok``, ``failed`` and the five :class:`Bound` records.
 
-    Example
-    -------
+    Examples
+    --------
     >>> c = check_gains(100.0, 0.1, 825.0, A_f=25e6, A_d=50e3, mass=0.5, damping=0.2, dt=5e-3)
     >>> c.ok, round(float(c.bound("G_n_max").limit[0]), 2)      # seed 003, Fig. 5 (x axis)
     (True, 1428.57)
@@ -217,8 +217,8 @@ def suggest_gains(*, mass, damping, dt, A_f, A_d, env_stiffness=0.0, stiffness: 
     :math:`[K_{fp}T_e/2 - B_v,\\ 2M_v/T_e - B_v]` (at least 0); :math:`G_n` = ``slave_margin``
     times the largest value the joint condition and Table II allow.
 
-    Example
-    -------
+    Examples
+    --------
     >>> g = suggest_gains(mass=0.05, damping=0.5, dt=1e-3, A_f=1e7, A_d=1e5)
     >>> round(float(g["K_fp"][0])), round(float(g["B_fp"][0]), 2)
     (50000, 62.0)

@@ -216,8 +216,8 @@ class HapticLoop:
         for ``"measured"``/``"blended"`` sources come from the surface contact only. Without a
         scene the tick is the single compiled call it always was (bit-identical outputs).
 
-    Example
-    -------
+    Examples
+    --------
     >>> # see arsurf.demo for a complete assembly with a VirtualDevice
     """
 

@@ -14,8 +14,8 @@ signals to interpolate). Before the first sample and after the last one the styl
 end point with zero velocity; ``finished`` turns True after the last sample (``loop=True``
 restarts from the beginning instead). The clock starts at ``t[0]``.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> t = np.array([0.0, 1.0])
 >>> dev = ReplayDevice(t, [[0, 0, 0], [0.01, 0, 0]], dt=0.25).open()
@@ -62,8 +62,8 @@ class ReplayDevice(Device):
     finished : bool
         True once the replay clock has passed the last sample (never with ``loop=True``).
 
-    Example
-    -------
+    Examples
+    --------
     >>> dev = ReplayDevice([0.0, 0.1], [[0, 0, 0], [0, 0, 1e-3]], buttons=[0, 1], dt=0.05)
     >>> with dev:
     ...     for _ in range(3):

@@ -34,8 +34,8 @@ allocates nothing and never raises; :class:`SafetyLayer` validates the settings 
 
 Limits: 7.9 N for a Touch X (seed 001), 6 N as seed 003 saturates its Virtuose.
 
-Example
--------
+Examples
+--------
 >>> s = SafetyLayer(max_force=6.0, dt=1e-3, ramp_time=0.0, max_rate=1e9)
 >>> s.step([10.0, 0.0, 0.0], now=0.0).tolist(), s.flag_names()
 ([6.0, 0.0, 0.0], ['SATURATED'])
@@ -256,8 +256,8 @@ class SafetyLayer:
     flags : int
         Flags of the last :meth:`step`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.01)
     >>> [round(float(s.step([0, 0, 1.0], now=k * 1e-3)[2]), 2) for k in range(4)]   # start-up ramp
     [0.1, 0.2, 0.3, 0.4]
@@ -296,8 +296,8 @@ class SafetyLayer:
     def for_device(cls, info: DeviceInfo, dt: float, **kwargs) -> "SafetyLayer":
         """A safety layer saturating at ``info.max_force``.
 
-        Example
-        -------
+        Examples
+        --------
         >>> from arsurf.haptics.device import TOUCH_X
         >>> SafetyLayer.for_device(TOUCH_X, 1e-3).max_force
         7.9

@@ -22,8 +22,8 @@ and the operator has re-centred the stylus in its workspace.
 Kernels take plain float64 arrays and return bit flags (:data:`CLUTCHED`, :data:`CLAMPED`,
 :data:`MASTER_OUTSIDE`, :data:`NONFINITE`).
 
-Example
--------
+Examples
+--------
 >>> s = PositionScaling.from_sensitivity(5000 / 120)          # nm per mm, seed 001 Table 4.2
 >>> (s.map([0.012, 0.0, 0.0]) * 1e9).round(3).tolist()        # 12 mm of stylus -> 500 nm of probe
 [500.0, 0.0, 0.0]
@@ -148,8 +148,8 @@ class PositionScaling:
     flags : int
         Flags of the last :meth:`map`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = PositionScaling(1e-5)                      # 1 mm of stylus -> 10 nm of probe
     >>> p = s.map([0.01, 0, 0])                        # 100 nm
     >>> p = s.map([0.03, 0, 0], buttons=1)             # clutch held: the probe stays
@@ -201,8 +201,8 @@ class PositionScaling:
     def from_sensitivity(cls, nm_per_mm, **kwargs) -> "PositionScaling":
         """From a sensitivity in probe nm per haptic mm (seed 001 Tables 4.2-4.3): :math:`s = 10^{-6} S`.
 
-        Example
-        -------
+        Examples
+        --------
         >>> PositionScaling.from_sensitivity(1000 / 120).scale.round(9).tolist()
         [8.333e-06, 8.333e-06, 8.333e-06]
         """
@@ -213,8 +213,8 @@ class PositionScaling:
     def from_ranges(cls, probe_range, master_range, **kwargs) -> "PositionScaling":
         """Map a master range (m) onto a probe range (m) per axis: :math:`s = R_{probe} / R_{master}`.
 
-        Example
-        -------
+        Examples
+        --------
         >>> PositionScaling.from_ranges(5e-6, (0.12, 0.16, 0.12)).sensitivity_nm_per_mm.round(2).tolist()
         [41.67, 31.25, 41.67]
         """
@@ -281,8 +281,8 @@ class ForceScaling:
         :math:`K_f` (seed 001: 15e6) or per-axis :math:`A_f` (seed 003: 25e6 along x, 2e6 along y).
         Positive and finite.
 
-    Example
-    -------
+    Examples
+    --------
     >>> ForceScaling((25e6, 2e6, 25e6)).apply([1.7e-6, 1e-7, 0.0]).round(6).tolist()
     [42.5, 0.2, 0.0]
     """

@@ -30,8 +30,8 @@ delay it by up to the interpreter's switch interval (5 ms by default). The sched
 :func:`sys.setswitchinterval` to a quarter of the period while it runs (restored on stop), and the
 step should spend its time in compiled kernels, which is what makes 1-10 kHz reachable.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> def step(state, inputs, dt):
 ...     state["x"] += dt
@@ -134,8 +134,8 @@ class Scheduler:
     history : int
         Ticks kept for the timing distributions (default 65536).
 
-    Example
-    -------
+    Examples
+    --------
     >>> sched = Scheduler(lambda s, i, dt: None, None, rate=1000.0)
     >>> stats = sched.run_for(0.2)
     >>> stats.ticks > 150, stats.nominal_rate

@@ -56,8 +56,8 @@ pose) lets the safety layer see the age too. After a stale period, or with the R
 sequence number is accepted again (a restarted client) and a new sender may take over. The client
 should apply zero force when it hears no FORCE packet for a while: the network may be gone.
 
-Example
--------
+Examples
+--------
 >>> import socket, struct, zlib, math
 >>> with UdpBridgeDevice(port=0) as dev:
 ...     pkt = encode_pose(seq=1, t=0.0, position=(0.01, 0.0, 0.0), buttons=1)
@@ -123,8 +123,8 @@ def encode_pose(seq: int, t: float, position, velocity=(math.nan, math.nan, math
                 quaternion=(1.0, 0.0, 0.0, 0.0), buttons: int = 0, reset: bool = False) -> bytes:
     """A POSE packet (108 bytes) as the protocol above defines it.
 
-    Example
-    -------
+    Examples
+    --------
     >>> len(encode_pose(seq=7, t=1.5, position=(0.0, 0.0, 0.0)))
     108
     """
@@ -137,8 +137,8 @@ def encode_pose(seq: int, t: float, position, velocity=(math.nan, math.nan, math
 def decode_pose(data) -> dict | None:
     """Fields of a POSE packet, or None if it is not a valid one (size, magic, version, type, CRC).
 
-    Example
-    -------
+    Examples
+    --------
     >>> decode_pose(encode_pose(seq=3, t=0.25, position=(1.0, 2.0, 3.0), buttons=2))["position"]
     (1.0, 2.0, 3.0)
     >>> decode_pose(b"junk") is None
@@ -159,8 +159,8 @@ def decode_pose(data) -> dict | None:
 def encode_force(seq: int, ack: int, t: float, echo: float, force, flags: int = 0) -> bytes:
     """A FORCE packet (60 bytes).
 
-    Example
-    -------
+    Examples
+    --------
     >>> decode_force(encode_force(1, 2, 0.5, 0.25, (0.0, 1.0, 0.0)))["force"]
     (0.0, 1.0, 0.0)
     """

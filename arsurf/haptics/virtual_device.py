@@ -29,8 +29,8 @@ damping 1/3 N s/m and hand stiffness 100/3 N/m (:math:`\\omega_n` = 100 rad/s, 1
 = 0.5). The defaults reproduce it exactly; how the damping splits between device (:math:`B_v`,
 10 %) and hand (:math:`B_h`, 90 %) is a choice the seed does not make.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> dev = VirtualDevice(dt=1e-3, hand=HandModel(trajectory=lambda t: [0.01 * np.sin(2 * np.pi * t), 0, 0]))
 >>> with dev:
@@ -89,8 +89,8 @@ def discretize_zoh(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
     Phi : (n, n) float
     Gamma : (n, m) float
 
-    Example
-    -------
+    Examples
+    --------
     >>> Phi, Gamma = discretize_zoh([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], 0.1)
     >>> Phi.tolist(), Gamma.ravel().round(6).tolist()
     ([[1.0, 0.1], [0.0, 1.0]], [0.005, 0.1])
@@ -186,8 +186,8 @@ class HandModel:
         Bandwidth :math:`f_h` of the critically damped filter between the trajectory and the hand
         set point (default 10 Hz, seed 001 section 4.3).
 
-    Example
-    -------
+    Examples
+    --------
     >>> HandModel(bandwidth=10.0).bandwidth
     10.0
     """
@@ -258,8 +258,8 @@ class VirtualDevice(Device):
     :math:`2 M_v/\\Delta t - B_v`: the stiffness and damping that a sampled coupling can render on
     this mass at this rate (corrected Table II of seed 003, see :mod:`arsurf.haptics.coupling`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> dev = VirtualDevice(dt=1e-3, hand=None).open()
     >>> for _ in range(100):
     ...     dev.command_force([1.0, 0.0, 0.0])      # push a free mass for 0.1 s

@@ -20,8 +20,8 @@ fine step (plus the noise on the detection) before the procedure stops.
 A safety layer watches the force estimated from every sample of the signal (seed 001 Eq. 7,
 ``k S_n (V - V_0)``) and aborts, retracting the fine stage, if it exceeds ``force_limit``.
 
-Example
--------
+Examples
+--------
 >>> from arsurf.instrument.instrument import VirtualAFM
 >>> afm = VirtualAFM(surface=0.0, probe_height=0.5e-6, seed=3)
 >>> result = engage(afm, setpoint=0.05, force_limit=25e-9)

@@ -26,8 +26,8 @@ Gaussian noise (plus an optional first-order low-pass component) whose standard 
 so that the *expected* peak-to-peak over that window equals the measured one. Noise is drawn from
 a seeded generator: a run is reproducible.
 
-Example
--------
+Examples
+--------
 >>> afm = VirtualAFM(surface=0.0, probe_height=5e-6, seed=1)
 >>> afm.gap() == 5e-6
 True
@@ -55,8 +55,8 @@ def expected_range(n: int) -> float:
 
     .. math:: E[R_n] = \\int_{-\\infty}^{\\infty} \\big(1 - \\Phi(x)^n - (1 - \\Phi(x))^n\\big)\\,dx
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(expected_range(2), 6)    # 2 / sqrt(pi)
     1.128379
     """
@@ -85,8 +85,8 @@ class PhotodiodeNoise:
         Share of the noise variance in a first-order low-pass component with corner ``corner``.
     corner : float, Hz
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(RECTANGULAR_NOISE.sigma * 1e3, 3)     # mV rms
     1.655
     """

@@ -22,8 +22,8 @@ one: each keeps :math:`a_{max}` and lowers its cruise speed to
 velocity are continuous, the acceleration is bounded by :math:`a_{max}`, and the end point is
 reached exactly (the last blend is written from :math:`q_1`).
 
-Example
--------
+Examples
+--------
 >>> move = LSPB.plan(0.0, 1e-6, max_velocity=1e-4, max_acceleration=1e-3)
 >>> round(move.duration * 1e3, 4), bool(move.triangular[0])   # too short to reach 0.1 mm/s
 (63.2456, True)

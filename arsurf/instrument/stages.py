@@ -5,8 +5,8 @@ are rounded to the resolution grid) and the velocity and acceleration limits its
 Ranges and resolutions are those of seed 001 (Tables 3.1-3.3); velocity and acceleration limits
 that the seed does not give are stated as assumptions next to each preset.
 
-Example
--------
+Examples
+--------
 >>> stage = PICOCUBE
 >>> stage.quantize(1.23456e-6)       # 0.1 nm grid
 1.2346e-06

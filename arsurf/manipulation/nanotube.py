@@ -57,8 +57,8 @@ The tube offers both ways of joining the scene, and they have different jobs:
   building synthetic scans with tubes, for the predicted rescan after a manipulation (optionally
   dilated by the tip sphere, as an AFM would image it), and for comparison with a real rescan.
 
-Example
--------
+Examples
+--------
 >>> tube = Nanotube(length=1e-6, diameter=20e-9, x=0.0, y=0.0, angle=0.0)
 >>> round(float(rotation_centre(1e-6, 1e-6)) / 1e-6, 6)    # push at end B: s = L(1 - 1/sqrt(2))
 0.292893
@@ -414,8 +414,8 @@ def rotation_centre(contact, length):
     float or ndarray, metres : the pivot's arc-length from end A, in ``[0, L(1-1/sqrt 2)]`` for
     ``l > L/2`` and in ``[L/sqrt 2, L]`` for ``l < L/2``; ``inf`` at ``l = L/2``.
 
-    Example
-    -------
+    Examples
+    --------
     >>> round(float(rotation_centre(2.0, 2.0)), 12), round(float(rotation_centre(0.0, 2.0)), 12)
     (0.585786437627, 1.414213562373)
     """
@@ -451,8 +451,8 @@ class Nanotube:
     base : float, metres
         Height of the substrate the tube rests on (see :meth:`resting_on`).
 
-    Example
-    -------
+    Examples
+    --------
     >>> t = Nanotube(1e-6, 20e-9, x=2e-6, y=1e-6, angle=0.5)
     >>> t.axis_height, t.pose
     (1e-08, (2e-06, 1e-06, 0.5))
@@ -586,8 +586,8 @@ class Nanotube:
         -------
         Scan (with a history step) or ndarray, like the input.
 
-        Example
-        -------
+        Examples
+        --------
         >>> s = Scan(np.zeros((8, 8)), dx=10e-9, dy=10e-9)
         >>> out = Nanotube(40e-9, 20e-9, x=30e-9, y=30e-9).add_to_heights(s)
         >>> round(float(out.heights[3, 3]) * 1e9, 6), float(out.heights[0, 0])   # on the axis; far
@@ -745,8 +745,8 @@ def push(tube: Nanotube, tip_center, tip_displacement, tip_radius: float = 0.0, 
     -------
     PushResult
 
-    Example
-    -------
+    Examples
+    --------
     >>> t = Nanotube(1e-6, 10e-9)
     >>> r = push(t, (0.5e-6, -20e-9, t.axis_height), (0.0, 50e-9), tip_radius=5e-9)
     >>> r.touched, r.status, round(r.pivot / 1e-6, 4)   # pushed at end B: turns about s = 0.29 L

@@ -60,8 +60,8 @@ Determinism: :meth:`TubeScene.tick` is a compiled kernel of the previous and cur
 centres and the poses only; replaying the recorded probe positions reproduces the poses bit for
 bit (:func:`arsurf.replay.replay.replay`).
 
-Example
--------
+Examples
+--------
 >>> from arsurf.manipulation.nanotube import Nanotube
 >>> scene = TubeScene([Nanotube(300e-9, 15e-9, x=0.0, y=0.0, angle=0.0)])
 >>> tip0 = (150e-9, -40e-9, 20e-9)                    # beside end B, at the substrate
@@ -228,8 +228,8 @@ def tube_mask(scan: Scan, tubes: Sequence[Nanotube], margin: float = 0.0) -> np.
     -------
     (ny, nx) bool
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = Scan(np.zeros((5, 9)), dx=10e-9, dy=10e-9)
     >>> tube_mask(s, [Nanotube(40e-9, 10e-9, x=40e-9, y=20e-9)]).sum(axis=1).tolist()
     [0, 0, 5, 0, 0]
@@ -284,8 +284,8 @@ def rigid_motion(before: Nanotube, after: Nanotube) -> TubeMotion:
     :math:`p = (I - R)^{-1}(c_1 - R c_0)`. A tube pushed at end B by a single Eq. 9 step turns
     about the pole at arc-length :math:`L (1 - 1/\sqrt2)`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> a = Nanotube(1e-6, 1e-8)
     >>> b = a.with_pose(0.1e-6, 0.0, 0.0)
     >>> m = rigid_motion(a, b)
@@ -371,8 +371,8 @@ class TubeScene:
     force : (3,) float, newtons
         The force of the last tick.
 
-    Example
-    -------
+    Examples
+    --------
     >>> scene = TubeScene([Nanotube(200e-9, 10e-9, x=1e-7, y=1e-7)])
     >>> scene.tick(np.full(3, np.nan), np.array([0.0, 0.0, 1e-8]), 5e-9).tolist()   # far away
     [0.0, 0.0, 0.0]
@@ -462,8 +462,8 @@ class TubeScene:
     def to_metadata(self) -> dict:
         """The scene as JSON-ready data (the *initial* tubes and the settings), for session metadata.
 
-        Example
-        -------
+        Examples
+        --------
         >>> s = TubeScene([Nanotube(1e-7, 1e-8, x=1e-7)])
         >>> TubeScene.from_metadata(s.to_metadata()).initial == s.initial
         True

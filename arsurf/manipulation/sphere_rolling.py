@@ -38,8 +38,8 @@ at a lateral offset y_p it twists the clamped segment ``[0, x_p]`` by
 :math:`\phi = F_z y_p / k_{t\phi}(x_p)`, which the untwisted rest of the beam carries to the end:
 :math:`\phi(L,0) = \phi(x_p,0)` (Eq. 10 read as a torsion spring).
 
-Example
--------
+Examples
+--------
 >>> E, nu, L, t, w = 150e9, 0.17, 220e-6, 2.9e-6, 27e-6
 >>> kz = lambda x: E * w * t**3 / (4 * x**3)
 >>> kt = lambda x: E / (2 * (1 + nu)) * w * t**3 / (3 * x)
@@ -86,8 +86,8 @@ def sphere_position(x_c, x_c0: float, x_s0: float):
     x_c0, x_s0 : float, metres
         Initial cantilever position and sphere position.
 
-    Example
-    -------
+    Examples
+    --------
     >>> sphere_position([0.0, 2e-6], 0.0, 5e-6)
     array([5.e-06, 6.e-06])
     """
@@ -102,8 +102,8 @@ def load_point(x_c, x_c0: float, x_p0: float):
 
     Eq. 12 in the beam frame: ``x_p = x_s - x_c`` with :func:`sphere_position` for ``x_s``.
 
-    Example
-    -------
+    Examples
+    --------
     >>> load_point(20e-6, 0.0, 220e-6)     # advance the beam by 20 um: the sphere is 10 um inward
     0.00021
     """
@@ -126,8 +126,8 @@ class RollingProbe:
     torsional_stiffness : callable x_p -> N m/rad
         k_tphi at a load point (seed 003 Eq. 10).
 
-    Example
-    -------
+    Examples
+    --------
     >>> probe = RollingProbe(200e-6, 30e-6, lambda x: 2.0 * (200e-6 / x) ** 3, lambda x: 6e-8 * 200e-6 / x)
     >>> probe.force_y(0.0)
     0.0
@@ -292,8 +292,8 @@ class SphereRolling:
     load_point0 : (2,) float, metres
         Sphere load point (x_p, y_p) on the beam at j = 0; default the extremity (L, 0).
 
-    Example
-    -------
+    Examples
+    --------
     >>> probe = RollingProbe(220e-6, 27e-6, lambda x: 2.32 * (220e-6 / x) ** 3, lambda x: 64e-9 * 220e-6 / x)
     >>> roll = SphereRolling(probe, cantilever0=(0.0, 0.0))
     >>> fb = roll.update((40e-6, 0.0), end_deflection=0.7e-6, torsion=0.0)

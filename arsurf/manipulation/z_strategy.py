@@ -28,8 +28,8 @@ planner is closed-loop on the model: every push is simulated with
 simulated pose, so the returned sequence reproduces its predicted poses when replayed. Between
 pushes the tip is lifted above the tube and moved to the next start.
 
-Example
--------
+Examples
+--------
 >>> from arsurf.manipulation.nanotube import Nanotube
 >>> tube = Nanotube(1e-6, 20e-9, x=0.0, y=0.0, angle=0.0)
 >>> goal = Nanotube(1e-6, 20e-9, x=0.1e-6, y=0.3e-6, angle=0.4)

@@ -12,8 +12,8 @@ The figures are drawn with the default style whatever the user's matplotlibrc sa
 :class:`~matplotlib.backends.backend_agg.FigureCanvasAgg` (no global backend switch), and saved
 as PNG without the ``Software`` text chunk: the same data give the same bytes.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np, tempfile, os
 >>> t = np.linspace(0, 1, 50); f = np.zeros((50, 3)); f[:, 2] = 1e-9 * np.sin(3 * t)
 >>> p = plot_forces(os.path.join(tempfile.mkdtemp(), "f.png"), t, {"recorded": f}, t > 0.5)

@@ -67,8 +67,8 @@ did live - so the poses come back bit for bit; the summary gives the largest dif
 the recorded ``tube_poses`` (``tube_pose_difference``, 0 for a faithful replay), each tube's
 displacement and rotation, and the frames draw the tubes where they are.
 
-Example
--------
+Examples
+--------
 >>> # result = replay("run.h5", "scans/nanotubes.npz", "run-replay", frames=20)
 >>> # result.files -> ('coupled_motion.png', 'forces.csv', 'forces.png', 'frames/frame_00000.png', ...)
 """

@@ -93,8 +93,8 @@ Writing is cheap and atomic: :class:`SessionWriter` fills preallocated numpy buf
 when full) and writes the whole file once, at :meth:`SessionWriter.close`, to ``<path>.part``,
 fsyncs it and renames it over ``<path>``, so a crash never leaves a half-written session.
 
-Example
--------
+Examples
+--------
 >>> import tempfile, os, numpy as np
 >>> from arsurf.force.cantilever import Cantilever
 >>> from arsurf.contact.maugis_dugdale import MaugisDugdale
@@ -201,8 +201,8 @@ def _h5py():
 def contact_fields(tick) -> dict:
     """The contact fields of :meth:`SessionWriter.append` from a :class:`~arsurf.model.ModelTick`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> # writer.append(t=t, probe_position=c, probe_velocity=v, force=f, **contact_fields(tick))
     """
     return {"contact_point": tick.point, "contact_normal": tick.normal, "depth": tick.depth,
@@ -287,8 +287,8 @@ class SessionWriter:
     written at exit; if the block raised, it is still written but marked ``complete=False``
     (with the reason in ``aborted``), and :func:`load_session` refuses it unless asked.
 
-    Example
-    -------
+    Examples
+    --------
     >>> # with SessionWriter("run.h5", meta) as w:
     >>> #     w.append(t=t, probe_position=c, probe_velocity=v, signals=s, force=f)
     """

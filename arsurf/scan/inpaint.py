@@ -50,8 +50,8 @@ def dropout_mask(scan, threshold: float = DROPOUT_THRESHOLD) -> np.ndarray:
     -------
     (ny, nx) bool
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.scan.scan import Scan
     >>> s = Scan(np.array([[1e-7, 1e-19], [2e-7, 3e-7]]), dx=1e-8, dy=1e-8)
@@ -102,8 +102,8 @@ def inpaint(scan, mask: np.ndarray | None = None):
     InvalidHeights
         ``mask`` has the wrong shape, or no pixel is known (nothing to interpolate from).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.scan.scan import Scan
     >>> z = np.add.outer(np.arange(4.0), np.arange(5.0)) * 1e-9   # a plane

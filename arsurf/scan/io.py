@@ -46,7 +46,6 @@ import importlib
 import inspect
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -175,8 +174,8 @@ def load_scan(
         All are :class:`arsurf.errors.ScanError`; :class:`arsurf.errors.MissingDependency` when
         the format needs an optional package (``pip install 'arsurf[formats]'``).
 
-    Example
-    -------
+    Examples
+    --------
     >>> scan = load_scan("Veeco_20160622.003")  # doctest: +SKIP
     >>> scan.metadata["format"], scan.channel  # doctest: +SKIP
     ('nanoscope', 'Height (Retrace)')
@@ -237,8 +236,8 @@ def save_scan(scan, path: str | os.PathLike) -> Path:
     UnknownFormat
         The extension is not one of ``.gsf``, ``.npz``, ``.npy``.
 
-    Example
-    -------
+    Examples
+    --------
     >>> save_scan(scan, "out.npz")  # doctest: +SKIP
     """
     from arsurf.scan.scan import Scan
@@ -254,13 +253,3 @@ def save_scan(scan, path: str | os.PathLike) -> Path:
         )
     _module(fmt).write(scan, path)
     return path
-
-
-def _format_table() -> list[dict[str, Any]]:
-    """Format name, extensions and reader module docstring summary (for the CLI / docs)."""
-    rows = []
-    for fmt in FORMATS:
-        mod = _module(fmt)
-        rows.append({"format": fmt, "extensions": [e for e in mod.EXTENSIONS if not e[1:].isdigit()],
-                     "summary": (mod.__doc__ or "").strip().splitlines()[0]})
-    return rows

@@ -188,8 +188,8 @@ def level(
     The source (seed 002) smooths the scan before the B-spline fit; levelling first is the
     usual AFM practice (Gwyddion: Nečas & Klapetek 2012, Cent. Eur. J. Phys. 10, 181).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.scan.scan import Scan
     >>> y, x = np.mgrid[0:8, 0:10] * 1e-9

@@ -32,8 +32,8 @@ class Scan:
     source : str
         Where the data came from (a path, or ``"synthetic:<name>"``).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> s = Scan(np.zeros((4, 5)), dx=1e-9, dy=2e-9)
     >>> s.shape, [round(x * 1e9, 9) for x in s.size]      # centre-to-centre extent, nm

@@ -80,8 +80,8 @@ def smooth(
     the bicubic B-spline; the width is not given there: choose it from the noise scale, a few
     pixels.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.scan.scan import Scan
     >>> x = np.arange(64) * 1e-9

@@ -110,8 +110,8 @@ def calibration_grating(
     Scan
         ``metadata["synthetic"]`` records the generator and its parameters.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = calibration_grating(20e-9, shape=(8, 240), pixel=25e-9)
     >>> float(s.heights.max() - s.heights.min())
     2e-08
@@ -180,8 +180,8 @@ def sinusoid(
     noise, tilt, seed
         As in :func:`calibration_grating`.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = sinusoid(shape=(32, 32), pixel=10e-9, amplitude=5e-9, period=160e-9)
     >>> s.shape, round(float(s.heights.max()) * 1e9, 6)
     ((32, 32), 5.0)
@@ -245,8 +245,8 @@ def nanotubes(
     Scan
         ``metadata["synthetic"]["tubes"]`` lists each tube's end points and diameter.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = nanotubes((64, 64), 2e-9, diameter=10e-9, tubes=[(20e-9, 60e-9, 100e-9, 70e-9)])
     >>> round(float(s.heights.max()) * 1e9, 2)
     10.0
@@ -346,8 +346,8 @@ def nanoparticles(
     Scan
         ``metadata["synthetic"]["particles"]`` lists each centre, radius and height.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = nanoparticles((64, 64), 1e-9, radius=8e-9, height=5e-9, centers=[(30e-9, 30e-9)])
     >>> round(float(s.heights.max()) * 1e9, 6)
     5.0
@@ -434,8 +434,8 @@ def rough(
     noise, tilt, seed
         As in :func:`calibration_grating`; the seed also drives the roughness.
 
-    Example
-    -------
+    Examples
+    --------
     >>> s = rough((128, 128), 2e-9, rms=1e-9, correlation_length=10e-9, seed=3)
     >>> bool(0.8e-9 < np.sqrt(np.mean(s.heights**2)) < 1.2e-9)
     True
@@ -509,8 +509,8 @@ def write_demo_scans(out_dir: str | Path) -> list[Path]:
     000 calibration gratings (20, 101.8 and 500 nm steps), a sinusoid, nanotubes, nanoparticles
     and a rough surface, with noise and tilt; about 2 MB in total.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import tempfile
     >>> paths = write_demo_scans(tempfile.mkdtemp())
     >>> sorted(p.stem for p in paths)[:2]

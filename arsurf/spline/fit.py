@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import lapack, solveh_banded
 
+from arsurf import _validation
 from arsurf.errors import InvalidHeights, SurfaceError
 from arsurf.scan.scan import Scan
 from arsurf.spline.basis import basis_matrix_rows, cubic_basis
@@ -190,8 +191,8 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
     BSplineSurface
         Domain [0, (nx-1)dx] x [0, (ny-1)dy]; control points on the Greville abscissae.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> from arsurf.scan.scan import Scan
     >>> y, x = np.mgrid[0:8, 0:8] * 1e-9
@@ -225,6 +226,9 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
             f"control_shape must be between (4, 4) and {limit} for this {nx}x{ny} scan (got ({nu}, {nv})); "
             f"({nx + 2}, {ny + 2}) interpolates, fewer approximate by least squares"
         )
+    # the two axis solves, their transpose and the surface's (nu, nv, 3) net: ~6 float64 per point
+    _validation.check_memory(48.0 * nu * nv + 16.0 * nx * ny, f"fitting this {nx}x{ny} scan", SurfaceError,
+                             "crop it, or fit fewer control points (control_shape) to approximate it")
     x, y = scan.x, scan.y
     ku = clamped_uniform_knots(nu, x[0], x[-1])
     kv = clamped_uniform_knots(nv, y[0], y[-1])

@@ -33,8 +33,8 @@ def clamped_uniform_knots(n: int, a: float, b: float) -> np.ndarray:
     -------
     (n + 4,) float64
 
-    Example
-    -------
+    Examples
+    --------
     >>> clamped_uniform_knots(5, 0.0, 2.0)
     array([0., 0., 0., 0., 1., 2., 2., 2., 2.])
     """
@@ -53,8 +53,8 @@ def clamped_uniform_knots(n: int, a: float, b: float) -> np.ndarray:
 def greville(knots: np.ndarray) -> np.ndarray:
     """Greville abscissae :math:`\\xi_i = (t_{i+1} + t_{i+2} + t_{i+3})/3` of a cubic knot vector.
 
-    Example
-    -------
+    Examples
+    --------
     >>> greville(clamped_uniform_knots(4, 0.0, 3.0))
     array([0., 1., 2., 3.])
     """

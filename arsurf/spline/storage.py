@@ -17,8 +17,8 @@ def save_surface(surface: BSplineSurface, path: str | os.PathLike, metadata: dic
     """Write ``surface`` to ``path`` (.npz): control_points, rest_control_points, knots_u,
     knots_v (metres) and ``metadata_json``. The round trip is bit-exact.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import tempfile, numpy as np
     >>> s = BSplineSurface.from_heights(np.zeros((4, 4)), (0, 1e-9), (0, 1e-9))
     >>> p = save_surface(s, tempfile.mkdtemp() + "/s.npz")

@@ -45,8 +45,8 @@ class BSplineSurface:
     rest_control_points : (nu, nv, 3) read-only view of the rest net (as fitted).
     domain : ((u0, u1), (v0, v1)) parameter domain, metres.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np
     >>> s = BSplineSurface.from_heights(np.zeros((4, 5)), (0.0, 3e-9), (0.0, 4e-9))
     >>> s.evaluate(1e-9, 2e-9)

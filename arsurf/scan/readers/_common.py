@@ -136,8 +136,8 @@ def parse_unit(unit: str) -> tuple[float, str]:
     ``um``-style spellings and a leading power of ten (``"1e-9 m"``). Unknown units come back
     with factor 1 and the string unchanged.
 
-    Example
-    -------
+    Examples
+    --------
     >>> parse_unit("~m")
     (1e-06, 'm')
     """

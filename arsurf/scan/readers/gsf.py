@@ -70,8 +70,8 @@ def parse_header(path, buf: bytes) -> tuple[dict[str, str], int]:
 def read(path: Path | str, channel: str | None = None):
     """Read a ``.gsf`` file as a :class:`~arsurf.scan.scan.Scan` (single channel, rows flipped).
 
-    Example
-    -------
+    Examples
+    --------
     >>> scan = read("wedge_Z_raw.gsf")  # doctest: +SKIP
     """
     buf = Path(path).read_bytes()

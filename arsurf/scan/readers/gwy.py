@@ -164,8 +164,8 @@ def _channels(path, top: dict) -> list[Channel]:
 def read(path: Path | str, channel: str | None = None):
     """Read one channel of a ``.gwy`` file (default: the first forward height channel).
 
-    Example
-    -------
+    Examples
+    --------
     >>> scan = read("waveguide.gwy", channel="Z raw")  # doctest: +SKIP
     """
     buf = Path(path).read_bytes()

@@ -81,8 +81,8 @@ def _note(raw: bytes | str) -> dict[str, str]:
 def read(path: Path | str, channel: str | None = None):
     """Read one layer of an Asylum ``.ibw`` image (default: the first trace, else retrace, height).
 
-    Example
-    -------
+    Examples
+    --------
     >>> scan = read("AR_20211011.ibw", channel="ZSensorRetrace")  # doctest: +SKIP
     """
     bw = require("igor2.binarywave", "formats", "reading Igor/Asylum .ibw files")
