@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
-from test_projection import TOL, perturbed, ridges_scan, steps_scan, trench_scan
+from test_projection import TOL, ridges_scan, steps_scan, trench_scan
 
 from arsurf.assembly import make_model
 from arsurf.contact import projection as pj
@@ -36,8 +36,7 @@ SURFACES = {
 def _run(proj, pts, chain=False, hints=None):
     out = np.empty((len(pts), pj.OUT_SIZE))
     hts = np.empty((0, 2)) if hints is None else hints
-    kernel = pj.tiled_batch_kernel if isinstance(proj, TiledProjector) else pj.project_batch_kernel
-    kernel(*proj.kernel_args(), pts, hts, chain, 10e-9, out)
+    pj.project_batch_kernel(proj.kernel_args(), pts, hts, chain, 10e-9, out)
     return out
 
 

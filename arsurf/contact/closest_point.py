@@ -610,34 +610,6 @@ def collide_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     return status
 
 
-@njit(cache=True)
-def project_batch_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points, hints, chain, radius, out):
-    """Many queries: ``points`` (n, 3); ``hints`` (n, 2) (NaN rows = cold) or (0, 2);
-    ``chain`` warm-starts each query from the previous answer (trajectories). ``radius`` > 0
-    fills the depth column. ``out`` (n, OUT_SIZE). Returns the worst (lowest) status."""
-    worst = STATUS_OK
-    hu = np.nan
-    hv = np.nan
-    for k in range(points.shape[0]):
-        if hints.shape[0] > 0:
-            hu = hints[k, 0]
-            hv = hints[k, 1]
-        row = out[k]
-        st = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, points[k, 0], points[k, 1], points[k, 2],
-                            hu, hv, row)
-        row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
-        if chain:
-            if st >= 0:
-                hu = row[OUT_U]
-                hv = row[OUT_V]
-            else:
-                hu = np.nan
-                hv = np.nan
-        if st < 0 and st < worst:
-            worst = st
-    return worst
-
-
 # --- tiles: the hull-box pyramid built lazily, tile by tile ------------------------------------
 # grid (int64) fields of a tiled projector
 G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS, G_USED, G_CLOCK, G_BUILDS = range(9)
@@ -833,33 +805,6 @@ def tiled_collide_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
     return status
 
 
-@njit(cache=True)
-def tiled_batch_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
-                       slot_info, tmp, points, hints, chain, radius, out):
-    """:func:`project_batch_kernel` on a tiled projector."""
-    worst = STATUS_OK
-    hu = np.nan
-    hv = np.nan
-    for k in range(points.shape[0]):
-        if hints.shape[0] > 0:
-            hu = hints[k, 0]
-            hv = hints[k, 1]
-        row = out[k]
-        st = tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack,
-                                  tile_slot, slot_info, tmp, points[k, 0], points[k, 1], points[k, 2], hu, hv, row)
-        row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
-        if chain:
-            if st >= 0:
-                hu = row[OUT_U]
-                hv = row[OUT_V]
-            else:
-                hu = np.nan
-                hv = np.nan
-        if st < 0 and st < worst:
-            worst = st
-    return worst
-
-
 def collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
     """:func:`collide_kernel` or :func:`tiled_collide_kernel`, chosen by the projector's
     ``kernel_args()`` tuple (9 arrays: one pyramid; 16: tiles); compiled into numba callers."""
@@ -878,3 +823,51 @@ def _collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
     def tiled(proj, cx, cy, cz, radius, hint_u, hint_v, out):
         return tiled_collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
     return tiled
+
+
+def project_any(proj, cx, cy, cz, hint_u, hint_v, out):
+    """:func:`project_kernel` or :func:`tiled_project_kernel`, chosen by the projector's
+    ``kernel_args()`` tuple, like :func:`collide_any`."""
+    if len(proj) == 9:
+        return project_kernel(*proj, cx, cy, cz, hint_u, hint_v, out)
+    return tiled_project_kernel(*proj, cx, cy, cz, hint_u, hint_v, out)
+
+
+@overload(project_any, jit_options={"cache": True})
+def _project_any(proj, cx, cy, cz, hint_u, hint_v, out):
+    if len(proj) == 9:
+        def one(proj, cx, cy, cz, hint_u, hint_v, out):
+            return project_kernel(*proj, cx, cy, cz, hint_u, hint_v, out)
+        return one
+
+    def tiled(proj, cx, cy, cz, hint_u, hint_v, out):
+        return tiled_project_kernel(*proj, cx, cy, cz, hint_u, hint_v, out)
+    return tiled
+
+
+@njit(cache=True)
+def project_batch_kernel(proj, points, hints, chain, radius, out):
+    """Many queries on a projector (its ``kernel_args()`` tuple, one pyramid or tiles):
+    ``points`` (n, 3); ``hints`` (n, 2) (NaN rows = cold) or (0, 2); ``chain`` warm-starts each
+    query from the previous answer (trajectories). ``radius`` > 0 fills the depth column.
+    ``out`` (n, OUT_SIZE). Returns the worst (lowest) status."""
+    worst = STATUS_OK
+    hu = np.nan
+    hv = np.nan
+    for k in range(points.shape[0]):
+        if hints.shape[0] > 0:
+            hu = hints[k, 0]
+            hv = hints[k, 1]
+        row = out[k]
+        st = project_any(proj, points[k, 0], points[k, 1], points[k, 2], hu, hv, row)
+        row[OUT_DEPTH] = radius - row[OUT_DISTANCE]
+        if chain:
+            if st >= 0:
+                hu = row[OUT_U]
+                hv = row[OUT_V]
+            else:
+                hu = np.nan
+                hv = np.nan
+        if st < 0 and st < worst:
+            worst = st
+    return worst

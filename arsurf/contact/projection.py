@@ -31,7 +31,7 @@ from numba.extending import overload
 
 from arsurf.contact.closest_point import (  # noqa: F401 (collide_any, collide_kernel: for numba callers)
     G_BUILDS, G_CLOCK, G_NCU, G_NCV, G_NTI, G_NTJ, G_SIZE, G_SLOTS, G_TILE, G_USED, SI_TI, SI_TJ, SI_USED,
-    collide_any, collide_kernel, project_batch_kernel, project_kernel, tiled_batch_kernel, tiled_project_kernel,
+    collide_any, collide_kernel, project_any, project_batch_kernel, project_kernel, tiled_project_kernel,
 )
 from arsurf.contact.hull_tree import CURV_SIZE, NODE_SIZE, HullTree, bezier_matrices, pyramid_levels, refresh_region_kernel
 from arsurf.contact.layout import (  # noqa: F401 (re-exported: callers read results by these names)
@@ -257,7 +257,6 @@ class Projector:
         self._packed = KernelArrays(*self._args, np.empty(OUT_SIZE))
         self._project = _entry_point(_project_packed, self._packed, 5)
         self._collide = _entry_point(_collide_packed, self._packed, 6)
-        self._batch_kernel = project_batch_kernel
 
     def __reduce__(self):
         # a pickled or deep-copied surface drops its projector (compiled entry points do not
@@ -362,7 +361,6 @@ class TiledProjector:
         self._packed = TiledArrays(*self._args, np.empty(OUT_SIZE))
         self._project = _entry_point(_project_packed, self._packed, 5)
         self._collide = _entry_point(_collide_packed, self._packed, 6)
-        self._batch_kernel = tiled_batch_kernel
 
     def __reduce__(self):
         return _no_projector, ()
@@ -660,7 +658,7 @@ def _batch(surface, points, hints, chain, radius, where):
         if hts.shape != (pts.shape[0], 2):
             raise SurfaceError(f"hints must have shape ({pts.shape[0]}, 2) (got {hts.shape}); NaN rows mean cold")
     out = np.empty((pts.shape[0], OUT_SIZE))
-    worst = proj._batch_kernel(*proj._args, pts, hts, bool(chain), radius, out)
+    worst = project_batch_kernel(proj._args, pts, hts, bool(chain), radius, out)
     if worst < 0:
         _raise_status(int(worst), where)
     return out
