@@ -66,7 +66,7 @@ def worker(n: int, whole: bool) -> dict:
     path = np.column_stack([xs, np.full_like(xs, x0), surface.evaluate(xs, np.full_like(xs, x0))[:, 2] + 18e-9])
     rss0 = _rss()
     t0 = time.perf_counter()
-    model = make_model(surface, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, deform=False)
+    model = make_model(surface, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1)
     ready = time.perf_counter() - t0
     for c in path:
         model.tick(c)

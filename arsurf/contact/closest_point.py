@@ -680,6 +680,37 @@ def build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, 
     return s
 
 
+@njit(cache=True)
+def _may_hold_closer(nodes, levels, work, cx, cy, cz, best2):
+    """True if some knot cell's hull box of this pyramid is nearer to C than ``best2`` (squared):
+    the walk of :func:`project_kernel` without its Newton runs, stopping at the first such cell."""
+    nlev = levels.shape[0]
+    sp = STACK_ROWS
+    work[sp, 0] = nlev - 1
+    work[sp, 1] = 0.0
+    work[sp, 2] = 0.0
+    sp += 1
+    while sp > STACK_ROWS:
+        sp -= 1
+        lev = int(work[sp, 0])
+        i = int(work[sp, 1])
+        j = int(work[sp, 2])
+        node = levels[lev, 0] + i * levels[lev, 2] + j
+        if not (node_distance2(nodes, node, cx, cy, cz) < best2 * TIE):
+            continue
+        if lev == 0:
+            return True
+        cni = levels[lev - 1, 1]
+        cnj = levels[lev - 1, 2]
+        for ci in range(2 * i, min(2 * i + 2, cni)):
+            for cj in range(2 * j, min(2 * j + 2, cnj)):
+                work[sp, 0] = lev - 1
+                work[sp, 1] = ci
+                work[sp, 2] = cj
+                sp += 1
+    return False
+
+
 @njit(cache=True, inline="always")
 def _lateral2(ku, kv, grid, ti, tj, slack, cx, cy):
     """Squared horizontal distance from (cx, cy) to tile (ti, tj), less the slack: a lower bound
@@ -751,8 +782,9 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
                 slot_info[s, SI_USED] = grid[G_CLOCK]
                 nlev = slot_info[s, SI_LEVELS]
                 nn = plevels[s, nlev - 1, 0] + 1
-                if node_distance2(pnodes[s], nn - 1, cx, cy, cz) >= best * best:
-                    continue  # the tile's root hull box is farther than the answer so far
+                if best < np.inf and not _may_hold_closer(pnodes[s, :nn + 1], plevels[s, :nlev], pwork[s],
+                                                          cx, cy, cz, best * best):
+                    continue  # every hull box of the tile is farther than the answer so far
                 i0, j0, ni, nj = _tile_span(grid, ti, tj)
                 hu = hint_u
                 hv = hint_v

@@ -135,10 +135,7 @@ class Deformer:
     def __init__(self, surface: BSplineSurface):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"Deformer needs a BSplineSurface (got {type(surface).__name__})")
-        _, rest, _, _ = surface.kernel_arrays()
-        x_varies_with_j = np.ptp(rest[:, :, 0], axis=1).max()
-        y_varies_with_i = np.ptp(rest[:, :, 1], axis=0).max()
-        if x_varies_with_j > 0.0 or y_varies_with_i > 0.0:
+        if not surface.is_height_field_net:
             raise ContactError(
                 "the surface's rest net is not a height-field net (x must depend on i only and y on j only); "
                 "build it with arsurf.fit_surface or BSplineSurface.from_heights"

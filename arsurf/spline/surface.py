@@ -78,6 +78,7 @@ class BSplineSurface:
         self._ku = ku
         self._kv = kv
         self._derived = []  # structures built from the net (e.g. the projection's boxes)
+        self._height_field = None  # unknown until asked (is_height_field_net), True from from_heights
 
     @classmethod
     def construct_fast(cls, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
@@ -101,11 +102,26 @@ class BSplineSurface:
         kv = clamped_uniform_knots(z.shape[1], *v_range)
         ctrl = np.empty(z.shape + (3,))
         _fill_height_net(greville(ku), greville(kv), z, ctrl)
-        return cls.construct_fast(ctrl, ku, kv)
+        surface = cls.construct_fast(ctrl, ku, kv)
+        surface._height_field = True  # x on the Greville abscissae of u, y of v: by construction
+        return surface
 
     def copy(self) -> "BSplineSurface":
         """An independent copy with the same current and rest nets."""
-        return BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv, self._rest.copy())
+        twin = BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv, self._rest.copy())
+        twin._height_field = self._height_field
+        return twin
+
+    @property
+    def is_height_field_net(self) -> bool:
+        """True if x of the rest net depends on i only and y on j only (the nets of
+        :func:`arsurf.fit_surface` and :meth:`from_heights`: known without looking; others are
+        checked once, O(N))."""
+        if self._height_field is None:
+            rest = self._rest
+            self._height_field = bool(np.ptp(rest[:, :, 0], axis=1).max() == 0.0
+                                      and np.ptp(rest[:, :, 1], axis=0).max() == 0.0)
+        return self._height_field
 
     @property
     def _rest(self) -> np.ndarray:
