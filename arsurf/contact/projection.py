@@ -282,8 +282,9 @@ class Projector:
 
 
 #: surfaces with more knot cells than this get a :class:`TiledProjector` (the whole pyramid of
-#: 512 x 512 cells builds in ~0.2 s and takes ~47 MB; beyond, build time and memory grow with N)
-TILED_ABOVE = 512 * 512
+#: 256 x 256 cells builds in ~0.05 s and takes ~12 MB; beyond, build time and memory grow with N,
+#: while the tiles stay at the cost of what the tip visits: bench/scale.py)
+TILED_ABOVE = 256 * 256
 #: cells per tile side: a tile builds in ~0.2 ms (256 cells), well inside one 1 kHz tick
 TILE = 16
 #: memory the tile pool may use at most, bytes
