@@ -221,3 +221,27 @@ def test_missing_optional_package_names_the_extra(monkeypatch, name, module):
     monkeypatch.setitem(sys.modules, module, None)  # makes "import module" raise ImportError
     with pytest.raises(MissingDependency, match=r"pip install 'arsurf\[formats\]'"):
         load_scan(path)
+
+
+@pytest.mark.realscan
+def test_bruker_v9_peakforce_file_reads_as_pyspm_does():
+    """NanoScope v9.3 (sample_0.spm, SOURCES.md): keys written with capitals ("Scan Size"),
+    4-byte images, a Height channel stored as int32 but scaled as 16-bit, Height Sensor the
+    default; every channel selectable by the name listed."""
+    from conftest import real_scan_path
+
+    from arsurf.scan.io import load_scan
+
+    path = real_scan_path("sample_0.spm")
+    default = load_scan(path)
+    assert default.shape == (1024, 1024)
+    assert default.dx == pytest.approx(505.859e-9 / 1024, rel=1e-12)
+    assert default.heights.min() == pytest.approx(132.126e-9, abs=1e-12)   # pySPM: 132.126-152.097 nm
+    assert default.heights.max() == pytest.approx(152.097e-9, abs=1e-12)
+    height = load_scan(path, channel="Height")
+    assert height.heights.min() == pytest.approx(21.215e-9, abs=1e-12)     # pySPM: 21.215-37.125 nm
+    assert height.heights.max() == pytest.approx(37.125e-9, abs=1e-12)
+    names = default.metadata["channels"]
+    assert len(names) == 8 and names[0] == "Height Sensor (Retrace)"
+    for name in names:
+        assert load_scan(path, channel=name).shape == (1024, 1024)

@@ -54,7 +54,8 @@ FORMAT = "nanoscope"
 _MAGICS = (b"\\*File list", b"\\*EC File list", b"?*File list", b"\\*Force file list")
 _END = b"\\*File list end"
 _ZSCALE = re.compile(
-    r"^\s*\w*\s*(?:\[(?P<sens>[^\]]*)\])?\s*(?:\((?P<hard>[^)]*)\))?\s*(?P<value>[-+]?[\d.]+(?:[eE][-+]?\d+)?)\s*(?P<unit>\S*)"
+    r"^\s*\w*\s*(?:\[(?P<sens>[^\]]*)\])?\s*(?:\((?P<hard>(?:[^()]|\([^()]*\))*)\))?\s*"
+    r"(?P<value>[-+]?[\d.]+(?:[eE][-+]?\d+)?)\s*(?P<unit>\S*)"
 )
 
 
@@ -64,7 +65,8 @@ def sniff(head: bytes) -> bool:
 
 
 def parse_header(path, buf: bytes) -> list[tuple[str, dict[str, str]]]:
-    """The header as a list of (section name, {key: value})."""
+    """The header as a list of (section name, {key: value}), keys lower-cased (NanoScope matches
+    header keys without regard to case: v5 writes ``Scan size``, v7-v10 ``Scan Size``)."""
     end = buf.find(_END)
     if end < 0:
         raise CorruptScan(f"{path}: no '\\*File list end' line (truncated or not a NanoScope file)")
@@ -81,12 +83,13 @@ def parse_header(path, buf: bytes) -> list[tuple[str, dict[str, str]]]:
             continue
         # keys can hold a colon themselves ("@2:Z scale"); the separator is ": "
         key, sep, value = line.partition(": ") if ": " in line else line.partition(":")
-        if sep:
-            sections[-1][1].setdefault(key.strip(), value.strip())
+        if sep:  # keys are matched as the format does: without regard to case (v9 writes "Scan Size")
+            sections[-1][1].setdefault(key.strip().lower(), value.strip())
     return sections
 
 
 def _lookup(sections, key: str) -> str | None:
+    key = key.lower()
     for _, d in sections:
         if key in d:
             return d[key]
@@ -109,7 +112,7 @@ def _soft_scale(path, sections, sens: str) -> tuple[float, str]:
 
 
 def _image_name(d: dict[str, str], i: int) -> str:
-    for key in ("@2:Image Data", "@3:Image Data", "Image data"):
+    for key in ("@2:image data", "@3:image data", "image data"):
         if key in d:
             v = d[key]
             m = re.search(r'"([^"]*)"', v) or re.search(r"\[([^\]]*)\]", v)
@@ -119,7 +122,8 @@ def _image_name(d: dict[str, str], i: int) -> str:
 
 
 def read(path: Path | str, channel: str | None = None):
-    """Read one image of a NanoScope file (default: the first trace, else retrace, height).
+    """Read one image of a NanoScope file (default: the Height Sensor channel when recorded,
+    else the first trace, else retrace, height).
 
     Channel names are ``"<Image Data name> (Trace)"`` or ``"(Retrace)"``, e.g.
     ``"Height (Retrace)"``; the bare ``"Height"`` works when it is unique.
@@ -132,28 +136,37 @@ def read(path: Path | str, channel: str | None = None):
     chans: list[Channel] = []
     for i, d in enumerate(images):
         name = _image_name(d, i)
-        line_dir = d.get("Line direction", d.get("Line Direction", "")).strip()
+        line_dir = d.get("line direction", "").strip()
         direction = {"trace": "forward", "retrace": "backward"}.get(line_dir.lower())
         label = f"{name} ({line_dir})" if line_dir else name
-        zline = d.get("@2:Z scale", "")
+        zline = d.get("@2:z scale", "")
         unit = "m" if "[" in zline and re.search(r"height|topo|z ?sensor", name, re.I) else "V"
         chans.append(Channel(label, key=i, unit=unit, direction=direction))
-    chan = select_channel(path, chans, channel)
+    if channel is None:  # the default is the height: the Height Sensor when recorded, as Bruker's software does
+        sensor = [c for c in chans if c.name.lower().startswith(("height sensor", "zsensor"))]
+        sensor.sort(key=lambda c: c.direction != "forward")
+        chan = sensor[0] if sensor else select_channel(path, chans, None)
+    else:
+        chan = select_channel(path, chans, channel)
     d = images[chan.key]
-    nx = parse_int(path, d.get("Samps/line", ""), "Samps/line")
-    ny = parse_int(path, d.get("Number of lines", ""), "Number of lines")
+    nx = parse_int(path, d.get("samps/line", ""), "Samps/line")
+    ny = parse_int(path, d.get("number of lines", ""), "Number of lines")
     check_shape(path, nx, ny)
-    bpp = parse_int(path, d.get("Bytes/pixel", "2"), "Bytes/pixel")
+    bpp = parse_int(path, d.get("bytes/pixel", "2"), "Bytes/pixel")
     if bpp not in (2, 4):
         raise CorruptScan(f"{path}: Bytes/pixel must be 2 or 4 (got {bpp})")
-    offset = parse_int(path, d.get("Data offset", ""), "Data offset")
-    length = parse_int(path, d.get("Data length", str(nx * ny * bpp)), "Data length")
-    if length < nx * ny * bpp:
-        raise CorruptScan(f"{path}: Data length {length} is less than {nx}x{ny}x{bpp} bytes")
-    raw = frombuffer(path, buf, offset, f"<i{bpp}", nx * ny, f"image {chan.name!r}").reshape(ny, nx)
+    offset = parse_int(path, d.get("data offset", ""), "Data offset")
+    length = parse_int(path, d.get("data length", str(nx * ny * bpp)), "Data length")
+    # v9+ files store every image as 4-byte integers while some lists still say "Bytes/pixel: 2":
+    # the data length says how wide the stored integers are; the Z scale still counts in units
+    # of 2^(8 Bytes/pixel) (as pySPM reads them: Height of sample_0.spm 21.2-37.1 nm)
+    width = 4 if (length == nx * ny * 4 and bpp == 2) else bpp
+    if length < nx * ny * width:
+        raise CorruptScan(f"{path}: Data length {length} is less than {nx}x{ny}x{width} bytes")
+    raw = frombuffer(path, buf, offset, f"<i{width}", nx * ny, f"image {chan.name!r}").reshape(ny, nx)
 
     # lateral size: "Scan size: 1.76908 1.76908 ~m" (image list) or "Scan size: 1769.08 nm"
-    size = d.get("Scan size") or _lookup(sections, "Scan size") or ""
+    size = d.get("scan size") or _lookup(sections, "Scan size") or ""
     parts = size.split()
     try:
         if len(parts) >= 3:
@@ -162,7 +175,7 @@ def read(path: Path | str, channel: str | None = None):
         elif len(parts) == 2:
             f, base = parse_unit(parts[1])
             xs = float(parts[0]) * f
-            a, b = (d.get("Aspect ratio") or _lookup(sections, "Aspect ratio") or "1:1").split(":")
+            a, b = (d.get("aspect ratio") or _lookup(sections, "Aspect ratio") or "1:1").split(":")
             ys = xs * float(b) / float(a)
         else:
             raise ValueError(size)
@@ -171,7 +184,7 @@ def read(path: Path | str, channel: str | None = None):
     if base != "m":
         raise CorruptScan(f"{path}: scan size unit in {size!r} is not a length")
 
-    zline = d.get("@2:Z scale")
+    zline = d.get("@2:z scale")
     if zline is None:
         raise CorruptScan(f"{path}: image {chan.name!r} has no '@2:Z scale' line")
     m = _ZSCALE.match(zline)
@@ -195,6 +208,6 @@ def read(path: Path | str, channel: str | None = None):
             "description": _lookup(sections, "Description"), "microscope": _lookup(sections, "Microscope"),
             "date": _lookup(sections, "Date"),
         },
-        extra={"z_scale_line": zline, "z_per_lsb": z_factor, "bytes_per_pixel": bpp,
-               "line_direction": d.get("Line direction"), "frame_direction": d.get("Frame direction")},
+        extra={"z_scale_line": zline, "z_per_lsb": z_factor, "bytes_per_pixel": bpp, "stored_bytes_per_pixel": width,
+               "line_direction": d.get("line direction"), "frame_direction": d.get("frame direction")},
     )
