@@ -37,6 +37,7 @@ flag                bit    meaning
 ``CLUTCHED``        128    clutch held: the probe (or slave) frozen
 ``CLAMPED``         256    probe (or slave) clamped to its range
 ``MASTER_OUTSIDE``  512    master outside its workspace box
+``BAD_BUTTONS``     1024   the device reported a malformed button word: taken as no press
 ==================  =====  ===================================================================
 
 The decoupling's bits (:class:`arsurf.force.decoupling.DecouplingFlag`) are a word of their own,
@@ -51,7 +52,7 @@ True
 """
 from __future__ import annotations
 
-__all__ = ["BAD_INPUT", "CLAMPED", "CLUTCHED", "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT",
+__all__ = ["BAD_BUTTONS", "BAD_INPUT", "CLAMPED", "CLUTCHED", "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT",
            "MASTER_OUTSIDE", "NONFINITE", "NON_FINITE", "NOT_CONVERGED", "OK", "RAMPING", "RATE_LIMITED", "SATURATED",
            "STALE", "TEXT", "WATCHDOG", "flag_names"]
 
@@ -83,9 +84,10 @@ NONFINITE = 64
 CLUTCHED = 128
 CLAMPED = 256
 MASTER_OUTSIDE = 512
+BAD_BUTTONS = 1024
 #: names of the flag bits, lowest bit first
 FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE", "CLUTCHED",
-              "CLAMPED", "MASTER_OUTSIDE")
+              "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS")
 
 
 def flag_names(flags: int) -> list[str]:

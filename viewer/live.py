@@ -46,7 +46,7 @@ class LiveLoop:
         # timestamp is its arrival time, which stops when packets stop: that is what ages it)
         self.scheduler = Scheduler(lambda state, inputs, dt: loop.step(inputs, now()), loop, rate=loop.config.rate,
                                    source=device.read_state, sink=device.command_force, snapshot=self._snapshot,
-                                   snapshot_rate=snapshot_rate)
+                                   snapshot_rate=snapshot_rate, on_stop=self._zero_force)
         self._status = getattr(device.info, "name", type(device).__name__)
 
     def _snapshot(self, state, inputs, output) -> dict:
@@ -63,11 +63,20 @@ class LiveLoop:
         self.scheduler.start()
         return self
 
+    def _zero_force(self) -> None:
+        """Runs in the loop thread when it ends, normally or on a fault: the hand gets zero force
+        at once, not the last force computed."""
+        if self.device.is_open:
+            self.device.command_force(np.zeros(3))
+
     def stop(self):
-        """Stop the thread (zero force sent by the device on close); return the timing stats."""
-        stats = self.scheduler.stop()
-        self.device.close()
-        return stats
+        """Stop the thread and close the device (whatever happened in the thread: a fault is
+        raised as :class:`~arsurf.errors.LoopError` after the device is closed); return the
+        timing stats."""
+        try:
+            return self.scheduler.stop()
+        finally:
+            self.device.close()
 
     def pose(self):
         """The loop's current tip centre (3,) m, or None before the first tick."""

@@ -158,7 +158,8 @@ def lowpass1_step(alpha, y, x, out):
     """One tick of the first-order low-pass on every channel: y += alpha (x - y); out = y.
 
     Parameters: ``alpha`` float, ``y`` (n,) state (updated), ``x`` (n,) input, ``out`` (n,) output.
-    Returns 0, or 1 if ``x`` had a non-finite value (state kept, out = previous output).
+    Returns 0, or 1 if ``x`` had a non-finite value (state kept, out = previous output) or the
+    state overflowed (state and output reset to zero: the filter recovers at the next tick).
     """
     n = y.shape[0]
     for i in range(n):
@@ -169,6 +170,12 @@ def lowpass1_step(alpha, y, x, out):
     for i in range(n):
         y[i] += alpha * (x[i] - y[i])
         out[i] = y[i]
+    for i in range(n):
+        if not math.isfinite(y[i]):  # finite inputs that overflow (1e308 - (-1e308)): restart from rest
+            for j in range(n):
+                y[j] = 0.0
+                out[j] = 0.0
+            return _NONFINITE
     return _OK
 
 
@@ -178,7 +185,8 @@ def sos_step(sos, zi, last, x, out):
 
     Parameters: ``sos`` (ns, 6) coefficients [b0, b1, b2, 1, a1, a2]; ``zi`` (ns, n, 2) state
     (updated); ``last`` (n,) previous output (updated); ``x`` (n,) input; ``out`` (n,) output.
-    Returns 0, or 1 if ``x`` had a non-finite value (state kept, out = previous output).
+    Returns 0, or 1 if ``x`` had a non-finite value (state kept, out = previous output) or the
+    state overflowed (state and output reset to zero: the filter recovers at the next tick).
     """
     n = x.shape[0]
     for i in range(n):

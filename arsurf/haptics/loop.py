@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from arsurf._layout import Layout
+from arsurf.status import BAD_BUTTONS
 from arsurf.errors import HapticsError
 from arsurf.haptics.coupling import DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
@@ -44,6 +45,16 @@ from arsurf.model import (M_BENDING, M_MEAS_FX, M_SIM_FX, M_TORSION, SIGNALS_GIV
                           SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
+_BUTTONS_LIMIT = 1 << 31  # a button word is a small non-negative bit mask
+
+
+def _valid_buttons(buttons) -> tuple[int, bool]:
+    """(button word, malformed) from what a device reported: an integer in [0, 2^31) (numpy
+    integers and bools included) as it is, anything else (NaN, None, 2**64, negative, text) as
+    no press, flagged malformed."""
+    if isinstance(buttons, (int, np.integer)) and 0 <= buttons < _BUTTONS_LIMIT:
+        return int(buttons), False
+    return 0, True
 COUPLINGS = {"direct": 0, "force-position": 1}
 
 #: the loop output vector (``HapticLoop.out``): m, m/s, rad, N; flags and status as floats
@@ -319,15 +330,21 @@ class HapticLoop:
             self._noise[1] = self._noise_block[k, 1]
             self._noise_i = k + 1
         fp_params, fp_phi, fp_gamma, fp_state = self._fp
+        buttons = inputs.buttons
+        bad_buttons = False
+        if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
+            buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
+
         if self.scene is None:
-            loop_tick_kernel(x, v, int(inputs.buttons), float(now), float(now - inputs.timestamp), self.dt,
+            loop_tick_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self.dt,
                              self._ext, self._noise, self._source, self.config.blend, self._mode, self._pos[2],
                              self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
                              self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
                              *self._model_args, self.prev_probe, self.out)
+            if bad_buttons:
+                self.out[L_SAFETY_FLAGS] = int(self.out[L_SAFETY_FLAGS]) | BAD_BUTTONS
             return self.out[L_F_DEVICE:L_F_DEVICE + 3]
         out = self.out
-        buttons = int(inputs.buttons)
         self._scene_prev[:] = self.prev_probe  # the model part overwrites prev_probe
         loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
                           self._pos[2], self._pos[0], self._pos[1], fp_state, *self._model_args, self.prev_probe, out)
@@ -336,6 +353,8 @@ class HapticLoop:
         loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
                            fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
                            self.safety.params, self.safety.state, out)
+        if bad_buttons:
+            out[L_SAFETY_FLAGS] = int(out[L_SAFETY_FLAGS]) | BAD_BUTTONS
         return out[L_F_DEVICE:L_F_DEVICE + 3]
 
     def warm_up(self) -> "HapticLoop":

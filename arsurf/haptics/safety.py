@@ -121,8 +121,8 @@ def safety_step(params, state, force, now, age, buttons, out):
         state[_S_WD] = 1.0
     if state[_S_WD] != 0.0:
         flags |= WATCHDOG
-    # 3. stale sample (NaN age is stale)
-    if not (age <= params[_P_STALE]):
+    # 3. stale sample (NaN age is stale, and so is a sample from the future: its clock is wrong)
+    if not (0.0 <= age <= params[_P_STALE]):
         flags |= STALE
     # 4. disengage button
     if (buttons & int(params[_P_MASK])) != 0:
@@ -169,9 +169,10 @@ def safety_step(params, state, force, now, age, buttons, out):
         state[_S_GAIN] = g
         if g < 1.0:
             flags |= RAMPING
-        f0 = g * force[0]
-        f1 = g * force[1]
-        f2 = g * force[2]
+        # saturate first, then ramp: the ramp bounds the force actually commanded (g x fmax)
+        f0 = force[0]
+        f1 = force[1]
+        f2 = force[2]
         n = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         if n > fmax:
             s = fmax / n
@@ -179,6 +180,9 @@ def safety_step(params, state, force, now, age, buttons, out):
             f1 *= s
             f2 *= s
             flags |= SATURATED
+        f0 *= g
+        f1 *= g
+        f2 *= g
         d0 = f0 - state[_S_F]
         d1 = f1 - state[_S_F + 1]
         d2 = f2 - state[_S_F + 2]

@@ -1,0 +1,123 @@
+"""The live loop fails safe: a fault in the servo thread leaves zero force on the device, and
+stopping closes the device whatever happened (issue #15 §4, the server side)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from arsurf.assembly import make_model
+from arsurf.errors import LoopError
+from arsurf.haptics.loop import HapticLoop
+from arsurf.haptics.virtual_device import HandModel, VirtualDevice
+from arsurf.spline.surface import BSplineSurface
+
+R = 20e-9
+
+
+class RecordingDevice(VirtualDevice):
+    """A virtual device that remembers every force commanded and whether it was closed."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.forces = []
+        self.closed = 0
+
+    def command_force(self, force):
+        self.forces.append(np.array(force, dtype=float))
+        return super().command_force(force)
+
+    def close(self):
+        self.closed += 1
+        return super().close()
+
+
+def _live(fail_after: int):
+    from arsurf_viewer.live import LiveLoop
+
+    s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 37 * 4e-9), (0.0, 37 * 4e-9))
+    model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)
+    origin = (70e-9, 70e-9, R - 2e-9)  # pressed 2 nm in: the hand feels a force from the first tick
+    hand = HandModel((np.array([0.0, 10.0]), np.zeros((2, 3))))
+    dev = RecordingDevice(dt=1e-3, hand=hand)
+    loop = HapticLoop.direct(model, dev.info, origin, ramp_time=0.0)
+    step = loop.step
+    calls = [0]
+
+    def faulty(inputs, now):
+        calls[0] += 1
+        if calls[0] > fail_after:
+            raise RuntimeError("injected fault in the tick")
+        return step(inputs, now)
+
+    loop.step = faulty
+    return LiveLoop(loop, dev), dev, calls
+
+
+def test_a_fault_in_the_tick_leaves_zero_force_and_the_device_closed():
+    live, dev, calls = _live(fail_after=50)
+    live.start()
+    deadline = time.monotonic() + 15.0
+    while calls[0] <= 50 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.05)
+    assert calls[0] > 50
+    assert max(np.linalg.norm(f) for f in dev.forces) > 0.0  # it was rendering a force
+    assert np.all(dev.forces[-1] == 0.0), f"last force commanded after the fault: {dev.forces[-1]}"
+    with pytest.raises(LoopError, match="injected fault"):
+        live.stop()
+    assert dev.closed == 1
+
+
+def test_the_ramp_limits_the_force_actually_commanded():
+    """A 10 kN request during the 0.1 s start ramp: the commanded force grows with the ramp
+    (k dt / T of the device's limit), not to the limit within a few ticks."""
+    from arsurf.haptics.safety import SafetyLayer
+
+    dt, fmax = 1e-3, 7.9
+    layer = SafetyLayer(max_force=fmax, dt=dt, ramp_time=0.1, max_rate=np.inf)
+    for k in range(1, 120):
+        f = np.linalg.norm(layer.step([0.0, 0.0, 1e4], now=k * dt))
+        assert f <= min(1.0, k * dt / 0.1) * fmax * (1 + 1e-12), (k, f)
+    assert f == pytest.approx(fmax)
+
+
+def test_a_timestamp_ahead_of_the_clock_is_stale():
+    from arsurf.haptics.safety import STALE, SafetyLayer
+
+    layer = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.0)
+    layer.step([0.0, 0.0, 1.0], now=0.0, age=0.0)
+    layer.step([0.0, 0.0, 1.0], now=1e-3, age=-5.0)  # a sample from 5 s in the future
+    assert layer.flags & STALE
+
+
+def test_the_filter_recovers_from_overflowing_input_within_one_tick():
+    from arsurf.haptics.filters import LowPass
+
+    from arsurf.haptics.filters import lowpass1_step
+
+    f = LowPass(200.0, 1e-3)
+    out = np.empty(3)
+
+    lowpass1_step(f.alpha, f.state, np.full(3, 1.7e308), out)
+    lowpass1_step(f.alpha, f.state, np.full(3, -1.7e308), out)
+    assert np.isfinite(f.state).all()
+    lowpass1_step(f.alpha, f.state, np.array([1.0, 2.0, 3.0]), out)
+    assert np.isfinite(out).all() and np.all(out > 0)
+
+
+@pytest.mark.parametrize("buttons", [float("nan"), None, 2**64, -1, "1"])
+def test_malformed_buttons_are_a_flagged_no_press(buttons):
+    from arsurf import status
+    from arsurf.haptics.device import DeviceState
+
+    s = BSplineSurface.from_heights(np.zeros((20, 20)), (0.0, 76e-9), (0.0, 76e-9))
+    model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)
+    dev = VirtualDevice(dt=1e-3)
+    loop = HapticLoop.direct(model, dev.info, (38e-9, 38e-9, R + 5e-9), ramp_time=0.0)
+    good = loop.step(DeviceState(np.zeros(3), np.zeros(3), 0, 0.0), 0.0).copy()
+    force = loop.step(DeviceState(np.zeros(3), np.zeros(3), buttons, 1e-3), 1e-3)
+    assert np.isfinite(force).all()
+    assert loop.output().safety_flags & status.BAD_BUTTONS
+    np.testing.assert_allclose(force, good, atol=1e-12)  # no press: the same force as before
