@@ -1,5 +1,8 @@
 """The ``arsurf`` command: ``arsurf <subcommand> ...`` (``arsurf --help`` lists them).
 
+Every error is one line on stderr naming the file or flag, the rule and the way out, with exit
+status 2; a tracebacks never reaches the user.
+
 Units at this edge: lengths on the command line are in nanometres (flags end in ``-nm``),
 forces in nanonewtons; everything inside is SI.
 """
@@ -89,9 +92,35 @@ def cmd_synth(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``arsurf fit: error: argument --sigma-nm: ...`` (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _nm(minimum: float = 0.0, strict: bool = False):
+    """An argparse type: a finite length in nanometres, >= (or >) ``minimum``."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number of nanometres (got {text!r})") from None
+        if not np.isfinite(value) or value < minimum or (strict and value == minimum):
+            rule = f"> {minimum:g}" if strict else f">= {minimum:g}"
+            raise argparse.ArgumentTypeError(f"must be a finite length {rule} nm (got {text})")
+        return value
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="arsurf", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True)
+    from arsurf import __version__
+
+    p = _Parser(prog="arsurf", description="arsurf: augmented-reality surface model for AFM nanomanipulation "
+                "(scan -> B-spline -> contact -> 3D force -> haptics). Lengths on the command line are in "
+                "nanometres (flags ending in -nm); everything inside is SI.")
+    p.add_argument("--version", action="version", version=f"arsurf {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range")
     s.add_argument("scan")
@@ -105,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--channel")
     s.add_argument("--level", default="plane",
                    help="plane | plane-robust | polynomial | rows-median | rows-trimmed | scars | none")
-    s.add_argument("--sigma-nm", type=float, default=0.0, help="Gaussian smoothing width in nm (0: none)")
+    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
     s.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
     s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
     s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
@@ -118,8 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("view", help="open the interactive 3D viewer (offscreen PNG without a display)")
     s.add_argument("scan", nargs="?", default=None, help="scan file (default: the bundled nanotubes)")
-    s.add_argument("--tip-radius-nm", type=float, default=20.0)
-    s.add_argument("--sigma-nm", type=float, default=0.0)
+    s.add_argument("--tip-radius-nm", type=_nm(strict=True), default=20.0, help="tip radius in nm (default 20)")
+    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
     s.add_argument("--level", default="plane")
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
@@ -191,6 +220,15 @@ def main(argv=None) -> int:
         return int(args.func(args) or 0)
     except ArsurfError as exc:
         print(f"arsurf {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # `arsurf info F | head -1`: the reader left; nothing more to say
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 0
+    except OSError as exc:  # a path the user gave: missing folder, no permission, full disk
+        where = f" {exc.filename!r}" if exc.filename else ""
+        print(f"arsurf {args.command}: error: cannot use{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # pragma: no cover
         print(f"arsurf {args.command}: interrupted", file=sys.stderr)

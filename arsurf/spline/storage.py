@@ -38,6 +38,11 @@ def save_surface(surface: BSplineSurface, path: str | os.PathLike, metadata: dic
 def load_surface(path: str | os.PathLike) -> BSplineSurface:
     """Read a surface written by :func:`save_surface` (validated like a new surface)."""
     path = Path(path)
+    if not path.is_file():
+        raise SurfaceError(f"surface file {str(path)!r} does not exist; write one with `arsurf fit SCAN -o FILE.npz`")
+    if path.suffix.lower() != ".npz":
+        raise SurfaceError(f"{path} is not a fitted surface (.npz from `arsurf fit`); if it is a scan, run "
+                           f"`arsurf fit {path} -o surface.npz` first")
     try:
         with np.load(path, allow_pickle=False) as f:
             meta = json.loads(str(f["metadata_json"]))
@@ -48,6 +53,7 @@ def load_surface(path: str | os.PathLike) -> BSplineSurface:
     except SurfaceError:
         raise
     except (OSError, KeyError, ValueError) as exc:
-        raise SurfaceError(f"{path}: cannot be read as an arsurf surface ({type(exc).__name__}: {exc})") from exc
+        raise SurfaceError(f"{path} is not an arsurf surface file (a scan saved as .npz? run `arsurf fit` on it "
+                           f"first): {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
     surface.kernel_arrays()[1][...] = rest.kernel_arrays()[0]
     return surface
