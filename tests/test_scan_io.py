@@ -381,3 +381,34 @@ def test_inf_pixels_become_nan(tmp_path, rng):
 def test_parse_unit(unit, factor, base):
     f, b = parse_unit(unit)
     assert b == base and f == pytest.approx(factor, rel=1e-15)
+
+
+def test_channel_names_are_unique_and_each_selectable():
+    """Two channels of one name (JPK QI: measuredHeight twice) get '#2': both reachable."""
+    from arsurf.errors import ChannelNotFound
+    from arsurf.scan.readers._common import Channel, select_channel
+
+    chans = [Channel("measuredHeight (trace)", key=1, unit="m", direction="forward"),
+             Channel("measuredHeight (trace)", key=2, unit="m", direction="forward")]
+    assert select_channel("f", chans, "measuredHeight (trace) #2").key == 2
+    assert select_channel("f", chans, "measuredHeight (trace)").key == 1
+    with pytest.raises(ChannelNotFound, match=r"#2"):
+        select_channel("f", chans, "height")
+
+
+def test_igor_labels_are_cut_at_the_first_nul():
+    import numpy as np
+
+    from arsurf.scan.readers.ibw import _text
+
+    assert _text(b"PhaseRetrace\x00race") == "PhaseRetrace"
+    assert _text(np.frombuffer(b"HeightTrace\x00\x00ce", dtype="S1")) == "HeightTrace"
+
+
+def test_a_gwyddion_1_file_is_refused_plainly(tmp_path):
+    from arsurf.errors import ScanError
+
+    p = tmp_path / "old.gwy"
+    p.write_bytes(b"GWYOGwyContainer\x00" + b"\x00" * 64)
+    with pytest.raises(ScanError, match="Gwyddion 1.x file"):
+        load_scan(p)

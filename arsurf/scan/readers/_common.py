@@ -77,6 +77,17 @@ def direction_from_name(name: str) -> str | None:
     return None
 
 
+def unique_names(channels: Sequence[Channel]) -> None:
+    """Make every channel name unique, in place: a repeated name gets `` #2``, `` #3``... in file
+    order (JPK QI files hold two ``measuredHeight (trace)``), so each channel can be selected."""
+    seen: dict[str, int] = {}
+    for c in channels:
+        k = seen.get(c.name.lower(), 0) + 1
+        seen[c.name.lower()] = k
+        if k > 1:
+            c.name = f"{c.name} #{k}"
+
+
 def select_channel(path: Path | str, channels: Sequence[Channel], requested: str | None) -> Channel:
     """Pick the channel the user asked for, or the default topography channel.
 
@@ -92,6 +103,7 @@ def select_channel(path: Path | str, channels: Sequence[Channel], requested: str
     """
     if not channels:
         raise CorruptScan(f"{path}: the file holds no image channel")
+    unique_names(channels)
     names = [c.name for c in channels]
     if requested is not None:
         want = str(requested).strip().lower()

@@ -46,9 +46,13 @@ _SCALAR = {"b": 1, "c": 1, "i": 4, "q": 8, "d": 8}
 _ARRAY = {"C": "u1", "I": "<i4", "Q": "<i8", "D": "<f8"}
 
 
+#: magic of Gwyddion 1.x files (an older serialisation, not read: refused with a plain message)
+MAGIC_V1 = b"GWYO"
+
+
 def sniff(head: bytes) -> bool:
-    """True when the file starts with ``GWYP`` followed by an object name."""
-    return head.startswith(MAGIC) and head[4:5].isalpha()
+    """True when the file starts with ``GWYP`` (or 1.x's ``GWYO``) followed by an object name."""
+    return head.startswith((MAGIC, MAGIC_V1)) and head[4:5].isalpha()
 
 
 class _Parser:
@@ -128,6 +132,9 @@ class _Parser:
 
 def parse(path, buf: bytes) -> dict:
     """The top-level object of a GWY file as nested dicts (arrays as read-only numpy views)."""
+    if buf.startswith(MAGIC_V1):
+        raise CorruptScan(f"{path}: Gwyddion 1.x file (GWYO magic), an older format that arsurf does not read; "
+                          "open it in Gwyddion 2 and save it again (as .gwy or .gsf)")
     if not buf.startswith(MAGIC):
         raise CorruptScan(f"{path}: missing the GWYP magic bytes")
     top, _ = _Parser(path, buf).obj(4, len(buf), 0)

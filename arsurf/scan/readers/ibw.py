@@ -61,11 +61,13 @@ def sniff(head: bytes) -> bool:
 
 
 def _text(value) -> str:
+    """A label as text, cut at the first NUL (Igor pads labels and leaves old text after the NUL:
+    ``PhaseRetrace\\0race`` is ``PhaseRetrace``)."""
+    if isinstance(value, np.ndarray):  # raw bytes: an S1 item holding NUL reads as b"" (the NUL is lost)
+        value = np.ascontiguousarray(value).tobytes()
     if isinstance(value, bytes):
-        return value.decode("latin-1", errors="replace")
-    if isinstance(value, np.ndarray):
-        return b"".join(bytes(v) for v in value.ravel()).decode("latin-1", errors="replace")
-    return str(value or "")
+        return value.split(b"\0", 1)[0].decode("latin-1", errors="replace")
+    return str(value or "").split("\0", 1)[0]
 
 
 def _note(raw: bytes | str) -> dict[str, str]:
