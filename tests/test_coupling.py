@@ -306,3 +306,19 @@ def test_envelope_decay_ratio():
     assert envelope_decay_ratio(np.r_[np.ones(100), np.nan]) == math.inf
     with pytest.raises(HapticsError, match="at least 10 samples"):
         envelope_decay_ratio([1.0, 2.0])
+
+
+@pytest.mark.parametrize("A_f, B_fp, G_n", [(25e6, 0.1, 825.0), (2e6, 1.5, 19.8)])
+def test_the_seed003_gains_are_099_of_the_bound_applied_with_Te(A_f, B_fp, G_n):
+    """Seed 003 Figs. 5-6: G_n = 825 (x) and 19.8 (y) are 0.99 A_f / (A_d (K_fp T_e + B_fp)) - the
+    slave bound applied with T_e, not Table II's printed T_e/2 (DESIGN.md). Both are reported; the
+    conservative one is required by default."""
+    kw = dict(A_f=A_f, A_d=50e3, mass=0.5, damping=0.2, dt=5e-3)
+    c = check_gains(100.0, B_fp, G_n, **kw)
+    applied, printed = c.bound("G_n_max_applied").limit[0], c.bound("G_n_max").limit[0]
+    assert G_n / applied == pytest.approx(0.99, abs=5e-4)
+    assert 1.0 < printed / applied <= 2.0  # the printed bound is looser, by up to 2x
+    between = 0.5 * (applied + printed)
+    assert not check_gains(100.0, B_fp, between, **kw).ok
+    assert check_gains(100.0, B_fp, between, slave_bound="printed", **kw).ok
+    assert "G_n_max_applied (x)" in check_gains(100.0, B_fp, between, **kw).failed
