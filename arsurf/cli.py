@@ -17,12 +17,19 @@ import time
 import numpy as np
 
 from arsurf.errors import ArsurfError
+from arsurf.scan.level import METHODS as _LEVEL_METHODS
 from arsurf.scan.prepare import prepare_scan
+
+#: what --level accepts: every arsurf.level method, and none
+LEVEL_CHOICES = (*_LEVEL_METHODS, "none")
 
 
 def _scan_summary(scan) -> dict:
     finite = scan.heights[np.isfinite(scan.heights)]
     ny, nx = scan.shape
+    unit = scan.metadata.get("z_unit") or "m"
+    # lengths in nm (the CLI's unit); any other channel in its own SI unit, named in the key
+    scale, shown = (1e9, "nm") if unit == "m" else (1.0, unit.replace("/", "_per_") or "arb")
     return {
         "file": scan.source,
         "format": scan.metadata.get("format"),
@@ -30,12 +37,13 @@ def _scan_summary(scan) -> dict:
         "channels": scan.metadata.get("channels"),
         "pixels": f"{nx} x {ny}",
         "pixel_size_nm": [scan.dx * 1e9, scan.dy * 1e9],
-        "physical_size_nm": [nx * scan.dx * 1e9, ny * scan.dy * 1e9],
-        "z_min_nm": float(finite.min() * 1e9) if finite.size else None,
-        "z_max_nm": float(finite.max() * 1e9) if finite.size else None,
-        "z_range_nm": float(np.ptp(finite) * 1e9) if finite.size else None,
+        "scan_size_nm": [nx * scan.dx * 1e9, ny * scan.dy * 1e9],
+        "first_to_last_pixel_nm": [scan.size[0] * 1e9, scan.size[1] * 1e9],
+        f"z_min_{shown}": float(finite.min() * scale) if finite.size else None,
+        f"z_max_{shown}": float(finite.max() * scale) if finite.size else None,
+        f"z_range_{shown}": float(np.ptp(finite) * scale) if finite.size else None,
         "nan_pixels": scan.nan_count,
-        "units": {"stored": scan.metadata.get("z_unit_in_file", scan.metadata.get("z_unit")), "reported": "nm"},
+        "units": {"stored": scan.metadata.get("z_unit_in_file", unit), "reported": shown},
     }
 
 
@@ -132,8 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan")
     s.add_argument("-o", "--output", required=True, help="output surface file (.npz)")
     s.add_argument("--channel")
-    s.add_argument("--level", default="plane",
-                   help="plane | plane-robust | polynomial | rows-median | rows-trimmed | scars | none")
+    s.add_argument("--level", default="plane", choices=LEVEL_CHOICES, metavar="METHOD",
+                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: plane)")
     s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
     s.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
     s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
@@ -149,7 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan", nargs="?", default=None, help="scan file (default: the bundled nanotubes)")
     s.add_argument("--tip-radius-nm", type=_nm(strict=True), default=20.0, help="tip radius in nm (default 20)")
     s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
-    s.add_argument("--level", default="plane")
+    s.add_argument("--level", default="plane", choices=LEVEL_CHOICES, metavar="METHOD",
+                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: plane)")
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
                         "(poses in, forces out; protocol in the README; tools/haptic_client.py is a reference client)")

@@ -59,3 +59,36 @@ def test_a_closed_pipe_is_not_a_traceback():
     cmd = f"{sys.executable} -m arsurf info {real_scan_path('Veeco_20160622.003')} | head -c 1"
     run = subprocess.run(cmd, shell=True, capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert "Traceback" not in run.stderr and "BrokenPipe" not in run.stderr, run.stderr
+
+
+def test_level_choices_are_the_methods_and_the_help_shows_the_default(capsys):
+    from arsurf.scan.level import METHODS
+
+    _one_line_error(capsys, ["fit", str(SCAN), "-o", "x.npz", "--level", "planar"], "--level", "rows-median")
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    out = capsys.readouterr().out
+    assert all(m in out for m in METHODS) and "default: plane" in out
+
+
+def test_the_control_shape_message_states_the_rule_that_is_applied(capsys, tmp_path):
+    """(nx+2, ny+2) interpolates, (4..nx, 4..ny) approximates: 257 is refused with that rule."""
+    from arsurf.scan.io import load_scan
+
+    nx = load_scan(SCAN).shape[1]
+    assert main(["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--control", str(nx + 1), str(nx + 1)]) == 2
+    err = capsys.readouterr().err
+    assert f"({nx + 2}, {nx + 2}) to interpolate" in err and f"({nx}, {nx}) to approximate" in err
+
+
+def test_info_reports_a_non_height_channel_in_its_own_unit(capsys):
+    import json
+
+    assert main(["info", str(real_scan_path("sample_0.spm")), "--channel", "Adhesion", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert "z_min_nm" not in info and "z_min_V" in info and info["units"]["reported"] == "V"
+    assert main(["info", str(real_scan_path("sample_0.spm")), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["z_min_nm"] == pytest.approx(132.126, abs=1e-3)
+    assert info["scan_size_nm"][0] == pytest.approx(505.859, abs=1e-3)
+    assert info["first_to_last_pixel_nm"][0] == pytest.approx(505.859 * 1023 / 1024, abs=1e-3)

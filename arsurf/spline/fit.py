@@ -223,8 +223,9 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
     limit = (nx + 2, ny + 2) if (interpolating or smoothing > 0.0) else (nx, ny)
     if not (4 <= nu <= limit[0] and 4 <= nv <= limit[1]):
         raise SurfaceError(
-            f"control_shape must be between (4, 4) and {limit} for this {nx}x{ny} scan (got ({nu}, {nv})); "
-            f"({nx + 2}, {ny + 2}) interpolates, fewer approximate by least squares"
+            f"control_shape must be ({nx + 2}, {ny + 2}) to interpolate this {nx}x{ny} scan, or between (4, 4) and "
+            f"({nx}, {ny}) to approximate it by least squares (up to ({nx + 2}, {ny + 2}) with smoothing > 0); "
+            f"got ({nu}, {nv})"
         )
     # the two axis solves, their transpose and the surface's (nu, nv, 3) net: ~6 float64 per point
     _validation.check_memory(48.0 * nu * nv + 16.0 * nx * ny, f"fitting this {nx}x{ny} scan", SurfaceError,
