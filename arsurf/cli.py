@@ -63,7 +63,7 @@ def _print(obj: dict, as_json: bool) -> None:
 def cmd_info(args) -> int:
     from arsurf.scan.io import load_scan
 
-    scan = load_scan(args.scan, channel=args.channel)
+    scan = load_scan(args.scan, channel=args.channel, **_calibration(args))
     _print(_scan_summary(scan), args.json)
     return 0
 
@@ -72,7 +72,8 @@ def cmd_fit(args) -> int:
     from arsurf.spline.fit import fit_surface
     from arsurf.spline.storage import save_surface
 
-    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint)
+    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
+                        **_calibration(args))
     t0 = time.perf_counter()
     control = tuple(args.control) if args.control else None
     surface = fit_surface(scan, control_shape=control, smoothing=args.smoothing)
@@ -121,6 +122,19 @@ def _nm(minimum: float = 0.0, strict: bool = False):
     return parse
 
 
+def _calibration(args) -> dict:
+    """``dx``, ``dy`` (m) and ``z_unit`` of a file that does not state them (flags in nm)."""
+    return {"dx": None if args.dx_nm is None else args.dx_nm * 1e-9,
+            "dy": None if args.dy_nm is None else args.dy_nm * 1e-9, "z_unit": args.z_unit}
+
+
+def _calibration_flags(s) -> None:
+    s.add_argument("--dx-nm", type=_nm(strict=True), help="pixel spacing along x in nm, for a file that does "
+                   "not state it (a bare .txt/.npy matrix)")
+    s.add_argument("--dy-nm", type=_nm(strict=True), help="pixel spacing along y in nm (as --dx-nm)")
+    s.add_argument("--z-unit", help="unit of the values of such a file (nm, um, m, V...)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from arsurf import __version__
 
@@ -134,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan")
     s.add_argument("--channel", help="channel name (default: topography/height)")
     s.add_argument("--json", action="store_true", help="print JSON")
+    _calibration_flags(s)
     s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("fit", help="level, smooth and fit a bicubic B-spline; write it as .npz")
@@ -147,6 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
     s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
     s.add_argument("--json", action="store_true")
+    _calibration_flags(s)
     s.set_defaults(func=cmd_fit)
 
     s = sub.add_parser("synth", help="write the synthetic demo scans (gratings, tubes, particles...)")

@@ -92,3 +92,18 @@ def test_info_reports_a_non_height_channel_in_its_own_unit(capsys):
     assert info["z_min_nm"] == pytest.approx(132.126, abs=1e-3)
     assert info["scan_size_nm"][0] == pytest.approx(505.859, abs=1e-3)
     assert info["first_to_last_pixel_nm"][0] == pytest.approx(505.859 * 1023 / 1024, abs=1e-3)
+
+
+def test_a_bare_matrix_needs_and_takes_its_calibration_from_flags(capsys, tmp_path):
+    import json
+
+    import numpy as np
+
+    path = tmp_path / "bare.txt"
+    np.savetxt(path, np.arange(30.0).reshape(5, 6))
+    assert main(["info", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "--dx-nm" in err and len(err.strip().splitlines()) == 1
+    assert main(["info", str(path), "--dx-nm", "10", "--dy-nm", "20", "--z-unit", "nm", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["pixel_size_nm"] == pytest.approx([10.0, 20.0]) and info["z_max_nm"] == pytest.approx(29.0)

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 
-def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True):
+def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True, *, dx=None, dy=None,
+                 z_unit=None):
     """Load a scan file and make it ready for :func:`arsurf.fit_surface`.
 
     Parameters
@@ -16,6 +17,10 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
         Gaussian smoothing width (0: none).
     inpaint : bool
         Fill NaN pixels by :func:`arsurf.inpaint` (False: leave them; the fit then refuses).
+    dx, dy : float, metres, optional
+        Pixel spacing of a file that does not state it (a bare matrix): :func:`arsurf.load_scan`.
+    z_unit : str, optional
+        Unit of the values of such a file (``"nm"``, ``"m"``...).
 
     Returns
     -------
@@ -28,7 +33,7 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
     from arsurf.scan.level import level
     from arsurf.scan.smooth import smooth
 
-    scan = load_scan(path, channel=channel)
+    scan = load_scan(path, channel=channel, dx=dx, dy=dy, z_unit=z_unit)
     if scan.nan_count and inpaint:
         from arsurf.scan.inpaint import inpaint as fill
 

@@ -114,13 +114,13 @@ def read(path: Path | str, channel: str | None = None, *, dx: float | None = Non
     if dx is None or dy is None:
         raise MissingCalibration(
             f"{path} is a bare ASCII matrix without '# Width:'/'# Height:' lines; pass its pixel spacing "
-            "in metres, e.g. load_scan(path, dx=1e-8, dy=1e-8)"
+            "in metres, e.g. load_scan(path, dx=1e-8, dy=1e-8) (arsurf CLI: --dx-nm 10 --dy-nm 10)"
         )
     unit = z_unit if z_unit is not None else info.get("value units")
     if unit is None:
         raise MissingCalibration(
             f"{path} does not say the unit of its values (no '# Value units:' line); pass it, e.g. "
-            "load_scan(path, ..., z_unit='nm')"
+            "load_scan(path, ..., z_unit='nm') (arsurf CLI: --z-unit nm)"
         )
     chan = Channel(info.get("channel", "Height"), key=0, unit=unit)
     chan = select_channel(path, [chan], channel)

@@ -56,7 +56,8 @@ def finish(path, fmt, data, info: dict, channel, dx, dy, z_unit, names=None, key
     if dx is None or dy is None:
         raise MissingCalibration(
             f"{path} holds a bare array without pixel spacing; pass it in metres, "
-            "e.g. load_scan(path, dx=1e-8, dy=1e-8, z_unit='m'), or save with arsurf.save_scan"
+            "e.g. load_scan(path, dx=1e-8, dy=1e-8, z_unit='m') (arsurf CLI: --dx-nm 10 --dy-nm 10 --z-unit m), "
+            "or save with arsurf.save_scan"
         )
     unit = z_unit
     if unit is None and isinstance(info.get("metadata"), dict):
@@ -64,7 +65,7 @@ def finish(path, fmt, data, info: dict, channel, dx, dy, z_unit, names=None, key
     if unit is None:
         unit = info.get("z_unit")
     if unit is None:
-        raise MissingCalibration(f"{path} does not say the unit of its values; pass z_unit, e.g. z_unit='m'")
+        raise MissingCalibration(f"{path} does not say the unit of its values; pass z_unit, e.g. z_unit='m' (CLI: --z-unit m)")
     try:
         dx, dy = float(dx), float(dy)
     except (TypeError, ValueError):
