@@ -308,7 +308,7 @@ def test_generic_npz_and_npy_without_calibration(tmp_path, rng):
     np.save(q, a)
     with pytest.raises(MissingCalibration, match="bare array"):
         load_scan(q)
-    assert load_scan(q, dx=1e-9, dy=1e-9, z_unit="m").heights.shape == (3, 4)
+    assert load_scan(q, dx=1e-9, dy=1e-9, z_unit="nm").heights.shape == (3, 4)
 
 
 # --------------------------------------------------------------------------------- errors
@@ -412,3 +412,22 @@ def test_a_gwyddion_1_file_is_refused_plainly(tmp_path):
     p.write_bytes(b"GWYOGwyContainer\x00" + b"\x00" * 64)
     with pytest.raises(ScanError, match="Gwyddion 1.x file"):
         load_scan(p)
+
+
+def test_implausible_calibrations_are_refused_not_fitted(tmp_path, rng):
+    """A header that makes pixels 1e306 m, the z scale zero, or heights a tenth of a metre is a
+    misread, not an AFM scan; a non-height channel is never fitted as a height."""
+    import arsurf
+    from arsurf.errors import InvalidHeights, ScanError
+
+    a = image(6, 6, rng)
+    p = tmp_path / "plain.npy"
+    np.save(p, a)
+    with pytest.raises(ScanError, match="pixel spacing is 1e\\+306 m"):
+        load_scan(p, dx=1e306, dy=1e-9, z_unit="nm")
+    with pytest.raises(ScanError, match="more than any AFM's z travel"):
+        load_scan(p, dx=1e-9, dy=1e-9, z_unit="m")  # values ~1 'm': a 16-bit misread
+    volts = load_scan(p, dx=1e-9, dy=1e-9, z_unit="V")
+    assert volts.metadata["z_unit"] == "V"
+    with pytest.raises(InvalidHeights, match="not heights"):
+        arsurf.fit_surface(volts)

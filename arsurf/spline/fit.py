@@ -210,6 +210,12 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
             f"a bicubic fit needs at least 4x4 pixels (got {nx}x{ny}) in {where}; "
             "a single scan line cannot define a surface"
         )
+    unit = scan.metadata.get("z_unit") if isinstance(scan.metadata, dict) else None
+    if unit not in (None, "m"):
+        raise InvalidHeights(
+            f"channel {scan.channel!r} of {where} holds values in {unit!r}, not heights: a surface is fitted to "
+            f"a height channel (channels: {scan.metadata.get('channels')})"
+        )
     if not np.isfinite(z).all():
         raise InvalidHeights(
             f"{scan.nan_count} pixels are NaN in {where}; fill them with arsurf.inpaint(scan) "

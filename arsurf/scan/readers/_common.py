@@ -231,11 +231,22 @@ def parse_int(path, text: str, what: str) -> int:
         return int(f)
 
 
+#: plausible AFM pixel spacings, metres: from atomic resolution (0.1 pm) to a 1 mm step (the
+#: largest AFM scanners cover ~0.15 mm; a spacing outside this is a misread header)
+PIXEL_RANGE = (1e-13, 1e-3)
+#: plausible AFM heights, metres: z scanners travel at most ~0.1 mm (a 16-bit misread as a
+#: height in metres gives ~0.1 m)
+HEIGHT_LIMIT = 1e-3
+
+
 def positive_length(path, value: float, what: str) -> float:
-    """Check a physical size read from a header is a positive finite number."""
+    """Check a pixel spacing read from a header: finite and within :data:`PIXEL_RANGE`."""
     v = float(value)
     if not (np.isfinite(v) and v > 0.0):
         raise CorruptScan(f"{path}: {what} must be a positive length (got {value!r})")
+    if not (PIXEL_RANGE[0] <= v <= PIXEL_RANGE[1]):
+        raise CorruptScan(f"{path}: {what} is {v:g} m, outside any AFM's range [{PIXEL_RANGE[0]:g}, "
+                          f"{PIXEL_RANGE[1]:g}] m; the header is damaged or misread")
     return v
 
 
@@ -311,6 +322,9 @@ def make_scan(
     if z_factor is None:
         z_factor, base = parse_unit(chan.unit)
         z_unit = base if z_unit is None else z_unit
+    if not (np.isfinite(z_factor) and z_factor != 0.0):
+        raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {z_factor!r}: every value would be "
+                          "0 or NaN; the header is damaged")
     h = np.asarray(data, dtype=np.float64) * float(z_factor)
     if h.ndim != 2:
         raise CorruptScan(f"{path}: channel {chan.name!r} is not a 2-D image (shape {h.shape})")
@@ -318,6 +332,13 @@ def make_scan(
     inf_count = int(np.isinf(h).sum())
     if inf_count:
         h = np.where(np.isinf(h), np.nan, h)
+    unit = z_unit if z_unit is not None else parse_unit(chan.unit)[1]
+    if unit == "m":
+        with np.errstate(invalid="ignore"):
+            top = float(np.nanmax(np.abs(h))) if h.size and not np.isnan(h).all() else 0.0
+        if top > HEIGHT_LIMIT:
+            raise CorruptScan(f"{path}: channel {chan.name!r} has heights up to {top:g} m, more than any AFM's z "
+                              f"travel ({HEIGHT_LIMIT:g} m); its z scale is damaged or misread")
     dx = positive_length(path, dx, "the x pixel spacing")
     dy = positive_length(path, dy, "the y pixel spacing")
     meta: dict[str, Any] = {
