@@ -27,7 +27,8 @@ LAYERS = [
     ("assembly", ["arsurf.assembly"]),
     ("viewer", ["arsurf_viewer"]),
     ("sessions", ["arsurf.replay", "arsurf.batch"]),
-    ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.__main__", "arsurf.devices"]),
+    ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
+    ("entry point", ["arsurf.__main__"]),
 ]
 
 
