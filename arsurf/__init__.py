@@ -137,7 +137,7 @@ _EXPORTS = {
     # sessions
     "SessionWriter": "arsurf.replay.session",
     "load_session": "arsurf.replay.session",
-    "replay": "arsurf.replay.replay",
+    "replay_session": "arsurf.replay.replay",  # arsurf.replay is the subpackage
     # model assembly
     "PRESETS": "arsurf.assembly",
     "Preset": "arsurf.assembly",

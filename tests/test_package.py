@@ -41,3 +41,16 @@ def test_numba_cache_is_keyed_on_the_sources(tmp_path):
     env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
     kept = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert kept.stdout.strip() == str(tmp_path / "mine")
+
+
+def test_the_replay_package_and_the_replay_function_have_their_own_names():
+    import types
+
+    import arsurf
+    from arsurf.replay.replay import replay
+
+    assert isinstance(arsurf.replay, types.ModuleType)
+    assert arsurf.replay_session is replay
+    import arsurf.replay.session  # noqa: F401 (importing a submodule must not change what arsurf.replay is)
+
+    assert isinstance(arsurf.replay, types.ModuleType)

@@ -386,6 +386,23 @@ def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2,
     return bu, bv, bd2, bconv, bi, bj, iters, 1, False
 
 
+@njit(cache=True, inline="always")
+def _push(work, sp, lev, i, j):
+    """Push pyramid node (level, i, j) on the search stack in ``work`` (rows from STACK_ROWS);
+    returns the new stack pointer."""
+    work[sp, 0] = lev
+    work[sp, 1] = i
+    work[sp, 2] = j
+    return sp + 1
+
+
+@njit(cache=True, inline="always")
+def _pop(work, sp):
+    """Pop the search stack: (new stack pointer, level, i, j)."""
+    sp -= 1
+    return sp, int(work[sp, 0]), int(work[sp, 1]), int(work[sp, 2])
+
+
 @njit(cache=True)
 def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out):
     """Global closest point of the surface to (cx, cy, cz); writes ``out`` (OUT_SIZE,), returns a status.
@@ -490,16 +507,9 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
         overflow = False
         nlev = levels.shape[0]
         cap = work.shape[0]
-        sp = STACK_ROWS
-        work[sp, 0] = nlev - 1
-        work[sp, 1] = 0.0
-        work[sp, 2] = 0.0
-        sp += 1
+        sp = _push(work, STACK_ROWS, nlev - 1, 0, 0)
         while sp > STACK_ROWS:
-            sp -= 1
-            lev = int(work[sp, 0])
-            i = int(work[sp, 1])
-            j = int(work[sp, 2])
+            sp, lev, i, j = _pop(work, sp)
             if lev == 0:
                 node = i * nj0 + j
                 near2, far2, lift = node_bounds2(nodes, node, cx, cy, cz)
@@ -554,10 +564,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
                                 e0, e1, k0, k1 = e1, e0, k1, k0
             for kk in (k3, k2, k1, k0):
                 if kk >= 0 and sp < cap:
-                    work[sp, 0] = clev
-                    work[sp, 1] = 2 * i + (kk >> 1)
-                    work[sp, 2] = 2 * j + (kk & 1)
-                    sp += 1
+                    sp = _push(work, sp, clev, 2 * i + (kk >> 1), 2 * j + (kk & 1))
         if build and not overflow and count > 0:
             # insertion sort of the list by distance (short lists; rebuilt every ~m/|step| ticks)
             for a in range(CACHE_LIST + 1, CACHE_LIST + count):
@@ -684,17 +691,9 @@ def build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, 
 def _may_hold_closer(nodes, levels, work, cx, cy, cz, best2):
     """True if some knot cell's hull box of this pyramid is nearer to C than ``best2`` (squared):
     the walk of :func:`project_kernel` without its Newton runs, stopping at the first such cell."""
-    nlev = levels.shape[0]
-    sp = STACK_ROWS
-    work[sp, 0] = nlev - 1
-    work[sp, 1] = 0.0
-    work[sp, 2] = 0.0
-    sp += 1
+    sp = _push(work, STACK_ROWS, levels.shape[0] - 1, 0, 0)
     while sp > STACK_ROWS:
-        sp -= 1
-        lev = int(work[sp, 0])
-        i = int(work[sp, 1])
-        j = int(work[sp, 2])
+        sp, lev, i, j = _pop(work, sp)
         node = levels[lev, 0] + i * levels[lev, 2] + j
         if not (node_distance2(nodes, node, cx, cy, cz) < best2 * TIE):
             continue
@@ -704,10 +703,7 @@ def _may_hold_closer(nodes, levels, work, cx, cy, cz, best2):
         cnj = levels[lev - 1, 2]
         for ci in range(2 * i, min(2 * i + 2, cni)):
             for cj in range(2 * j, min(2 * j + 2, cnj)):
-                work[sp, 0] = lev - 1
-                work[sp, 1] = ci
-                work[sp, 2] = cj
-                sp += 1
+                sp = _push(work, sp, lev - 1, ci, cj)
     return False
 
 

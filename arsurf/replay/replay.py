@@ -309,6 +309,9 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
                         elapsed=time.perf_counter() - t_start, tube_poses=rec["tube_poses"], **stats)
 
 
+#: the public name (``arsurf.replay_session``): ``arsurf.replay`` is the subpackage
+replay_session = replay
+
 def _install(tmp: Path, out: Path, overwrite: bool) -> None:
     """Rename the finished temporary folder to ``out`` (the old one aside first, deleted after)."""
     if not out.exists():
