@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import shutil
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import real_scan_path
@@ -245,3 +247,34 @@ def test_bruker_v9_peakforce_file_reads_as_pyspm_does():
     assert len(names) == 8 and names[0] == "Height Sensor (Retrace)"
     for name in names:
         assert load_scan(path, channel=name).shape == (1024, 1024)
+
+
+@pytest.mark.realscan
+def test_topostats_file_reads_its_image_in_metres():
+    """sample_0_1.topostats (SOURCES.md): 'image' (64, 64) in nm, pixel_to_nm_scaling 1.976 nm,
+    rows flipped to row 0 = bottom; truncated copies are refused with a ScanError."""
+    import h5py
+
+    from arsurf.scan.io import load_scan
+
+    path = real_scan_path("sample_0_1.topostats")
+    s = load_scan(path)
+    with h5py.File(path, "r") as f:
+        ref = f["image"][()] * 1e-9
+        nm = float(f["pixel_to_nm_scaling"][()])
+    assert s.shape == (64, 64) and s.metadata["format"] == "topostats"
+    assert s.dx == s.dy == pytest.approx(nm * 1e-9, rel=1e-15)
+    np.testing.assert_array_equal(s.heights, ref[::-1])
+
+
+@pytest.mark.realscan
+@pytest.mark.parametrize("fraction", [0.0, 0.01, 0.1, 0.5, 0.9, 0.999])
+def test_truncated_topostats_files_are_refused(tmp_path, fraction):
+    from arsurf.errors import ScanError
+    from arsurf.scan.io import load_scan
+
+    data = Path(real_scan_path("sample_0_1.topostats")).read_bytes()
+    cut = tmp_path / "cut.topostats"
+    cut.write_bytes(data[: int(len(data) * fraction)])
+    with pytest.raises(ScanError):
+        load_scan(cut)

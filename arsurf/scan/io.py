@@ -75,6 +75,7 @@ FORMATS: dict[str, str] = {
     "jpk": "arsurf.scan.readers.jpk",
     "park-tiff": "arsurf.scan.readers.park",
     "ibw": "arsurf.scan.readers.ibw",
+    "topostats": "arsurf.scan.readers.topostats",
     "xyz": "arsurf.scan.readers.xyz",
     "ascii-matrix": "arsurf.scan.readers.ascii_matrix",
 }
