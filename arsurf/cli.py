@@ -183,12 +183,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
     s.set_defaults(func=cmd_view)
 
-    s = sub.add_parser("export", help="write a fitted surface (.npz from `arsurf fit`) as STL/PLY/GLB")
+    s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
+                       "map (.gwy/.gsf/.npz/.npy)")
     s.add_argument("surface", help="surface file written by `arsurf fit`")
-    s.add_argument("-o", "--output", required=True, help="output mesh (.stl, .ply, .glb)")
+    s.add_argument("-o", "--output", required=True, help="output: mesh (.stl, .ply, .glb) or height map (.gwy, .gsf, "
+                   ".npz, .npy)")
     s.add_argument("--resolution", type=int, nargs=2, metavar=("NU", "NV"), help="samples along u and v")
     s.add_argument("--solid", action="store_true", help="close the surface into a watertight solid")
     s.set_defaults(func=cmd_export)
+
+    s = sub.add_parser("convert", help="read a scan channel and write it as .gwy, .gsf, .npz or .npy (optionally "
+                       "levelled and smoothed)")
+    s.add_argument("scan")
+    s.add_argument("-o", "--output", required=True, help="output file (.gwy, .gsf, .npz, .npy)")
+    s.add_argument("--channel")
+    s.add_argument("--level", default="none", choices=LEVEL_CHOICES, metavar="METHOD",
+                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: none)")
+    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
+    s.add_argument("--no-inpaint", action="store_true", help="keep NaN pixels instead of filling them")
+    _calibration_flags(s)
+    s.set_defaults(func=cmd_convert)
 
     for module in _EXTRA_COMMANDS:
         importlib.import_module(module).register(sub)
@@ -229,13 +243,32 @@ def cmd_view(args) -> int:
     return 0
 
 
+_SCAN_OUTPUTS = (".gwy", ".gsf", ".npz", ".npy")
+
+
 def cmd_export(args) -> int:
     from arsurf.export import export_surface
     from arsurf.spline.storage import load_surface
 
     surface = load_surface(args.surface)
-    path = export_surface(surface, args.output, tuple(args.resolution) if args.resolution else None, solid=args.solid)
+    res = tuple(args.resolution) if args.resolution else None
+    if str(args.output).lower().endswith(_SCAN_OUTPUTS):  # a height map for Gwyddion & co.
+        from arsurf.scan.io import save_scan
+        from arsurf.spline.sampling import surface_to_scan
+
+        path = save_scan(surface_to_scan(surface, res, source=str(args.surface)), args.output)
+    else:
+        path = export_surface(surface, args.output, res, solid=args.solid)
     print(path)
+    return 0
+
+
+def cmd_convert(args) -> int:
+    from arsurf.scan.io import save_scan
+
+    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
+                        **_calibration(args))
+    print(save_scan(scan, args.output))
     return 0
 
 

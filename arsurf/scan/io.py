@@ -80,7 +80,7 @@ FORMATS: dict[str, str] = {
     "ascii-matrix": "arsurf.scan.readers.ascii_matrix",
 }
 _TEXT_FORMATS = ("xyz", "ascii-matrix")
-_WRITERS = {".gsf": "gsf", ".npz": "npz", ".npy": "npy"}
+_WRITERS = {".gsf": "gsf", ".gwy": "gwy", ".npz": "npz", ".npy": "npy"}
 HEAD_BYTES = 1 << 16
 
 

@@ -1,4 +1,4 @@
-"""Gwyddion native ``.gwy`` reader.
+"""Gwyddion native ``.gwy`` reader and writer.
 
 Library: our own bounds-checked parser of the GWY serialisation, cross-checked against
 ``gwyfile`` on the real 58-channel file in the tests (every channel identical).
@@ -198,8 +198,81 @@ def read(path: Path | str, channel: str | None = None):
     meta = top.get(f"/{chan.key}/meta")
     meta = {k: v for k, v in meta.items() if k != "__type__" and isinstance(v, (str, int, float))} if isinstance(meta, dict) else {}
     img = np.asarray(data, dtype=np.float64).reshape(ny, nx)
+    mask = top.get(f"/{chan.key}/mask")
+    if meta.get(_MISSING_KEY) == f"/{chan.key}/mask" and isinstance(mask, dict) and \
+            isinstance(mask.get("data"), np.ndarray) and mask["data"].size == nx * ny:
+        img = np.where(np.asarray(mask["data"]).reshape(ny, nx) > 0.5, np.nan, img)  # written by arsurf
     return make_scan(
         path, FORMAT, flip_rows(img), xreal / nx, yreal / ny, chan, chans, rows_flipped=True,
         instrument=meta,
         extra={"xoff": float(field.get("xoff", 0.0)) * xy_factor, "yoff": float(field.get("yoff", 0.0)) * xy_factor},
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def _component(name: str, kind: str, payload: bytes) -> bytes:
+    return name.encode("utf-8") + b"\0" + kind.encode() + payload
+
+
+def _string(text: str) -> bytes:
+    return str(text).replace("\0", "").encode("utf-8") + b"\0"
+
+
+def _object(type_name: str, components: list[bytes]) -> bytes:
+    body = b"".join(components)
+    return type_name.encode() + b"\0" + struct.pack("<I", len(body)) + body
+
+
+def _si_unit(unit: str) -> bytes:
+    return _object("GwySIUnit", [_component("unitstr", "s", _string(unit))])
+
+
+def _data_field(values: np.ndarray, dx: float, dy: float, z_unit: str) -> bytes:
+    ny, nx = values.shape
+    data = np.ascontiguousarray(values, dtype="<f8")
+    return _object("GwyDataField", [
+        _component("xres", "i", struct.pack("<i", nx)),
+        _component("yres", "i", struct.pack("<i", ny)),
+        _component("xreal", "d", struct.pack("<d", nx * dx)),
+        _component("yreal", "d", struct.pack("<d", ny * dy)),
+        _component("si_unit_xy", "o", _si_unit("m")),
+        _component("si_unit_z", "o", _si_unit(z_unit)),
+        _component("data", "D", struct.pack("<I", data.size) + data.tobytes()),
+    ])
+
+
+#: /N/meta key by which arsurf marks its mask as "missing pixels" (read back as NaN)
+_MISSING_KEY = "arsurf missing pixels"
+
+
+def write(scan, path: Path | str) -> None:
+    """Write ``scan`` as a Gwyddion ``.gwy`` file (channel 0), so a processed or deformed surface
+    opens in Gwyddion with its calibration.
+
+    The data field holds the heights in the scan's unit (metadata ``z_unit``, default ``m``) with
+    ``xreal = nx dx``, ``yreal = ny dy`` in metres, rows in Gwyddion's top-first order; NaN
+    pixels are written as 0 and marked in a mask field ``/0/mask`` (1 = missing), Gwyddion's
+    way; the channel name is the title and the scan's processing history and source go to
+    ``/0/meta`` as text.
+    """
+    ny, nx = scan.shape
+    z_unit = str(scan.metadata.get("z_unit") or "m")
+    top = np.ascontiguousarray(scan.heights[::-1, :], dtype=np.float64)
+    missing = ~np.isfinite(top)
+    components = [
+        _component("/0/data", "o", _data_field(np.where(missing, 0.0, top), scan.dx, scan.dy, z_unit)),
+        _component("/0/data/title", "s", _string(scan.channel or "Height")),
+    ]
+    if missing.any():
+        components.append(_component("/0/mask", "o", _data_field(missing.astype(np.float64), scan.dx, scan.dy, "")))
+    meta = {"arsurf source": str(scan.source or ""),
+            "arsurf history": "; ".join(str(h) for h in scan.metadata.get("history", []))}
+    if missing.any():
+        meta[_MISSING_KEY] = "/0/mask"
+    components.append(_component("/0/meta", "o", _object(
+        "GwyContainer", [_component(k, "s", _string(v)) for k, v in meta.items()])))
+    with open(path, "wb") as fh:
+        fh.write(MAGIC + _object("GwyContainer", components))
