@@ -128,6 +128,13 @@ def _calibration(args) -> dict:
             "dy": None if args.dy_nm is None else args.dy_nm * 1e-9, "z_unit": args.z_unit}
 
 
+def _processing_flags(s, level: str = "plane") -> None:
+    """--level and --sigma-nm: the preprocessing of arsurf.scan.prepare.prepare_scan."""
+    s.add_argument("--level", default=level, choices=LEVEL_CHOICES, metavar="METHOD",
+                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: {level})")
+    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
+
+
 def _calibration_flags(s) -> None:
     s.add_argument("--dx-nm", type=_nm(strict=True), help="pixel spacing along x in nm, for a file that does "
                    "not state it (a bare .txt/.npy matrix)")
@@ -155,9 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan")
     s.add_argument("-o", "--output", required=True, help="output surface file (.npz)")
     s.add_argument("--channel")
-    s.add_argument("--level", default="plane", choices=LEVEL_CHOICES, metavar="METHOD",
-                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: plane)")
-    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
+    _processing_flags(s)
     s.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
     s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
     s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
@@ -172,9 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("view", help="open the interactive 3D viewer (offscreen PNG without a display)")
     s.add_argument("scan", nargs="?", default=None, help="scan file (default: the bundled nanotubes)")
     s.add_argument("--tip-radius-nm", type=_nm(strict=True), default=20.0, help="tip radius in nm (default 20)")
-    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
-    s.add_argument("--level", default="plane", choices=LEVEL_CHOICES, metavar="METHOD",
-                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: plane)")
+    _processing_flags(s)
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
                         "(poses in, forces out; protocol in the README; tools/haptic_client.py is a reference client)")
@@ -197,9 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan")
     s.add_argument("-o", "--output", required=True, help="output file (.gwy, .gsf, .npz, .npy)")
     s.add_argument("--channel")
-    s.add_argument("--level", default="none", choices=LEVEL_CHOICES, metavar="METHOD",
-                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: none)")
-    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
+    _processing_flags(s, level="none")
     s.add_argument("--no-inpaint", action="store_true", help="keep NaN pixels instead of filling them")
     _calibration_flags(s)
     s.set_defaults(func=cmd_convert)
