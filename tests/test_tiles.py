@@ -174,3 +174,15 @@ def test_a_scan_too_large_for_this_machine_is_refused_before_fitting(monkeypatch
         fit_surface(scan)
     monkeypatch.setattr(_validation, "available_memory", lambda: None)  # unknown: no guard
     assert fit_surface(Scan(np.zeros((8, 8)), H, H)).shape == (10, 10)
+
+
+def test_the_packed_dispatch_answers_the_same_from_python():
+    """_project_struct run as plain Python (not through its compiled overload) picks the same
+    kernel for either projector and gives the compiled answers."""
+    s = rough(40)
+    q = (20e-9, 20e-9, float(s.evaluate(20e-9, 20e-9)[2]) + 6e-9)
+    for proj in (Projector(s), TiledProjector(s, tile=8)):
+        a, b = np.empty(pj.OUT_SIZE), np.empty(pj.OUT_SIZE)
+        assert pj._project_struct(proj._packed, *q, np.nan, np.nan, a) == 0
+        pj.project_any(proj.kernel_args(), *q, np.nan, np.nan, b)
+        assert abs(a[pj.OUT_DISTANCE] - b[pj.OUT_DISTANCE]) <= TOL

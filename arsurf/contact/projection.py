@@ -75,8 +75,10 @@ structref.define_proxy(TiledArrays, _TiledArraysType,
 
 
 def _project_struct(a, cx, cy, cz, hint_u, hint_v, out):
-    """:func:`project_kernel` or :func:`tiled_project_kernel` on a packed projector (numba only)."""
-    raise NotImplementedError  # pragma: no cover - compiled through the overload below
+    """:func:`project_kernel` or :func:`tiled_project_kernel` on a packed projector. Compiled
+    callers get the overload below, which picks by the struct's type; from Python the call goes
+    through that same compiled choice (struct fields are only readable in compiled code)."""
+    return _project_struct_compiled(a, cx, cy, cz, hint_u, hint_v, out)
 
 
 @overload(_project_struct, jit_options={"cache": True})
@@ -92,6 +94,11 @@ def _project_struct_impl(a, cx, cy, cz, hint_u, hint_v, out):
         return project_kernel(a.ctrl, a.ku, a.kv, a.mu, a.mv, a.nodes, a.curv, a.levels, a.work,
                               cx, cy, cz, hint_u, hint_v, out)
     return one
+
+
+@njit(cache=True)
+def _project_struct_compiled(a, cx, cy, cz, hint_u, hint_v, out):
+    return _project_struct(a, cx, cy, cz, hint_u, hint_v, out)
 
 
 @njit(cache=True)
