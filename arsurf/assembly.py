@@ -65,7 +65,7 @@ _REQUIRED_META = ("scan", "tip_radius", "contact", "friction", "cantilever")
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
                     "normal_stiffness", "torsional_stiffness", "beta")
 _HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
-                "seed", "ramp_time")
+                "seed", "ramp_time", "coupling_stiffness", "passivity", "max_rate")
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,10 @@ class Preset:
     haptics : mapping
         ``coupling`` ("direct" | "force_position"), ``scale`` (probe m per stylus m),
         ``force_gain`` (hand N per probe N), ``rate`` (Hz), ``source``, ``filter_cutoff`` (Hz),
-        ``signal_noise`` (rad), and for the force-position coupling ``K_fp``, ``B_fp``, ``G_n``.
+        ``signal_noise`` (rad), ``coupling_stiffness`` (N/m at the handle: the direct coupling's
+        virtual coupling, :func:`arsurf.haptics.gains.coupling_stiffness`; absent: none),
+        ``passivity`` (the passivity controller on), and for the force-position coupling ``K_fp``,
+        ``B_fp``, ``G_n``.
     sources : str
         Where the values come from; values a source does not give are the demo's, and said so.
     """
@@ -114,8 +117,11 @@ def _viewer_contact() -> tuple[float, float]:
     return effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene")
 
 
+# the virtual coupling of the demo's VirtualDevice at 1 kHz: 2 b / T (arsurf.haptics.gains.coupling_stiffness)
+_DEMO_COUPLING = 2.0 * (100.0 / 300.0) * 0.1 * 1000.0
 _DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
-                                  "source": "blended", "filter_cutoff": 200.0, "signal_noise": 2e-7})
+                                  "source": "blended", "filter_cutoff": 200.0, "signal_noise": 2e-7,
+                                  "coupling_stiffness": _DEMO_COUPLING, "passivity": True})
 
 
 def _presets() -> dict[str, Preset]:
@@ -400,21 +406,36 @@ def tube_count(meta: Mapping) -> int | None:
 
 
 def _model_parts(meta: Mapping):
-    """(tip_radius, MaugisDugdale, Cantilever, friction, deform) from checked metadata."""
+    """(tip_radius, MaugisDugdale, Cantilever, model keyword arguments, deform) from checked metadata.
+
+    The keyword arguments are the friction coefficients (``friction`` = mu_k, ``static_friction``
+    mu_s, default mu_k) and the coupling stiffness at the probe's scale, k_vc / (K_f s) from
+    ``haptics.coupling_stiffness`` (hand side) of a direct coupling (inf without one)."""
     from arsurf.contact.maugis_dugdale import MaugisDugdale
     from arsurf.force.cantilever import Cantilever
 
     c = meta["contact"]
+    h = dict(meta.get("haptics") or {})
     try:
         tip_radius = float(meta["tip_radius"])
         md = MaugisDugdale(tip_radius, c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"))
         lever = Cantilever(**meta["cantilever"])
         friction = float(meta["friction"])
+        static = meta.get("static_friction")
+        static = friction if static is None else float(static)
+        k_vc = h.get("coupling_stiffness") if h.get("coupling", "direct") == "direct" else None
+        k_probe = math.inf if k_vc is None else float(k_vc) / (
+            float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
     except (ArsurfError, TypeError, ValueError) as exc:
         raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
     if not (math.isfinite(friction) and friction >= 0.0):
         raise SessionError(f"metadata friction must be >= 0 (got {friction!r})")
-    return tip_radius, md, lever, friction, bool(meta.get("deform", True))
+    if not (math.isfinite(static) and static >= friction):
+        raise SessionError(f"metadata static_friction must be >= friction (got {static!r})")
+    if not k_probe > 0.0:
+        raise SessionError(f"metadata haptics.coupling_stiffness must be > 0 N/m (got {k_vc!r})")
+    return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe), \
+        bool(meta.get("deform", True))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -436,7 +457,7 @@ class ModelSetup:
 
 def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
-               deform: bool = True):
+               deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -450,17 +471,20 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
         Maugis-Dugdale cohesive stress (default: from w and the equilibrium spacing).
     cantilever : mapping, optional
         :class:`~arsurf.force.cantilever.Cantilever` arguments (default :data:`LEVER`).
-    friction : float
+    friction, static_friction : float
+        Kinetic and static friction coefficients (static default: the kinetic one).
     deform : bool
+    coupling_stiffness : float, N/m
+        The virtual coupling at the probe's scale (:mod:`arsurf.contact.proxy`; inf: none).
     """
-    meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform,
+    meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform, "static_friction": static_friction,
             "contact": {"effective_modulus": effective_modulus, "work_of_adhesion": work_of_adhesion,
                         "dugdale_stress": dugdale_stress},
             "cantilever": dict(LEVER if cantilever is None else cantilever)}
     from arsurf.model import ARModel
 
-    radius, md, lever, mu, dent = _model_parts(meta)
-    return ARModel(surface, radius, md, lever, friction=mu, deform=dent)
+    radius, md, lever, kwargs, dent = _model_parts(meta)
+    return ARModel(surface, radius, md, lever, deform=dent, **dict(kwargs, coupling_stiffness=coupling_stiffness))
 
 
 def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
@@ -498,8 +522,8 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
     cs = proc.get("control_shape")
     surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
                           smoothing=float(proc.get("smoothing", 0.0)))
-    tip_radius, md, lever, friction, deform = _model_parts(metadata)
-    model = ARModel(surface, tip_radius, md, lever, friction=friction, deform=deform)
+    tip_radius, md, lever, kwargs, deform = _model_parts(metadata)
+    model = ARModel(surface, tip_radius, md, lever, deform=deform, **kwargs)
     return ModelSetup(scan, surface, model, scene, metadata)
 
 
@@ -533,6 +557,8 @@ def build_loop(model, haptics: Mapping, device_info, probe_origin, *, scene=None
                            "force-position loop with arsurf.haptics.coupling.ForcePositionCoupling and HapticLoop")
     config = LoopConfig(rate=float(h["rate"]), source=h["source"], blend=float(h.get("blend", 0.5)),
                         filter_cutoff=h["filter_cutoff"], signal_noise=float(h["signal_noise"]),
-                        seed=int(h.get("seed", seed)))
+                        seed=int(h.get("seed", seed)), passivity=bool(h.get("passivity", True)))
+    if "max_rate" in h and "max_rate" not in safety_kwargs:
+        safety_kwargs["max_rate"] = float(h["max_rate"])
     return HapticLoop.direct(model, device_info, probe_origin, scale=float(h["scale"]),
                              force_gain=float(h["force_gain"]), config=config, scene=scene, **safety_kwargs)

@@ -1,7 +1,7 @@
 r"""The augmented-reality surface model: one tick of tip -> contact -> dent -> 3D force.
 
 This is the part of the pipeline shared by the live haptic loop and offline replay
-(DESIGN.md, "The pipeline"): given the tip centre C and velocity v (and, when an AFM is
+(DESIGN.md, "The pipeline"): given the target tip centre C (and, when an AFM is
 attached or a session is replayed, the measured bending and torsion angles),
 
 1. **collide** C (radius R) with the *rest* surface (Newton projection, :mod:`arsurf.contact.projection`):
@@ -12,16 +12,17 @@ attached or a session is replayed, the measured bending and torsion angles),
    control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
    and load P (> 0 compressive);
 3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`);
-4. **force on the tip**: *simulated* F = P n − μ max(P, 0) t̂, t̂ the unit tangent whose horizontal
-   part is the tip's horizontal motion (Amontons friction, regularised below
-   :data:`FRICTION_VELOCITY`; the same friction direction the decoupling assumes, DESIGN.md;
-   zero when the tip does not move sideways);
+4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
+   anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
+   :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
    *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
-   :mod:`arsurf.force.decoupling`); the model reports both. Below :data:`FRICTION_VELOCITY` the
-   tip is standing, not sliding: its jitter gives no friction direction, so the decoupling takes
-   its ``NO_MOTION`` fallback (force along n plus the torsion) instead of a direction that noise
-   chose - which could make the system ill-conditioned and amplify the signal noise a
-   hundredfold (a 360 nN spike at pull-off in the demo).
+   :mod:`arsurf.force.decoupling`) with the proxy's slip direction as the friction direction; a
+   stuck tip has none, and the decoupling takes its ``NO_MOTION`` fallback (force along n plus
+   the torsion) steadily, tick after tick. The model reports both forces.
+
+With a virtual coupling (``coupling_stiffness`` finite, :mod:`arsurf.contact.proxy`) the tip
+centre is not the target C itself but the point on C's normal line where the contact load
+balances the coupling spring; steps 2-4 use that tip, which the model reports (``tip``).
 
 All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
 arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
@@ -37,8 +38,10 @@ from numba import njit
 from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import projection as pj
+from arsurf.contact import friction as fr
 from arsurf.contact.deformation import deform_kernel
-from arsurf.contact.maugis_dugdale import MaugisDugdale, md_contact_hysteresis_kernel
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, DecouplingFlag,
@@ -49,7 +52,8 @@ from arsurf.spline.surface import BSplineSurface
 MODEL_OUT = Layout("model output", [
     ("point", 3), ("normal", 3), ("uv", 2), ("distance", 1), ("depth", 1), ("contact_radius", 1), ("load", 1),
     ("simulated_force", 3), ("measured_force", 3), ("condition", 1), ("collide_status", 1), ("md_status", 1),
-    ("decoupling_flags", 1), ("moved", 1), ("in_contact", 1), ("bending", 1), ("torsion", 1)])
+    ("decoupling_flags", 1), ("moved", 1), ("in_contact", 1), ("bending", 1), ("torsion", 1), ("tip", 3),
+    ("slipping", 1), ("coupled", 1)])
 # the offsets as the kernels use them
 M_PX, M_NX, M_U = MODEL_OUT.offset("point"), MODEL_OUT.offset("normal"), MODEL_OUT.offset("uv")
 M_PY, M_PZ, M_NY, M_NZ, M_V = M_PX + 1, M_PX + 2, M_NX + 1, M_NX + 2, M_U + 1
@@ -61,31 +65,44 @@ M_CONDITION, M_COLLIDE_STATUS = MODEL_OUT.offset("condition"), MODEL_OUT.offset(
 M_MD_STATUS, M_DECOUPLE_STATUS = MODEL_OUT.offset("md_status"), MODEL_OUT.offset("decoupling_flags")
 M_MOVED, M_IN_CONTACT = MODEL_OUT.offset("moved"), MODEL_OUT.offset("in_contact")
 M_BENDING, M_TORSION = MODEL_OUT.offset("bending"), MODEL_OUT.offset("torsion")
+M_TIP, M_SLIPPING, M_COUPLED = MODEL_OUT.offset("tip"), MODEL_OUT.offset("slipping"), MODEL_OUT.offset("coupled")
 M_SIZE = MODEL_OUT.size
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
-# model state vector: warm-start hint and the hysteresis memory
-S_HINT_U, S_HINT_V, S_INTERACTING = 0, 1, 2
-S_SIZE = 3
+# model state vector: warm-start hint, the hysteresis memory, the tip's depth, the friction anchor
+S_HINT_U, S_HINT_V, S_INTERACTING, S_TIP_DEPTH, S_FRICTION = 0, 1, 2, 3, 4
+S_SIZE = S_FRICTION + fr.STATE_SIZE
+#: proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
+#: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
+#: zero-load depths (m)
+F_MU_S, F_MU_K, F_KT_PER_A, F_COUPLING, F_JUMP_OUT, F_ZERO_LOAD = range(6)
 
 MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
-#: Sliding speed (m/s) below which friction is regularised (viscous, ∝ speed) instead of Coulomb:
-#: F_f = μP v/max(|v|, v_ε) (Karnopp-style). A haptic probe jitters around zero horizontal speed
-#: while pressing; plain Coulomb friction then flips sign every tick and the hand feels a buzz.
-#: 10 nm/s is below the slowest deliberate probe motion of the seeds (~50 nm/s, seed 000).
-FRICTION_VELOCITY = 10e-9
+#: the slip direction is a unit vector: its horizontal part must be at least this long to give the
+#: decoupling a friction direction (a slip straight down a wall gives none)
+MIN_SLIP_HORIZONTAL = 1e-3
 FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
+NO_MOTION = int(DecouplingFlag.NO_MOTION)
+#: the measured force fades from the decoupling's no-motion fallback (normal + torsion) to the
+#: directional solution as the friction strength |F_t| / mu_k P grows over this band: the fallback
+#: misses at most 0.25 mu_k P, and no switch makes the force jump
+FADE_STRENGTH = (0.05, 0.25)
+#: ... and back to the fallback as the condition number of the directional system grows over this
+#: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out
+FADE_CONDITION = (100.0, 1000.0)
 
 
 @njit(cache=True)
 def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
-                      cx, cy, cz, vx, vy, vz, bending, torsion, signal_mode,
+                      cx, cy, cz, bending, torsion, signal_mode,
                       state, coll, dec, out):
-    """One model tick; writes ``out`` (M_SIZE,) and updates ``state`` (S_SIZE,). Returns the
-    collision status (< 0: no answer; ``out`` then holds zero forces). ``coll`` (OUT_SIZE,) and
-    ``dec`` (4,) are scratch vectors of the collision and the decoupling.
+    """One model tick for the target tip centre ``(cx, cy, cz)``; writes ``out`` (M_SIZE,) and
+    updates ``state`` (S_SIZE,). Returns the collision status (< 0: no answer; ``out`` then holds
+    zero forces). ``friction`` (6,) is the proxy parameter vector (``F_*`` offsets); ``coll``
+    (OUT_SIZE,) and ``dec`` (8,) are scratch vectors of the collision, the friction and the
+    decoupling.
 
     ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
     are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
@@ -97,57 +114,83 @@ def model_tick_kernel(proj,                                              # Proje
         out[k] = 0.0
     out[M_BENDING] = math.nan
     out[M_TORSION] = math.nan
+    out[M_TIP] = cx
+    out[M_TIP + 1] = cy
+    out[M_TIP + 2] = cz
     st = pj.collide_any(proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
     out[M_COLLIDE_STATUS] = st
     if st < 0:
+        state[S_TIP_DEPTH] = math.nan
+        fr.release(state, S_FRICTION)
         return st
     state[S_HINT_U] = coll[pj.OUT_U]
     state[S_HINT_V] = coll[pj.OUT_V]
     nx = coll[pj.OUT_NX]
     ny = coll[pj.OUT_NY]
     nz = coll[pj.OUT_NZ]
-    out[M_PX] = coll[pj.OUT_PX]
-    out[M_PY] = coll[pj.OUT_PY]
-    out[M_PZ] = coll[pj.OUT_PZ]
+    px = coll[pj.OUT_PX]
+    py = coll[pj.OUT_PY]
+    pz = coll[pj.OUT_PZ]
+    out[M_PX] = px
+    out[M_PY] = py
+    out[M_PZ] = pz
     out[M_NX] = nx
     out[M_NY] = ny
     out[M_NZ] = nz
     out[M_U] = coll[pj.OUT_U]
     out[M_V] = coll[pj.OUT_V]
-    out[M_DISTANCE] = coll[pj.OUT_DISTANCE]
-    depth = coll[pj.OUT_DEPTH]
+    # contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
+    target_depth = coll[pj.OUT_DEPTH]
+    md_st, a, load, depth, coupled = coupled_depth_kernel(
+        target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
+        friction[F_ZERO_LOAD], md_args[0], md_args[1], md_args[2], md_args[3], md_args[4], md_args[5])
+    lift = target_depth - depth  # the tip sits this far out along n from the target
+    tx = cx + lift * nx
+    ty = cy + lift * ny
+    tz = cz + lift * nz
+    out[M_TIP] = tx
+    out[M_TIP + 1] = ty
+    out[M_TIP + 2] = tz
+    out[M_COUPLED] = 1.0 if coupled else 0.0
+    out[M_DISTANCE] = tip_radius - depth
     out[M_DEPTH] = depth
-    # contact mechanics with hysteresis
-    md_st, a, load = md_contact_hysteresis_kernel(depth, state[S_INTERACTING] > 0.5, md_args[0], md_args[1],
-                                                  md_args[2], md_args[3], md_args[4], md_args[5])
     out[M_MD_STATUS] = md_st
     if md_st < 0:
         a = 0.0
         load = 0.0
-    state[S_INTERACTING] = 1.0 if (md_st == MD_CONTACT or md_st == MD_COHESIVE) else 0.0
+    interacting = md_st == MD_CONTACT or md_st == MD_COHESIVE
+    state[S_INTERACTING] = 1.0 if interacting else 0.0
+    state[S_TIP_DEPTH] = depth if interacting else math.nan
     out[M_RADIUS] = a
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if md_st == MD_CONTACT else 0.0
     # dent the live net (restores the previous patch first)
     if deform:
         r_dent = tip_radius if md_st == MD_CONTACT else 0.0
-        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, cx, cy, cz, r_dent, nx, ny, nz, a, patch)
-    # simulated force: normal load plus Amontons friction against the tangential motion
+        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, patch)
+    # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     fx = load * nx
     fy = load * ny
     fz = load * nz
-    if load > 0.0 and friction > 0.0 and nz > 1e-2:
-        # sliding direction: the tangent whose horizontal part is the tip's horizontal motion
-        # (seed 002 / DESIGN.md, the same f the decoupling assumes)
-        tx = vx
-        ty = vy
-        tz = -(vx * nx + vy * ny) / nz
-        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
-        if tn > 0.0:
-            f = friction * load / max(tn, FRICTION_VELOCITY)
-            fx -= f * tx
-            fy -= f * ty
-            fz -= f * tz
+    sx = 0.0
+    sy = 0.0
+    strength = 0.0
+    if load > 0.0 and md_st == MD_CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
+        k_t = friction[F_KT_PER_A] * a
+        kc = friction[F_COUPLING]
+        if kc < math.inf:
+            k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
+        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, load, k_t, friction[F_MU_S], friction[F_MU_K],
+                                       state, S_FRICTION, dec)
+        out[M_SLIPPING] = slipped
+        fx += dec[0]
+        fy += dec[1]
+        fz += dec[2]
+        sx = dec[3]
+        sy = dec[4]
+        strength = dec[6]
+    else:
+        fr.release(state, S_FRICTION)
     out[M_SIM_FX] = fx
     out[M_SIM_FY] = fy
     out[M_SIM_FZ] = fz
@@ -167,7 +210,24 @@ def model_tick_kernel(proj,                                              # Proje
             out[M_MEAS_FZ] = bending / g
             out[M_CONDITION] = 1.0
         else:
-            ds = decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, dec_params, dec)
+            # directional solution (friction direction from the proxy) faded into the no-motion
+            # fallback as the friction weakens or the system loses conditioning; both reproduce
+            # the two measured angles exactly, so every blend does too
+            ds = decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, dec_params, dec[0:4])
+            w = 0.0
+            if ds == 0:
+                w = min(max((strength - FADE_STRENGTH[0]) / (FADE_STRENGTH[1] - FADE_STRENGTH[0]), 0.0), 1.0)
+                w *= min(max(math.log(FADE_CONDITION[1] / dec[3]) / math.log(FADE_CONDITION[1] / FADE_CONDITION[0]),
+                             0.0), 1.0)
+            if w < 1.0:
+                d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, dec_params, dec[4:8])
+                for j in range(3):
+                    dec[j] = w * dec[j] + (1.0 - w) * dec[4 + j]
+                if w == 0.0:
+                    ds = d0
+                    dec[3] = dec[7]
+                else:
+                    ds |= NO_MOTION
             out[M_DECOUPLE_STATUS] = ds
             out[M_MEAS_FX] = dec[0]
             out[M_MEAS_FY] = dec[1]
@@ -183,7 +243,10 @@ class ModelTick:
     ``point``, ``normal``, ``uv``, ``distance``, ``depth``: the collision on the rest surface;
     ``contact_radius``, ``load`` (N, > 0 compressive), ``in_contact``, ``md_status`` (0 contact,
     1 cohesive, 2 separated); ``simulated_force`` and ``measured_force`` (N, on the tip; the
-    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points.
+    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points;
+    ``tip`` the tip centre behind the virtual coupling (the target without one), ``slipping``
+    whether the friction proxy slid this tick, ``coupled`` whether the coupling equation was
+    solved (False: the tip is at the target).
     """
 
     point: np.ndarray
@@ -201,6 +264,9 @@ class ModelTick:
     condition: float
     moved: int
     collide_status: int
+    tip: np.ndarray
+    slipping: bool
+    coupled: bool
 
 
 class ARModel:
@@ -217,7 +283,13 @@ class ARModel:
     cantilever : Cantilever
         For the decoupling of measured signals and for simulated signals.
     friction : float
-        Coefficient μ of the simulated friction (>= 0).
+        Kinetic friction coefficient :math:`\\mu_k` (>= 0); the seeds give one coefficient, 0.2.
+    static_friction : float, optional
+        Static coefficient :math:`\\mu_s \\ge \\mu_k` of the stick-slip proxy
+        (:mod:`arsurf.contact.friction`); default :math:`\\mu_k` (no stick-slip jump).
+    coupling_stiffness : float, N/m, optional
+        Stiffness of the virtual coupling between the target and the tip, at the probe's scale
+        (:mod:`arsurf.contact.proxy`); ``inf`` (default): the tip is the target.
     deform : bool
         Dent the surface (False: only compute contacts and forces).
 
@@ -235,7 +307,8 @@ class ARModel:
     """
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, contact: MaugisDugdale,
-                 cantilever: Cantilever, friction: float = 0.2, deform: bool = True):
+                 cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
+                 static_friction: float | None = None, coupling_stiffness: float = math.inf):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -246,9 +319,15 @@ class ARModel:
         if not math.isclose(contact.tip_radius, tip_radius, rel_tol=1e-12):
             raise ContactError(
                 f"the contact law's tip radius ({contact.tip_radius!r} m) differs from tip_radius ({tip_radius!r} m)")
-        friction = float(friction)
-        if not (math.isfinite(friction) and friction >= 0.0):
-            raise ContactError(f"`friction` must be >= 0 (got {friction!r}); it is the coefficient mu")
+        friction = _validation.non_negative(friction, "friction", ContactError, hint="the kinetic friction coefficient")
+        static = friction if static_friction is None else _validation.non_negative(
+            static_friction, "static_friction", ContactError, hint="the static friction coefficient")
+        if static < friction:
+            raise ContactError(f"static_friction ({static!r}) must be >= friction ({friction!r}): the static cone "
+                               "contains the kinetic one")
+        coupling_stiffness = float(coupling_stiffness)
+        if not coupling_stiffness > 0.0:
+            raise ContactError(f"`coupling_stiffness` must be > 0 N/m or inf (got {coupling_stiffness!r})")
         from arsurf.contact.deformation import Deformer
 
         self.surface = surface
@@ -265,22 +344,32 @@ class ARModel:
         self.contact = contact
         self.cantilever = cantilever
         self.friction = friction
+        self.static_friction = static
+        self.coupling_stiffness = coupling_stiffness
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
         self._proj_args = proj.kernel_args()
         self._md_args = np.array(contact.kernel_args, dtype=np.float64)
-        self._dec = decoupling_parameters(cantilever, min_speed=FRICTION_VELOCITY)
+        self._dec = decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL)
+        self._friction = np.array([static, friction, fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
+                                   coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
-        self.state = np.array([np.nan, np.nan, 0.0])
+        self.state = np.empty(S_SIZE)
+        self._clear_state()
         self._coll = np.empty(pj.OUT_SIZE)
-        self._decout = np.empty(4)
+        self._decout = np.empty(8)
         self.out = np.zeros(M_SIZE)
 
     def reset(self) -> None:
         """Forget the contact history and restore the surface to rest."""
         self._deformer.release()
         self.surface.reset()
-        self.state[:] = (np.nan, np.nan, 0.0)
+        self._clear_state()
+
+    def _clear_state(self) -> None:
+        self.state[:] = np.nan
+        self.state[S_INTERACTING] = 0.0
+        self.state[S_FRICTION + fr.SLIPPING:S_FRICTION + fr.STATE_SIZE] = 0.0
 
     def kernel_args(self) -> tuple:
         """The model's arguments of the compiled tick (:func:`model_tick_kernel` and the loop
@@ -289,12 +378,11 @@ class ARModel:
         The arrays are the model's own (updated in place by every tick)."""
         live_ctrl, live_rest, ku, kv, patch = self._live
         return (self._proj_args, live_ctrl, live_rest, ku, kv, patch, self._md_args, self._dec, self.tip_radius,
-                self.friction, self.deform, self.state, self._coll, self._decout, self.out)
+                self._friction, self.deform, self.state, self._coll, self._decout, self.out)
 
-    def tick(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> np.ndarray:
+    def tick(self, center, signals=None) -> np.ndarray:
         """Unchecked fast path: run the kernel, return the output vector (M_SIZE,) (reused)."""
         cx, cy, cz = center
-        vx, vy, vz = velocity
         if signals is None:
             b = t = 0.0
             mode = SIGNALS_NONE
@@ -303,26 +391,23 @@ class ARModel:
             mode = SIGNALS_GIVEN
         live_ctrl, live_rest, ku, kv, patch = self._live
         model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
-                          self._md_args, self._dec, self.tip_radius, self.friction, self.deform,
-                          float(cx), float(cy), float(cz), float(vx), float(vy), float(vz),
-                          float(b), float(t), mode, self.state, self._coll, self._decout, self.out)
+                          self._md_args, self._dec, self.tip_radius, self._friction, self.deform,
+                          float(cx), float(cy), float(cz), float(b), float(t), mode, self.state, self._coll,
+                          self._decout, self.out)
         return self.out
 
-    def step(self, center, velocity=(0.0, 0.0, 0.0), signals=None) -> ModelTick:
-        """Validated tick: tip centre (3,) m, velocity (3,) m/s, optional (bending, torsion) rad."""
+    def step(self, center, signals=None) -> ModelTick:
+        """Validated tick: target tip centre (3,) m, optional measured (bending, torsion) rad."""
         c = np.asarray(center, dtype=np.float64).reshape(-1)
-        v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         if c.shape != (3,) or not np.isfinite(c).all():
             raise PositionError(f"center must be 3 finite coordinates in metres (got {center!r}); check the tip "
                                 "position source")
-        if v.shape != (3,) or not np.isfinite(v).all():
-            raise ContactError(f"`velocity` must be 3 finite components in m/s (got {velocity!r})")
         if signals is not None:
             sig = np.asarray(signals, dtype=np.float64).reshape(-1)
             if sig.shape != (2,) or not np.isfinite(sig).all():
                 raise ContactError(f"`signals` must be (bending, torsion) in radians, finite (got {signals!r})")
             signals = (sig[0], sig[1])
-        o = self.tick(c, v, signals)
+        o = self.tick(c, signals)
         if o[M_COLLIDE_STATUS] < 0:
             raise ContactError(f"collision failed with status {int(o[M_COLLIDE_STATUS])} "
                                f"({pj.STATUS_TEXT.get(int(o[M_COLLIDE_STATUS]), '?')})")
@@ -338,5 +423,6 @@ class ARModel:
             load=float(o[M_LOAD]), in_contact=bool(o[M_IN_CONTACT]), md_status=int(o[M_MD_STATUS]),
             simulated_force=o[M_SIM_FX:M_SIM_FZ + 1].copy(), measured_force=meas,
             decoupling_flags=int(o[M_DECOUPLE_STATUS]), condition=float(o[M_CONDITION]),
-            moved=int(o[M_MOVED]), collide_status=int(o[M_COLLIDE_STATUS]),
+            moved=int(o[M_MOVED]), collide_status=int(o[M_COLLIDE_STATUS]), tip=o[M_TIP:M_TIP + 3].copy(),
+            slipping=bool(o[M_SLIPPING]), coupled=bool(o[M_COUPLED]),
         )

@@ -38,6 +38,7 @@ flag                bit    meaning
 ``CLAMPED``         256    probe (or slave) clamped to its range
 ``MASTER_OUTSIDE``  512    master outside its workspace box
 ``BAD_BUTTONS``     1024   the device reported a malformed button word: taken as no press
+``PASSIVITY``       2048   the passivity controller added damping (the loop had generated energy)
 ==================  =====  ===================================================================
 
 The decoupling's bits (:class:`arsurf.force.decoupling.DecouplingFlag`) are a word of their own,
@@ -53,7 +54,7 @@ True
 from __future__ import annotations
 
 __all__ = ["BAD_BUTTONS", "BAD_INPUT", "CLAMPED", "CLUTCHED", "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT",
-           "MASTER_OUTSIDE", "NONFINITE", "NON_FINITE", "NOT_CONVERGED", "OK", "RAMPING", "RATE_LIMITED", "SATURATED",
+           "MASTER_OUTSIDE", "NONFINITE", "PASSIVITY", "NON_FINITE", "NOT_CONVERGED", "OK", "RAMPING", "RATE_LIMITED", "SATURATED",
            "STALE", "TEXT", "WATCHDOG", "flag_names"]
 
 OK = 0
@@ -85,9 +86,10 @@ CLUTCHED = 128
 CLAMPED = 256
 MASTER_OUTSIDE = 512
 BAD_BUTTONS = 1024
+PASSIVITY = 2048
 #: names of the flag bits, lowest bit first
 FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE", "CLUTCHED",
-              "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS")
+              "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS", "PASSIVITY")
 
 
 def flag_names(flags: int) -> list[str]:

@@ -54,7 +54,7 @@ def main() -> None:
     pos = np.column_stack([x, y, h + R - depth])
     vel = np.gradient(pos, 1e-3, axis=0)
 
-    ticks = [m.step(pos[i], vel[i]) for i in range(n)]
+    ticks = [m.step(pos[i]) for i in range(n)]
     sig = [lever.angles(t.simulated_force) for t in ticks]
     m.reset()
 
@@ -83,13 +83,13 @@ def main() -> None:
     t_tick = np.empty(n)
     for i in range(n):
         t0 = clock()
-        m.tick(pos[i], vel[i], (sig[i][0], sig[i][1]))
+        m.tick(pos[i], (sig[i][0], sig[i][1]))
         t_tick[i] = clock() - t0
     m.reset()
     t_step = np.empty(n)
     for i in range(n):
         t0 = clock()
-        m.step(pos[i], vel[i], signals=sig[i])
+        m.step(pos[i], signals=sig[i])
         t_step[i] = clock() - t0
 
     t0 = time.perf_counter()

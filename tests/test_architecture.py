@@ -26,7 +26,7 @@ LAYERS = [
     ("devices and objects", ["arsurf.haptics", "arsurf.instrument", "arsurf.manipulation"]),
     ("assembly", ["arsurf.assembly"]),
     ("viewer", ["arsurf_viewer"]),
-    ("sessions", ["arsurf.replay", "arsurf.batch"]),
+    ("sessions", ["arsurf.replay", "arsurf.batch", "arsurf.feel_scenarios"]),
     ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
     ("entry point", ["arsurf.__main__"]),
 ]

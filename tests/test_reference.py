@@ -40,7 +40,7 @@ def test_model_tick_equals_the_chained_references(seed):
         centre = foot + np.array([0.0, 0.0, R - depth])
         velocity = np.array([*rng.normal(scale=1e-6, size=2), 0.0])
         ref = reference_model_tick(surface, centre, R, e_star, w, model.contact.dugdale_stress, lever, velocity)
-        tick = model.step(centre, velocity, signals=(ref["bending"], ref["torsion"]))
+        tick = model.step(centre, signals=(ref["bending"], ref["torsion"]))  # first touch: stuck, no direction
         assert tick.md_status == 0 and tick.in_contact
         np.testing.assert_allclose(tick.point, ref["point"], rtol=0, atol=1e-15)
         np.testing.assert_allclose(tick.normal, ref["normal"], rtol=0, atol=1e-7)  # a 1e-15 m point error over R

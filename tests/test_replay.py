@@ -68,9 +68,9 @@ def recording(tmp_path_factory):
     rec = {k: [] for k in ("truth", "ticks", "force", "signals")}
     with SessionWriter(d / "session.h5", meta) as w:
         for k in range(N):
-            truth = sample.step(pos[k], vel[k]).simulated_force
+            truth = sample.step(pos[k]).simulated_force
             signals = LEVER.angles(truth) if k >= NO_SIGNALS else None
-            tick = loop.step(pos[k], vel[k], signals=signals)
+            tick = loop.step(pos[k], signals=signals)
             force = tick.measured_force if signals is not None else tick.simulated_force
             device = np.clip(force * DEVICE_GAIN, -DEVICE_LIMIT, DEVICE_LIMIT)
             w.append(t=k * DT, probe_position=pos[k], probe_velocity=vel[k], stylus_position=pos[k] * 1e5,

@@ -122,7 +122,9 @@ def test_metadata_builds_the_recorded_model_objects_exactly():
                                "torsional_stiffness": LEVER.torsional_stiffness, "beta": LEVER.beta}
     from arsurf import assembly
 
-    tip, md, lever, friction, deform = assembly._model_parts(json.loads(json.dumps(m)))
+    tip, md, lever, kwargs, deform = assembly._model_parts(json.loads(json.dumps(m)))
+    friction = kwargs["friction"]
+    assert kwargs["static_friction"] == friction and kwargs["coupling_stiffness"] == float("inf")
     assert lever == LEVER  # dataclass equality: every field identical after the JSON round trip
     assert md.kernel_args == MD.kernel_args and tip == R and friction == 0.25 and deform is True
     assert m["contact"]["dugdale_stress"] == MD.dugdale_stress

@@ -83,6 +83,9 @@ class DeviceInfo:
         Largest stiffness the device renders stably, per axis.
     max_damping : (3,) float, N s/m, or None
         Largest virtual damping, per axis; None when the source gives none.
+    damping : (3,) float, N s/m, or None
+        The device's own (physical) viscous damping, per axis; None when unknown. It sets the
+        stiffness a sampled loop renders passively (:func:`arsurf.haptics.gains.coupling_stiffness`).
 
     Examples
     --------
@@ -95,6 +98,7 @@ class DeviceInfo:
     workspace: np.ndarray
     max_stiffness: np.ndarray
     max_damping: np.ndarray | None = None
+    damping: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         mf = float(self.max_force)
@@ -116,7 +120,12 @@ class DeviceInfo:
             if (bs < 0).any():
                 raise HapticsError(f"max_damping must be >= 0 (got {bs.tolist()} N s/m)")
             object.__setattr__(self, "max_damping", bs)
-        for a in ("workspace", "max_stiffness", "max_damping"):
+        if self.damping is not None:
+            bd = _vec3(self.damping, "damping")
+            if (bd < 0).any():
+                raise HapticsError(f"damping must be >= 0 (got {bd.tolist()} N s/m)")
+            object.__setattr__(self, "damping", bd)
+        for a in ("workspace", "max_stiffness", "max_damping", "damping"):
             v = getattr(self, a)
             if v is not None:
                 v.setflags(write=False)

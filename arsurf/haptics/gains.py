@@ -59,7 +59,7 @@ import numpy as np
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import _vec3
 
-__all__ = ["Bound", "GainCheck", "check_gains", "suggest_gains"]
+__all__ = ["Bound", "GainCheck", "check_gains", "coupling_stiffness", "suggest_gains"]
 
 _AXES = "xyz"
 
@@ -265,3 +265,31 @@ def suggest_gains(*, mass, damping, dt, A_f, A_d, env_stiffness=0.0, stiffness: 
     g_applied = Af / (Ad * (K * T + B))  # the conservative slave bound (check_gains' default)
     G = slave_margin * np.minimum(g_joint, g_applied)
     return {"K_fp": K, "B_fp": B, "G_n": G}
+
+
+def coupling_stiffness(info, rate: float) -> float:
+    r"""Stiffness (N/m at the handle) of the direct coupling's virtual coupling for a device and rate.
+
+    The largest stiffness a zero-order-hold loop of period :math:`T` renders passively on a
+    device with physical damping :math:`b` is :math:`K < 2b/T` (Colgate & Schenkel 1997, the
+    virtual wall with no virtual damping), and never more than the device's own stable maximum:
+
+    .. math:: k_{vc} = \min\left(\min_i K_{max,i},\; \frac{2\,\min_i b_i}{T}\right).
+
+    Without a known damping (``info.damping`` None: most vendors do not publish it) half the
+    vendor's maximum stiffness is taken; the passivity controller
+    (:mod:`arsurf.haptics.passivity`) guards the rest either way.
+
+    Examples
+    --------
+    >>> from arsurf.haptics.virtual_device import VirtualDevice
+    >>> round(coupling_stiffness(VirtualDevice(dt=1e-3).info, 1000.0), 2)   # 2 x (1/30 N s/m) / 1 ms
+    66.67
+    """
+    rate = float(rate)
+    if not (math.isfinite(rate) and rate > 0.0):
+        raise HapticsError(f"rate must be a positive loop rate in Hz (got {rate!r})")
+    k_max = float(np.min(info.max_stiffness))
+    if info.damping is None:
+        return 0.5 * k_max
+    return min(k_max, 2.0 * float(np.min(info.damping)) * rate)

@@ -38,10 +38,11 @@ from arsurf.errors import HapticsError
 from arsurf.haptics.coupling import DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
 from arsurf.haptics.filters import LowPass, lowpass1_step
+from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
 from arsurf.haptics.scaling import force_scale_step, position_map_step
-from arsurf.model import (M_BENDING, M_MEAS_FX, M_SIM_FX, M_TORSION, SIGNALS_GIVEN, SIGNALS_NONE,
+from arsurf.model import (M_BENDING, M_MEAS_FX, M_SIM_FX, M_TIP, M_TORSION, SIGNALS_GIVEN, SIGNALS_NONE,
                           SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
@@ -60,13 +61,15 @@ COUPLINGS = {"direct": 0, "force-position": 1}
 #: the loop output vector (``HapticLoop.out``): m, m/s, rad, N; flags and status as floats
 LOOP_OUT = Layout("loop output", [
     ("probe", 3), ("probe_velocity", 3), ("signals", 2), ("probe_force", 3), ("filtered_force", 3),
-    ("hand_force", 3), ("device_force", 3), ("safety_flags", 1), ("coupling_flags", 1), ("collide_status", 1)])
+    ("hand_force", 3), ("device_force", 3), ("safety_flags", 1), ("coupling_flags", 1), ("collide_status", 1),
+    ("tip", 3), ("energy", 1), ("passivity_damping", 1)])
 # the offsets as the kernels use them
 L_PROBE, L_PROBE_V, L_SIGNALS = LOOP_OUT.offset("probe"), LOOP_OUT.offset("probe_velocity"), LOOP_OUT.offset("signals")
 L_F_PROBE, L_F_FILT = LOOP_OUT.offset("probe_force"), LOOP_OUT.offset("filtered_force")
 L_F_HAND, L_F_DEVICE = LOOP_OUT.offset("hand_force"), LOOP_OUT.offset("device_force")
 L_SAFETY_FLAGS, L_COUPLING_FLAGS = LOOP_OUT.offset("safety_flags"), LOOP_OUT.offset("coupling_flags")
 L_COLLIDE_STATUS = LOOP_OUT.offset("collide_status")
+L_TIP, L_ENERGY, L_PC_DAMPING = LOOP_OUT.offset("tip"), LOOP_OUT.offset("energy"), LOOP_OUT.offset("passivity_damping")
 L_SIZE = LOOP_OUT.size
 
 
@@ -97,9 +100,10 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
     else:
         mode, b, t = SIGNALS_NONE, 0.0, 0.0
     st = model_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                           deform, probe[0], probe[1], probe[2], out[L_PROBE_V], out[L_PROBE_V + 1],
-                           out[L_PROBE_V + 2], b, t, mode, model_state, coll, dec, mout)
+                           deform, probe[0], probe[1], probe[2], b, t, mode, model_state, coll, dec, mout)
     out[L_COLLIDE_STATUS] = st
+    for j in range(3):
+        out[L_TIP + j] = mout[M_TIP + j]
     out[L_SIGNALS] = mout[M_BENDING]
     out[L_SIGNALS + 1] = mout[M_TORSION]
     f = out[L_F_PROBE:L_F_PROBE + 3]
@@ -116,9 +120,10 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
 
 @njit(cache=True, inline="always")
 def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma, fp_state,
-                       gain, alpha, filt_state, safety_params, safety_state, out):
-    """Steps 4-6 of a tick: filter the probe force ``out[L_F_PROBE:]``, couple, saturate; the
-    second half of :func:`loop_tick_kernel`, for a loop with a scene.
+                       gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state, out):
+    """Steps 4-6 of a tick: filter the probe force ``out[L_F_PROBE:]``, couple, keep the port
+    passive (:mod:`arsurf.haptics.passivity`), saturate; the second half of
+    :func:`loop_tick_kernel`, for a loop with a scene.
 
     Writes ``out[L_F_FILT:]``; returns the safety flags."""
     clutched = (buttons & clutch_mask) != 0
@@ -135,8 +140,12 @@ def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, 
         for j in range(3):
             fp_state[j] = nxt[j]
     out[L_COUPLING_FLAGS] = cflags
+    pflag = passivity_observe_control(pc_params, pc_state, x_m, v_m, hand)
     dev = out[L_F_DEVICE:L_F_DEVICE + 3]
-    flags = safety_step(safety_params, safety_state, hand, now, age, buttons, dev)
+    flags = safety_step(safety_params, safety_state, hand, now, age, buttons, dev) | pflag
+    passivity_applied(pc_state, dev)
+    out[L_ENERGY] = pc_state[S_ENERGY]
+    out[L_PC_DAMPING] = pc_state[S_ALPHA]
     out[L_SAFETY_FLAGS] = flags
     return flags
 
@@ -145,7 +154,7 @@ def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, 
 def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
                      source, blend, coupling_mode, clutch_mask,
                      pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
-                     gain, alpha, filt_state, safety_params, safety_state,
+                     gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state,
                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                      model_state, coll, dec, mout, prev_probe, out):
     """One tick (module docstring). Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the
@@ -160,7 +169,7 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
                       pos_params, pos_state, fp_state, proj, live_ctrl, live_rest, ku, kv, patch, md_args,
                       dec_params, tip_radius, friction, deform, model_state, coll, dec, mout, prev_probe, out)
     return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
-                              fp_state, gain, alpha, filt_state, safety_params, safety_state, out)
+                              fp_state, gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state, out)
 
 
 @dataclass
@@ -169,7 +178,8 @@ class LoopConfig:
 
     ``rate`` Hz; ``source`` "simulated" | "measured" | "blended" with ``blend`` the weight of the
     measured force; ``filter_cutoff`` Hz of the first-order low-pass (None: off);
-    ``signal_noise`` rad rms added to synthesised angles; ``seed`` of that noise.
+    ``signal_noise`` rad rms added to synthesised angles; ``seed`` of that noise; ``passivity``
+    False: the passivity observer only logs the energy, its controller never damps.
     """
 
     rate: float = 1000.0
@@ -178,6 +188,7 @@ class LoopConfig:
     filter_cutoff: float | None = 200.0
     signal_noise: float = 0.0
     seed: int = 0
+    passivity: bool = True
 
     def validate(self) -> None:
         if not (math.isfinite(self.rate) and 1.0 <= self.rate <= 20000.0):
@@ -193,7 +204,9 @@ class LoopConfig:
 @dataclass(frozen=True)
 class LoopOutput:
     """What one tick produced (copies): probe position/velocity (m, m/s), probe force (N on the
-    tip), filtered force, hand force (coupling output), device force (after safety), flags."""
+    tip), filtered force, hand force (coupling output), device force (after safety), flags, the
+    tip behind the virtual coupling (m), the passivity observer's energy (J) and the damping its
+    controller added (N s/m)."""
 
     probe: np.ndarray
     probe_velocity: np.ndarray
@@ -204,6 +217,9 @@ class LoopOutput:
     device_force: np.ndarray
     safety_flags: int
     collide_status: int
+    tip: np.ndarray
+    energy: float
+    passivity_damping: float
 
 
 class HapticLoop:
@@ -226,6 +242,8 @@ class HapticLoop:
         filter, and the probe force recorded in :attr:`out` includes it. The angles synthesised
         for ``"measured"``/``"blended"`` sources come from the surface contact only. Without a
         scene the tick is the single compiled call it always was (bit-identical outputs).
+    max_damping : float, N s/m
+        Largest damping the passivity controller may add (the device's ``max_damping``).
 
     Examples
     --------
@@ -233,7 +251,7 @@ class HapticLoop:
     """
 
     def __init__(self, model: ARModel, coupling, safety: SafetyLayer, config: LoopConfig | None = None,
-                 scene=None):
+                 scene=None, max_damping: float = math.inf):
         config = config or LoopConfig()
         config.validate()
         if not isinstance(model, ARModel):
@@ -262,6 +280,7 @@ class HapticLoop:
             self._fp = (coupling.params, coupling.phi, coupling.gamma, coupling.state)
         else:
             raise HapticsError(f"coupling must be DirectCoupling or ForcePositionCoupling (got {type(coupling).__name__})")
+        self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity)
         self.filter = LowPass(config.filter_cutoff, self.dt) if config.filter_cutoff else None
         self._alpha = self.filter.alpha if self.filter else 1.0
         self._filt_state = self.filter.state if self.filter else np.zeros(3)
@@ -305,7 +324,10 @@ class HapticLoop:
         config.validate()
         coupling = DirectCoupling(PositionScaling(scale, probe_origin=probe_origin), ForceScaling(force_gain))
         safety = SafetyLayer.for_device(device_info, 1.0 / config.rate, **safety_kwargs)
-        return cls(model, coupling, safety, config, scene=scene)
+        # the passivity controller's damping limit: the device's, else its stiffness limit over one tick
+        max_damping = (float(np.min(device_info.max_stiffness)) / config.rate if device_info.max_damping is None
+                       else float(np.min(device_info.max_damping)))
+        return cls(model, coupling, safety, config, scene=scene, max_damping=max_damping)
 
     def step(self, inputs: DeviceState, now: float, signals=None) -> np.ndarray:
         """One tick from a device sample; returns the device force (3,) N (a reused array).
@@ -339,20 +361,21 @@ class HapticLoop:
             loop_tick_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self.dt,
                              self._ext, self._noise, self._source, self.config.blend, self._mode, self._pos[2],
                              self._pos[0], self._pos[1], fp_params, fp_phi, fp_gamma, fp_state,
-                             self._gain, self._alpha, self._filt_state, self.safety.params, self.safety.state,
+                             self._gain, self._alpha, self._filt_state, self.passivity.params, self.passivity.state,
+                             self.safety.params, self.safety.state,
                              *self._model_args, self.prev_probe, self.out)
             if bad_buttons:
                 self.out[L_SAFETY_FLAGS] = int(self.out[L_SAFETY_FLAGS]) | BAD_BUTTONS
             return self.out[L_F_DEVICE:L_F_DEVICE + 3]
         out = self.out
-        self._scene_prev[:] = self.prev_probe  # the model part overwrites prev_probe
         loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
                           self._pos[2], self._pos[0], self._pos[1], fp_state, *self._model_args, self.prev_probe, out)
-        self.scene.tick(self._scene_prev, out[L_PROBE:L_PROBE + 3], self.model.tip_radius,
+        self.scene.tick(self._scene_prev, out[L_TIP:L_TIP + 3], self.model.tip_radius,
                         out[L_F_PROBE:L_F_PROBE + 3])
+        self._scene_prev[:] = out[L_TIP:L_TIP + 3]
         loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
                            fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
-                           self.safety.params, self.safety.state, out)
+                           self.passivity.params, self.passivity.state, self.safety.params, self.safety.state, out)
         if bad_buttons:
             out[L_SAFETY_FLAGS] = int(out[L_SAFETY_FLAGS]) | BAD_BUTTONS
         return out[L_F_DEVICE:L_F_DEVICE + 3]

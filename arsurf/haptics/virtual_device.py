@@ -301,6 +301,7 @@ class VirtualDevice(Device):
             workspace=workspace,
             max_stiffness=4.0 * self.mass / dt**2,
             max_damping=np.maximum(2.0 * self.mass / dt - self.damping, 0.0),
+            damping=self.damping,
         )
         self.phi = np.empty((3, 4, 4))
         self.gamma = np.empty((3, 4, 2))

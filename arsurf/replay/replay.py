@@ -332,12 +332,11 @@ def _install(tmp: Path, out: Path, overwrite: bool) -> None:
 
 def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: bool, notes: list) -> dict:
     """Run the model over every tick; render frames on the way when asked and possible."""
-    from arsurf.model import M_COLLIDE_STATUS, M_SIZE
+    from arsurf.model import M_COLLIDE_STATUS, M_SIZE, M_TIP
 
     n = session.n_ticks
     ticks = session.ticks
     pos = ticks["probe_position"]
-    vel = ticks["probe_velocity"]
     sig = ticks["signals"]
     have = np.isfinite(sig).all(axis=1)
     model = setup.model
@@ -373,14 +372,14 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
             step = 256
             for k0 in range(0, n, step):
                 for k in range(k0, min(k0 + step, n)):
-                    outs[k] = tick(pos[k], vel[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
+                    outs[k] = tick(pos[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
                     if scene is not None:
-                        here[:] = pos[k]
+                        here[:] = outs[k, M_TIP:M_TIP + 3]  # the tip behind the coupling pushes
                         scene.tick(prev, here, radius)
                         poses[k] = scene.poses
                         prev[:] = here
                     if is_frame[k]:
-                        yield _scene_state(state_cls, model.surface, outs[k], pos[k], radius, lam, ticks["t"][k],
+                        yield _scene_state(state_cls, model.surface, outs[k], outs[k, M_TIP:M_TIP + 3], radius, lam, ticks["t"][k],
                                            have[k], scene)
                 bar.update(min(k0 + step, n) - k0)
         except BaseException as exc:

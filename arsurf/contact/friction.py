@@ -1,0 +1,119 @@
+r"""Stick-slip friction with a proxy: the contact point stays stuck inside the friction cone.
+
+Haptic rendering represents friction with a proxy (god-object) that sticks to the surface while
+the tangential force stays inside the static friction cone and slides along the cone's edge
+when pushed out of it (Zilles & Salisbury 1995; Ruspini, Kolarov & Khatib 1997; CHAI3D's proxy
+algorithm; the elasto-plastic "bristle" of Hayward & Armstrong 2000). No velocity appears in
+the law, so nothing is differentiated from a position that the rendered force itself moves.
+
+The proxy is an *anchor* point :math:`A` on the surface. With the contact point :math:`p`,
+the unit normal :math:`n` and the tangential offset
+:math:`d = (p - A) - ((p - A)\cdot n)\,n`, a tangential spring of stiffness :math:`k_t` holds
+the tip:
+
+.. math::
+
+    F_t = -k_t\,d \quad \text{(stuck, } k_t\lVert d\rVert \le \mu P\text{)}, \qquad
+    F_t = -\mu_k P\,\hat d,\quad A \leftarrow p - \frac{\mu_k P}{k_t}\,\hat d
+    \quad \text{(slipping)},
+
+where :math:`\mu = \mu_s` for a stuck anchor and :math:`\mu = \mu_k` for one that slipped on the
+previous tick (a sliding contact keeps sliding while it is pushed at the kinetic limit: the
+hysteresis that keeps the slip state, and the friction direction the decoupling is given, from
+flipping tick to tick). :math:`k_t` is the tangential contact stiffness of Mindlin (1949),
+:math:`k_t = 8 G^* a`, which for like materials is
+:math:`k_t = \frac{2(1-\nu)}{2-\nu}\,2 E^* a` (Johnson, *Contact Mechanics*, 1985, Sec. 7.2),
+in series with the virtual coupling's stiffness when there is one. A steady slide therefore
+carries exactly :math:`\mu_k P`; a tip pressed still on a slope flatter than the static cone
+stays put and feels a steady force.
+
+The *friction direction* the decoupling of measured signals needs is read off the proxy, never
+differentiated from positions: the slip direction while the contact slides, the direction of the
+static friction's own pull (:math:`\hat d`) while it sticks, with the friction's *strength*
+:math:`s = \lVert F_t\rVert / \mu_k P` (1 when sliding). The model fades the decoupling from its
+no-motion fallback to the directional solution as :math:`s` grows (:mod:`arsurf.model`), so a tip
+standing still - whose offset from the anchor is tiny and points anywhere as it jitters - gets
+the no-motion answer steadily, and nothing jumps when the hand starts or stops pushing sideways.
+
+State (4 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
+tick) and the slip flag of the previous tick.
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+#: state layout (offsets into the state vector given to :func:`stick_slip_kernel`)
+ANCHOR, SLIPPING = 0, 3
+STATE_SIZE = 4
+#: ratio of Mindlin's tangential to the normal contact stiffness for like materials with
+#: Poisson's ratio 0.3: 2 (1 - nu) / (2 - nu) (Johnson 1985, Sec. 7.2)
+MINDLIN_RATIO = 2.0 * (1.0 - 0.3) / (2.0 - 0.3)
+
+
+@njit(cache=True)
+def release(state, at) -> None:
+    """Forget the anchor (out of contact): ``state[at:at + STATE_SIZE]``."""
+    state[at + ANCHOR] = math.nan
+    state[at + ANCHOR + 1] = math.nan
+    state[at + ANCHOR + 2] = math.nan
+    state[at + SLIPPING] = 0.0
+
+
+@njit(cache=True)
+def stick_slip_kernel(px, py, pz, nx, ny, nz, load, k_t, mu_s, mu_k, state, at, out):
+    r"""One tick of the stick-slip proxy (module docstring).
+
+    ``p`` contact point (m), ``n`` unit normal, ``load`` P (N, > 0), ``k_t`` tangential stiffness
+    (N/m, > 0), friction coefficients ``mu_s >= mu_k >= 0``; ``state[at:at + STATE_SIZE]`` (updated).
+    Writes ``out[0:3]`` the friction force on the tip (N), ``out[3:6]`` the friction direction
+    (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and
+    ``out[6]`` the strength :math:`\lVert F_t\rVert / \mu_k P` (1 when slipping). Returns 1 when
+    the contact slipped this tick, else 0."""
+    for j in range(7):
+        out[j] = 0.0
+    if not math.isfinite(state[at + ANCHOR]):
+        state[at + ANCHOR] = px
+        state[at + ANCHOR + 1] = py
+        state[at + ANCHOR + 2] = pz
+        state[at + SLIPPING] = 0.0
+        return 0
+    dx = px - state[at + ANCHOR]
+    dy = py - state[at + ANCHOR + 1]
+    dz = pz - state[at + ANCHOR + 2]
+    dn = dx * nx + dy * ny + dz * nz
+    dx -= dn * nx
+    dy -= dn * ny
+    dz -= dn * nz
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    mu = mu_k if state[at + SLIPPING] > 0.5 else mu_s
+    limit = mu * load
+    if k_t * d <= limit or d == 0.0:
+        out[0] = -k_t * dx
+        out[1] = -k_t * dy
+        out[2] = -k_t * dz
+        state[at + SLIPPING] = 0.0
+        if d > 0.0:
+            out[3] = dx / d
+            out[4] = dy / d
+            out[5] = dz / d
+            out[6] = k_t * d / (mu_k * load) if mu_k > 0.0 else 0.0
+        return 0
+    ux = dx / d
+    uy = dy / d
+    uz = dz / d
+    fk = mu_k * load
+    back = fk / k_t  # the anchor trails the contact point at the kinetic limit
+    state[at + ANCHOR] = px - back * ux
+    state[at + ANCHOR + 1] = py - back * uy
+    state[at + ANCHOR + 2] = pz - back * uz
+    state[at + SLIPPING] = 1.0
+    out[0] = -fk * ux
+    out[1] = -fk * uy
+    out[2] = -fk * uz
+    out[3] = ux
+    out[4] = uy
+    out[5] = uz
+    out[6] = 1.0
+    return 1

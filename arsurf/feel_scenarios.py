@@ -1,0 +1,168 @@
+"""Standard feel scenarios: a modelled hand on a virtual device, pressing, sliding, stroking, tapping.
+
+Each scenario closes the whole loop as a user would: a surface (a real scan prepared as the demo
+prepares it, or a synthetic step or ridge), the demo's tip, contact law, lever and haptic gains,
+a :class:`~arsurf.haptics.virtual_device.VirtualDevice` whose :class:`HandModel` follows a scripted
+set point, at a loop rate of 1-20 kHz, with the virtual coupling and passivity controller the
+device and rate call for (:func:`arsurf.haptics.gains.coupling_stiffness`). The device force
+record is scored by :func:`arsurf.haptics.feel.score_force` (after 1 s of settling).
+
+Motions (hand set point; the probe scale is 1 mm -> 10 nm):
+
+==============  ==============================================================================
+``press``       press 1 mm down in 0.5 s (the probe 10 nm into the surface) and hold still
+``slide-1``     press, then slide along x at 1 nm/s at the probe (from 0.5 s)
+``slide-10``    ... at 10 nm/s
+``slide-100``   ... at 100 nm/s
+``stroke``      press, then stroke 300 nm along x at 150 nm/s across the middle (a step edge on
+                the ``step`` surface)
+``tap``         tap twice a second: the set point goes from 0.3 mm above to 1 mm into the surface
+==============  ==============================================================================
+
+Used by ``bench/feel.py`` (the whole table) and the tests (the buzz scenarios on real scans).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from arsurf.assembly import PRESETS, build_loop, make_model
+from arsurf.errors import HapticsError
+from arsurf.haptics.feel import FeelScore, score_force
+from arsurf.haptics.gains import coupling_stiffness
+from arsurf.haptics.loop import LOOP_OUT
+from arsurf.haptics.virtual_device import HandModel, VirtualDevice
+
+__all__ = ["MOTIONS", "SOURCES", "FeelRun", "prepared_surface", "run_scenario", "synthetic_surface"]
+
+MOTIONS = ("press", "slide-1", "slide-10", "slide-100", "stroke", "tap")
+SOURCES = ("simulated", "measured", "blended")
+#: photodiode noise of the measured and blended sources (rad rms per angle)
+SIGNAL_NOISE = 1e-8
+_PRESS = 1e-3  # m of hand travel into the surface
+_PRESS_TIME = 0.5  # s
+
+
+@dataclass(frozen=True)
+class FeelRun:
+    """One scenario: its score, the device force (n, 3) N, the observed energy (n,) J, contact
+    (n,) bool, passivity-controller ticks, the per-tick compute time (n,) ns, and the loop's
+    steady-state transparency (|device force| / (K_f |tip force|) over the last 0.2 s)."""
+
+    score: FeelScore
+    force: np.ndarray
+    energy: np.ndarray
+    contact: np.ndarray
+    passivity_ticks: int
+    tick_ns: np.ndarray
+    transparency: float
+
+
+def prepared_surface(path, preset: str = "demo"):
+    """(scan, surface): ``path`` loaded, levelled, smoothed and fitted as the preset does."""
+    from arsurf.scan.prepare import prepare_scan
+    from arsurf.spline.fit import fit_surface
+
+    p = PRESETS[preset]
+    scan = prepare_scan(path, None, p.level, p.sigma, True)
+    return scan, fit_surface(scan)
+
+
+def synthetic_surface(kind: str, size: int = 128, pixel: float = 4e-9):
+    """A ``"step"`` (5 nm, 2 nm wide edge at x = middle) or ``"ridge"`` (8 nm high, 10 nm wide)
+    height field as a B-spline (:meth:`BSplineSurface.from_heights`), ``size`` control points of
+    ``pixel`` metres."""
+    from arsurf.spline.surface import BSplineSurface
+
+    x = np.arange(size) * pixel
+    x0 = x[-1] / 2
+    if kind == "step":
+        z = 2.5e-9 * (1.0 + np.tanh((x - x0) / 2e-9))
+    elif kind == "ridge":
+        z = 8e-9 * np.exp(-0.5 * ((x - x0) / 10e-9) ** 2)
+    else:
+        raise HapticsError(f"synthetic surface must be 'step' or 'ridge' (got {kind!r})")
+    return BSplineSurface.from_heights(np.tile(z, (size, 1)).T, (0.0, x[-1]), (0.0, x[-1]))
+
+
+def _trajectory(motion: str, scale: float):
+    """The hand's set point r(t) (m) for a motion."""
+    def press(t):
+        return -_PRESS * min(t / _PRESS_TIME, 1.0)
+
+    if motion == "press":
+        return lambda t: [0.0, 0.0, press(t)]
+    if motion.startswith("slide-"):
+        speed = float(motion.split("-")[1]) * 1e-9 / scale  # probe nm/s -> hand m/s
+        return lambda t: [speed * max(t - _PRESS_TIME, 0.0), 0.0, press(t)]
+    if motion == "stroke":
+        speed = 150e-9 / scale
+        return lambda t: [-150e-9 / scale + min(speed * max(t - _PRESS_TIME, 0.0), 300e-9 / scale), 0.0, press(t)]
+    if motion == "tap":
+        return lambda t: [0.0, 0.0, 0.3e-3 - 1.3e-3 * 0.5 * (1.0 - math.cos(2.0 * math.pi * 2.0 * t))]
+    raise HapticsError(f"motion must be one of {MOTIONS} (got {motion!r})")
+
+
+def run_scenario(surface, *, motion: str = "press", source: str = "simulated", rate: float = 1000.0,
+                 seconds: float = 3.0, preset: str = "demo", at=None, friction: float | None = None,
+                 static_friction: float | None = None, coupling: bool = True, passivity: bool = True,
+                 signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None) -> FeelRun:
+    """Run one scenario on ``surface`` (module docstring) and score the device force.
+
+    ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
+    comes down 150 nm before it and ends 150 nm after); ``coupling`` False: no virtual coupling (the tip is the scaled stylus), ``passivity``
+    False: the controller only observes; ``max_rate`` N/s the safety layer's rate limit (default:
+    the preset's). The surface is restored to rest afterwards."""
+    p = PRESETS[preset]
+    h = dict(p.haptics)
+    scale, gain = float(h["scale"]), float(h["force_gain"])
+    dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(_trajectory(motion, scale))).open()
+    k_vc = coupling_stiffness(dev.info, rate) if coupling else None
+    model = make_model(surface, tip_radius=p.tip_radius, effective_modulus=p.effective_modulus,
+                       work_of_adhesion=p.work_of_adhesion, cantilever=p.cantilever,
+                       friction=p.friction if friction is None else friction, static_friction=static_friction,
+                       coupling_stiffness=math.inf if k_vc is None else k_vc / (gain * scale))
+    (u0, u1), (v0, v1) = surface.domain
+    x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if at is None else at
+    z = float(surface.evaluate(x - (150e-9 if motion == "stroke" else 0.0), y)[2])
+    origin = (x, y, z + p.tip_radius + 2e-9)
+    h.update(rate=float(rate), source=source, signal_noise=0.0 if source == "simulated" else signal_noise,
+             passivity=passivity, seed=seed)
+    if max_rate is not None:
+        h["max_rate"] = max_rate
+    loop = build_loop(model, h, dev.info, origin, seed=seed)
+    n = int(round(seconds * rate))
+    force = np.empty((n, 3))
+    energy = np.empty(n)
+    contact = np.empty(n, bool)
+    tip_force = np.empty((n, 3))
+    tick_ns = np.empty(n)
+    pc = 0
+    clock = time.perf_counter_ns
+    out = loop.out
+    get = LOOP_OUT.get
+    from arsurf.model import M_IN_CONTACT
+
+    try:
+        for k in range(n):
+            st = dev.read_state()
+            t0 = clock()
+            f = loop.step(st, st.timestamp)
+            tick_ns[k] = clock() - t0
+            dev.command_force(f)
+            force[k] = f
+            energy[k] = get(out, "energy")
+            pc += get(out, "passivity_damping") > 0.0
+            contact[k] = model.out[M_IN_CONTACT] > 0.5
+            tip_force[k] = get(out, "probe_force")
+    finally:
+        dev.close()
+        model.reset()
+    tail = slice(n - max(1, int(0.2 * rate)), n)
+    tip = np.linalg.norm(tip_force[tail].mean(axis=0)) * gain
+    transparency = float(np.linalg.norm(force[tail].mean(axis=0)) / tip) if tip > 0 else math.nan
+    score = score_force(force, 1.0 / rate, energy=energy, contact=contact)
+    return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency)

@@ -1,0 +1,148 @@
+r"""What the hand feels, scored: buzz, reversals, energy, steps, settling of a force record.
+
+The haptic loop is judged by the force the device applies to the hand, not by its tick time. A
+record of device forces :math:`f_k` (N, one row per tick of period :math:`T`) is scored on the
+window after ``settle`` seconds (the approach and the start ramp are excluded):
+
+* **high-frequency content**, per axis: the rms of the part of :math:`f` above ``cutoff``
+  (100 Hz: above the hand's voluntary bandwidth, ~10 Hz, and where a buzz lives), relative to
+  the mean normal force :math:`\bar N = \lVert \bar f \rVert` (the steady push). Computed from
+  the linearly detrended window by Parseval's theorem on its real FFT.
+* **reversals**, per axis: ticks where the force changes direction of variation with both legs
+  larger than ``reversal_fraction`` (1 %) of the peak force norm of the whole record - a
+  tick-to-tick zig-zag the hand feels as vibration.
+* **energy**: the smallest observed port energy (J) of the passivity observer
+  (:mod:`arsurf.haptics.passivity`), when given; below zero, the loop created energy.
+* **largest step**: the largest tick-to-tick change of the force vector (N), over the whole
+  record.
+* **settling**: seconds from the first contact tick until the force norm stays within
+  ``settle_band`` (5 %) of its final value (the mean of the last 100 ms), when contact is given.
+
+The record *buzzes* when any axis has more than ``buzz_limit`` (2 %) above the cutoff, when there
+is any reversal, or when the energy went below ``-energy_tolerance``. Thresholds are those of the
+feel targets in the README ("Haptic feel").
+
+Examples
+--------
+>>> import numpy as np
+>>> t = np.arange(3000) * 1e-3
+>>> f = np.zeros((3000, 3)); f[:, 2] = 0.02                      # a steady 20 mN push
+>>> score_force(f, 1e-3).buzzes
+False
+>>> f[:, 0] = 0.002 * np.sin(2 * np.pi * 300 * t)               # plus a 300 Hz, 2 mN buzz
+>>> s = score_force(f, 1e-3); s.buzzes, round(float(s.high_frequency[0]), 3)
+(True, 0.071)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from arsurf.errors import HapticsError
+
+__all__ = ["FeelScore", "score_force"]
+
+BUZZ_LIMIT = 0.02
+REVERSAL_FRACTION = 0.01
+ENERGY_TOLERANCE = 1e-9  # J
+
+
+@dataclass(frozen=True)
+class FeelScore:
+    """The feel of a force record (module docstring); SI units.
+
+    ``high_frequency`` (3,) rms above the cutoff / mean normal force; ``reversals`` (3,) counts;
+    ``mean_normal`` N; ``peak`` N; ``largest_step`` N; ``min_energy`` J (NaN: not observed);
+    ``settle_time`` s (NaN: no contact or never settled); ``window`` s scored; ``buzzes``.
+    """
+
+    high_frequency: np.ndarray
+    reversals: np.ndarray
+    mean_normal: float
+    peak: float
+    largest_step: float
+    min_energy: float
+    settle_time: float
+    window: float
+    buzzes: bool
+
+    def as_dict(self) -> dict:
+        """JSON-ready, units in the keys."""
+        return {"high_frequency_over_normal": [float(x) for x in self.high_frequency],
+                "reversals": [int(x) for x in self.reversals], "mean_normal_N": self.mean_normal,
+                "peak_N": self.peak, "largest_step_N": self.largest_step, "min_energy_J": self.min_energy,
+                "settle_time_s": self.settle_time, "window_s": self.window, "buzzes": self.buzzes}
+
+    def summary(self) -> str:
+        """One line for the demo and replay."""
+        hf = "/".join(f"{100 * x:.2f}" for x in self.high_frequency)
+        verdict = "BUZZES" if self.buzzes else "smooth"
+        energy = "n/a" if math.isnan(self.min_energy) else f"{self.min_energy:.3g} J"
+        settle = "n/a" if math.isnan(self.settle_time) else f"{1e3 * self.settle_time:.0f} ms"
+        return (f"feel: {verdict}; above 100 Hz {hf} % of the mean normal force (x/y/z), "
+                f"{int(self.reversals.sum())} reversals, largest step {1e3 * self.largest_step:.3g} mN, "
+                f"min energy {energy}, settles in {settle}")
+
+
+def _reversals(f: np.ndarray, threshold: float) -> np.ndarray:
+    d = np.diff(f, axis=0)
+    a, b = d[:-1], d[1:]
+    return ((a * b < 0.0) & (np.minimum(np.abs(a), np.abs(b)) > threshold)).sum(axis=0)
+
+
+def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0, energy=None, contact=None,
+                buzz_limit: float = BUZZ_LIMIT, reversal_fraction: float = REVERSAL_FRACTION,
+                energy_tolerance: float = ENERGY_TOLERANCE, settle_band: float = 0.05) -> FeelScore:
+    """Score a record of device forces ``force`` (n, 3) N sampled every ``dt`` s.
+
+    ``energy`` (n,) J: the passivity observer's energy per tick (optional); ``contact`` (n,)
+    bool: ticks in contact (optional, for the settling time). Raises :class:`HapticsError` for a
+    record that cannot be scored (shape, non-finite values, a window shorter than 0.1 s)."""
+    f = np.asarray(force, dtype=np.float64)
+    dt = float(dt)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise HapticsError(f"force must be an (n, 3) array in newtons (got shape {f.shape})")
+    if not (math.isfinite(dt) and dt > 0.0):
+        raise HapticsError(f"dt must be a positive period in seconds (got {dt!r})")
+    if not np.isfinite(f).all():
+        raise HapticsError("the force record holds non-finite values: the device was given no such force")
+    start = int(round(settle / dt))
+    w = f[start:]
+    if w.shape[0] * dt < 0.1:
+        raise HapticsError(f"the record ({f.shape[0] * dt:.3g} s) leaves less than 0.1 s after {settle} s of "
+                           "settling: record longer or settle shorter")
+    n = w.shape[0]
+    mean_normal = float(np.linalg.norm(w.mean(axis=0)))
+    t = np.arange(n) * dt
+    trend = np.polynomial.polynomial.polyfit(t, w, 1)
+    r = w - (trend[0] + np.outer(t, trend[1]))
+    spec = np.fft.rfft(r, axis=0)
+    freq = np.fft.rfftfreq(n, dt)
+    hf_rms = np.sqrt(2.0 * (np.abs(spec[freq > cutoff]) ** 2).sum(axis=0)) / n
+    high = hf_rms / mean_normal if mean_normal > 0.0 else np.where(hf_rms > 0.0, np.inf, 0.0)
+    norm = np.linalg.norm(f, axis=1)
+    peak = float(norm.max())
+    rev = _reversals(w, reversal_fraction * peak) if peak > 0.0 else np.zeros(3, np.int64)
+    step = float(np.linalg.norm(np.diff(f, axis=0), axis=1).max()) if f.shape[0] > 1 else 0.0
+    min_energy = math.nan
+    if energy is not None:
+        e = np.asarray(energy, dtype=np.float64).reshape(-1)
+        if e.shape[0] != f.shape[0]:
+            raise HapticsError(f"energy must have one value per tick ({f.shape[0]}), got {e.shape[0]}")
+        min_energy = float(np.nanmin(e)) if np.isfinite(e).any() else math.nan
+    settle_time = math.nan
+    if contact is not None:
+        c = np.asarray(contact, dtype=bool).reshape(-1)
+        if c.shape[0] != f.shape[0]:
+            raise HapticsError(f"contact must have one value per tick ({f.shape[0]}), got {c.shape[0]}")
+        if c.any():
+            onset = int(np.argmax(c))
+            final = norm[-max(1, int(round(0.1 / dt))):].mean()
+            outside = np.nonzero(np.abs(norm[onset:] - final) > settle_band * max(final, 1e-300))[0]
+            last = onset + (outside[-1] + 1 if outside.size else 0)
+            settle_time = (last - onset) * dt if last < f.shape[0] else math.nan
+    buzzes = bool((high > buzz_limit).any() or rev.any() or (min_energy < -energy_tolerance))
+    return FeelScore(high_frequency=high, reversals=rev.astype(np.int64), mean_normal=mean_normal, peak=peak,
+                     largest_step=step, min_energy=min_energy, settle_time=settle_time, window=n * dt, buzzes=buzzes)

@@ -1,0 +1,143 @@
+r"""Passivity observer and controller on the device port (Hannaford & Ryu 2002).
+
+A sampled haptic loop can create energy: the force is held over a tick while the hand moves, and
+a stiff virtual contact returns more energy on the way out than it took on the way in (the
+virtual-wall limit of Colgate & Schenkel 1997). The *passivity observer* sums, tick by tick, the
+energy that has flowed from the hand into the virtual environment through the device port,
+
+.. math:: E_n = -\sum_{k=1}^{n} f_{k-1}\cdot(x_k - x_{k-1}),
+
+exact for a force :math:`f_{k-1}` held (zero-order hold) while the handle moves from
+:math:`x_{k-1}` to :math:`x_k`: it uses the force the device actually applied (after saturation
+and ramps) and the handle's measured positions, no model. :math:`E_n \ge 0` is passivity. When
+:math:`E_n < 0` the *passivity controller* adds just the damping that dissipates the deficit
+over the next tick,
+
+.. math::
+
+    \alpha_n = \frac{-E_n}{T\,\lVert v_n\rVert^2}, \qquad f_n \leftarrow f_n - \alpha_n v_n ,
+
+limited to the device's largest damping; the observer then sees that dissipation in the next
+tick's energy. A hand at rest (:math:`v = 0`) is never damped, so the steady force is untouched:
+the controller costs transparency only while energy is being created, i.e. at high frequency.
+Each tick reports the observed energy and the damping injected; a tick where the controller acted
+carries the flag :data:`arsurf.status.PASSIVITY`.
+
+State (8 floats): E (J), the previous handle position (3, m; NaN: none), the force applied over
+the last tick (3, N), the damping injected this tick (N s/m).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from arsurf import status
+from arsurf.errors import HapticsError
+
+S_ENERGY, S_X, S_F, S_ALPHA = 0, 1, 4, 7
+STATE_SIZE = 8
+P_DT, P_MAX_DAMPING, P_ON = 0, 1, 2
+PARAMS_SIZE = 3
+
+
+@njit(cache=True)
+def passivity_observe_control(params, state, x, v, force) -> int:
+    """Observe the energy of the last tick and damp ``force`` (3,) N in place if it is negative.
+
+    ``x``, ``v`` (3,) handle position (m) and velocity (m/s). Returns :data:`~arsurf.status.PASSIVITY`
+    when damping was added, else 0. Non-finite positions skip the observation (the energy stays)."""
+    state[S_ALPHA] = 0.0
+    ok = True
+    for j in range(3):
+        if not (math.isfinite(x[j]) and math.isfinite(v[j])):
+            ok = False
+    if not ok:
+        return 0
+    if math.isfinite(state[S_X]):
+        de = 0.0
+        for j in range(3):
+            de -= state[S_F + j] * (x[j] - state[S_X + j])
+        state[S_ENERGY] += de
+    for j in range(3):
+        state[S_X + j] = x[j]
+    e = state[S_ENERGY]
+    if params[P_ON] == 0.0 or not e < 0.0:
+        return 0
+    v2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if not v2 > 0.0:
+        return 0
+    alpha = min(-e / (params[P_DT] * v2), params[P_MAX_DAMPING])
+    if not math.isfinite(alpha * v2):  # a vanishing speed with no damping limit: nothing sensible to add
+        return 0
+    for j in range(3):
+        force[j] -= alpha * v[j]
+    state[S_ALPHA] = alpha
+    return status.PASSIVITY
+
+
+@njit(cache=True)
+def passivity_applied(state, applied) -> None:
+    """Remember the force (3,) N the device was given this tick (held until the next)."""
+    for j in range(3):
+        state[S_F + j] = applied[j] if math.isfinite(applied[j]) else 0.0
+
+
+class PassivityController:
+    """Parameters and state of the observer/controller (module docstring).
+
+    Parameters
+    ----------
+    dt : float, s
+        Loop period.
+    max_damping : float, N s/m
+        Largest damping the controller may add (the device's ``max_damping``; ``inf``: no limit,
+        only for simulations: near standstill the damping needed grows as 1/|v|).
+    enabled : bool
+        False: observe only (the energy is still logged, nothing is damped).
+
+    Examples
+    --------
+    >>> pc = PassivityController(1e-3, max_damping=5.0)
+    >>> f = np.array([1.0, 0.0, 0.0])
+    >>> _ = pc.step([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], f); pc.applied(f)
+    >>> flag = pc.step([1e-3, 0.0, 0.0], [1.0, 0.0, 0.0], f)   # the force pushed the hand along: 1 mJ out
+    >>> round(pc.energy, 6), round(pc.damping, 3), f.tolist()
+    (-0.001, 1.0, [0.0, 0.0, 0.0])
+    """
+
+    def __init__(self, dt: float, max_damping: float = math.inf, enabled: bool = True):
+        dt = float(dt)
+        max_damping = float(max_damping)
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise HapticsError(f"dt must be positive (got {dt!r} s); it is the loop period")
+        if not max_damping > 0.0:
+            raise HapticsError(f"max_damping must be > 0 N s/m or inf (got {max_damping!r})")
+        self.params = np.array([dt, max_damping, 1.0 if enabled else 0.0])
+        self.state = np.zeros(STATE_SIZE)
+        self.reset()
+
+    def reset(self) -> None:
+        """Zero the energy; forget the handle position and the held force."""
+        self.state[:] = 0.0
+        self.state[S_X:S_X + 3] = np.nan
+
+    @property
+    def energy(self) -> float:
+        """Observed energy E (J): what the hand has put into the virtual environment, net."""
+        return float(self.state[S_ENERGY])
+
+    @property
+    def damping(self) -> float:
+        """Damping the controller injected at the last tick (N s/m)."""
+        return float(self.state[S_ALPHA])
+
+    def step(self, position, velocity, force) -> int:
+        """Observe and control; ``force`` (3,) float array is damped in place. Returns the flag."""
+        return int(passivity_observe_control(self.params, self.state, np.asarray(position, np.float64),
+                                             np.asarray(velocity, np.float64), force))
+
+    def applied(self, force) -> None:
+        """Record the force the device was given this tick."""
+        passivity_applied(self.state, np.asarray(force, np.float64))
