@@ -31,9 +31,9 @@ The ``Z offset`` line is not applied (as Gwyddion).
 Units of the other channels (PeakForce QNM: DMTModulus, Adhesion, Deformation, Dissipation...).
 The same rule holds for every image: the value is hard value x soft value, and its unit is what
 is left when the soft scale's denominator cancels the hard value's unit (:func:`resolve_unit`):
-``[Sens. ForceSens] ... 4096 Arb`` with ``\@Sens. ForceSens: V 0.006 V/Arb`` gives volts of
+``[Sens. ForceSens] ... 4096 Arb`` with ``\\@Sens. ForceSens: V 0.006 V/Arb`` gives volts of
 cantilever deflection, ``Pa/Arb`` gives pascals, ``nN/Arb`` newtons, ``eV/Arb`` joules. A
-sensitivity written without a unit (``\@Sens. StiffnessSens: V 1.000000``, what NanoScope writes
+sensitivity written without a unit (``\\@Sens. StiffnessSens: V 1.000000``, what NanoScope writes
 when the cantilever is not calibrated) leaves the hard unit, often ``Arb``: the channel is then
 returned in ``Arb`` and flagged ``metadata["calibrated"] = False``; we never guess a unit the file
 does not state. A ``log(...)`` unit (``LogDMTModulus``: ``log(Arb)``, ``log(Pa)/log(Arb)``) holds
