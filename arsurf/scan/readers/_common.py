@@ -357,7 +357,8 @@ def make_scan(
     if not (np.isfinite(z_factor) and z_factor != 0.0):
         raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {z_factor!r}: every value would be "
                           "0 or NaN; the header is damaged")
-    h = np.asarray(data, dtype=np.float64) * float(z_factor)
+    with np.errstate(invalid="ignore", over="ignore"):  # damaged floats: NaN/inf are counted below
+        h = np.asarray(data, dtype=np.float64) * float(z_factor)
     if h.ndim != 2:
         raise CorruptScan(f"{path}: channel {chan.name!r} is not a 2-D image (shape {h.shape})")
     bad = ~np.isfinite(h)
