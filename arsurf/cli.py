@@ -30,11 +30,12 @@ def _scan_summary(scan) -> dict:
     unit = scan.metadata.get("z_unit") or "m"
     # lengths in nm (the CLI's unit); any other channel in its own SI unit, named in the key
     scale, shown = (1e9, "nm") if unit == "m" else (1.0, unit.replace("/", "_per_") or "arb")
-    return {
+    out = {
         "file": scan.source,
         "format": scan.metadata.get("format"),
         "channel": scan.channel,
         "channels": scan.metadata.get("channels"),
+        "channel_units": scan.metadata.get("channel_units") or {},
         "pixels": f"{nx} x {ny}",
         "pixel_size_nm": [scan.dx * 1e9, scan.dy * 1e9],
         "scan_size_nm": [nx * scan.dx * 1e9, ny * scan.dy * 1e9],
@@ -43,8 +44,13 @@ def _scan_summary(scan) -> dict:
         f"z_max_{shown}": float(finite.max() * scale) if finite.size else None,
         f"z_range_{shown}": float(np.ptp(finite) * scale) if finite.size else None,
         "nan_pixels": scan.nan_count,
-        "units": {"stored": scan.metadata.get("z_unit_in_file", unit), "reported": shown},
+        "units": {"stored": scan.metadata.get("file_z_unit") or unit, "reported": shown},
     }
+    if scan.metadata.get("calibrated") is False:  # NanoScope: the file leaves the channel in arbitrary units
+        out["calibrated"] = "no: the file gives this channel in arbitrary units (its sensitivity has no unit)"
+    if scan.metadata.get("log10_decoded"):
+        out["decoded"] = "the file stores log10 of this channel; values shown are 10**stored"
+    return out
 
 
 def _print(obj: dict, as_json: bool) -> None:
@@ -57,6 +63,8 @@ def _print(obj: dict, as_json: bool) -> None:
             value = f"{value:.6g}"
         elif isinstance(value, list) and value and isinstance(value[0], float):
             value = " x ".join(f"{v:.6g}" for v in value)
+        elif isinstance(value, dict):  # channel -> unit
+            value = ", ".join(f"{k} [{v or '?'}]" for k, v in value.items())
         print(f"{key:<{width}}  {value}")
 
 

@@ -24,6 +24,8 @@ format             extensions                       reader
 ``wsxm``           .top, .stp, .tom                 own parser
 ``ascii-matrix``   .txt, .asc, .dat, .csv           own (numpy)
 ``xyz``            .xyz                             own (numpy)
+``h5-jpk``         .h5-jpk                          h5py + own JPK calibration chain
+``topostats``      .topostats                       h5py
 ``npy``/``npz``    .npy, .npz                       numpy (no pickle)
 =================  ===============================  ===========================================
 
@@ -75,6 +77,7 @@ FORMATS: dict[str, str] = {
     "jpk": "arsurf.scan.readers.jpk",
     "park-tiff": "arsurf.scan.readers.park",
     "ibw": "arsurf.scan.readers.ibw",
+    "h5-jpk": "arsurf.scan.readers.h5jpk",
     "topostats": "arsurf.scan.readers.topostats",
     "xyz": "arsurf.scan.readers.xyz",
     "ascii-matrix": "arsurf.scan.readers.ascii_matrix",
@@ -113,6 +116,10 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
             return fmt
     ext = path.suffix.lower()
     ext_fmt = _ext_map().get(ext)
+    if head.startswith(_HDF5):  # HDF5 formats mark themselves in attributes/datasets, not in the head bytes
+        h5_fmt = _sniff_hdf5(path)
+        if h5_fmt is not None:
+            return h5_fmt
     text_fmt = next((f for f in _TEXT_FORMATS if _module(f).sniff(head)), None)
     if text_fmt is not None:
         # a numeric table: the extension decides between XYZ and matrix when it names one
@@ -124,6 +131,27 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
         f"{path}: neither the content nor the extension {ext or '(none)'!r} identify a supported scan "
         f"format; supported: {', '.join(FORMATS)} (extensions {known}, NanoScope .000-.999)"
     )
+
+
+_HDF5 = b"\x89HDF\r\n\x1a\n"
+
+
+def _sniff_hdf5(path: Path) -> str | None:
+    """``"h5-jpk"`` or ``"topostats"`` when an HDF5 file says so in its content, else None
+    (a damaged file: None, and the extension decides; its reader then names the damage)."""
+    try:
+        import h5py
+
+        from arsurf.scan.readers.h5jpk import is_h5jpk
+
+        with h5py.File(path, "r") as f:
+            if is_h5jpk(f):
+                return "h5-jpk"
+            if "image" in f and "pixel_to_nm_scaling" in f:
+                return "topostats"
+    except Exception:  # noqa: BLE001 - any failure to open means "the content does not say"
+        return None
+    return None
 
 
 def _head(path: Path) -> bytes:

@@ -77,15 +77,41 @@ def direction_from_name(name: str) -> str | None:
     return None
 
 
+_UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def clean_name(name, fallback: str) -> str:
+    """A channel name a user can type: cut at the first NUL (C strings padded with old bytes,
+    Asylum's ``PhaseRetrace\\0race``), control characters and surrounding quotes removed,
+    whitespace collapsed; ``fallback`` when nothing is left.
+
+    Examples
+    --------
+    >>> clean_name('"Height"\\x00junk', "Image 0")
+    'Height'
+    """
+    if isinstance(name, bytes):
+        name = name.decode("latin-1")
+    text = str(name).split("\x00", 1)[0]
+    text = " ".join(_UNPRINTABLE.sub(" ", text).split())
+    text = text.strip("\"'").strip()
+    return text or fallback
+
+
 def unique_names(channels: Sequence[Channel]) -> None:
-    """Make every channel name unique, in place: a repeated name gets `` #2``, `` #3``... in file
-    order (JPK QI files hold two ``measuredHeight (trace)``), so each channel can be selected."""
-    seen: dict[str, int] = {}
+    """Clean every channel name (:func:`clean_name`) and make it unique, in place: a repeated
+    name gets `` #2``, `` #3``... in file order (JPK QI files hold two ``measuredHeight (trace)``),
+    so each channel can be selected."""
+    for i, c in enumerate(channels):
+        c.name = clean_name(c.name, f"Channel {i}")
+    seen: set[str] = set()
     for c in channels:
-        k = seen.get(c.name.lower(), 0) + 1
-        seen[c.name.lower()] = k
-        if k > 1:
-            c.name = f"{c.name} #{k}"
+        name, k = c.name, 1
+        while name.lower() in seen:
+            k += 1
+            name = f"{c.name} #{k}"
+        seen.add(name.lower())
+        c.name = name
 
 
 def select_channel(path: Path | str, channels: Sequence[Channel], requested: str | None) -> Channel:
@@ -138,15 +164,18 @@ _PREFIX = {
     "h": 1e2, "da": 1e1, "d": 1e-1, "c": 1e-2, "m": 1e-3, "u": 1e-6, "\u00b5": 1e-6, "\u03bc": 1e-6,
     "~": 1e-6, "n": 1e-9, "p": 1e-12, "f": 1e-15, "a": 1e-18, "z": 1e-21, "y": 1e-24,
 }
-_BASE_UNITS = ("m", "V", "A", "N", "Hz", "s", "deg", "rad", "W", "F", "Pa", "S", "Ohm", "%", "")
+_BASE_UNITS = ("m", "V", "A", "N", "Hz", "s", "deg", "rad", "W", "F", "Pa", "S", "Ohm", "J", "%", "")
+#: the electronvolt in joules (exact since the 2019 SI redefinition; CODATA 2018)
+ELECTRONVOLT = 1.602176634e-19
 
 
 def parse_unit(unit: str) -> tuple[float, str]:
     """Split a unit string into (factor to SI, SI base unit): ``"nm" -> (1e-9, "m")``.
 
     Handles the SI prefixes, ``µ``/``u``/``~`` for micro (NanoScope writes ``~m``), ``Å``,
-    ``um``-style spellings and a leading power of ten (``"1e-9 m"``). Unknown units come back
-    with factor 1 and the string unchanged.
+    electronvolts (``eV``, ``meV``... -> J, :data:`ELECTRONVOLT`), ``um``-style spellings and a
+    leading power of ten (``"1e-9 m"``). Unknown units (``Arb``) come back with factor 1 and the
+    string unchanged.
 
     Examples
     --------
@@ -165,7 +194,9 @@ def parse_unit(unit: str) -> tuple[float, str]:
         return factor, "deg"
     if u in _BASE_UNITS or u in ("Ohm",):
         return factor, u
-    for base in ("Hz", "Pa", "Ohm", "rad", "m", "V", "A", "N", "s", "W", "F", "S"):
+    if u.endswith("eV") and (u == "eV" or u[:-2] in _PREFIX):
+        return factor * _PREFIX.get(u[:-2], 1.0) * ELECTRONVOLT, "J"
+    for base in ("Hz", "Pa", "Ohm", "rad", "m", "V", "A", "N", "s", "W", "F", "S", "J"):
         if u.endswith(base) and len(u) > len(base):
             prefix = u[: -len(base)]
             if prefix in _PREFIX:
@@ -314,7 +345,8 @@ def make_scan(
 
     ``data`` is the channel in file units, already in the project orientation (row 0 = bottom).
     It is multiplied by ``z_factor`` (default: the SI factor of ``chan.unit``), infinite pixels
-    become NaN (missing), and ``metadata`` gets ``format``, ``channels``, ``direction``,
+    become NaN (missing), and ``metadata`` gets ``format``, ``channels``, ``channel_units``
+    (each channel's SI unit, as the reader knows it before reading), ``direction``,
     ``z_unit``, ``rows_flipped``, ``row0`` (always ``"bottom"``), ``nan_count`` and ``instrument``.
     """
     from arsurf.scan.scan import Scan
@@ -325,7 +357,8 @@ def make_scan(
     if not (np.isfinite(z_factor) and z_factor != 0.0):
         raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {z_factor!r}: every value would be "
                           "0 or NaN; the header is damaged")
-    h = np.asarray(data, dtype=np.float64) * float(z_factor)
+    with np.errstate(invalid="ignore", over="ignore"):  # damaged floats: NaN/inf are counted below
+        h = np.asarray(data, dtype=np.float64) * float(z_factor)
     if h.ndim != 2:
         raise CorruptScan(f"{path}: channel {chan.name!r} is not a 2-D image (shape {h.shape})")
     bad = ~np.isfinite(h)
@@ -344,6 +377,7 @@ def make_scan(
     meta: dict[str, Any] = {
         "format": fmt,
         "channels": [c.name for c in channels],
+        "channel_units": {c.name: parse_unit(c.unit)[1] for c in channels},
         "direction": chan.direction,
         "z_unit": z_unit if z_unit is not None else parse_unit(chan.unit)[1],
         "file_z_unit": chan.unit,

@@ -28,6 +28,24 @@ on the Veeco file that gives 1643 nm peak-to-peak instead of the 159.5 nm of SOU
 Channels without a bracketed sensitivity (phase, amplitude) are in the hard value's unit.
 The ``Z offset`` line is not applied (as Gwyddion).
 
+Units of the other channels (PeakForce QNM: DMTModulus, Adhesion, Deformation, Dissipation...).
+The same rule holds for every image: the value is hard value x soft value, and its unit is what
+is left when the soft scale's denominator cancels the hard value's unit (:func:`resolve_unit`):
+``[Sens. ForceSens] ... 4096 Arb`` with ``\\@Sens. ForceSens: V 0.006 V/Arb`` gives volts of
+cantilever deflection, ``Pa/Arb`` gives pascals, ``nN/Arb`` newtons, ``eV/Arb`` joules. A
+sensitivity written without a unit (``\\@Sens. StiffnessSens: V 1.000000``, what NanoScope writes
+when the cantilever is not calibrated) leaves the hard unit, often ``Arb``: the channel is then
+returned in ``Arb`` and flagged ``metadata["calibrated"] = False``; we never guess a unit the file
+does not state. A ``log(...)`` unit (``LogDMTModulus``: ``log(Arb)``, ``log(Pa)/log(Arb)``) holds
+the base-10 logarithm of the quantity (checked on the real v9.3 file: LogDMTModulus =
+log10 DMTModulus pixel by pixel); such a channel is returned decoded, ``10**value`` in the
+inner unit, with ``metadata["log10_decoded"] = True`` and ``file_z_unit = "log(<unit>)"``.
+Sources: Gwyddion ``modules/file/nanoscope.c`` (``get_physical_scale``: hard value x soft
+value, LSB = 2^(8 Bytes/pixel) via ``get_bpp_and_qbpp``, v9.2+ data stored as 32-bit), which we
+follow except that a unitless soft scale keeps the hard unit where Gwyddion writes ``V``;
+pySPM ``Bruker.get_channel`` (same numbers, checked in the tests); the NanoScope 8.10 User
+Guide's description of CIAO value parameters ``[soft scale] (hard scale) hard value``.
+
 Orientation: the first stored line is the bottom of the image (NanoScope scans and stores from
 the bottom up; Gwyddion flips it for display), so rows are kept as stored: row 0 = bottom.
 Pixel spacing: ``dx = scan size x / Samps/line``, ``dy = scan size y / Number of lines``.
@@ -36,6 +54,8 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+
+import numpy as np
 
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
@@ -47,6 +67,7 @@ from arsurf.scan.readers._common import (
     parse_int,
     parse_unit,
     select_channel,
+    unique_names,
 )
 
 EXTENSIONS = (".spm",) + tuple(f".{i:03d}" for i in range(1000))
@@ -97,18 +118,102 @@ def _lookup(sections, key: str) -> str | None:
 
 
 def _soft_scale(path, sections, sens: str) -> tuple[float, str]:
-    """SI units per volt of ``@<sens>`` (e.g. ``V 7.000000 nm/V`` -> (7e-9, 'm'))."""
+    """The soft scale ``@<sens>``: (its hard value, its unit as written), e.g. ``V 57.39 nm/V``
+    -> (57.39, 'nm/V'); ``V 1.000000`` (a unitless sensitivity) -> (1.0, '')."""
     text = _lookup(sections, "@" + sens)
     if text is None:
         raise CorruptScan(f"{path}: the Z scale refers to [{sens}] but the header has no '@{sens}' line")
     m = re.match(r"^\s*\w*\s*([-+]?[\d.]+(?:[eE][-+]?\d+)?)\s*(\S*)", text)
     if not m:
         raise CorruptScan(f"{path}: cannot read the sensitivity '@{sens}: {text}'")
-    value = parse_float(path, m.group(1), "@" + sens)
-    unit = m.group(2)
-    num = unit.split("/")[0] if "/" in unit else unit
+    return parse_float(path, m.group(1), "@" + sens), m.group(2)
+
+
+def _log_inner(unit: str) -> str | None:
+    """``"log(Pa)"`` -> ``"Pa"``; None when ``unit`` is not a ``log(...)`` unit."""
+    u = unit.strip()
+    return u[4:-1] if u.lower().startswith("log(") and u.endswith(")") else None
+
+
+def resolve_unit(soft_unit: str, hard_unit: str) -> tuple[float, str, bool, bool]:
+    """Unit of ``hard value x soft scale`` for a NanoScope image channel.
+
+    Returns ``(factor, unit, log10, resolved)``: multiply the product of the two numbers by
+    ``factor`` to get ``unit`` (an SI base unit, or ``Arb``); when ``log10`` the product is the
+    base-10 logarithm of a value in ``unit`` (after ``factor``, see :func:`read`); ``resolved``
+    is False when the soft scale's denominator does not match the hard value's unit (the unit is
+    then the unsimplified product).
+
+    The soft scale cancels the hard unit: ``nm/V x V -> nm``, ``V/Arb x Arb -> V``,
+    ``log(Pa)/log(Arb) x log(Arb) -> log(Pa)``, ``N/m*Arb x Arb -> N/m`` (v9 headers write a
+    stiffness sensitivity that way); a unitless soft scale (``V 1.000000``) leaves the hard unit
+    (``Arb``, ``V``). Gwyddion (nanoscope.c, ``get_physical_scale``) calls that last case
+    ``V``; we keep the hard value's own unit, which the header writes.
+
+    Examples
+    --------
+    >>> resolve_unit("nm/V", "V")
+    (1e-09, 'm', False, True)
+    >>> resolve_unit("log(Pa)/log(Arb)", "log(Arb)")
+    (1.0, 'Pa', True, True)
+    """
+    soft, hard = (soft_unit or "").strip(), (hard_unit or "").strip()
+    if not soft:
+        num, resolved = hard, True
+    else:
+        if hard and soft.endswith("*" + hard):
+            num, den = soft[: -len(hard) - 1], hard
+        elif "/" in soft:
+            num, den = soft.rsplit("/", 1)
+        else:
+            num, den = soft, ""
+        hard_log, den_log = _log_inner(hard), _log_inner(den)
+        if den == hard:
+            num, resolved = num, True
+        elif hard_log is None and den_log is None and den and hard and parse_unit(den)[1] == parse_unit(hard)[1]:
+            # same base, other prefixes (hard value in mV, soft scale per V)
+            f = parse_unit(hard)[0] / parse_unit(den)[0]
+            fac, base, lg, _ = resolve_unit(num, "")
+            return fac * f, base, lg, True
+        else:
+            return 1.0, f"{num}*{hard}/{den}" if den else f"{num}*{hard}", False, False
+    inner = _log_inner(num)
+    if inner is not None:
+        factor, base = parse_unit(inner)
+        return factor, base, True, resolved
     factor, base = parse_unit(num)
-    return value * factor, base
+    return factor, base, False, resolved
+
+
+def channel_scale(path, sections, d: dict[str, str], bpp: int) -> dict:
+    """How to turn one image's stored integers into physical values (the NanoScope rules).
+
+    ``\\@2:Z scale: V [Sens. X] (hard scale/LSB) hard value`` names a soft scale
+    ``\\@Sens. X: V value unit``; a stored integer is worth
+    ``hard value / 2**(8 Bytes/pixel) x soft value`` in the unit of :func:`resolve_unit`
+    (Bytes/pixel sets the LSB even where v9.2+ stores 4-byte integers; Gwyddion's
+    ``get_bpp_and_qbpp``). Returns ``per_lsb`` (file unit per LSB), ``factor``, ``unit``,
+    ``log10``, ``resolved``, ``calibrated`` (False when the file leaves the channel in ``Arb``:
+    a unitless sensitivity on an arbitrary-unit hard value) and the lines used.
+    """
+    zline = d.get("@2:z scale") or d.get("@4:z scale")
+    if zline is None:
+        raise CorruptScan(f"{path}: image {_image_name(d, 0)!r} has no '@2:Z scale' line")
+    m = _ZSCALE.match(zline)
+    if not m:
+        raise CorruptScan(f"{path}: cannot read '@2:Z scale: {zline}'")
+    hard_value = parse_float(path, m.group("value"), "the Z scale hard value")
+    hard_unit = m.group("unit") or "V"
+    per_lsb = hard_value / float(2 ** (8 * bpp))
+    sens = (m.group("sens") or "").strip()
+    soft_value, soft_unit = _soft_scale(path, sections, sens) if sens else (1.0, "")
+    factor, unit, log10, resolved = resolve_unit(soft_unit, hard_unit)
+    return {
+        "per_lsb": per_lsb * soft_value, "factor": factor, "unit": unit, "log10": log10, "resolved": resolved,
+        "calibrated": resolved and unit.lower() != "arb",
+        "z_scale_line": zline, "soft_scale": sens or None, "soft_value": soft_value, "soft_unit": soft_unit,
+        "hard_value": hard_value, "hard_unit": hard_unit,
+    }
 
 
 def _image_name(d: dict[str, str], i: int) -> str:
@@ -122,11 +227,15 @@ def _image_name(d: dict[str, str], i: int) -> str:
 
 
 def read(path: Path | str, channel: str | None = None):
-    """Read one image of a NanoScope file (default: the Height Sensor channel when recorded,
-    else the first trace, else retrace, height).
+    """Read one image of a NanoScope file in SI units (default: the Height Sensor channel when
+    recorded, else the first trace, else retrace, height).
 
     Channel names are ``"<Image Data name> (Trace)"`` or ``"(Retrace)"``, e.g.
-    ``"Height (Retrace)"``; the bare ``"Height"`` works when it is unique.
+    ``"Height (Retrace)"``; the bare ``"Height"`` works when it is unique. Each channel comes in
+    the unit its Z scale and soft scale resolve to (:func:`channel_scale`): m, V, Pa, N, J, deg...
+    or ``Arb`` when the file does not calibrate it (``metadata["calibrated"]`` is then False).
+    A ``log(...)`` channel (``LogDMTModulus``) stores the base-10 logarithm of a value: it is
+    returned as ``10**value`` in the inner unit, flagged ``metadata["log10_decoded"]``.
     """
     buf = Path(path).read_bytes()
     sections = parse_header(path, buf)
@@ -139,10 +248,13 @@ def read(path: Path | str, channel: str | None = None):
         line_dir = d.get("line direction", "").strip()
         direction = {"trace": "forward", "retrace": "backward"}.get(line_dir.lower())
         label = f"{name} ({line_dir})" if line_dir else name
-        zline = d.get("@2:z scale", "")
-        unit = "m" if "[" in zline and re.search(r"height|topo|z ?sensor", name, re.I) else "V"
+        try:  # the unit of every channel, for the listing (a damaged one is reported when read)
+            unit = channel_scale(path, sections, d, 2)["unit"]
+        except CorruptScan:
+            unit = ""
         chans.append(Channel(label, key=i, unit=unit, direction=direction))
     if channel is None:  # the default is the height: the Height Sensor when recorded, as Bruker's software does
+        unique_names(chans)
         sensor = [c for c in chans if c.name.lower().startswith(("height sensor", "zsensor"))]
         sensor.sort(key=lambda c: c.direction != "forward")
         chan = sensor[0] if sensor else select_channel(path, chans, None)
@@ -157,9 +269,9 @@ def read(path: Path | str, channel: str | None = None):
         raise CorruptScan(f"{path}: Bytes/pixel must be 2 or 4 (got {bpp})")
     offset = parse_int(path, d.get("data offset", ""), "Data offset")
     length = parse_int(path, d.get("data length", str(nx * ny * bpp)), "Data length")
-    # v9+ files store every image as 4-byte integers while some lists still say "Bytes/pixel: 2":
-    # the data length says how wide the stored integers are; the Z scale still counts in units
-    # of 2^(8 Bytes/pixel) (as pySPM reads them: Height of sample_0.spm 21.2-37.1 nm)
+    # v9.2+ files store every image as 4-byte integers while some lists still say "Bytes/pixel: 2"
+    # (Gwyddion: "in version 9.2 all data magically became 32bit"): the data length says how wide
+    # the stored integers are; the Z scale still counts in units of 2^(8 Bytes/pixel)
     width = 4 if (length == nx * ny * 4 and bpp == 2) else bpp
     if length < nx * ny * width:
         raise CorruptScan(f"{path}: Data length {length} is less than {nx}x{ny}x{width} bytes")
@@ -184,30 +296,30 @@ def read(path: Path | str, channel: str | None = None):
     if base != "m":
         raise CorruptScan(f"{path}: scan size unit in {size!r} is not a length")
 
-    zline = d.get("@2:z scale")
-    if zline is None:
-        raise CorruptScan(f"{path}: image {chan.name!r} has no '@2:Z scale' line")
-    m = _ZSCALE.match(zline)
-    if not m:
-        raise CorruptScan(f"{path}: cannot read '@2:Z scale: {zline}'")
-    hard_value = parse_float(path, m.group("value"), "the Z scale hard value")
-    hv_factor, hv_unit = parse_unit(m.group("unit") or "V")
-    volts = hard_value * hv_factor / float(2 ** (8 * bpp))  # hard-value units per LSB
-    if m.group("sens"):
-        soft, z_unit = _soft_scale(path, sections, m.group("sens").strip())
-        z_factor = volts * soft
+    sc = channel_scale(path, sections, d, bpp)
+    chan.unit = sc["unit"]
+    if not (np.isfinite(sc["per_lsb"]) and sc["per_lsb"] != 0.0):
+        raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {sc['per_lsb']!r} per LSB: every value "
+                          "would be 0 or NaN; the header is damaged")
+    if sc["log10"]:  # the file stores log10 of the quantity: decode it (overflow -> inf -> NaN, counted)
+        with np.errstate(over="ignore", invalid="ignore"):
+            data, z_factor = np.power(10.0, raw * sc["per_lsb"]), sc["factor"]
     else:
-        z_factor, z_unit = volts, hv_unit
-    chan.unit = z_unit
+        data, z_factor = raw, sc["per_lsb"] * sc["factor"]
     version = _lookup(sections, "Version")
     return make_scan(
-        path, FORMAT, raw, xs / nx, ys / ny, chan, chans, rows_flipped=False,
-        z_factor=z_factor, z_unit=z_unit,
+        path, FORMAT, data, xs / nx, ys / ny, chan, chans, rows_flipped=False,
+        z_factor=z_factor, z_unit=sc["unit"],
         instrument={
             "software": "NanoScope", "version": version,
             "description": _lookup(sections, "Description"), "microscope": _lookup(sections, "Microscope"),
             "date": _lookup(sections, "Date"),
         },
-        extra={"z_scale_line": zline, "z_per_lsb": z_factor, "bytes_per_pixel": bpp, "stored_bytes_per_pixel": width,
+        extra={"file_z_unit": f"log({sc['unit']})" if sc["log10"] else sc["unit"],
+               "z_scale_line": sc["z_scale_line"], "z_per_lsb": None if sc["log10"] else z_factor,
+               "soft_scale": {"name": sc["soft_scale"], "value": sc["soft_value"], "unit": sc["soft_unit"]},
+               "hard_value": {"value": sc["hard_value"], "unit": sc["hard_unit"]},
+               "calibrated": sc["calibrated"], "unit_resolved": sc["resolved"], "log10_decoded": sc["log10"],
+               "bytes_per_pixel": bpp, "stored_bytes_per_pixel": width,
                "line_direction": d.get("line direction"), "frame_direction": d.get("frame direction")},
     )
