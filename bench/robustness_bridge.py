@@ -175,7 +175,8 @@ def server_attacks(n: int, rng: np.random.Generator) -> dict:
             dev.command_force([0.0, 0.0, 1.0])
             forces.append(dev.force_gain)
         out["operator_disappears"] = {"tried": n, "accepted": dev.stats.accepted - accepted0,
-                                      "dropped": dev.stats.dropped - dropped0, "peer_still_operator": dev.peer == op.getsockname(),
+                                      "dropped": dev.stats.dropped - dropped0,
+                                      "peer_still_operator": dev.peer == op.getsockname(),
                                       "probe_moved": bool(dev.read_state().position[0] != OPERATOR_X),
                                       "force_gain_after_0.1_s": forces[min(9, n - 1)], "force_gain_end": forces[-1],
                                       "forces_sent_to_attacker": _drain(attacker)}

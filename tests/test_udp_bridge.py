@@ -162,7 +162,7 @@ def _doc_vectors():
     text = (ROOT / "docs" / "bridge-protocol.md").read_text()
     found: dict[str, bytes] = {}
     for name, part, data in re.findall(r"^(key|\w+)(?:\.(body|tag))?\s+(?:[0-9a-f]{4}:)?\s*([0-9a-f ]+)$", text,
-                                       re.M):
+                                       re.MULTILINE):
         k = name if not part else f"{name}.{part}"
         found[k] = found.get(k, b"") + bytes.fromhex(data.replace(" ", ""))
     return found
@@ -288,6 +288,28 @@ def test_bad_packets_are_dropped_and_counted(bridge, client, clock):
     clock.t += 0.001
     deliver(bridge, client, pose(14, 1.4, 0.03))
     assert bridge.read_state().position[0] == 0.03 and st_.accepted == 2
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.binary(max_size=300), header=st.sampled_from([b"", b"ARSH\x02\x01", b"ARSH\x02\x03", b"ARSH\x01\x01"]),
+       pad_to_pose=st.booleans())
+def test_no_datagram_without_the_key_is_accepted_or_raises(data, header, pad_to_pose):
+    """Whatever the bytes (right header, right length or not), the bridge drops them, counts one
+    reason, and the reference client's check does the same with FORCE-sized datagrams."""
+    pkt = header + data
+    if pad_to_pose:
+        pkt = (pkt + bytes(POSE_SIZE))[:POSE_SIZE]
+    dev = UdpBridgeDevice(LOOPBACK, 0, key=KEY)  # not opened: the parser alone, as poll() calls it
+    dev._buf[:len(pkt)] = pkt
+    assert dev._accept(len(pkt), ("127.0.0.1", 5)) is False
+    assert dev.stats.dropped == 1 and dev.peer is None and dev._position.tolist() == [0.0, 0.0, 0.0]
+    c = client_mod.HapticClient(LOOPBACK, 9, KEY)
+    try:
+        c.seq += 1
+        fpkt = (b"ARSH\x02\x02" + data + bytes(FORCE_SIZE))[:FORCE_SIZE] if pad_to_pose else pkt
+        assert c._check(fpkt, c.server) is None and c.invalid == 1
+    finally:
+        c.sock.close()
 
 
 def test_forged_packets_neither_pin_nor_move(bridge, client, intruder, clock):
@@ -505,7 +527,7 @@ def to_client(c, sock, data):
 
 
 def test_the_client_applies_only_valid_forces(fake_server, intruder):
-    srv, c, clk = fake_server
+    srv, c, _ = fake_server
     ack = c.seq
 
     def force(seq, f, key=KEY, ack=ack, t=1.0):
@@ -562,7 +584,7 @@ def test_the_client_applies_zero_when_the_server_disappears(fake_server):
 def test_a_fresh_client_ignores_forces_of_an_earlier_run(fake_server):
     """Recorded FORCE packets acknowledge poses of an earlier run: a restarted client (new
     sequence numbers, from the wall clock) drops them even though tag and sender are right."""
-    srv, c, clk = fake_server
+    srv, c, _ = fake_server
     old = [encode_force(KEY, 5 + k, c.first_seq - 1000 + k, 0.0, 0.0, (0.0, 0.0, 3.0)) for k in range(3)]
     for p in old:
         assert to_client(c, srv, p) == (0.0, 0.0, 0.0)

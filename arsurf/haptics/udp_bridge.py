@@ -148,7 +148,7 @@ FLAG_CLAMPED = 4
 DEFAULT_PORT = 47474
 #: Length of the HMAC-SHA256 tag that ends every packet, bytes.
 MAC_SIZE = 32
-#: Length of a generated session key, bytes (256 bits, the HMAC-SHA256 block-internal size).
+#: Length of a generated session key, bytes: 256 bits, the SHA-256 output length (RFC 2104 sec. 3: at least that).
 KEY_SIZE = 32
 _KEY_MIN, _KEY_MAX = 16, 64  # 128 bits at least; HMAC hashes longer keys (RFC 2104 sec. 3)
 
