@@ -98,7 +98,10 @@ def read_key(key=None, key_file=None):
     if (key is None) == (key_file is None):
         raise SystemExit("haptic_client: give the session key with exactly one of --key HEX or --key-file PATH")
     if key_file is not None:
-        st = os.stat(key_file)
+        try:
+            st = os.stat(key_file)
+        except OSError as exc:
+            raise SystemExit(f"haptic_client: cannot read key file {key_file} ({exc.strerror})") from None
         if os.name == "posix" and st.st_mode & 0o077:
             raise SystemExit(f"haptic_client: key file {key_file} is accessible to other users; chmod 600 it")
         with open(key_file, encoding="ascii", errors="replace") as fh:
