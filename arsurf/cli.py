@@ -130,6 +130,17 @@ def _nm(minimum: float = 0.0, strict: bool = False):
     return parse
 
 
+def _seconds(text: str) -> float:
+    """An argparse type: a positive finite number of seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds (got {text!r})") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number of seconds (got {text})")
+    return value
+
+
 def _calibration(args) -> dict:
     """``dx``, ``dy`` (m) and ``z_unit`` of a file that does not state them (flags in nm)."""
     return {"dx": None if args.dx_nm is None else args.dx_nm * 1e-9,
@@ -188,7 +199,19 @@ def build_parser() -> argparse.ArgumentParser:
     _processing_flags(s)
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
-                        "(poses in, forces out; protocol in the README; tools/haptic_client.py is a reference client)")
+                        "(authenticated poses in, forces out; protocol in docs/bridge-protocol.md; "
+                        "tools/haptic_client.py is a reference client)")
+    s.add_argument("--host", "--bridge-host", dest="bridge_host", default=None, metavar="ADDRESS",
+                   help="address the bridge listens on (default 127.0.0.1: this machine only); any other address "
+                        "needs --bridge-key-file or --bridge-key")
+    s.add_argument("--bridge-key-file", metavar="PATH",
+                   help="the bridge's session key (hex, owner-only file): read if PATH exists, else a new key is "
+                        "written there with mode 600 (default: a new key in a private temporary file, path printed)")
+    s.add_argument("--bridge-key", metavar="HEX", help="the session key as hex (other users can see it in the "
+                   "process list: prefer --bridge-key-file)")
+    s.add_argument("--bridge-peer-timeout", type=_seconds, default=None, metavar="S",
+                   help="let another client take over after the pinned one has been silent S seconds "
+                        "(default: never during the session; the client's RELEASE always does)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.add_argument("--tubes", action="store_true",
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
@@ -222,7 +245,63 @@ def build_parser() -> argparse.ArgumentParser:
 _EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay"]
 
 
+def _bridge_setup(args):
+    """Host, session key and key file of ``arsurf view --bridge-port`` (None without it).
+
+    Refuses (one line) a non-loopback ``--host`` without a key given by the operator. Without a
+    key, a fresh one is written to a private temporary file (mode 600 in a 700 folder) whose path
+    is printed; the caller deletes the folder when the loop stops. The key itself is never printed.
+    """
+    import os
+    import tempfile
+    from types import SimpleNamespace
+
+    from arsurf.errors import HapticsError
+    from arsurf.haptics.udp_bridge import generate_key, is_loopback, key_from_hex, load_key, save_key
+
+    if args.bridge_port is None:
+        given = [f for f, v in (("--host", args.bridge_host), ("--bridge-key", args.bridge_key),
+                                ("--bridge-key-file", args.bridge_key_file),
+                                ("--bridge-peer-timeout", args.bridge_peer_timeout)) if v is not None]
+        if given:
+            raise HapticsError(f"{', '.join(given)} set up the UDP bridge; give --bridge-port PORT too")
+        return None
+    host = args.bridge_host or "127.0.0.1"
+    if args.bridge_key is not None and args.bridge_key_file is not None:
+        raise HapticsError("give the bridge key once: --bridge-key HEX or --bridge-key-file PATH, not both")
+    if not is_loopback(host) and args.bridge_key is None and args.bridge_key_file is None:
+        raise HapticsError(f"--host {host} is not loopback: a client on the network is accepted only with a key you "
+                           "give (--bridge-key-file PATH; a new key is written there if PATH does not exist)")
+    tmpdir = None
+    if args.bridge_key is not None:
+        key, path = key_from_hex(args.bridge_key), None
+    elif args.bridge_key_file is not None and os.path.exists(args.bridge_key_file):
+        key, path = load_key(args.bridge_key_file), args.bridge_key_file
+    else:
+        key = generate_key()
+        if args.bridge_key_file is not None:
+            path = save_key(args.bridge_key_file, key)
+        else:
+            tmpdir = tempfile.mkdtemp(prefix="arsurf-bridge-")  # mode 700
+            path = save_key(os.path.join(tmpdir, "bridge.key"), key)
+        print(f"arsurf view: new bridge session key written to {path} (owner-only); give the client "
+              f"--key-file {path}", file=sys.stderr)
+    return SimpleNamespace(host=host, port=args.bridge_port, key=key, key_file=path, tmpdir=tmpdir,
+                           peer_timeout=args.bridge_peer_timeout)
+
+
 def cmd_view(args) -> int:
+    bridge = _bridge_setup(args)  # refuse a bad bridge setup before anything slow
+    try:
+        return _view(args, bridge)
+    finally:
+        if bridge is not None and bridge.tmpdir is not None:
+            import shutil
+
+            shutil.rmtree(bridge.tmpdir, ignore_errors=True)
+
+
+def _view(args, bridge) -> int:
     from arsurf.errors import require
 
     require("pyvista", "viewer", "arsurf view")
@@ -230,7 +309,7 @@ def cmd_view(args) -> int:
 
     tip_radius = args.tip_radius_nm * 1e-9
     scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
-    if args.bridge_port is None:
+    if bridge is None:
         from arsurf_viewer import view_scan
 
         view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes)
@@ -241,9 +320,10 @@ def cmd_view(args) -> int:
     from arsurf_viewer.live import bridge_loop
 
     surface = fit_surface(scan)
-    live = bridge_loop(surface, tip_radius, port=args.bridge_port, scale=args.scale).start()
-    print(f"arsurf view: haptic loop running at 1 kHz, listening for stylus poses on UDP "
-          f"127.0.0.1:{args.bridge_port} (tools/haptic_client.py is a reference client)", file=sys.stderr)
+    live = bridge_loop(surface, tip_radius, host=bridge.host, port=bridge.port, key=bridge.key,
+                       peer_timeout=bridge.peer_timeout, scale=args.scale).start()
+    print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
+          f"{bridge.host}:{bridge.port} (tools/haptic_client.py is a reference client)", file=sys.stderr)
     try:
         run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose)
     finally:

@@ -57,8 +57,9 @@ def test_bridge_loop_feels_the_surface_through_udp():
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     s = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))
-    live = bridge_loop(s, 20e-9, port=port).start()   # tip starts 2.5 R above the middle
-    client = HapticClient(port=port)
+    key = bytes(range(32))
+    live = bridge_loop(s, 20e-9, port=port, key=key).start()   # tip starts 2.5 R above the middle
+    client = HapticClient(port=port, key=key)
     try:
         deadline = time.monotonic() + 15.0                 # generous: CI machines are shared
         z = 0.0

@@ -2,110 +2,271 @@
 """Reference client of the arsurf haptic UDP bridge: sends stylus poses, receives forces.
 
 Standard library only, so it can be copied to the haptic PC as it is. The packet layout is the one
-documented in ``arsurf/haptics/udp_bridge.py`` (protocol version 1, little-endian, CRC-32 last);
-``tests/test_udp_bridge.py`` checks that this file and the bridge agree byte for byte.
+documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.md`` (protocol version
+2, little-endian, HMAC-SHA256 tag last); ``tests/test_udp_bridge.py`` checks that this file and
+the bridge agree byte for byte and that this client drops every bad FORCE packet.
 
-Run it against a bridge (``arsurf`` listens on 127.0.0.1:47474 by default)::
+Run it against a bridge with the session key the bridge wrote (``arsurf view --bridge-port``
+prints the key file's path)::
 
-    python tools/haptic_client.py --port 47474 --rate 1000 --duration 5 --radius 0.02
+    python tools/haptic_client.py --port 47474 --key-file /tmp/arsurf-bridge-xyz/bridge.key \
+        --rate 1000 --duration 5 --radius 0.02
 
 It moves a virtual stylus on a circle of ``--radius`` metres at ``--frequency`` Hz, sends one POSE
 per tick, reads the FORCE replies, and prints a JSON summary (packets, round-trip times, largest
-force). A real haptic PC replaces the circle with its device position and applies ``force`` to
-the device; if no FORCE arrives for ``--timeout`` seconds it must apply zero force.
+force, dropped replies by reason). A real haptic PC replaces the circle with its device position
+and applies :meth:`HapticClient.poll`'s force to the device: that force comes only from a FORCE
+packet that passed every check (sender address, tag, sequence number, ``ack`` of one of this
+client's poses, finite values, ``--max-force``) and is zero when no such packet arrived for
+``--timeout`` seconds. On exit the client sends RELEASE so that another client may connect.
 
 Example
 -------
->>> c = HapticClient("127.0.0.1", 9)          # nothing needs to listen to build packets
->>> len(encode_pose(1, 0.0, (0.0, 0.0, 0.0)))
-108
+>>> c = HapticClient("127.0.0.1", 9, key=bytes(32))   # nothing needs to listen to build packets
+>>> len(encode_pose(bytes(32), 1, 0.0, (0.0, 0.0, 0.0)))
+140
+>>> c.poll()
+(0.0, 0.0, 0.0)
 >>> c.close()
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
+import hmac
 import json
 import math
+import os
 import socket
 import struct
 import sys
 import time
-import zlib
 
 MAGIC = b"ARSH"
-VERSION = 1
+VERSION = 2
 TYPE_POSE = 1
 TYPE_FORCE = 2
-FLAG_RESET = 1
-POSE = struct.Struct("<4sBBHId3d3d4dI")  # + u32 CRC-32 = 108 bytes
-FORCE = struct.Struct("<4sBBHIIdd3d")  # + u32 CRC-32 = 60 bytes
-CRC = struct.Struct("<I")
+TYPE_RELEASE = 3
+MAC_SIZE = 32
+HEADER = struct.Struct("<4sBBHQ")  # magic, version, type, flags, sequence number: 16 bytes
+POSE = struct.Struct("<4sBBHQd3d3d4dI")  # + 32-byte tag = 140 bytes
+FORCE = struct.Struct("<4sBBHQQdd3d")  # + 32-byte tag = 96 bytes
+RELEASE = struct.Struct("<4sBBHQd")  # + 32-byte tag = 56 bytes
+FORCE_SIZE = FORCE.size + MAC_SIZE
 NAN3 = (math.nan, math.nan, math.nan)
+WINDOW = 64
+#: Reasons a FORCE packet is dropped (the keys of :attr:`HapticClient.stats`, with the totals).
+DROP_REASONS = ("oversized", "truncated", "foreign", "bad_magic", "bad_version", "bad_type", "bad_mac",
+                "replayed", "out_of_order", "bad_ack", "nonfinite", "over_limit")
 
 
-def encode_pose(seq, t, position, velocity=NAN3, quaternion=(1.0, 0.0, 0.0, 0.0), buttons=0, reset=False):
+def mac(key, body):
+    """HMAC-SHA256 tag of ``body`` under ``key`` (32 bytes)."""
+    return hmac.new(key, body, hashlib.sha256).digest()
+
+
+def encode_pose(key, seq, t, position, velocity=NAN3, quaternion=(1.0, 0.0, 0.0, 0.0), buttons=0):
     """POSE packet bytes (see the module docstring of arsurf.haptics.udp_bridge)."""
-    body = POSE.pack(MAGIC, VERSION, TYPE_POSE, FLAG_RESET if reset else 0, seq & 0xFFFFFFFF, float(t),
-                     *map(float, position), *map(float, velocity), *map(float, quaternion), buttons & 0xFFFFFFFF)
-    return body + CRC.pack(zlib.crc32(body))
+    body = POSE.pack(MAGIC, VERSION, TYPE_POSE, 0, seq, float(t), *map(float, position), *map(float, velocity),
+                     *map(float, quaternion), buttons & 0xFFFFFFFF)
+    return body + mac(key, body)
 
 
-def decode_force(data):
-    """FORCE packet fields as a dict, or None if the bytes are not a valid FORCE packet."""
-    if len(data) != FORCE.size + 4:
+def encode_release(key, seq, t):
+    """RELEASE packet bytes: this client is done, the server may accept another."""
+    body = RELEASE.pack(MAGIC, VERSION, TYPE_RELEASE, 0, seq, float(t))
+    return body + mac(key, body)
+
+
+def decode_force(key, data):
+    """FORCE packet fields as a dict, or None if the bytes are not a FORCE packet tagged under ``key``.
+
+    Format and tag only; :meth:`HapticClient.poll` checks the rest before a force is applied.
+    """
+    if len(data) != FORCE_SIZE:
         return None
     f = FORCE.unpack_from(data)
     if f[0] != MAGIC or f[1] != VERSION or f[2] != TYPE_FORCE:
         return None
-    if CRC.unpack_from(data, FORCE.size)[0] != zlib.crc32(data[:FORCE.size]):
+    if not hmac.compare_digest(mac(key, data[:FORCE.size]), data[FORCE.size:FORCE_SIZE]):
         return None
     return {"flags": f[3], "seq": f[4], "ack": f[5], "t": f[6], "echo": f[7], "force": f[8:11]}
 
 
-class HapticClient:
-    """Minimal client: :meth:`send_pose` once per tick, :meth:`poll` for the latest force."""
+def read_key(key=None, key_file=None):
+    """The session key from hex text or from a key file (refused if other users may read it)."""
+    if (key is None) == (key_file is None):
+        raise SystemExit("haptic_client: give the session key with exactly one of --key HEX or --key-file PATH")
+    if key_file is not None:
+        try:
+            st = os.stat(key_file)
+        except OSError as exc:
+            raise SystemExit(f"haptic_client: cannot read key file {key_file} ({exc.strerror})") from None
+        if os.name == "posix" and st.st_mode & 0o077:
+            raise SystemExit(f"haptic_client: key file {key_file} is accessible to other users; chmod 600 it")
+        with open(key_file, encoding="ascii", errors="replace") as fh:
+            key = fh.read(4096)
+    try:
+        k = bytes.fromhex(key.strip())
+    except ValueError:
+        raise SystemExit("haptic_client: the key must be hexadecimal digits") from None
+    if not 16 <= len(k) <= 64:
+        raise SystemExit(f"haptic_client: the key must be 16 to 64 bytes (got {len(k)})")
+    return k
 
-    def __init__(self, host="127.0.0.1", port=47474):
-        self.server = (host, int(port))
+
+class HapticClient:
+    """Minimal client: :meth:`send_pose` once per tick, :meth:`poll` for the force to apply.
+
+    Parameters
+    ----------
+    host, port : str, int
+        The bridge.
+    key : bytes
+        The session key (16 to 64 bytes) the bridge uses.
+    max_force : float, N
+        The device's force limit: a FORCE above it is dropped, not clamped (default 7.9 N, Touch X).
+    timeout : float, s
+        Without a valid FORCE for this long, :meth:`poll` returns zero force (default 0.1 s).
+    local_port : int
+        Local UDP port (0: any). A fixed port lets a restarted client come back as the same peer.
+    clock : callable
+        Monotonic clock in seconds (default ``time.perf_counter``).
+    """
+
+    def __init__(self, host="127.0.0.1", port=47474, key=None, *, max_force=7.9, timeout=0.1, local_port=0,
+                 clock=time.perf_counter):
+        if not isinstance(key, (bytes, bytearray)) or not 16 <= len(key) <= 64:
+            raise ValueError("key must be the bridge's session key, 16 to 64 bytes")
+        if not (isinstance(max_force, (int, float)) and 0 < max_force < math.inf):
+            raise ValueError(f"max_force must be a positive finite force in newtons (got {max_force!r})")
+        self.key = bytes(key)
+        self.max_force = float(max_force)
+        self.timeout = float(timeout)
+        self.server = socket.getaddrinfo(host, int(port), socket.AF_INET, socket.SOCK_DGRAM)[0][4][:2]
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1" if self.server[0].startswith("127.") else "", int(local_port)))
         self.sock.setblocking(False)
-        self.seq = 0
-        self.t0 = time.perf_counter()
-        self.force = (0.0, 0.0, 0.0)
-        self.last_reply = None
+        self._clock = clock
+        self.t0 = clock()
+        # sequence numbers only grow under one key, across restarts too: start from the wall clock (us)
+        self.seq = time.time_ns() // 1000
+        self.first_seq = self.seq + 1
+        self.force = (0.0, 0.0, 0.0)  # last accepted force
+        self.last_reply = None  # (local time, fields) of the last accepted FORCE
+        self._last_rx = -math.inf
+        self._rseq = None
+        self._seen = 0
         self.rtts = []
-        self.invalid = 0
+        self.stats = dict.fromkeys(("received", "accepted") + DROP_REASONS, 0)
+        self.released = False
+
+    @property
+    def invalid(self):
+        """FORCE packets dropped, all reasons."""
+        return sum(self.stats[r] for r in DROP_REASONS)
 
     def clock(self):
-        return time.perf_counter() - self.t0
+        return self._clock() - self.t0
 
-    def send_pose(self, position, velocity=NAN3, buttons=0, quaternion=(1.0, 0.0, 0.0, 0.0)):
-        """Send one pose; the first packet carries the RESET flag. Returns its sequence number."""
-        self.seq = (self.seq + 1) & 0xFFFFFFFF
-        pkt = encode_pose(self.seq, self.clock(), position, velocity, quaternion, buttons, reset=self.seq == 1)
-        self.sock.sendto(pkt, self.server)
+    def _next_seq(self):
+        self.seq += 1
         return self.seq
 
+    def send_pose(self, position, velocity=NAN3, buttons=0, quaternion=(1.0, 0.0, 0.0, 0.0)):
+        """Send one pose; returns its sequence number."""
+        seq = self._next_seq()
+        self.sock.sendto(encode_pose(self.key, seq, self.clock(), position, velocity, quaternion, buttons), self.server)
+        return seq
+
+    def release(self):
+        """Tell the bridge this client is done (it unpins the client; another may connect)."""
+        try:
+            self.sock.sendto(encode_release(self.key, self._next_seq(), self.clock()), self.server)
+            self.released = True
+        except OSError:
+            pass
+
+    def _check(self, data, addr):
+        """The FORCE fields if the datagram passes every check, else None (reason counted)."""
+        st = self.stats
+        n = len(data)
+        if n > FORCE_SIZE:
+            st["oversized"] += 1
+            return None
+        if addr[:2] != self.server:
+            st["foreign"] += 1
+            return None
+        if n < HEADER.size:
+            st["truncated"] += 1
+            return None
+        magic, version, kind, _, seq = HEADER.unpack_from(data)
+        if magic != MAGIC:
+            st["bad_magic"] += 1
+            return None
+        if version != VERSION:
+            st["bad_version"] += 1
+            return None
+        if kind != TYPE_FORCE:
+            st["bad_type"] += 1
+            return None
+        if n != FORCE_SIZE:
+            st["truncated"] += 1
+            return None
+        if not hmac.compare_digest(mac(self.key, data[:FORCE.size]), data[FORCE.size:]):
+            st["bad_mac"] += 1
+            return None
+        last = self._rseq
+        if last is not None and seq <= last:
+            k = last - seq
+            st["replayed" if k < WINDOW and (self._seen >> k) & 1 else "out_of_order"] += 1
+            return None
+        f = FORCE.unpack_from(data)
+        if not self.first_seq <= f[5] <= self.seq:  # must acknowledge one of this client's poses
+            st["bad_ack"] += 1
+            return None
+        force = f[8:11]
+        if not all(math.isfinite(v) for v in force) or not math.isfinite(f[6]):
+            st["nonfinite"] += 1
+            return None
+        if math.sqrt(sum(v * v for v in force)) > self.max_force * (1.0 + 1e-9):
+            st["over_limit"] += 1
+            return None
+        d = WINDOW if last is None else seq - last
+        self._seen = ((self._seen << d) | 1) & ((1 << WINDOW) - 1) if d < WINDOW else 1
+        self._rseq = seq
+        return {"flags": f[3], "seq": seq, "ack": f[5], "t": f[6], "echo": f[7], "force": force}
+
     def poll(self):
-        """Read every pending FORCE packet; returns the latest force (N) received so far."""
+        """Read every pending datagram; returns the force (N) to apply now.
+
+        That is the last FORCE that passed every check, or zero if none did within ``timeout``.
+        """
         while True:
             try:
-                data = self.sock.recv(2048)
+                data, addr = self.sock.recvfrom(2048)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # server not there yet (ICMP unreachable)
                 break
-            reply = decode_force(data)
+            self.stats["received"] += 1
+            reply = self._check(data, addr)
             if reply is None:
-                self.invalid += 1
                 continue
+            self.stats["accepted"] += 1
             self.force = reply["force"]
-            self.last_reply = (time.perf_counter(), reply)
+            self._last_rx = self._clock()
+            self.last_reply = (self._last_rx, reply)
             if math.isfinite(reply["echo"]):
                 self.rtts.append(self.clock() - reply["echo"])
+        if self._clock() - self._last_rx > self.timeout:
+            return (0.0, 0.0, 0.0)  # no news from the server: apply no force
         return self.force
 
     def close(self):
+        """Send RELEASE (if any pose was sent) and close the socket."""
+        if self.seq >= self.first_seq and not self.released:
+            self.release()
         self.sock.close()
 
 
@@ -113,13 +274,20 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=47474)
+    ap.add_argument("--key", help="session key as hex (visible to other users in the process list: "
+                    "prefer --key-file)")
+    ap.add_argument("--key-file", help="file holding the session key as hex (owner-only permissions)")
+    ap.add_argument("--max-force", type=float, default=7.9, help="device force limit, N; larger FORCEs are dropped")
     ap.add_argument("--rate", type=float, default=1000.0, help="poses per second")
     ap.add_argument("--duration", type=float, default=5.0, help="seconds")
     ap.add_argument("--radius", type=float, default=0.02, help="circle radius, m")
     ap.add_argument("--frequency", type=float, default=0.5, help="circle frequency, Hz")
     ap.add_argument("--timeout", type=float, default=0.1, help="apply zero force after this long without FORCE, s")
+    ap.add_argument("--local-port", type=int, default=0, help="local UDP port (0: any)")
     args = ap.parse_args(argv)
-    client = HapticClient(args.host, args.port)
+    key = read_key(args.key, args.key_file)
+    client = HapticClient(args.host, args.port, key, max_force=args.max_force, timeout=args.timeout,
+                          local_port=args.local_port)
     period = 1.0 / args.rate
     n = int(args.duration * args.rate)
     fmax = 0.0
@@ -134,7 +302,6 @@ def main(argv=None):
             client.send_pose(pos, vel)
             f = client.poll()
             if client.last_reply is None or time.perf_counter() - client.last_reply[0] > args.timeout:
-                f = (0.0, 0.0, 0.0)  # no news from the server: apply no force
                 zeroed += 1
             fmax = max(fmax, math.sqrt(sum(v * v for v in f)))
             deadline = start + (k + 1) * period
@@ -149,6 +316,7 @@ def main(argv=None):
         "sent": n,
         "replies_with_rtt": len(rtts),
         "invalid_replies": client.invalid,
+        "dropped_replies": {r: client.stats[r] for r in DROP_REASONS if client.stats[r]},
         "ticks_with_zero_force_for_timeout": zeroed,
         "rtt_median_s": rtts[len(rtts) // 2] if rtts else None,
         "rtt_p99_s": rtts[min(len(rtts) - 1, int(0.99 * len(rtts)))] if rtts else None,

@@ -102,12 +102,14 @@ class LiveLoop:
                           time=snap.time)
 
 
-def bridge_loop(surface, tip_radius: float, *, port: int = 47474, scale: float = 1e-5, force_gain: float = 1e5,
+def bridge_loop(surface, tip_radius: float, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
+                peer_timeout: float | None = None, scale: float = 1e-5, force_gain: float = 1e5,
                 contact=None, start=None):
-    """A :class:`LiveLoop` for real hardware: the UDP bridge device on 127.0.0.1:``port``, the
-    AR model on ``surface`` (Si tip on polystyrene unless ``contact`` is given) and the direct
-    coupling (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client
-    sends first maps to ``start`` (default: 2.5 R above the middle of the surface)."""
+    """A :class:`LiveLoop` for real hardware: the UDP bridge device on ``host``:``port`` with the
+    session ``key`` (a fresh one on loopback if None; see :class:`UdpBridgeDevice`), the AR model
+    on ``surface`` (Si tip on polystyrene unless ``contact`` is given) and the direct coupling
+    (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client sends first
+    maps to ``start`` (default: 2.5 R above the middle of the surface)."""
     from arsurf.assembly import PRESETS, build_loop, make_model
     from arsurf.haptics.udp_bridge import UdpBridgeDevice
 
@@ -122,7 +124,7 @@ def bridge_loop(surface, tip_radius: float, *, port: int = 47474, scale: float =
         (u0, u1), (v0, v1) = surface.domain
         cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
         start = (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
-    device = UdpBridgeDevice(port=port)
+    device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
     loop = build_loop(model, {"scale": scale, "force_gain": force_gain, "source": "simulated", "filter_cutoff": 200.0,
                               "signal_noise": 0.0}, device.info, start)
     return LiveLoop(loop, device)

@@ -3,80 +3,108 @@
 As in the seed systems, where the haptic PC and the AFM PC talk over Ethernet, real hardware can
 drive arsurf through a small binary protocol over UDP. arsurf is the server (it listens on
 127.0.0.1 by default, port :data:`DEFAULT_PORT`); the haptic PC is the client: it sends one POSE
-packet per servo tick and applies the FORCE packets it receives. ``tools/haptic_client.py`` is a
-reference client in plain Python (standard library only).
+packet per servo tick and applies the FORCE packets it receives. ``tools/haptic_client.py`` is the
+reference client in plain Python (standard library only); ``docs/bridge-protocol.md`` is the same
+specification for a C/C++ implementer, with a test vector.
 
-Protocol, version 1. All fields little-endian; ``f64`` IEEE-754 double, ``u8/u16/u32`` unsigned.
-Every packet ends with the CRC-32 (zlib/IEEE 802.3 polynomial, as ``zlib.crc32``) of all the bytes
-before it. Positions in metres, velocities in m/s, forces in newtons, times in seconds.
+The bridge answers its operator only. Every packet is authenticated with a per-session key
+(HMAC-SHA256, :rfc:`2104`), carries a 64-bit sequence number that only ever grows (replays and
+reordered packets are dropped), and the first authenticated client is *pinned*: until it sends a
+RELEASE packet (or, if the operator set ``peer_timeout``, stays silent that long) no other sender
+can drive the probe or receive forces, even while the pinned client is silent.
 
-POSE, client -> server, 108 bytes::
-
-    offset size type      field
-    0      4    char[4]   magic  b"ARSH"
-    4      1    u8        version = 1
-    5      1    u8        type    = 1 (POSE)
-    6      2    u16       flags: bit 0 RESET = the client (re)starts its sequence numbering
-    8      4    u32       sequence number, +1 per packet, wraps modulo 2**32
-    12     8    f64       client timestamp (the client's monotonic clock)
-    20     24   f64[3]    stylus position x, y, z
-    44     24   f64[3]    stylus velocity (all three NaN: unknown, the server differentiates)
-    68     32   f64[4]    stylus orientation quaternion w, x, y, z
-    100    4    u32       buttons bitmask (bit 0: first button)
-    104    4    u32       CRC-32 of bytes 0..103
-
-FORCE, server -> client (to the address the last accepted POSE came from), 60 bytes::
+Protocol, version 2. All fields little-endian; ``f64`` IEEE-754 double, ``u8/u16/u32/u64``
+unsigned. Every packet ends with a 32-byte tag, HMAC-SHA256 under the session key of all the
+bytes before it (header, sequence number and payload). Positions in metres, velocities in m/s,
+forces in newtons, times in seconds. Common header, 16 bytes::
 
     offset size type      field
     0      4    char[4]   magic  b"ARSH"
-    4      1    u8        version = 1
-    5      1    u8        type    = 2 (FORCE)
+    4      1    u8        version = 2
+    5      1    u8        type: 1 POSE, 2 FORCE, 3 RELEASE
+    6      2    u16       flags (POSE, RELEASE: 0; FORCE: see below)
+    8      8    u64       sequence number of the sender, strictly increasing, never wraps
+
+POSE, client -> server, 140 bytes::
+
+    16     8    f64       client timestamp (the client's monotonic clock)
+    24     24   f64[3]    stylus position x, y, z
+    48     24   f64[3]    stylus velocity (all three NaN: unknown, the server differentiates)
+    72     32   f64[4]    stylus orientation quaternion w, x, y, z
+    104    4    u32       buttons bitmask (bit 0: first button)
+    108    32   u8[32]    HMAC-SHA256(key, bytes 0..107)
+
+FORCE, server -> pinned client, 96 bytes::
+
     6      2    u16       flags: bit 0 STALE_INPUT, bit 1 RAMPING, bit 2 CLAMPED
-    8      4    u32       server sequence number
-    12     4    u32       ack: sequence number of the last accepted POSE
-    16     8    f64       server timestamp (the server's monotonic clock)
-    24     8    f64       echo: client timestamp of the acknowledged POSE (round-trip time)
-    32     24   f64[3]    force on the handle x, y, z
-    56     4    u32       CRC-32 of bytes 0..55
+    16     8    u64       ack: sequence number of the last accepted POSE
+    24     8    f64       server timestamp (the server's monotonic clock)
+    32     8    f64       echo: client timestamp of the acknowledged POSE (round-trip time)
+    40     24   f64[3]    force on the handle x, y, z
+    64     32   u8[32]    HMAC-SHA256(key, bytes 0..63)
+
+RELEASE, client -> server, 56 bytes (the client is done; another may take over)::
+
+    16     8    f64       client timestamp
+    24     32   u8[32]    HMAC-SHA256(key, bytes 0..23)
+
+Sequence numbers are per sender and per key: each packet's number is larger than that of every
+packet the sender sent before under the same key. A client that may restart starts from its wall
+clock in microseconds (``time.time_ns() // 1000``), which also stays ahead of an earlier client
+that sent under the same key; the server does the same for FORCE packets.
 
 The server drops, counts in :attr:`UdpBridgeDevice.stats`, and otherwise ignores: datagrams
-longer than a POSE (``oversized``) or shorter (``truncated``); a wrong magic (``bad_magic``),
-version (``bad_version``), type (``bad_type``) or CRC (``bad_crc``); non-finite position, time or
-orientation (``nonfinite``); a sequence number that is not newer than the last accepted one, in
-serial-number arithmetic modulo 2**32 (``out_of_order``, duplicates included); a newer packet whose
-client timestamp is not later than the last accepted one (``stale``); a sender other than the
-current peer while the peer's input is fresh (``foreign``; RESET does not override this, a new
-client takes over once the old one has been silent for ``stale_after``). Nothing a packet
-contains can raise.
+longer than the packet their type needs (``oversized``) or shorter (``truncated``); a wrong magic
+(``bad_magic``), version (``bad_version``; version 1 packets included), or type (``bad_type``);
+any packet from a sender other than the pinned peer (``foreign``, checked before the tag, so a
+stranger costs no HMAC); a wrong tag (``bad_mac``: wrong key, or altered bytes); a sequence number
+not above the last accepted one (``replayed`` if that number was accepted, among the last 64,
+``out_of_order`` otherwise); non-finite position, time or orientation (``nonfinite``); a POSE whose
+client timestamp is not later than the last accepted one (``stale``). Nothing a packet contains
+can raise. The tag is compared in constant time (:func:`hmac.compare_digest`).
 
 If no POSE has been accepted for ``stale_after`` seconds the input is stale: the force sent ramps
 linearly to zero in ``ramp_down`` seconds (and back up in ``ramp_up`` once fresh poses arrive),
 the FORCE flags say so, and ``DeviceState.timestamp`` (the local receive time of the last accepted
-pose) lets the safety layer see the age too. After a stale period, or with the RESET flag, any
-sequence number is accepted again (a restarted client) and a new sender may take over. The client
-should apply zero force when it hears no FORCE packet for a while: the network may be gone.
+pose) lets the safety layer see the age too. A stale peer stays pinned. A RELEASE from the peer
+unpins it at once (the force gain drops to zero, nothing more is sent to it). The client must
+check every FORCE (sender address, tag, sequence, ``ack`` among its own poses, finiteness, its
+device's force limit) and apply zero force when it hears no valid FORCE for a while.
+
+Keys: :func:`generate_key` (32 random bytes, :func:`secrets.token_bytes`), :func:`save_key`
+(hex text in a file created with mode 0o600), :func:`load_key` (refuses a file other users can
+read), :func:`key_from_hex`. A bridge on loopback without a key makes a fresh one (:attr:`key`);
+binding any other address needs a key given by the operator. A key reused across sessions lets a
+packet recorded in an earlier session be replayed at the start of a later one: prefer a fresh key
+per session.
 
 Examples
 --------
->>> import socket, struct, zlib, math
->>> with UdpBridgeDevice(port=0) as dev:
-...     pkt = encode_pose(seq=1, t=0.0, position=(0.01, 0.0, 0.0), buttons=1)
+>>> import socket
+>>> key = bytes(range(32))
+>>> with UdpBridgeDevice(port=0, key=key) as dev:
+...     pkt = encode_pose(key, seq=1, t=0.0, position=(0.01, 0.0, 0.0), buttons=1)
 ...     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
 ...         _ = c.sendto(pkt, dev.address)
 ...         dev.wait_for_client(timeout=2.0)
 ...         s = dev.read_state()
 ...         dev.command_force([0.0, 0.0, 1.0])
-...         reply = decode_force(c.recv(256))
+...         reply = decode_force(key, c.recv(256))
 >>> s.position.tolist(), s.buttons, reply["ack"], reply["force"]
 ([0.01, 0.0, 0.0], 1, 1, (0.0, 0.0, 1.0))
 """
 from __future__ import annotations
 
+import hashlib
+import hmac
+import ipaddress
 import math
+import os
+import secrets
 import socket
+import stat
 import struct
 import time
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
@@ -88,8 +116,10 @@ from arsurf.haptics.device import Device, DeviceInfo, DeviceState, TOUCH_X
 __all__ = [
     "DEFAULT_PORT",
     "FORCE_SIZE",
+    "MAC_SIZE",
     "MAGIC",
     "POSE_SIZE",
+    "RELEASE_SIZE",
     "VERSION",
     "BridgeStats",
     "UdpBridgeDevice",
@@ -97,87 +127,252 @@ __all__ = [
     "decode_pose",
     "encode_force",
     "encode_pose",
+    "encode_release",
+    "generate_key",
+    "is_loopback",
+    "key_from_hex",
+    "load_key",
+    "packet_mac",
+    "save_key",
 ]
 
 MAGIC = b"ARSH"
-VERSION = 1
+VERSION = 2
 TYPE_POSE = 1
 TYPE_FORCE = 2
-FLAG_RESET = 1  # POSE flags
+TYPE_RELEASE = 3
 FLAG_STALE_INPUT = 1  # FORCE flags
 FLAG_RAMPING = 2
 FLAG_CLAMPED = 4
 #: Default UDP port of the bridge (any free port works; 0 picks one).
 DEFAULT_PORT = 47474
+#: Length of the HMAC-SHA256 tag that ends every packet, bytes.
+MAC_SIZE = 32
+#: Length of a generated session key, bytes: 256 bits, the SHA-256 output length (RFC 2104 sec. 3: at least that).
+KEY_SIZE = 32
+_KEY_MIN, _KEY_MAX = 16, 64  # 128 bits at least; HMAC hashes longer keys (RFC 2104 sec. 3)
 
-_POSE_BODY = struct.Struct("<4sBBHId3d3d4dI")
-_FORCE_BODY = struct.Struct("<4sBBHIIdd3d")
-_CRC = struct.Struct("<I")
-POSE_SIZE = _POSE_BODY.size + 4  #: 108 bytes
-FORCE_SIZE = _FORCE_BODY.size + 4  #: 60 bytes
+_HEADER = struct.Struct("<4sBBHQ")
+_POSE_BODY = struct.Struct("<4sBBHQd3d3d4dI")
+_FORCE_BODY = struct.Struct("<4sBBHQQdd3d")
+_RELEASE_BODY = struct.Struct("<4sBBHQd")
+POSE_SIZE = _POSE_BODY.size + MAC_SIZE  #: 140 bytes
+FORCE_SIZE = _FORCE_BODY.size + MAC_SIZE  #: 96 bytes
+RELEASE_SIZE = _RELEASE_BODY.size + MAC_SIZE  #: 56 bytes
+_SERVER_SIZES = {TYPE_POSE: POSE_SIZE, TYPE_RELEASE: RELEASE_SIZE}
 _RECV_BUFFER = 2048  # anything longer than a POSE is oversized; this only bounds the copy
-_SEQ_MOD = 1 << 32
+_SEQ_MAX = (1 << 64) - 1
+_WINDOW = 64  # accepted sequence numbers remembered below the newest, to tell replays apart
 
 
-def encode_pose(seq: int, t: float, position, velocity=(math.nan, math.nan, math.nan),
-                quaternion=(1.0, 0.0, 0.0, 0.0), buttons: int = 0, reset: bool = False) -> bytes:
-    """A POSE packet (108 bytes) as the protocol above defines it.
+# -- keys ---------------------------------------------------------------------------------------
+def generate_key() -> bytes:
+    """A fresh session key: 32 bytes from the operating system's CSPRNG (:func:`secrets.token_bytes`).
 
     Examples
     --------
-    >>> len(encode_pose(seq=7, t=1.5, position=(0.0, 0.0, 0.0)))
-    108
+    >>> len(generate_key()), generate_key() != generate_key()
+    (32, True)
     """
-    body = _POSE_BODY.pack(MAGIC, VERSION, TYPE_POSE, FLAG_RESET if reset else 0, int(seq) % _SEQ_MOD, float(t),
+    return secrets.token_bytes(KEY_SIZE)
+
+
+def _check_key(key) -> bytes:
+    if not isinstance(key, (bytes, bytearray)):
+        raise HapticsError(f"the bridge key must be bytes (got {type(key).__name__}); "
+                           "use generate_key(), load_key(path) or key_from_hex(text)")
+    if not (_KEY_MIN <= len(key) <= _KEY_MAX):
+        raise HapticsError(f"the bridge key must be {_KEY_MIN} to {_KEY_MAX} bytes (got {len(key)}); "
+                           f"generate_key() makes a {KEY_SIZE}-byte one")
+    return bytes(key)
+
+
+def key_from_hex(text: str) -> bytes:
+    """The key written as hexadecimal text (32 to 128 hex digits; surrounding whitespace ignored).
+
+    The message of a bad key never repeats the text (it may be most of a secret).
+
+    Examples
+    --------
+    >>> key_from_hex("00" * 32) == bytes(32)
+    True
+    """
+    if not isinstance(text, str):
+        raise HapticsError(f"the bridge key must be hexadecimal text (got {type(text).__name__})")
+    s = text.strip()
+    try:
+        key = bytes.fromhex(s)
+    except ValueError:
+        raise HapticsError(f"the bridge key must be hexadecimal digits only (got {len(s)} characters that are "
+                           "not); write it as 64 hex digits, as save_key() does") from None
+    return _check_key(key)
+
+
+def save_key(path, key: bytes) -> str:
+    """Write ``key`` as one line of hex to a new file readable by its owner only (mode 0o600).
+
+    The file is created exclusively (an existing file is never overwritten or followed).
+
+    Returns
+    -------
+    str
+        The path written.
+    """
+    key = _check_key(key)
+    path = os.fspath(path)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    except FileExistsError:
+        raise HapticsError(f"key file {path!r} already exists; refusing to overwrite it "
+                           "(read it with load_key, or pick a new path)") from None
+    with os.fdopen(fd, "w") as fh:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fh.fileno(), 0o600)  # whatever the umask did
+        fh.write(key.hex() + "\n")
+    return path
+
+
+def load_key(path) -> bytes:
+    """Read a key written by :func:`save_key`; refuse a file that other users can read or write.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> load_key(save_key(os.path.join(d, "k"), bytes(range(32)))) == bytes(range(32))
+    True
+    """
+    path = os.fspath(path)
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise HapticsError(f"cannot read the bridge key file {path!r} ({exc.strerror}); "
+                           "create one with save_key or let the bridge generate it") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise HapticsError(f"the bridge key file {path!r} is not a regular file")
+    if os.name == "posix" and st.st_mode & 0o077:
+        raise HapticsError(f"the bridge key file {path!r} is accessible to other users (mode "
+                           f"{oct(st.st_mode & 0o777)}); make it owner-only: chmod 600 {path}")
+    if st.st_size > 4096:
+        raise HapticsError(f"the bridge key file {path!r} is {st.st_size} bytes; a key file is one line of hex")
+    with open(path, encoding="ascii", errors="replace") as fh:
+        return key_from_hex(fh.read(4096))
+
+
+def is_loopback(host: str) -> bool:
+    """True if ``host`` is a loopback address (``127.0.0.0/8``, ``::1``) or ``"localhost"``.
+
+    A host name other than ``localhost`` counts as not loopback (it may resolve to anything).
+
+    Examples
+    --------
+    >>> is_loopback("127.0.0.1"), is_loopback("0.0.0.0"), is_loopback("192.168.1.5")
+    (True, False, False)
+    """
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+# -- packets ------------------------------------------------------------------------------------
+def packet_mac(key: bytes, body) -> bytes:
+    """The 32-byte tag of a packet: HMAC-SHA256 under ``key`` of ``body`` (every byte before the tag).
+
+    Examples
+    --------
+    >>> packet_mac(bytes(32), b"").hex()[:16]
+    'b613679a0814d9ec'
+    """
+    return hmac.new(key, body, hashlib.sha256).digest()
+
+
+def _seq(seq) -> int:
+    s = int(seq)
+    if not 0 <= s <= _SEQ_MAX:
+        raise HapticsError(f"sequence number must be in 0..2**64-1 (got {s}); it never wraps: use a new key")
+    return s
+
+
+def encode_pose(key: bytes, seq: int, t: float, position, velocity=(math.nan, math.nan, math.nan),
+                quaternion=(1.0, 0.0, 0.0, 0.0), buttons: int = 0) -> bytes:
+    """A POSE packet (140 bytes) as the protocol above defines it, tagged under ``key``.
+
+    Examples
+    --------
+    >>> len(encode_pose(bytes(32), seq=7, t=1.5, position=(0.0, 0.0, 0.0)))
+    140
+    """
+    body = _POSE_BODY.pack(MAGIC, VERSION, TYPE_POSE, 0, _seq(seq), float(t),
                            *(float(v) for v in position), *(float(v) for v in velocity),
                            *(float(v) for v in quaternion), int(buttons) & 0xFFFFFFFF)
-    return body + _CRC.pack(zlib.crc32(body))
+    return body + packet_mac(key, body)
 
 
-def decode_pose(data) -> dict | None:
-    """Fields of a POSE packet, or None if it is not a valid one (size, magic, version, type, CRC).
+def encode_release(key: bytes, seq: int, t: float) -> bytes:
+    """A RELEASE packet (56 bytes): the client is done, the server unpins it.
 
     Examples
     --------
-    >>> decode_pose(encode_pose(seq=3, t=0.25, position=(1.0, 2.0, 3.0), buttons=2))["position"]
+    >>> len(encode_release(bytes(32), seq=9, t=2.0))
+    56
+    """
+    body = _RELEASE_BODY.pack(MAGIC, VERSION, TYPE_RELEASE, 0, _seq(seq), float(t))
+    return body + packet_mac(key, body)
+
+
+def _verify(key: bytes, mv, size: int) -> bool:
+    return hmac.compare_digest(packet_mac(key, mv[:size - MAC_SIZE]), mv[size - MAC_SIZE:size])
+
+
+def decode_pose(key: bytes, data) -> dict | None:
+    """Fields of a POSE packet, or None if it is not a valid one (size, magic, version, type, tag).
+
+    Examples
+    --------
+    >>> k = bytes(32)
+    >>> decode_pose(k, encode_pose(k, seq=3, t=0.25, position=(1.0, 2.0, 3.0), buttons=2))["position"]
     (1.0, 2.0, 3.0)
-    >>> decode_pose(b"junk") is None
-    True
+    >>> decode_pose(k, b"junk") is None, decode_pose(b"another key 16 B", encode_pose(k, 3, 0.0, (0, 0, 0)))
+    (True, None)
     """
     mv = memoryview(data)
     if len(mv) != POSE_SIZE:
         return None
     f = _POSE_BODY.unpack_from(mv)
-    if f[0] != MAGIC or f[1] != VERSION or f[2] != TYPE_POSE:
-        return None
-    if _CRC.unpack_from(mv, _POSE_BODY.size)[0] != zlib.crc32(mv[:_POSE_BODY.size]):
+    if f[0] != MAGIC or f[1] != VERSION or f[2] != TYPE_POSE or not _verify(key, mv, POSE_SIZE):
         return None
     return {"flags": f[3], "seq": f[4], "t": f[5], "position": f[6:9], "velocity": f[9:12],
             "quaternion": f[12:16], "buttons": f[16]}
 
 
-def encode_force(seq: int, ack: int, t: float, echo: float, force, flags: int = 0) -> bytes:
-    """A FORCE packet (60 bytes).
+def encode_force(key: bytes, seq: int, ack: int, t: float, echo: float, force, flags: int = 0) -> bytes:
+    """A FORCE packet (96 bytes), tagged under ``key``.
 
     Examples
     --------
-    >>> decode_force(encode_force(1, 2, 0.5, 0.25, (0.0, 1.0, 0.0)))["force"]
+    >>> k = bytes(32)
+    >>> decode_force(k, encode_force(k, 1, 2, 0.5, 0.25, (0.0, 1.0, 0.0)))["force"]
     (0.0, 1.0, 0.0)
     """
-    body = _FORCE_BODY.pack(MAGIC, VERSION, TYPE_FORCE, int(flags) & 0xFFFF, int(seq) % _SEQ_MOD,
-                            int(ack) % _SEQ_MOD, float(t), float(echo), *(float(v) for v in force))
-    return body + _CRC.pack(zlib.crc32(body))
+    body = _FORCE_BODY.pack(MAGIC, VERSION, TYPE_FORCE, int(flags) & 0xFFFF, _seq(seq), _seq(ack), float(t),
+                            float(echo), *(float(v) for v in force))
+    return body + packet_mac(key, body)
 
 
-def decode_force(data) -> dict | None:
-    """Fields of a FORCE packet, or None if it is not a valid one."""
+def decode_force(key: bytes, data) -> dict | None:
+    """Fields of a FORCE packet, or None if it is not a valid one (size, magic, version, type, tag).
+
+    Only the format and the tag are checked here; a client also checks the sender, the sequence
+    number, the ``ack``, finiteness and its force limit (``tools/haptic_client.py`` does).
+    """
     mv = memoryview(data)
     if len(mv) != FORCE_SIZE:
         return None
     f = _FORCE_BODY.unpack_from(mv)
-    if f[0] != MAGIC or f[1] != VERSION or f[2] != TYPE_FORCE:
-        return None
-    if _CRC.unpack_from(mv, _FORCE_BODY.size)[0] != zlib.crc32(mv[:_FORCE_BODY.size]):
+    if f[0] != MAGIC or f[1] != VERSION or f[2] != TYPE_FORCE or not _verify(key, mv, FORCE_SIZE):
         return None
     return {"flags": f[3], "seq": f[4], "ack": f[5], "t": f[6], "echo": f[7], "force": f[8:11]}
 
@@ -193,11 +388,15 @@ class BridgeStats:
     bad_magic: int = 0
     bad_version: int = 0
     bad_type: int = 0
-    bad_crc: int = 0
-    nonfinite: int = 0
-    out_of_order: int = 0
-    stale: int = 0
     foreign: int = 0
+    bad_mac: int = 0
+    replayed: int = 0
+    out_of_order: int = 0
+    nonfinite: int = 0
+    stale: int = 0
+    releases: int = 0
+    pins: int = 0
+    peer_timeouts: int = 0
     resyncs: int = 0
     sent: int = 0
     send_errors: int = 0
@@ -205,9 +404,9 @@ class BridgeStats:
 
     @property
     def dropped(self) -> int:
-        """All packets received and not accepted."""
-        return (self.oversized + self.truncated + self.bad_magic + self.bad_version + self.bad_type
-                + self.bad_crc + self.nonfinite + self.out_of_order + self.stale + self.foreign)
+        """All packets received and neither accepted nor a release."""
+        return (self.oversized + self.truncated + self.bad_magic + self.bad_version + self.bad_type + self.foreign
+                + self.bad_mac + self.replayed + self.out_of_order + self.nonfinite + self.stale)
 
     def as_dict(self) -> dict[str, int]:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -215,28 +414,28 @@ class BridgeStats:
         return d
 
 
-def _seq_newer(seq: int, last: int) -> bool:
-    """Serial-number arithmetic (RFC 1982) modulo 2**32: is ``seq`` after ``last``?"""
-    d = (seq - last) % _SEQ_MOD
-    return 0 < d < (_SEQ_MOD >> 1)
-
-
 class UdpBridgeDevice(Device):
-    """A device whose stylus lives on another machine: poses in, forces out, over UDP.
+    """A device whose stylus lives on another machine: authenticated poses in, forces out, over UDP.
 
     Parameters
     ----------
     host : str
-        Address to listen on (default ``"127.0.0.1"``: loopback only; give the interface address
-        explicitly to accept a haptic PC on the network).
+        Address to listen on (default ``"127.0.0.1"``: loopback only). Any other address (the
+        interface of the network the haptic PC is on) needs ``key``.
     port : int
         UDP port (default :data:`DEFAULT_PORT`; 0 picks a free one, see :attr:`address`).
     info : DeviceInfo
         Limits of the remote device (default: Touch X); forces are clamped to ``info.max_force``.
+    key : bytes, optional
+        Session key (16 to 64 bytes) shared with the client out of band. None (loopback only):
+        a fresh :func:`generate_key`, readable as :attr:`key` to hand to the client.
     stale_after : float, s
         Input older than this is stale (default 0.05 s).
     ramp_down, ramp_up : float, s
         Time for the sent force to fade to zero on stale input, and to come back (0.05 s, 0.2 s).
+    peer_timeout : float or None, s
+        Unpin a peer silent for this long, so another client may take over (default None:
+        the peer stays pinned for the whole session, until it sends RELEASE).
     clock : callable
         Monotonic clock in seconds (default :func:`time.perf_counter`); tests inject their own.
     max_packets_per_read : int
@@ -248,11 +447,15 @@ class UdpBridgeDevice(Device):
     orientation : (4,) float
         Latest stylus orientation quaternion (w, x, y, z).
     peer : tuple or None
-        Address of the client forces are sent to.
+        Address of the pinned client (forces go there only), None before the first valid POSE
+        and after a RELEASE or a peer timeout.
+    key : bytes
+        The session key.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, info: DeviceInfo = TOUCH_X, *,
-                 stale_after: float = 0.05, ramp_down: float = 0.05, ramp_up: float = 0.2,
+                 key: bytes | None = None, stale_after: float = 0.05, ramp_down: float = 0.05,
+                 ramp_up: float = 0.2, peer_timeout: float | None = None,
                  clock: Callable[[], float] = time.perf_counter, max_packets_per_read: int = 256) -> None:
         super().__init__()
         if not isinstance(host, str) or not host:
@@ -261,24 +464,37 @@ class UdpBridgeDevice(Device):
             raise HapticsError(f"port must be an integer in 0..65535 (got {port!r}); 0 picks a free port")
         if not isinstance(info, DeviceInfo):
             raise HapticsError(f"info must be a DeviceInfo (got {type(info).__name__})")
+        if key is None:
+            if not is_loopback(host):
+                raise HapticsError(f"binding the bridge to {host!r} (not loopback) needs a key given by the operator "
+                                   "(key=..., or --bridge-key-file); only on 127.0.0.1 is one generated")
+            key = generate_key()
+        self.key = _check_key(key)
         for name, v in (("stale_after", stale_after), ("ramp_down", ramp_down), ("ramp_up", ramp_up)):
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise HapticsError(f"{name} must be a positive number of seconds (got {v!r})")
+        if peer_timeout is not None and not (isinstance(peer_timeout, (int, float)) and peer_timeout > 0
+                                             and math.isfinite(peer_timeout)):
+            raise HapticsError(f"peer_timeout must be a positive number of seconds or None (got {peer_timeout!r}); "
+                               "None keeps the client pinned for the whole session")
         if not isinstance(max_packets_per_read, int) or max_packets_per_read < 1:
             raise HapticsError(f"max_packets_per_read must be a positive integer (got {max_packets_per_read!r})")
         self.host, self.port = host, int(port)
         self._info = info
         self.stale_after, self.ramp_down, self.ramp_up = float(stale_after), float(ramp_down), float(ramp_up)
+        self.peer_timeout = None if peer_timeout is None else float(peer_timeout)
         self.clock = clock
         self.max_packets_per_read = max_packets_per_read
         self.stats = BridgeStats()
         self._sock: socket.socket | None = None
         self._buf = bytearray(_RECV_BUFFER)
+        self._mv = memoryview(self._buf)
         self._reset_session()
 
     def _reset_session(self) -> None:
         self.peer = None
-        self._last_seq = None
+        self._last_seq = None  # newest accepted sequence number (POSE or RELEASE), whole session
+        self._seen = 0  # bit k: sequence number _last_seq - k was accepted
         self._last_client_t = -math.inf
         self._last_rx = -math.inf
         self._position = np.zeros(3)
@@ -287,7 +503,7 @@ class UdpBridgeDevice(Device):
         self._buttons = 0
         self._gain = 1.0  # the safety layer ramps in at start-up; this gain only fades stale input
         self._last_cmd = None
-        self._tx_seq = 0
+        self._tx_seq = time.time_ns() // 1000  # ahead of any earlier server under the same key
         self._last_flags = 0
         self._seen_clamped = self.clamped_forces
 
@@ -368,8 +584,8 @@ class UdpBridgeDevice(Device):
         return self._gain
 
     def _send(self, force: np.ndarray, flags: int) -> None:
-        self._tx_seq = (self._tx_seq + 1) % _SEQ_MOD
-        pkt = encode_force(self._tx_seq, self._last_seq or 0, self.now(), self._last_client_t
+        self._tx_seq = min(self._tx_seq + 1, _SEQ_MAX)
+        pkt = encode_force(self.key, self._tx_seq, self._last_seq or 0, self.now(), self._last_client_t
                            if math.isfinite(self._last_client_t) else math.nan, force, flags)
         try:
             self._sock.sendto(pkt, self.peer)
@@ -377,11 +593,21 @@ class UdpBridgeDevice(Device):
         except OSError:  # peer gone (ICMP unreachable), buffer full: never break the loop
             self.stats.send_errors += 1
 
+    def _unpin(self) -> None:
+        self.peer = None
+        self._last_rx = -math.inf
+        self._last_client_t = -math.inf
+        self._gain = 0.0  # whoever comes next starts from zero force
+
     # -- receiving --------------------------------------------------------------------------
     def poll(self) -> int:
         """Drain pending datagrams (at most ``max_packets_per_read``); returns how many were accepted."""
         if self._sock is None:
             return 0
+        if (self.peer is not None and self.peer_timeout is not None
+                and self.now() - self._last_rx > self.peer_timeout):
+            self.stats.peer_timeouts += 1
+            self._unpin()
         accepted = 0
         buf = self._buf
         for _ in range(self.max_packets_per_read):
@@ -393,51 +619,81 @@ class UdpBridgeDevice(Device):
                 self.stats.receive_errors += 1
                 continue
             self.stats.received += 1
-            if self._accept(buf, n, addr):
+            if self._accept(n, addr):
                 accepted += 1
         return accepted
 
-    def _accept(self, buf: bytearray, n: int, addr) -> bool:
+    def _check_seq(self, seq: int) -> bool:
+        """Is ``seq`` newer than every accepted one? Counts ``replayed`` / ``out_of_order`` if not."""
+        last = self._last_seq
+        if last is None or seq > last:
+            return True
+        k = last - seq
+        if k < _WINDOW and (self._seen >> k) & 1:
+            self.stats.replayed += 1
+        else:
+            self.stats.out_of_order += 1
+        return False
+
+    def _take_seq(self, seq: int) -> None:
+        last = self._last_seq
+        d = _WINDOW if last is None else seq - last
+        self._seen = ((self._seen << d) | 1) & ((1 << _WINDOW) - 1) if d < _WINDOW else 1
+        self._last_seq = seq
+
+    def _accept(self, n: int, addr) -> bool:
         st = self.stats
+        buf = self._buf
         if n > POSE_SIZE:
             st.oversized += 1
             return False
-        if n < POSE_SIZE:
+        if n < _HEADER.size:
             st.truncated += 1
             return False
-        f = _POSE_BODY.unpack_from(buf)
-        if f[0] != MAGIC:
+        magic, version, kind, _flags, seq = _HEADER.unpack_from(buf)
+        if magic != MAGIC:
             st.bad_magic += 1
             return False
-        if f[1] != VERSION:
+        if version != VERSION:
             st.bad_version += 1
             return False
-        if f[2] != TYPE_POSE:
+        size = _SERVER_SIZES.get(kind)
+        if size is None:
             st.bad_type += 1
             return False
-        if _CRC.unpack_from(buf, _POSE_BODY.size)[0] != zlib.crc32(memoryview(buf)[:_POSE_BODY.size]):
-            st.bad_crc += 1
+        if n != size:
+            if n > size:
+                st.oversized += 1
+            else:
+                st.truncated += 1
             return False
-        flags, seq, t = f[3], f[4], f[5]
-        pos, vel, quat = f[6:9], f[9:12], f[12:16]
+        if self.peer is not None and addr != self.peer:
+            st.foreign += 1
+            return False
+        if not _verify(self.key, self._mv, size):
+            st.bad_mac += 1
+            return False
+        if not self._check_seq(seq):
+            return False
+        if kind == TYPE_RELEASE:
+            self._take_seq(seq)
+            st.releases += 1
+            if self.peer is not None:
+                self._unpin()
+            return False
+        f = _POSE_BODY.unpack_from(buf)
+        t, pos, vel, quat = f[5], f[6:9], f[9:12], f[12:16]
         if not (math.isfinite(t) and all(math.isfinite(v) for v in pos) and all(math.isfinite(v) for v in quat)):
             st.nonfinite += 1
             return False
         now = self.now()
-        fresh = (now - self._last_rx) <= self.stale_after
-        reset = bool(flags & FLAG_RESET)
-        if self.peer is not None and addr != self.peer and fresh:
-            st.foreign += 1
+        resync = self.peer is None or (now - self._last_rx) > self.stale_after
+        if not resync and not t > self._last_client_t:
+            st.stale += 1
             return False
-        resync = reset or not fresh or self._last_seq is None or addr != self.peer
-        if not resync:
-            if not _seq_newer(seq, self._last_seq):
-                st.out_of_order += 1
-                return False
-            if not t > self._last_client_t:
-                st.stale += 1
-                return False
-        elif self._last_seq is not None:
+        if self.peer is None:
+            st.pins += 1
+        elif resync:
             st.resyncs += 1
         # accepted
         if all(math.isfinite(v) for v in vel):
@@ -451,10 +707,10 @@ class UdpBridgeDevice(Device):
         self._position[:] = pos
         q = np.asarray(quat)
         qn = math.sqrt(float(q @ q))
-        if qn > 0.0:
+        if qn > 0.0 and math.isfinite(qn):
             self.orientation[:] = q / qn
         self._buttons = int(f[16])
-        self._last_seq = seq
+        self._take_seq(seq)
         self._last_client_t = t
         self._last_rx = now
         self.peer = addr
@@ -465,14 +721,14 @@ class UdpBridgeDevice(Device):
         """Block until a pose has been accepted (polling every millisecond), or raise HapticsError."""
         self._require_open()
         deadline = time.monotonic() + float(timeout)
-        while self._last_seq is None:
+        while self.peer is None:
             self.poll()
-            if self._last_seq is not None:
+            if self.peer is not None:
                 break
             if time.monotonic() > deadline:
                 raise HapticsError(
                     f"no valid pose packet on UDP {self.address[0]}:{self.address[1]} within {timeout} s "
-                    f"(received {self.stats.received}, dropped {self.stats.dropped}); start the client "
-                    "(tools/haptic_client.py) with this host and port"
+                    f"(received {self.stats.received}, dropped {self.stats.dropped}, wrong key "
+                    f"{self.stats.bad_mac}); start the client (tools/haptic_client.py) with this host, port and key"
                 )
             time.sleep(0.001)

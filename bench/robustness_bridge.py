@@ -1,0 +1,329 @@
+"""Attacks on the haptic UDP bridge, on loopback (prints JSON): the bridge part of the robustness bench.
+
+:func:`bridge_attacks` opens a real :class:`~arsurf.haptics.udp_bridge.UdpBridgeDevice` on
+127.0.0.1 (port 0, a hand-driven clock so the stale logic is deterministic), pins an operator
+socket, then tries each attack ``n`` times with randomised content and reports, per kind, the
+packets tried, accepted and dropped (by the bridge's own counters), whether the probe moved (the
+bridge's ``read_state`` position left the operator's) and whether the attacker heard a FORCE.
+The same is done against the reference client ``tools/haptic_client.py`` from a stand-in server
+socket: per kind, FORCE packets tried, accepted, dropped, and whether any reached the hand (the
+client's :meth:`poll` returned anything but the last valid force). Then the cost of the tag:
+median and p99 of one POSE check (HMAC-SHA256) in microseconds.
+
+Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0]``
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import hmac
+import importlib.util
+import json
+import math
+import os
+import platform
+import socket
+import struct
+import sys
+import time
+import zlib
+
+import numpy as np
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+sys.path.insert(0, ROOT)
+
+from arsurf.haptics.udp_bridge import (  # noqa: E402
+    POSE_SIZE,
+    UdpBridgeDevice,
+    encode_force,
+    encode_pose,
+    encode_release,
+    generate_key,
+)
+
+_spec = importlib.util.spec_from_file_location("haptic_client", os.path.join(ROOT, "tools", "haptic_client.py"))
+client_mod = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(client_mod)
+
+LOOPBACK = "127.0.0.1"
+OPERATOR_X = 0.01  # the operator's stylus x, m
+
+
+class _Clock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+def _udp() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind((LOOPBACK, 0))
+    s.setblocking(False)
+    return s
+
+
+def _drain(sock) -> int:
+    n = 0
+    while True:
+        try:
+            sock.recv(4096)
+            n += 1
+        except BlockingIOError:
+            return n
+
+
+def _deliver(dev, sock, data) -> None:
+    before = dev.stats.received
+    sock.sendto(data, dev.address)
+    deadline = time.monotonic() + 1.0
+    while dev.stats.received == before and time.monotonic() < deadline:
+        dev.poll()
+
+
+def _v1_pose(seq, t, x) -> bytes:
+    body = struct.pack("<4sBBHId3d3d4dI", b"ARSH", 1, 1, 0, seq & 0xFFFFFFFF, t, x, 0.0, 0.0, *(math.nan,) * 3,
+                       1.0, 0.0, 0.0, 0.0, 0)
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def server_attacks(n: int, rng: np.random.Generator) -> dict:
+    """Each attack ``n`` times against a bridge whose operator is pinned (then silent)."""
+    key, wrong = generate_key(), generate_key()
+    clock = _Clock()
+    out = {}
+    with UdpBridgeDevice(LOOPBACK, 0, key=key, clock=clock, stale_after=0.05, ramp_down=0.05) as dev:
+        op, attacker = _udp(), _udp()
+        seq = [1]
+
+        def op_pose(x=OPERATOR_X):
+            seq[0] += 1
+            clock.t += 0.001
+            p = encode_pose(key, seq[0], clock.t, (x, 0.0, 0.0))
+            _deliver(dev, op, p)
+            return p
+
+        recorded = [op_pose() for _ in range(n)]  # the operator's traffic, as an eavesdropper saw it
+        dev.command_force([0.0, 0.0, 1.0])
+        _drain(op)
+        release = encode_release(key, 10**15, 0.0)  # a release the attacker forged... with the key
+
+        def fresh_seq():
+            return seq[0] + 1 + int(rng.integers(0, 10**6))
+
+        def junk(lo, hi):
+            return rng.integers(0, 256, int(rng.integers(lo, hi + 1)), dtype=np.uint8).tobytes()
+
+        def flipped():
+            p = bytearray(encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.5, 0.5)))
+            p[int(rng.integers(0, len(p)))] ^= 1 << int(rng.integers(0, 8))
+            return bytes(p)
+
+        kinds = {
+            # (sender, packet factory, advance the clock past stale_after first)
+            "hijack_with_key_after_operator_silent": ("attacker", lambda: encode_pose(
+                key, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3))), True),
+            "hijack_without_key_after_operator_silent": ("attacker", lambda: encode_pose(
+                wrong, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3))), True),
+            "forged_wrong_key_from_operator_address": ("operator", lambda: encode_pose(
+                wrong, fresh_seq(), clock.t + 1.0, tuple(rng.uniform(-1, 1, 3))), False),
+            "bit_flipped_from_operator_address": ("operator", flipped, False),
+            "replayed_operator_packets": ("operator", lambda: recorded[int(rng.integers(0, len(recorded)))], False),
+            "replayed_from_attacker_address": ("attacker", lambda: recorded[int(rng.integers(0, len(recorded)))],
+                                               False),
+            "reordered_older_sequence": ("operator", lambda: encode_pose(
+                key, int(rng.integers(0, 2)), clock.t + 1.0, (0.7, 0.0, 0.0)), False),
+            "oversized": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0))
+                          + junk(1, 4000), False),
+            "truncated": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0))[
+                :int(rng.integers(0, POSE_SIZE))], False),
+            "random_junk_pose_sized": ("operator", lambda: junk(POSE_SIZE, POSE_SIZE), False),
+            "protocol_v1_packets": ("operator", lambda: _v1_pose(fresh_seq(), clock.t + 1.0, 0.9), False),
+            "release_from_attacker": ("attacker", lambda: release, False),
+            "nonfinite_pose_with_key": ("operator", lambda: encode_pose(
+                key, fresh_seq(), clock.t + 1.0, (math.nan, math.inf, 0.0)), False),
+        }
+        for kind, (who, make, silent) in kinds.items():
+            sock = attacker if who == "attacker" else op
+            before = dev.stats.as_dict()
+            moved = False
+            for _ in range(n):
+                if silent:
+                    clock.t += 0.06  # the operator has been silent longer than stale_after
+                _deliver(dev, sock, make())
+                s = dev.read_state()
+                moved |= bool(s.position[0] != OPERATOR_X or s.position[1] != 0.0 or s.position[2] != 0.0)
+                dev.command_force([0.0, 0.0, 1.0])
+            after = dev.stats.as_dict()
+            delta = {k: after[k] - before[k] for k in after if after[k] != before[k]}
+            heard = _drain(attacker)
+            _drain(op)
+            out[kind] = {"tried": n, "accepted": delta.pop("accepted", 0), "dropped": delta.pop("dropped", 0),
+                         "reasons": {k: v for k, v in delta.items() if k not in ("received", "sent")},
+                         "probe_moved": moved, "forces_sent_to_attacker": heard,
+                         "peer_still_operator": dev.peer == op.getsockname()}
+            op_pose()  # the operator (back) at its place between kinds
+        # the operator disappears: nobody takes over, the force it is sent fades to zero
+        forces = []
+        dropped0, accepted0 = dev.stats.dropped, dev.stats.accepted
+        for _ in range(n):
+            clock.t += 0.01
+            _deliver(dev, attacker, encode_pose(key, fresh_seq(), clock.t, (0.3, 0.3, 0.3)))
+            dev.read_state()
+            dev.command_force([0.0, 0.0, 1.0])
+            forces.append(dev.force_gain)
+        out["operator_disappears"] = {"tried": n, "accepted": dev.stats.accepted - accepted0,
+                                      "dropped": dev.stats.dropped - dropped0,
+                                      "peer_still_operator": dev.peer == op.getsockname(),
+                                      "probe_moved": bool(dev.read_state().position[0] != OPERATOR_X),
+                                      "force_gain_after_0.1_s": forces[min(9, n - 1)], "force_gain_end": forces[-1],
+                                      "forces_sent_to_attacker": _drain(attacker)}
+        out["bridge_stats"] = dev.stats.as_dict()
+        op.close()
+        attacker.close()
+    return out
+
+
+def client_attacks(n: int, rng: np.random.Generator) -> dict:
+    """Each bad FORCE ``n`` times at the reference client; does any reach the hand?"""
+    key, wrong = generate_key(), generate_key()
+    srv, attacker = _udp(), _udp()
+    clock = _Clock()
+    c = client_mod.HapticClient(LOOPBACK, srv.getsockname()[1], key, max_force=7.9, timeout=0.1, clock=clock)
+    c.send_pose((0.0, 0.0, 0.0))
+    ack = c.seq
+    good = (0.0, 0.0, 1.0)
+    seq = [100]
+
+    def to_client(sock, data):
+        before = c.stats["received"]
+        sock.sendto(data, c.sock.getsockname())
+        deadline = time.monotonic() + 1.0
+        f = c.poll()
+        while c.stats["received"] == before and time.monotonic() < deadline:
+            f = c.poll()
+        return f
+
+    def nxt():
+        seq[0] += 1
+        return seq[0]
+
+    def force(f, k=key, a=None, s=None, t=0.0):
+        return encode_force(k, nxt() if s is None else s, ack if a is None else a, t, 0.0, f)
+
+    recorded = [force(good) for _ in range(4)]
+    for p in recorded:
+        to_client(srv, p)
+
+    def flipped():
+        p = bytearray(force(tuple(rng.uniform(-5, 5, 3))))
+        p[int(rng.integers(0, len(p)))] ^= 1 << int(rng.integers(0, 8))
+        return bytes(p)
+
+    def v1():
+        b = struct.pack("<4sBBHIIdd3d", b"ARSH", 1, 2, 0, nxt() & 0xFFFFFFFF, ack & 0xFFFFFFFF, 0.0, 0.0, 0.0, 0.0, 5.0)
+        return b + struct.pack("<I", zlib.crc32(b))
+
+    kinds = {
+        "nan_force": ("server", lambda: force((math.nan, 0.0, 1.0))),
+        "inf_force": ("server", lambda: force((0.0, -math.inf, 0.0))),
+        "huge_force_1e6_N": ("server", lambda: force(tuple(rng.normal(0, 1, 3) * 1e6))),
+        "just_over_limit": ("server", lambda: force((0.0, 0.0, 7.9 * (1 + 1e-6)))),
+        "forged_wrong_key": ("server", lambda: force(tuple(rng.uniform(-5, 5, 3)), k=wrong)),
+        "bit_flipped": ("server", flipped),
+        "replayed_latest_valid": ("server", lambda: recorded[-1]),
+        "replayed_older_valid": ("server", lambda: recorded[int(rng.integers(0, len(recorded) - 1))]),
+        "reordered_older_sequence": ("server", lambda: force((0.0, 0.0, 3.0), s=int(rng.integers(0, 100)))),
+        "foreign_sender_with_key": ("attacker", lambda: force((0.0, 0.0, 5.0))),
+        "ack_of_an_earlier_run": ("server", lambda: force((0.0, 0.0, 5.0), a=c.first_seq - 1 - int(
+            rng.integers(0, 10**6)))),
+        "protocol_v1_packets": ("server", v1),
+        "truncated": ("server", lambda: force(good)[:int(rng.integers(0, 96))]),
+        "oversized": ("server", lambda: force(good) + bytes(int(rng.integers(1, 3000)))),
+    }
+    out = {}
+    for kind, (who, make) in kinds.items():
+        sock = attacker if who == "attacker" else srv
+        before = dict(c.stats)
+        reached = False
+        for _ in range(n):
+            f = to_client(sock, make())
+            reached |= f != good
+        delta = {k: c.stats[k] - before[k] for k in c.stats if c.stats[k] != before[k]}
+        out[kind] = {"tried": n, "accepted": delta.pop("accepted", 0),
+                     "dropped": sum(v for k, v in delta.items() if k != "received"),
+                     "reasons": {k: v for k, v in delta.items() if k != "received"}, "reached_hand": reached}
+        recorded.append(force(good))  # a valid one keeps the client's force fresh between kinds
+        to_client(srv, recorded[-1])
+    clock.t += 0.2  # the server disappears: the hand gets zero after the timeout
+    out["server_disappears"] = {"force_after_timeout": list(c.poll())}
+    out["client_stats"] = dict(c.stats)
+    c.close()
+    srv.close()
+    attacker.close()
+    return out
+
+
+def tag_cost(n: int = 20000) -> dict:
+    """Median and p99 time of one HMAC-SHA256 check of a POSE, microseconds."""
+    key = generate_key()
+    pkt = encode_pose(key, 1, 0.0, (0.0, 0.0, 0.0))
+    mv = memoryview(pkt)
+    ts = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        hmac.compare_digest(hmac.new(key, mv[:108], hashlib.sha256).digest(), mv[108:])
+        ts[i] = time.perf_counter_ns() - t0
+    crc = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        zlib.crc32(mv[:108])
+        crc[i] = time.perf_counter_ns() - t0
+    return {"hmac_check_median_us": float(np.median(ts)) / 1e3, "hmac_check_p99_us": float(np.percentile(ts, 99)) / 1e3,
+            "crc32_v1_median_us": float(np.median(crc)) / 1e3,
+            "ratio_hmac_over_crc32": float(np.median(ts) / max(np.median(crc), 1.0))}
+
+
+def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True) -> dict:
+    """Run every attack ``n`` times on the bridge and on the reference client; print and return JSON."""
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter()
+    server = server_attacks(n, rng)
+    client = client_attacks(n, rng)
+    report = {
+        "benchmark": "robustness_bridge",
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
+        "attempts_per_kind": n,
+        "server": server,
+        "client": client,
+        "summary": {
+            "server_attacks_accepted": sum(v.get("accepted", 0) for k, v in server.items() if k != "bridge_stats"),
+            "probe_ever_moved": any(v.get("probe_moved", False) for k, v in server.items() if k != "bridge_stats"),
+            "forces_sent_to_attackers": sum(v.get("forces_sent_to_attacker", 0) for k, v in server.items()
+                                            if k != "bridge_stats"),
+            "client_attacks_accepted": sum(v.get("accepted", 0) for k, v in client.items()
+                                           if isinstance(v, dict) and "tried" in v),
+            "bad_force_ever_reached_hand": any(v.get("reached_hand", False) for v in client.values()
+                                               if isinstance(v, dict)),
+        },
+        "tag_cost": tag_cost(),
+    }
+    report["wall_s"] = time.perf_counter() - t0
+    if echo:
+        print(json.dumps(report, indent=2))
+    return report
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=200, help="attempts per attack kind")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    bridge_attacks(args.n, args.seed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
