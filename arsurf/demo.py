@@ -37,7 +37,8 @@ import numpy as np
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
-from arsurf.model import MODEL_OUT
+from arsurf.haptics.feel import score_force
+from arsurf.model import M_IN_CONTACT, MODEL_OUT
 
 #: the demo's model and haptic settings (tip, sample, lever, scaling, filter): one named preset
 DEMO = PRESETS["demo"]
@@ -195,6 +196,10 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     n = int(seconds * RATE)
     writer = SessionWriter(out / "session.h5", meta)
     compute = np.empty(n)
+    device_force = np.empty((n, 3))
+    energy = np.empty(n)
+    damping = np.empty(n)
+    in_contact = np.empty(n, bool)
     views = {}
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
     clock = time.perf_counter_ns
@@ -208,6 +213,10 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         dev.command_force(f)
         o, mo = loop.out, model.out
         get = LOOP_OUT.get
+        device_force[k] = f
+        energy[k] = get(o, "energy")
+        damping[k] = get(o, "passivity_damping")
+        in_contact[k] = mo[M_IN_CONTACT] > 0.5
         if scene is not None:
             extra["tube_poses"] = scene.poses
             tube_force[k] = math.hypot(scene.force[0], scene.force[1])
@@ -222,6 +231,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
+    feel = score_force(device_force, 1.0 / RATE, settle=marks["approach"] / RATE, energy=energy, contact=in_contact)
+    progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes else ""))
     tube_summary = None
     if scene is not None:
         i = plan["tube"]
@@ -277,6 +288,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         "max_contact_radius_nm": float(np.nanmax(ticks["contact_radius"]) * 1e9),
         "ticks_in_contact": int(ticks["in_contact"].sum()),
         "peak_device_force_N": float(np.linalg.norm(ticks["device_force"], axis=1).max()),
+        "feel": feel.as_dict(),
+        "passivity_controller_ticks": int(np.count_nonzero(damping)),
         "tick_compute_median_us": float(np.median(compute) / 1e3),
         "tick_compute_p99_us": float(np.percentile(compute, 99) / 1e3),
         "replay_contact_mismatches": int(result.contact_mismatches),
