@@ -101,13 +101,13 @@ class Layout:
 # records
 
 
-def _record(kind: int, parts) -> bytes:
-    length = sum(memoryview(p).nbytes for p in parts)
+def _record(kind: int, parts: list[bytes]) -> bytes:
+    length = sum(len(p) for p in parts)
     head = _HEAD.pack(MAGIC, kind, length)
     h = hashlib.sha256(head)
     for p in parts:
         h.update(p)
-    return b"".join([head, *[memoryview(p).cast("B") for p in parts], h.digest()])
+    return b"".join([head, *parts, h.digest()])
 
 
 class JournalFile:
@@ -416,7 +416,9 @@ class TickStreamer:
     def _handoff_locked(self) -> None:
         c = self.current
         while not self._free and self._wait and self.error is None and self._thread.is_alive():
-            self.lock.wait(0.1)
+            self.lock.wait(0.1)  # releases the lock: the writer thread may take `c` meanwhile
+            if self.current is not c:
+                return
         if self._free:
             self._queue.append(c)
             nxt = self._free.pop()
@@ -454,7 +456,8 @@ class TickStreamer:
             if batch and self.error is None:
                 try:
                     for c in batch:
-                        self._write(c)
+                        if c.n:  # a record holds 1..65536 ticks
+                            self._write(c)
                     self._journal.sync()
                 except BaseException as exc:  # disk full, I/O error: reported at close
                     self.error = exc
@@ -469,7 +472,7 @@ class TickStreamer:
 
     def _write(self, c: _Chunk) -> None:
         n = c.n
-        parts = [_TICKS.pack(self._seq, c.first, n)] + [np.ascontiguousarray(a[:n]) for a in c.arrays]
+        parts = [_TICKS.pack(self._seq, c.first, n)] + [a[:n].tobytes() for a in c.arrays]
         self._journal.write(TICKS, parts)
         self._seq += 1
         self.written += n

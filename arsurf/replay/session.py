@@ -449,6 +449,13 @@ def _utc_now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
+def _dropped(index: _journal.JournalIndex) -> int:
+    """Ticks dropped while recording: gaps between records, and after the last one (end record)."""
+    told = (index.end or {}).get("dropped_ticks")
+    told = told if isinstance(told, int) and not isinstance(told, bool) and told >= 0 else 0
+    return max(index.dropped_ticks, told)
+
+
 def _merge_journal(index: _journal.JournalIndex, path: Path, *, complete: bool, reason: str,
                    created: str | None) -> Path:
     """Write the ticks of a scanned journal into the sealed session file ``path`` (streaming)."""
@@ -461,7 +468,7 @@ def _merge_journal(index: _journal.JournalIndex, path: Path, *, complete: bool, 
     attrs = {"format": FORMAT, "format_version": np.int64(FORMAT_VERSION),
              "arsurf_version": str(header.get("arsurf_version", __version__)),
              "created": created if created is not None else str(header.get("started", _utc_now())), "units": "SI",
-             "complete": np.bool_(complete), "n_ticks": np.int64(n), "dropped_ticks": np.int64(index.dropped_ticks)}
+             "complete": np.bool_(complete), "n_ticks": np.int64(n), "dropped_ticks": np.int64(_dropped(index))}
     if not complete:
         attrs["aborted"] = reason or "the recording stopped before the writer was closed"
     lay = index.layout
@@ -817,6 +824,14 @@ def _read_attrs(f, name: str) -> dict:
     return attrs
 
 
+def _n_text(f) -> str:
+    """The ``n_ticks`` attribute of an open file as text, for messages ('?' if unreadable)."""
+    try:
+        return str(int(f.attrs["n_ticks"]))
+    except Exception:
+        return "?"
+
+
 def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, allow_incomplete: bool,
                what: str) -> Session:
     """Check the schema of an open h5py file, then read it (caller catches h5py's errors)."""
@@ -836,7 +851,8 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
     if complete is not True and not allow_incomplete:
         why = attrs.get("aborted", "the writer was never closed")
         raise SessionError(f"{name} is incomplete (complete={complete!r}: {why}); "
-                           "pass allow_incomplete=True to read the ticks it holds")
+                           f"pass allow_incomplete=True to read the {_n_text(f)} ticks it holds"
+                           + (" (arsurf replay --allow-incomplete)" if what == "session" else ""))
     for g in ("metadata", "ticks"):
         if g not in f:
             absent = [x for x in ("metadata", "ticks") if x not in f]
@@ -1098,7 +1114,7 @@ def _journal_session(jpath: Path, allow_incomplete: bool, shown: Path) -> Sessio
     else:
         reason = str(end.get("reason") or "")
     summary = (f"{index.n_ticks} ticks recovered from the journal {str(jpath)!r}"
-               + (f" ({index.dropped_ticks} dropped while recording)" if index.dropped_ticks else ""))
+               + (f" ({_dropped(index)} dropped while recording)" if _dropped(index) else ""))
     if not complete and not allow_incomplete:
         raise SessionError(f"{name} is incomplete ({reason}): {summary}; pass allow_incomplete=True "
                            "(arsurf replay --allow-incomplete) to read them, or recover_session() to write them "
@@ -1116,7 +1132,7 @@ def _journal_session(jpath: Path, allow_incomplete: bool, shown: Path) -> Sessio
     attrs = {"format": FORMAT, "format_version": FORMAT_VERSION,
              "arsurf_version": str(index.header.get("arsurf_version", "")),
              "created": str((end or {}).get("created") or index.header.get("started", "")), "units": "SI",
-             "complete": complete, "n_ticks": n, "dropped_ticks": index.dropped_ticks}
+             "complete": complete, "n_ticks": n, "dropped_ticks": _dropped(index)}
     if not complete:
         attrs["aborted"] = reason
     notes = [summary + ("" if complete else " (the recording is incomplete)")]
