@@ -1006,8 +1006,9 @@ def _isolated_child(path: str, spec_text: str, out: str) -> None:
     """The isolated reader's body: read in-process, answer with ticks.npz + info.json in ``out``."""
     spec = json.loads(spec_text)
     p = Path(path)
-    if spec.get("session"):
-        s = load_session(p, allow_incomplete=spec["allow_incomplete"], isolate=False)
+    if spec.get("session"):  # the metadata check (scipy, numba imports) runs in the parent
+        s = _read_file(p, spec, spec["allow_incomplete"], False)
+        _verify(s, f"session {str(p)!r}", required=s.attrs.get("format_version", 0) >= _CHECKSUMMED_FROM)
     else:
         s = read_h5(p, fmt=spec["fmt"], versions=tuple(spec["versions"]), fields=_fields_from_spec(spec),
                     allow_incomplete=spec["allow_incomplete"], what=spec["what"], isolate=False)
@@ -1224,6 +1225,7 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False, iso
     spec = _spec(FORMAT, SUPPORTED_VERSIONS, TICK_FIELDS, "session")
     if isolate is True or (isolate == "auto" and _unsealed(p)):
         s = _read_isolated(p, spec, allow_incomplete, session=True)
+        _check_session(s, path)
     else:
         s = _read_file(p, spec, allow_incomplete, False)
         _check_session(s, path)
