@@ -51,7 +51,7 @@ from _timing import emit  # noqa: E402
 from test_session_fuzz import _meta, _record, mutate  # noqa: E402
 from test_session import _write_v1  # noqa: E402
 
-from arsurf.replay.sealed import SEAL_SIZE, seal_file  # noqa: E402
+from arsurf.replay.sealed import SEAL_SIZE, seal_bytes  # noqa: E402
 from arsurf.replay.session import SessionWriter, journal_path  # noqa: E402
 
 WORKER = r"""
@@ -149,7 +149,6 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=20261121)
     args = ap.parse_args()
     d = Path(tempfile.mkdtemp(prefix="arsurf-fuzz-"))
-    rng = np.random.default_rng(args.seed)
     sealed = d / "sealed.h5"
     with SessionWriter(sealed, _meta(), created="2026-01-01T00:00:00+00:00") as w:
         _record(w, 40, np.random.default_rng(1))
@@ -190,11 +189,9 @@ def main() -> None:
             gkey = "resealed" if group.startswith("resealed") else group  # both readers get the same mutants
             r = np.random.default_rng([args.seed, zlib.crc32(gkey.encode()), i])
             data = originals[base]
-            mutant = _resealed(data, r) if group.startswith("resealed") else mutate(data, r)
+            mutant = seal_bytes(_resealed(data, r)) if group.startswith("resealed") else mutate(data, r)
             target = d / f"w{k}.{'h5.journal' if kind == 'journal' else 'h5'}"
             target.write_bytes(mutant)
-            if group.startswith("resealed"):
-                seal_file(target)
             res = wk.run({"path": str(target), "ref": str(base), "mode": mode, "kind": kind}, args.timeout)
             res["size"] = len(mutant)
             with lock:

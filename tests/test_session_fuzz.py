@@ -11,7 +11,7 @@ from arsurf.assembly import session_metadata
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever
-from arsurf.replay.sealed import SEAL_SIZE, seal_file
+from arsurf.replay.sealed import SEAL_SIZE, seal_bytes
 from arsurf.replay.session import SessionWriter, journal_path, load_session
 
 R = 20e-9
@@ -112,10 +112,9 @@ def test_hdf5_damage_behind_a_valid_seal_is_refused_by_the_isolated_reader(sessi
     refused = 0
     for i in range(8):
         b = bytearray(data)
-        for at in rng.integers(SEAL_SIZE, SEAL_SIZE + 4096, size=3):  # superblock, object headers, B-trees
+        for at in rng.integers(SEAL_SIZE, SEAL_SIZE + 4096, size=3):  # the signature too  # superblock, object headers, B-trees
             b[int(at)] ^= 1 << int(rng.integers(8))
-        target.write_bytes(bytes(b))
-        seal_file(target)
+        target.write_bytes(seal_bytes(bytes(b)))
         try:
             got = load_session(target, isolate=True)
         except SessionError:

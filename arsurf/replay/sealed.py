@@ -44,18 +44,16 @@ True
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import signal
 import struct
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 from arsurf.errors import IsolatedReadFailure, SessionError
 
-__all__ = ["SEAL_SIZE", "seal_file", "read_sealed", "is_sealed_header", "check_superblock", "run_isolated"]
+__all__ = ["SEAL_SIZE", "seal_file", "seal_bytes", "read_sealed", "is_sealed_header", "check_superblock", "run_isolated"]
 
 #: size of the HDF5 user block that holds the seal (HDF5 needs a power of two >= 512)
 SEAL_SIZE = 512
@@ -106,6 +104,20 @@ def seal_file(path: str | os.PathLike) -> None:
         fh.write(head[:_DIGEST_AT] + digest + head[_DIGEST_AT + 32:])
         fh.flush()
         os.fsync(fh.fileno())
+
+
+def seal_bytes(data: bytes) -> bytes:
+    """``data`` (a file with a free 512-byte user block) with a valid seal over whatever it holds.
+
+    Unlike :func:`seal_file` it does not look at the HDF5 part: tests and fuzzers use it to
+    craft files whose seal is valid but whose HDF5 structures are damaged, the case the seal
+    cannot catch and the isolated reader must.
+    """
+    if len(data) < SEAL_SIZE:
+        raise SessionError(f"a sealed file has at least {SEAL_SIZE} bytes (got {len(data)})")
+    head = _SEAL.pack(SEAL_MAGIC, SEAL_VERSION, len(data) - SEAL_SIZE, bytes(32)) + bytes(SEAL_SIZE - _SEAL.size)
+    digest = _digest(head, [memoryview(data)[SEAL_SIZE:]])
+    return head[:_DIGEST_AT] + digest + head[_DIGEST_AT + 32:] + data[SEAL_SIZE:]
 
 
 def is_sealed_header(head: bytes) -> bool:
@@ -278,13 +290,3 @@ def run_isolated(code: str, args: list[str], *, timeout: float, memory_limit: in
     tail = err.splitlines()[-1] if err else ""
     raise IsolatedReadFailure(f"{what} failed in the isolated reader (exit status {proc.returncode}: {tail}); "
                           "the file is refused")
-
-
-def isolated_tempdir() -> tempfile.TemporaryDirectory:
-    """A private temporary folder for the isolated reader's answer."""
-    return tempfile.TemporaryDirectory(prefix="arsurf-isolated-")
-
-
-def dump_json(obj) -> str:
-    """JSON text of the isolated reader's answer (non-JSON values as their ``str``)."""
-    return json.dumps(obj, sort_keys=True, default=str)
