@@ -479,3 +479,14 @@ def test_a_sealed_file_with_a_huge_dataset_claim_is_refused_before_allocating(tm
     assert p.stat().st_size < 200_000
     with pytest.raises(SessionError, match=r"claim \d+ bytes of data, more than a \d+-byte file can hold"):
         load_session(p)
+
+
+def test_names_that_are_not_text_are_refused(tmp_path):
+    """Found by bench/fuzz_sessions.py: a flipped bit made an attribute name invalid UTF-8, which
+    h5py returns as bytes; the checksum step then raised a raw TypeError."""
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__(b"\xffcomplete", 1))
+    with pytest.raises(SessionError, match="root attribute whose name is not text"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f["metadata"].attrs.__setitem__(b"\xfe", "1"))
+    with pytest.raises(SessionError, match="/metadata key is not text"):
+        load_session(q)

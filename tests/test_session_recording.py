@@ -288,3 +288,18 @@ def test_arsurf_replay_says_a_killed_recording_is_incomplete_and_replays_what_wa
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["n_ticks"] == 50 and "interrupted" in summary["session_incomplete"]
     assert summary["session_recovered_from_journal"] is True
+
+
+def test_a_writer_dropped_without_close_leaves_its_ticks_in_the_journal(tmp_path):
+    import gc
+    import threading
+
+    before = threading.active_count()
+    w = SessionWriter(tmp_path / "s.h5", meta())
+    for k in range(10):
+        w.append(t=k * 1e-3, probe_position=position(k))
+    del w
+    gc.collect()
+    assert threading.active_count() == before  # its writer thread stopped
+    s = load_session(tmp_path / "s.h5", allow_incomplete=True)
+    assert s.recovered and s.n_ticks == 10

@@ -522,6 +522,11 @@ def _close_open_writers() -> None:  # pragma: no cover - runs at interpreter exi
             pass
 
 
+def _abandon(stream: _journal.TickStreamer, file: _journal.JournalFile) -> None:
+    stream.stop()
+    file.close()
+
+
 class SessionWriter:
     """Record a session tick by tick, streamed to a crash-safe journal; the ``.h5`` is written at :meth:`close`.
 
@@ -624,6 +629,9 @@ class SessionWriter:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._old_handlers[sig] = signal.signal(sig, self._on_signal)
         _OPEN_WRITERS.add(self)
+        # a writer dropped without close: stop its thread, close the journal (kept, recoverable)
+        self._finalizer = weakref.finalize(self, _abandon, self._stream, self._file)
+        self._finalizer.atexit = False  # at exit, _close_open_writers closes live writers properly
 
     def _on_signal(self, signum, frame) -> None:
         self._signal = signal.Signals(signum).name
@@ -811,6 +819,8 @@ def _read_attrs(f, name: str) -> dict:
         raise SessionError(f"{name} has {len(keys)} root attributes; a session has about ten (damaged)")
     attrs = {}
     for k in keys:
+        if not isinstance(k, str):
+            raise SessionError(f"{name} has a root attribute whose name is not text ({k!r}): damaged")
         v = _attr(f.attrs[k])
         want = _ATTR_TYPES.get(k)
         if want is not None:
@@ -865,6 +875,8 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
         raise SessionError(f"{name}: /metadata has {len(keys)} keys (damaged)")
     metadata, texts = {}, {}
     for key in keys:
+        if not isinstance(key, str):
+            raise SessionError(f"{name}: a /metadata key is not text ({key!r}): damaged")
         text = _attr(mg.attrs[key])
         if not isinstance(text, str):
             raise SessionError(f"metadata {key!r} of {str(p)!r} is not a JSON text (got {type(text).__name__})")
@@ -875,6 +887,9 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
             raise SessionError(f"metadata {key!r} of {str(p)!r} is not valid JSON ({exc})") from None
     g = f["ticks"]
     names = list(g.keys())
+    odd = [x for x in names if not isinstance(x, str)]
+    if odd:
+        raise SessionError(f"{name}: a /ticks dataset name is not text ({odd[0]!r}): damaged")
     absent = [fl.name for fl in fields if fl.name not in names]
     if absent:
         raise SessionError(f"{name} lacks the per-tick dataset(s) {absent}")
