@@ -19,7 +19,9 @@ outcomes ``identical`` (or ``prefix`` for journals), ``refused`` (SessionError),
 worker died from a signal), ``hang`` (time limit), ``other`` (another exception class),
 ``altered`` (loaded, said verified, but different: the failure that must never happen) and
 ``altered_unverified`` (a version-1 file, which has no checksums: loaded different, with
-``Session.verified`` False and a note saying its content cannot be verified). ``peak_rss_growth`` is the largest growth of a worker's
+``Session.verified`` False and a note saying its content cannot be verified).
+``isolated_child_peak_rss_kb``: the largest peak resident memory of an isolated reader child
+(its address space is capped by ``RLIMIT_AS``). ``peak_rss_growth`` is the largest growth of a worker's
 peak resident memory caused by one mutant, against the file size.
 
 Usage: ``python bench/fuzz_sessions.py [--sealed 10000] [--resealed 300] [--version1 200]
@@ -77,6 +79,7 @@ for line in sys.stdin:
     if key not in refs:
         refs[key] = load_session(job["ref"], allow_incomplete=True, isolate=False)
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    child_before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     try:
         s = load_session(job["path"], allow_incomplete=journal, isolate=iso)
         ok = same(s, refs[key], journal)
@@ -88,7 +91,9 @@ for line in sys.stdin:
     except BaseException as exc:
         out, err = "other", f"{type(exc).__name__}: {exc}"[:300]
     after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print(json.dumps({"outcome": out, "error": err, "rss_growth_kb": after - before}), flush=True)
+    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    print(json.dumps({"outcome": out, "error": err, "rss_growth_kb": after - before,
+                      "isolated_child_peak_kb": child if child > child_before else 0}), flush=True)
 """
 
 
@@ -121,10 +126,12 @@ class Worker:
             self.proc.kill()
             self.proc.wait()
             self.start()
-            return {"outcome": "hang", "error": f"> {timeout} s", "rss_growth_kb": 0, "seconds": timeout}
+            return {"outcome": "hang", "error": f"> {timeout} s", "rss_growth_kb": 0, "seconds": timeout,
+                    "isolated_child_peak_kb": 0}
         code = self.proc.wait()
         self.start()
-        return {"outcome": "crash", "error": f"exit {code}", "rss_growth_kb": 0, "seconds": time.perf_counter() - t0}
+        return {"outcome": "crash", "error": f"exit {code}", "rss_growth_kb": 0, "seconds": time.perf_counter() - t0,
+                "isolated_child_peak_kb": 0}
 
     def close(self):
         self.proc.stdin.close()
@@ -222,6 +229,7 @@ def main() -> None:
         top = dict(sorted(refusals.items(), key=lambda kv: -kv[1])[:4])
         return {"mutants": len(rs), "outcomes": counts, "median_ms": float(np.median(secs) * 1e3),
                 "max_ms": float(secs.max() * 1e3), "peak_rss_growth_kb": int(growth["rss_growth_kb"]),
+                "isolated_child_peak_rss_kb": int(max(r["isolated_child_peak_kb"] for r in rs)),
                 "file_kb": round(growth["size"] / 1024, 1), "bad_examples": examples, "top_refusals": top}
 
     out = {"seed": args.seed, "timeout_s": args.timeout, "workers": args.workers, "wall_s": round(wall, 1),
