@@ -147,12 +147,17 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
     return result, found
 
 
-def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=print) -> dict:
-    """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary."""
+def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=print,
+             handle_signals: bool = False) -> dict:
+    """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary.
+
+    ``handle_signals`` (the command line): SIGINT/SIGTERM during the session close
+    ``session.h5`` with every tick recorded so far (marked incomplete) before the demo stops.
+    """
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, contact_fields
+    from arsurf.replay.session import SessionWriter, contact_fields, journal_path
     from arsurf.scan.prepare import prepare_scan
 
     out = Path(out_dir)
@@ -194,7 +199,9 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
     loop = build_loop(model, meta["haptics"], dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
     n = int(seconds * RATE)
-    writer = SessionWriter(out / "session.h5", meta)
+    journal_path(out / "session.h5").unlink(missing_ok=True)  # a killed earlier run's: replaced like the rest
+    # the loop runs in simulated time, faster than real time: wait for the disk rather than drop ticks
+    writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
     device_force = np.empty((n, 3))
     energy = np.empty(n)
@@ -205,29 +212,29 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     clock = time.perf_counter_ns
     tube_force = np.zeros(n)
     extra = {}
-    for k in range(n):
-        st = dev.read_state()
-        t0 = clock()
-        f = loop.step(st, st.timestamp)
-        compute[k] = clock() - t0
-        dev.command_force(f)
-        o, mo = loop.out, model.out
-        get = LOOP_OUT.get
-        device_force[k] = f
-        energy[k] = get(o, "energy")
-        damping[k] = get(o, "passivity_damping")
-        in_contact[k] = mo[M_IN_CONTACT] > 0.5
-        if scene is not None:
-            extra["tube_poses"] = scene.poses
-            tube_force[k] = math.hypot(scene.force[0], scene.force[1])
-        writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
-                      probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
-                      signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
-                      **contact_fields(model.record(mo)), **extra)
-        for name, tick in marks.items():
-            if k == tick:
-                views[name] = _scene(model, loop, contact, RATE, scene)
-    writer.close()
+    with writer:  # an exception or a signal still closes the file (incomplete) with every tick
+        for k in range(n):
+            st = dev.read_state()
+            t0 = clock()
+            f = loop.step(st, st.timestamp)
+            compute[k] = clock() - t0
+            dev.command_force(f)
+            o, mo = loop.out, model.out
+            get = LOOP_OUT.get
+            device_force[k] = f
+            energy[k] = get(o, "energy")
+            damping[k] = get(o, "passivity_damping")
+            in_contact[k] = mo[M_IN_CONTACT] > 0.5
+            if scene is not None:
+                extra["tube_poses"] = scene.poses
+                tube_force[k] = math.hypot(scene.force[0], scene.force[1])
+            writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
+                          probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
+                          signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                          **contact_fields(model.record(mo)), **extra)
+            for name, tick in marks.items():
+                if k == tick:
+                    views[name] = _scene(model, loop, contact, RATE, scene)
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
@@ -353,7 +360,7 @@ def register(sub) -> None:
 
 
 def _cmd(args) -> int:
-    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images)
+    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True)
     print(json.dumps(summary, indent=2))
     print(f"results in {args.out}/")
     return 0

@@ -110,6 +110,18 @@ class SessionFileNotFound(SessionError, FileNotFoundError):
     """The session file does not exist."""
 
 
+class IsolatedReadFailure(SessionError):
+    """The isolated reader of an HDF5 file crashed, hung or ran out of memory: the file is refused."""
+
+
+class RecordingInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM reached a recording that handles signals: the recording block unwinds.
+
+    A :class:`KeyboardInterrupt` (not an :class:`ArsurfError`), so ``except Exception`` does not
+    swallow it and a command line reports it as an interruption.
+    """
+
+
 class ManipulationError(ArsurfError, ValueError):
     """Invalid nano-object model input (non-positive tube length, load point off the beam...)."""
 
