@@ -180,7 +180,7 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
     Returns
     -------
     files : list of Path
-        Absolute, without duplicates.
+        Absolute (symbolic links are not resolved), without duplicates.
     root : Path
         The deepest folder holding all of them (item keys are relative to it).
 
@@ -194,7 +194,7 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
     if not inputs:
         raise BatchError("no input given: name scan files, folders or glob patterns")
     wanted = {s.lower() for s in (suffixes if suffixes is not None else _scan_suffixes())}
-    skip = Path(exclude).resolve() if exclude is not None else None
+    skips = set() if exclude is None else {Path(os.path.abspath(exclude)), Path(exclude).resolve()}
     found: dict[Path, None] = {}
     for entry in inputs:
         text = os.fspath(entry)
@@ -212,13 +212,14 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
         else:
             raise BatchError(f"input {text!r} does not exist (a file, a folder or a glob pattern)")
         for m in matches:
-            path = m.resolve()
-            if skip is not None and (path == skip or skip in path.parents):
+            path = Path(os.path.abspath(m))  # symbolic links kept: a linked copy is an item of its own
+            if any(s == p or s in p.parents for s in skips for p in (path, path.resolve())):
                 continue
             found.setdefault(path, None)
     files = sorted(found)
     if not files:
-        raise BatchError(f"every input is inside the output folder {str(skip)!r}; choose another output folder")
+        raise BatchError(f"every input is inside the output folder {os.fspath(exclude)!r}; choose another output "
+                         "folder")
     root = Path(os.path.commonpath([str(p.parent) for p in files]))
     return files, root
 

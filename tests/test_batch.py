@@ -258,7 +258,7 @@ def test_missing_dask_is_one_line(folder, tmp_path, monkeypatch):
 
 def test_inputs_globs_and_the_output_folder(folder, tmp_path):
     files, root = collect_inputs([str(folder / "s*.*"), folder / "s0.gsf"])
-    assert [f.name for f in files] == ["s0.gsf", "s1.npz", "s2.gwy"] and root == folder.resolve()
+    assert [f.name for f in files] == ["s0.gsf", "s1.npz", "s2.gwy"] and root == Path(os.path.abspath(folder))
     # an output folder inside the input folder: its tables and surfaces are not inputs
     out = folder / "out"
     run_batch("process", [folder], out, workers=0, progress=False)
