@@ -803,24 +803,27 @@ def _execute_local(func: Callable, calls: Sequence[tuple], workers: int, on_resu
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _execute_dask(func: Callable, calls: Sequence[tuple], scheduler, on_result: Callable[[int, Any], None],
-                  on_crash: Callable[[int, str], None], connect_timeout: float) -> None:
-    """Run the calls on a Dask cluster: ``scheduler`` is an address (``tcp://host:8786``) or a
-    ``distributed.Client``. A task that fails on the cluster (a worker killed three times running
-    it: ``KilledWorker``) goes to ``on_crash``."""
+def _connect(scheduler, connect_timeout: float):
+    """``(client, own)``: a ``distributed.Client`` for an address (``own``: close it after), or the client given."""
     distributed = require("distributed", "dask", "arsurf batch on a Dask cluster (--scheduler)")
-    own = not isinstance(scheduler, distributed.Client)
-    if own:
-        try:
-            client = distributed.Client(scheduler, timeout=connect_timeout)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise BatchError(f"cannot reach the Dask scheduler at {scheduler!r} within {connect_timeout:g} s "
-                             f"({_reason(exc)}); start one with `dask scheduler` or check the address") from None
-    else:
-        client = scheduler
+    if isinstance(scheduler, distributed.Client):
+        return scheduler, False
     try:
-        futures = [client.submit(func, *args, pure=False) for args in calls]
-        index = {f.key: i for i, f in enumerate(futures)}
+        return distributed.Client(scheduler, timeout=connect_timeout), True
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        raise BatchError(f"cannot reach the Dask scheduler at {scheduler!r} within {connect_timeout:g} s "
+                         f"({_reason(exc)}); start one with `dask scheduler` or check the address") from None
+
+
+def _execute_dask(func: Callable, calls: Sequence[tuple], client, on_result: Callable[[int, Any], None],
+                  on_crash: Callable[[int, str], None]) -> None:
+    """Run the calls on the Dask cluster of ``client``. A task that fails on the cluster (a worker
+    killed three times running it: ``KilledWorker``) goes to ``on_crash``."""
+    import distributed
+
+    futures = [client.submit(func, *args, pure=False) for args in calls]
+    index = {f.key: i for i, f in enumerate(futures)}
+    try:
         for fut in distributed.as_completed(futures):
             i = index[fut.key]
             try:
@@ -831,8 +834,7 @@ def _execute_dask(func: Callable, calls: Sequence[tuple], scheduler, on_result: 
                 on_result(i, value)
             fut.release()
     finally:
-        if own:
-            client.close()
+        client.cancel([f for f in futures if not f.done()])
 
 
 def _settings(pipeline: Pipeline, options: dict) -> dict:
@@ -953,6 +955,17 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
     items = make_items(p, files, root, opts)
     if len({it.key for it in items}) != len(items):
         raise BatchError("two inputs give the same item name; rename one of them")
+    client, own = _connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
+    try:
+        return _run(p, items, opts, out, workers, client, resume, progress, t0)
+    finally:
+        if own:
+            client.close()
+
+
+def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client, resume: bool, progress: bool,
+         t0: float) -> BatchResult:
+    """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
     table_path = out / TABLE
     _repair(table_path)
@@ -978,8 +991,8 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
     try:
         if not calls:
             pass
-        elif scheduler is not None:
-            _execute_dask(run_item, calls, scheduler, record, crashed, float(connect_timeout))
+        elif client is not None:
+            _execute_dask(run_item, calls, client, record, crashed)
         else:
             n = (os.cpu_count() or 1) if workers is None else int(workers)
             _execute_local(run_item, calls, min(n, len(calls)), record, crashed)

@@ -306,3 +306,11 @@ def test_command_line_runs_and_resumes(folder, tmp_path, capsys):
     assert main([*args, "--resume"]) == 0
     assert "3 items: 3 ok, 0 failed, 0 not run; 0 run now, 3 done before" in capsys.readouterr().out
     assert json.loads((out / "batch.json").read_text())["options"]["sigma"] == 1e-9
+
+
+def test_an_unreachable_scheduler_is_one_line_and_writes_nothing(folder, tmp_path):
+    pytest.importorskip("distributed")
+    with pytest.raises(BatchError, match=r"cannot reach the Dask scheduler at 'tcp://127.0.0.1:9' within 1 s"):
+        run_batch("process", [folder], tmp_path / "out", scheduler="tcp://127.0.0.1:9", connect_timeout=1.0,
+                  progress=False)
+    assert not (tmp_path / "out").exists()
