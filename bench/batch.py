@@ -13,6 +13,10 @@ and the speed-up over one local worker:
 - ``dask-local-2``: a ``dask.distributed.LocalCluster`` of two single-threaded worker processes
   (started once, before the rounds; its start-up time is given apart)
 
+``machine_parallel_speedup`` calibrates the figures: the speed-up of the same pure-Python loop on
+two processes over one, measured in each round. On an idle 2-core machine it is ~2; on a shared
+one it says how much of the second core the batch could have had.
+
 Run: python bench/batch.py [--repeat 4] [--rounds 3]
 """
 from __future__ import annotations
@@ -46,6 +50,27 @@ def _items(tmp: Path, repeat: int) -> tuple[Path, list[str]]:
     return folder, [f.name for f in files]
 
 
+def _burn(n: int) -> int:
+    s = 0
+    for i in range(n):
+        s += i * i
+    return s
+
+
+def _parallel_speedup() -> float:
+    """Wall time of 8 pure-Python loops on one process / on two (pools started before timing)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    times = []
+    for w in (1, 2):
+        with ProcessPoolExecutor(w) as ex:
+            list(ex.map(_burn, [1000] * w))
+            t0 = time.perf_counter()
+            list(ex.map(_burn, [2_000_000] * 8))
+            times.append(time.perf_counter() - t0)
+    return times[0] / times[1]
+
+
 def _run(folder: Path, out: Path, **kwargs) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
@@ -76,8 +101,10 @@ def main(argv=None) -> int:
         configs = {"in-process": {"workers": 0}, "local-1": {"workers": 1}, "local-2": {"workers": 2},
                    "dask-local-2": {"scheduler": client}}
         runs: dict[str, list] = {name: [] for name in configs}
+        machine = []
         try:
             for _ in range(args.rounds):  # interleaved: each round sees the same state of the machine
+                machine.append(round(_parallel_speedup(), 2))
                 for name, kw in configs.items():
                     runs[name].append(_run(folder, tmp / name, **kw))
         finally:
@@ -94,7 +121,7 @@ def main(argv=None) -> int:
     for name in results:
         results[name]["speedup_vs_local_1"] = round(base / results[name]["median_wall_s"], 2)
     doc = {"benchmark": "batch", "pipeline": "process", "options": OPTIONS, "scans": names, "repeat": args.repeat,
-           "items": n, "rounds": args.rounds, "dask_cluster_start_s": round(cluster_start, 3), "results": results,
+           "items": n, "rounds": args.rounds, "machine_parallel_speedup": machine, "dask_cluster_start_s": round(cluster_start, 3), "results": results,
            "cpus": os.cpu_count(), "python": sys.version.split()[0], "platform": platform.platform(),
            "dask": distributed.__version__}
     print(json.dumps(doc, indent=2))
