@@ -122,6 +122,12 @@ class RecordingInterrupted(KeyboardInterrupt):
     """
 
 
+class BatchError(ArsurfError, ValueError):
+    """A batch run cannot start or resume as asked (no input file, a bad option, a results table
+    written with other settings, an unreachable Dask scheduler). Errors of single items are not
+    raised: they are written to the results table."""
+
+
 class ManipulationError(ArsurfError, ValueError):
     """Invalid nano-object model input (non-positive tube length, load point off the beam...)."""
 
