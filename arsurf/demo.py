@@ -230,6 +230,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
                 tube_force[k] = math.hypot(scene.force[0], scene.force[1])
             writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
                           probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
+                          tip_position=get(o, "tip"), energy=energy[k], passivity_damping=damping[k],
                           signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
                           **contact_fields(model.record(mo)), **extra)
             for name, tick in marks.items():

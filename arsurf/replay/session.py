@@ -73,8 +73,11 @@ dataset                   shape     dtype   fill   meaning
 ``stylus_position``       (n, 3)    f8      NaN    haptic stylus position, m (device frame)
 ``stylus_velocity``       (n, 3)    f8      NaN    stylus velocity, m/s
 ``buttons``               (n,)      i4      0      stylus button bit mask
-``probe_position``        (n, 3)    f8      req.   tip-sphere centre C, m (scan frame)
-``probe_velocity``        (n, 3)    f8      NaN    tip velocity v, m/s (replay needs it)
+``probe_position``        (n, 3)    f8      req.   target tip centre C (the scaled stylus), m (scan frame)
+``probe_velocity``        (n, 3)    f8      NaN    velocity of C, m/s
+``tip_position``          (n, 3)    f8      NaN    tip centre behind the virtual coupling, m
+``energy``                (n,)      f8      NaN    passivity observer's port energy, J
+``passivity_damping``     (n,)      f8      NaN    damping the passivity controller added, N s/m
 ``signals``               (n, 2)    f8      NaN    measured (bending, torsion) angles, rad
 ``quadrants``             (n, 4)    f8      NaN    photodiode quadrants A, B, C, D, V
 ``force``                 (n, 3)    f8      NaN    force on the tip the loop used, N
@@ -238,6 +241,9 @@ TICK_FIELDS: tuple[TickField, ...] = (
     TickField("buttons", 0, "i4", 0, "stylus button bit mask"),
     TickField("probe_position", 3, "f8", _NAN, "tip-sphere centre, m (scan frame)"),
     TickField("probe_velocity", 3, "f8", _NAN, "tip velocity, m/s"),
+    TickField("tip_position", 3, "f8", _NAN, "tip centre behind the virtual coupling, m"),
+    TickField("energy", 0, "f8", _NAN, "passivity observer's port energy, J"),
+    TickField("passivity_damping", 0, "f8", _NAN, "damping the passivity controller added, N s/m"),
     TickField("signals", 2, "f8", _NAN, "measured (bending, torsion) angles, rad"),
     TickField("quadrants", 4, "f8", _NAN, "photodiode quadrants A, B, C, D, V"),
     TickField("force", 3, "f8", _NAN, "force on the tip the loop used, N"),
