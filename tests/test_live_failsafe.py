@@ -121,3 +121,61 @@ def test_malformed_buttons_are_a_flagged_no_press(buttons):
     assert np.isfinite(force).all()
     assert loop.output().safety_flags & status.BAD_BUTTONS
     np.testing.assert_allclose(force, good, atol=1e-12)  # no press: the same force as before
+
+
+# --- property: random fault sequences through the compiled tick ---------------------------------
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from arsurf.haptics.device import DeviceState  # noqa: E402
+
+_FAULTS = ("ok", "nan_position", "huge_position", "stale", "future", "bad_buttons", "clock_stall", "huge_velocity")
+_LOOP = {}
+
+
+def _property_loop():
+    """One loop for all examples (compiled once); reset between examples by rebuilding its parts."""
+    s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 37 * 4e-9), (0.0, 37 * 4e-9))
+    model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)
+    info = VirtualDevice(dt=1e-3).info
+    # stop_time = one tick: a fault must zero the force within one tick
+    return HapticLoop.direct(model, info, (70e-9, 70e-9, R - 2e-9), ramp_time=0.05, stop_time=1e-3,
+                             max_rate=50.0, force_gain=1e8)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(_FAULTS), st.floats(-3e-3, 3e-3)), min_size=20, max_size=120))
+def test_property_random_faults_never_let_a_bad_force_through(sequence):
+    """Whatever the fault sequence, the force commanded is finite, within the device limit, within
+    the rate limit from the previous tick (or zero), and zero within one tick of a fault (a stylus
+    reading that is not a number, a sample stale or stamped ahead of the clock)."""
+    loop = _property_loop()
+    limit = loop.safety.max_force
+    step_limit = 50.0 * 1e-3 * (1 + 1e-9)
+    prev = np.zeros(3)
+    now = 0.0
+    for kind, x in sequence:
+        if kind != "clock_stall":
+            now += 1e-3
+        pos = np.array([x, 0.0, -abs(x)])
+        vel = np.zeros(3)
+        stamp, buttons = now, 0
+        if kind == "nan_position":
+            pos[0] = np.nan
+        elif kind == "huge_position":
+            pos[:] = 1.7e308
+        elif kind == "huge_velocity":
+            vel[:] = -1.7e308
+        elif kind == "stale":
+            stamp = now - 1.0
+        elif kind == "future":
+            stamp = now + 1.0
+        elif kind == "bad_buttons":
+            buttons = float("nan")
+        f = np.array(loop.step(DeviceState(pos, vel, buttons, stamp), now), dtype=float)
+        assert np.isfinite(f).all()
+        assert np.linalg.norm(f) <= limit * (1 + 1e-12)
+        assert not f.any() or np.linalg.norm(f - prev) <= step_limit
+        if kind in ("nan_position", "stale", "future"):
+            assert not f.any(), kind  # zero within the tick (stop_time = one tick)
+        prev = f

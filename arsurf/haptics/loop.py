@@ -140,6 +140,9 @@ def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, 
         for j in range(3):
             fp_state[j] = nxt[j]
     out[L_COUPLING_FLAGS] = cflags
+    for j in range(3):  # a stylus reading that is not a number is a device fault: zero force now
+        if not (math.isfinite(x_m[j]) and math.isfinite(v_m[j])):
+            hand[0] = math.nan
     pflag = passivity_observe_control(pc_params, pc_state, x_m, v_m, hand)
     dev = out[L_F_DEVICE:L_F_DEVICE + 3]
     flags = safety_step(safety_params, safety_state, hand, now, age, buttons, dev) | pflag
