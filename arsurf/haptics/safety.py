@@ -240,7 +240,8 @@ class SafetyLayer:
     ramp_time : float, s
         Time for the engagement gain to go from 0 to 1 (default 0.5 s).
     stop_time : float, s
-        Time to fade the force to zero on a fault (default 0.01 s; 0: at once).
+        Time to fade the force to zero on a fault (default 0: at once, within the faulty tick, as
+        the project promises; a few ms softens the stop for a hand that is known to be holding on).
     stale_after : float, s
         A device sample older than this is stale (default 0.02 s).
     miss_factor : float
@@ -268,7 +269,7 @@ class SafetyLayer:
     """
 
     def __init__(self, max_force: float, dt: float, *, max_rate: float = 1000.0, ramp_time: float = 0.5,
-                 stop_time: float = 0.01, stale_after: float = 0.02, miss_factor: float = 1.5,
+                 stop_time: float = 0.0, stale_after: float = 0.02, miss_factor: float = 1.5,
                  max_misses: int = 10, recover_ticks: int = 100, disengage_mask: int = BUTTON_1) -> None:
         p = np.zeros(_NP)
         p[_P_FMAX] = _num(max_force, "max_force", positive=True, unit="N")
