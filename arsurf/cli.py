@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
                         "(authenticated poses in, forces out; protocol in docs/bridge-protocol.md; "
-                        "tools/haptic_client.py is a reference client)")
+                        "`python -m arsurf.haptics.client` is a reference client)")
     s.add_argument("--host", "--bridge-host", dest="bridge_host", default=None, metavar="ADDRESS",
                    help="address the bridge listens on (default 127.0.0.1: this machine only); any other address "
                         "needs --bridge-key-file or --bridge-key")
@@ -323,7 +323,7 @@ def _view(args, bridge) -> int:
     live = bridge_loop(surface, tip_radius, host=bridge.host, port=bridge.port, key=bridge.key,
                        peer_timeout=bridge.peer_timeout, scale=args.scale).start()
     print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
-          f"{bridge.host}:{bridge.port} (tools/haptic_client.py is a reference client)", file=sys.stderr)
+          f"{bridge.host}:{bridge.port} (`python -m arsurf.haptics.client` is a reference client)", file=sys.stderr)
     try:
         run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose)
     finally:

@@ -2,7 +2,7 @@
 
 1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.instrument.engage`):
    the tip starts 5 um above the sample beside a nanotube of the bundled synthetic scan
-   ``scans/nanotubes.npz`` and is brought into contact by nano/micro stage steps under a force
+   ``nanotubes.npz`` (package data, :mod:`arsurf.data`) and is brought into contact by nano/micro stage steps under a force
    limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
    to hover 8 nm above it);
 2. **haptic session**: a scripted operator (a :class:`~arsurf.haptics.virtual_device.HandModel`

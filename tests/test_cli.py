@@ -44,14 +44,9 @@ def test_errors_are_one_line_messages(tmp_path, capsys):
 def test_bridge_loop_feels_the_surface_through_udp():
     """`arsurf view --bridge-port`'s loop: a client on loopback sends stylus poses, the 1 kHz loop
     moves the tip into the surface and sends back a force pushing the stylus up."""
-    import sys as _sys
-    from pathlib import Path
-
+    from arsurf.haptics.client import HapticClient
     from arsurf.spline.surface import BSplineSurface
     from arsurf_viewer.live import bridge_loop
-
-    _sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-    from haptic_client import HapticClient
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))

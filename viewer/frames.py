@@ -1,7 +1,7 @@
 """Offscreen frames: PNG files and an mp4 movie from a sequence of scene states.
 
 Every frame is written as ``<prefix>_00000.png`` ... through one :class:`SurfaceView` updated in
-place. The movie (H.264, ``yuv420p``, so any player opens it) needs ``imageio-ffmpeg``; without
+place. The movie (H.264, ``yuv420p``, so any player opens it) needs ``imageio-ffmpeg`` (the ``movie`` extra); without
 it the frames are still written and the returned :class:`Frames` says why there is no movie
 (the message is also printed to stderr). Files are written under temporary names and renamed,
 so an interrupted run leaves no truncated PNG or mp4 behind.
@@ -48,7 +48,7 @@ class Frames:
 def movie_support() -> str | None:
     """None when mp4 movies can be written, else the reason they cannot."""
     if importlib.util.find_spec("imageio_ffmpeg") is None:
-        return "imageio-ffmpeg is not installed (pip install 'arsurf[viewer]' or imageio-ffmpeg)"
+        return "imageio-ffmpeg is not installed (pip install 'arsurf[movie]')"
     try:
         import imageio_ffmpeg
 
@@ -124,7 +124,7 @@ def render_frames(states: Iterable[SceneState], out_dir: str | os.PathLike, *, f
             paths.append(path)
             if movie_tmp is not None:
                 if writer is None:
-                    imageio = require("imageio.v2", "viewer", "writing movies")
+                    imageio = require("imageio.v2", "movie", "writing movies")
                     writer = imageio.get_writer(movie_tmp, fps=float(fps), codec="libx264", quality=8,
                                                 macro_block_size=1, pixelformat="yuv420p")
                 writer.append_data(_even(img))
