@@ -5,6 +5,10 @@ status 2; a tracebacks never reaches the user.
 
 Units at this edge: lengths on the command line are in nanometres (flags end in ``-nm``),
 forces in nanonewtons; everything inside is SI.
+
+Messages: results go to stdout; progress messages, notes and bars to stderr through the
+``arsurf`` logger (:mod:`arsurf._logging`): ``-q``/``--quiet`` keeps only warnings and errors and
+hides the bars, ``-v``/``--verbose`` adds debug messages (before or after the subcommand).
 """
 from __future__ import annotations
 
@@ -141,6 +145,17 @@ def _seconds(text: str) -> float:
     return value
 
 
+def _count(text: str) -> int:
+    """An argparse type: a whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number (got {text!r})") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    return value
+
+
 def _calibration(args) -> dict:
     """``dx``, ``dy`` (m) and ``z_unit`` of a file that does not state them (flags in nm)."""
     return {"dx": None if args.dx_nm is None else args.dx_nm * 1e-9,
@@ -168,6 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
                 "(scan -> B-spline -> contact -> 3D force -> haptics). Lengths on the command line are in "
                 "nanometres (flags ending in -nm); everything inside is SI.")
     p.add_argument("--version", action="version", version=f"arsurf {__version__}")
+    _log_flags(p, argparse.SUPPRESS)
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range")
@@ -215,6 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.add_argument("--tubes", action="store_true",
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
+    s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
+                   "(default out/view)")
+    s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90)")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
@@ -238,7 +257,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _EXTRA_COMMANDS:
         importlib.import_module(module).register(sub)
+    for command in sub.choices.values():  # -q/-v after the subcommand too (not given: the top level's stand)
+        _log_flags(command, argparse.SUPPRESS)
     return p
+
+
+def _log_flags(parser, default) -> None:
+    parser.add_argument("-q", "--quiet", dest="log_quiet", action="store_true", default=default,
+                        help="only warnings and errors on stderr; no progress bars")
+    parser.add_argument("-v", "--verbose", dest="log_verbose", action="count", default=default,
+                        help="more messages on stderr (debug)")
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
@@ -312,7 +340,8 @@ def _view(args, bridge) -> int:
     if bridge is None:
         from arsurf_viewer import view_scan
 
-        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes)
+        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
+                  frames=args.frames)
         return 0
     # real hardware: the full haptic loop runs at 1 kHz against the UDP bridge, the view follows it
     from arsurf.spline.fit import fit_surface
@@ -325,7 +354,8 @@ def _view(args, bridge) -> int:
     print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
           f"{bridge.host}:{bridge.port} (`python -m arsurf.haptics.client` is a reference client)", file=sys.stderr)
     try:
-        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose)
+        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose,
+                        out_dir=args.out, frames=args.frames)
     finally:
         stats = live.stop()
         print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
@@ -362,7 +392,20 @@ def cmd_convert(args) -> int:
 
 
 def main(argv=None) -> int:
+    from arsurf._logging import LOGGER, configure_cli
+
     args = build_parser().parse_args(argv)
+    verbosity = getattr(args, "log_verbose", 0) - (1 if getattr(args, "log_quiet", False) else 0)
+    level = LOGGER.level
+    handler = configure_cli(verbosity)
+    try:
+        return _run(args)
+    finally:
+        LOGGER.removeHandler(handler)
+        LOGGER.setLevel(level)
+
+
+def _run(args) -> int:
     try:
         return int(args.func(args) or 0)
     except ArsurfError as exc:

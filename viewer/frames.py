@@ -3,7 +3,7 @@
 Every frame is written as ``<prefix>_00000.png`` ... through one :class:`SurfaceView` updated in
 place. The movie (H.264, ``yuv420p``, so any player opens it) needs ``imageio-ffmpeg`` (the ``movie`` extra); without
 it the frames are still written and the returned :class:`Frames` says why there is no movie
-(the message is also printed to stderr). Files are written under temporary names and renamed,
+(the message is also logged as a warning to ``arsurf.viewer``). Files are written under temporary names and renamed,
 so an interrupted run leaves no truncated PNG or mp4 behind.
 
 Examples
@@ -20,8 +20,8 @@ Examples
 from __future__ import annotations
 
 import importlib.util
+import logging
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
@@ -32,6 +32,8 @@ from arsurf.errors import require
 
 from .state import SceneState
 from arsurf.errors import ViewerError
+
+log = logging.getLogger("arsurf.viewer")
 
 __all__ = ["Frames", "render_frames", "movie_support"]
 
@@ -108,7 +110,7 @@ def render_frames(states: Iterable[SceneState], out_dir: str | os.PathLike, *, f
             movie_tmp = movie_path.with_name(movie_path.stem + ".part.mp4")
         else:
             note = f"no movie: {reason}; wrote PNG frames only"
-            print(f"arsurf_viewer: {note}", file=sys.stderr)
+            log.warning("arsurf_viewer: %s", note)
     own_view = view is None
     paths: list[Path] = []
     try:
