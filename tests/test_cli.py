@@ -72,3 +72,20 @@ def test_bridge_loop_feels_the_surface_through_udp():
     assert scene.depth > 0 and scene.force[2] > 0        # the tip is in the surface, pushed back
     assert force[2] > 1e-4 and abs(force[2]) <= 7.9      # the hand feels it, within the device limit
     assert stats.ticks > 100
+
+
+def test_demo_without_an_opengl_context_fails_before_the_session_saying_what_to_install(tmp_path, monkeypatch, capsys):
+    """Views asked for (the default) and no backend: exit 2, one line naming the packages, nothing run."""
+    pytest.importorskip("pyvista")
+    import arsurf_viewer
+
+    from arsurf.errors import RENDERING_HINT, RenderingUnavailable
+
+    def none():
+        raise RenderingUnavailable(f"no OpenGL context can be made: no display, no EGL, no OSMesa; {RENDERING_HINT}")
+
+    monkeypatch.setattr(arsurf_viewer, "choose_backend", none, raising=False)
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("arsurf demo: error: no OpenGL") and "libosmesa6" in err[0]
+    assert not (tmp_path / "demo").exists()
