@@ -139,6 +139,7 @@ _EXPORTS = {
     # sessions
     "SessionWriter": "arsurf.replay.session",
     "load_session": "arsurf.replay.session",
+    "recover_session": "arsurf.replay.session",
     "replay_session": "arsurf.replay.replay",  # arsurf.replay is the subpackage
     # model assembly
     "PRESETS": "arsurf.assembly",

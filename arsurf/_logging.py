@@ -29,7 +29,7 @@ if not any(isinstance(h, logging.NullHandler) for h in LOGGER.handlers):
 
 
 def progress(iterable=None, *, total: int | None = None, desc: str = "", unit: str = "it", enabled: bool = True,
-             logger: logging.Logger = LOGGER):
+             initial: int = 0, logger: logging.Logger = LOGGER):
     """A tqdm bar on stderr, shown only on a terminal when ``logger`` passes INFO and ``enabled``.
 
     Parameters
@@ -42,6 +42,8 @@ def progress(iterable=None, *, total: int | None = None, desc: str = "", unit: s
         Label and unit shown.
     enabled : bool
         False: never shown.
+    initial : int
+        Steps already done (a resumed batch).
     logger : logging.Logger
         Whose level decides (default the ``arsurf`` logger).
 
@@ -52,7 +54,7 @@ def progress(iterable=None, *, total: int | None = None, desc: str = "", unit: s
     from tqdm import tqdm
 
     disable = None if enabled and logger.isEnabledFor(logging.INFO) else True  # None: off when not a TTY
-    return tqdm(iterable, total=total, desc=desc, unit=unit, file=sys.stderr, disable=disable, leave=False,
+    return tqdm(iterable, total=total, desc=desc, unit=unit, file=sys.stderr, disable=disable, leave=False, initial=initial,
                 mininterval=0.25, dynamic_ncols=True)
 
 

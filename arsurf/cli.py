@@ -145,7 +145,7 @@ def _seconds(text: str) -> float:
     return value
 
 
-def _count(text: str) -> int:
+def _positive_count(text: str) -> int:
     """An argparse type: a whole number >= 1."""
     try:
         value = int(text)
@@ -154,6 +154,36 @@ def _count(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
     return value
+
+
+def _count(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0 (got {text!r})") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0 (got {text})")
+    return value
+
+
+def _values(unit: str, scale: float, strict: bool):
+    """An argparse type: comma-separated finite numbers in ``unit`` (>= 0, or > 0 if ``strict``), as SI."""
+    def parse(text: str) -> list[float]:
+        out = []
+        for part in text.split(","):
+            try:
+                value = float(part)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"must be comma-separated numbers{' in ' + unit if unit else ''} "
+                                                 f"(got {text!r})") from None
+            if not np.isfinite(value) or value < 0 or (strict and value == 0):
+                rule = "> 0" if strict else ">= 0"
+                raise argparse.ArgumentTypeError(f"every value must be finite and {rule}{' ' + unit if unit else ''} "
+                                                 f"(got {part.strip()!r} in {text!r})")
+            out.append(value * scale)
+        return out
+    return parse
 
 
 def _calibration(args) -> dict:
@@ -233,7 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
-    s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90)")
+    s.add_argument("--frames", type=_positive_count, default=90, help="without a display: how many frames (default 90)")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
@@ -255,6 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
     _calibration_flags(s)
     s.set_defaults(func=cmd_convert)
 
+    _batch_parser(sub)
+
     for module in _EXTRA_COMMANDS:
         importlib.import_module(module).register(sub)
     for command in sub.choices.values():  # -q/-v after the subcommand too (not given: the top level's stand)
@@ -263,10 +295,110 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _log_flags(parser, default) -> None:
+    """-q/-v on ``parser`` and on the subcommands below it (``arsurf batch process -q``)."""
     parser.add_argument("-q", "--quiet", dest="log_quiet", action="store_true", default=default,
                         help="only warnings and errors on stderr; no progress bars")
     parser.add_argument("-v", "--verbose", dest="log_verbose", action="count", default=default,
                         help="more messages on stderr (debug)")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                _log_flags(child, default)
+
+
+def _batch_parser(sub) -> None:
+    """``arsurf batch {process,replay,sweep} INPUT... -o DIR [--workers N | --scheduler ADDR] [--resume]``."""
+    from arsurf.assembly import PRESETS
+
+    s = sub.add_parser("batch", help="run a pipeline (process | replay | sweep) over a folder or glob of files, on "
+                       "local processes or a Dask cluster; results.csv is written as items finish (--resume)")
+    bsub = s.add_subparsers(dest="pipeline", required=True, parser_class=_Parser, metavar="PIPELINE")
+
+    def common(b) -> None:
+        b.add_argument("inputs", nargs="+", metavar="INPUT",
+                       help="files, folders (their files of the pipeline's kind) or quoted glob patterns ('**' recurses)")
+        b.add_argument("-o", "--out", required=True, help="output folder: results.csv, summary.json, batch.json and "
+                       "the items' files")
+        where = b.add_mutually_exclusive_group()
+        where.add_argument("--workers", type=_count, help="local worker processes (default: the CPU count; 0: run "
+                           "in this process)")
+        where.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster of this scheduler "
+                           "(tcp://HOST:8786; needs pip install 'arsurf[dask]'; workers must see the files and --out)")
+        b.add_argument("--resume", action="store_true", help="continue the batch in --out: skip the items already "
+                       "done (status ok), rerun the others")
+        b.set_defaults(func=cmd_batch)
+
+    b = bsub.add_parser("process", help="level, smooth, fit (and export) every scan: <item>.surface.npz")
+    common(b)
+    b.add_argument("--channel")
+    _processing_flags(b)
+    b.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
+    b.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
+    b.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
+    b.add_argument("--export", action="append", metavar="EXT", choices=("stl", "ply", "glb", "gwy", "gsf", "npz", "npy"),
+                   help="also write the fitted surface as a mesh (stl, ply, glb) or height map (gwy, gsf, npz, npy); "
+                        "repeat for several")
+    b.add_argument("--resolution", type=int, nargs=2, metavar=("NU", "NV"), help="samples along u and v of an export")
+    b.add_argument("--solid", action="store_true", help="close exported meshes into watertight solids")
+    _calibration_flags(b)
+
+    b = bsub.add_parser("replay", help="replay every recorded session (.h5 in a folder): <item>/")
+    common(b)
+    b.add_argument("--scan", help="the scan file every session was recorded on (default: each session's recorded "
+                   "path, or beside the session)")
+
+    b = bsub.add_parser("sweep", help="press, slide and retract the tip on each scan over a grid of friction x tip "
+                        "radius x modulus: one row per scan and grid point")
+    common(b)
+    b.add_argument("--friction", type=_values("", 1.0, False), metavar="LIST",
+                   help="kinetic friction coefficients, comma-separated (default: the preset's)")
+    b.add_argument("--tip-radius-nm", type=_values("nm", 1e-9, True), metavar="LIST",
+                   help="tip radii in nm, comma-separated (default: the preset's)")
+    b.add_argument("--modulus-gpa", type=_values("GPa", 1e9, True), metavar="LIST",
+                   help="effective contact moduli E* in GPa, comma-separated (default: the preset's)")
+    b.add_argument("--preset", default="demo", choices=sorted(PRESETS), metavar="NAME",
+                   help=f"scan processing, adhesion and cantilever: {' | '.join(sorted(PRESETS))} (default demo)")
+    b.add_argument("--depth-nm", type=_nm(strict=True), default=2.0, help="indentation of the press in nm (default 2)")
+    b.add_argument("--slide-nm", type=_nm(), default=20.0, help="slide length along x in nm (default 20)")
+    b.add_argument("--steps", type=int, default=40, help="ticks of each leg: press, slide, retract (default 40)")
+    b.add_argument("--at-nm", type=float, nargs=2, metavar=("X", "Y"), help="where to press, nm (default: the middle)")
+
+
+def _batch_options(args) -> dict:
+    """The SI options of :func:`arsurf.batch.run_batch` from the flags of ``arsurf batch PIPELINE``."""
+    if args.pipeline == "process":
+        cal = _calibration(args)
+        return {"channel": args.channel, "level": args.level, "sigma": args.sigma_nm * 1e-9,
+                "inpaint": not args.no_inpaint, "control_shape": args.control, "smoothing": args.smoothing,
+                "export": args.export or [], "resolution": args.resolution, "solid": args.solid, **cal}
+    if args.pipeline == "replay":
+        return {"scan": args.scan}
+    opts = {"preset": args.preset, "depth": args.depth_nm * 1e-9, "slide": args.slide_nm * 1e-9, "steps": args.steps,
+            "at": None if args.at_nm is None else [v * 1e-9 for v in args.at_nm]}
+    for name, flag in (("friction", args.friction), ("tip_radius", args.tip_radius_nm),
+                       ("effective_modulus", args.modulus_gpa)):
+        if flag is not None:
+            opts[name] = flag
+    return opts
+
+
+def cmd_batch(args) -> int:
+    """``arsurf batch``: exit 0 when every item succeeded, 1 when some failed (listed on stderr)."""
+    from arsurf.batch import run_batch
+
+    r = run_batch(args.pipeline, args.inputs, args.out, options=_batch_options(args), workers=args.workers,
+                  scheduler=args.scheduler, resume=args.resume,
+                  progress=not getattr(args, "log_quiet", False))  # -q: no progress counter
+    shown = 20
+    for item, reason in r.errors[:shown]:
+        print(f"arsurf batch: failed: {item}: {reason}", file=sys.stderr)
+    if len(r.errors) > shown:
+        print(f"arsurf batch: ... and {len(r.errors) - shown} more failures (see {r.table})", file=sys.stderr)
+    print(f"{r.total} items: {r.ok} ok, {r.failed} failed, {r.total - r.ok - r.failed} not run; {r.ran} run now, "
+          f"{r.skipped} done before, in {r.elapsed:.2f} s ({r.items_per_second:.3g} items/s)")
+    print(f"results: {r.table}")
+    print(f"summary: {r.summary}")
+    return 1 if r.failed else 0
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)

@@ -39,7 +39,8 @@ from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
-from arsurf.model import MODEL_OUT
+from arsurf.haptics.feel import score_force
+from arsurf.model import M_IN_CONTACT, MODEL_OUT
 
 log = logging.getLogger(__name__)
 
@@ -150,18 +151,21 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
     return result, found
 
 
-def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=None) -> dict:
+def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=None,
+             handle_signals: bool = False) -> dict:
     """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary.
 
     ``progress`` (a callable taking one line) receives the progress messages; by default they
     are logged (INFO) to ``arsurf.demo``. With ``images``, PNG views need the viewer extra
     (without it a warning says so and the demo goes on) and an OpenGL context (without one,
     :class:`~arsurf.errors.RenderingUnavailable` says what to install, before the session runs).
+    ``handle_signals`` (the command line): SIGINT/SIGTERM during the session close
+    ``session.h5`` with every tick recorded so far (marked incomplete) before the demo stops.
     """
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, contact_fields
+    from arsurf.replay.session import SessionWriter, contact_fields, journal_path
     from arsurf.scan.prepare import prepare_scan
 
     progress = progress or log.info
@@ -205,35 +209,47 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
     loop = build_loop(model, meta["haptics"], dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
     n = int(seconds * RATE)
-    writer = SessionWriter(out / "session.h5", meta)
+    journal_path(out / "session.h5").unlink(missing_ok=True)  # a killed earlier run's: replaced like the rest
+    # the loop runs in simulated time, faster than real time: wait for the disk rather than drop ticks
+    writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
+    device_force = np.empty((n, 3))
+    energy = np.empty(n)
+    damping = np.empty(n)
+    in_contact = np.empty(n, bool)
     views = {}
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
     clock = time.perf_counter_ns
     tube_force = np.zeros(n)
     extra = {}
-    for k in progress_bar(range(n), desc="session", unit="tick"):
-        st = dev.read_state()
-        t0 = clock()
-        f = loop.step(st, st.timestamp)
-        compute[k] = clock() - t0
-        dev.command_force(f)
-        o, mo = loop.out, model.out
-        get = LOOP_OUT.get
-        if scene is not None:
-            extra["tube_poses"] = scene.poses
-            tube_force[k] = math.hypot(scene.force[0], scene.force[1])
-        writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
-                      probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
-                      signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
-                      **contact_fields(model.record(mo)), **extra)
-        for name, tick in marks.items():
-            if k == tick:
-                views[name] = _scene(model, loop, contact, RATE, scene)
-    writer.close()
+    with writer:  # an exception or a signal still closes the file (incomplete) with every tick
+        for k in progress_bar(range(n), desc="session", unit="tick"):
+            st = dev.read_state()
+            t0 = clock()
+            f = loop.step(st, st.timestamp)
+            compute[k] = clock() - t0
+            dev.command_force(f)
+            o, mo = loop.out, model.out
+            get = LOOP_OUT.get
+            device_force[k] = f
+            energy[k] = get(o, "energy")
+            damping[k] = get(o, "passivity_damping")
+            in_contact[k] = mo[M_IN_CONTACT] > 0.5
+            if scene is not None:
+                extra["tube_poses"] = scene.poses
+                tube_force[k] = math.hypot(scene.force[0], scene.force[1])
+            writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
+                          probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
+                          signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                          **contact_fields(model.record(mo)), **extra)
+            for name, tick in marks.items():
+                if k == tick:
+                    views[name] = _scene(model, loop, contact, RATE, scene)
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
+    feel = score_force(device_force, 1.0 / RATE, settle=marks["approach"] / RATE, energy=energy, contact=in_contact)
+    progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes else ""))
     tube_summary = None
     if scene is not None:
         i = plan["tube"]
@@ -289,6 +305,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         "max_contact_radius_nm": float(np.nanmax(ticks["contact_radius"]) * 1e9),
         "ticks_in_contact": int(ticks["in_contact"].sum()),
         "peak_device_force_N": float(np.linalg.norm(ticks["device_force"], axis=1).max()),
+        "feel": feel.as_dict(),
+        "passivity_controller_ticks": int(np.count_nonzero(damping)),
         "tick_compute_median_us": float(np.median(compute) / 1e3),
         "tick_compute_p99_us": float(np.percentile(compute, 99) / 1e3),
         "replay_contact_mismatches": int(result.contact_mismatches),
@@ -364,7 +382,7 @@ def register(sub) -> None:
 
 
 def _cmd(args) -> int:
-    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images)
+    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True)
     print(json.dumps(summary, indent=2))
     print(f"results in {args.out}/")
     return 0

@@ -110,6 +110,24 @@ class SessionFileNotFound(SessionError, FileNotFoundError):
     """The session file does not exist."""
 
 
+class IsolatedReadFailure(SessionError):
+    """The isolated reader of an HDF5 file crashed, hung or ran out of memory: the file is refused."""
+
+
+class RecordingInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM reached a recording that handles signals: the recording block unwinds.
+
+    A :class:`KeyboardInterrupt` (not an :class:`ArsurfError`), so ``except Exception`` does not
+    swallow it and a command line reports it as an interruption.
+    """
+
+
+class BatchError(ArsurfError, ValueError):
+    """A batch run cannot start or resume as asked (no input file, a bad option, a results table
+    written with other settings, an unreachable Dask scheduler). Errors of single items are not
+    raised: they are written to the results table."""
+
+
 class ManipulationError(ArsurfError, ValueError):
     """Invalid nano-object model input (non-positive tube length, load point off the beam...)."""
 

@@ -49,8 +49,9 @@ _PRESS_TIME = 0.5  # s
 @dataclass(frozen=True)
 class FeelRun:
     """One scenario: its score, the device force (n, 3) N, the observed energy (n,) J, contact
-    (n,) bool, passivity-controller ticks, the per-tick compute time (n,) ns, and the loop's
-    steady-state transparency (|device force| / (K_f |tip force|) over the last 0.2 s)."""
+    (n,) bool, passivity-controller ticks, the per-tick compute time (n,) ns, the loop's
+    steady-state transparency (|device force| / (K_f |tip force|) over the last 0.2 s) and the tip
+    centre (n, 3) m of every tick."""
 
     score: FeelScore
     force: np.ndarray
@@ -59,6 +60,7 @@ class FeelRun:
     passivity_ticks: int
     tick_ns: np.ndarray
     transparency: float
+    tip: np.ndarray
 
 
 def prepared_surface(path, preset: str = "demo"):
@@ -139,6 +141,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     energy = np.empty(n)
     contact = np.empty(n, bool)
     tip_force = np.empty((n, 3))
+    tip = np.empty((n, 3))
     tick_ns = np.empty(n)
     pc = 0
     clock = time.perf_counter_ns
@@ -158,11 +161,12 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
             pc += get(out, "passivity_damping") > 0.0
             contact[k] = model.out[M_IN_CONTACT] > 0.5
             tip_force[k] = get(out, "probe_force")
+            tip[k] = get(out, "tip")
     finally:
         dev.close()
         model.reset()
     tail = slice(n - max(1, int(0.2 * rate)), n)
-    tip = np.linalg.norm(tip_force[tail].mean(axis=0)) * gain
-    transparency = float(np.linalg.norm(force[tail].mean(axis=0)) / tip) if tip > 0 else math.nan
+    scaled = np.linalg.norm(tip_force[tail].mean(axis=0)) * gain
+    transparency = float(np.linalg.norm(force[tail].mean(axis=0)) / scaled) if scaled > 0 else math.nan
     score = score_force(force, 1.0 / rate, energy=energy, contact=contact)
-    return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency)
+    return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency, tip)

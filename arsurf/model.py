@@ -42,6 +42,7 @@ from arsurf.contact import friction as fr
 from arsurf.contact.deformation import deform_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.contact.proxy import coupled_depth_kernel
+from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, DecouplingFlag,
@@ -70,8 +71,11 @@ M_SIZE = MODEL_OUT.size
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 # model state vector: warm-start hint, the hysteresis memory, the tip's depth, the friction anchor
-S_HINT_U, S_HINT_V, S_INTERACTING, S_TIP_DEPTH, S_FRICTION = 0, 1, 2, 3, 4
+S_HINT_U, S_HINT_V, S_INTERACTING, S_TIP_DEPTH, S_SECOND, S_FRICTION = 0, 1, 2, 3, 4, 6
 S_SIZE = S_FRICTION + fr.STATE_SIZE
+#: a second contact counts while its depth is within this many Maugis-Dugdale depth scales of the
+#: deepest (:mod:`arsurf.contact.second_contact`)
+SECOND_CONTACT_MARGIN = 0.5
 #: proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
 #: zero-load depths (m)
@@ -97,12 +101,12 @@ def model_tick_kernel(proj,                                              # Proje
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, bending, torsion, signal_mode,
-                      state, coll, dec, out):
+                      state, coll, dec, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)``; writes ``out`` (M_SIZE,) and
     updates ``state`` (S_SIZE,). Returns the collision status (< 0: no answer; ``out`` then holds
     zero forces). ``friction`` (6,) is the proxy parameter vector (``F_*`` offsets); ``coll``
-    (OUT_SIZE,) and ``dec`` (8,) are scratch vectors of the collision, the friction and the
-    decoupling.
+    (OUT_SIZE,), ``dec`` (8,) and ``ev`` (6, 3) are scratch arrays of the collision, the friction,
+    the decoupling and the second contact.
 
     ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
     are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
@@ -117,14 +121,21 @@ def model_tick_kernel(proj,                                              # Proje
     out[M_TIP] = cx
     out[M_TIP + 1] = cy
     out[M_TIP + 2] = cz
-    st = pj.collide_any(proj, cx, cy, cz, tip_radius, state[S_HINT_U], state[S_HINT_V], coll)
+    prev_u = state[S_HINT_U]
+    prev_v = state[S_HINT_V]
+    st = pj.collide_any(proj, cx, cy, cz, tip_radius, prev_u, prev_v, coll)
     out[M_COLLIDE_STATUS] = st
     if st < 0:
         state[S_TIP_DEPTH] = math.nan
+        state[S_SECOND] = math.nan
+        state[S_SECOND + 1] = math.nan
         fr.release(state, S_FRICTION)
         return st
     state[S_HINT_U] = coll[pj.OUT_U]
     state[S_HINT_V] = coll[pj.OUT_V]
+    # a valley narrower than the tip: blend in the slope it also rests on
+    second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
+                          SECOND_CONTACT_MARGIN * md_args[0], state, S_SECOND, coll)
     nx = coll[pj.OUT_NX]
     ny = coll[pj.OUT_NY]
     nz = coll[pj.OUT_NZ]
@@ -358,6 +369,7 @@ class ARModel:
         self._clear_state()
         self._coll = np.empty(pj.OUT_SIZE)
         self._decout = np.empty(8)
+        self._ev = np.empty((6, 3))
         self.out = np.zeros(M_SIZE)
 
     def reset(self) -> None:
@@ -378,7 +390,7 @@ class ARModel:
         The arrays are the model's own (updated in place by every tick)."""
         live_ctrl, live_rest, ku, kv, patch = self._live
         return (self._proj_args, live_ctrl, live_rest, ku, kv, patch, self._md_args, self._dec, self.tip_radius,
-                self._friction, self.deform, self.state, self._coll, self._decout, self.out)
+                self._friction, self.deform, self.state, self._coll, self._decout, self._ev, self.out)
 
     def tick(self, center, signals=None) -> np.ndarray:
         """Unchecked fast path: run the kernel, return the output vector (M_SIZE,) (reused)."""
@@ -393,7 +405,7 @@ class ARModel:
         model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
                           self._md_args, self._dec, self.tip_radius, self._friction, self.deform,
                           float(cx), float(cy), float(cz), float(b), float(t), mode, self.state, self._coll,
-                          self._decout, self.out)
+                          self._decout, self._ev, self.out)
         return self.out
 
     def step(self, center, signals=None) -> ModelTick:

@@ -2,9 +2,11 @@
 
 Peers timed in the same run:
 
-* ``append``            - :meth:`SessionWriter.append` with the 17 fields a live loop gives, per tick;
+* ``append``            - :meth:`SessionWriter.append` with the 17 fields a live loop gives, per tick
+  (default settings: streamed to the journal by the writer thread, never blocking);
 * ``append_list_peer``  - the naive alternative: a Python list of per-tick dicts (no file format);
-* ``close`` / ``load``  - writing the HDF5 file (gzip, atomic) and reading + checking it back;
+* ``close`` / ``load``  - merging the journal into the HDF5 file (gzip, checksums, seal, atomic) and
+  reading + checking it back (seal, schema, checksums);
 * ``replay_loop``       - the replay's model loop per tick (``ARModel.tick``, the unchecked path);
 * ``step_peer``         - the validated :meth:`ARModel.step` per tick, which a naive replay would call;
 * ``replay_total``      - :func:`replay` end to end (model loop, replay.h5, forces.csv, three plots).
@@ -100,7 +102,7 @@ def main() -> None:
     emit("session_replay", {
         "ticks": n,
         "append": a, "append_list_peer": nv, "append_over_list_peer": a["median_us"] / nv["median_us"],
-        "close_s": t_close, "load_s": t_load, "file_bytes": (d / "session.h5").stat().st_size,
+        "dropped_ticks": w.dropped_ticks, "close_s": t_close, "load_s": t_load, "file_bytes": (d / "session.h5").stat().st_size,
         "bytes_per_tick": (d / "session.h5").stat().st_size / n, "loaded_ticks": sess.n_ticks,
         "replay_loop": lp, "step_peer": sp, "loop_over_step_peer": lp["median_us"] / sp["median_us"],
         "replay_total_s": t_total, "replay_ticks_per_s": n / t_total,

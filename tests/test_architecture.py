@@ -26,7 +26,8 @@ LAYERS = [
     ("devices and objects", ["arsurf.haptics", "arsurf.instrument", "arsurf.manipulation"]),
     ("assembly", ["arsurf.assembly"]),
     ("viewer", ["arsurf_viewer"]),
-    ("sessions", ["arsurf.replay", "arsurf.batch", "arsurf.feel_scenarios"]),
+    ("sessions", ["arsurf.replay", "arsurf.feel_scenarios"]),
+    ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
     ("entry point", ["arsurf.__main__"]),
 ]

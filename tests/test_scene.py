@@ -367,7 +367,7 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
 
     scene = TubeScene.from_scan(one_tube_scan(far=True))
     meta = session_metadata(**SESSION_BASE, tubes=scene.to_metadata())
-    with SessionWriter(tmp_path / "s.h5", meta, capacity=2) as w:  # grows past its capacity
+    with SessionWriter(tmp_path / "s.h5", meta, capacity=2, when_full="wait") as w:  # several chunks
         for k in range(5):
             w.append(t=k * 1e-3, probe_position=(0, 0, k * 1e-9), **({"tube_poses": scene.poses} if k else {}))
     ticks = load_session(tmp_path / "s.h5").ticks
@@ -379,6 +379,9 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
         data = f["ticks/tube_poses"][()]
         del f["ticks/tube_poses"]
         f["ticks"].create_dataset("tube_poses", data=data[:, :1])
+    from arsurf.replay.sealed import seal_file
+
+    seal_file(tmp_path / "s.h5")  # sealed again: the schema check behind the seal must catch it
     with pytest.raises(SessionError, match=r"tube_poses has shape \(5, 1, 3\).*number of tubes .* \(2\)"):
         load_session(tmp_path / "s.h5")
     # a session without a scene has no tube_poses, and older readers' files load as before

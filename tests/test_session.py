@@ -17,7 +17,8 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.assembly import scan_sha256, session_metadata
-from arsurf.replay.session import TICK_FIELDS, SessionWriter, load_session
+from arsurf.replay.sealed import seal_file
+from arsurf.replay.session import TICK_FIELDS, SessionWriter, journal_path, load_session
 from arsurf.errors import SessionFileNotFound
 
 R = 20e-9
@@ -83,7 +84,7 @@ def recordings(draw):
 def test_round_trip_keeps_every_value_bit_for_bit_and_fills_missing_fields(tmp_path, rec):
     n, arrays, capacity = rec
     path = tmp_path / "s.h5"
-    with SessionWriter(path, meta(), capacity=capacity) as w:
+    with SessionWriter(path, meta(), capacity=capacity, when_full="wait") as w:
         for k in range(n):
             w.append(**{name: a[k] for name, a in arrays.items()})
         assert w.n_ticks == n
@@ -131,14 +132,15 @@ def test_metadata_builds_the_recorded_model_objects_exactly():
 
 
 def test_root_attributes_and_growth(tmp_path):
-    path = write(tmp_path / "s.h5", n=37, capacity=1)
+    path = write(tmp_path / "s.h5", n=37, capacity=1, when_full="wait")
     s = load_session(path)
     assert s.n_ticks == 37
     np.testing.assert_array_equal(s.ticks["t"], np.arange(37) * 1e-3)
     np.testing.assert_array_equal(s.ticks["buttons"], np.arange(37) % 2)
     a = s.attrs
-    assert a["format"] == "arsurf-session" and a["format_version"] == 1 and a["units"] == "SI"
-    assert a["complete"] is True and a["n_ticks"] == 37
+    assert a["format"] == "arsurf-session" and a["format_version"] == 2 and a["units"] == "SI"
+    assert a["complete"] is True and a["n_ticks"] == 37 and a["dropped_ticks"] == 0
+    assert s.verified and not s.recovered
     import arsurf
 
     assert a["arsurf_version"] == arsurf.__version__
@@ -175,9 +177,15 @@ def test_close_is_atomic_and_leaves_no_part_file(tmp_path, monkeypatch):
     monkeypatch.setattr(h5py.Group, "create_dataset", boom)
     with pytest.raises(OSError, match="disk full"):
         w.close()
+    assert not (tmp_path / "s.h5.part").exists()
     monkeypatch.undo()
     assert path.read_bytes() == before
     assert not (tmp_path / "s.h5.part").exists()
+    # the ticks are not lost: the journal is complete, and a second close writes the file
+    assert journal_path(path).exists()
+    assert load_session(journal_path(path)).n_ticks == 1
+    w.close()
+    assert load_session(path).n_ticks == 1 and not journal_path(path).exists()
 
 
 def test_aborted_recording_is_marked_incomplete(tmp_path):
@@ -286,9 +294,13 @@ def test_truncated_file(tmp_path, keep):
         load_session(cut)
 
 
-def _edit(path, fn):
+def _edit(path, fn, reseal=True):
+    """Edit a session with h5py, then (by default) seal it again, so only the schema and
+    checksum checks behind the seal can catch the edit."""
     with h5py.File(path, "r+") as f:
         fn(f)
+    if reseal:
+        seal_file(path)
     return path
 
 
@@ -303,10 +315,10 @@ def test_wrong_format(tmp_path):
         load_session(q)
 
 
-@pytest.mark.parametrize("version", [0, 2, 99])
+@pytest.mark.parametrize("version", [0, 3, 99])
 def test_unknown_version(tmp_path, version):
     p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("format_version", np.int64(version)))
-    with pytest.raises(SessionError, match=rf"format_version {version}.*supported versions: 1"):
+    with pytest.raises(SessionError, match=rf"format_version {version}.*supported versions: 1, 2"):
         load_session(p)
 
 
@@ -362,4 +374,121 @@ def test_broken_metadata(tmp_path):
         load_session(p)
     q = _edit(write(tmp_path / "q.h5"), lambda f: f["metadata"].attrs.__delitem__("cantilever"))
     with pytest.raises(SessionError, match=r"lacks \['cantilever'\]"):
+        load_session(q)
+
+
+# ---------------------------------------------------------------------------------------------
+# integrity: seal and checksums
+
+
+def test_an_edit_without_a_new_seal_is_refused_before_hdf5_reads_it(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("n_ticks", np.int64(5)), reseal=False)
+    with pytest.raises(SessionError, match="seal"):
+        load_session(p)
+
+
+@pytest.mark.parametrize("target", ["force", "t", "buttons"])
+def test_altered_ticks_behind_a_valid_seal_fail_their_checksum(tmp_path, target):
+    def alter(f):
+        ds = f["ticks"][target]
+        a = ds[()]
+        a.flat[-1] = a.flat[-1] + 1 if a.dtype.kind == "i" else np.nextafter(np.nan_to_num(a.flat[-1]), 1.0)
+        ds[...] = a
+
+    p = _edit(write(tmp_path / "s.h5"), alter)
+    with pytest.raises(SessionError, match=rf"/ticks/{target} does not match the SHA-256"):
+        load_session(p)
+
+
+def test_altered_metadata_or_attributes_fail_their_checksum(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f["metadata"].attrs.__setitem__("friction", "0.26"))
+    with pytest.raises(SessionError, match="/metadata does not match"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f.attrs.__setitem__("created", "2020-01-01T00:00:00+00:00"))
+    with pytest.raises(SessionError, match="root attributes does not match"):
+        load_session(q)
+    r = _edit(write(tmp_path / "r.h5"), lambda f: f.attrs.__delitem__("checksums"))
+    with pytest.raises(SessionError, match="has no checksums although its format_version 2"):
+        load_session(r)
+
+
+def _write_v1(path, n=4):
+    """A session exactly as arsurf wrote them before checksums (format_version 1, no seal)."""
+    m = meta()
+    with h5py.File(path, "w") as f:
+        for k, v in {"format": "arsurf-session", "format_version": np.int64(1), "arsurf_version": "0.1.0",
+                     "created": "2025-01-01T00:00:00+00:00", "units": "SI", "complete": np.bool_(True),
+                     "n_ticks": np.int64(n)}.items():
+            f.attrs[k] = v
+        mg = f.create_group("metadata")
+        for key in sorted(m):
+            mg.attrs[key] = json.dumps(m[key], sort_keys=True)
+        tg = f.create_group("ticks")
+        for fl in TICK_FIELDS:
+            shape = (n,) if fl.width == 0 else (n, fl.width)
+            data = np.full(shape, fl.fill, dtype=fl.dtype)
+            if fl.name == "t":
+                data = np.arange(n) * 1e-3
+            if fl.name == "probe_position":
+                data = np.arange(3 * n, dtype=float).reshape(n, 3) * 1e-9
+            tg.create_dataset(fl.name, data=data, compression="gzip", shuffle=True, track_times=False)
+    return path
+
+
+def test_version_1_files_still_load_unverified_in_an_isolated_reader(tmp_path):
+    p = _write_v1(tmp_path / "old.h5")
+    s = load_session(p)  # isolate="auto": no seal -> child process
+    assert s.n_ticks == 4 and s.attrs["format_version"] == 1 and not s.verified
+    assert any("isolated" in n for n in s.notes) and any("cannot be verified" in n for n in s.notes)
+    np.testing.assert_array_equal(s.ticks["probe_position"], np.arange(12.0).reshape(4, 3) * 1e-9)
+    assert np.isnan(s.ticks["force"]).all() and (s.ticks["md_status"] == -99).all()
+    same = load_session(p, isolate=False)  # trusted: in-process, same answer
+    for name in s.ticks:
+        assert _equal(s.ticks[name], same.ticks[name]), name
+    # a damaged old file is refused by the child, with the child's message
+    data = bytearray(p.read_bytes())
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(bytes(data[: len(data) // 2]))
+    with pytest.raises(SessionError, match="truncated"):
+        load_session(cut)
+
+
+def test_isolation_turns_a_crash_or_a_hang_into_a_session_error():
+    from arsurf.errors import IsolatedReadFailure
+    from arsurf.replay.sealed import run_isolated
+
+    with pytest.raises(IsolatedReadFailure, match="crashed the HDF5 library .SIGSEGV."):
+        run_isolated("import ctypes; ctypes.string_at(0)", [], timeout=60, memory_limit=None, what="reading x")
+    with pytest.raises(IsolatedReadFailure, match="did not finish within 1 s"):
+        run_isolated("import time; time.sleep(60)", [], timeout=1, memory_limit=None, what="reading x")
+    with pytest.raises(IsolatedReadFailure, match="more than .* bytes of memory"):
+        run_isolated("import numpy; numpy.ones(1 << 34)", [], timeout=60, memory_limit=1 << 30, what="reading x")
+    with pytest.raises(SessionError, match="^the refusal$"):
+        run_isolated("import sys; print('the refusal', file=sys.stderr); sys.exit(3)", [], timeout=60,
+                     memory_limit=None, what="reading x")
+
+
+def test_a_sealed_file_with_a_huge_dataset_claim_is_refused_before_allocating(tmp_path):
+    def huge(f):  # every dataset 10^9 rows long, stored in a few kB (no chunk written)
+        for fl in TICK_FIELDS:
+            del f["ticks"][fl.name]
+            shape = (10**9,) if fl.width == 0 else (10**9, fl.width)
+            f["ticks"].create_dataset(fl.name, shape=shape, dtype=fl.dtype, chunks=(64, *shape[1:]),
+                                      compression="gzip")
+        f.attrs["n_ticks"] = np.int64(10**9)
+
+    p = _edit(write(tmp_path / "s.h5"), huge)
+    assert p.stat().st_size < 200_000
+    with pytest.raises(SessionError, match=r"claim \d+ bytes of data, more than a \d+-byte file can hold"):
+        load_session(p)
+
+
+def test_names_that_are_not_text_are_refused(tmp_path):
+    """Found by bench/fuzz_sessions.py: a flipped bit made an attribute name invalid UTF-8, which
+    h5py returns as bytes; the checksum step then raised a raw TypeError."""
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__(b"\xffcomplete", 1))
+    with pytest.raises(SessionError, match="root attribute whose name is not text"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f["metadata"].attrs.__setitem__(b"\xfe", "1"))
+    with pytest.raises(SessionError, match="/metadata key is not text"):
         load_session(q)

@@ -77,7 +77,7 @@ L_SIZE = LOOP_OUT.size
 def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
                       pos_params, pos_state, fp_state,
                       proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                      model_state, coll, dec, mout, prev_probe, out):
+                      model_state, coll, dec, ev, mout, prev_probe, out):
     """Steps 1-3 of a tick (module docstring): probe position, model, force on the probe; the
     first half of :func:`loop_tick_kernel`, for a loop with a scene.
 
@@ -100,7 +100,7 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
     else:
         mode, b, t = SIGNALS_NONE, 0.0, 0.0
     st = model_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                           deform, probe[0], probe[1], probe[2], b, t, mode, model_state, coll, dec, mout)
+                           deform, probe[0], probe[1], probe[2], b, t, mode, model_state, coll, dec, ev, mout)
     out[L_COLLIDE_STATUS] = st
     for j in range(3):
         out[L_TIP + j] = mout[M_TIP + j]
@@ -156,7 +156,7 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
                      pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
                      gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state,
                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                     model_state, coll, dec, mout, prev_probe, out):
+                     model_state, coll, dec, ev, mout, prev_probe, out):
     """One tick (module docstring). Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the
     safety flags. ``ext_signals`` (2,) measured (bending, torsion), NaN when none; ``noise`` (2,)
     radians added to synthesised signals.
@@ -167,7 +167,7 @@ def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
     tick, 3 %; one definition of each half is worth more.)"""
     loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
                       pos_params, pos_state, fp_state, proj, live_ctrl, live_rest, ku, kv, patch, md_args,
-                      dec_params, tip_radius, friction, deform, model_state, coll, dec, mout, prev_probe, out)
+                      dec_params, tip_radius, friction, deform, model_state, coll, dec, ev, mout, prev_probe, out)
     return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
                               fp_state, gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state, out)
 

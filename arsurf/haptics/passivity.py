@@ -17,8 +17,10 @@ over the next tick,
 
     \alpha_n = \frac{-E_n}{T\,\lVert v_n\rVert^2}, \qquad f_n \leftarrow f_n - \alpha_n v_n ,
 
-limited to the device's largest damping; the observer then sees that dissipation in the next
-tick's energy. A hand at rest (:math:`v = 0`) is never damped, so the steady force is untouched:
+limited to half the device's largest damping (:data:`DAMPING_FRACTION`: the controller's damper
+acts on the last measured velocity, a tick late, and at the device's full limit it chatters
+itself - measured on a stiff virtual wall, where half the limit keeps the wall passive and at
+rest); the observer then sees that dissipation in the next tick's energy. A hand at rest (:math:`v = 0`) is never damped, so the steady force is untouched:
 the controller costs transparency only while energy is being created, i.e. at high frequency.
 Each tick reports the observed energy and the damping injected; a tick where the controller acted
 carries the flag :data:`arsurf.status.PASSIVITY`.
@@ -40,6 +42,8 @@ S_ENERGY, S_X, S_F, S_ALPHA = 0, 1, 4, 7
 STATE_SIZE = 8
 P_DT, P_MAX_DAMPING, P_ON = 0, 1, 2
 PARAMS_SIZE = 3
+#: the controller's damping stays below this fraction of the device's ``max_damping``
+DAMPING_FRACTION = 0.5
 
 
 @njit(cache=True)
@@ -92,8 +96,8 @@ class PassivityController:
     dt : float, s
         Loop period.
     max_damping : float, N s/m
-        Largest damping the controller may add (the device's ``max_damping``; ``inf``: no limit,
-        only for simulations: near standstill the damping needed grows as 1/|v|).
+        The device's largest damping; the controller adds at most :data:`DAMPING_FRACTION` of it
+        (``inf``: no limit, only for simulations: near standstill the damping needed grows as 1/|v|).
     enabled : bool
         False: observe only (the energy is still logged, nothing is damped).
 
@@ -114,7 +118,7 @@ class PassivityController:
             raise HapticsError(f"dt must be positive (got {dt!r} s); it is the loop period")
         if not max_damping > 0.0:
             raise HapticsError(f"max_damping must be > 0 N s/m or inf (got {max_damping!r})")
-        self.params = np.array([dt, max_damping, 1.0 if enabled else 0.0])
+        self.params = np.array([dt, DAMPING_FRACTION * max_damping, 1.0 if enabled else 0.0])
         self.state = np.zeros(STATE_SIZE)
         self.reset()
 

@@ -194,7 +194,8 @@ def _rmtree(path: Path) -> None:
 
 def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_dir: str | os.PathLike, *,
            frames: int = 0, progress: bool = True, overwrite: bool = False,
-           frame_size: tuple[int, int] = (800, 600)) -> ReplayResult:
+           frame_size: tuple[int, int] = (800, 600), allow_incomplete: bool = False,
+           isolate="auto") -> ReplayResult:
     """Re-run the model over a recorded session and write forces, contacts, plots and frames.
 
     Parameters
@@ -217,6 +218,13 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     overwrite : bool
         Replace an existing ``out_dir``.
     frame_size : (width, height) int, pixels
+    allow_incomplete : bool
+        Replay a session whose recording did not end normally (killed: the ticks recovered
+        from its journal; stopped by a signal or an error): a note says so and how many ticks
+        it holds, and ``summary.json`` gets ``session_incomplete`` (the reason).
+    isolate : {"auto", True, False}
+        How the session file is parsed (:func:`~arsurf.replay.session.load_session`);
+        ``arsurf replay`` uses True: libhdf5 runs in a child process.
 
     Returns
     -------
@@ -244,7 +252,17 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
                            "(--overwrite) to replace it")
     if out.exists() and not out.is_dir():
         raise SessionError(f"output path {str(out)!r} is a file, not a folder")
-    session = load_session(session_path)
+    session = load_session(session_path, allow_incomplete=allow_incomplete, isolate=isolate)
+    notes: list[str] = []
+    if not session.complete:
+        notes.append(f"session {str(session_path)!r} is incomplete ({session.attrs.get('aborted', 'not closed')}): "
+                     f"replaying the {session.n_ticks} ticks it holds"
+                     + (f" (recovered from {str(session.path)!r})" if session.recovered else ""))
+    if session.attrs.get("dropped_ticks"):
+        notes.append(f"the recorder dropped {session.attrs['dropped_ticks']} ticks (the disk fell behind); "
+                     "the replay runs over those it kept")
+    if not session.verified:
+        notes.append("the session carries no checksums (format_version 1): its content cannot be verified")
     expected = session.metadata["scan"]["sha256"]
     actual = scan_sha256(scan_path)
     if actual != expected:
@@ -258,14 +276,13 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     ticks = session.ticks
     for name in ("t", "probe_position", "probe_velocity"):
         _finite_rows(name, ticks[name], session_path)
-    session_hash = scan_sha256(session_path)
+    session_hash = scan_sha256(session.path)  # the file read (a journal, for a recovered recording)
     setup = build_model(session.metadata, scan_path)
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.replay-{os.getpid()}.part"
     _rmtree(tmp)
     tmp.mkdir()
-    notes: list[str] = []
     try:
         rec = _run(session, setup, tmp, frames, frame_size, progress, notes)
         stats = _write_outputs(tmp, session, setup, rec, session_hash, actual)
@@ -481,6 +498,9 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
     }
     if tubes_summary is not None:
         summary["tubes"] = tubes_summary
+    if not session.complete:  # only then: a complete session's summary is as before
+        summary["session_incomplete"] = str(session.attrs.get("aborted", "not closed"))
+        summary["session_recovered_from_journal"] = bool(session.recovered)
     (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
     contact = data["in_contact"] == 1
@@ -507,7 +527,7 @@ def cmd_replay(args) -> int:
     """``arsurf replay``: run :func:`replay` and print what it wrote."""
     quiet = getattr(args, "log_quiet", False)  # -q/--quiet (arsurf.cli): no progress bar, no notes, no summary
     result = replay(args.session, args.scan, args.out, frames=args.frames, progress=not quiet,
-                    overwrite=args.overwrite)
+                    overwrite=args.overwrite, allow_incomplete=args.allow_incomplete, isolate=True)
     if not quiet:
         print(f"replayed {result.n_ticks} ticks in {result.elapsed:.2f} s -> {result.out_dir}")
         print(f"  peak force {result.peak_force * 1e9:.6g} nN, max depth {result.max_depth * 1e9:.6g} nm, "
@@ -529,4 +549,7 @@ def register(subparsers) -> None:
     s.add_argument("--out", required=True, help="output folder (must not exist unless --overwrite)")
     s.add_argument("--frames", type=int, default=0, help="offscreen PNG frames to render (needs the viewer)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    s.add_argument("--allow-incomplete", action="store_true",
+                   help="replay a recording that did not end normally (killed: the ticks recovered from its "
+                        "journal; stopped by a signal); a note says how many ticks it holds")
     s.set_defaults(func=cmd_replay)
