@@ -30,8 +30,10 @@ test: setup
 bench: setup
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
+# the demo scans; the demo's own (nanotubes) is package data, so that a wheel carries it
 scans: setup
 	$(VENV)/bin/arsurf synth --out scans
+	mv scans/nanotubes.npz arsurf/data/nanotubes.npz
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

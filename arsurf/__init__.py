@@ -47,6 +47,8 @@ def _configure_numba_cache() -> None:
 
 _configure_numba_cache()
 
+from arsurf import _logging  # noqa: E402,F401  (the "arsurf" logger and its NullHandler, before any module logs)
+
 # public name -> module that defines it (the pipeline order: scan, spline, contact, force,
 # haptics, manipulation, replay)
 _EXPORTS = {

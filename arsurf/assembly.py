@@ -37,6 +37,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
 
 __all__ = [
@@ -54,8 +55,8 @@ __all__ = [
     "session_metadata",
 ]
 
-#: the synthetic nanotubes scan the demo and the viewer open by default
-BUNDLED_SCAN = Path(__file__).resolve().parents[1] / "scans" / "nanotubes.npz"
+#: the synthetic nanotubes scan the demo and the viewer open by default (package data, :mod:`arsurf.data`)
+BUNDLED_SCAN = bundled_scan("nanotubes")
 
 #: a common rectangular silicon contact lever (450 x 50 x 2.5 um, 15 um tip; k ~ 0.2 N/m)
 LEVER = MappingProxyType(dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6,

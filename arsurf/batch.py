@@ -82,8 +82,8 @@ import glob
 import itertools
 import json
 import math
+import logging
 import os
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -92,7 +92,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, BatchError, SessionError, require
+
+log = logging.getLogger(__name__)
 
 __all__ = ["PIPELINES", "BatchResult", "Item", "Pipeline", "collect_inputs", "make_items", "read_results",
            "run_batch"]
@@ -705,32 +708,23 @@ def read_results(path: str | os.PathLike, columns: Sequence[str] | None = None) 
 
 
 class _Progress:
-    """A plain stderr counter: ``batch: 12/40 items, 1 failed, 3.1 items/s`` (rewritten in place on a
-    terminal, a line every 5 % otherwise); nothing when disabled."""
+    """Items done as a tqdm bar on stderr (:func:`arsurf._logging.progress`: on a terminal, unless
+    ``-q``), failures in its postfix; the resume note is logged (INFO)."""
 
     def __init__(self, total: int, skipped: int, enabled: bool):
-        self.total, self.done, self.failed, self.enabled = total, skipped, 0, enabled
-        self.skipped = skipped
-        self.t0 = time.perf_counter()
-        self.tty = enabled and sys.stderr.isatty()
-        self.step = max(1, (total - skipped) // 20)
+        self.failed = 0
         if enabled and skipped:
-            print(f"batch: {skipped} of {total} items already done (resume)", file=sys.stderr, flush=True)
+            log.info("batch: %d of %d items already done (resume)", skipped, total)
+        self.bar = progress_bar(total=total, initial=skipped, desc="batch", unit="item", enabled=enabled)
 
     def update(self, ok: bool) -> None:
-        self.done += 1
-        self.failed += not ok
-        if not self.enabled:
-            return
-        ran = self.done - self.skipped
-        if self.tty or ran % self.step == 0 or self.done == self.total:
-            rate = ran / max(time.perf_counter() - self.t0, 1e-9)
-            line = f"batch: {self.done}/{self.total} items, {self.failed} failed, {rate:.3g} items/s"
-            print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+        self.bar.update(1)
+        if not ok:
+            self.failed += 1
+            self.bar.set_postfix(failed=self.failed, refresh=False)
 
     def close(self) -> None:
-        if self.tty:
-            print(file=sys.stderr, flush=True)
+        self.bar.close()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,6 +5,10 @@ status 2; a tracebacks never reaches the user.
 
 Units at this edge: lengths on the command line are in nanometres (flags end in ``-nm``),
 forces in nanonewtons; everything inside is SI.
+
+Messages: results go to stdout; progress messages, notes and bars to stderr through the
+``arsurf`` logger (:mod:`arsurf._logging`): ``-q``/``--quiet`` keeps only warnings and errors and
+hides the bars, ``-v``/``--verbose`` adds debug messages (before or after the subcommand).
 """
 from __future__ import annotations
 
@@ -141,6 +145,17 @@ def _seconds(text: str) -> float:
     return value
 
 
+def _positive_count(text: str) -> int:
+    """An argparse type: a whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number (got {text!r})") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    return value
+
+
 def _count(text: str) -> int:
     """An argparse type: an integer >= 0."""
     try:
@@ -198,6 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
                 "(scan -> B-spline -> contact -> 3D force -> haptics). Lengths on the command line are in "
                 "nanometres (flags ending in -nm); everything inside is SI.")
     p.add_argument("--version", action="version", version=f"arsurf {__version__}")
+    _log_flags(p, argparse.SUPPRESS)
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range")
@@ -230,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
                         "(authenticated poses in, forces out; protocol in docs/bridge-protocol.md; "
-                        "tools/haptic_client.py is a reference client)")
+                        "`python -m arsurf.haptics.client` is a reference client)")
     s.add_argument("--host", "--bridge-host", dest="bridge_host", default=None, metavar="ADDRESS",
                    help="address the bridge listens on (default 127.0.0.1: this machine only); any other address "
                         "needs --bridge-key-file or --bridge-key")
@@ -245,6 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.add_argument("--tubes", action="store_true",
                    help="make the nanotubes of a synthetic scan live objects the tip can push")
+    s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
+                   "(default out/view)")
+    s.add_argument("--frames", type=_positive_count, default=90, help="without a display: how many frames (default 90)")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
@@ -270,7 +289,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _EXTRA_COMMANDS:
         importlib.import_module(module).register(sub)
+    for command in sub.choices.values():  # -q/-v after the subcommand too (not given: the top level's stand)
+        _log_flags(command, argparse.SUPPRESS)
     return p
+
+
+def _log_flags(parser, default) -> None:
+    """-q/-v on ``parser`` and on the subcommands below it (``arsurf batch process -q``)."""
+    parser.add_argument("-q", "--quiet", dest="log_quiet", action="store_true", default=default,
+                        help="only warnings and errors on stderr; no progress bars")
+    parser.add_argument("-v", "--verbose", dest="log_verbose", action="count", default=default,
+                        help="more messages on stderr (debug)")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                _log_flags(child, default)
 
 
 def _batch_parser(sub) -> None:
@@ -293,7 +326,6 @@ def _batch_parser(sub) -> None:
                            "(tcp://HOST:8786; needs pip install 'arsurf[dask]'; workers must see the files and --out)")
         b.add_argument("--resume", action="store_true", help="continue the batch in --out: skip the items already "
                        "done (status ok), rerun the others")
-        b.add_argument("-q", "--quiet", action="store_true", help="no progress counter")
         b.set_defaults(func=cmd_batch)
 
     b = bsub.add_parser("process", help="level, smooth, fit (and export) every scan: <item>.surface.npz")
@@ -355,7 +387,8 @@ def cmd_batch(args) -> int:
     from arsurf.batch import run_batch
 
     r = run_batch(args.pipeline, args.inputs, args.out, options=_batch_options(args), workers=args.workers,
-                  scheduler=args.scheduler, resume=args.resume, progress=not args.quiet)
+                  scheduler=args.scheduler, resume=args.resume,
+                  progress=not getattr(args, "log_quiet", False))  # -q: no progress counter
     shown = 20
     for item, reason in r.errors[:shown]:
         print(f"arsurf batch: failed: {item}: {reason}", file=sys.stderr)
@@ -439,7 +472,8 @@ def _view(args, bridge) -> int:
     if bridge is None:
         from arsurf_viewer import view_scan
 
-        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes)
+        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
+                  frames=args.frames)
         return 0
     # real hardware: the full haptic loop runs at 1 kHz against the UDP bridge, the view follows it
     from arsurf.spline.fit import fit_surface
@@ -450,9 +484,10 @@ def _view(args, bridge) -> int:
     live = bridge_loop(surface, tip_radius, host=bridge.host, port=bridge.port, key=bridge.key,
                        peer_timeout=bridge.peer_timeout, scale=args.scale).start()
     print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
-          f"{bridge.host}:{bridge.port} (tools/haptic_client.py is a reference client)", file=sys.stderr)
+          f"{bridge.host}:{bridge.port} (`python -m arsurf.haptics.client` is a reference client)", file=sys.stderr)
     try:
-        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose)
+        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose,
+                        out_dir=args.out, frames=args.frames)
     finally:
         stats = live.stop()
         print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
@@ -489,7 +524,20 @@ def cmd_convert(args) -> int:
 
 
 def main(argv=None) -> int:
+    from arsurf._logging import LOGGER, configure_cli
+
     args = build_parser().parse_args(argv)
+    verbosity = getattr(args, "log_verbose", 0) - (1 if getattr(args, "log_quiet", False) else 0)
+    level = LOGGER.level
+    handler = configure_cli(verbosity)
+    try:
+        return _run(args)
+    finally:
+        LOGGER.removeHandler(handler)
+        LOGGER.setLevel(level)
+
+
+def _run(args) -> int:
     try:
         return int(args.func(args) or 0)
     except ArsurfError as exc:

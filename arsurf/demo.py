@@ -2,7 +2,7 @@
 
 1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.instrument.engage`):
    the tip starts 5 um above the sample beside a nanotube of the bundled synthetic scan
-   ``scans/nanotubes.npz`` and is brought into contact by nano/micro stage steps under a force
+   ``nanotubes.npz`` (package data, :mod:`arsurf.data`) and is brought into contact by nano/micro stage steps under a force
    limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
    to hover 8 nm above it);
 2. **haptic session**: a scripted operator (a :class:`~arsurf.haptics.virtual_device.HandModel`
@@ -28,17 +28,21 @@ a scene: approach, indent, a 160 nm slide along x and retract.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.feel import score_force
 from arsurf.model import M_IN_CONTACT, MODEL_OUT
+
+log = logging.getLogger(__name__)
 
 #: the demo's model and haptic settings (tip, sample, lever, scaling, filter): one named preset
 DEMO = PRESETS["demo"]
@@ -147,10 +151,14 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
     return result, found
 
 
-def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=print,
+def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=None,
              handle_signals: bool = False) -> dict:
     """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary.
 
+    ``progress`` (a callable taking one line) receives the progress messages; by default they
+    are logged (INFO) to ``arsurf.demo``. With ``images``, PNG views need the viewer extra
+    (without it a warning says so and the demo goes on) and an OpenGL context (without one,
+    :class:`~arsurf.errors.RenderingUnavailable` says what to install, before the session runs).
     ``handle_signals`` (the command line): SIGINT/SIGTERM during the session close
     ``session.h5`` with every tick recorded so far (marked incomplete) before the demo stops.
     """
@@ -160,6 +168,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.replay.session import SessionWriter, contact_fields, journal_path
     from arsurf.scan.prepare import prepare_scan
 
+    progress = progress or log.info
+    viewer = _viewer_or_none() if images else None  # no OpenGL: said now, not after the session
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -213,7 +223,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     tube_force = np.zeros(n)
     extra = {}
     with writer:  # an exception or a signal still closes the file (incomplete) with every tick
-        for k in range(n):
+        for k in progress_bar(range(n), desc="session", unit="tick"):
             st = dev.read_state()
             t0 = clock()
             f = loop.step(st, st.timestamp)
@@ -267,11 +277,11 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
                  f"{motion.displacement * 1e9:.1f} nm, turned "
                  f"{math.degrees(motion.rotation):+.2f} deg about the point {motion.pole_arc_length / L:.3f} L "
                  f"from end A (Eq. 9 pivot {tube_summary['pivot_arc_fraction (Eq. 9, first contact)']:.3f} L)")
-    result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True, progress=False)
+    result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True)
     progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches"
              + (f", tube poses differ by {result.tube_pose_difference:g}" if scene is not None else "")
              + f", files {', '.join(result.files)}")
-    pngs = _render(views, out, progress) if images else []
+    pngs = _render(viewer, views, out) if viewer is not None else []
     from arsurf.replay.session import load_session
 
     ticks = load_session(out / "session.h5").ticks
@@ -322,15 +332,27 @@ def _scene(model, loop, contact, rate, scene=None):
                 tubes=scene.viewer_tubes() if scene is not None else ())
 
 
-def _render(views: dict, out: Path, progress) -> list[Path]:
+def _viewer_or_none():
+    """The viewer with a rendering backend chosen; None (and a warning) when the extra is not installed.
+
+    Raises :class:`~arsurf.errors.RenderingUnavailable` (what to install) when nothing can render.
+    """
     try:
-        from arsurf_viewer import SceneState, SurfaceView
+        import arsurf_viewer
     except ImportError as exc:
-        progress(f"no PNG views: the viewer is not installed ({exc}); pip install 'arsurf[viewer]'")
-        return []
+        log.warning("no PNG views: the viewer is not installed (%s); pip install 'arsurf[viewer]', or --no-images", exc)
+        return None
+    arsurf_viewer.choose_backend()
+    return arsurf_viewer
+
+
+def _render(viewer, views: dict, out: Path) -> list[Path]:
+    from arsurf.errors import rendering_failed
+
+    SceneState, SurfaceView = viewer.SceneState, viewer.SurfaceView
     paths = []
     try:
-        for name, kw in views.items():
+        for name, kw in progress_bar(views.items(), desc="views", unit="view"):
             view = SurfaceView(kw["surface"], color_by="deformation" if name != "approach" else "height")
             view.update(SceneState(**kw))
             path = out / f"view_{name}.png"
@@ -345,8 +367,8 @@ def _render(views: dict, out: Path, progress) -> list[Path]:
                 view.screenshot(path)
                 view.close()
                 paths.append(path)
-    except Exception as exc:  # no OpenGL context: the numbers are still there
-        progress(f"no PNG views: rendering failed ({type(exc).__name__}: {exc})")
+    except Exception as exc:  # no OpenGL context after all: the numbers are written, the views asked for are not
+        raise rendering_failed(f"demo views (the numbers are in {out}; --no-images skips the views)", exc) from exc
     return paths
 
 

@@ -144,6 +144,27 @@ class RenderingUnavailable(ArsurfError, RuntimeError):
     """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 
 
+#: what to install when VTK cannot render offscreen (one line; README "Offscreen rendering")
+RENDERING_HINT = (
+    "install EGL (Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or OSMesa "
+    "(apt-get install libosmesa6; without root: README, Offscreen rendering), or run under a display"
+)
+
+
+def rendering_failed(what: str, exc: BaseException) -> RenderingUnavailable:
+    """The one-line :class:`RenderingUnavailable` for ``what`` failing with ``exc``, saying what to install.
+
+    Examples
+    --------
+    >>> str(rendering_failed("replay frames", RuntimeError("no context")))[:60]
+    'replay frames: rendering failed (RuntimeError: no context); '
+    """
+    if isinstance(exc, RenderingUnavailable):
+        return exc
+    first = (str(exc).strip().splitlines() or [""])[0]
+    return RenderingUnavailable(f"{what}: rendering failed ({type(exc).__name__}: {first}); {RENDERING_HINT}")
+
+
 def require(module: str, extra: str, feature: str):
     """Import an optional dependency or raise :class:`MissingDependency` naming the extra.
 

@@ -37,6 +37,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("ARSURF_REAL_SCANS", ROOT.parent / "shared" / "scans-real"))
@@ -187,6 +188,9 @@ def main(argv=None) -> int:
                     "mem_limit_mb": args.mem_limit_mb, "files": {}}
     totals: Counter = Counter()
     t_all = time.perf_counter()
+    # on stderr (stdout is the JSON report), only on a terminal
+    bar = tqdm(total=len(names) * args.mutants, desc="fuzz", unit="mutant", file=sys.stderr, disable=None,
+               mininterval=0.5)
     with tempfile.TemporaryDirectory(prefix="arsurf-fuzz-") as tmp:
         for name in names:
             src = REAL / name
@@ -223,6 +227,7 @@ def main(argv=None) -> int:
                     shutil.copy(dst, keep)
                     examples[outcome] = {"mutation": label, "result": res, "kept": str(keep)}
                 dst.unlink(missing_ok=True)
+                bar.update(1)
             totals.update(counts)
             report["files"][name] = {
                 "original": base.get("outcome"), "mutants": args.mutants,
@@ -232,6 +237,7 @@ def main(argv=None) -> int:
                 "median_s_per_file": float(np.median(times)) if times else None,
                 "max_s_per_file": float(np.max(times)) if times else None,
             }
+    bar.close()
     worker.stop()
     report["total"] = {o: totals.get(o, 0) for o in ("loaded", "refused", "other", "crash", "hang", "implausible",
                                                       "multi_line_message")}

@@ -5,7 +5,7 @@
 socket, then tries each attack ``n`` times with randomised content and reports, per kind, the
 packets tried, accepted and dropped (by the bridge's own counters), whether the probe moved (the
 bridge's ``read_state`` position left the operator's) and whether the attacker heard a FORCE.
-The same is done against the reference client ``tools/haptic_client.py`` from a stand-in server
+The same is done against the reference client ``arsurf/haptics/client.py`` from a stand-in server
 socket: per kind, FORCE packets tried, accepted, dropped, and whether any reached the hand (the
 client's :meth:`poll` returned anything but the last valid force). Then the cost of the tag:
 median and p99 of one POSE check (HMAC-SHA256) in microseconds.
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import hmac
-import importlib.util
 import json
 import math
 import os
@@ -42,9 +41,7 @@ from arsurf.haptics.udp_bridge import (  # noqa: E402
     generate_key,
 )
 
-_spec = importlib.util.spec_from_file_location("haptic_client", os.path.join(ROOT, "tools", "haptic_client.py"))
-client_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(client_mod)
+import arsurf.haptics.client as client_mod  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 OPERATOR_X = 0.01  # the operator's stylus x, m

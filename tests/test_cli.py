@@ -44,14 +44,9 @@ def test_errors_are_one_line_messages(tmp_path, capsys):
 def test_bridge_loop_feels_the_surface_through_udp():
     """`arsurf view --bridge-port`'s loop: a client on loopback sends stylus poses, the 1 kHz loop
     moves the tip into the surface and sends back a force pushing the stylus up."""
-    import sys as _sys
-    from pathlib import Path
-
+    from arsurf.haptics.client import HapticClient
     from arsurf.spline.surface import BSplineSurface
     from arsurf_viewer.live import bridge_loop
-
-    _sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-    from haptic_client import HapticClient
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
@@ -77,3 +72,20 @@ def test_bridge_loop_feels_the_surface_through_udp():
     assert scene.depth > 0 and scene.force[2] > 0        # the tip is in the surface, pushed back
     assert force[2] > 1e-4 and abs(force[2]) <= 7.9      # the hand feels it, within the device limit
     assert stats.ticks > 100
+
+
+def test_demo_without_an_opengl_context_fails_before_the_session_saying_what_to_install(tmp_path, monkeypatch, capsys):
+    """Views asked for (the default) and no backend: exit 2, one line naming the packages, nothing run."""
+    pytest.importorskip("pyvista")
+    import arsurf_viewer
+
+    from arsurf.errors import RENDERING_HINT, RenderingUnavailable
+
+    def none():
+        raise RenderingUnavailable(f"no OpenGL context can be made: no display, no EGL, no OSMesa; {RENDERING_HINT}")
+
+    monkeypatch.setattr(arsurf_viewer, "choose_backend", none, raising=False)
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("arsurf demo: error: no OpenGL") and "libosmesa6" in err[0]
+    assert not (tmp_path / "demo").exists()

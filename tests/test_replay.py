@@ -14,7 +14,7 @@ import pytest
 
 from arsurf.cli import main, prepare_scan
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.errors import ScanFileNotFound, SessionError
+from arsurf.errors import MissingDependency, RenderingUnavailable, ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.replay import plots
@@ -311,14 +311,17 @@ def test_unreplayable_sessions(recording, tmp_path):
 # frames, progress and the command line
 
 
-def test_frames_are_skipped_with_a_note_without_the_viewer(recording, tmp_path, monkeypatch, capsys):
+def test_frames_without_the_viewer_are_refused_before_any_work(recording, tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "arsurf_viewer", None)  # import fails
-    monkeypatch.setitem(sys.modules, "tqdm", None)           # plain progress line instead of tqdm
-    r = replay(recording.session, recording.scan, tmp_path / "out", frames=3, progress=True)
-    err = capsys.readouterr().err
-    assert r.frames == 0 and any("frames skipped" in n for n in r.notes)
-    assert "frames skipped" in err and f"replay: {N}/{N} ticks (100 %)" in err
-    assert not (tmp_path / "out" / "frames").exists()
+    with pytest.raises(MissingDependency, match=r"replay frames need the viewer.*pip install 'arsurf\[viewer\]'"):
+        replay(recording.session, recording.scan, tmp_path / "out", frames=3, progress=True)
+    assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []
+    assert replay(recording.session, recording.scan, tmp_path / "out", frames=0, progress=False).frames == 0
+    # the command line: exit status 2, one line on stderr, nothing written
+    assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(tmp_path / "cli"),
+                 "--frames", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "arsurf[viewer]" in err[0] and not (tmp_path / "cli").exists()
 
 
 @pytest.mark.viewer
@@ -344,7 +347,7 @@ def test_command_line(recording, replayed, tmp_path, capsys):
     assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out)]) == 0
     captured = capsys.readouterr()
     assert f"replayed {N} ticks" in captured.out and "forces.csv" in captured.out
-    assert f"{N}/{N}" in captured.err  # the progress bar
+    assert captured.err == ""  # no bar (stderr is not a terminal: tests/test_logging.py) and no note
     assert _files(out) == _files(replayed.out)
     # an existing folder, then a wrong scan: exit status 2 and a message
     assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out), "--quiet"]) == 2
@@ -355,7 +358,7 @@ def test_command_line(recording, replayed, tmp_path, capsys):
     assert "SHA-256" in captured.err and captured.out == ""
 
 
-def test_a_failing_renderer_does_not_stop_the_replay(recording, replayed, tmp_path, monkeypatch):
+def test_a_failing_renderer_stops_the_replay_saying_what_to_install(recording, tmp_path, monkeypatch, capsys):
     seen = []
 
     def render_frames(states, out_dir, **kwargs):
@@ -366,10 +369,15 @@ def test_a_failing_renderer_does_not_stop_the_replay(recording, replayed, tmp_pa
 
     fake = SimpleNamespace(SceneState=lambda *args, **kwargs: (args, kwargs), render_frames=render_frames)
     monkeypatch.setitem(sys.modules, "arsurf_viewer", fake)
-    r = replay(recording.session, recording.scan, tmp_path / "out", frames=4, progress=False)
+    with pytest.raises(RenderingUnavailable, match=r"replay frames: rendering failed \(RuntimeError: OpenGL context "
+                       r"lost\); install EGL .*libegl1.* or OSMesa .*libosmesa6"):
+        replay(recording.session, recording.scan, tmp_path / "out", frames=4, progress=False)
     assert len(seen) == 1 and seen[0][1]["time"] == 0.0  # the first frame is tick 0
-    assert r.frames == 0 and any("could not render (RuntimeError: OpenGL context lost)" in n for n in r.notes)
-    assert _files(tmp_path / "out") == _files(replayed.out)  # the run went on to the end, no partial frames
+    assert list(tmp_path.iterdir()) == []  # no output folder, no half frame, no temporary folder
+    assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(tmp_path / "cli"),
+                 "--frames", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "install EGL" in err[0] and not (tmp_path / "cli").exists()
 
     # an error inside the model loop is not mistaken for a rendering problem
     def render_all(states, out_dir, **kwargs):

@@ -240,6 +240,16 @@ def test_demo_scans_are_written_small_and_load_back(tmp_path):
         assert np.array_equal(load_scan(a).heights, load_scan(b).heights)
 
 
+def test_the_packaged_demo_scan_is_the_one_the_generator_writes(tmp_path):
+    """arsurf/data/nanotubes.npz (package data, what a wheel ships) is write_demo_scans' nanotubes."""
+    from arsurf.data import bundled_scan
+
+    written = {p.stem: p for p in syn.write_demo_scans(tmp_path)}
+    shipped, fresh = load_scan(bundled_scan("nanotubes")), load_scan(written["nanotubes"])
+    assert np.array_equal(shipped.heights, fresh.heights) and (shipped.dx, shipped.dy) == (fresh.dx, fresh.dy)
+    assert shipped.metadata["synthetic"] == fresh.metadata["synthetic"]
+
+
 # ---------------------------------------------------------------------------------------------
 # bad parameters
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import importlib.util
 import json
 import math
 import os
@@ -42,9 +41,7 @@ from arsurf.haptics.udp_bridge import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("haptic_client", ROOT / "tools" / "haptic_client.py")
-client_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(client_mod)
+import arsurf.haptics.client as client_mod  # noqa: E402  (the reference client, standard library only)
 
 LOOPBACK = "127.0.0.1"
 KEY = bytes(range(32))

@@ -5,6 +5,8 @@ Rendering tests are marked ``viewer`` and skip only when no OpenGL context can b
 """
 from __future__ import annotations
 
+import logging
+
 import math
 import subprocess
 import sys
@@ -449,9 +451,10 @@ def test_render_frames_writes_pngs_and_a_movie(gl, tmp_path):
 
 
 @pytest.mark.viewer
-def test_without_a_display_the_viewer_renders_offscreen(gl, tmp_path, monkeypatch, capsys):
+def test_without_a_display_the_viewer_renders_offscreen(gl, tmp_path, monkeypatch, caplog):
     import arsurf_viewer.interactive as inter
 
+    caplog.set_level(logging.INFO, logger="arsurf")
     monkeypatch.setattr(inter, "has_display", lambda: False)
     s = sinusoid_surface()
     poses = iter([above(s, 1e-7, 1e-7, 6e-9), above(s, 1e-7, 1e-7, 3e-9), None, above(s, 1e-7, 1e-7, 1e-9)])
@@ -463,7 +466,7 @@ def test_without_a_display_the_viewer_renders_offscreen(gl, tmp_path, monkeypatc
 
     res = inter.run_interactive(s, tip_radius=R, physics=physics, pose_source=lambda: next(poses, None),
                                 out_dir=tmp_path / "view", frames=4, window_size=(160, 120), anti_aliasing=None)
-    assert "no display" in capsys.readouterr().err
+    assert "no display" in caplog.text and all(r.name == "arsurf.viewer" for r in caplog.records)
     assert len(res.paths) == 4 and all(p.is_file() for p in res.paths)
     assert len(seen) == 4
     np.testing.assert_array_equal(seen[2], seen[1])  # a None pose keeps the last one
@@ -486,8 +489,9 @@ def test_contact_physics_dents_and_releases():
 
 
 @pytest.mark.viewer
-def test_view_scan_levels_smooths_fits_and_falls_back_offscreen(gl, tmp_path, monkeypatch, capsys):
+def test_view_scan_levels_smooths_fits_and_falls_back_offscreen(gl, tmp_path, monkeypatch, caplog):
     pytest.importorskip("arsurf.contact.projection")
+    caplog.set_level(logging.INFO, logger="arsurf")
     import arsurf
     import arsurf_viewer.interactive as inter
 
@@ -497,7 +501,36 @@ def test_view_scan_levels_smooths_fits_and_falls_back_offscreen(gl, tmp_path, mo
     res = inter.view_scan(scan, tip_radius=R, sigma=5e-9, out_dir=tmp_path, frames=4, window_size=(160, 120),
                           anti_aliasing=None, movie=None)
     assert [p.name for p in res.paths] == [f"frame_{k:05d}.png" for k in range(4)]
-    assert "rendering 4 frames offscreen" in capsys.readouterr().err
+    assert "rendering 4 frames offscreen" in caplog.text
+
+
+def test_headless_view_that_cannot_render_fails_saying_what_to_install(tmp_path, monkeypatch, capsys):
+    """No frames written is never a success: a renderer failure is one line naming the packages."""
+    import arsurf
+    import arsurf_viewer.interactive as inter
+    from arsurf.cli import main
+    from arsurf.errors import RenderingUnavailable
+
+    monkeypatch.setattr(inter, "has_display", lambda: False)
+    monkeypatch.setattr(inter, "choose_backend", lambda: None)
+
+    class NoContext:
+        def __init__(self, *args, **kwargs):
+            raise RuntimeError("vtkEGLRenderWindow: failed to initialize EGL\nsecond line")
+
+    monkeypatch.setattr("arsurf_viewer.view.SurfaceView", NoContext)
+    s = sinusoid_surface()
+    with pytest.raises(RenderingUnavailable, match=r"rendering failed \(RuntimeError: vtkEGLRenderWindow: failed to "
+                       r"initialize EGL\); install EGL .*libegl1 .*libosmesa6"):
+        inter.run_interactive(s, tip_radius=R, out_dir=tmp_path / "v", frames=4)
+    assert not list((tmp_path / "v").glob("*.png")) if (tmp_path / "v").exists() else True
+    code = main(["view", str(tmp_path / "missing.npz")])  # a bad scan: the scan's error, not a rendering one
+    assert code == 2 and "missing.npz" in capsys.readouterr().err
+    scan = arsurf.save_scan(arsurf.Scan(np.zeros((24, 24)), dx=5e-9, dy=5e-9), tmp_path / "flat.npz")
+    code = main(["view", str(scan), "--frames", "4", "--out", str(tmp_path / "cli")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("arsurf view: error:") and "install EGL" in err[-1]
+    assert not list((tmp_path / "cli").glob("*.png")) if (tmp_path / "cli").exists() else True
 
 
 @pytest.mark.viewer

@@ -21,8 +21,9 @@ libraries, ``XOpenDisplay`` tries the display) and sets the environment before t
 window exists; ``ARSURF_VIEWER_BACKEND`` forces one. When a check passes but VTK still cannot
 make a context, VTK may abort the process, so :func:`probe` tries the chosen backend in a child
 process and reports (once per process) whether a real picture came out; the viewer tests skip
-on its answer and only on it. ``tools/install-system-deps.sh`` installs the ``egl`` packages (the
-ones CI and headless servers need) and the ``x11`` ones for desktops.
+on its answer and only on it. In a source checkout ``tools/install-system-deps.sh`` installs the
+``egl`` packages (the ones CI and headless servers need) and the ``x11`` ones for desktops; the
+README ("Offscreen rendering") says how to get OSMesa without root.
 
 Examples
 --------
@@ -44,7 +45,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 
-from arsurf.errors import RenderingUnavailable
+from arsurf.errors import RENDERING_HINT, RenderingUnavailable
 
 __all__ = ["RenderingUnavailable", "Backend", "Probe", "BACKENDS", "choose_backend", "has_display", "probe"]
 
@@ -57,10 +58,7 @@ BACKENDS = {
     "xvfb": "vtkXOpenGLRenderWindow",
 }
 _ENV = "ARSURF_VIEWER_BACKEND"
-_INSTALL_HINT = (
-    "install the Debian packages for headless rendering with `sh tools/install-system-deps.sh` "
-    "(libegl1 libegl-mesa0 libgl1-mesa-dri), or run under a display"
-)
+_INSTALL_HINT = RENDERING_HINT
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,9 @@
 """Offscreen frames: PNG files and an mp4 movie from a sequence of scene states.
 
 Every frame is written as ``<prefix>_00000.png`` ... through one :class:`SurfaceView` updated in
-place. The movie (H.264, ``yuv420p``, so any player opens it) needs ``imageio-ffmpeg``; without
+place. The movie (H.264, ``yuv420p``, so any player opens it) needs ``imageio-ffmpeg`` (the ``movie`` extra); without
 it the frames are still written and the returned :class:`Frames` says why there is no movie
-(the message is also printed to stderr). Files are written under temporary names and renamed,
+(the message is also logged as a warning to ``arsurf.viewer``). Files are written under temporary names and renamed,
 so an interrupted run leaves no truncated PNG or mp4 behind.
 
 Examples
@@ -20,8 +20,8 @@ Examples
 from __future__ import annotations
 
 import importlib.util
+import logging
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
@@ -32,6 +32,8 @@ from arsurf.errors import require
 
 from .state import SceneState
 from arsurf.errors import ViewerError
+
+log = logging.getLogger("arsurf.viewer")
 
 __all__ = ["Frames", "render_frames", "movie_support"]
 
@@ -48,7 +50,7 @@ class Frames:
 def movie_support() -> str | None:
     """None when mp4 movies can be written, else the reason they cannot."""
     if importlib.util.find_spec("imageio_ffmpeg") is None:
-        return "imageio-ffmpeg is not installed (pip install 'arsurf[viewer]' or imageio-ffmpeg)"
+        return "imageio-ffmpeg is not installed (pip install 'arsurf[movie]')"
     try:
         import imageio_ffmpeg
 
@@ -108,7 +110,7 @@ def render_frames(states: Iterable[SceneState], out_dir: str | os.PathLike, *, f
             movie_tmp = movie_path.with_name(movie_path.stem + ".part.mp4")
         else:
             note = f"no movie: {reason}; wrote PNG frames only"
-            print(f"arsurf_viewer: {note}", file=sys.stderr)
+            log.warning("arsurf_viewer: %s", note)
     own_view = view is None
     paths: list[Path] = []
     try:
@@ -124,7 +126,7 @@ def render_frames(states: Iterable[SceneState], out_dir: str | os.PathLike, *, f
             paths.append(path)
             if movie_tmp is not None:
                 if writer is None:
-                    imageio = require("imageio.v2", "viewer", "writing movies")
+                    imageio = require("imageio.v2", "movie", "writing movies")
                     writer = imageio.get_writer(movie_tmp, fps=float(fps), codec="libx264", quality=8,
                                                 macro_block_size=1, pixelformat="yuv420p")
                 writer.append_data(_even(img))

@@ -26,19 +26,22 @@ and a movie, and a message says so.
 """
 from __future__ import annotations
 
+import logging
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from arsurf._logging import progress
 from arsurf.spline.surface import BSplineSurface
 
 from .backend import choose_backend, has_display
 from .state import SceneState
-from arsurf.errors import ViewerError
+from arsurf.errors import ViewerError, rendering_failed
+
+log = logging.getLogger("arsurf.viewer")  # the viewer's logger: a child of arsurf's (arsurf._logging)
 
 __all__ = ["StylusController", "ContactPhysics", "scripted_path", "run_interactive", "view_scan", "LAYER_SETS"]
 
@@ -255,21 +258,31 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
     choose_backend()
     if not has_display():
         out = Path(out_dir)
-        print(f"arsurf view: no display (DISPLAY is unset or unreachable), so no window can open; rendering "
-              f"{frames} frames offscreen to {out}/ instead "
-              f"({'following the pose source' if pose_source else 'along a scripted approach-indent-slide-retract path'}).",
-              file=sys.stderr)
+        log.info("arsurf view: no display (DISPLAY is unset or unreachable), so no window can open; rendering "
+                 "%d frames offscreen to %s/ instead (%s).", frames, out,
+                 "following the pose source" if pose_source else "along a scripted approach-indent-slide-retract path")
         poses = scripted_path(surface, tip_radius, frames) if pose_source is None else None
+
+        failure = {}
 
         def states():  # one at a time: each state shows the live surface as dented at that tick
             last = np.asarray(start, dtype=np.float64)
-            for k in range(frames):
-                pose = poses[k] if poses is not None else pose_source()
-                last = last if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
-                yield physics(last, dt)
+            try:
+                for k in progress(range(frames), desc="frames", unit="frame"):
+                    pose = poses[k] if poses is not None else pose_source()
+                    last = last if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+                    yield physics(last, dt)
+            except Exception as exc:
+                failure["exc"] = exc
+                raise
 
         view_kwargs.setdefault("off_screen", True)
-        return render_frames(states(), out, fps=fps, **view_kwargs)
+        try:
+            return render_frames(states(), out, fps=fps, **view_kwargs)
+        except Exception as exc:
+            if failure.get("exc") is exc or isinstance(exc, ViewerError):  # the model or the arguments, not OpenGL
+                raise
+            raise rendering_failed("arsurf view (offscreen frames)", exc) from exc
 
     view = SurfaceView(surface, off_screen=False, **view_kwargs)
     ctl = StylusController(surface, start, view=view,
@@ -312,15 +325,15 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
 
     plotter.track_click_position(clicked, side="right")
     plotter.iren.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(round(1000 * dt))), callback=tick)
-    print("arsurf view: arrows move x/y, PgUp/PgDn z, [ ] step, r reset, p pause, t layers, "
-          "1-8 layer, c colours, v camera, right-click place, q quit", file=sys.stderr)
+    log.info("arsurf view: arrows move x/y, PgUp/PgDn z, [ ] step, r reset, p pause, t layers, "
+             "1-8 layer, c colours, v camera, right-click place, q quit")
     plotter.show()
     return None
 
 
 def _announce(message: str) -> None:
     if message:
-        print(f"arsurf view: {message}", file=sys.stderr)
+        log.info("arsurf view: %s", message)
 
 
 def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "plane", sigma: float | None = None,

@@ -493,9 +493,9 @@ class SurfaceView:
             p = Path(path)
             if p.suffix.lower() != ".png":
                 raise ViewerError(f"screenshots are PNG files (got {p.name!r}); use a .png name")
-            imageio = require("imageio.v3", "viewer", "writing PNG screenshots")
+            image = require("PIL.Image", "viewer", "writing PNG screenshots")
             tmp = p.with_name(p.name + ".part.png")
-            imageio.imwrite(tmp, img)
+            image.fromarray(np.ascontiguousarray(img)).save(tmp, format="PNG")  # no text chunks: same bytes each run
             os.replace(tmp, p)
         return img
 

@@ -3,7 +3,7 @@
 As in the seed systems, where the haptic PC and the AFM PC talk over Ethernet, real hardware can
 drive arsurf through a small binary protocol over UDP. arsurf is the server (it listens on
 127.0.0.1 by default, port :data:`DEFAULT_PORT`); the haptic PC is the client: it sends one POSE
-packet per servo tick and applies the FORCE packets it receives. ``tools/haptic_client.py`` is the
+packet per servo tick and applies the FORCE packets it receives. ``arsurf/haptics/client.py`` is the
 reference client in plain Python (standard library only); ``docs/bridge-protocol.md`` is the same
 specification for a C/C++ implementer, with a test vector.
 
@@ -366,7 +366,7 @@ def decode_force(key: bytes, data) -> dict | None:
     """Fields of a FORCE packet, or None if it is not a valid one (size, magic, version, type, tag).
 
     Only the format and the tag are checked here; a client also checks the sender, the sequence
-    number, the ``ack``, finiteness and its force limit (``tools/haptic_client.py`` does).
+    number, the ``ack``, finiteness and its force limit (:mod:`arsurf.haptics.client` does).
     """
     mv = memoryview(data)
     if len(mv) != FORCE_SIZE:
@@ -729,6 +729,6 @@ class UdpBridgeDevice(Device):
                 raise HapticsError(
                     f"no valid pose packet on UDP {self.address[0]}:{self.address[1]} within {timeout} s "
                     f"(received {self.stats.received}, dropped {self.stats.dropped}, wrong key "
-                    f"{self.stats.bad_mac}); start the client (tools/haptic_client.py) with this host, port and key"
+                    f"{self.stats.bad_mac}); start the client (python -m arsurf.haptics.client) with this host, port and key"
                 )
             time.sleep(0.001)

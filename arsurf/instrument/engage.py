@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from arsurf._logging import progress
 from arsurf.errors import InstrumentError
 from arsurf.instrument.instrument import InstrumentHistory, VirtualAFM
 
@@ -160,7 +161,9 @@ def engage(afm: VirtualAFM, setpoint: float, *, fine_step: float = 1e-9, fine_ra
     reason = "out_of_travel"
     engaged = False
     last = 0.0
+    bar = progress(desc="engage", unit="step")  # ~6000 steps, a few seconds, count unknown in advance
     while True:
+        bar.update(1)
         sig = afm.dwell(check_time)
         last = float(np.mean(change(sig)))
         if unsafe(sig):
@@ -189,6 +192,7 @@ def engage(afm: VirtualAFM, setpoint: float, *, fine_step: float = 1e-9, fine_ra
         if unsafe(sig):
             reason = "force_limit"
             break
+    bar.close()
     if reason == "force_limit":
         afm.move(fine_stage, fine_home)  # retract the fine stage
     hist = afm.history()

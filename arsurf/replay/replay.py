@@ -76,19 +76,22 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import math
 import os
 import shutil
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import SessionError, require
+from arsurf._logging import progress as progress_bar
+from arsurf.errors import MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
 from arsurf.replay.session import MD_STATUS_NOT_GIVEN, Session, TickField, load_session, read_h5, write_h5
+
+log = logging.getLogger(__name__)
 
 __all__ = ["replay", "ReplayResult", "load_replay", "REPLAY_FIELDS", "REPLAY_FORMAT", "register", "cmd_replay"]
 
@@ -156,42 +159,6 @@ class ReplayResult:
     tube_pose_difference: float = _NAN
 
 
-class _Progress:
-    """tqdm when importable, else a plain stderr line every 5 %; nothing when disabled."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.total = total
-        self.enabled = enabled
-        self.bar = None
-        self.done = 0
-        self._next_line = 0
-        if not enabled:
-            return
-        try:
-            from tqdm import tqdm
-        except ImportError:
-            return
-        self.bar = tqdm(total=total, desc="replay", unit="tick", file=sys.stderr, mininterval=0.25,
-                        dynamic_ncols=True)
-
-    def update(self, n: int) -> None:
-        self.done += n
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            self.bar.update(n)
-        elif self.done >= self._next_line:
-            pct = 100.0 * self.done / max(self.total, 1)
-            print(f"\rreplay: {self.done}/{self.total} ticks ({pct:3.0f} %)", end="", file=sys.stderr, flush=True)
-            self._next_line = self.done + max(self.total // 20, 1)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        elif self.enabled:
-            print(file=sys.stderr)
-
-
 def _finite_rows(name: str, a: np.ndarray, session_path) -> None:
     bad = ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
     if bad.any():
@@ -241,10 +208,13 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
         Output folder; must not exist unless ``overwrite`` (it is then replaced, only at the end).
     frames : int
         Number of offscreen PNG frames, evenly spread over the ticks (0: none). Needs the
-        viewer (:mod:`arsurf_viewer`, pyvista) and an OpenGL context; without them the frames
-        are skipped with a note.
+        viewer (:mod:`arsurf_viewer`, pyvista) and an OpenGL context: without the viewer
+        :class:`~arsurf.errors.MissingDependency` is raised before any work, and a rendering
+        failure raises :class:`~arsurf.errors.RenderingUnavailable` saying what to install
+        (no output folder is left behind: frames asked for are never silently dropped).
     progress : bool
-        Show a progress bar (tqdm, else a plain line) and notes on stderr.
+        Show a progress bar (tqdm on stderr, when it is a terminal and the ``arsurf`` logger
+        passes INFO). Notes (what was skipped) are logged as warnings to ``arsurf.replay``.
     overwrite : bool
         Replace an existing ``out_dir``.
     frame_size : (width, height) int, pixels
@@ -275,6 +245,8 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     frames = int(frames)
     if frames < 0:
         raise SessionError(f"`frames` must be >= 0 (got {frames}); 0 writes no frames")
+    if frames > 0:
+        _viewer()  # a missing viewer is said now, not after the model is built
     if out.exists() and not overwrite:
         raise SessionError(f"output folder {str(out)!r} exists; choose another folder or pass overwrite=True "
                            "(--overwrite) to replace it")
@@ -319,9 +291,8 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     except BaseException:
         _rmtree(tmp)
         raise
-    if progress:
-        for note in notes:
-            print(f"arsurf replay: {note}", file=sys.stderr)
+    for note in notes:
+        log.warning("replay: %s", note)
     return ReplayResult(out_dir=out, n_ticks=n, files=files, frames=rec["frames"], notes=tuple(notes),
                         elapsed=time.perf_counter() - t_start, tube_poses=rec["tube_poses"], **stats)
 
@@ -347,6 +318,17 @@ def _install(tmp: Path, out: Path, overwrite: bool) -> None:
     _rmtree(old)
 
 
+def _viewer():
+    """The viewer package, or :class:`~arsurf.errors.MissingDependency` naming the extra."""
+    try:
+        viewer = importlib.import_module("arsurf_viewer")
+        viewer.SceneState, viewer.render_frames  # noqa: B018 (a stand-in without them is no viewer)
+    except (ImportError, AttributeError) as exc:
+        raise MissingDependency(f"replay frames need the viewer (arsurf_viewer cannot be imported: {exc}); "
+                                "install it with pip install 'arsurf[viewer]', or ask for no frames") from exc
+    return viewer
+
+
 def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: bool, notes: list) -> dict:
     """Run the model over every tick; render frames on the way when asked and possible."""
     from arsurf.model import M_COLLIDE_STATUS, M_SIZE, M_TIP
@@ -362,16 +344,11 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     frame_ticks = np.unique(np.linspace(0, n - 1, frames).round().astype(np.int64)) if frames > 0 else np.empty(0, int)
     viewer = None
     if frame_ticks.size:
-        try:
-            viewer = importlib.import_module("arsurf_viewer")
-            state_cls, render = viewer.SceneState, viewer.render_frames
-        except (ImportError, AttributeError) as exc:
-            notes.append(f"frames skipped: the viewer (arsurf_viewer) cannot be imported ({exc}); "
-                         "install it with pip install 'arsurf[viewer]'")
-            frame_ticks = np.empty(0, int)
+        viewer = _viewer()
+        state_cls, render = viewer.SceneState, viewer.render_frames
     is_frame = np.zeros(n, bool)
     is_frame[frame_ticks] = True
-    bar = _Progress(n, progress)
+    bar = progress_bar(total=n, desc="replay", unit="tick", enabled=progress)
     failure: dict = {}
     lam = setup.model.contact.maugis_parameter
     radius = setup.model.tip_radius
@@ -411,12 +388,10 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
             try:
                 n_frames = len(render(gen, frames_dir, movie=None, window_size=tuple(frame_size)).paths)
             except Exception as exc:
-                if failure.get("exc") is exc:
+                if failure.get("exc") is exc:  # the model failed, not the renderer
                     raise
-                notes.append(f"frames skipped: the viewer could not render ({type(exc).__name__}: {exc})")
-                _rmtree(frames_dir)
-                n_frames = 0
-        for _ in gen:  # the whole run without frames, or the rest of it after a rendering failure
+                raise rendering_failed("replay frames", exc) from exc
+        for _ in gen:  # the whole run when no frames are asked for
             pass
     finally:
         bar.close()
@@ -550,9 +525,10 @@ def load_replay(path: str | os.PathLike) -> Session:
 
 def cmd_replay(args) -> int:
     """``arsurf replay``: run :func:`replay` and print what it wrote."""
-    result = replay(args.session, args.scan, args.out, frames=args.frames, progress=not args.quiet,
+    quiet = getattr(args, "log_quiet", False)  # -q/--quiet (arsurf.cli): no progress bar, no notes, no summary
+    result = replay(args.session, args.scan, args.out, frames=args.frames, progress=not quiet,
                     overwrite=args.overwrite, allow_incomplete=args.allow_incomplete, isolate=True)
-    if not args.quiet:
+    if not quiet:
         print(f"replayed {result.n_ticks} ticks in {result.elapsed:.2f} s -> {result.out_dir}")
         print(f"  peak force {result.peak_force * 1e9:.6g} nN, max depth {result.max_depth * 1e9:.6g} nm, "
               f"max contact radius {result.max_contact_radius * 1e9:.6g} nm")
@@ -565,7 +541,7 @@ def cmd_replay(args) -> int:
 
 
 def register(subparsers) -> None:
-    """Add ``arsurf replay SESSION --scan SCAN --out DIR [--frames N] [--overwrite] [--quiet]``."""
+    """Add ``arsurf replay SESSION --scan SCAN --out DIR [--frames N] [--overwrite]`` (``-q``: arsurf.cli)."""
     s = subparsers.add_parser("replay", help="re-run the model over a recorded session; write forces, contacts, "
                                              "plots and frames")
     s.add_argument("session", help="session file (.h5) recorded by the live loop or arsurf demo")
@@ -573,7 +549,6 @@ def register(subparsers) -> None:
     s.add_argument("--out", required=True, help="output folder (must not exist unless --overwrite)")
     s.add_argument("--frames", type=int, default=0, help="offscreen PNG frames to render (needs the viewer)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    s.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     s.add_argument("--allow-incomplete", action="store_true",
                    help="replay a recording that did not end normally (killed: the ticks recovered from its "
                         "journal; stopped by a signal); a note says how many ticks it holds")

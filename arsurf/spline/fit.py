@@ -30,6 +30,7 @@ from numba import njit
 from scipy.linalg import lapack, solveh_banded
 
 from arsurf import _validation
+from arsurf._logging import progress
 from arsurf.errors import InvalidHeights, SurfaceError
 from arsurf.scan.scan import Scan
 from arsurf.spline.basis import basis_matrix_rows, cubic_basis
@@ -172,6 +173,10 @@ def _transpose(a, out):
                     out[j, i] = a[i, j]
 
 
+#: scans from this many pixels on show a progress bar while fitting (4096² takes ~1 s here)
+_PROGRESS_PIXELS = 1 << 22
+
+
 def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smoothing: float = 0.0) -> BSplineSurface:
     """Fit a bicubic B-spline surface to a scan's heights.
 
@@ -240,8 +245,14 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
     ku = clamped_uniform_knots(nu, x[0], x[-1])
     kv = clamped_uniform_knots(nv, y[0], y[-1])
     # A_v Y = Z -> Y (nv, nx);  A_u P = Yᵀ -> P (nu, nv)
+    # a bar for the three steps of a fit that takes about a second or more (~4 Mpixel and up)
+    bar = progress(total=3, desc="fit", unit="step", enabled=nx * ny >= _PROGRESS_PIXELS)
     yz = _solve_axis(kv, y, z, nv, smoothing)
+    bar.update(1)
     yz_t = np.empty((yz.shape[1], yz.shape[0]))
     _transpose(yz, yz_t)
+    bar.update(1)
     p = _solve_axis(ku, x, yz_t, nu, smoothing)
+    bar.update(1)
+    bar.close()
     return BSplineSurface.from_heights(p, (x[0], x[-1]), (y[0], y[-1]))

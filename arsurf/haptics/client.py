@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Reference client of the arsurf haptic UDP bridge: sends stylus poses, receives forces.
 
-Standard library only, so it can be copied to the haptic PC as it is. The packet layout is the one
+Standard library only, so this one file can be copied to the haptic PC as it is and run there
+(``python client.py ...``); with arsurf installed it is ``python -m arsurf.haptics.client``. The packet layout is the one
 documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.md`` (protocol version
 2, little-endian, HMAC-SHA256 tag last); ``tests/test_udp_bridge.py`` checks that this file and
 the bridge agree byte for byte and that this client drops every bad FORCE packet.
@@ -9,7 +10,7 @@ the bridge agree byte for byte and that this client drops every bad FORCE packet
 Run it against a bridge with the session key the bridge wrote (``arsurf view --bridge-port``
 prints the key file's path)::
 
-    python tools/haptic_client.py --port 47474 --key-file /tmp/arsurf-bridge-xyz/bridge.key \
+    python -m arsurf.haptics.client --port 47474 --key-file /tmp/arsurf-bridge-xyz/bridge.key \
         --rate 1000 --duration 5 --radius 0.02
 
 It moves a virtual stylus on a circle of ``--radius`` metres at ``--frequency`` Hz, sends one POSE
@@ -20,8 +21,8 @@ packet that passed every check (sender address, tag, sequence number, ``ack`` of
 client's poses, finite values, ``--max-force``) and is zero when no such packet arrived for
 ``--timeout`` seconds. On exit the client sends RELEASE so that another client may connect.
 
-Example
--------
+Examples
+--------
 >>> c = HapticClient("127.0.0.1", 9, key=bytes(32))   # nothing needs to listen to build packets
 >>> len(encode_pose(bytes(32), 1, 0.0, (0.0, 0.0, 0.0)))
 140
