@@ -45,9 +45,13 @@ follows from the frictionless contact: the force is along the 3D normal, so
 :math:`R + r` (normals steeper than 84 deg: a tip on the crest would wedge the tube into the
 substrate, which the rigid-sliding model does not describe; the floor keeps the force bounded).
 
-The friction is kinetic: a tube resists only in the ticks it slides. A tip resting against a
-tube feels nothing (no elasticity, and static friction holds the tube without load), so a
-slow push is felt as the saw-tooth of seed 000 Fig. 10 that the loop's low-pass smooths.
+The tip-tube contact is compliant over a small depth, :data:`CONTACT_ALLOWANCE` of
+:math:`R + r`: the tube slides only once the tip is that far into it (the push moves the tube
+for a sphere shrunk by the allowance), and the reaction is :math:`F_h` scaled by the depth over
+the allowance - full while the tube slides, fading to zero as the tip backs off, zero for a tip
+resting against the tube without pressing. (With a purely kinetic resistance, felt only in the
+ticks the tube slides, a slow push or a jittering hand made the force flicker between 0 and
+:math:`F_h` every tick: the demo's buzz.)
 
 The default :data:`FRICTION_PER_LENGTH` = 0.1 N/m (0.1 nN per nm of tube) puts the push force
 of 0.3-0.5 um tubes at 12-50 nN, the lateral force range of seed 000 Fig. 10 (0-30 nN while
@@ -93,6 +97,9 @@ __all__ = ["TubeScene", "SceneStep", "TubeMotion", "FRICTION_PER_LENGTH", "tube_
 FRICTION_PER_LENGTH = 0.1
 #: Floor of the horizontal contact distance, as a fraction of R + r, in the vertical force.
 _MIN_HORIZONTAL = 0.1
+#: the tip may press this fraction of (R + r) into a tube before it slides: the tube's reaction
+#: grows over that depth (contact compliance) instead of appearing only in the ticks it slides
+CONTACT_ALLOWANCE = 0.02
 
 # columns of the per-tube geometry array
 G_LENGTH, G_RADIUS, G_AXIS_Z, G_FRICTION, G_SUBSTEP = range(5)
@@ -140,25 +147,31 @@ def scene_step_kernel(poses, geom, band, max_substeps, prev, tip, tip_radius, fo
         L = geom[i, G_LENGTH]
         r = geom[i, G_RADIUS]
         za = geom[i, G_AXIS_Z]
+        allowance = CONTACT_ALLOWANCE * (tip_radius + r)
+        # the tube slides once the tip is `allowance` into it: push with the sphere shrunk by it
         cx, cy, th, st, nc, l, s, _n = push_kernel(poses[i, 0], poses[i, 1], poses[i, 2], L, r, za, px, py, pz,
-                                                   qx - px, qy - py, qz - pz, tip_radius, geom[i, G_SUBSTEP],
-                                                   band, max_substeps)
+                                                   qx - px, qy - py, qz - pz, tip_radius - allowance,
+                                                   geom[i, G_SUBSTEP], band, max_substeps)
         info[i, I_STATUS] = st
-        if nc == 0:
-            continue
-        info[i, I_CONTACTS] = nc
-        info[i, I_CONTACT] = l
-        info[i, I_PIVOT] = s
-        poses[i, 0] = cx
-        poses[i, 1] = cy
-        poses[i, 2] = th
-        total += nc
-        # reaction of the tube on the tip (module docstring), from the final contact geometry
-        ux = math.cos(th)
-        uy = math.sin(th)
-        t, ax, ay, d = _seg_dist(qx, qy, cx - 0.5 * L * ux, cy - 0.5 * L * uy, ux, uy, L)
+        if nc > 0:
+            info[i, I_CONTACTS] = nc
+            info[i, I_CONTACT] = l
+            info[i, I_PIVOT] = s
+            poses[i, 0] = cx
+            poses[i, 1] = cy
+            poses[i, 2] = th
+            total += nc
+        # reaction of the tube on the tip (module docstring), from the final contact geometry,
+        # in proportion to how far the tip is into the contact allowance (full while sliding)
+        ux = math.cos(poses[i, 2])
+        uy = math.sin(poses[i, 2])
+        t, ax, ay, d = _seg_dist(qx, qy, poses[i, 0] - 0.5 * L * ux, poses[i, 1] - 0.5 * L * uy, ux, uy, L)
         if d <= 0.0:  # tip centre on the axis: only possible above the tube's reach, no contact
             continue
+        depth = tip_radius + r - math.sqrt(d * d + (qz - za) * (qz - za))
+        if not depth > 0.0:
+            continue
+        w = min(depth / allowance, 1.0)
         nx = (qx - ax) / d
         ny = (qy - ay) / d
         n_ax = abs(nx * ux + ny * uy)
@@ -167,7 +180,7 @@ def scene_step_kernel(poses, geom, band, max_substeps, prev, tip, tip_radius, fo
             lever = L
         else:
             lever = abs(L - 2.0 * _centre(t, L))
-        fh = geom[i, G_FRICTION] * (n_perp * lever + n_ax * L)
+        fh = w * geom[i, G_FRICTION] * (n_perp * lever + n_ax * L)
         dh = max(d, _MIN_HORIZONTAL * (tip_radius + r))
         force[0] += fh * nx
         force[1] += fh * ny
