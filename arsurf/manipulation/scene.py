@@ -72,8 +72,8 @@ Examples
 >>> step = scene.step(tip0, (150e-9, 20e-9, 20e-9), tip_radius=20e-9)   # push 60 nm along +y
 >>> step.touched.tolist(), bool(step.force[1] < 0)    # the tube turned and resisted the push
 ([True], True)
->>> round(float(step.poses[0, 2]), 3)    # end B moved ~44.5 nm at a lever of L/sqrt(2): rad
-0.209
+>>> round(float(step.poses[0, 2]), 3)    # end B moved ~44 nm (the tip ends 0.55 nm, its allowance, in): rad
+0.206
 """
 from __future__ import annotations
 
