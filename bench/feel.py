@@ -20,12 +20,14 @@ import json
 import math
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from arsurf.feel_scenarios import MOTIONS, SOURCES, prepared_surface, run_scenario, synthetic_surface
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from collision import vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
 
 SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parents[2] / "shared" / "scans-real"))
 REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
@@ -33,9 +35,6 @@ REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
 
 def vtk_ratio(surface, rounds: int = 3) -> dict:
     """Tick median vs one VTK closest-point query at the same tip positions (slide at 100 nm/s)."""
-    import vtk
-    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
-
     (u0, u1), (v0, v1) = surface.domain
     nu, nv = surface.shape
     uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
@@ -43,29 +42,12 @@ def vtk_ratio(surface, rounds: int = 3) -> dict:
     idx = np.arange(nu * nv).reshape(nu, nv)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
     faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
-    poly = vtk.vtkPolyData()
-    vp = vtk.vtkPoints()
-    vp.SetData(numpy_to_vtk(np.ascontiguousarray(pts), deep=True))
-    poly.SetPoints(vp)
-    cells = np.hstack([np.full((faces.shape[0], 1), 3), faces]).astype(np.int64).ravel()
-    ca = vtk.vtkCellArray()
-    ca.ImportLegacyFormat(numpy_to_vtkIdTypeArray(cells, deep=True))
-    poly.SetPolys(ca)
-    loc = vtk.vtkStaticCellLocator()
-    loc.SetDataSet(poly)
-    loc.BuildLocator()
-    closest, cid, sid, d2 = [0.0, 0.0, 0.0], vtk.reference(0), vtk.reference(0), vtk.reference(0.0)
+    _build, query = vtk_locator(pts, faces)
     ticks, queries = [], []
     for _ in range(rounds):
         run = run_scenario(surface, motion="slide-100", source="blended", seconds=2.0)
         ticks.append(float(np.median(run.tick_ns)) * 1e-3)
-        clock = time.perf_counter_ns
-        q = np.empty(run.tip.shape[0])
-        for k, p in enumerate(map(tuple, run.tip)):
-            t0 = clock()
-            loc.FindClosestPoint(p, closest, cid, sid, d2)
-            q[k] = clock() - t0
-        queries.append(float(np.median(q)) * 1e-3)
+        queries.append(float(np.median(query(run.tip)[0])) * 1e6)
     ratios = [t / q for t, q in zip(ticks, queries)]
     return {"tick_median_us": ticks, "vtk_query_median_us": queries, "tick_over_vtk": ratios,
             "tick_over_vtk_median": float(np.median(ratios)), "triangles": int(faces.shape[0])}

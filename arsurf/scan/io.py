@@ -61,6 +61,7 @@ from arsurf.errors import (
     UnknownFormat,
 )
 from arsurf.errors import MissingCalibration
+from arsurf.scan.readers._common import HDF5_SIGNATURE
 
 __all__ = ["load_scan", "save_scan", "detect_format", "FORMATS", "MissingCalibration"]
 
@@ -116,7 +117,7 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
             return fmt
     ext = path.suffix.lower()
     ext_fmt = _ext_map().get(ext)
-    if head.startswith(_HDF5):  # HDF5 formats mark themselves in attributes/datasets, not in the head bytes
+    if head.startswith(HDF5_SIGNATURE):  # HDF5 formats mark themselves in attributes/datasets, not in the head bytes
         h5_fmt = _sniff_hdf5(path)
         if h5_fmt is not None:
             return h5_fmt
@@ -133,7 +134,6 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
     )
 
 
-_HDF5 = b"\x89HDF\r\n\x1a\n"
 
 
 def _sniff_hdf5(path: Path) -> str | None:

@@ -62,6 +62,18 @@ class Channel:
 _HEIGHT_RE = re.compile(r"(^|[^a-z])(z|height|topograph|topo|zsensor)", re.IGNORECASE)
 
 
+#: the first 8 bytes of every HDF5 file (superblock signature)
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def require_hdf5(path: Path | str, what: str) -> None:
+    """Raise :class:`CorruptScan` unless ``path`` starts with the HDF5 signature (checked before
+    h5py sees the file); ``what`` names the expected format in the message."""
+    with open(path, "rb") as fh:
+        if fh.read(8) != HDF5_SIGNATURE:
+            raise CorruptScan(f"{path}: not an HDF5 file (no HDF5 signature), so not {what}")
+
+
 def looks_like_height(name: str) -> bool:
     """True for channel names such as ``Z``, ``Z raw``, ``R-Z C``, ``HeightRetrace``, ``Topography``."""
     return bool(_HEIGHT_RE.search(name.replace("_", " ")))

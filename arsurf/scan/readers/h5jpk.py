@@ -41,12 +41,12 @@ from arsurf.scan.readers._common import (
     check_shape,
     make_scan,
     parse_unit,
+    require_hdf5,
     select_channel,
 )
 
 EXTENSIONS = (".h5-jpk",)
 FORMAT = "h5-jpk"
-_HDF5 = b"\x89HDF\r\n\x1a\n"
 _MAX_CHAIN = 16
 _MAX_FRAMES = 100000
 
@@ -127,9 +127,7 @@ def read(path: Path | str, channel: str | None = None):
 
     path = Path(path)
     size = path.stat().st_size
-    with open(path, "rb") as fh:
-        if fh.read(8) != _HDF5:
-            raise CorruptScan(f"{path}: not an HDF5 file (no HDF5 signature), so not a JPK .h5-jpk file")
+    require_hdf5(path, "a JPK .h5-jpk file")
     try:
         with contextlib.ExitStack() as stack:
             f = stack.enter_context(h5py.File(path, "r"))

@@ -19,11 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import Channel, check_shape, make_scan, select_channel
+from arsurf.scan.readers._common import Channel, check_shape, make_scan, require_hdf5, select_channel
 
 EXTENSIONS = (".topostats",)
 FORMAT = "topostats"
-_HDF5 = b"\x89HDF\r\n\x1a\n"
 
 
 def sniff(head: bytes) -> bool:
@@ -37,9 +36,7 @@ def read(path: Path | str, channel: str | None = None):
 
     path = Path(path)
     size = path.stat().st_size
-    with open(path, "rb") as fh:
-        if fh.read(8) != _HDF5:
-            raise CorruptScan(f"{path}: not an HDF5 file (no HDF5 signature), so not a TopoStats file")
+    require_hdf5(path, "a TopoStats file")
     try:
         with contextlib.ExitStack() as stack:
             f = stack.enter_context(h5py.File(path, "r"))
