@@ -17,7 +17,10 @@ the device gets. In order:
 5. Any of 2-4 is a *fault*: the last output is frozen and faded to zero linearly in ``stop_time``
    (zero at once if ``stop_time = 0``); the input is ignored. Without a fault the engagement gain
    :math:`g` rises linearly from where it is to 1 in ``ramp_time`` (the start-up ramp: no jolt
-   when the coupling engages, after start-up and after every fault), and
+   when the coupling engages, after start-up and after every fault), except that it goes to 1 at
+   once while the wanted force is no larger than ``free_force`` (free space: there is nothing to
+   jolt, and a gain that grows while a contact is loaded scales a stored force up, which gives
+   the hand energy; engaging in free space keeps a loop that starts out of contact passive), and
 
    .. math::
 
@@ -77,8 +80,8 @@ NONFINITE = status.NONFINITE  #: NaN/inf in the input force: zero output
 FLAG_NAMES = status.FLAG_NAMES[:7]  # the safety layer's flags: the seven lowest bits
 
 # params layout
-_P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK = range(10)
-_NP = 10
+_P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK, _P_FREE = range(11)
+_NP = 11
 # state layout
 _S_F, _S_HOLD = 0, 3
 _S_GAIN, _S_LAST_NOW, _S_MISS, _S_ONTIME, _S_WD, _S_FAULT = 6, 7, 8, 9, 10, 11
@@ -91,7 +94,7 @@ _FAULTS = STALE | WATCHDOG | DISENGAGED
 def safety_step(params, state, force, now, age, buttons, out):
     """One tick of the safety layer (see the module docstring); returns the flags.
 
-    Parameters: ``params`` (10,) settings, ``state`` (19,) memory (updated), ``force`` (3,) N wanted,
+    Parameters: ``params`` (11,) settings, ``state`` (19,) memory (updated), ``force`` (3,) N wanted,
     ``now`` s loop clock, ``age`` s age of the device sample, ``buttons`` int, ``out`` (3,) N to send.
     """
     fmax = params[_P_FMAX]
@@ -158,9 +161,13 @@ def safety_step(params, state, force, now, age, buttons, out):
             out[j] = state[_S_HOLD + j] * g
     else:
         state[_S_FAULT] = 0.0
+        f0 = force[0]
+        f1 = force[1]
+        f2 = force[2]
+        n = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         g = state[_S_GAIN]
         ramp = params[_P_RAMP]
-        if ramp > 0.0:
+        if ramp > 0.0 and n > params[_P_FREE]:
             g += dt / ramp
         else:
             g = 1.0
@@ -170,10 +177,6 @@ def safety_step(params, state, force, now, age, buttons, out):
         if g < 1.0:
             flags |= RAMPING
         # saturate first, then ramp: the ramp bounds the force actually commanded (g x fmax)
-        f0 = force[0]
-        f1 = force[1]
-        f2 = force[2]
-        n = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         if n > fmax:
             s = fmax / n
             f0 *= s
@@ -239,6 +242,10 @@ class SafetyLayer:
         design choice, not from the seeds).
     ramp_time : float, s
         Time for the engagement gain to go from 0 to 1 (default 0.5 s).
+    free_force : float, N, optional
+        A wanted force no larger than this is free space: the engagement gain goes to 1 at once
+        (default ``max_rate * dt``, the step the rate limit lets through anyway; 0 when the rate
+        is unlimited).
     stop_time : float, s
         Time to fade the force to zero on a fault (default 0: at once, within the faulty tick, as
         the project promises; a few ms softens the stop for a hand that is known to be holding on).
@@ -263,13 +270,15 @@ class SafetyLayer:
 
     Examples
     --------
-    >>> s = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.01)
-    >>> [round(float(s.step([0, 0, 1.0], now=k * 1e-3)[2]), 2) for k in range(4)]   # start-up ramp
-    [0.1, 0.2, 0.3, 0.4]
+    >>> s = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.01, max_rate=1e4)
+    >>> [round(float(s.step([0, 0, 5.0], now=k * 1e-3)[2]), 2) for k in range(4)]   # start-up ramp
+    [0.5, 1.0, 1.5, 2.0]
+    >>> s.reset(); [round(float(s.step([0, 0, f], now=k * 1e-3)[2]), 2) for k, f in enumerate([0, 5, 5])]
+    [0.0, 5.0, 5.0]
     """
 
     def __init__(self, max_force: float, dt: float, *, max_rate: float = 1000.0, ramp_time: float = 0.5,
-                 stop_time: float = 0.0, stale_after: float = 0.02, miss_factor: float = 1.5,
+                 free_force: float | None = None, stop_time: float = 0.0, stale_after: float = 0.02, miss_factor: float = 1.5,
                  max_misses: int = 10, recover_ticks: int = 100, disengage_mask: int = BUTTON_1) -> None:
         p = np.zeros(_NP)
         p[_P_FMAX] = _num(max_force, "max_force", positive=True, unit="N")
@@ -290,6 +299,9 @@ class SafetyLayer:
         if not isinstance(disengage_mask, (int, np.integer)) or disengage_mask < 0:
             raise HapticsError(f"disengage_mask must be a non-negative button bitmask (got {disengage_mask!r})")
         p[_P_MASK] = disengage_mask
+        if free_force is None:
+            free_force = p[_P_RATE] * p[_P_DT] if math.isfinite(p[_P_RATE]) else 0.0
+        p[_P_FREE] = _num(free_force, "free_force", nonneg=True, unit="N")
         self.params = p
         self.state = np.zeros(_NS)
         self._out = np.zeros(3)
