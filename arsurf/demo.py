@@ -249,7 +249,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
-    feel = score_force(device_force, 1.0 / RATE, settle=marks["approach"] / RATE, energy=energy, contact=in_contact)
+    feel = score_force(device_force, 1.0 / RATE, settle=marks["approach"] / RATE, energy=energy, contact=in_contact,
+                       energy_reserve=loop.passivity.reserve)
     progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes else ""))
     tube_summary = None
     if scene is not None:

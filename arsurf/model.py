@@ -45,7 +45,7 @@ from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force.cantilever import Cantilever
-from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, DecouplingFlag,
+from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_MAX_CONDITION, P_TORSION_COMPLIANCE, DecouplingFlag,
                                      decouple_kernel, decoupling_parameters)
 from arsurf.spline.surface import BSplineSurface
 

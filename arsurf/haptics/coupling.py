@@ -175,6 +175,11 @@ class DirectCoupling:
         self.force = force
         self.flags = 0
 
+    def energy_gain(self) -> float:
+        """Hand energy per probe energy, :math:`\\max K_f / \\min s` (J/J): a probe force
+        :math:`f` over a probe path :math:`dx` is :math:`K_f f` over :math:`dx/s` at the hand."""
+        return float(np.max(np.abs(self.force.gain)) / np.min(np.abs(self.position.scale)))
+
     def probe_position(self, master_position, buttons: int = 0, out=None) -> np.ndarray:
         """Probe position (3,) m for this tick (clutch and limits applied)."""
         p = self.position.map(master_position, buttons, out)
@@ -318,6 +323,11 @@ class ForcePositionCoupling:
             phi[j] = P
             gamma[j] = G
         return phi, gamma
+
+    def energy_gain(self) -> float:
+        """Hand energy per probe energy, :math:`\\max A_f A_d` (J/J): the hand feels
+        :math:`A_f f` over :math:`A_d\\,dx`."""
+        return float(np.max(self.params[_P_AF:_P_AF + 3] * self.params[_P_AD:_P_AD + 3]))
 
     @property
     def gains(self) -> dict[str, np.ndarray]:

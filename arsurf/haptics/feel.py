@@ -12,11 +12,12 @@ window after ``settle`` seconds (the approach and the start ramp are excluded):
   larger than ``reversal_fraction`` (1 %) of the peak force norm of the whole record - a
   tick-to-tick zig-zag the hand feels as vibration.
 * **energy**: the smallest observed port energy (J) of the passivity observer
-  (:mod:`arsurf.haptics.passivity`), when given; below zero, the loop created energy. The
-  controller acts one tick after a deficit appears, and an adhesive snap-in releases the
-  adhesion's own energy (a potential well below the zero of a tip far away: the demo's press dips
-  to -1.9 nJ 9 ticks after the snap-in, 0.11 % of the 1.7 uJ the contact then stores), so dips
-  within 1 % of the record's energy scale (its largest |E|) are not counted as generated energy.
+  (:mod:`arsurf.haptics.passivity`), when given. An adhesive contact holds a potential well
+  below the zero of a tip far away and gives that energy back at snap-in, passively: the loop
+  created energy only where :math:`E` goes below :math:`-E_0`, ``energy_reserve`` (the well's
+  bound, :meth:`arsurf.model.ARModel.adhesion_energy` at the hand's scale; 0 without adhesion).
+  The controller acts one tick after a deficit appears, so dips within 1 % of the record's
+  energy scale (its largest |E|) beyond that are not counted.
 * **largest step**: the largest tick-to-tick change of the force vector (N), over the whole
   record.
 * **settling**: seconds from the first contact tick until the force norm stays within
@@ -98,11 +99,12 @@ def _reversals(f: np.ndarray, threshold: float) -> np.ndarray:
 
 def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0, energy=None, contact=None,
                 buzz_limit: float = BUZZ_LIMIT, reversal_fraction: float = REVERSAL_FRACTION,
-                energy_tolerance: float = ENERGY_TOLERANCE, settle_band: float = 0.05) -> FeelScore:
+                energy_tolerance: float = ENERGY_TOLERANCE, energy_reserve: float = 0.0,
+                settle_band: float = 0.05) -> FeelScore:
     """Score a record of device forces ``force`` (n, 3) N sampled every ``dt`` s.
 
     ``energy`` (n,) J: the passivity observer's energy per tick (optional; ``energy_tolerance``
-    is relative to its largest magnitude); ``contact`` (n,)
+    is relative to its largest magnitude, ``energy_reserve`` J the passive store); ``contact`` (n,)
     bool: ticks in contact (optional, for the settling time). Raises :class:`HapticsError` for a
     record that cannot be scored (shape, non-finite values, a window shorter than 0.1 s)."""
     f = np.asarray(force, dtype=np.float64)
@@ -150,7 +152,7 @@ def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0,
             settle_time = (last - onset) * dt if last < f.shape[0] else math.nan
     generated = False
     if not math.isnan(min_energy):
-        generated = min_energy < -energy_tolerance * float(np.nanmax(np.abs(e)))
+        generated = min_energy < -energy_reserve - energy_tolerance * float(np.nanmax(np.abs(e)))
     buzzes = bool((high > buzz_limit).any() or rev.any() or generated)
     return FeelScore(high_frequency=high, reversals=rev.astype(np.int64), mean_normal=mean_normal, peak=peak,
                      largest_step=step, min_energy=min_energy, settle_time=settle_time, window=n * dt, buzzes=buzzes)

@@ -283,7 +283,8 @@ class HapticLoop:
             self._fp = (coupling.params, coupling.phi, coupling.gamma, coupling.state)
         else:
             raise HapticsError(f"coupling must be DirectCoupling or ForcePositionCoupling (got {type(coupling).__name__})")
-        self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity)
+        self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity,
+                                             reserve=model.adhesion_energy() * coupling.energy_gain())
         self.filter = LowPass(config.filter_cutoff, self.dt) if config.filter_cutoff else None
         self._alpha = self.filter.alpha if self.filter else 1.0
         self._filt_state = self.filter.state if self.filter else np.zeros(3)

@@ -17,7 +17,13 @@ over the next tick,
 
     \alpha_n = \frac{-E_n}{T\,\lVert v_n\rVert^2}, \qquad f_n \leftarrow f_n - \alpha_n v_n ,
 
-limited to half the device's largest damping (:data:`DAMPING_FRACTION`: the controller's damper
+where :math:`E_n` is counted from the environment's own store of energy: an adhesive contact
+holds a potential well below the zero of a tip far away, and gives that energy back passively at
+snap-in (passivity is :math:`E_n \ge -E_0`, :math:`E_0` the energy initially stored). The loop
+gives the controller the well's depth bound as ``reserve`` (:meth:`arsurf.model.ARModel.adhesion_energy`
+times the coupling's energy gain), so it damps only what the sampled loop creates beyond it: a
+controller that fights the adhesion's own energy damps every pull-off and chatters at its limit.
+The damping is limited to half the device's largest damping (:data:`DAMPING_FRACTION`: the controller's damper
 acts on the last measured velocity, a tick late, and at the device's full limit it chatters
 itself - measured on a stiff virtual wall, where half the limit keeps the wall passive and at
 rest); the observer then sees that dissipation in the next tick's energy. A hand at rest (:math:`v = 0`) is never damped, so the steady force is untouched:
@@ -40,8 +46,8 @@ from arsurf.errors import HapticsError
 
 S_ENERGY, S_X, S_F, S_ALPHA = 0, 1, 4, 7
 STATE_SIZE = 8
-P_DT, P_MAX_DAMPING, P_ON = 0, 1, 2
-PARAMS_SIZE = 3
+P_DT, P_MAX_DAMPING, P_ON, P_RESERVE = 0, 1, 2, 3
+PARAMS_SIZE = 4
 #: the controller's damping stays below this fraction of the device's ``max_damping``
 DAMPING_FRACTION = 0.5
 
@@ -66,13 +72,13 @@ def passivity_observe_control(params, state, x, v, force) -> int:
         state[S_ENERGY] += de
     for j in range(3):
         state[S_X + j] = x[j]
-    e = state[S_ENERGY]
-    if params[P_ON] == 0.0 or not e < 0.0:
+    deficit = -params[P_RESERVE] - state[S_ENERGY]
+    if params[P_ON] == 0.0 or not deficit > 0.0:
         return 0
     v2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
     if not v2 > 0.0:
         return 0
-    alpha = min(-e / (params[P_DT] * v2), params[P_MAX_DAMPING])
+    alpha = min(deficit / (params[P_DT] * v2), params[P_MAX_DAMPING])
     if not math.isfinite(alpha * v2):  # a vanishing speed with no damping limit: nothing sensible to add
         return 0
     for j in range(3):
@@ -100,6 +106,8 @@ class PassivityController:
         (``inf``: no limit, only for simulations: near standstill the damping needed grows as 1/|v|).
     enabled : bool
         False: observe only (the energy is still logged, nothing is damped).
+    reserve : float, J
+        Energy the environment may give back passively (:math:`E_0`, module docstring; default 0).
 
     Examples
     --------
@@ -111,14 +119,17 @@ class PassivityController:
     (-0.001, 1.0, [0.0, 0.0, 0.0])
     """
 
-    def __init__(self, dt: float, max_damping: float = math.inf, enabled: bool = True):
+    def __init__(self, dt: float, max_damping: float = math.inf, enabled: bool = True, reserve: float = 0.0):
         dt = float(dt)
         max_damping = float(max_damping)
+        reserve = float(reserve)
+        if not (math.isfinite(reserve) and reserve >= 0.0):
+            raise HapticsError(f"reserve must be a finite energy >= 0 J (got {reserve!r})")
         if not (math.isfinite(dt) and dt > 0.0):
             raise HapticsError(f"dt must be positive (got {dt!r} s); it is the loop period")
         if not max_damping > 0.0:
             raise HapticsError(f"max_damping must be > 0 N s/m or inf (got {max_damping!r})")
-        self.params = np.array([dt, DAMPING_FRACTION * max_damping, 1.0 if enabled else 0.0])
+        self.params = np.array([dt, DAMPING_FRACTION * max_damping, 1.0 if enabled else 0.0, reserve])
         self.state = np.zeros(STATE_SIZE)
         self.reset()
 
@@ -131,6 +142,11 @@ class PassivityController:
     def energy(self) -> float:
         """Observed energy E (J): what the hand has put into the virtual environment, net."""
         return float(self.state[S_ENERGY])
+
+    @property
+    def reserve(self) -> float:
+        """Energy the environment may give back passively, :math:`E_0` (J)."""
+        return float(self.params[P_RESERVE])
 
     @property
     def damping(self) -> float:
