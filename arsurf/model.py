@@ -87,12 +87,17 @@ MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
 MIN_SLIP_HORIZONTAL = 1e-3
 FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
 NO_MOTION = int(DecouplingFlag.NO_MOTION)
-#: the measured force fades from the decoupling's no-motion fallback (normal + torsion) to the
-#: directional solution as the friction strength |F_t| / mu_k P grows over this band: the fallback
-#: misses at most 0.25 mu_k P, and no switch makes the force jump
+#: the measured force fades from the decoupling's fallback (normal + torsion, plus the proxy's
+#: friction along the beam axis per unit load) to the directional solution as the friction
+#: strength |F_t| / mu_k P grows over this band, and no switch makes the force jump
 FADE_STRENGTH = (0.05, 0.25)
 #: ... and back to the fallback as the condition number of the directional system grows over this
-#: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out
+#: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out.
+#: Along the beam axis (x) friction and normal load both bend the lever, so the fallback takes the
+#: friction's share there from the proxy, r = F_t,x / P, and solves the one load that reproduces the
+#: bending: F = N (n + r e_x) + T e_y, N = (theta/g) / (n_z + kappa (n_x + r)). Without friction
+#: (r = 0) it is the decoupling's no-motion answer; with it, a slide whose directional system turns
+#: singular keeps its friction instead of dropping it for a few ticks (a dip the hand felt).
 FADE_CONDITION = (100.0, 1000.0)
 
 
@@ -186,6 +191,7 @@ def model_tick_kernel(proj,                                              # Proje
     sx = 0.0
     sy = 0.0
     strength = 0.0
+    share_x = 0.0  # the proxy's friction along x per unit load (the fallback's beam-axis friction)
     if load > 0.0 and md_st == MD_CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
         k_t = friction[F_KT_PER_A] * a
         kc = friction[F_COUPLING]
@@ -200,6 +206,7 @@ def model_tick_kernel(proj,                                              # Proje
         sx = dec[3]
         sy = dec[4]
         strength = dec[6]
+        share_x = dec[0] / load
     else:
         fr.release(state, S_FRICTION)
     out[M_SIM_FX] = fx
@@ -232,6 +239,11 @@ def model_tick_kernel(proj,                                              # Proje
                              0.0), 1.0)
             if w < 1.0:
                 d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, dec_params, dec[4:8])
+                den = nz + dec_params[P_COUPLING] * (nx + share_x)
+                if share_x != 0.0 and d0 & FALLBACK_DEGENERATE == 0 and abs(den) * dec_params[P_MAX_CONDITION] >= 1.0:
+                    big_n = bending / (dec_params[P_BENDING_COMPLIANCE] * den)
+                    dec[4] = big_n * (nx + share_x)
+                    dec[6] = big_n * nz
                 for j in range(3):
                     dec[j] = w * dec[j] + (1.0 - w) * dec[4 + j]
                 if w == 0.0:
@@ -371,6 +383,22 @@ class ARModel:
         self._decout = np.empty(8)
         self._ev = np.empty((6, 3))
         self.out = np.zeros(M_SIZE)
+
+    def adhesion_energy(self) -> float:
+        """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.
+
+        Over the adhesive part of the contact curve the pull towards the surface is at most the
+        pull-off force :math:`|P_c|` (load control, the tangent point of the MD curve), between the
+        deepest depth where the tip can still be held, :math:`\\min(\\delta_{out}, -h_0)`, and the
+        zero-load depth :math:`\\delta_0`; the virtual coupling stretches by at most
+        :math:`|P_c|/k_c` more: :math:`E_0 = |P_c|\\,(\\delta_0 - \\min(\\delta_{out}, -h_0) + |P_c|/k_c)`.
+        It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`)."""
+        c = self.contact
+        pc = abs(c.pull_off_force())
+        if pc == 0.0:
+            return 0.0
+        reach = float(c.depth(0.0)) - min(c.jump_out_depth(), c.jump_in_depth())
+        return pc * (reach + pc / self.coupling_stiffness)
 
     def reset(self) -> None:
         """Forget the contact history and restore the surface to rest."""
