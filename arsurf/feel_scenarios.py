@@ -17,6 +17,9 @@ Motions (hand set point; the probe scale is 1 mm -> 10 nm):
 ``stroke``      press, then stroke 300 nm along x at 150 nm/s across the middle (a step edge on
                 the ``step`` surface)
 ``tap``         tap twice a second: the set point goes from 0.3 mm above to 1 mm into the surface
+``wobble``      press, then a multisine of 0.05 mm in z (10 tones, 2-400 Hz, Schroeder phases):
+                the excitation of the transparency (Bode) estimate in ``bench/feel.py``; not
+                one of the table's :data:`MOTIONS`
 ==============  ==============================================================================
 
 Used by ``bench/feel.py`` (the whole table) and the tests (the buzz scenarios on real scans).
@@ -51,7 +54,7 @@ class FeelRun:
     """One scenario: its score, the device force (n, 3) N, the observed energy (n,) J, contact
     (n,) bool, passivity-controller ticks, the per-tick compute time (n,) ns, the loop's
     steady-state transparency (|device force| / (K_f |tip force|) over the last 0.2 s) and the tip
-    centre (n, 3) m of every tick."""
+    centre (n, 3) m and the force on the probe (n, 3) N of every tick."""
 
     score: FeelScore
     force: np.ndarray
@@ -61,6 +64,7 @@ class FeelRun:
     tick_ns: np.ndarray
     transparency: float
     tip: np.ndarray
+    probe_force: np.ndarray
 
 
 def prepared_surface(path, preset: str = "demo"):
@@ -105,19 +109,27 @@ def _trajectory(motion: str, scale: float):
         return lambda t: [-150e-9 / scale + min(speed * max(t - _PRESS_TIME, 0.0), 300e-9 / scale), 0.0, press(t)]
     if motion == "tap":
         return lambda t: [0.0, 0.0, 0.3e-3 - 1.3e-3 * 0.5 * (1.0 - math.cos(2.0 * math.pi * 2.0 * t))]
-    raise HapticsError(f"motion must be one of {MOTIONS} (got {motion!r})")
+    if motion == "wobble":
+        tones = np.geomspace(2.0, 400.0, 10)
+        phases = -math.pi * np.arange(10) * np.arange(1, 11) / 10  # Schroeder: a low crest factor
+        amp = 0.05e-3 / 10
+        return lambda t: [0.0, 0.0, press(t) + (amp * float(np.sin(2.0 * math.pi * tones * (t - _PRESS_TIME) + phases).sum())
+                                                if t > _PRESS_TIME else 0.0)]
+    raise HapticsError(f"motion must be one of {MOTIONS + ('wobble',)} (got {motion!r})")
 
 
 def run_scenario(surface, *, motion: str = "press", source: str = "simulated", rate: float = 1000.0,
                  seconds: float = 3.0, preset: str = "demo", at=None, friction: float | None = None,
                  static_friction: float | None = None, coupling: bool = True, passivity: bool = True,
-                 signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None) -> FeelRun:
+                 signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None,
+                 filter_cutoff: float | None | str = "preset") -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
     comes down 150 nm before it and ends 150 nm after); ``coupling`` False: no virtual coupling (the tip is the scaled stylus), ``passivity``
     False: the controller only observes; ``max_rate`` N/s the safety layer's rate limit (default:
-    the preset's). The surface is restored to rest afterwards."""
+    the preset's); ``filter_cutoff`` Hz of the force low-pass (None: off; default: the preset's).
+    The surface is restored to rest afterwards."""
     p = PRESETS[preset]
     h = dict(p.haptics)
     scale, gain = float(h["scale"]), float(h["force_gain"])
@@ -135,6 +147,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
              passivity=passivity, seed=seed)
     if max_rate is not None:
         h["max_rate"] = max_rate
+    if filter_cutoff != "preset":
+        h["filter_cutoff"] = filter_cutoff
     loop = build_loop(model, h, dev.info, origin, seed=seed)
     n = int(round(seconds * rate))
     force = np.empty((n, 3))
@@ -168,5 +182,5 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     tail = slice(n - max(1, int(0.2 * rate)), n)
     scaled = np.linalg.norm(tip_force[tail].mean(axis=0)) * gain
     transparency = float(np.linalg.norm(force[tail].mean(axis=0)) / scaled) if scaled > 0 else math.nan
-    score = score_force(force, 1.0 / rate, energy=energy, contact=contact)
-    return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency, tip)
+    score = score_force(force, 1.0 / rate, energy=energy, contact=contact, energy_reserve=loop.passivity.reserve)
+    return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency, tip, tip_force)

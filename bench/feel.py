@@ -53,25 +53,82 @@ def vtk_ratio(surface, rounds: int = 3) -> dict:
             "tick_over_vtk_median": float(np.median(ratios)), "triangles": int(faces.shape[0])}
 
 
+def transparency(surface, rate: float, source: str, seconds: float = 6.0) -> dict:
+    """Rendered (device) force over the scaled tip force K_f F_z, as a frequency response: the
+    hand presses and a multisine wobbles it (motion ``wobble``); H(f) = S_tip,dev / S_tip,tip at
+    the ten tones (Welch, 1 s segments, after the first second)."""
+    from scipy.signal import csd, welch
+
+    from arsurf.assembly import PRESETS
+    from arsurf.feel_scenarios import run_scenario as run
+
+    gain = float(PRESETS["demo"].haptics["force_gain"])
+    r = run(surface, motion="wobble", source=source, rate=rate, seconds=seconds)
+    start = int(rate)
+    x = r.probe_force[start:, 2] * gain
+    y = r.force[start:, 2]
+    f, sxy = csd(x, y, fs=rate, nperseg=int(rate))
+    _, sxx = welch(x, fs=rate, nperseg=int(rate))
+    tones = np.geomspace(2.0, 400.0, 10)
+    idx = [int(np.argmin(np.abs(f - t))) for t in tones if t < rate / 2]
+    h = sxy[idx] / sxx[idx]
+    return {"rate_hz": rate, "source": source, "frequency_hz": [float(f[i]) for i in idx],
+            "magnitude": [float(abs(v)) for v in h], "phase_deg": [float(np.degrees(np.angle(v))) for v in h]}
+
+
+def bode_figure(rows, path) -> None:
+    """Magnitude and phase of the rendered vs the scaled tip force, one line per rate/source."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (am, ph) = plt.subplots(2, 1, figsize=(6.4, 5.2), sharex=True, constrained_layout=True)
+    for r in rows:
+        label = f"{r['rate_hz'] / 1e3:.0f} kHz, {r['source']}"
+        am.semilogx(r["frequency_hz"], 20 * np.log10(r["magnitude"]), "o-", ms=3, label=label)
+        ph.semilogx(r["frequency_hz"], r["phase_deg"], "o-", ms=3, label=label)
+    am.set_ylabel("|F_device / (K_f F_tip)| (dB)")
+    ph.set_ylabel("phase (deg)")
+    ph.set_xlabel("frequency (Hz)")
+    am.axhline(0.0, color="0.6", lw=0.8)
+    am.legend(fontsize=7)
+    am.set_title("Transparency of the rendered force (pressing on a real scan)", fontsize=9)
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0)
     ap.add_argument("--quick", action="store_true", help="1 kHz only, three motions (a smoke run)")
     ap.add_argument("--no-vtk", action="store_true")
+    ap.add_argument("--motions", nargs="+", choices=MOTIONS, help="only these motions")
+    ap.add_argument("--sources", nargs="+", choices=SOURCES, help="only these sources")
+    ap.add_argument("--rates", nargs="+", type=float, help="only these loop rates, Hz")
+    ap.add_argument("--bode", metavar="PNG", help="only the transparency estimate; write its Bode plot here")
     args = ap.parse_args()
     surfaces = {}
     for name in REAL:
         path = SCANS / name
         if path.exists():
             surfaces[name] = prepared_surface(path)[1]
+    if args.bode:
+        s = next(iter(surfaces.values()), None) or synthetic_surface("step")
+        rows = [transparency(s, rate, source) for rate in (args.rates or (1000.0, 10000.0))
+                for source in (args.sources or ("simulated", "measured"))]
+        bode_figure(rows, args.bode)
+        print(json.dumps({"transparency": rows, "figure": args.bode}, indent=1))
+        return
     for kind in ("step", "ridge"):
         surfaces[f"synthetic-{kind}"] = synthetic_surface(kind)
-    motions = ("press", "slide-10", "stroke") if args.quick else MOTIONS
-    rates = (1000.0,) if args.quick else (1000.0, 5000.0, 10000.0)
+    motions = args.motions or (("press", "slide-10", "stroke") if args.quick else MOTIONS)
+    rates = args.rates or ((1000.0,) if args.quick else (1000.0, 5000.0, 10000.0))
+    sources = args.sources or SOURCES
     rows = []
     for sname, s in surfaces.items():
         for motion in motions:
-            for source in SOURCES:
+            for source in sources:
                 for rate in rates:
                     run = run_scenario(s, motion=motion, source=source, rate=rate, seconds=args.seconds)
                     rows.append({"surface": sname, "motion": motion, "source": source, "rate_hz": rate,
@@ -81,14 +138,14 @@ def main() -> None:
                                  "tick_p99_us": float(np.percentile(run.tick_ns, 99)) * 1e-3})
                     print(f"{sname} {motion} {source} {rate:.0f} Hz: {run.score.summary()}", file=sys.stderr)
     buzz = [r for r in rows if r["buzzes"]]
+    presses = [r["transparency"] for r in rows if r["motion"] == "press"]
     summary = {
         "cases": len(rows), "buzzing_cases": len(buzz),
         "buzzing": [f"{r['surface']} {r['motion']} {r['source']} {r['rate_hz']:.0f} Hz" for r in buzz],
         "worst_high_frequency_over_normal": max(max(r["high_frequency_over_normal"]) for r in rows),
         "most_reversals": max(sum(r["reversals"]) for r in rows),
         "min_energy_J": min(r["min_energy_J"] for r in rows if not math.isnan(r["min_energy_J"])),
-        "transparency_range": [min(r["transparency"] for r in rows if r["motion"] == "press"),
-                               max(r["transparency"] for r in rows if r["motion"] == "press")],
+        "transparency_range": [min(presses, default=math.nan), max(presses, default=math.nan)],
     }
     vtk_rows = {} if args.no_vtk else {n: vtk_ratio(s) for n, s in surfaces.items() if not n.startswith("synthetic")}
     print(json.dumps({"summary": summary, "vtk": vtk_rows, "rows": rows}, indent=1))
