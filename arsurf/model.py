@@ -93,10 +93,11 @@ NO_MOTION = int(DecouplingFlag.NO_MOTION)
 FADE_STRENGTH = (0.05, 0.25)
 #: ... and back to the fallback as the condition number of the directional system grows over this
 #: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out.
-#: Along the beam axis (x) friction and normal load both bend the lever, so the fallback takes the
-#: friction's share there from the proxy, r = F_t,x / P, and solves the one load that reproduces the
-#: bending: F = N (n + r e_x) + T e_y, N = (theta/g) / (n_z + kappa (n_x + r)). Without friction
-#: (r = 0) it is the decoupling's no-motion answer; with it, a slide whose directional system turns
+#: In the beam's plane (x, z) friction and normal load both bend the lever, so the fallback takes the
+#: friction's share there from the proxy, r = (F_t,x, F_t,z) / P, and solves the one load that
+#: reproduces the bending: F = N (n + r_x e_x + r_z e_z) + T e_y,
+#: N = (theta/g) / (n_z + r_z + kappa (n_x + r_x)). Without friction (r = 0) it is the decoupling's
+#: no-motion answer; with it, a slide whose directional system turns
 #: singular keeps its friction instead of dropping it for a few ticks (a dip the hand felt).
 FADE_CONDITION = (100.0, 1000.0)
 
@@ -191,7 +192,8 @@ def model_tick_kernel(proj,                                              # Proje
     sx = 0.0
     sy = 0.0
     strength = 0.0
-    share_x = 0.0  # the proxy's friction along x per unit load (the fallback's beam-axis friction)
+    share_x = 0.0  # the proxy's friction along x and z per unit load (the fallback's beam-plane friction)
+    share_z = 0.0
     if load > 0.0 and md_st == MD_CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
         k_t = friction[F_KT_PER_A] * a
         kc = friction[F_COUPLING]
@@ -207,6 +209,7 @@ def model_tick_kernel(proj,                                              # Proje
         sy = dec[4]
         strength = dec[6]
         share_x = dec[0] / load
+        share_z = dec[2] / load
     else:
         fr.release(state, S_FRICTION)
     out[M_SIM_FX] = fx
@@ -239,11 +242,12 @@ def model_tick_kernel(proj,                                              # Proje
                              0.0), 1.0)
             if w < 1.0:
                 d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, dec_params, dec[4:8])
-                den = nz + dec_params[P_COUPLING] * (nx + share_x)
-                if share_x != 0.0 and d0 & FALLBACK_DEGENERATE == 0 and abs(den) * dec_params[P_MAX_CONDITION] >= 1.0:
+                den = nz + share_z + dec_params[P_COUPLING] * (nx + share_x)
+                if (share_x != 0.0 or share_z != 0.0) and d0 & FALLBACK_DEGENERATE == 0 \
+                        and abs(den) * dec_params[P_MAX_CONDITION] >= 1.0:
                     big_n = bending / (dec_params[P_BENDING_COMPLIANCE] * den)
                     dec[4] = big_n * (nx + share_x)
-                    dec[6] = big_n * nz
+                    dec[6] = big_n * (nz + share_z)
                 for j in range(3):
                     dec[j] = w * dec[j] + (1.0 - w) * dec[4 + j]
                 if w == 0.0:
