@@ -50,6 +50,9 @@ def _scan_summary(scan) -> dict:
         "nan_pixels": scan.nan_count,
         "units": {"stored": scan.metadata.get("file_z_unit") or unit, "reported": shown},
     }
+    frames = scan.metadata.get("frames")
+    if isinstance(frames, int) and not isinstance(frames, bool):  # a movie (.asd, .h5-jpk): which frame, of how many
+        out["frame"] = f"{scan.metadata.get('frame', 0)} of 0..{frames - 1} (--frame N)"
     if scan.metadata.get("calibrated") is False:  # NanoScope: the file leaves the channel in arbitrary units
         out["calibrated"] = "no: the file gives this channel in arbitrary units (its sensitivity has no unit)"
     if scan.metadata.get("log10_decoded"):

@@ -321,7 +321,7 @@ def test_formats_detected_by_content_under_any_name(tmp_path):
 def test_cli_info_and_convert_reach_the_new_formats(capsys, tmp_path):
     assert main(["info", str(DATA / "synthetic_v2.asd"), "--frame", "2", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["format"] == "asd" and out["channel"] == "Topography"
+    assert out["format"] == "asd" and out["channel"] == "Topography" and out["frame"].startswith("2 of 0..2")
     assert main(["info", str(NHF), "--channel", "Z-Controller In (Forward)", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert "z_min_V" in out and out["channel_units"]["Topography (Forward)"] == "m"
