@@ -50,6 +50,9 @@ def _scan_summary(scan) -> dict:
         "nan_pixels": scan.nan_count,
         "units": {"stored": scan.metadata.get("file_z_unit") or unit, "reported": shown},
     }
+    frames = scan.metadata.get("frames")
+    if isinstance(frames, int) and not isinstance(frames, bool):  # a movie (.asd, .h5-jpk): which frame, of how many
+        out["frame"] = f"{scan.metadata.get('frame', 0)} of 0..{frames - 1} (--frame N)"
     if scan.metadata.get("calibrated") is False:  # NanoScope: the file leaves the channel in arbitrary units
         out["calibrated"] = "no: the file gives this channel in arbitrary units (its sensitivity has no unit)"
     if scan.metadata.get("log10_decoded"):
@@ -75,7 +78,7 @@ def _print(obj: dict, as_json: bool) -> None:
 def cmd_info(args) -> int:
     from arsurf.scan.io import load_scan
 
-    scan = load_scan(args.scan, channel=args.channel, **_calibration(args))
+    scan = load_scan(args.scan, channel=args.channel, frame=args.frame, **_calibration(args))
     _print(_scan_summary(scan), args.json)
     return 0
 
@@ -85,7 +88,7 @@ def cmd_fit(args) -> int:
     from arsurf.spline.storage import save_surface
 
     scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
-                        **_calibration(args))
+                        frame=args.frame, **_calibration(args))
     t0 = time.perf_counter()
     control = tuple(args.control) if args.control else None
     surface = fit_surface(scan, control_shape=control, smoothing=args.smoothing)
@@ -199,6 +202,10 @@ def _processing_flags(s, level: str = "plane") -> None:
     s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
 
 
+def _frame_flag(s) -> None:
+    s.add_argument("--frame", type=_count, help="frame of a movie (high-speed AFM .asd, JPK .h5-jpk), from 0 (default 0)")
+
+
 def _calibration_flags(s) -> None:
     s.add_argument("--dx-nm", type=_nm(strict=True), help="pixel spacing along x in nm, for a file that does "
                    "not state it (a bare .txt/.npy matrix)")
@@ -221,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--channel", help="channel name (default: topography/height)")
     s.add_argument("--json", action="store_true", help="print JSON")
     _calibration_flags(s)
+    _frame_flag(s)
     s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("fit", help="level, smooth and fit a bicubic B-spline; write it as .npz")
@@ -233,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
     s.add_argument("--json", action="store_true")
     _calibration_flags(s)
+    _frame_flag(s)
     s.set_defaults(func=cmd_fit)
 
     s = sub.add_parser("synth", help="write the synthetic demo scans (gratings, tubes, particles...)")
@@ -283,6 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
     _processing_flags(s, level="none")
     s.add_argument("--no-inpaint", action="store_true", help="keep NaN pixels instead of filling them")
     _calibration_flags(s)
+    _frame_flag(s)
     s.set_defaults(func=cmd_convert)
 
     _batch_parser(sub)
@@ -518,7 +528,7 @@ def cmd_convert(args) -> int:
     from arsurf.scan.io import save_scan
 
     scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
-                        **_calibration(args))
+                        frame=args.frame, **_calibration(args))
     print(save_scan(scan, args.output))
     return 0
 

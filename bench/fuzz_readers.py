@@ -19,7 +19,8 @@ size checks) or ``other`` (MemoryError escaping), never as a machine that swaps;
 after a crash or a hang.
 
 Run: python bench/fuzz_readers.py [--mutants 200] [--seed 1] [--timeout 20] [--files a.spm,...]
-The real scans are taken from $ARSURF_REAL_SCANS or ../shared/scans-real beside the project.
+The real scans are taken from $ARSURF_REAL_SCANS or ../shared/scans-real beside the project, plus
+the bundled samples of the .nhf, .mdt and .asd readers in tests/data (SOURCES.md there).
 """
 from __future__ import annotations
 
@@ -41,6 +42,8 @@ from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("ARSURF_REAL_SCANS", ROOT.parent / "shared" / "scans-real"))
+DATA = ROOT / "tests" / "data"
+DATA_SUFFIXES = (".nhf", ".mdt", ".asd")
 HDF5 = b"\x89HDF\r\n\x1a\n"
 
 WORKER = r"""
@@ -160,7 +163,8 @@ def mutate_hdf5(src: Path, dst: Path, rng: np.random.Generator) -> str:
                 targets.append(("", k))
         if not targets:
             return "none"
-        prefer = [t for t in targets if re.search(r"length|multiplier|offset|scaling", t[1])]
+        prefer = [t for t in targets if re.search(r"length|multiplier|offset|scaling|calibration|axis|image_|points|"
+                                                  r"lines|version", t[1])]
         name, key = (prefer or targets)[int(rng.integers(0, len(prefer or targets)))]
         obj = f[name] if name else f
         value = [0, -1, 2**31 - 1, 1e308, float("nan"), -1e-300, 3][int(rng.integers(0, 7))]
@@ -181,8 +185,13 @@ def main(argv=None) -> int:
     if not REAL.is_dir():
         print(json.dumps({"error": f"real scans not found in {REAL}; set ARSURF_REAL_SCANS"}))
         return 2
-    names = [n for n in args.files.split(",") if n] or sorted(
-        p.name for p in REAL.iterdir() if p.is_file() and p.suffix.lower() not in (".md",))
+    sources = {p.name: p for p in REAL.iterdir() if p.is_file() and p.suffix.lower() not in (".md",)}
+    sources.update({p.name: p for p in DATA.iterdir() if p.suffix.lower() in DATA_SUFFIXES})
+    names = [n for n in args.files.split(",") if n] or sorted(sources)
+    unknown = [n for n in names if n not in sources]
+    if unknown:
+        print(json.dumps({"error": f"not in {REAL} or {DATA}: {unknown}"}))
+        return 2
     worker = Worker(args.mem_limit_mb)
     report: dict = {"seed": args.seed, "mutants_per_file": args.mutants, "timeout_s": args.timeout,
                     "mem_limit_mb": args.mem_limit_mb, "files": {}}
@@ -193,7 +202,7 @@ def main(argv=None) -> int:
                mininterval=0.5)
     with tempfile.TemporaryDirectory(prefix="arsurf-fuzz-") as tmp:
         for name in names:
-            src = REAL / name
+            src = sources[name]
             data = src.read_bytes()
             is_h5 = data.startswith(HDF5)
             rng = np.random.default_rng([args.seed, sum(name.encode())])

@@ -10,6 +10,7 @@ whose spacings are positive).
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +34,16 @@ FILES = [
     "sample_0.h5-jpk",
     "sample_0_1.topostats",
     "sample_0.spm",
+]
+DATA = Path(__file__).resolve().parent / "data"
+#: the bundled samples of the readers of issue #14 section 3 (tests/data/SOURCES.md)
+DATA_FILES = [
+    "nanosurf_wavemode_excerpt.nhf",
+    "ntmdt_mda_excerpt.mdt",
+    "synthetic_scanned.mdt",
+    "synthetic_v0.asd",
+    "synthetic_v1.asd",
+    "synthetic_v2.asd",
 ]
 VARIANTS = 20
 #: fewer copies of the 33.6 MB PeakForce file (each one is written and read whole); bench/fuzz_readers.py
@@ -68,9 +79,9 @@ def damaged(data: bytes, rng: np.random.Generator, k: int) -> bytes:
     return bytes(b)
 
 
-@pytest.mark.parametrize("name", FILES)
+@pytest.mark.parametrize("name", FILES + DATA_FILES)
 def test_damaged_copies_raise_only_scan_errors(tmp_path, name):
-    src = real_scan_path(name)
+    src = DATA / name if name in DATA_FILES else real_scan_path(name)
     data = src.read_bytes()
     rng = np.random.default_rng(sum(map(ord, name)))
     intact = load_scan(src).heights

@@ -24,7 +24,10 @@ format             extensions                       reader
 ``wsxm``           .top, .stp, .tom                 own parser
 ``ascii-matrix``   .txt, .asc, .dat, .csv           own (numpy)
 ``xyz``            .xyz                             own (numpy)
+``mdt``            .mdt                             own parser (NT-MDT scanned and MDA frames)
+``asd``            .asd                             own parser (HS-AFM movie; ``frame=`` selects)
 ``h5-jpk``         .h5-jpk                          h5py + own JPK calibration chain
+``nhf``            .nhf                             h5py + own Nanosurf calibration (vendor's rules)
 ``topostats``      .topostats                       h5py
 ``npy``/``npz``    .npy, .npz                       numpy (no pickle)
 =================  ===============================  ===========================================
@@ -74,11 +77,14 @@ FORMATS: dict[str, str] = {
     "sxm": "arsurf.scan.readers.sxm",
     "nanoscope": "arsurf.scan.readers.nanoscope",
     "nid": "arsurf.scan.readers.nid",
+    "mdt": "arsurf.scan.readers.mdt",
     "wsxm": "arsurf.scan.readers.wsxm",
     "jpk": "arsurf.scan.readers.jpk",
     "park-tiff": "arsurf.scan.readers.park",
     "ibw": "arsurf.scan.readers.ibw",
+    "asd": "arsurf.scan.readers.asd",
     "h5-jpk": "arsurf.scan.readers.h5jpk",
+    "nhf": "arsurf.scan.readers.nhf",
     "topostats": "arsurf.scan.readers.topostats",
     "xyz": "arsurf.scan.readers.xyz",
     "ascii-matrix": "arsurf.scan.readers.ascii_matrix",
@@ -137,16 +143,19 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
 
 
 def _sniff_hdf5(path: Path) -> str | None:
-    """``"h5-jpk"`` or ``"topostats"`` when an HDF5 file says so in its content, else None
-    (a damaged file: None, and the extension decides; its reader then names the damage)."""
+    """``"h5-jpk"``, ``"nhf"`` or ``"topostats"`` when an HDF5 file says so in its content, else
+    None (a damaged file: None, and the extension decides; its reader then names the damage)."""
     try:
         import h5py
 
         from arsurf.scan.readers.h5jpk import is_h5jpk
+        from arsurf.scan.readers.nhf import is_nhf
 
         with h5py.File(path, "r") as f:
             if is_h5jpk(f):
                 return "h5-jpk"
+            if is_nhf(f):
+                return "nhf"
             if "image" in f and "pixel_to_nm_scaling" in f:
                 return "topostats"
     except Exception:  # noqa: BLE001 - any failure to open means "the content does not say"
@@ -174,6 +183,7 @@ def load_scan(
     dy: float | None = None,
     xy_unit: str | None = None,
     z_unit: str | None = None,
+    frame: int | None = None,
 ):
     """Read one channel of a scan file as a :class:`~arsurf.scan.scan.Scan` in SI units.
 
@@ -189,6 +199,9 @@ def load_scan(
         Pixel spacing, only for files that do not state it (bare ASCII matrix, ``.npy``).
     xy_unit, z_unit : str, optional
         Units of the coordinates/values, only for files that do not state them (``"nm"``...).
+    frame : int, optional
+        Frame of a movie (high-speed AFM ``.asd``, JPK ``.h5-jpk``), counted from 0 (default
+        0); ``metadata["frames"]`` says how many there are.
 
     Returns
     -------
@@ -213,9 +226,13 @@ def load_scan(
     head = _head(path)
     fmt = detect_format(path, head)
     mod = _module(fmt)
-    options = {k: v for k, v in (("dx", dx), ("dy", dy), ("xy_unit", xy_unit), ("z_unit", z_unit)) if v is not None}
+    options = {k: v for k, v in (("dx", dx), ("dy", dy), ("xy_unit", xy_unit), ("z_unit", z_unit), ("frame", frame))
+               if v is not None}
     accepted = set(inspect.signature(mod.read).parameters)
     extra = sorted(set(options) - accepted)
+    if extra == ["frame"]:
+        raise ScanError(f"{path}: the {fmt} format holds one image per channel, not a movie; frame applies only to "
+                        f"movies (.asd, .h5-jpk); remove it")
     if extra:
         raise ScanError(
             f"{path}: the {fmt} format states its own calibration; {', '.join(extra)} apply only to formats "

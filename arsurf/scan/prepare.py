@@ -3,7 +3,7 @@ from __future__ import annotations
 
 
 def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True, *, dx=None, dy=None,
-                 z_unit=None):
+                 z_unit=None, frame=None):
     """Load a scan file and make it ready for :func:`arsurf.fit_surface`.
 
     Parameters
@@ -21,6 +21,8 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
         Pixel spacing of a file that does not state it (a bare matrix): :func:`arsurf.load_scan`.
     z_unit : str, optional
         Unit of the values of such a file (``"nm"``, ``"m"``...).
+    frame : int, optional
+        Frame of a movie (``.asd``, ``.h5-jpk``), from 0: :func:`arsurf.load_scan`.
 
     Returns
     -------
@@ -33,7 +35,7 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
     from arsurf.scan.level import level
     from arsurf.scan.smooth import smooth
 
-    scan = load_scan(path, channel=channel, dx=dx, dy=dy, z_unit=z_unit)
+    scan = load_scan(path, channel=channel, dx=dx, dy=dy, z_unit=z_unit, frame=frame)
     if scan.nan_count and inpaint:
         from arsurf.scan.inpaint import inpaint as fill
 

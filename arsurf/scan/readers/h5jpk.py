@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf.errors import ChannelNotFound, CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
     check_shape,
@@ -120,9 +120,10 @@ def calibration(path, attrs, what: str) -> tuple[float, float, str]:
     return m, o, unit
 
 
-def read(path: Path | str, channel: str | None = None):
+def read(path: Path | str, channel: str | None = None, frame: int | None = None):
     """Read one channel and frame of a ``.h5-jpk`` file in SI units (default: the height,
-    trace if recorded, first frame)."""
+    trace if recorded, first frame); ``frame`` (from 0) selects the frame of the channel named
+    without its ``frame <k>`` suffix."""
     import h5py
 
     path = Path(path)
@@ -186,7 +187,14 @@ def read(path: Path | str, channel: str | None = None):
                 c.unit = units[ck]
             order = sorted(range(len(chans)), key=lambda i: chans[i].extra["frame"])  # frame 0 first
             chans = [chans[i] for i in order]
-            chan = select_channel(path, chans, channel)
+            if frame is None:
+                chan = select_channel(path, chans, channel)
+            else:
+                first = select_channel(path, [c for c in chans if c.extra["frame"] == 0], channel)
+                nf = first.extra["frames"]
+                if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < nf:
+                    raise ChannelNotFound(f"frame {frame!r} is not in {path}: {first.name!r} has frames 0..{nf - 1}")
+                chan = next(c for c in chans if c.key == (first.key[0], first.key[1], int(frame)))
             ck, dname, frame = chan.key
             m, o, zunit = calibration(path, mg[ck].attrs, ck)
             chan.unit = zunit
