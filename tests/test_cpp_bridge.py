@@ -602,7 +602,7 @@ def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_
     sent = {tuple(p) for p in pos}
     stylus = t["stylus_position"]
     moved = np.any(stylus != 0.0, axis=1)
-    assert moved.sum() > 300 and all(tuple(p) in sent for p in stylus[moved])  # the poses the client sent
+    assert moved.sum() > 200 and all(tuple(p) in sent for p in stylus[moved])  # the poses the client sent
     assert t["in_contact"].sum() > 100  # it pressed into the surface
     # what the client applied is what the loop commanded (times the bridge's stale-input ramp in [0, 1])
     dev = t["device_force"][np.linalg.norm(t["device_force"], axis=1) > 0]
