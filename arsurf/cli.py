@@ -148,17 +148,6 @@ def _seconds(text: str) -> float:
     return value
 
 
-def _positive_count(text: str) -> int:
-    """An argparse type: a whole number >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number (got {text!r})") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
-    return value
-
-
 def _count(text: str) -> int:
     """An argparse type: an integer >= 0."""
     try:
@@ -268,11 +257,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
+    s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
+                   "(.h5, must not exist), replayable with `arsurf replay FILE --scan SCAN`")
     s.add_argument("--tubes", action="store_true",
-                   help="make the nanotubes of a synthetic scan live objects the tip can push")
+                   help="make the nanotubes of a synthetic scan live objects the tip can push (not with --bridge-port)")
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
-    s.add_argument("--frames", type=_positive_count, default=90, help="without a display: how many frames (default 90)")
+    s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90); with "
+                   "--bridge-port, 0: no view at all, the loop serves the client until it sends RELEASE")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
@@ -432,10 +424,16 @@ def _bridge_setup(args):
     if args.bridge_port is None:
         given = [f for f, v in (("--host", args.bridge_host), ("--bridge-key", args.bridge_key),
                                 ("--bridge-key-file", args.bridge_key_file),
-                                ("--bridge-peer-timeout", args.bridge_peer_timeout)) if v is not None]
+                                ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record))
+                 if v is not None]
         if given:
-            raise HapticsError(f"{', '.join(given)} set up the UDP bridge; give --bridge-port PORT too")
+            raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
+        if args.frames == 0:
+            raise HapticsError("--frames 0 (no view) is for a --bridge-port loop; without one give at least 1 frame")
         return None
+    if args.tubes:
+        raise HapticsError("--tubes is not available with --bridge-port yet (the bridge loop has no tube scene); "
+                           "leave out one of them")
     host = args.bridge_host or "127.0.0.1"
     if args.bridge_key is not None and args.bridge_key_file is not None:
         raise HapticsError("give the bridge key once: --bridge-key HEX or --bridge-key-file PATH, not both")
@@ -460,10 +458,28 @@ def _bridge_setup(args):
                            peer_timeout=args.bridge_peer_timeout)
 
 
+def _record_target(args):
+    """The session file of ``--record`` (None without it), refused before anything slow runs:
+    it must not exist (a recording never replaces another) and its folder must."""
+    import os
+
+    from arsurf.errors import SessionError
+
+    if args.record is None:
+        return None
+    path = os.path.abspath(args.record)
+    if os.path.lexists(path):
+        raise SessionError(f"--record {args.record!r} exists; a recording never replaces another: pick a new file")
+    if not os.path.isdir(os.path.dirname(path)):
+        raise SessionError(f"--record {args.record!r}: its folder does not exist; create it first")
+    return path
+
+
 def cmd_view(args) -> int:
+    record = _record_target(args)
     bridge = _bridge_setup(args)  # refuse a bad bridge setup before anything slow
     try:
-        return _view(args, bridge)
+        return _view(args, bridge, record)
     finally:
         if bridge is not None and bridge.tmpdir is not None:
             import shutil
@@ -471,37 +487,103 @@ def cmd_view(args) -> int:
             shutil.rmtree(bridge.tmpdir, ignore_errors=True)
 
 
-def _view(args, bridge) -> int:
+def _view(args, bridge, record) -> int:
     from arsurf.errors import require
 
+    if bridge is not None:
+        return _bridge_view(args, bridge, record)
     require("pyvista", "viewer", "arsurf view")
     from arsurf.assembly import BUNDLED_SCAN
+    from arsurf_viewer import view_scan
 
-    tip_radius = args.tip_radius_nm * 1e-9
     scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
-    if bridge is None:
-        from arsurf_viewer import view_scan
-
-        view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
-                  frames=args.frames)
-        return 0
-    # real hardware: the full haptic loop runs at 1 kHz against the UDP bridge, the view follows it
-    from arsurf.spline.fit import fit_surface
-    from arsurf_viewer.interactive import run_interactive
-    from arsurf_viewer.live import bridge_loop
-
-    surface = fit_surface(scan)
-    live = bridge_loop(surface, tip_radius, host=bridge.host, port=bridge.port, key=bridge.key,
-                       peer_timeout=bridge.peer_timeout, scale=args.scale).start()
-    print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
-          f"{bridge.host}:{bridge.port} (`python -m arsurf.haptics.client` is a reference client)", file=sys.stderr)
-    try:
-        run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose,
-                        out_dir=args.out, frames=args.frames)
-    finally:
-        stats = live.stop()
-        print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
+    view_scan(scan, tip_radius=args.tip_radius_nm * 1e-9, level_method=None, sigma=None, tubes=args.tubes,
+              out_dir=args.out, frames=args.frames)
     return 0
+
+
+def _bridge_view(args, bridge, record) -> int:
+    """Real hardware: the full haptic loop at 1 kHz against the UDP bridge, the view following it,
+    the session recorded with ``--record``.
+
+    The model is built from session metadata by :func:`arsurf.assembly.build_model` (as replay
+    rebuilds it) and every tick is recorded by :func:`arsurf.replay.session.record_loop_tick`
+    (as in ``arsurf demo``), so ``arsurf replay FILE`` gives back the forces bit for bit. With a
+    display the loop runs until the window closes; without one (or with ``--frames 0``) it waits
+    for a client, renders the frames while it plays, and serves it until it sends RELEASE (or
+    falls silent for ``--bridge-peer-timeout``); Ctrl-C stops it (the recording is kept, marked
+    incomplete)."""
+    import contextlib
+    from functools import partial
+
+    from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.errors import require
+    from arsurf.haptics.udp_bridge import VERSION
+    from arsurf.replay.session import SessionWriter, record_loop_tick
+    from arsurf_viewer.backend import has_display
+    from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_loop
+
+    show = args.frames > 0
+    if show:
+        require("pyvista", "viewer", "arsurf view")
+    scan_path = args.scan or str(BUNDLED_SCAN)
+    meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
+                           sigma=args.sigma_nm * 1e-9, haptics=dict(BRIDGE_HAPTICS, scale=args.scale))
+    setup = build_model(meta)
+    live = bridge_loop(setup.model, meta["haptics"], host=bridge.host, port=bridge.port, key=bridge.key,
+                       peer_timeout=bridge.peer_timeout)
+    dev = live.device
+    try:
+        dev.open()  # a busy port fails here, before a recording starts
+        host, port = dev.address
+        writer = contextlib.nullcontext()
+        if record is not None:  # the key is never recorded; where the client came in is
+            info = dev.info
+            meta = dict(meta, device={"interface": "udp-bridge", "protocol_version": VERSION, "host": host,
+                                      "port": port, "name": info.name, "max_force": info.max_force})
+            writer = SessionWriter(record, meta, handle_signals=True)
+            live.record = partial(record_loop_tick, writer)
+        with writer:
+            live.start()
+            print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
+                  f"{host}:{port} (`python -m arsurf.haptics.client` and examples/cpp are clients)"
+                  + (f"; recording to {record}" if record else ""), file=sys.stderr)
+            try:
+                if show and has_display():
+                    from arsurf_viewer.interactive import run_interactive
+
+                    run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=live.physics,
+                                    pose_source=live.pose, out_dir=args.out, frames=args.frames)
+                else:
+                    _serve_headless(args, live, setup)
+            finally:
+                stats = live.stop()
+                print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
+    finally:
+        dev.close()
+    if record is not None:
+        print(f"session recorded: {record} ({writer.n_ticks} ticks; replay it with "
+              f"arsurf replay {record} --scan {scan_path} --out DIR)")
+    return 0
+
+
+def _serve_headless(args, live, setup) -> None:
+    """No window: wait for a client, render ``--frames`` following the loop, serve the client
+    until it sends RELEASE (or the peer timeout unpins it); return early if the loop stops."""
+    dev = live.device
+    host, port = dev.address
+    running = live.scheduler
+    print(f"arsurf view: {'no display' if args.frames else '--frames 0'}: waiting for a client on UDP {host}:{port}, "
+          f"then serving it until it sends RELEASE (Ctrl-C stops)", file=sys.stderr)
+    while dev.peer is None and running.is_running:
+        time.sleep(0.01)
+    if args.frames and running.is_running:
+        from arsurf_viewer.interactive import run_interactive
+
+        run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=live.physics,
+                        pose_source=live.pose, out_dir=args.out, frames=args.frames)
+    while dev.peer is not None and running.is_running:
+        time.sleep(0.01)
 
 
 _SCAN_OUTPUTS = (".gwy", ".gsf", ".npz", ".npy")

@@ -165,7 +165,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, contact_fields, journal_path
+    from arsurf.replay.session import SessionWriter, journal_path, record_loop_tick
     from arsurf.scan.prepare import prepare_scan
 
     progress = progress or log.info
@@ -221,7 +221,6 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
     clock = time.perf_counter_ns
     tube_force = np.zeros(n)
-    extra = {}
     with writer:  # an exception or a signal still closes the file (incomplete) with every tick
         for k in progress_bar(range(n), desc="session", unit="tick"):
             st = dev.read_state()
@@ -236,13 +235,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
             damping[k] = get(o, "passivity_damping")
             in_contact[k] = mo[M_IN_CONTACT] > 0.5
             if scene is not None:
-                extra["tube_poses"] = scene.poses
                 tube_force[k] = math.hypot(scene.force[0], scene.force[1])
-            writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
-                          probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
-                          tip_position=get(o, "tip"), energy=energy[k], passivity_damping=damping[k],
-                          signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
-                          **contact_fields(model.record(mo)), **extra)
+            record_loop_tick(writer, loop, st.timestamp, st)
             for name, tick in marks.items():
                 if k == tick:
                     views[name] = _scene(model, loop, contact, RATE, scene)

@@ -44,6 +44,7 @@ def test_errors_are_one_line_messages(tmp_path, capsys):
 def test_bridge_loop_feels_the_surface_through_udp():
     """`arsurf view --bridge-port`'s loop: a client on loopback sends stylus poses, the 1 kHz loop
     moves the tip into the surface and sends back a force pushing the stylus up."""
+    from arsurf.assembly import PRESETS, make_model
     from arsurf.haptics.client import HapticClient
     from arsurf.spline.surface import BSplineSurface
     from arsurf_viewer.live import bridge_loop
@@ -53,7 +54,9 @@ def test_bridge_loop_feels_the_surface_through_udp():
         port = probe.getsockname()[1]
     s = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))
     key = bytes(range(32))
-    live = bridge_loop(s, 20e-9, port=port, key=key).start()   # tip starts 2.5 R above the middle
+    p = PRESETS["viewer"]
+    model = make_model(s, tip_radius=20e-9, effective_modulus=p.effective_modulus, work_of_adhesion=p.work_of_adhesion)
+    live = bridge_loop(model, port=port, key=key).start()   # tip starts 2.5 R above the middle
     client = HapticClient(port=port, key=key)
     try:
         deadline = time.monotonic() + 15.0                 # generous: CI machines are shared

@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 import tracemalloc
 from pathlib import Path
@@ -152,6 +153,42 @@ def test_signal_handlers_are_restored_at_close(tmp_path):
         assert signal.getsignal(signal.SIGTERM) == w._on_signal
         w.append(t=0.0, probe_position=(0, 0, 0))
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_a_signal_while_a_servo_thread_appends_interrupts_the_main_thread(tmp_path):
+    """A live loop appends from its servo thread: SIGINT arriving while that thread is inside
+    append interrupts the main thread at once (which then stops the loop and closes the file);
+    the servo thread's append finishes normally, never raising the interruption in the loop."""
+    from arsurf.errors import RecordingInterrupted
+
+    errors, interrupted = [], []
+    w = SessionWriter(tmp_path / "s.h5", meta(), handle_signals=True)
+    with pytest.raises(RecordingInterrupted):
+        with w:
+            w.append(t=0.0, probe_position=position(0))
+
+            def servo():
+                try:
+                    w.append(t=1e-3, probe_position=position(1))
+                except BaseException as exc:  # noqa: BLE001 - what the servo thread would see
+                    errors.append(exc)
+
+            w._stream.lock.acquire()  # the servo thread blocks inside append
+            th = threading.Thread(target=servo)
+            th.start()
+            time.sleep(0.2)
+            try:
+                signal.raise_signal(signal.SIGINT)
+            except RecordingInterrupted as exc:
+                interrupted.append(exc)
+            finally:
+                w._stream.lock.release()
+                th.join(10)  # the loop is stopped before the file closes, as arsurf view does
+            raise interrupted[0] if interrupted else AssertionError("SIGINT did not interrupt the main thread")
+    assert interrupted and "stopped by SIGINT" in str(interrupted[0])
+    assert not th.is_alive() and errors == []
+    s = load_session(tmp_path / "s.h5", allow_incomplete=True)
+    assert s.n_ticks == 2 and s.attrs["aborted"] == "stopped by SIGINT"
 
 
 def _killed_journal(tmp_path, n=300, capacity=16):

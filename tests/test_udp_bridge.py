@@ -605,6 +605,22 @@ def test_the_cli_refuses_a_network_bridge_without_a_key(capsys, tmp_path):
         assert "arsurf view: error:" in err
 
 
+def test_the_cli_refuses_a_bad_recording_setup_before_anything_runs(capsys, tmp_path):
+    from arsurf.cli import main
+
+    existing = tmp_path / "old.h5"
+    existing.write_bytes(b"an earlier recording")
+    for argv, needle in ((["view", "--record", str(tmp_path / "r.h5")], "give --bridge-port"),
+                         (["view", "--bridge-port", "0", "--record", str(existing)], "never replaces"),
+                         (["view", "--bridge-port", "0", "--record", str(tmp_path / "no" / "r.h5")], "folder"),
+                         (["view", "--frames", "0"], "--frames 0"),
+                         (["view", "--bridge-port", "0", "--tubes"], "--tubes")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "Traceback" not in err and needle in err, err
+    assert existing.read_bytes() == b"an earlier recording" and list(tmp_path.iterdir()) == [existing]
+
+
 def test_the_cli_makes_an_owner_only_key_file(tmp_path, capsys):
     from arsurf.cli import _bridge_setup, build_parser
 

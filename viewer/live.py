@@ -12,6 +12,7 @@ old, never a corrupt one (each control point is written whole).
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from arsurf.haptics.scheduler import Scheduler
 from arsurf.haptics.loop import L_SAFETY_FLAGS, LOOP_OUT
 from arsurf.model import M_DEPTH, M_RADIUS, MODEL_OUT
 
-from .state import SceneState
+from .state import SceneState, ViewerError
 
 
 class LiveLoop:
@@ -32,6 +33,13 @@ class LiveLoop:
         Opened here if it is not open yet (and closed by :meth:`stop`).
     snapshot_rate : float, Hz
         How often the loop thread publishes what the view shows.
+    record : callable, optional
+        ``record(loop, t, state)``, called in the loop thread after every tick with the loop time
+        ``t`` (s, the device's clock) and the device sample ``state`` the tick ran on: the
+        session recorder (``functools.partial(arsurf.replay.session.record_loop_tick, writer)``;
+        the viewer does not import the sessions layer); the attribute :attr:`record` may be set
+        until :meth:`start`. A recorder that raises is a fault of the tick: zero force, the loop
+        stops.
 
     Examples
     --------
@@ -39,14 +47,26 @@ class LiveLoop:
     >>> # run_interactive(loop.model.surface, physics=live.physics, pose_source=live.pose)
     """
 
-    def __init__(self, loop, device, snapshot_rate: float = 60.0):
+    def __init__(self, loop, device, snapshot_rate: float = 60.0, record=None):
+        if record is not None and not callable(record):
+            raise ViewerError(f"record must be a callable record(loop, t, state) or None (got {type(record).__name__})")
         self.loop = loop
         self.device = device
         now = device.now  # the safety watchdog runs on the device's clock (a bridge sample's
         # timestamp is its arrival time, which stops when packets stop: that is what ages it)
-        self.scheduler = Scheduler(lambda state, inputs, dt: loop.step(inputs, now()), loop, rate=loop.config.rate,
-                                   source=device.read_state, sink=device.command_force, snapshot=self._snapshot,
-                                   snapshot_rate=snapshot_rate, on_stop=self._zero_force)
+        self.record = record
+
+        def tick(state, inputs, dt):
+            t = now()
+            force = loop.step(inputs, t)
+            rec = self.record
+            if rec is not None:
+                rec(loop, t, inputs)
+            return force
+
+        self.scheduler = Scheduler(tick, loop, rate=loop.config.rate, source=device.read_state,
+                                   sink=device.command_force, snapshot=self._snapshot, snapshot_rate=snapshot_rate,
+                                   on_stop=self._zero_force)
         self._status = getattr(device.info, "name", type(device).__name__)
 
     def _snapshot(self, state, inputs, output) -> dict:
@@ -102,29 +122,37 @@ class LiveLoop:
                           time=snap.time)
 
 
-def bridge_loop(surface, tip_radius: float, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
-                peer_timeout: float | None = None, scale: float = 1e-5, force_gain: float = 1e5,
-                contact=None, start=None):
+#: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
+#: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
+#: friction, no synthesised signals), a 200 Hz low-pass, no virtual coupling
+BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
+                                   "source": "simulated", "filter_cutoff": 200.0, "signal_noise": 0.0,
+                                   "passivity": True})
+
+
+def bridge_start(surface, tip_radius: float) -> tuple[float, float, float]:
+    """Where the probe is when the stylus is at its origin: 2.5 R above the middle of ``surface`` (m)."""
+    (u0, u1), (v0, v1) = surface.domain
+    cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+    return (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
+
+
+def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
+                peer_timeout: float | None = None, start=None, record=None) -> LiveLoop:
     """A :class:`LiveLoop` for real hardware: the UDP bridge device on ``host``:``port`` with the
-    session ``key`` (a fresh one on loopback if None; see :class:`UdpBridgeDevice`), the AR model
-    on ``surface`` (Si tip on polystyrene unless ``contact`` is given) and the direct coupling
-    (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client sends first
-    maps to ``start`` (default: 2.5 R above the middle of the surface)."""
-    from arsurf.assembly import PRESETS, build_loop, make_model
+    session ``key`` (a fresh one on loopback if None; see :class:`UdpBridgeDevice`) driving the
+    AR ``model`` through :func:`arsurf.assembly.build_loop` with ``haptics`` (default
+    :data:`BRIDGE_HAPTICS`). The stylus origin maps to ``start`` (default :func:`bridge_start`).
+    ``record(loop, t, state)``: see :class:`LiveLoop`. Nothing is opened here:
+    :meth:`LiveLoop.start` (or ``live.device.open()``) binds the port.
+
+    Build the model with :func:`arsurf.assembly.build_model` from session metadata (what
+    ``arsurf view --bridge-port`` does) and a recorded session replays bit for bit."""
+    from arsurf.assembly import build_loop
     from arsurf.haptics.udp_bridge import UdpBridgeDevice
 
-    p = PRESETS["viewer"]
-    if contact is None:
-        model = make_model(surface, tip_radius=tip_radius, effective_modulus=p.effective_modulus,
-                           work_of_adhesion=p.work_of_adhesion)
-    else:
-        model = make_model(surface, tip_radius=tip_radius, effective_modulus=contact.effective_modulus,
-                           work_of_adhesion=contact.work_of_adhesion, dugdale_stress=contact.dugdale_stress)
     if start is None:
-        (u0, u1), (v0, v1) = surface.domain
-        cx, cy = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
-        start = (cx, cy, float(surface.evaluate(cx, cy)[2]) + 2.5 * tip_radius)
+        start = bridge_start(model.surface, model.tip_radius)
     device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
-    loop = build_loop(model, {"scale": scale, "force_gain": force_gain, "source": "simulated", "filter_cutoff": 200.0,
-                              "signal_noise": 0.0}, device.info, start)
-    return LiveLoop(loop, device)
+    loop = build_loop(model, BRIDGE_HAPTICS if haptics is None else haptics, device.info, start)
+    return LiveLoop(loop, device, record=record)

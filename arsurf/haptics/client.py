@@ -20,6 +20,7 @@ and applies :meth:`HapticClient.poll`'s force to the device: that force comes on
 packet that passed every check (sender address, tag, sequence number, ``ack`` of one of this
 client's poses, finite values, ``--max-force``) and is zero when no such packet arrived for
 ``--timeout`` seconds. On exit the client sends RELEASE so that another client may connect.
+``examples/cpp/arsurf_client.cpp`` is the same client in C++ (on ``include/arsurf_bridge.h``).
 
 Examples
 --------

@@ -197,6 +197,7 @@ __all__ = [
     "recover_session",
     "journal_path",
     "contact_fields",
+    "record_loop_tick",
     "TUBE_POSES",
 ]
 
@@ -284,6 +285,34 @@ def contact_fields(tick) -> dict:
     return {"contact_point": tick.point, "contact_normal": tick.normal, "depth": tick.depth,
             "contact_radius": tick.contact_radius, "load": tick.load, "in_contact": int(tick.in_contact),
             "md_status": tick.md_status, "decoupling_flags": tick.decoupling_flags}
+
+
+def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
+    """Append the tick a :class:`~arsurf.haptics.loop.HapticLoop` just ran to ``writer``.
+
+    The one way a loop is recorded (``arsurf demo``, the live loops of ``arsurf view``): the
+    device sample ``state`` (:class:`~arsurf.haptics.device.DeviceState`: stylus position,
+    velocity, buttons), what the tick computed (``loop.out``: probe, tip, energy, passivity
+    damping, signals, probe force, device force), the contact of ``loop.model.out``
+    (:func:`contact_fields`) and, with a scene, the tube poses after the tick. ``t`` is the
+    loop time the tick was given (s). A button word the loop took as malformed is recorded as
+    the no-press it was given (0).
+
+    Examples
+    --------
+    >>> # f = loop.step(state, now); record_loop_tick(writer, loop, now, state)
+    """
+    from arsurf.haptics.loop import LOOP_OUT, _valid_buttons
+
+    o = loop.out
+    get = LOOP_OUT.get
+    extra = {} if loop.scene is None else {TUBE_POSES.name: loop.scene.poses}
+    writer.append(t=t, stylus_position=state.position, stylus_velocity=state.velocity,
+                  buttons=_valid_buttons(state.buttons)[0], probe_position=get(o, "probe"),
+                  probe_velocity=get(o, "probe_velocity"), tip_position=get(o, "tip"), energy=get(o, "energy"),
+                  passivity_damping=get(o, "passivity_damping"), signals=get(o, "signals"),
+                  force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                  **contact_fields(loop.model.record(loop.model.out)), **extra)
 
 
 def journal_path(path: str | os.PathLike) -> Path:
@@ -569,7 +598,9 @@ class SessionWriter:
         at :meth:`close`) that raise :class:`~arsurf.errors.RecordingInterrupted`, so a ``with``
         block unwinds and the file is closed with every tick, marked incomplete with the
         signal as the reason. For processes that own the recording (command lines), not
-        libraries.
+        libraries. Ticks may be appended from another thread (a live loop's servo thread): the
+        signal then interrupts the main thread, which should stop that thread before the
+        ``with`` block closes the writer.
 
     Notes
     -----
@@ -687,6 +718,11 @@ class SessionWriter:
             raise SessionError(f"the session writer of {str(self.path)!r} is closed; open a new one")
         st = self._stream
         index = self._index
+        if threading.current_thread() is not threading.main_thread():
+            # signal handlers run in the main thread: one arriving now interrupts the main thread
+            # at once (it is not inside this append), never this one (a live loop's servo thread)
+            self._append_locked(st, index, fields)
+            return
         self._busy = True
         try:
             self._append_locked(st, index, fields)
