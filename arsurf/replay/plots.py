@@ -130,6 +130,9 @@ def add_scale_bar(ax, color: str = "white", loc: str = "lower left"):
     bar = AnchoredSizeBar(ax.transData, length, label, loc, pad=0.5, borderpad=0.3, sep=3, color=color,
                           frameon=False, size_vertical=0.012 * abs(y1 - y0), label_top=True,
                           fontproperties=font_manager.FontProperties(size=8, weight="bold"))
+    from matplotlib import patheffects
+
+    bar.txt_label._text.set_path_effects([patheffects.withStroke(linewidth=1.5, foreground="black")])
     bar.set_gid("scale_bar")
     bar.length_nm = length
     ax.add_artist(bar)
@@ -518,7 +521,8 @@ def path_figure(heights, dx: float, dy: float, probe_position, in_contact=None, 
         add_scale_bar(ax1)  # for the zoomed width
         ax1.set_title("(b) where the tip went", loc="left", fontsize=9)
         handles, labels = ax1.get_legend_handles_labels()
-        fig.legend(handles, labels, loc="outside lower center", ncol=len(handles), fontsize=7, frameon=False)
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(handles), fontsize=7, facecolor="0.3",
+                   edgecolor="none", labelcolor="white", framealpha=1.0)
     return fig
 
 
