@@ -608,7 +608,7 @@ def tubes_figure(substrate, dx: float, dy: float, tubes_before: Sequence, tubes_
         for ax in (ax0, ax1):
             ax.set_xlim(ext[0], ext[1])
             ax.set_ylim(ext[2], ext[3])
-        fig.colorbar(im, ax=[ax0, ax1], label="height (nm)", shrink=0.9)
+        fig.colorbar(im, ax=[ax0, ax1], label="height (nm)", shrink=0.9, pad=0.015, fraction=0.03)
     return fig
 
 
