@@ -388,3 +388,22 @@ def test_a_failing_renderer_stops_the_replay_saying_what_to_install(recording, t
     with pytest.raises(RuntimeError, match="power cut"):
         replay(recording.session, recording.scan, tmp_path / "out2", frames=4, progress=False)
     assert not (tmp_path / "out2").exists()
+
+
+def test_cli_writes_the_figures_as_pdf_or_svg(recording, tmp_path):
+    """--format pdf: the same figures as vector PDFs (no PNG); --format svg --dpi: SVG XML."""
+    import xml.etree.ElementTree as ET
+
+    out = tmp_path / "pdf"
+    assert main(["-q", "replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out),
+                 "--format", "pdf"]) == 0
+    names = sorted(p.name for p in out.iterdir() if p.suffix in (".pdf", ".png", ".svg"))
+    assert names == ["coupled_motion.pdf", "dent.pdf", "forces.pdf", "path.pdf"]
+    for name in names:
+        data = (out / name).read_bytes()
+        assert data.startswith(b"%PDF-") and data.rstrip().endswith(b"%%EOF") and len(data) > 5000, name
+    out = tmp_path / "svg"
+    assert main(["-q", "replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out),
+                 "--format", "svg", "--dpi", "300"]) == 0
+    for name in ("coupled_motion.svg", "dent.svg", "forces.svg", "path.svg"):
+        assert ET.fromstring((out / name).read_bytes()).tag.endswith("svg"), name
