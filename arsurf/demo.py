@@ -20,7 +20,8 @@
 
 The output folder receives ``summary.json`` (engage, peak forces, depth, contact radius, the
 tube's displacement, rotation and rotation pole, loop timing, replay agreement),
-``session.h5``, ``replay/`` (forces.csv, replay.h5, plots), and PNG views of the dented surface
+``session.h5``, ``replay/`` (forces.csv, replay.h5, figures: forces, coupled_motion, path, tubes,
+dent, as PNG, PDF or SVG, :mod:`arsurf.replay.plots`), and PNG views of the dented surface
 with the tube where it is (``view_*.png``, when the viewer extra and an OpenGL context are
 available). A scan without a synthetic tube record (``--scan``) runs the session without
 a scene: approach, indent, a 160 nm slide along x and retract.
@@ -152,7 +153,7 @@ def engage_at(scan, x: float, y: float, seed: int = 5):
 
 
 def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool = True, progress=None,
-             handle_signals: bool = False) -> dict:
+             handle_signals: bool = False, figure_format: str = "png", dpi: int | None = None) -> dict:
     """Run the demo into ``out_dir`` (created; an existing one is replaced); return the summary.
 
     ``progress`` (a callable taking one line) receives the progress messages; by default they
@@ -161,6 +162,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     :class:`~arsurf.errors.RenderingUnavailable` says what to install, before the session runs).
     ``handle_signals`` (the command line): SIGINT/SIGTERM during the session close
     ``session.h5`` with every tick recorded so far (marked incomplete) before the demo stops.
+    ``figure_format`` (png, pdf, svg) and ``dpi`` (PNG) are those of the replay's figures
+    (:mod:`arsurf.replay.plots`).
     """
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
@@ -168,7 +171,10 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.replay.session import SessionWriter, journal_path, record_loop_tick
     from arsurf.scan.prepare import prepare_scan
 
+    from arsurf.replay.plots import check_figure_options
+
     progress = progress or log.info
+    dpi = check_figure_options(figure_format, dpi)
     viewer = _viewer_or_none() if images else None  # no OpenGL: said now, not after the session
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -272,7 +278,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
                  f"{motion.displacement * 1e9:.1f} nm, turned "
                  f"{math.degrees(motion.rotation):+.2f} deg about the point {motion.pole_arc_length / L:.3f} L "
                  f"from end A (Eq. 9 pivot {tube_summary['pivot_arc_fraction (Eq. 9, first contact)']:.3f} L)")
-    result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True)
+    result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True, figure_format=figure_format,
+                    dpi=dpi)
     progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches"
              + (f", tube poses differ by {result.tube_pose_difference:g}" if scene is not None else "")
              + f", files {', '.join(result.files)}")
@@ -348,14 +355,14 @@ def _render(viewer, views: dict, out: Path) -> list[Path]:
     paths = []
     try:
         for name, kw in progress_bar(views.items(), desc="views", unit="view"):
-            view = SurfaceView(kw["surface"], color_by="deformation" if name != "approach" else "height")
+            view = SurfaceView(kw["surface"])  # coloured by height, the dent as contour lines over it
             view.update(SceneState(**kw))
             path = out / f"view_{name}.png"
             view.screenshot(path)
             view.close()
             paths.append(path)
             if name == "indent":  # the dent itself: ~8 tip radii of field, surface sampled at ~1 nm
-                view = SurfaceView(kw["surface"], color_by="deformation", resolution=1024)
+                view = SurfaceView(kw["surface"], resolution=1024)
                 view.update(SceneState(**kw))
                 view.close_up(kw["tip_center"], 8 * kw["tip_radius"])
                 path = out / "view_indent_closeup.png"
@@ -374,11 +381,15 @@ def register(sub) -> None:
     p.add_argument("--scan", default=str(BUNDLED_SCAN), help="scan file (default: the bundled nanotubes)")
     p.add_argument("--seconds", type=float, default=6.0, help="simulated session length")
     p.add_argument("--no-images", action="store_true", help="skip the PNG views")
+    from arsurf.replay.plots import add_figure_arguments
+
+    add_figure_arguments(p)
     p.set_defaults(func=_cmd)
 
 
 def _cmd(args) -> int:
-    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True)
+    summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True,
+                       figure_format=args.figure_format, dpi=args.dpi)
     print(json.dumps(summary, indent=2))
     print(f"results in {args.out}/")
     return 0

@@ -140,6 +140,10 @@ class ViewerError(ArsurfError, ValueError):
     """Invalid input to the viewer (a scene state with a bad shape, an unknown layer or colouring)."""
 
 
+class FigureError(ArsurfError, ValueError):
+    """Invalid input to a figure (an unknown file format, a dpi out of range, empty data)."""
+
+
 class RenderingUnavailable(ArsurfError, RuntimeError):
     """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 

@@ -9,7 +9,7 @@ Peers timed in the same run:
   reading + checking it back (seal, schema, checksums);
 * ``replay_loop``       - the replay's model loop per tick (``ARModel.tick``, the unchecked path);
 * ``step_peer``         - the validated :meth:`ARModel.step` per tick, which a naive replay would call;
-* ``replay_total``      - :func:`replay` end to end (model loop, replay.h5, forces.csv, three plots).
+* ``replay_total``      - :func:`replay` end to end (model loop, replay.h5, forces.csv, the figures).
 
 Usage: ``python bench/session_replay.py [--ticks 20000]``. Prints one JSON document.
 """

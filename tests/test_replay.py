@@ -178,14 +178,14 @@ def test_replay_h5_schema_and_summary(recording, replayed):
 def test_plots_are_pngs_without_text_or_time_chunks(replayed):
     import matplotlib.image as mpimg
 
-    for name in ("forces.png", "coupled_motion.png", "path.png"):
+    for name in ("forces.png", "coupled_motion.png", "path.png", "dent.png"):
         data = (replayed.out / name).read_bytes()
         kinds = _png_chunks(data)
         assert kinds[0] == "IHDR" and kinds[-1] == "IEND"
         assert not {"tEXt", "iTXt", "zTXt", "tIME"} & set(kinds), (name, kinds)
         img = mpimg.imread(replayed.out / name)
         assert img[..., :3].std() > 0.05, name  # not blank
-    # the probe path is drawn in white over the afmhot height map
+    # the probe path is drawn in white over the height map
     img = mpimg.imread(replayed.out / "path.png")[..., :3]
     assert (img > 0.99).all(axis=2).sum() > 200
 
@@ -194,8 +194,8 @@ def test_same_input_gives_bit_identical_output(recording, replayed, tmp_path):
     out2 = tmp_path / "replay-2"
     replay(recording.session, recording.scan, out2, progress=False)
     first, second = _files(replayed.out), _files(out2)
-    assert sorted(first) == sorted(second) == ["coupled_motion.png", "forces.csv", "forces.png", "path.png",
-                                               "replay.h5", "summary.json"]
+    assert sorted(first) == sorted(second) == ["coupled_motion.png", "dent.png", "forces.csv", "forces.png",
+                                               "path.png", "replay.h5", "summary.json"]
     for name in first:
         assert first[name] == second[name], name
 
@@ -243,7 +243,7 @@ def test_interrupted_overwrite_keeps_the_old_output(recording, replayed, tmp_pat
     def broken_plot(*args, **kwargs):
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(plots, "plot_path", broken_plot)
+    monkeypatch.setattr(plots, "path_figure", broken_plot)
     with pytest.raises(OSError, match="disk full"):
         replay(recording.session, recording.scan, out, progress=False, overwrite=True)
     assert _files(out) == before
@@ -388,3 +388,22 @@ def test_a_failing_renderer_stops_the_replay_saying_what_to_install(recording, t
     with pytest.raises(RuntimeError, match="power cut"):
         replay(recording.session, recording.scan, tmp_path / "out2", frames=4, progress=False)
     assert not (tmp_path / "out2").exists()
+
+
+def test_cli_writes_the_figures_as_pdf_or_svg(recording, tmp_path):
+    """--format pdf: the same figures as vector PDFs (no PNG); --format svg --dpi: SVG XML."""
+    import xml.etree.ElementTree as ET
+
+    out = tmp_path / "pdf"
+    assert main(["-q", "replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out),
+                 "--format", "pdf"]) == 0
+    names = sorted(p.name for p in out.iterdir() if p.suffix in (".pdf", ".png", ".svg"))
+    assert names == ["coupled_motion.pdf", "dent.pdf", "forces.pdf", "path.pdf"]
+    for name in names:
+        data = (out / name).read_bytes()
+        assert data.startswith(b"%PDF-") and data.rstrip().endswith(b"%%EOF") and len(data) > 5000, name
+    out = tmp_path / "svg"
+    assert main(["-q", "replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out),
+                 "--format", "svg", "--dpi", "300"]) == 0
+    for name in ("coupled_motion.svg", "dent.svg", "forces.svg", "path.svg"):
+        assert ET.fromstring((out / name).read_bytes()).tag.endswith("svg"), name

@@ -18,7 +18,7 @@ from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.assembly import scan_sha256, session_metadata
 from arsurf.replay.sealed import seal_file
-from arsurf.replay.session import TICK_FIELDS, SessionWriter, journal_path, load_session
+from arsurf.replay.session import SAFETY_FLAGS, TICK_FIELDS, SessionWriter, journal_path, load_session
 from arsurf.errors import SessionFileNotFound
 
 R = 20e-9
@@ -26,7 +26,9 @@ LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
 MD = MaugisDugdale(R, 50e9, 0.1)
 SCAN = {"path": "scans/sinusoid.npz", "sha256": "ab" * 32, "channel": None,
         "processing": {"level": "plane", "sigma": 2e-9, "inpaint": True}}
-FIELDS = {f.name: f for f in TICK_FIELDS}
+#: what a writer writes: the fields of every session, and the optional flag word (tube_poses: test_scene)
+WRITTEN = (*TICK_FIELDS, SAFETY_FLAGS)
+FIELDS = {f.name: f for f in WRITTEN}
 
 
 def meta(**over):
@@ -72,7 +74,7 @@ def _field_arrays(draw, n, names):
 @st.composite
 def recordings(draw):
     n = draw(st.integers(0, 12))
-    optional = [f.name for f in TICK_FIELDS if f.name not in ("t", "probe_position")]
+    optional = [f.name for f in WRITTEN if f.name not in ("t", "probe_position")]
     given_names = draw(st.lists(st.sampled_from(optional), unique=True))
     arrays = _field_arrays(draw, n, ["t", "probe_position", *given_names])
     capacity = draw(st.integers(1, 8))
@@ -91,7 +93,7 @@ def test_round_trip_keeps_every_value_bit_for_bit_and_fills_missing_fields(tmp_p
     s = load_session(path)
     assert s.n_ticks == n
     assert set(s.ticks) == set(FIELDS)
-    for f in TICK_FIELDS:
+    for f in WRITTEN:
         got = s.ticks[f.name]
         assert got.dtype == np.dtype(f.dtype)
         assert got.shape == ((n,) if f.width == 0 else (n, f.width))
@@ -470,7 +472,7 @@ def test_isolation_turns_a_crash_or_a_hang_into_a_session_error():
 
 def test_a_sealed_file_with_a_huge_dataset_claim_is_refused_before_allocating(tmp_path):
     def huge(f):  # every dataset 10^9 rows long, stored in a few kB (no chunk written)
-        for fl in TICK_FIELDS:
+        for fl in WRITTEN:
             del f["ticks"][fl.name]
             shape = (10**9,) if fl.width == 0 else (10**9, fl.width)
             f["ticks"].create_dataset(fl.name, shape=shape, dtype=fl.dtype, chunks=(64, *shape[1:]),

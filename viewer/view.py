@@ -24,6 +24,9 @@ What is drawn
     * ``probe`` (off by default) - the pyramidal tip and the cantilever, drawn schematically:
       truncated at ``probe_height`` (default 1.5 × the scan size), since a real tip (10-15 µm) and
       cantilever (~200 µm) dwarf a sub-micron scan.
+    * ``dent`` - the deformation as contour lines over the surface (every :math:`\Delta` nm of
+      :math:`|S - S_{rest}|`, :math:`\Delta` = 1, 2 or 5 x 10^k, about a quarter of the deepest
+      dent, named in the HUD), so the topography's colours stay visible under the dent.
     * ``tubes`` - nano-objects (capsules) from the state.
     * ``colorbar`` - the colour scale.
 
@@ -60,7 +63,7 @@ __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 SCENE_SCALE = 1e9
 #: Layers that :meth:`SurfaceView.set_layer` switches, and whether each is on by default.
 LAYERS = {"surface": True, "tip": True, "contact": True, "force": True, "hud": True,
-          "probe": False, "tubes": True, "colorbar": True}
+          "probe": False, "tubes": True, "colorbar": True, "dent": True}
 #: Colours (chosen to be told apart from the 'afmhot' surface, whose pixels have r >= g >= b).
 COLORS = {
     "tip": "#5aa9e6",  # steel blue: b > r
@@ -69,6 +72,7 @@ COLORS = {
     "force": "#ff2bd6",  # magenta: r, b >> g
     "probe": "#b8c4d0",
     "tubes": "#6b6b6b",
+    "dent": "#00e5ff",  # cyan: b, g >> r
     "hud": "#f2f2f2",
     "background": "#202124",
     "background_top": "#4a4c50",
@@ -290,6 +294,26 @@ class SurfaceView:
         for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
             prop.ShadowOn()
         self.set_color_by(self.color_by)
+        self._dent_lines = pv.PolyData(np.zeros((1, 3)))  # one point, no line: replaced in place
+        self.dent_actor = self.plotter.add_mesh(self._dent_lines, color=COLORS["dent"], line_width=2.0, lighting=False,
+                                                reset_camera=False, pickable=False)
+        self.dent_step_nm = 0.0
+        self._update_dent()
+
+    def _update_dent(self) -> None:
+        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the surface."""
+        top = float(self._deform.max())
+        if top < 0.02:  # nothing a reader could see: no lines
+            self.dent_step_nm = 0.0
+            self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
+            return
+        k = math.floor(math.log10(top / 4.0))
+        step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
+        self.dent_step_nm = step
+        lines = self.grid.contour(isosurfaces=list(np.arange(1, int(top / step) + 1) * step),
+                                  scalars="deformation_nm")
+        lines.points[:, 2] += 0.1
+        self._dent_lines.shallow_copy(lines)
 
     def _build_markers(self) -> None:
         pv = self._pv
@@ -440,6 +464,7 @@ class SurfaceView:
             raise ViewerError(f"update() takes a SceneState (got {type(state).__name__})")
         if state.surface is not self.surface:
             self.plotter.remove_actor(self.surface_actor, render=False)
+            self.plotter.remove_actor(self.dent_actor, render=False)
             self.plotter.remove_scalar_bar()
             self._build_surface(state.surface)
         self._sync_surface()
@@ -544,6 +569,7 @@ class SurfaceView:
         self._last_ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1] = ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1]
         self._resample(iu0, iu1, jv0, jv1)
         self._update_clim()
+        self._update_dent()
 
     def _resample(self, iu0: int, iu1: int, jv0: int, jv1: int) -> None:
         if iu1 <= iu0 or jv1 <= jv0:
@@ -617,6 +643,7 @@ class SurfaceView:
         L = self._layers
         self.surface_actor.SetVisibility(L["surface"])
         self.scalar_bar.SetVisibility(L["colorbar"] and L["surface"])
+        self.dent_actor.SetVisibility(L["dent"] and L["surface"] and self.dent_step_nm > 0.0)
         self.tip_actor.SetVisibility(L["tip"] and self._tip_on)
         self.contact_actor.SetVisibility(L["contact"] and self._contact_on)
         self.normal_arrow.set_visible(L["contact"] and self._contact_on and getattr(self, "_normal_on", False))
@@ -643,4 +670,6 @@ class SurfaceView:
         ]
         if st.device_status:
             lines.append(f"device: {st.device_status}")
+        if self.dent_step_nm > 0.0 and self._layers["dent"]:
+            lines.append(f"dent contours every {self.dent_step_nm:g} nm")
         return "\n".join(lines)

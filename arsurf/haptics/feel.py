@@ -47,7 +47,7 @@ import numpy as np
 
 from arsurf.errors import HapticsError
 
-__all__ = ["FeelScore", "score_force"]
+__all__ = ["FeelScore", "reversal_ticks", "score_force"]
 
 BUZZ_LIMIT = 0.02
 REVERSAL_FRACTION = 0.01
@@ -91,10 +91,39 @@ class FeelScore:
                 f"min energy {energy}, settles in {settle}")
 
 
-def _reversals(f: np.ndarray, threshold: float) -> np.ndarray:
+def _reversal_mask(f: np.ndarray, threshold: float) -> np.ndarray:
+    """(n - 2, 3) bool: tick k + 1 is a reversal of its axis (both legs above ``threshold``)."""
     d = np.diff(f, axis=0)
     a, b = d[:-1], d[1:]
-    return ((a * b < 0.0) & (np.minimum(np.abs(a), np.abs(b)) > threshold)).sum(axis=0)
+    return (a * b < 0.0) & (np.minimum(np.abs(a), np.abs(b)) > threshold)
+
+
+def reversal_ticks(force, dt: float, *, settle: float = 1.0,
+                   reversal_fraction: float = REVERSAL_FRACTION) -> np.ndarray:
+    """Where :func:`score_force` counts its reversals: (n,) bool, True at a tick where some axis
+    of ``force`` ((n, 3) N, every ``dt`` s) changes direction with both legs larger than
+    ``reversal_fraction`` of the record's peak force norm, after ``settle`` seconds.
+
+    ``reversal_ticks(f, dt, settle=s).sum()`` is at most ``score_force(f, dt, settle=s).reversals.sum()``
+    (ticks where several axes reverse at once count once here).
+
+    Examples
+    --------
+    >>> f = np.zeros((2000, 3)); f[:, 2] = 0.02; f[1500, 0] = 0.002      # one spike, after 1 s
+    >>> np.flatnonzero(reversal_ticks(f, 1e-3)).tolist()
+    [1500]
+    """
+    f = np.asarray(force, dtype=np.float64)
+    if f.ndim != 2 or f.shape[1] != 3 or not np.isfinite(f).all():
+        raise HapticsError(f"force must be a finite (n, 3) array in newtons (got shape {f.shape})")
+    if not (math.isfinite(float(dt)) and float(dt) > 0.0):
+        raise HapticsError(f"dt must be a positive period in seconds (got {dt!r})")
+    out = np.zeros(f.shape[0], bool)
+    peak = float(np.linalg.norm(f, axis=1).max()) if f.shape[0] else 0.0
+    start = max(int(round(settle / float(dt))), 0)
+    if peak > 0.0 and f.shape[0] - start > 2:
+        out[start + 1:-1] = _reversal_mask(f[start:], reversal_fraction * peak).any(axis=1)
+    return out
 
 
 def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0, energy=None, contact=None,
@@ -131,7 +160,7 @@ def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0,
     high = hf_rms / mean_normal if mean_normal > 0.0 else np.where(hf_rms > 0.0, np.inf, 0.0)
     norm = np.linalg.norm(f, axis=1)
     peak = float(norm.max())
-    rev = _reversals(w, reversal_fraction * peak) if peak > 0.0 else np.zeros(3, np.int64)
+    rev = _reversal_mask(w, reversal_fraction * peak).sum(axis=0) if peak > 0.0 else np.zeros(3, np.int64)
     step = float(np.linalg.norm(np.diff(f, axis=0), axis=1).max()) if f.shape[0] > 1 else 0.0
     min_energy = math.nan
     if energy is not None:

@@ -195,7 +195,7 @@ def _rmtree(path: Path) -> None:
 def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_dir: str | os.PathLike, *,
            frames: int = 0, progress: bool = True, overwrite: bool = False,
            frame_size: tuple[int, int] = (800, 600), allow_incomplete: bool = False,
-           isolate="auto") -> ReplayResult:
+           isolate="auto", figure_format: str = "png", dpi: int | None = None) -> ReplayResult:
     """Re-run the model over a recorded session and write forces, contacts, plots and frames.
 
     Parameters
@@ -225,6 +225,11 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     isolate : {"auto", True, False}
         How the session file is parsed (:func:`~arsurf.replay.session.load_session`);
         ``arsurf replay`` uses True: libhdf5 runs in a child process.
+    figure_format : {"png", "pdf", "svg"}
+        File format of the figures (:mod:`arsurf.replay.plots`): ``forces``, ``coupled_motion``,
+        ``path``, plus ``tubes`` (a tube scene) and ``dent`` (a deformed surface).
+    dpi : int, optional
+        Resolution of PNG figures (default :data:`arsurf.replay.plots.DEFAULT_DPI`).
 
     Returns
     -------
@@ -241,6 +246,9 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     """
     t_start = time.perf_counter()
     require("matplotlib.style", "viewer", "replay plots")  # before any work, not after it
+    from arsurf.replay import plots
+
+    dpi = plots.check_figure_options(figure_format, dpi)  # FigureError now, not after the run
     out = Path(out_dir)
     frames = int(frames)
     if frames < 0:
@@ -285,7 +293,7 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     tmp.mkdir()
     try:
         rec = _run(session, setup, tmp, frames, frame_size, progress, notes)
-        stats = _write_outputs(tmp, session, setup, rec, session_hash, actual)
+        stats = _write_outputs(tmp, session, setup, rec, session_hash, actual, figure_format, dpi)
         files = tuple(sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file()))
         _install(tmp, out, overwrite)
     except BaseException:
@@ -331,7 +339,7 @@ def _viewer():
 
 def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: bool, notes: list) -> dict:
     """Run the model over every tick; render frames on the way when asked and possible."""
-    from arsurf.model import M_COLLIDE_STATUS, M_SIZE, M_TIP
+    from arsurf.model import M_COLLIDE_STATUS, M_DEPTH, M_SIZE, M_TIP
 
     n = session.n_ticks
     ticks = session.ticks
@@ -341,6 +349,8 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     model = setup.model
     model.reset()
     outs = np.empty((n, M_SIZE))
+    net = model.surface.control_points  # a read-only view of the live net
+    deepest = {"depth": 0.0, "tick": -1, "net": np.empty_like(net)}  # the dent figure's snapshot
     frame_ticks = np.unique(np.linspace(0, n - 1, frames).round().astype(np.int64)) if frames > 0 else np.empty(0, int)
     viewer = None
     if frame_ticks.size:
@@ -367,6 +377,9 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
             for k0 in range(0, n, step):
                 for k in range(k0, min(k0 + step, n)):
                     outs[k] = tick(pos[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
+                    if outs[k, M_DEPTH] > deepest["depth"] and outs[k, M_COLLIDE_STATUS] >= 0:
+                        deepest["depth"], deepest["tick"] = outs[k, M_DEPTH], k
+                        np.copyto(deepest["net"], net)
                     if scene is not None:
                         here[:] = outs[k, M_TIP:M_TIP + 3]  # the tip behind the coupling pushes
                         scene.tick(prev, here, radius)
@@ -396,7 +409,8 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     finally:
         bar.close()
     failed = outs[:, M_COLLIDE_STATUS] < 0
-    return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames, "tube_poses": poses}
+    return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames, "tube_poses": poses,
+            "deepest": deepest}
 
 
 def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals, scene=None):
@@ -415,14 +429,13 @@ def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have
                      tubes=scene.viewer_tubes() if scene is not None else ())
 
 
-def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: str, scan_hash: str) -> dict:
+def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: str, scan_hash: str,
+                   figure_format: str = "png", dpi: int | None = None) -> dict:
     """replay.h5, forces.csv, summary.json and the plots into ``tmp``; return the statistics."""
     from arsurf import __version__
     from arsurf.model import (M_COLLIDE_STATUS, M_CONDITION, M_DECOUPLE_STATUS, M_DEPTH, M_DISTANCE, M_IN_CONTACT,
                               M_LOAD, M_MD_STATUS, M_MEAS_FX, M_MEAS_FZ, M_MOVED, M_NX, M_NZ, M_PX, M_PZ, M_RADIUS,
                               M_SIM_FX, M_SIM_FZ, M_U, M_V)
-    from arsurf.replay import plots
-
     o = rec["outs"]
     have = rec["have_signals"]
     failed = rec["failed"]
@@ -503,14 +516,52 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         summary["session_recovered_from_journal"] = bool(session.recovered)
     (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
-    contact = data["in_contact"] == 1
-    plots.plot_forces(tmp / "forces.png", t, {"recorded": data["recorded_force"],
-                                              "simulated": data["simulated_force"], "measured": measured},
-                      contact, title="Force on the tip (cf. seed 000 Fig. 10)")
-    plots.plot_coupled_motion(tmp / "coupled_motion.png", t, data["probe_position"], ticks["device_force"], contact)
-    scan = setup.scan
-    plots.plot_path(tmp / "path.png", scan.heights, scan.dx, scan.dy, data["probe_position"], contact)
+    _write_figures(tmp, session, setup, rec, data, figure_format, dpi)
     return stats
+
+
+def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, figure_format: str, dpi) -> None:
+    """forces, coupled_motion, path, tubes (a tube scene), dent (a dent): :mod:`arsurf.replay.plots`."""
+    from arsurf.model import M_PX, M_PY, M_RADIUS
+    from arsurf.replay import plots
+    from arsurf.spline.surface import BSplineSurface
+
+    ticks = session.ticks
+    t = data["t"]
+    contact = data["in_contact"] == 1
+
+    dpi = plots.check_figure_options(figure_format, dpi)
+
+    def save(fig, name: str) -> None:
+        plots.save_figure(fig, tmp / f"{name}.{figure_format}", dpi=dpi)
+
+    flags, feel = plots.session_flags(t, ticks["device_force"], ticks.get("safety_flags"),
+                                      ticks["passivity_damping"], ticks["energy"], contact)
+    save(plots.forces_figure(t, {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
+                                 "measured": data["measured_force"]}, contact, flags, feel), "forces")
+    save(plots.coupled_motion_figure(t, data["probe_position"], ticks["device_force"], contact, flags, feel),
+         "coupled_motion")
+    scan, scene, model = setup.scan, setup.scene, setup.model
+    before = scene.initial if scene is not None else ()
+    after = ()
+    if scene is not None and rec["tube_poses"] is not None:
+        after = tuple(tube.with_pose(*map(float, pose)) for tube, pose in zip(scene.initial, rec["tube_poses"][-1]))
+    else:
+        before = ()
+    save(plots.path_figure(scan.heights, scan.dx, scan.dy, data["probe_position"], contact, before, after,
+                           model.tip_radius), "path")
+    if after:
+        save(plots.tubes_figure(scan.heights, scan.dx, scan.dy, before, after, data["probe_position"], contact),
+             "tubes")
+    deep = rec["deepest"]
+    surface = model.surface
+    if deep["tick"] >= 0 and not np.array_equal(deep["net"], surface.rest_control_points):
+        k = deep["tick"]
+        dented = BSplineSurface(deep["net"], surface.knots_u, surface.knots_v)
+        rest = BSplineSurface(surface.rest_control_points, surface.knots_u, surface.knots_v)
+        o = rec["outs"][k]
+        save(plots.dent_figure(dented, rest, (o[M_PX], o[M_PY]), 2.0 * model.tip_radius,
+                               contact_radius=float(o[M_RADIUS]) or None), "dent")
 
 
 def load_replay(path: str | os.PathLike) -> Session:
@@ -527,7 +578,8 @@ def cmd_replay(args) -> int:
     """``arsurf replay``: run :func:`replay` and print what it wrote."""
     quiet = getattr(args, "log_quiet", False)  # -q/--quiet (arsurf.cli): no progress bar, no notes, no summary
     result = replay(args.session, args.scan, args.out, frames=args.frames, progress=not quiet,
-                    overwrite=args.overwrite, allow_incomplete=args.allow_incomplete, isolate=True)
+                    overwrite=args.overwrite, allow_incomplete=args.allow_incomplete, isolate=True,
+                    figure_format=args.figure_format, dpi=args.dpi)
     if not quiet:
         print(f"replayed {result.n_ticks} ticks in {result.elapsed:.2f} s -> {result.out_dir}")
         print(f"  peak force {result.peak_force * 1e9:.6g} nN, max depth {result.max_depth * 1e9:.6g} nm, "
@@ -552,4 +604,7 @@ def register(subparsers) -> None:
     s.add_argument("--allow-incomplete", action="store_true",
                    help="replay a recording that did not end normally (killed: the ticks recovered from its "
                         "journal; stopped by a signal); a note says how many ticks it holds")
+    from arsurf.replay.plots import add_figure_arguments
+
+    add_figure_arguments(s)
     s.set_defaults(func=cmd_replay)

@@ -91,15 +91,20 @@ dataset                   shape     dtype   fill   meaning
 ``md_status``             (n,)      i4      -99    MD status: 0 contact, 1 cohesive,
                                                    2 separated, < 0 solver error, -99 not given
 ``decoupling_flags``      (n,)      i4      0      :class:`~arsurf.force.decoupling.DecouplingFlag`
+``safety_flags``          (n,)      i4      -1     optional: the haptic loop's safety flag bits
+                                                   after the tick (:mod:`arsurf.status`:
+                                                   SATURATED, WATCHDOG, PASSIVITY...), -1 not
+                                                   recorded
 ``tube_poses``            (n, k, 3) f8      NaN    optional, only with a ``tubes`` scene of k
                                                    tubes: each tube's pose after the tick,
                                                    x, y (m), axis angle (rad)
 ========================  ========  ======  =====  ===========================================
 
-``tube_poses`` is the only optional dataset: the writer adds it when the metadata has a
-``tubes`` scene, and readers accept its absence (sessions without nano-objects, and files
-written before it existed), so ``format_version`` stays 1. When present its shape is checked
-against the scene (k rows of 3 per tick).
+``safety_flags`` and ``tube_poses`` are the optional datasets: the writer always adds the first
+and adds the second when the metadata has a ``tubes`` scene; readers accept their absence
+(files written before they existed, sessions without nano-objects), so ``format_version``
+does not change. When present, ``safety_flags`` must be integers, one per tick, and the shape of
+``tube_poses`` is checked against the scene (k rows of 3 per tick).
 
 Recording survives the process dying
 ------------------------------------
@@ -199,6 +204,7 @@ __all__ = [
     "contact_fields",
     "record_loop_tick",
     "TUBE_POSES",
+    "SAFETY_FLAGS",
 ]
 
 FORMAT = "arsurf-session"
@@ -258,6 +264,9 @@ TICK_FIELDS: tuple[TickField, ...] = (
     TickField("md_status", 0, "i4", MD_STATUS_NOT_GIVEN, "MD status (0 contact, 1 cohesive, 2 separated)"),
     TickField("decoupling_flags", 0, "i4", 0, "DecouplingFlag bits"),
 )
+#: the optional per-tick safety flag word of the haptic loop (written by every writer since it
+#: exists; older files lack it): -1 when the loop gave none
+SAFETY_FLAGS = TickField("safety_flags", 0, "i4", -1, "haptic loop safety flag bits (arsurf.status), -1 not recorded")
 #: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
 TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick")
 _REQUIRED_TICK = ("t", "probe_position")
@@ -293,7 +302,7 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
     The one way a loop is recorded (``arsurf demo``, the live loops of ``arsurf view``): the
     device sample ``state`` (:class:`~arsurf.haptics.device.DeviceState`: stylus position,
     velocity, buttons), what the tick computed (``loop.out``: probe, tip, energy, passivity
-    damping, signals, probe force, device force), the contact of ``loop.model.out``
+    damping, signals, probe force, device force, safety flags), the contact of ``loop.model.out``
     (:func:`contact_fields`) and, with a scene, the tube poses after the tick. ``t`` is the
     loop time the tick was given (s). A button word the loop took as malformed is recorded as
     the no-press it was given (0).
@@ -312,6 +321,7 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
                   probe_velocity=get(o, "probe_velocity"), tip_position=get(o, "tip"), energy=get(o, "energy"),
                   passivity_damping=get(o, "passivity_damping"), signals=get(o, "signals"),
                   force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                  safety_flags=int(get(o, "safety_flags")),
                   **contact_fields(loop.model.record(loop.model.out)), **extra)
 
 
@@ -324,6 +334,7 @@ def journal_path(path: str | os.PathLike) -> Path:
 def _session_fields(metadata: Mapping) -> dict:
     """name -> (TickField, row shape) of a session with this (checked) metadata, in file order."""
     out = {f.name: (f, f.row_shape) for f in TICK_FIELDS}
+    out[SAFETY_FLAGS.name] = (SAFETY_FLAGS, SAFETY_FLAGS.row_shape)
     k = tube_count(metadata)
     if k is not None:
         out[TUBE_POSES.name] = (TUBE_POSES, (k, TUBE_POSES.width))
@@ -706,8 +717,9 @@ class SessionWriter:
         ----------
         **fields
             ``t`` (s) and ``probe_position`` ((3,) m) are required; every other field of
-            :data:`TICK_FIELDS` is optional (missing: NaN, or the integer fill value), and so is
-            ``tube_poses`` ((k, 3): x, y, angle per tube) when the metadata has a tube scene.
+            :data:`TICK_FIELDS` is optional (missing: NaN, or the integer fill value), and so are
+            ``safety_flags`` (the loop's flag word, :data:`SAFETY_FLAGS`) and ``tube_poses``
+            ((k, 3): x, y, angle per tube) when the metadata has a tube scene.
 
         Raises
         ------
@@ -1133,6 +1145,10 @@ def _check_session(s: Session, path) -> None:
         check_metadata(s.metadata)
     except SessionError as exc:
         raise SessionError(f"session {str(path)!r}: {exc}") from exc
+    flags = s.ticks.get(SAFETY_FLAGS.name)
+    if flags is not None and (flags.dtype.kind not in "iu" or flags.shape != (s.n_ticks,)):
+        raise SessionError(f"session {str(path)!r}: /ticks/safety_flags has shape {flags.shape} and dtype "
+                           f"{flags.dtype}, expected integers ({s.n_ticks},)")
     poses = s.ticks.get(TUBE_POSES.name)
     if poses is not None:  # optional: checked against the scene when present
         k = tube_count(s.metadata)
