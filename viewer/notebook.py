@@ -105,7 +105,7 @@ def show(scene, *, backend: str = "static", color_by: str = "height", camera: st
         ``"static"``: a :class:`Picture` rendered offscreen (works headless); ``"trame"``: an
         interactive pyvista widget (needs ``arsurf[notebook]``).
     color_by : {"height", "deformation"}
-        Colour of the surface: height z (nm) or the dent |S - S_rest| (nm).
+        Colour of the surface: height z (nm) or the dent :math:`|S - S_{rest}|` (nm).
     camera : {"oblique", "top"}
     window_size : (width, height) pixels
     close_up : float, metres, optional
