@@ -4,17 +4,16 @@ A :class:`~arsurf.replay.session.Session` shows what was recorded (ticks, durati
 tip and contact law, whether it is complete and verified) and a thumbnail of the force on the tip
 against time with the contact shaded; a :class:`~arsurf.replay.replay.ReplayResult` shows what the
 replay found (peaks, agreement with the recording, the files written) and the replayed force
-read back from its ``replay.h5``. Everything in SI with a prefix (:mod:`arsurf._display`).
+read back from its ``replay.h5`` (by :class:`~arsurf.replay.replay.ReplayResult`: this module imports
+nothing of the replay package, which imports it lazily). Everything in SI with a prefix (:mod:`arsurf._display`).
 """
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from arsurf._display import card, quantity, series_png
-from arsurf.errors import ArsurfError
 
 __all__ = ["session_rows", "session_png", "session_html", "replay_rows", "replay_png", "replay_html"]
 
@@ -96,25 +95,18 @@ def replay_rows(r) -> list[tuple[str, str]]:
     return rows
 
 
-def replay_png(r) -> bytes | None:
-    """The replayed and the recorded |force| against time, read back from ``replay.h5`` (None when
-    the folder is gone or damaged: a picture is never worth an exception in a notebook)."""
-    from arsurf.replay.replay import load_replay
-
-    path = Path(r.out_dir) / "replay.h5"
-    if not path.is_file():
+def replay_png(r, ticks) -> bytes | None:
+    """The replayed and the recorded |force| against time, from the per-tick arrays of the result's
+    ``replay.h5`` (``ticks``; None when the folder is gone or damaged: no picture, no exception)."""
+    if ticks is None:
         return None
-    try:
-        d = load_replay(path).ticks
-    except ArsurfError:
-        return None
-    curves = {"model": np.linalg.norm(d["simulated_force"], axis=1),
-              "recorded": np.linalg.norm(d["recorded_force"], axis=1)}
-    if np.isfinite(d["measured_force"]).any():
-        curves["decoupled"] = np.linalg.norm(d["measured_force"], axis=1)
-    return series_png(d["t"], curves, "N", "|F| on the tip", shade=d["in_contact"] == 1)
+    curves = {"model": np.linalg.norm(ticks["simulated_force"], axis=1),
+              "recorded": np.linalg.norm(ticks["recorded_force"], axis=1)}
+    if np.isfinite(ticks["measured_force"]).any():
+        curves["decoupled"] = np.linalg.norm(ticks["measured_force"], axis=1)
+    return series_png(ticks["t"], curves, "N", "|F| on the tip", shade=ticks["in_contact"] == 1)
 
 
-def replay_html(r) -> str:
-    """The HTML card of a replay result (IPython's ``_repr_html_``)."""
-    return card("Replay", replay_rows(r), replay_png(r))
+def replay_html(r, ticks) -> str:
+    """The HTML card of a replay result (IPython's ``_repr_html_``); ``ticks`` as :func:`replay_png`."""
+    return card("Replay", replay_rows(r), replay_png(r, ticks))

@@ -90,7 +90,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf._logging import progress as progress_bar
-from arsurf.errors import MissingDependency, SessionError, rendering_failed, require
+from arsurf.errors import ArsurfError, MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
 from arsurf.units import summary_json, with_unit
 from arsurf.replay.session import (MD_STATUS_NOT_GIVEN, TUBE_POSES, Session, TickField, load_session, read_h5,
@@ -168,13 +168,23 @@ class ReplayResult:
         """Peaks, agreement with the recording, files and a force thumbnail (IPython)."""
         from arsurf.replay.display import replay_html
 
-        return replay_html(self)
+        return replay_html(self, self._ticks())
 
     def _repr_png_(self) -> bytes | None:
         """The replayed and recorded |force| against time, from ``replay.h5`` (IPython)."""
         from arsurf.replay.display import replay_png
 
-        return replay_png(self)
+        return replay_png(self, self._ticks())
+
+    def _ticks(self) -> dict | None:
+        """The per-tick arrays of ``out_dir/replay.h5`` (checked), None when it is gone or damaged."""
+        path = Path(self.out_dir) / "replay.h5"
+        if not path.is_file():
+            return None
+        try:
+            return load_replay(path).ticks
+        except ArsurfError:
+            return None
 
 
 def _finite_rows(name: str, a: np.ndarray, session_path) -> None:
