@@ -33,11 +33,13 @@ Files written to ``out_dir``:
                    columns carry their unit (``rms_roughness_m``, ``fit_time_s``, ``peak_load_N``;
                    counts and ratios have none). Floats are written with ``repr`` (exact round trip),
                    ``nan`` where a value does not exist, empty cells in the rows of failed items
-``batch.json``     the pipeline and its options (SI), written at the start; a resumed batch must have
-                   the same
-``summary.json``   counts (ok, failed, skipped), the failures with their reasons, items per second,
-                   and min / median / max of every numeric column over the items that succeeded;
-                   rewritten at the end (``"complete": false`` when interrupted)
+``batch.json``     the pipeline and its options (SI, each named with its unit: ``sigma_m``,
+                   ``tip_radius_m``; :mod:`arsurf.units`), written at the start; a resumed batch must
+                   have the same
+``summary.json``   counts (ok, failed, skipped), the failures with their reasons, ``elapsed_s``,
+                   ``items_per_s``, and min / median / max of every numeric column over the items
+                   that succeeded (under the column's name, so in its unit); rewritten at the end
+                   (``"complete": false`` when interrupted)
 per item           ``process``: ``<item>.surface.npz`` (+ exports), ``replay``: ``<item>/``
 =================  ===============================================================================
 
@@ -94,6 +96,7 @@ import numpy as np
 
 from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, BatchError, SessionError, require
+from arsurf.units import summary_json, with_unit
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +107,11 @@ TABLE = "results.csv"
 SUMMARY = "summary.json"
 SETTINGS = "batch.json"
 BATCH_FORMAT = "arsurf-batch"
-BATCH_FORMAT_VERSION = 1
+#: 2: batch.json's options carry their unit in their names (``sigma_m``), summary.json ``items_per_s``
+BATCH_FORMAT_VERSION = 2
+#: the SI unit of each option in batch.json (:mod:`arsurf.units`); the others are dimensionless or text
+_OPTION_UNITS = {"sigma": "m", "dx": "m", "dy": "m", "tip_radius": "m", "effective_modulus": "Pa", "depth": "m",
+                 "slide": "m", "at": "m"}
 #: most items one batch accepts (a typo in a sweep grid must not allocate millions of rows)
 MAX_ITEMS = 1_000_000
 #: the columns every table starts with
@@ -831,8 +838,12 @@ def _execute_dask(func: Callable, calls: Sequence[tuple], client, on_result: Cal
         client.cancel([f for f in futures if not f.done()])
 
 
-def _settings(pipeline: Pipeline, options: dict) -> dict:
-    return {"format": BATCH_FORMAT, "version": BATCH_FORMAT_VERSION, "pipeline": pipeline.name,
+def _settings(pipeline: Pipeline, options: dict, version: int = BATCH_FORMAT_VERSION) -> dict:
+    """batch.json: from version 2 each option named with its SI unit (``sigma_m``); version 1 (an older
+    arsurf's batch, for resuming it) named them as the API does."""
+    if version >= 2:
+        options = {with_unit(k, _OPTION_UNITS.get(k, "")): v for k, v in options.items()}
+    return {"format": BATCH_FORMAT, "version": version, "pipeline": pipeline.name,
             "options": options, "columns": list(pipeline.columns)}
 
 
@@ -851,9 +862,12 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
         except (OSError, ValueError) as exc:
             raise BatchError(f"{str(path)!r} is not readable JSON ({exc}); it holds the settings of the batch to "
                              "resume") from None
-        if old != settings:
-            diff = sorted(k for k in set(old.get("options", {})) | set(options)
-                          if old.get("options", {}).get(k) != options.get(k))
+        was = old.get("version") if old.get("version") in (1, BATCH_FORMAT_VERSION) else BATCH_FORMAT_VERSION
+        if old != _settings(pipeline, options, was):
+            mine = _settings(pipeline, options, was)["options"]
+            api = dict(zip(mine, options))  # the file's option names -> the API's (as the user gave them)
+            diff = sorted(api.get(k, k) for k in set(old.get("options", {})) | set(mine)
+                          if old.get("options", {}).get(k) != mine.get(k))
             what = f"options {diff}" if old.get("pipeline") == pipeline.name else f"pipeline {old.get('pipeline')!r}"
             raise BatchError(f"cannot resume the batch in {str(out)!r} with other settings ({what} differ); "
                              "rerun it with the same ones, or choose another output folder")
@@ -881,7 +895,7 @@ def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mappi
     return {"format": BATCH_FORMAT, "version": BATCH_FORMAT_VERSION, "pipeline": pipeline.name,
             "complete": complete, "items": len(items), "ok": len(ok), "failed": len(failed),
             "not_run": len(items) - len(mine), "ran_this_time": ran, "skipped_as_done": skipped,
-            "elapsed_s": elapsed, "items_per_second": ran / elapsed if elapsed > 0 else None,
+            "elapsed_s": elapsed, "items_per_s": ran / elapsed if elapsed > 0 else None,
             "errors": [{"item": k, "reason": v} for k, v in failed], "statistics": stats}
 
 
@@ -997,9 +1011,9 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
         elapsed = time.perf_counter() - t0
         summary = _summary(p, items, rows, ran, skipped, elapsed, complete)
         tmp = out / (SUMMARY + ".part")
-        tmp.write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        tmp.write_text(summary_json(summary), encoding="utf-8")
         os.replace(tmp, out / SUMMARY)
     return BatchResult(out_dir=out, table=table_path, summary=out / SUMMARY, total=len(items), ran=ran,
                        skipped=skipped, ok=summary["ok"], failed=summary["failed"],
                        errors=tuple((e["item"], e["reason"]) for e in summary["errors"]), elapsed=elapsed,
-                       items_per_second=summary["items_per_second"] or 0.0)
+                       items_per_second=summary["items_per_s"] or 0.0)

@@ -28,7 +28,6 @@ a scene: approach, indent, a 160 nm slide along x and retract.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -42,6 +41,7 @@ from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.feel import score_force
 from arsurf.model import M_IN_CONTACT, MODEL_OUT
+from arsurf.units import summary_json
 
 log = logging.getLogger(__name__)
 
@@ -261,23 +261,24 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
 
         e = 0 if plan["end"] == "A" else 1
         end_move = float(np.hypot(*(scene.tubes[i].endpoints[e, :2] - scene.initial[i].endpoints[e, :2])))
-        tube_summary = {
-            "pushed_tube": i, "end": plan["end"], "length_nm": L * 1e9,
-            "displacement_nm": motion.displacement * 1e9, "end_displacement_nm": end_move * 1e9,
-            "rotation_deg": math.degrees(motion.rotation),
+        tube_summary = {  # SI, the unit in each key (arsurf.units)
+            "pushed_tube_index": i, "end": plan["end"], "length_m": L,
+            "displacement_m": motion.displacement, "end_displacement_m": end_move,
+            "rotation_rad": motion.rotation,
             "pole_arc_fraction": motion.pole_arc_length / L,
-            "pivot_arc_fraction (Eq. 9, first contact)": float(rotation_centre(plan["contact"], L)) / L,
-            "pole_offset_nm": motion.pole_offset * 1e9,
+            "eq9_pivot_arc_fraction": float(rotation_centre(plan["contact"], L)) / L,  # at the first contact
+            "pole_offset_m": motion.pole_offset,
             "ticks_pushing": int(np.count_nonzero(tube_force)),
-            "peak_tube_force_nN": float(tube_force.max() * 1e9),
-            "median_tube_force_while_pushing_nN": float(np.median(tube_force[tube_force > 0]) * 1e9)
+            "peak_tube_force_N": float(tube_force.max()),
+            "median_tube_force_while_pushing_N": float(np.median(tube_force[tube_force > 0]))
             if tube_force.any() else 0.0,
-            "other_tubes_moved": [j for j in range(len(scene)) if j != i and scene.motion(j).displacement > 0.0],
+            "other_moved_tube_indices": [j for j in range(len(scene))
+                                         if j != i and scene.motion(j).displacement > 0.0],
         }
         progress(f"tube {i}: pushed at end {plan['end']} (which moved {end_move * 1e9:.1f} nm), centre moved "
                  f"{motion.displacement * 1e9:.1f} nm, turned "
                  f"{math.degrees(motion.rotation):+.2f} deg about the point {motion.pole_arc_length / L:.3f} L "
-                 f"from end A (Eq. 9 pivot {tube_summary['pivot_arc_fraction (Eq. 9, first contact)']:.3f} L)")
+                 f"from end A (Eq. 9 pivot {tube_summary['eq9_pivot_arc_fraction']:.3f} L)")
     result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True, figure_format=figure_format,
                     dpi=dpi)
     progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches"
@@ -288,39 +289,41 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
 
     ticks = load_session(out / "session.h5").ticks
     force = ticks["force"]
-    summary = {
+    summary = {  # SI, the unit in each key (arsurf.units)
         "scan": str(scan_path),
-        "ticks": n,
-        "rate_hz": RATE,
+        "n_ticks": n,
+        "rate_Hz": RATE,
         "maugis_lambda": contact.maugis_parameter,
         "engage": {
-            "engaged": bool(eng.engaged), "reason": eng.reason, "from_um": ENGAGE_FROM * 1e6,
+            "engaged": bool(eng.engaged), "reason": eng.reason, "from_height_m": ENGAGE_FROM,
             "micro_steps": int(eng.coarse_steps), "nano_steps": int(eng.fine_steps),
-            "simulated_time_s": eng.duration, "max_force_nN": eng.max_force * 1e9,
-            "force_limit_nN": ENGAGE_FORCE_LIMIT * 1e9, "surface_found_minus_model_nm": (z_found - z_spline) * 1e9,
+            "simulated_time_s": eng.duration, "max_force_N": eng.max_force,
+            "force_limit_N": ENGAGE_FORCE_LIMIT, "surface_found_minus_model_m": z_found - z_spline,
             "hover_reference": "engage" if z_hover == z_found else "model (higher point within the tip's reach)",
             "wall_time_s": t_engage,
         },
-        "peak_probe_force_nN": float(np.linalg.norm(force, axis=1).max() * 1e9),
-        "peak_normal_load_nN": float(np.nanmax(ticks["load"]) * 1e9),
-        "min_load_nN (adhesion)": float(np.nanmin(ticks["load"]) * 1e9),
-        "max_depth_nm": float(np.nanmax(ticks["depth"]) * 1e9),
-        "max_contact_radius_nm": float(np.nanmax(ticks["contact_radius"]) * 1e9),
+        "peak_probe_force_N": float(np.linalg.norm(force, axis=1).max()),
+        "peak_normal_load_N": float(np.nanmax(ticks["load"])),
+        "min_load_N": float(np.nanmin(ticks["load"])),  # < 0: adhesion held the tip
+        "max_depth_m": float(np.nanmax(ticks["depth"])),
+        "max_contact_radius_m": float(np.nanmax(ticks["contact_radius"])),
         "ticks_in_contact": int(ticks["in_contact"].sum()),
         "peak_device_force_N": float(np.linalg.norm(ticks["device_force"], axis=1).max()),
         "feel": feel.as_dict(),
         "passivity_controller_ticks": int(np.count_nonzero(damping)),
-        "tick_compute_median_us": float(np.median(compute) / 1e3),
-        "tick_compute_p99_us": float(np.percentile(compute, 99) / 1e3),
+        "tick_compute_median_s": float(np.median(compute) / 1e9),
+        "tick_compute_p99_s": float(np.percentile(compute, 99) / 1e9),
         "replay_contact_mismatches": int(result.contact_mismatches),
         "replay_max_load_difference_N": float(result.load_difference),
         "images": [p.name for p in pngs],
         "wall_time_s": time.perf_counter() - t_start,
     }
     if tube_summary is not None:
-        tube_summary["replay_pose_difference"] = float(result.tube_pose_difference)
+        diff = result.tube_poses - ticks["tube_poses"]
+        tube_summary["replay_position_difference_m"] = float(np.abs(diff[..., :2]).max())
+        tube_summary["replay_angle_difference_rad"] = float(np.abs(diff[..., 2]).max())
         summary["tube"] = tube_summary
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
     return summary
 
 
@@ -390,6 +393,6 @@ def register(sub) -> None:
 def _cmd(args) -> int:
     summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True,
                        figure_format=args.figure_format, dpi=args.dpi)
-    print(json.dumps(summary, indent=2))
+    print(summary_json(summary), end="")
     print(f"results in {args.out}/")
     return 0

@@ -16,7 +16,8 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 
 #: the pipeline, lowest first (DESIGN.md): a module may import its own package and lower layers
 LAYERS = [
-    ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data", "arsurf._logging"]),
+    ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data", "arsurf._logging",
+                    "arsurf.units", "arsurf._display"]),
     ("scan", ["arsurf.scan"]),
     ("spline", ["arsurf.spline"]),
     ("meshes", ["arsurf.export", "arsurf.meshes"]),

@@ -305,7 +305,25 @@ def test_command_line_runs_and_resumes(folder, tmp_path, capsys):
     (folder / "broken.gsf").unlink()
     assert main([*args, "--resume"]) == 0
     assert "3 items: 3 ok, 0 failed, 0 not run; 0 run now, 3 done before" in capsys.readouterr().out
-    assert json.loads((out / "batch.json").read_text())["options"]["sigma"] == 1e-9
+    settings = json.loads((out / "batch.json").read_text())
+    assert settings["options"]["sigma_m"] == 1e-9 and settings["version"] == 2
+
+
+def test_a_batch_started_by_an_older_arsurf_resumes(folder, tmp_path):
+    """batch.json version 1 named the options as the API does (``sigma``, no unit): still resumable."""
+    out = tmp_path / "out"
+    (folder / "broken.gsf").unlink()
+    run_batch("process", [folder], out, options={"sigma": 1e-9}, workers=0, progress=False)
+    settings = json.loads((out / "batch.json").read_text())
+    old = {**settings, "version": 1, "options": {k.removesuffix("_m"): v for k, v in settings["options"].items()}}
+    assert "sigma" in old["options"] and "dx" in old["options"]
+    (out / "batch.json").write_text(json.dumps(old))
+    r = run_batch("process", [folder], out, options={"sigma": 1e-9}, workers=0, progress=False, resume=True)
+    assert (r.skipped, r.ran) == (3, 0)
+    assert json.loads((out / "batch.json").read_text()) == settings  # rewritten in the current form
+    (out / "batch.json").write_text(json.dumps(old))
+    with pytest.raises(BatchError, match=r"options \['sigma'\] differ"):
+        run_batch("process", [folder], out, options={"sigma": 2e-9}, workers=0, progress=False, resume=True)
 
 
 def test_an_unreachable_scheduler_is_one_line_and_writes_nothing(folder, tmp_path):

@@ -149,9 +149,9 @@ def test_the_recorded_session_is_physically_sensible(recording, replayed):
 def test_forces_csv_holds_the_h5_values_exactly(replayed):
     text = (replayed.out / "forces.csv").read_text()
     header = text.splitlines()[0].split(",")
-    assert header == ["t", "F_recorded_x", "F_recorded_y", "F_recorded_z", "F_simulated_x", "F_simulated_y",
-                      "F_simulated_z", "F_measured_x", "F_measured_y", "F_measured_z", "depth", "contact_radius",
-                      "load", "in_contact"]
+    assert header == ["t_s", "F_recorded_x_N", "F_recorded_y_N", "F_recorded_z_N", "F_simulated_x_N",
+                      "F_simulated_y_N", "F_simulated_z_N", "F_measured_x_N", "F_measured_y_N", "F_measured_z_N",
+                      "depth_m", "contact_radius_m", "load_N", "in_contact"]
     table = np.loadtxt(replayed.out / "forces.csv", delimiter=",", skiprows=1)
     rep = replayed.data.ticks
     want = np.column_stack([rep["t"], rep["recorded_force"], rep["simulated_force"], rep["measured_force"],
@@ -167,9 +167,12 @@ def test_replay_h5_schema_and_summary(recording, replayed):
     assert d.metadata == recording.meta
     assert set(d.ticks) == {f.name for f in REPLAY_FIELDS}
     summary = json.loads((replayed.out / "summary.json").read_text())
-    assert summary["n_ticks"] == N and summary["duration"] == pytest.approx((N - 1) * DT)
+    assert summary["n_ticks"] == N and summary["duration_s"] == pytest.approx((N - 1) * DT)
     assert summary["ticks_with_signals"] == N - NO_SIGNALS
-    assert summary["contact_mismatches"] == 0 and summary["depth_difference"] == 0.0
+    assert summary["contact_mismatches"] == 0 and summary["depth_difference_m"] == 0.0
+    assert summary["peak_force_N"] == replayed.result.peak_force
+    units = {f.name: f.unit for f in REPLAY_FIELDS}
+    assert d.units == units and units["simulated_force"] == "N" and units["probe_velocity"] == "m/s"
     created = load_session(recording.session).attrs["created"].encode()
     for name, data in _files(replayed.out).items():
         assert created not in data, name
@@ -407,3 +410,69 @@ def test_cli_writes_the_figures_as_pdf_or_svg(recording, tmp_path):
                  "--format", "svg", "--dpi", "300"]) == 0
     for name in ("coupled_motion.svg", "dent.svg", "forces.svg", "path.svg"):
         assert ET.fromstring((out / name).read_bytes()).tag.endswith("svg"), name
+
+
+# ---------------------------------------------------------------------------------------------
+# notebook display (arsurf.replay.display)
+
+
+def _display_rows(text: str) -> dict[str, str]:
+    import html
+    import re
+
+    return {html.unescape(k): html.unescape(v)
+            for k, v in re.findall(r"<th[^>]*>(.*?)</th><td[^>]*>(.*?)</td>", text)}
+
+
+def test_a_session_shows_what_it_recorded(recording):
+    s = load_session(recording.session)
+    rows = _display_rows(s._repr_html_())
+    assert rows["ticks"] == f"{N} over 239 ms at 1 kHz"
+    assert rows["status"] == "complete, checksums verified"
+    assert rows["tip radius"] == "20 nm" and rows["contact"] == "E* 50 GPa, w 0.1 J/m^2"
+    assert rows["ticks in contact"] == str(int(s.ticks["in_contact"].sum())) != "0"
+    peak = np.linalg.norm(recording.force, axis=1).max()
+    assert rows["peak force on the tip"] == f"{peak * 1e9:.4g} nN"
+    assert rows["scan"].startswith(str(recording.scan))
+    import base64
+
+    png = s._repr_png_()
+    assert _png_chunks(png)[0] == "IHDR"
+    assert base64.b64encode(png).decode() in s._repr_html_()  # the same thumbnail, inline
+
+
+def test_a_session_without_forces_has_no_thumbnail(tmp_path, recording):
+    meta = dict(recording.meta)
+    with SessionWriter(tmp_path / "s.h5", meta) as w:
+        for k in range(5):
+            w.append(t=k * DT, probe_position=(1e-7, 1e-7, 3e-8))
+    s = load_session(tmp_path / "s.h5")
+    assert s._repr_png_() is None
+    html = s._repr_html_()
+    assert "<img" not in html and _display_rows(html)["peak force on the tip"] == "n/a"
+
+
+def test_a_replay_result_shows_its_peaks_and_a_force_thumbnail(replayed):
+    r = replayed.result
+    rows = _display_rows(r._repr_html_())
+    assert rows["ticks"] == str(N) and rows["peak force (model)"] == f"{r.peak_force * 1e9:.4g} nN"
+    assert rows["max depth"] == f"{r.max_depth * 1e9:.4g} nm"
+    assert rows["contact-state mismatches"] == "0" and rows["vs recording: depth"] == "0 m"
+    assert rows["files"].startswith("6: coupled_motion.png, forces.csv")
+    import matplotlib.image as mpimg
+    import io
+
+    img = mpimg.imread(io.BytesIO(r._repr_png_()), format="png")
+    assert img.shape[:2] == (216, 288) and img[..., :3].std() > 0.05
+
+
+def test_a_replay_result_whose_folder_is_gone_still_shows_its_numbers(replayed, tmp_path):
+    import dataclasses
+
+    gone = dataclasses.replace(replayed.result, out_dir=tmp_path / "nowhere")
+    assert gone._repr_png_() is None
+    assert "<img" not in gone._repr_html_() and "nowhere" in gone._repr_html_()
+    damaged = tmp_path / "damaged"
+    damaged.mkdir()
+    (damaged / "replay.h5").write_bytes(b"not an HDF5 file")
+    assert dataclasses.replace(replayed.result, out_dir=damaged)._repr_png_() is None

@@ -350,8 +350,8 @@ def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     import json
 
     summary = json.loads((tmp_path / "replay" / "summary.json").read_text())
-    assert summary["tubes"]["tube_pose_difference"] == 0.0
-    assert summary["tubes"]["rotation"][0] == pytest.approx(setup.scene.motion(0).rotation, rel=0)
+    assert summary["tubes"]["position_difference_m"] == 0.0 and summary["tubes"]["angle_difference_rad"] == 0.0
+    assert summary["tubes"]["rotation_rad"][0] == pytest.approx(setup.scene.motion(0).rotation, rel=0)
     assert summary["tubes"]["ticks_pushing"] > 300
 
 

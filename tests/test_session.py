@@ -306,6 +306,33 @@ def _edit(path, fn, reseal=True):
     return path
 
 
+def test_every_dataset_carries_its_si_unit(tmp_path):
+    p = write(tmp_path / "s.h5")
+    with h5py.File(p, "r") as f:
+        units = {name: f["ticks"][name].attrs["units"] for name in f["ticks"]}
+    assert units == {fl.name: fl.unit for fl in TICK_FIELDS}
+    assert (units["t"], units["probe_position"], units["force"], units["passivity_damping"]) == ("s", "m", "N", "N s/m")
+    assert units["in_contact"] == units["contact_normal"] == "1"
+    assert load_session(p).units == units
+
+
+def test_a_session_written_before_datasets_carried_units_still_loads(tmp_path):
+    """format_version 2 files of an older arsurf have no ``units`` attributes: verified, the format's units."""
+    p = _edit(write(tmp_path / "s.h5"), lambda f: [f["ticks"][n].attrs.__delitem__("units") for n in f["ticks"]])
+    s = load_session(p)
+    assert s.verified and s.units == {fl.name: fl.unit for fl in TICK_FIELDS}
+    np.testing.assert_array_equal(s.ticks["force"][:, 2], np.arange(5) * 1e-9)
+
+
+def test_a_dataset_in_another_unit_is_refused(tmp_path):
+    p = _edit(write(tmp_path / "s.h5"), lambda f: f["ticks"]["probe_position"].attrs.__setitem__("units", "nm"))
+    with pytest.raises(SessionError, match=r"/ticks/probe_position .* is in 'nm', but the format stores it in 'm'"):
+        load_session(p)
+    q = _edit(write(tmp_path / "q.h5"), lambda f: f["ticks"]["t"].attrs.__setitem__("units", np.arange(3)))
+    with pytest.raises(SessionError, match="units attribute that is not a short text"):
+        load_session(q)
+
+
 def test_wrong_format(tmp_path):
     p = _edit(write(tmp_path / "s.h5"), lambda f: f.attrs.__setitem__("format", "netcdf-thing"))
     with pytest.raises(SessionError, match="not an arsurf-session file .*'netcdf-thing'"):
@@ -444,6 +471,7 @@ def test_version_1_files_still_load_unverified_in_an_isolated_reader(tmp_path):
     assert any("isolated" in n for n in s.notes) and any("cannot be verified" in n for n in s.notes)
     np.testing.assert_array_equal(s.ticks["probe_position"], np.arange(12.0).reshape(4, 3) * 1e-9)
     assert np.isnan(s.ticks["force"]).all() and (s.ticks["md_status"] == -99).all()
+    assert s.units == {fl.name: fl.unit for fl in TICK_FIELDS}  # no units attributes: the format's
     same = load_session(p, isolate=False)  # trusted: in-process, same answer
     for name in s.ticks:
         assert _equal(s.ticks[name], same.ticks[name]), name

@@ -633,3 +633,57 @@ def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
     finally:
         stats = live.stop()
     assert stats.ticks > 300 and not dev.is_open
+
+
+# -- notebooks (arsurf_viewer.notebook) --------------------------------------------------------
+def test_notebook_show_refuses_what_it_cannot_draw(monkeypatch):
+    import importlib.util
+
+    from arsurf.errors import MissingDependency
+    from arsurf_viewer import notebook
+
+    s = sinusoid_surface()
+    with pytest.raises(ViewerError, match="backend must be one of static, trame"):
+        notebook.show(s, backend="vtkjs")
+    with pytest.raises(ViewerError, match="takes a BSplineSurface or a SceneState"):
+        notebook.show(np.zeros((4, 4)))
+    with pytest.raises(ViewerError, match="close_up frames the tip: pass a SceneState"):
+        notebook.show(s, close_up=1e-7)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name.startswith("trame") else real(name))
+    with pytest.raises(MissingDependency, match=r"view needs trame, trame_vtk, .*: pip install 'arsurf\[notebook\]'"):
+        notebook.show(s, backend="trame")
+    with pytest.raises(ViewerError, match="uint8"):
+        notebook.Picture(np.zeros((4, 4, 3)))
+
+
+@pytest.mark.viewer
+def test_notebook_show_is_the_application_view_as_a_png(gl, tmp_path):
+    import io
+
+    from PIL import Image
+
+    from arsurf_viewer.notebook import show
+
+    s = sinusoid_surface()
+    push_down(s, 1e-7, 1e-7, 2e-9, 3e-8)
+    st = SceneState(s, above(s, 1e-7, 1e-7, -1e-9), R, contact_point=(1e-7, 1e-7, float(s.evaluate(1e-7, 1e-7)[2])),
+                    contact_normal=(0, 0, 1), depth=1e-9, contact_radius=3e-9, force=(1e-9, 0.0, 4e-9))
+    picture = show(st, window_size=SIZE, color_by="deformation")
+    view = make_view(s, color_by="deformation")
+    try:
+        view.update(st)
+        expected = view.screenshot()
+    finally:
+        view.close()
+    np.testing.assert_array_equal(picture.array, expected)  # the same scene as the application's
+    decoded = np.asarray(Image.open(io.BytesIO(picture._repr_png_())))[..., :3]
+    np.testing.assert_array_equal(decoded, picture.array)
+    assert magenta(picture.array).sum() > 50  # the force arrow
+    assert picture.save(tmp_path / "view.png").read_bytes() == picture.png
+    # a bare surface: no HUD, no tip; the dent shows in the deformation colours only where it is
+    kw = dict(window_size=SIZE, color_by="deformation", camera="top", layers={"colorbar": False})
+    bare, flat = show(s, **kw).array, show(sinusoid_surface(), **kw).array
+    moved = changed(bare, flat)
+    ys, xs = np.nonzero(moved)
+    assert moved.sum() > 100 and np.ptp(xs) < SIZE[0] / 2 and np.ptp(ys) < SIZE[1] / 2

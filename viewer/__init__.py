@@ -9,6 +9,7 @@ first :class:`SurfaceView`.
 - :func:`render_frames` (frames.py) - PNG frames and an mp4 from a sequence of states;
 - :func:`run_interactive` (interactive.py) - keyboard/mouse or a pose callable drive the tip;
 - :func:`view_scan` (interactive.py) - what ``arsurf view [SCAN]`` runs;
+- :func:`show` (notebook.py) - the (deformed) surface or a scene in a Jupyter notebook;
 - :func:`choose_backend`, :func:`probe` (backend.py) - how an OpenGL context is made here.
 """
 from __future__ import annotations
@@ -27,6 +28,8 @@ _EXPORTS = {
     "StylusController": "arsurf_viewer.interactive",
     "ContactPhysics": "arsurf_viewer.interactive",
     "view_scan": "arsurf_viewer.interactive",
+    "show": "arsurf_viewer.notebook",
+    "Picture": "arsurf_viewer.notebook",
     "choose_backend": "arsurf_viewer.backend",
     "probe": "arsurf_viewer.backend",
     "has_display": "arsurf_viewer.backend",

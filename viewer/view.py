@@ -20,7 +20,7 @@ What is drawn
     * ``force`` - the force on the tip, a magenta arrow from the tip surface along F, of length
       :math:`L = 2R \log_2(1 + |F| / F_0)` (F₀ = ``force_scale``, 1 nN by default: 1 nN → 2R,
       3 nN → 4R, 1 µN → 20R), hidden when :math:`|F| <` ``force_threshold``.
-    * ``hud`` - F components in nN, |F|, depth and contact radius in nm, λ, loop rate, device.
+    * ``hud`` - F components in nN, :math:`|F|`, depth and contact radius in nm, λ, loop rate, device.
     * ``probe`` (off by default) - the pyramidal tip and the cantilever, drawn schematically:
       truncated at ``probe_height`` (default 1.5 × the scan size), since a real tip (10-15 µm) and
       cantilever (~200 µm) dwarf a sub-micron scan.
@@ -165,7 +165,7 @@ class SurfaceView:
     force_scale : float, newtons
         F₀ of the arrow length law (see the module notes).
     force_threshold : float, newtons
-        Below this |F| the arrow is hidden.
+        Below this :math:`|F|` the arrow is hidden.
     probe_height : float, metres, optional
         Height at which the schematic pyramid/cantilever (layer ``probe``) are cut.
     layers : dict[str, bool], optional
@@ -384,7 +384,7 @@ class SurfaceView:
         return self._layers[name]
 
     def set_color_by(self, mode: str) -> None:
-        """Colour the surface by ``"height"`` (nm) or ``"deformation"`` (|S - S_rest|, nm)."""
+        """Colour the surface by ``"height"`` (nm) or ``"deformation"`` (:math:`|S - S_{rest}|`, nm)."""
         if mode not in _SURFACE_CMAPS:
             raise ViewerError(f"`color_by` must be one of {sorted(_SURFACE_CMAPS)} (got {mode!r})")
         self.color_by = mode

@@ -457,7 +457,7 @@ def decouple_by_motion(
     Eq. 1 (F_x (h_t + b/2) = k_ct theta_x) is our torsion row with lever arm a = h_t + b/2 = this
     cantilever's ``lever_arm``; its Eq. 3 "F_y = F_x c tan alpha" reads F_y = F_x cot(alpha)
     (alpha measured from its y = our x), i.e. our F_y = F_x tan(phi); friction is antiparallel
-    to v, so F_x and F_y share the sign factor -|f| and no extra minus appears (seed 001 Eq. 18's
+    to v, so F_x and F_y share the sign factor :math:`-|f|` and no extra minus appears (seed 001 Eq. 18's
     minus contradicts its own Eq. 16 and is not used). Its Eq. 6, F_z = k k_v S_v - F_y(h_t+b/2)/l_c,
     has our beta = k delta for k k_v S_v but coupling a/l, from a moment balance on the end
     deflection; the optical lever measures the end slope, whose coupling is 2a/l (DESIGN.md),

@@ -120,7 +120,7 @@ class RollingProbe:
     length : float, metres
         Beam length L (clamp to free end; the laser spot E is at the free end).
     width : float, metres
-        Beam width w (a sphere with |y_p| > w/2 has left the beam).
+        Beam width w (a sphere with :math:`|y_p| > w/2` has left the beam).
     normal_stiffness : callable x_p -> N/m
         k_z at a load point (seed 003 Eq. 6); vectorised over numpy arrays.
     torsional_stiffness : callable x_p -> N m/rad
@@ -268,7 +268,7 @@ class RollingFeedback:
     force : (..., 2) float, newtons
         Force on the handle's x and y axes (zero where the sphere is off the beam).
     on_beam : bool or (...,) bool
-        False once the estimated load point has left the beam (x_p outside (0, L] or |y_p| > w/2).
+        False once the estimated load point has left the beam (:math:`x_p` outside (0, L] or :math:`|y_p| > w/2`).
     """
 
     load_point: np.ndarray

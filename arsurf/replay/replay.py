@@ -13,10 +13,12 @@ file                   content
 ``replay.h5``          per tick: recomputed contact (point, normal, uv, distance, depth, radius,
                        load, status) and forces (simulated, measured) with the recorded force,
                        format ``arsurf-replay`` version 1 (schema below, style of the session)
-``forces.csv``         ``t``, recorded / simulated / measured force xyz, ``depth``,
-                       ``contact_radius``, ``load``, ``in_contact``; SI units, floats written
-                       with ``repr`` (shortest exact round trip), ``nan`` where absent
-``summary.json``       tick count, duration, peaks, agreement with the recorded contact
+``forces.csv``         ``t_s``, recorded / simulated / measured force xyz (``F_recorded_x_N``...),
+                       ``depth_m``, ``contact_radius_m``, ``load_N``, ``in_contact``: SI units
+                       named in the header (:mod:`arsurf.units`), floats written with ``repr``
+                       (shortest exact round trip), ``nan`` where absent
+``summary.json``       tick count, duration, peaks, agreement with the recorded contact (SI, the
+                       unit in each key: ``duration_s``, ``peak_force_N``, ``max_depth_m``)
 ``forces.png``         force components in nN vs time, contact shaded (seed 000 Fig. 10)
 ``coupled_motion.png`` probe z / device F_z / probe y / device F_y vs time (seed 001 Fig. 4.21)
 ``path.png``           the probe path over the processed height map (nm, colour bar)
@@ -30,7 +32,8 @@ interrupted replay leaves ``DIR`` absent (or, with ``overwrite``, as it was).
 
 ``replay.h5`` per-tick datasets (``/ticks``; root attributes ``format="arsurf-replay"``,
 ``format_version=1``, ``arsurf_version``, ``units="SI"``, ``complete``, ``n_ticks``,
-``session_sha256``, ``scan_sha256``; ``/metadata`` is the session's):
+``session_sha256``, ``scan_sha256``; ``/metadata`` is the session's; every dataset carries its
+SI unit in a ``units`` attribute, :mod:`arsurf.units`):
 
 =====================  ========  =====  =====================================================
 dataset                shape     dtype  meaning
@@ -64,7 +67,8 @@ surface is the substrate (as recorded) and the scene is re-run over the recorded
 positions - tick k pushes with the tip moving from ``probe_position[k-1]`` to
 ``probe_position[k]`` (no move at tick 0), exactly what :class:`~arsurf.haptics.loop.HapticLoop`
 did live - so the poses come back bit for bit; the summary gives the largest difference from
-the recorded ``tube_poses`` (``tube_pose_difference``, 0 for a faithful replay), each tube's
+the recorded ``tube_poses`` (``tubes/position_difference_m`` and ``tubes/angle_difference_rad``,
+0 for a faithful replay; :attr:`ReplayResult.tube_pose_difference` is the larger), each tube's
 displacement and rotation, and the frames draw the tubes where they are.
 
 Examples
@@ -75,7 +79,6 @@ Examples
 from __future__ import annotations
 
 import importlib
-import json
 import logging
 import math
 import os
@@ -87,9 +90,11 @@ from pathlib import Path
 import numpy as np
 
 from arsurf._logging import progress as progress_bar
-from arsurf.errors import MissingDependency, SessionError, rendering_failed, require
+from arsurf.errors import ArsurfError, MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
-from arsurf.replay.session import MD_STATUS_NOT_GIVEN, Session, TickField, load_session, read_h5, write_h5
+from arsurf.units import summary_json, with_unit
+from arsurf.replay.session import (MD_STATUS_NOT_GIVEN, TUBE_POSES, Session, TickField, load_session, read_h5,
+                                   write_h5)
 
 log = logging.getLogger(__name__)
 
@@ -100,20 +105,20 @@ REPLAY_FORMAT_VERSION = 1
 _NAN = math.nan
 #: the per-tick datasets of replay.h5, in file order
 REPLAY_FIELDS: tuple[TickField, ...] = (
-    TickField("t", 0, "f8", _NAN, "recorded time, s"),
-    TickField("probe_position", 3, "f8", _NAN, "recorded tip centre, m"),
-    TickField("probe_velocity", 3, "f8", _NAN, "recorded tip velocity, m/s"),
-    TickField("signals", 2, "f8", _NAN, "recorded (bending, torsion), rad"),
-    TickField("recorded_force", 3, "f8", _NAN, "force the live loop used, N"),
-    TickField("simulated_force", 3, "f8", _NAN, "replayed model force, N"),
-    TickField("measured_force", 3, "f8", _NAN, "replayed decoupled force, N"),
-    TickField("contact_point", 3, "f8", _NAN, "closest point on the rest surface, m"),
+    TickField("t", 0, "f8", _NAN, "recorded time, s", "s"),
+    TickField("probe_position", 3, "f8", _NAN, "recorded tip centre, m", "m"),
+    TickField("probe_velocity", 3, "f8", _NAN, "recorded tip velocity, m/s", "m/s"),
+    TickField("signals", 2, "f8", _NAN, "recorded (bending, torsion), rad", "rad"),
+    TickField("recorded_force", 3, "f8", _NAN, "force the live loop used, N", "N"),
+    TickField("simulated_force", 3, "f8", _NAN, "replayed model force, N", "N"),
+    TickField("measured_force", 3, "f8", _NAN, "replayed decoupled force, N", "N"),
+    TickField("contact_point", 3, "f8", _NAN, "closest point on the rest surface, m", "m"),
     TickField("contact_normal", 3, "f8", _NAN, "unit contact normal"),
-    TickField("uv", 2, "f8", _NAN, "surface parameters of the closest point, m"),
-    TickField("distance", 0, "f8", _NAN, "signed distance of the tip centre, m"),
-    TickField("depth", 0, "f8", _NAN, "indentation depth, m"),
-    TickField("contact_radius", 0, "f8", _NAN, "contact radius, m"),
-    TickField("load", 0, "f8", _NAN, "Maugis-Dugdale load, N"),
+    TickField("uv", 2, "f8", _NAN, "surface parameters of the closest point, m", "m"),
+    TickField("distance", 0, "f8", _NAN, "signed distance of the tip centre, m", "m"),
+    TickField("depth", 0, "f8", _NAN, "indentation depth, m", "m"),
+    TickField("contact_radius", 0, "f8", _NAN, "contact radius, m", "m"),
+    TickField("load", 0, "f8", _NAN, "Maugis-Dugdale load, N", "N"),
     TickField("condition", 0, "f8", _NAN, "decoupling condition number"),
     TickField("in_contact", 0, "i4", 0, "1 when touching"),
     TickField("md_status", 0, "i4", 0, "MD status"),
@@ -121,9 +126,10 @@ REPLAY_FIELDS: tuple[TickField, ...] = (
     TickField("collide_status", 0, "i4", 0, "collision status"),
     TickField("moved", 0, "i4", 0, "control points moved"),
 )
-_CSV_COLUMNS = ("t", "F_recorded_x", "F_recorded_y", "F_recorded_z", "F_simulated_x", "F_simulated_y",
-                "F_simulated_z", "F_measured_x", "F_measured_y", "F_measured_z", "depth", "contact_radius",
-                "load", "in_contact")
+#: forces.csv columns, each with its SI unit (:mod:`arsurf.units`)
+_CSV_COLUMNS = ("t_s", "F_recorded_x_N", "F_recorded_y_N", "F_recorded_z_N", "F_simulated_x_N", "F_simulated_y_N",
+                "F_simulated_z_N", "F_measured_x_N", "F_measured_y_N", "F_measured_z_N", "depth_m",
+                "contact_radius_m", "load_N", "in_contact")
 
 
 @dataclass(frozen=True)
@@ -158,6 +164,28 @@ class ReplayResult:
     tube_poses: np.ndarray | None = None
     tube_pose_difference: float = _NAN
 
+    def _repr_html_(self) -> str:
+        """Peaks, agreement with the recording, files and a force thumbnail (IPython)."""
+        from arsurf.replay.display import replay_html
+
+        return replay_html(self, self._ticks())
+
+    def _repr_png_(self) -> bytes | None:
+        """The replayed and recorded |force| against time, from ``replay.h5`` (IPython)."""
+        from arsurf.replay.display import replay_png
+
+        return replay_png(self, self._ticks())
+
+    def _ticks(self) -> dict | None:
+        """The per-tick arrays of ``out_dir/replay.h5`` (checked), None when it is gone or damaged."""
+        path = Path(self.out_dir) / "replay.h5"
+        if not path.is_file():
+            return None
+        try:
+            return load_replay(path).ticks
+        except ArsurfError:
+            return None
+
 
 def _finite_rows(name: str, a: np.ndarray, session_path) -> None:
     bad = ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
@@ -181,6 +209,11 @@ def _csv(path: Path, columns: list[np.ndarray]) -> None:
 def _max_abs(a: np.ndarray) -> float:
     a = np.abs(a[np.isfinite(a)])
     return float(a.max()) if a.size else _NAN
+
+
+#: the SI unit of each statistic (ReplayResult field) in summary.json's keys (:mod:`arsurf.units`)
+_STAT_UNITS = {"peak_force": "N", "peak_measured_force": "N", "max_depth": "m", "max_contact_radius": "m",
+               "depth_difference": "m", "load_difference": "N", "contact_mismatches": "", "collision_failures": ""}
 
 
 def _json_number(x: float):
@@ -470,7 +503,8 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
              "arsurf_version": __version__, "units": "SI", "complete": np.bool_(True), "n_ticks": np.int64(n),
              "session_sha256": session_hash, "scan_sha256": scan_hash,
              "session_format_version": np.int64(session.attrs["format_version"])}
-    write_h5(tmp / "replay.h5", attrs, session.metadata, data)
+    units = {f.name: f.unit for f in (*REPLAY_FIELDS, TUBE_POSES)}
+    write_h5(tmp / "replay.h5", attrs, session.metadata, data, units)
 
     _csv(tmp / "forces.csv", [data["t"], data["recorded_force"], data["simulated_force"], data["measured_force"],
                               data["depth"], data["contact_radius"], data["load"], data["in_contact"]])
@@ -494,27 +528,31 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
                                          recorded.shape == poses.shape else _NAN)
         scene = setup.scene  # its poses are the last tick's
         start = np.array([t.pose for t in scene.initial]).reshape(1, len(scene), 3)
+        diff = poses - recorded if recorded is not None and recorded.shape == poses.shape else None
         tubes_summary = {
-            "count": len(scene), "tube_pose_difference": _json_number(stats["tube_pose_difference"]),
+            "count": len(scene),
+            "position_difference_m": _json_number(_max_abs(diff[..., :2]) if diff is not None else _NAN),
+            "angle_difference_rad": _json_number(_max_abs(diff[..., 2]) if diff is not None else _NAN),
             "ticks_pushing": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0, axis=(1, 2)))),
-            "displacement": [scene.motion(i).displacement for i in range(len(scene))],
-            "rotation": [scene.motion(i).rotation for i in range(len(scene))],
+            "displacement_m": [scene.motion(i).displacement for i in range(len(scene))],
+            "rotation_rad": [scene.motion(i).rotation for i in range(len(scene))],
         }
     t = data["t"]
     summary = {
         "format": "arsurf-replay-summary", "units": "SI", "n_ticks": n,
-        "duration": float(t[-1] - t[0]), "ticks_in_contact": int(np.count_nonzero(data["in_contact"])),
+        "duration_s": float(t[-1] - t[0]), "ticks_in_contact": int(np.count_nonzero(data["in_contact"])),
         "ticks_with_signals": int(np.count_nonzero(have)), "frames": rec["frames"],
         "scan": {"path": session.metadata["scan"]["path"], "sha256": scan_hash}, "session_sha256": session_hash,
-        "peak_recorded_force": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
-        **{k: _json_number(v) if isinstance(v, float) else v for k, v in stats.items() if k != "tube_pose_difference"},
+        "peak_recorded_force_N": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
+        **{with_unit(k, _STAT_UNITS[k]): _json_number(v) if isinstance(v, float) else v
+           for k, v in stats.items() if k != "tube_pose_difference"},
     }
     if tubes_summary is not None:
         summary["tubes"] = tubes_summary
     if not session.complete:  # only then: a complete session's summary is as before
         summary["session_incomplete"] = str(session.attrs.get("aborted", "not closed"))
         summary["session_recovered_from_journal"] = bool(session.recovered)
-    (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    (tmp / "summary.json").write_text(summary_json(summary, sort_keys=True), encoding="utf-8")
 
     _write_figures(tmp, session, setup, rec, data, figure_format, dpi)
     return stats

@@ -64,7 +64,10 @@ any other key               free JSON, kept as is
 
 Group ``/ticks``: one dataset per field, n rows, written without timestamps (so two files with
 the same content and ``created`` are byte-identical) and gzip-compressed. A field the loop did
-not give for a tick holds the fill value.
+not give for a tick holds the fill value. Each dataset carries its SI unit in a ``units``
+attribute (:mod:`arsurf.units`: the unit named last in the table below, ``"1"`` for the
+dimensionless ones, ``"m,m,rad"`` for ``tube_poses``); readers check it when present and take
+the table's unit for files written before it existed (:attr:`Session.units`).
 
 ========================  ========  ======  =====  ===========================================
 dataset                   shape     dtype   fill   meaning
@@ -188,6 +191,7 @@ from arsurf.assembly import _jsonable, check_metadata, tube_count
 from arsurf.errors import RecordingInterrupted, SessionError, SessionFileNotFound, require
 from arsurf.replay import journal as _journal
 from arsurf.replay.sealed import SEAL_SIZE, check_superblock, read_sealed, run_isolated, seal_file
+from arsurf.units import UNITS_ATTR
 
 __all__ = [
     "FORMAT",
@@ -218,13 +222,16 @@ MD_STATUS_NOT_GIVEN = -99
 
 @dataclass(frozen=True)
 class TickField:
-    """One per-tick dataset: name, row width (0: a scalar per tick), dtype, fill value, meaning."""
+    """One per-tick dataset: name, row width (0: a scalar per tick), dtype, fill value, meaning and
+    SI unit (the dataset's ``units`` attribute, :mod:`arsurf.units`: ``"1"`` dimensionless, one unit
+    per column where they differ)."""
 
     name: str
     width: int
     dtype: str
     fill: float
     doc: str
+    unit: str = "1"
 
     @property
     def shape_text(self) -> str:
@@ -242,24 +249,24 @@ class TickField:
 _NAN = math.nan
 #: the per-tick datasets of a session, in file order
 TICK_FIELDS: tuple[TickField, ...] = (
-    TickField("t", 0, "f8", _NAN, "time of the tick, s"),
-    TickField("stylus_position", 3, "f8", _NAN, "haptic stylus position, m (device frame)"),
-    TickField("stylus_velocity", 3, "f8", _NAN, "stylus velocity, m/s"),
+    TickField("t", 0, "f8", _NAN, "time of the tick, s", "s"),
+    TickField("stylus_position", 3, "f8", _NAN, "haptic stylus position, m (device frame)", "m"),
+    TickField("stylus_velocity", 3, "f8", _NAN, "stylus velocity, m/s", "m/s"),
     TickField("buttons", 0, "i4", 0, "stylus button bit mask"),
-    TickField("probe_position", 3, "f8", _NAN, "tip-sphere centre, m (scan frame)"),
-    TickField("probe_velocity", 3, "f8", _NAN, "tip velocity, m/s"),
-    TickField("tip_position", 3, "f8", _NAN, "tip centre behind the virtual coupling, m"),
-    TickField("energy", 0, "f8", _NAN, "passivity observer's port energy, J"),
-    TickField("passivity_damping", 0, "f8", _NAN, "damping the passivity controller added, N s/m"),
-    TickField("signals", 2, "f8", _NAN, "measured (bending, torsion) angles, rad"),
-    TickField("quadrants", 4, "f8", _NAN, "photodiode quadrants A, B, C, D, V"),
-    TickField("force", 3, "f8", _NAN, "force on the tip the loop used, N"),
-    TickField("device_force", 3, "f8", _NAN, "force commanded to the haptic device, N"),
-    TickField("contact_point", 3, "f8", _NAN, "closest surface point, m"),
+    TickField("probe_position", 3, "f8", _NAN, "tip-sphere centre, m (scan frame)", "m"),
+    TickField("probe_velocity", 3, "f8", _NAN, "tip velocity, m/s", "m/s"),
+    TickField("tip_position", 3, "f8", _NAN, "tip centre behind the virtual coupling, m", "m"),
+    TickField("energy", 0, "f8", _NAN, "passivity observer's port energy, J", "J"),
+    TickField("passivity_damping", 0, "f8", _NAN, "damping the passivity controller added, N s/m", "N s/m"),
+    TickField("signals", 2, "f8", _NAN, "measured (bending, torsion) angles, rad", "rad"),
+    TickField("quadrants", 4, "f8", _NAN, "photodiode quadrants A, B, C, D, V", "V"),
+    TickField("force", 3, "f8", _NAN, "force on the tip the loop used, N", "N"),
+    TickField("device_force", 3, "f8", _NAN, "force commanded to the haptic device, N", "N"),
+    TickField("contact_point", 3, "f8", _NAN, "closest surface point, m", "m"),
     TickField("contact_normal", 3, "f8", _NAN, "unit contact normal"),
-    TickField("depth", 0, "f8", _NAN, "indentation depth, m"),
-    TickField("contact_radius", 0, "f8", _NAN, "contact radius, m"),
-    TickField("load", 0, "f8", _NAN, "Maugis-Dugdale load (> 0 compressive), N"),
+    TickField("depth", 0, "f8", _NAN, "indentation depth, m", "m"),
+    TickField("contact_radius", 0, "f8", _NAN, "contact radius, m", "m"),
+    TickField("load", 0, "f8", _NAN, "Maugis-Dugdale load (> 0 compressive), N", "N"),
     TickField("in_contact", 0, "i4", 0, "1 when the tip touches"),
     TickField("md_status", 0, "i4", MD_STATUS_NOT_GIVEN, "MD status (0 contact, 1 cohesive, 2 separated)"),
     TickField("decoupling_flags", 0, "i4", 0, "DecouplingFlag bits"),
@@ -268,7 +275,9 @@ TICK_FIELDS: tuple[TickField, ...] = (
 #: exists; older files lack it): -1 when the loop gave none
 SAFETY_FLAGS = TickField("safety_flags", 0, "i4", -1, "haptic loop safety flag bits (arsurf.status), -1 not recorded")
 #: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
-TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick")
+TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick", "m,m,rad")
+#: optional datasets whose unit is known (checked when the file gives one)
+_KNOWN_EXTRA = {TUBE_POSES.name: TUBE_POSES}
 _REQUIRED_TICK = ("t", "probe_position")
 #: ticks per chunk of the recorder (and per journal record), chunks in its pool
 _CHUNK_TICKS = 256
@@ -394,12 +403,13 @@ class _H5Out:
     """A sealed HDF5 file being written: root attrs, ``/metadata`` texts, ``/ticks`` datasets.
 
     The datasets are created with their final shape and filled by blocks in row order
-    (:meth:`write`); :meth:`finish` adds the ``checksums`` attribute, seals the file, fsyncs it
-    and renames it over ``path``. Equal inputs give equal bytes (no timestamps, fixed chunks).
+    (:meth:`write`); each carries its SI unit in a ``units`` attribute (:mod:`arsurf.units`);
+    :meth:`finish` adds the ``checksums`` attribute, seals the file, fsyncs it and renames it
+    over ``path``. Equal inputs give equal bytes (no timestamps, fixed chunks).
     """
 
     def __init__(self, path: Path, attrs: Mapping, metadata: Mapping, shapes: Mapping[str, tuple],
-                 dtypes: Mapping[str, np.dtype]):
+                 dtypes: Mapping[str, np.dtype], units: Mapping[str, str]):
         h5py = _h5py()
         self.path = Path(path)
         self.part = self.path.with_name(self.path.name + ".part")
@@ -425,6 +435,7 @@ class _H5Out:
                 opts = ({"chunks": (min(shape[0], self.block), *shape[1:]), "compression": "gzip",
                          "compression_opts": 4, "shuffle": True} if shape[0] else {})
                 self._ds[name] = tg.create_dataset(name, shape=shape, dtype=dt, track_times=False, **opts)
+                self._ds[name].attrs[UNITS_ATTR] = units[name]
                 self._hash[name] = _dataset_hasher(dt, shape)
                 self._next[name] = 0
         except BaseException:
@@ -471,16 +482,20 @@ class _H5Out:
 
 
 def write_h5(path: str | os.PathLike, attrs: Mapping[str, Any], metadata: Mapping[str, Any],
-             datasets: Mapping[str, np.ndarray]) -> Path:
+             datasets: Mapping[str, np.ndarray], units: Mapping[str, str]) -> Path:
     """Write root ``attrs``, ``/metadata`` (JSON per key) and ``/ticks/<name>`` datasets atomically.
 
     The file goes to ``<path>.part`` with ``checksums`` and a seal
-    (:func:`arsurf.replay.sealed.seal_file`), is fsynced and renamed over ``path``; datasets
-    carry no timestamps, so equal inputs give equal bytes. Used for sessions and replay outputs.
+    (:func:`arsurf.replay.sealed.seal_file`), is fsynced and renamed over ``path``; each dataset
+    gets the ``units`` attribute ``units[name]`` (:mod:`arsurf.units`); datasets carry no
+    timestamps, so equal inputs give equal bytes. Used for sessions and replay outputs.
     """
     arrays = {name: np.asarray(a) for name, a in datasets.items()}
+    missing = sorted(set(arrays) - set(units))
+    if missing:
+        raise SessionError(f"internal: no unit given for the dataset(s) {missing}")
     out = _H5Out(Path(path), attrs, metadata, {n: a.shape for n, a in arrays.items()},
-                 {n: a.dtype for n, a in arrays.items()})
+                 {n: a.dtype for n, a in arrays.items()}, units)
     try:
         for name, a in arrays.items():
             for start in range(0, a.shape[0], out.block):
@@ -519,7 +534,8 @@ def _merge_journal(index: _journal.JournalIndex, path: Path, *, complete: bool, 
         attrs["aborted"] = reason or "the recording stopped before the writer was closed"
     lay = index.layout
     out = _H5Out(path, attrs, metadata, {name: (n, *fields[name][1]) for name in fields},
-                 {name: np.dtype(fields[name][0].dtype) for name in fields})
+                 {name: np.dtype(fields[name][0].dtype) for name in fields},
+                 {name: fields[name][0].unit for name in fields})
     try:
         block = out.block
         stage = [np.empty((block, *s), dtype=d) for d, s in zip(lay.dtypes, lay.shapes)]
@@ -834,7 +850,8 @@ class Session:
 
     ``verified`` is True when the arrays, metadata and attributes matched the file's SHA-256
     checksums; ``recovered`` when they were read from the journal of a recording that was not
-    closed (or whose ``.h5`` was never written); ``notes`` says anything a reader should know.
+    closed (or whose ``.h5`` was never written); ``notes`` says anything a reader should know;
+    ``units`` maps each dataset to its SI unit (:mod:`arsurf.units`).
     """
 
     metadata: dict
@@ -845,6 +862,7 @@ class Session:
     verified: bool = False
     recovered: bool = False
     notes: tuple = ()
+    units: dict = field(default_factory=dict)
     _checksums: Any = field(default=None, repr=False, compare=False)
 
     @property
@@ -852,14 +870,26 @@ class Session:
         """True when the recording was closed normally."""
         return self.attrs.get("complete") is True
 
+    def _repr_html_(self) -> str:
+        """Ticks, duration, rate, scan, tip, contact law, status and a force thumbnail (IPython)."""
+        from arsurf.replay.display import session_html
+
+        return session_html(self)
+
+    def _repr_png_(self) -> bytes | None:
+        """|force on the tip| against time, contact shaded (IPython)."""
+        from arsurf.replay.display import session_png
+
+        return session_png(self)
+
 
 def _spec(fmt: str, versions: tuple, fields: tuple, what: str) -> dict:
     return {"fmt": fmt, "versions": list(versions), "what": what,
-            "fields": [[f.name, f.width, f.dtype] for f in fields]}
+            "fields": [[f.name, f.width, f.dtype, f.unit] for f in fields]}
 
 
 def _fields_from_spec(spec: dict) -> tuple:
-    return tuple(TickField(name, width, dtype, _NAN, "") for name, width, dtype in spec["fields"])
+    return tuple(TickField(name, width, dtype, _NAN, "", unit) for name, width, dtype, unit in spec["fields"])
 
 
 _ATTR_TYPES = {"format": str, "format_version": int, "arsurf_version": str, "created": str, "units": str,
@@ -951,7 +981,7 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
     if not isinstance(n, int) or isinstance(n, bool) or n < 0:
         raise SessionError(f"{name} has n_ticks={n!r}; it must be a count >= 0 (damaged)")
     expected = {fl.name: fl for fl in fields}
-    plan, lengths, total = [], {}, 0
+    plan, lengths, total, units = [], {}, 0, {}
     for dname in names:
         ds = g[dname]
         if not isinstance(ds, h5py.Dataset):
@@ -960,6 +990,9 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
             continue
         dt, shape = ds.dtype, ds.shape
         fl = expected.get(dname)
+        unit = _dataset_unit(ds, dname, p, (fl or _KNOWN_EXTRA.get(dname)))
+        if unit is not None:
+            units[dname] = unit
         if fl is not None:
             want = np.dtype(fl.dtype)
             if dt.kind != want.kind or dt.itemsize != want.itemsize:
@@ -986,8 +1019,21 @@ def _read_open(f, p: Path, size: int, fmt: str, versions: tuple, fields: tuple, 
         if a.shape != shape or a.dtype.kind != want.kind or a.dtype.itemsize != want.itemsize:
             raise SessionError(f"/ticks/{dname} in {str(p)!r} read as {a.dtype} {a.shape}, expected {shape}")
         ticks[dname] = np.ascontiguousarray(a, dtype=want)
-    return Session(metadata=metadata, ticks=ticks, n_ticks=n, attrs=attrs, path=p,
+    return Session(metadata=metadata, ticks=ticks, n_ticks=n, attrs=attrs, path=p, units=units,
                    _checksums=(attrs.get("checksums"), texts))
+
+
+def _dataset_unit(ds, dname: str, p: Path, fl: TickField | None) -> str | None:
+    """The ``units`` attribute of a dataset (None: the file predates it), checked against the field's unit."""
+    if UNITS_ATTR not in ds.attrs:
+        return fl.unit if fl is not None else None  # written before datasets carried units: the format's unit
+    unit = _attr(ds.attrs[UNITS_ATTR])
+    if not isinstance(unit, str) or len(unit) > 64:
+        raise SessionError(f"/ticks/{dname} in {str(p)!r} has a units attribute that is not a short text (damaged)")
+    if fl is not None and unit != fl.unit:
+        raise SessionError(f"/ticks/{dname} in {str(p)!r} is in {unit!r}, but the format stores it in {fl.unit!r}; "
+                           "the file was not written by arsurf (convert it to SI first)")
+    return unit
 
 
 def _verify(s: Session, name: str, required: bool) -> None:
@@ -1083,9 +1129,15 @@ def _isolated_child(path: str, spec_text: str, out: str) -> None:
                     allow_incomplete=spec["allow_incomplete"], what=spec["what"], isolate=False)
     np.savez(os.path.join(out, "ticks.npz"), **s.ticks)
     info = {"metadata": s.metadata, "attrs": s.attrs, "n_ticks": s.n_ticks, "verified": s.verified,
-            "recovered": s.recovered, "notes": list(s.notes), "names": list(s.ticks)}
+            "recovered": s.recovered, "notes": list(s.notes), "names": list(s.ticks), "units": s.units}
     with open(os.path.join(out, "info.json"), "w", encoding="utf-8") as fh:
         json.dump(info, fh, sort_keys=True)
+
+
+def _units_answer(units, name: str) -> dict:
+    if not isinstance(units, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in units.items()):
+        raise SessionError(f"{name}: the isolated reader's answer has no valid units")
+    return units
 
 
 def _read_isolated(p: Path, spec: dict, allow_incomplete: bool, session: bool = False) -> Session:
@@ -1108,7 +1160,7 @@ def _read_isolated(p: Path, spec: dict, allow_incomplete: bool, session: bool = 
             raise SessionError(f"{name}: the isolated reader gave no usable answer ({exc})") from None
     s = Session(metadata=info["metadata"], ticks=ticks, n_ticks=int(info["n_ticks"]), attrs=info["attrs"], path=p,
                 verified=bool(info["verified"]), recovered=bool(info["recovered"]),
-                notes=(*info["notes"], "read in an isolated process"))
+                notes=(*info["notes"], "read in an isolated process"), units=_units_answer(info.get("units"), name))
     for fl in _fields_from_spec(spec):  # the answer is checked like the file was
         a = s.ticks.get(fl.name)
         if a is None or a.dtype != np.dtype(fl.dtype) or a.shape != (s.n_ticks, *fl.row_shape):
@@ -1213,7 +1265,8 @@ def _journal_session(jpath: Path, allow_incomplete: bool, shown: Path) -> Sessio
     if end is not None and complete:
         notes.append("the recording was closed but its .h5 was never written")
     return Session(metadata=meta, ticks=dict(zip(lay.names, arrays)), n_ticks=n, attrs=attrs, path=jpath,
-                   verified=True, recovered=True, notes=tuple(notes))
+                   verified=True, recovered=True, notes=tuple(notes),
+                   units={name: f.unit for name, (f, _) in fields.items()})
 
 
 def recover_session(path: str | os.PathLike) -> Path:

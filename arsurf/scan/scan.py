@@ -110,6 +110,42 @@ class Scan:
             meta["history"] = [*self.metadata.get("history", []), step]
         return replace(self, heights=heights, metadata=meta, **changes)
 
+    # -- notebook display (IPython) ----------------------------------------------------------
+    def _display_rows(self) -> list[tuple[str, str]]:
+        from arsurf._display import quantity
+
+        ny, nx = self.shape
+        unit = str(self.metadata.get("z_unit") or "m")
+        finite = self.heights[np.isfinite(self.heights)]
+        rows = [("channel", f"{self.channel} ({unit})"), ("pixels", f"{nx} x {ny} px"),
+                ("pixel size", f"{quantity(self.dx, 'm')} x {quantity(self.dy, 'm')}"),
+                ("scan size", f"{quantity(nx * self.dx, 'm')} x {quantity(ny * self.dy, 'm')}"),
+                ("z range", quantity(float(np.ptp(finite)) if finite.size else math.nan, unit)),
+                ("z min / max", f"{quantity(finite.min() if finite.size else math.nan, unit)} / "
+                                f"{quantity(finite.max() if finite.size else math.nan, unit)}"),
+                ("missing pixels", f"{self.nan_count} (NaN)")]
+        if self.metadata.get("format"):
+            rows.append(("format", str(self.metadata["format"])))
+        if self.history:
+            rows.append(("processing", " -> ".join(map(_step_text, self.history))))
+        if self.source:
+            rows.append(("source", self.source))
+        return rows
+
+    def _repr_png_(self) -> bytes:
+        """A thumbnail of the map (IPython): axes and colour bar in units, robust colour limits."""
+        from arsurf._display import map_png
+
+        ny, nx = self.shape
+        return map_png(self.heights, (0.0, (nx - 1) * self.dx, 0.0, (ny - 1) * self.dy),
+                       str(self.metadata.get("z_unit") or "m"), self.channel or "z")
+
+    def _repr_html_(self) -> str:
+        """Channel, pixels, pixel and scan size, z range with units, and the thumbnail (IPython)."""
+        from arsurf._display import card
+
+        return card("Scan", self._display_rows(), self._repr_png_())
+
     def __repr__(self) -> str:
         ny, nx = self.shape
         finite = self.heights[np.isfinite(self.heights)]
@@ -119,3 +155,11 @@ class Scan:
             f"dx={self.dx * 1e9:.4g} nm, dy={self.dy * 1e9:.4g} nm, z range {zr * 1e9:.4g} nm, "
             f"source={self.source!r})"
         )
+
+
+def _step_text(step) -> str:
+    """One processing step of a history as text: ``level (rows-median)``."""
+    if not isinstance(step, dict):
+        return str(step)
+    name = step.get("operation") or step.get("step") or "?"
+    return f"{name} ({step['method']})" if step.get("method") else str(name)

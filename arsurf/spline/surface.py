@@ -250,6 +250,49 @@ class BSplineSurface:
         uu, vv = np.meshgrid(u, v)
         return self.evaluate(uu, vv)
 
+    # -- notebook display (IPython) ----------------------------------------------------------
+    def _thumbnail_grid(self):
+        """(z, dent, extent): heights on a grid of at most THUMB_PIXELS a side over the domain, the
+        dent (current minus rest z; None at rest) and the grid's (u0, u1, v0, v1)."""
+        from arsurf._display import THUMB_PIXELS
+
+        (u0, u1), (v0, v1) = self.domain
+        ratio = (v1 - v0) / (u1 - u0)
+        nu = THUMB_PIXELS if ratio <= 1 else max(2, int(round(THUMB_PIXELS / ratio)))
+        nv = THUMB_PIXELS if ratio >= 1 else max(2, int(round(THUMB_PIXELS * ratio)))
+        z = self.evaluate_grid(nu, nv)[..., 2]
+        dent = None
+        if not self.at_rest and self.is_deformed:
+            rest = BSplineSurface.construct_fast(self._rest, self._ku, self._kv)
+            dent = z - rest.evaluate_grid(nu, nv)[..., 2]
+        return z, dent, (u0, u1, v0, v1)
+
+    def _repr_png_(self) -> bytes:
+        """A thumbnail of z over (u, v) (IPython); a dent is outlined in white over the topography."""
+        from arsurf._display import map_png
+
+        z, dent, extent = self._thumbnail_grid()
+        return map_png(z, extent, "m", "height", contours=dent)
+
+    def _repr_html_(self) -> str:
+        """Control net, domain, knot spacing, z range and the dent, with units, and the thumbnail."""
+        from arsurf._display import card, map_png, quantity
+
+        (u0, u1), (v0, v1) = self.domain
+        hu, hv = self.spacing
+        z, dent, extent = self._thumbnail_grid()
+        rows = [("control points", f"{self.shape[0]} x {self.shape[1]}"),
+                ("domain (x, y)", f"{quantity(u1 - u0, 'm')} x {quantity(v1 - v0, 'm')}"),
+                ("knot spacing", f"{quantity(hu, 'm')} x {quantity(hv, 'm')}"),
+                ("z range", f"{quantity(float(np.ptp(z)), 'm')} (sampled on {z.shape[1]} x {z.shape[0]} points)")]
+        if self.at_rest or not self.is_deformed:
+            rows.append(("deformed", "no"))
+        else:
+            moved = np.linalg.norm(self._ctrl - self._rest, axis=2)
+            rows.append(("deformed", f"{int(np.count_nonzero(moved))} control points moved, "
+                                     f"at most {quantity(float(moved.max()), 'm')}"))
+        return card("BSplineSurface", rows, map_png(z, extent, "m", "height", contours=dent))
+
     def __repr__(self) -> str:
         (u0, u1), (v0, v1) = self.domain
         return (

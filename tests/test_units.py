@@ -1,0 +1,134 @@
+"""One unit convention in every file arsurf writes (arsurf.units): JSON keys and CSV columns end with
+the SI unit, HDF5 datasets carry a ``units`` attribute. Checked on every JSON, CSV and HDF5 file that
+the demo, its replay and the three batch pipelines write."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import h5py
+import pytest
+
+from arsurf.batch import run_batch
+from arsurf.data import bundled_scan
+from arsurf.demo import run_demo
+from arsurf.replay.replay import REPLAY_FIELDS
+from arsurf.replay.session import TICK_FIELDS, TUBE_POSES
+from arsurf.units import SUFFIXES, summary_json, undeclared, unit_of, with_unit
+
+ROOT = Path(__file__).resolve().parents[1]
+FIELD_UNITS = {f.name: f.unit for f in (*TICK_FIELDS, *REPLAY_FIELDS, TUBE_POSES)}
+
+
+def test_names_declare_their_units():
+    assert unit_of("t_s") == "s" and unit_of("F_simulated_x_N") == "N" and unit_of("rate_Hz") == "Hz"
+    assert unit_of("effective_modulus_Pa") == "Pa" and unit_of("friction_per_length_N_per_m") == "N/m"
+    assert unit_of("items_per_s") == "1/s" and unit_of("passivity_damping_N_s_per_m") == "N s/m"
+    for name in ("n_ticks", "ticks_in_contact", "inpainted_pixels", "friction_ratio", "slip_fraction", "friction",
+                 "pushed_tube_index", "high_frequency_over_normal", "contact_mismatches", "maugis_lambda"):
+        assert unit_of(name) == "1", name
+    for name in ("duration", "peak_force", "max_depth_nm", "rotation_deg", "tick_compute_median_us", "rate_hz"):
+        assert unit_of(name) is None, name  # no unit, or not an SI one
+
+
+@pytest.mark.parametrize("unit", sorted(set(SUFFIXES.values())))
+def test_with_unit_and_unit_of_agree(unit):
+    assert unit_of(with_unit("quantity", unit)) == unit
+
+
+def test_with_unit_refuses_a_unit_without_a_suffix():
+    with pytest.raises(ValueError, match="unit 'nm' has no name suffix"):
+        with_unit("depth", "nm")
+
+
+def test_undeclared_follows_lists_statistics_and_nesting():
+    doc = {"statistics": {"z_range_m": {"min": 1e-9, "max": 2e-9, "count": 3}, "peak": {"min": 1.0}},
+           "tube": {"displacement_m": [1e-9, None], "rotation": [0.1]}, "errors": [{"item": "a", "reason": "b"}],
+           "complete": True, "elapsed_s": None, "channel": None, "width": 3}
+    assert sorted(undeclared(doc)) == ["statistics/peak/min", "tube/rotation[0]", "width"]
+
+
+def test_summary_json_is_strict_json():
+    text = summary_json({"settle_time_s": math.nan, "peak_N": [1.0, math.inf], "n": 2})
+    assert json.loads(text, parse_constant=pytest.fail) == {"settle_time_s": None, "peak_N": [1.0, None], "n": 2}
+
+
+# ---------------------------------------------------------------------------------------------
+# every file the demo, the replay and a batch write
+
+
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("outputs")
+    run_demo(root / "demo", seconds=3.0, images=False, progress=lambda line: None)  # session.h5, replay/, summary.json
+    scans = [ROOT / "scans" / "sinusoid.npz", ROOT / "scans" / "grating_20nm.npz"]
+    run_batch("process", scans, root / "process", options={"sigma": 1e-9, "export": [".gsf", ".stl"]}, workers=0,
+              progress=False)
+    run_batch("sweep", scans[:1], root / "sweep", options={"friction": [0.1, 0.3], "steps": 8}, workers=0,
+              progress=False)
+    run_batch("replay", [root / "demo" / "session.h5"], root / "replays", options={"scan": str(bundled_scan())},
+              workers=0, progress=False)
+    return root
+
+
+def _files(root: Path, suffix: str) -> dict[str, Path]:
+    return {p.relative_to(root).as_posix(): p for p in sorted(root.rglob(f"*{suffix}"))}
+
+
+def test_the_outputs_hold_every_kind_of_file(outputs):
+    found = {*_files(outputs, ".json"), *_files(outputs, ".csv"), *_files(outputs, ".h5")}
+    assert {"demo/summary.json", "demo/session.h5", "demo/replay/summary.json", "demo/replay/forces.csv",
+            "demo/replay/replay.h5", "process/summary.json", "process/batch.json", "process/results.csv",
+            "sweep/summary.json", "sweep/batch.json", "sweep/results.csv", "replays/results.csv",
+            "replays/session.h5/forces.csv", "replays/session.h5/replay.h5", "replays/session.h5/summary.json",
+            "replays/summary.json"} <= found
+
+
+def test_every_json_is_strict_and_names_the_unit_of_every_number(outputs):
+    files = _files(outputs, ".json")
+    assert len(files) >= 8
+    for name, path in files.items():
+        doc = json.loads(path.read_text(encoding="utf-8"), parse_constant=lambda c: pytest.fail(f"{name}: {c}"))
+        assert undeclared(doc) == [], f"{name}: numbers whose key gives no unit"
+
+
+def _number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def test_every_csv_column_of_numbers_names_its_unit(outputs):
+    files = _files(outputs, ".csv")
+    assert len(files) >= 5
+    for name, path in files.items():
+        with open(path, newline="", encoding="utf-8") as fh:
+            header, *rows = list(csv.reader(fh))
+        assert rows, name
+        numeric = [c for k, c in enumerate(header) if any(_number(r[k]) for r in rows if len(r) == len(header))]
+        assert numeric, name
+        assert [c for c in numeric if unit_of(c) is None] == [], f"{name}: columns of numbers without a unit"
+    with open(files["demo/replay/forces.csv"], encoding="utf-8") as fh:
+        assert fh.readline().startswith("t_s,F_recorded_x_N,")
+
+
+def test_every_hdf5_dataset_carries_its_unit(outputs):
+    files = _files(outputs, ".h5")
+    files = {k: v for k, v in files.items() if v.is_file()}
+    assert set(files) == {"demo/session.h5", "demo/replay/replay.h5", "replays/session.h5/replay.h5"}
+    for name, path in files.items():
+        with h5py.File(path, "r") as f:
+            assert f.attrs["units"] == "SI"
+            datasets = {}
+            f.visititems(lambda key, obj: datasets.__setitem__(key, obj) if isinstance(obj, h5py.Dataset) else None)
+            assert len(datasets) >= 20, name
+            for key, ds in datasets.items():
+                unit = ds.attrs.get("units")
+                assert unit == FIELD_UNITS[key.rsplit("/", 1)[-1]], f"{name}:/{key} has units {unit!r}"
+                parts = unit.split(",")
+                assert len(parts) == 1 or len(parts) == ds.shape[-1], f"{name}:/{key}: one unit per column"
+            assert datasets["ticks/tube_poses"].attrs["units"] == "m,m,rad"
