@@ -166,7 +166,7 @@ def test_the_device_disappearing_mid_session(sim, tmp_path):
     assert 1 <= k < 200
     assert f[-k - 1] > 0.1 and np.all(f[-k:] == 0.0), f[-k - 3:]  # zero force from the first missed sample
     assert np.all(r.ticks["stylus_position"][-k:] == r.ticks["stylus_position"][-k - 1])  # the last good sample
-    assert np.isfinite(r.ticks["t"]).all() and len(f) > 450
+    assert np.isfinite(r.ticks["t"]).all() and len(f) > 100 and r.ticks["t"][-1] > 0.5
 
 
 def test_watchdog_zeroes_a_stalled_loop(sim):
