@@ -280,6 +280,11 @@ class HardwareDevice(Device):
     def _release(self) -> None:
         """Release the vendor handle (never raises)."""
 
+    def _sample_time(self) -> float:
+        """When the sample ``_poll`` just gave was taken (:meth:`now` clock): now, unless the
+        vendor's servo thread took it earlier."""
+        return self.now()
+
     # -- Device ---------------------------------------------------------------------------------
     @property
     def info(self) -> DeviceInfo:
@@ -294,6 +299,9 @@ class HardwareDevice(Device):
     def open(self) -> "HardwareDevice":
         """Connect, read the limits, enable forces (idempotent); returns ``self``."""
         if not self._is_open:
+            # compile (or load) the mapping kernels now: a first call in the servo loop would stall it
+            map_sample(self.axes.matrix, 1.0, self.home, self._vpos, self._vvel, np.empty(3), np.empty(3))
+            map_force(self.axes.matrix, 1.0, self._vforce, np.empty(3))
             self._info = self._connect()
             try:
                 super().open()
@@ -322,7 +330,7 @@ class HardwareDevice(Device):
             buttons = self._poll(self._vpos, self._vvel)
         except Exception:  # noqa: BLE001 - a vendor call that raises is a missed sample, judged below
             buttons = None
-        t = self.now()
+        t = self.now() if buttons is None else self._sample_time()
         last = self._last
         if buttons is not None and map_sample(self.axes.matrix, self.axes.length_scale, self.home, self._vpos,
                                               self._vvel, last.position, last.velocity):
@@ -332,6 +340,7 @@ class HardwareDevice(Device):
             last.copy_into(out)
             return
         self.missed_samples += 1
+        t = self.now()
         if t - self._last_good > self.disconnect_after:
             raise DeviceDisconnected(
                 f"{self.info.name} has not answered for {t - self._last_good:.3f} s ({self.missed_samples} missed "

@@ -35,13 +35,15 @@ CONTACT = {"effective_modulus": 10e9, "work_of_adhesion": 0.05, "dugdale_stress"
 
 @dataclass
 class Run:
-    """What a recorded run gave: the session ticks, the stop error (None: clean), the timing stats."""
+    """What a recorded run gave: the session ticks, the stop error (None: clean), the timing stats,
+    and ``t0``, the device-clock time of the session's t = 0."""
 
     ticks: dict
     complete: bool
     error: BaseException | None
     stats: object
     loop: HapticLoop
+    t0: float
 
 
 def run(device, path, seconds: float, *, force_gain: float = 1e5, events=(), ramp_time: float = 0.05) -> Run:
@@ -90,4 +92,4 @@ def run(device, path, seconds: float, *, force_gain: float = 1e5, events=(), ram
             error, stats = exc, sched.stats()
         writer.close(complete=error is None, reason="" if error is None else str(error))
     s = load_session(path, allow_incomplete=True)
-    return Run(s.ticks, s.complete, error, stats, loop)
+    return Run(s.ticks, s.complete, error, stats, loop, t0)
