@@ -20,8 +20,8 @@ rotation, never a mirror: :math:`\det R = +1` is enforced).
 
 **Faults.** A poll that fails or returns a non-finite number is a *missed sample*: the state keeps
 the last good position but its timestamp becomes :math:`-\infty`, so the safety layer sees an
-infinitely old sample (``STALE``) and commands zero force in that very tick. When no good sample
-has come for ``disconnect_after`` seconds the read raises
+infinitely old sample (``STALE``) and commands zero force in that very tick. When the samples have
+been missed in a row for ``disconnect_after`` seconds the read raises
 :class:`~arsurf.errors.DeviceDisconnected`; a loop under the
 :class:`~arsurf.haptics.scheduler.Scheduler` then stops, its ``on_stop`` commands zero force, and
 the recording is closed by its owner. :meth:`Device.close` sends zero force (best effort: a
@@ -257,7 +257,8 @@ class HardwareDevice(Device):
         self._vvel = np.zeros(3)
         self._vforce = np.zeros(3)
         self._last = DeviceState()
-        self._last_good = -math.inf
+        self._misses = 0  # missed samples in a row
+        self._miss_since = math.nan  # when the first of them was missed
         self._inv_fs = 1.0 / axes.force_scale
         self.missed_samples = 0
         self.failed_sends = 0
@@ -309,7 +310,7 @@ class HardwareDevice(Device):
                 self._release()
                 raise
             self._last = DeviceState()
-            self._last_good = self.now()  # the disconnection clock starts at the opening
+            self._misses = 0
         return self
 
     def _open(self) -> None:
@@ -336,15 +337,18 @@ class HardwareDevice(Device):
                                               self._vvel, last.position, last.velocity):
             last.buttons = int(buttons)
             last.timestamp = t
-            self._last_good = t
+            self._misses = 0
             last.copy_into(out)
             return
         self.missed_samples += 1
         t = self.now()
-        if t - self._last_good > self.disconnect_after:
+        if self._misses == 0:
+            self._miss_since = t
+        self._misses += 1
+        if t - self._miss_since > self.disconnect_after:
             raise DeviceDisconnected(
-                f"{self.info.name} has not answered for {t - self._last_good:.3f} s ({self.missed_samples} missed "
-                "samples); zero force was commanded; check the cable and power, then start again")
+                f"{self.info.name} has not answered for {t - self._miss_since:.3f} s ({self._misses} missed samples in "
+                "a row); zero force was commanded; check the cable and power, then start again")
         last.copy_into(out)
         out.buttons = 0
         out.timestamp = -math.inf  # an infinitely old sample: the safety layer gives zero force now
