@@ -273,5 +273,7 @@ def probe() -> BackendReport:
         api = _api()
     except MissingDependency as exc:
         return BackendReport("haply", False, str(exc))
+    import importlib.metadata as md
+
     devices = [f"Inverse3 on {p}" for p in api.detect_inverse3s()] + [f"handle on {p}" for p in api.detect_handles()]
-    return BackendReport("haply", True, f"HaplyHardwareAPI {api.__version__}", devices)
+    return BackendReport("haply", True, f"haplyhardwareapi {md.version('haplyhardwareapi')}", devices)
