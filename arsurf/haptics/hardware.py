@@ -52,6 +52,7 @@ from numba import njit
 
 from arsurf.errors import DeviceDisconnected, HapticsError
 from arsurf.haptics.device import Device, DeviceInfo, DeviceState, _vec3
+from arsurf.haptics.safety import _num
 
 __all__ = ["AxisMap", "BackendReport", "HardwareDevice", "device_limits"]
 
@@ -177,12 +178,7 @@ def device_limits(name: str, reported_force: float | None, user_force: float | N
     5.0
     """
     if user_force is not None:
-        try:
-            uf = float(user_force)
-        except (TypeError, ValueError) as exc:
-            raise HapticsError(f"max_force must be a number of newtons (got {user_force!r})") from exc
-        if not (uf > 0 and math.isfinite(uf)):
-            raise HapticsError(f"max_force must be a positive number of newtons (got {user_force!r})")
+        uf = _num(user_force, "max_force", positive=True, unit="N")
         if reported_force is not None and uf > reported_force:
             raise HapticsError(f"max_force {uf:g} N is above what {name} allows ({reported_force:g} N, {source}); "
                                "give at most that")
