@@ -404,7 +404,7 @@ def cmd_batch(args) -> int:
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
-_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay"]
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices"]
 
 
 def _bridge_setup(args):

@@ -98,6 +98,14 @@ class HapticsWarning(UserWarning):
     """A haptic setting that works but is probably not what was meant (ringing filter, tight gains)."""
 
 
+class DeviceNotFound(HapticsError):
+    """No haptic device answers where one was asked for (none connected, wrong port or index, in use)."""
+
+
+class DeviceDisconnected(HapticsError):
+    """A haptic device stopped answering mid-session; its adapter gave zero force and stopped the loop."""
+
+
 class LoopError(ArsurfError):
     """The step function raised inside the servo thread; the loop stopped (the cause is chained)."""
 

@@ -458,7 +458,7 @@ def test_a_replay_result_shows_its_peaks_and_a_force_thumbnail(replayed):
     assert rows["ticks"] == str(N) and rows["peak force (model)"] == f"{r.peak_force * 1e9:.4g} nN"
     assert rows["max depth"] == f"{r.max_depth * 1e9:.4g} nm"
     assert rows["contact-state mismatches"] == "0" and rows["vs recording: depth"] == "0 m"
-    assert rows["files"].startswith("6: coupled_motion.png, forces.csv")
+    assert rows["files"].startswith("7: coupled_motion.png, dent.png, forces.csv")
     import matplotlib.image as mpimg
     import io
 

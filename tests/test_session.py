@@ -310,7 +310,7 @@ def test_every_dataset_carries_its_si_unit(tmp_path):
     p = write(tmp_path / "s.h5")
     with h5py.File(p, "r") as f:
         units = {name: f["ticks"][name].attrs["units"] for name in f["ticks"]}
-    assert units == {fl.name: fl.unit for fl in TICK_FIELDS}
+    assert units == {fl.name: fl.unit for fl in WRITTEN}
     assert (units["t"], units["probe_position"], units["force"], units["passivity_damping"]) == ("s", "m", "N", "N s/m")
     assert units["in_contact"] == units["contact_normal"] == "1"
     assert load_session(p).units == units

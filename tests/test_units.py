@@ -15,11 +15,11 @@ from arsurf.batch import run_batch
 from arsurf.data import bundled_scan
 from arsurf.demo import run_demo
 from arsurf.replay.replay import REPLAY_FIELDS
-from arsurf.replay.session import TICK_FIELDS, TUBE_POSES
+from arsurf.replay.session import TICK_FIELDS, SAFETY_FLAGS, TUBE_POSES
 from arsurf.units import SUFFIXES, summary_json, undeclared, unit_of, with_unit
 
 ROOT = Path(__file__).resolve().parents[1]
-FIELD_UNITS = {f.name: f.unit for f in (*TICK_FIELDS, *REPLAY_FIELDS, TUBE_POSES)}
+FIELD_UNITS = {f.name: f.unit for f in (*TICK_FIELDS, *REPLAY_FIELDS, TUBE_POSES, SAFETY_FLAGS)}
 
 
 def test_names_declare_their_units():

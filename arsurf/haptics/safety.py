@@ -270,11 +270,11 @@ class SafetyLayer:
 
     Examples
     --------
-    >>> s = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.01, max_rate=1e4)
+    >>> s = SafetyLayer(max_force=7.9, dt=1e-3, ramp_time=0.01)
     >>> [round(float(s.step([0, 0, 5.0], now=k * 1e-3)[2]), 2) for k in range(4)]   # start-up ramp
     [0.5, 1.0, 1.5, 2.0]
-    >>> s.reset(); [round(float(s.step([0, 0, f], now=k * 1e-3)[2]), 2) for k, f in enumerate([0, 5, 5])]
-    [0.0, 5.0, 5.0]
+    >>> s.reset(); [round(float(s.step([0, 0, f], now=k * 1e-3)[2]), 2) for k, f in enumerate([0, 5, 5])]   # free space: engaged at once; then the rate limit (1 N per tick)
+    [0.0, 1.0, 2.0]
     """
 
     def __init__(self, max_force: float, dt: float, *, max_rate: float = 1000.0, ramp_time: float = 0.5,

@@ -1,0 +1,279 @@
+r"""Haply Inverse3 (and its VerseGrip handle) over USB serial.
+
+Through ``haplyhardwareapi`` (extra ``arsurf[haply]``; imported as ``HaplyHardwareAPI``), the
+vendor's compiled binding. Its serial protocol, as the package (0.1.x) speaks it, one command
+byte then little-endian ``float32`` fields:
+
+===========================  ====================================================================
+host -> Inverse3             Inverse3 -> host
+===========================  ====================================================================
+``0A`` wake-up               ``0B`` u16 device id, u8 model, u8 hardware, u8 firmware, 16-byte UUID
+``2A`` force x, y, z (N)     ``2B`` position x, y, z (m), velocity x, y, z (m/s)
+===========================  ====================================================================
+
+and for the handle (its own serial port): ``0A`` -> ``D0`` + 6 bytes of information; ``DA``
+(status request) -> ``DA`` u16 device id, u8 error flag, u8 Hall sensor level, quaternion (4
+``float32``), u8 n, then n bytes of user data, the first of which holds the buttons (bit 0: the
+main button).
+
+**The package never raises on a dead link.** A read that times out prints a line on stderr and
+returns zeros (a wake-up even returns uninitialised memory as the device id). The adapter
+therefore uses a short read timeout (``read_timeout``, default 10 ms; 1 s for the wake-up),
+treats an all-zero state (a position at the base's origin, where the handle cannot be, and a
+velocity of exactly zero) as a missed sample, drains the input after a miss so a late reply
+cannot shift every later one, and checks that the wake-up answered with a non-zero UUID.
+
+**Frame.** The Inverse3's own (right-handed, metres, origin on the mounting plate; axes on the
+plaque: :math:`x` right, :math:`y` away from the operator, :math:`z` up): ``AxisMap("x,y,z")``
+(``axes=`` changes it). Home is where the handle is when the device is opened (hold it where you
+want the middle of the workspace), or ``home=(x, y, z)`` in the device's frame.
+
+**Limits.** The device reports none: ``max_force`` (N) and ``workspace`` ((3,) m, centred on
+home) are required, from its datasheet or your bring-up sweep; ``stiffness`` defaults to a
+conservative 1 kN/m. A silent handle (no status for ``handle_timeout``) reads as its main button
+held: the disengage button, so the force is zero until the handle answers again.
+
+Examples
+--------
+>>> HaplyDevice(port="/dev/ttyACM0", max_force=3.0, workspace=(0.2, 0.12, 0.15)).axes.spec
+'x,y,z'
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import weakref
+
+import numpy as np
+
+from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
+from arsurf.haptics.device import BUTTON_1, DeviceInfo, _vec3
+from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
+
+__all__ = ["HaplyDevice", "probe"]
+
+log = logging.getLogger(__name__)
+EXTRA = "haply"
+
+
+_HANDLE_CLASS = []
+
+
+def _handle_class(api):
+    """A subclass of the binding's ``Handle`` whose status callback stores the buttons in its device
+    (made once: a Python subclass of a pybind11 class made per call crashes at interpreter exit)."""
+    if not _HANDLE_CLASS:
+        class _Handle(api.Handle):
+            device = None
+
+            def OnReceiveHandleStatusMessage(self, device_id, quaternion, error_flag, hall, n, user_data):
+                dev = self.device() if self.device is not None else None
+                if dev is not None:
+                    dev._buttons = int(user_data[0]) & 0xFF if n > 0 else 0
+                    dev._buttons_t = time.perf_counter()
+
+        _HANDLE_CLASS.append(_Handle)
+    return _HANDLE_CLASS[0]
+
+
+def _api():
+    try:
+        import HaplyHardwareAPI
+    except ImportError as exc:
+        raise MissingDependency("Haply devices need haplyhardwareapi; install it with: "
+                                f"pip install 'arsurf[{EXTRA}]'") from exc
+    return HaplyHardwareAPI
+
+
+class HaplyDevice(HardwareDevice):
+    """An Inverse3, with or without its handle.
+
+    Parameters
+    ----------
+    port : str, optional
+        Serial port of the Inverse3 (None: the first ``detect_inverse3s()`` finds).
+    max_force : float, N
+        Force limit (required: the device reports none).
+    workspace : (3,) float, m
+        Workspace extents along arsurf x, y, z, centred on home (required).
+    stiffness : float, N/m
+        Largest stiffness to render (default 1000).
+    handle_port : str, optional
+        Serial port of the handle (``"auto"``: the first ``detect_handles()`` finds; None: no
+        handle, no buttons).
+    home : (3,) float, m, optional
+        Home in the Inverse3 frame (None: where the handle is at opening).
+    axes : str
+        Vendor axes behind arsurf x, y, z (:class:`~arsurf.haptics.hardware.AxisMap`).
+    read_timeout, handle_timeout : float, s
+        Serial read timeout in the servo loop; silence of the handle that reads as disengaged.
+    disconnect_after : float, s
+        See :class:`~arsurf.haptics.hardware.HardwareDevice`.
+    """
+
+    def __init__(self, port: str | None = None, *, max_force: float | None = None, workspace=None,
+                 stiffness: float = 1000.0, handle_port: str | None = None, home=None, axes: str = "x,y,z",
+                 read_timeout: float = 0.01, handle_timeout: float = 0.1, disconnect_after: float = 0.05) -> None:
+        super().__init__(AxisMap(axes), max_force=max_force, disconnect_after=disconnect_after)
+        for name, v in (("port", port), ("handle_port", handle_port)):
+            if v is not None and not (isinstance(v, str) and v):
+                raise HapticsError(f"{name} must be a serial port path or None (got {v!r})")
+        if max_force is None:
+            raise HapticsError("the Inverse3 reports no force limit: give max_force in newtons (at most its "
+                               "datasheet's continuous force; see the README's bring-up checklist)")
+        if workspace is None:
+            raise HapticsError("the Inverse3 reports no workspace: give workspace=(x, y, z) in metres (the box, "
+                               "centred on home, the handle may use; see the README's bring-up checklist)")
+        self.workspace = _vec3(workspace, "workspace")
+        if (self.workspace <= 0).any():
+            raise HapticsError(f"workspace extents must be positive metres (got {self.workspace.tolist()})")
+        if not (isinstance(stiffness, (int, float)) and stiffness > 0):
+            raise HapticsError(f"stiffness must be positive N/m (got {stiffness!r})")
+        for name, v in (("read_timeout", read_timeout), ("handle_timeout", handle_timeout)):
+            if not (isinstance(v, (int, float)) and 0.0 < v <= 1.0):
+                raise HapticsError(f"{name} must be in (0, 1] s (got {v!r})")
+        self.port = port
+        self.handle_port = handle_port
+        self.given_home = None if home is None else _vec3(home, "home")
+        self.stiffness = float(stiffness)
+        self.read_timeout = float(read_timeout)
+        self.handle_timeout = float(handle_timeout)
+        self.device_id = None
+        self._inv = None
+        self._stream = None
+        self._handle = None
+        self._handle_stream = None
+        self._handle_thread = None
+        self._handle_stop = threading.Event()
+        self._buttons = 0
+        self._buttons_t = -np.inf
+        self._xpos = np.zeros(3)  # the state the last exchange brought back, Inverse3 frame
+        self._xvel = np.zeros(3)
+        self._xt = -np.inf
+        self._fresh = False
+
+    # -- connection -------------------------------------------------------------------------------
+    def _connect(self) -> DeviceInfo:
+        api = _api()
+        port = self.port
+        if port is None:
+            found = api.detect_inverse3s()
+            if not found:
+                raise DeviceNotFound("Haply: no Inverse3 found (detect_inverse3s); check USB and power, and that you "
+                                     "may open serial ports (group dialout)")
+            port = found[0]
+        if not os.path.exists(port):
+            raise DeviceNotFound(f"Haply: serial port {port} does not exist")
+        try:
+            self._stream = api.SerialStream(port)
+            self._inv = api.Inverse3(self._stream, 1.0)  # keeps a C++ reference to the stream: so do we
+            info = self._inv.device_wakeup_dict()
+            raw = getattr(info.get("device_id_ext"), "bytes", b"")
+            raw = bytes(raw() if callable(raw) else raw)  # uuid.UUID, or the package's own UUID type
+            if not any(raw):
+                raise DeviceNotFound(f"Haply: no Inverse3 answered the wake-up on {port} (within 1 s)")
+            self.device_id = raw.hex()
+            self._inv.set_read_timeout(self.read_timeout)
+            # one exchange at zero force: the home, and proof that the device answers at the loop's timeout
+            pos, vel = self._inv.end_effector_force([0.0, 0.0, 0.0])
+            if not any(pos) and not any(vel):
+                raise DeviceNotFound(f"Haply: the Inverse3 on {port} woke up but sends no state")
+            self.home = np.array(pos, dtype=np.float64) if self.given_home is None else self.given_home
+            if self.handle_port is not None:
+                self._start_handle(api)
+            return device_limits(f"Haply Inverse3 {self.device_id[:8]}", None, self.user_max_force, self.workspace,
+                                 self.stiffness, source="given limits")
+        except BaseException:
+            self._release()
+            raise
+
+    def _start_handle(self, api) -> None:
+        port = self.handle_port
+        if port == "auto":
+            found = api.detect_handles()
+            if not found:
+                raise DeviceNotFound("Haply: handle_port='auto' but no handle was found (detect_handles)")
+            port = found[0]
+        if not os.path.exists(port):
+            raise DeviceNotFound(f"Haply: handle serial port {port} does not exist")
+        self._handle_stream = api.SerialStream(port)  # the Handle keeps a reference to it, not a Python one
+        self._handle = _handle_class(api)(self._handle_stream)
+        self._handle.device = weakref.ref(self)
+        self._handle.SendDeviceWakeup()
+        self._handle.Receive()
+        self._handle_stop.clear()
+        # the thread holds the handle and its stream: a Receive may block for seconds when the
+        # handle is gone, and freeing either under it would crash; it is not a daemon, so the
+        # interpreter waits for it rather than freeing them under it at exit
+        self._handle_thread = threading.Thread(target=self._handle_loop, args=(self._handle, self._handle_stream,
+                                                                            self._handle_stop),
+                                               name="arsurf-haply-handle")
+        self._handle_thread.start()
+
+    @staticmethod
+    def _handle_loop(h, stream, stop) -> None:
+        while not stop.is_set():
+            try:
+                h.RequestStatus()
+                h.Receive()
+            except Exception:  # noqa: BLE001 - a silent handle reads as disengaged (see _poll)
+                time.sleep(0.01)
+            time.sleep(0.002)
+
+    # -- the servo tick -------------------------------------------------------------------------
+    def _exchange(self, vforce) -> bool:
+        """One force out, one state in; False (input drained) when no state came back."""
+        pos, vel = self._inv.end_effector_force([float(vforce[0]), float(vforce[1]), float(vforce[2])])
+        if not any(pos) and not any(vel):
+            self._inv.flush_input()
+            self._fresh = False
+            return False
+        self._xpos[:] = pos
+        self._xvel[:] = vel
+        self._xt = self.now()
+        self._fresh = True
+        return True
+
+    def _poll(self, vpos, vvel):
+        # the Inverse3 answers each force with its state: the state the last command brought back
+        # is this tick's sample; without one (first tick, or a miss) exchange the held force now
+        if not self._fresh and not self._exchange(self._vforce):
+            return None
+        self._fresh = False
+        vpos[:] = self._xpos
+        vvel[:] = self._xvel
+        if self._handle is None:
+            return 0
+        if time.perf_counter() - self._buttons_t > self.handle_timeout:
+            return BUTTON_1  # the handle is silent: disengaged
+        return self._buttons
+
+    def _sample_time(self) -> float:
+        return self._xt
+
+    def _send(self, vforce) -> bool:
+        return self._exchange(vforce)
+
+    def _release(self) -> None:
+        self._handle_stop.set()
+        if self._handle_thread is not None:
+            self._handle_thread.join(timeout=0.5)  # if it is still in a Receive, it ends when that times out
+            self._handle_thread = None
+        self._handle = None  # each binding object before the stream it reads
+        self._handle_stream = None
+        self._inv = None
+        self._stream = None
+
+
+def probe() -> BackendReport:
+    """Is the package there, and which Inverse3s and handles does it detect."""
+    try:
+        api = _api()
+    except MissingDependency as exc:
+        return BackendReport("haply", False, str(exc))
+    import importlib.metadata as md
+
+    devices = [f"Inverse3 on {p}" for p in api.detect_inverse3s()] + [f"handle on {p}" for p in api.detect_handles()]
+    return BackendReport("haply", True, f"haplyhardwareapi {md.version('haplyhardwareapi')}", devices)

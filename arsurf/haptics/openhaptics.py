@@ -1,0 +1,307 @@
+r"""3D Systems Touch, Touch X, Phantom Premium... through OpenHaptics (the HD API).
+
+Through ``pyopenhaptics`` (extra ``arsurf[openhaptics]``; imported as ``pyOpenHaptics``), a thin
+ctypes binding that loads ``libHD.so`` (``HD.dll``) by name at import: the OpenHaptics runtime
+(and the device driver) must be installed and on the library path.
+
+**Servo thread.** The HD API reads and commands the device only inside *frames* run by its own
+servo scheduler (1 kHz). The adapter schedules one asynchronous callback that, every servo tick,
+opens a frame, reads the transform, velocity and buttons, applies the force arsurf's loop last
+commanded and closes the frame; arsurf's loop (:class:`~arsurf.haptics.scheduler.Scheduler`) reads
+the latest sample and writes the next force under a lock. Two safeguards live on the servo side:
+a force older than ``command_timeout`` (default 10 ms: arsurf's loop stalled) is replaced by zero,
+and a frame that ends in an HD error publishes no sample (arsurf then sees a missed sample and
+commands zero; see :mod:`arsurf.haptics.hardware`). ``pyOpenHaptics.get_error`` raises
+``KeyError`` on error codes its table lacks (``HD_COMM_ERROR`` among them, the unplugged-cable
+error), so the adapter reads ``hdGetError`` itself.
+
+**Frame.** HD: millimetres, mm/s, newtons; :math:`x` right, :math:`y` up, :math:`z` towards the
+operator; arsurf's is ``AxisMap("x,-z,y", length_scale=1e-3)``. Home is the centre of the usable
+workspace the device reports.
+
+**Limits, from the device.** ``HD_USABLE_WORKSPACE_DIMENSIONS`` (the workspace box),
+``HD_NOMINAL_MAX_CONTINUOUS_FORCE`` (the default force limit: what the motors hold without
+overheating; ``max_force`` may raise it up to ``HD_NOMINAL_MAX_FORCE``), ``HD_NOMINAL_MAX_STIFFNESS``
+and ``HD_NOMINAL_MAX_DAMPING``. ``HD_MAX_FORCE_CLAMPING`` is enabled so the driver clamps too.
+
+**Calibration.** ``hdCheckCalibration`` (in a synchronous servo callback, as the API wants it): a
+device that needs an update is updated with ``hdUpdateCalibration`` in the style it supports; one
+that needs manual input (the Touch: put the stylus in its inkwell) is refused with that
+instruction.
+
+Examples
+--------
+>>> OpenHapticsDevice().axes.spec
+'x,-z,y'
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import io
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
+from arsurf.haptics.device import DeviceInfo
+from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
+
+__all__ = ["OpenHapticsDevice", "probe"]
+
+log = logging.getLogger(__name__)
+EXTRA = "openhaptics"
+HD_AXES = "x,-z,y"
+# HD API constants (OpenHaptics hdDefines.h)
+HD_INVALID_HANDLE = 0xFFFFFFFF
+HD_CALLBACK_DONE, HD_CALLBACK_CONTINUE = 0, 1
+HD_CURRENT_BUTTONS, HD_CURRENT_VELOCITY, HD_CURRENT_TRANSFORM = 0x2000, 0x2051, 0x2052
+HD_USABLE_WORKSPACE_DIMENSIONS, HD_CALIBRATION_STYLE = 0x2551, 0x2555
+HD_NOMINAL_MAX_STIFFNESS, HD_NOMINAL_MAX_FORCE, HD_NOMINAL_MAX_CONTINUOUS_FORCE = 0x2602, 0x2603, 0x2604
+HD_NOMINAL_MAX_DAMPING, HD_CURRENT_FORCE = 0x2609, 0x2700
+HD_FORCE_OUTPUT, HD_MAX_FORCE_CLAMPING = 0x4000, 0x4001
+HD_CALIBRATION_OK, HD_CALIBRATION_NEEDS_UPDATE, HD_CALIBRATION_NEEDS_MANUAL_INPUT = 0x5000, 0x5001, 0x5002
+HD_CALIBRATION_ENCODER_RESET, HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL = 1, 2, 4
+HD_MAX_SCHEDULER_PRIORITY = (1 << 16) - 1
+
+
+def _binding():
+    """The ``pyOpenHaptics.hd`` module, or a :class:`MissingDependency` saying what is missing."""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            from pyOpenHaptics import hd
+    except ImportError as exc:
+        raise MissingDependency("3D Systems devices need pyopenhaptics; install it with: "
+                                f"pip install 'arsurf[{EXTRA}]' (and OpenHaptics, see the README)") from exc
+    except OSError as exc:  # the binding loads libHD.so at import
+        raise MissingDependency(f"pyopenhaptics is installed but the OpenHaptics library libHD.so cannot be loaded "
+                                f"({exc}); install OpenHaptics and the device driver and put libHD.so on the "
+                                "library path (LD_LIBRARY_PATH)") from exc
+    return hd
+
+
+class OpenHapticsDevice(HardwareDevice):
+    """A device of the OpenHaptics HD API (Touch, Touch X, Phantom).
+
+    Parameters
+    ----------
+    name : str
+        The device's configured name (``"Default Device"``: the one set in Touch Setup).
+    max_force : float, N, optional
+        Force limit; default the device's nominal continuous force, at most its nominal maximum.
+    command_timeout : float, s
+        The servo thread applies zero force when arsurf's last command is older than this.
+    sample_timeout : float, s
+        A servo sample older than this is a missed sample for arsurf's loop (default 5 ms: five
+        servo ticks).
+    disconnect_after : float, s
+        See :class:`~arsurf.haptics.hardware.HardwareDevice`.
+
+    Attributes
+    ----------
+    servo_errors : int
+        Servo frames that ended in an HD error (``last_servo_error`` holds the last code).
+    """
+
+    def __init__(self, name: str = "Default Device", *, max_force: float | None = None,
+                 command_timeout: float = 0.01, sample_timeout: float = 0.005,
+                 disconnect_after: float = 0.05) -> None:
+        super().__init__(AxisMap(HD_AXES, length_scale=1e-3), max_force=max_force, disconnect_after=disconnect_after)
+        if not isinstance(name, str) or not name:
+            raise HapticsError(f"name must be the device's configured name, e.g. 'Default Device' (got {name!r})")
+        if not (isinstance(command_timeout, (int, float)) and 0.0 < command_timeout <= 1.0):
+            raise HapticsError(f"command_timeout must be in (0, 1] s (got {command_timeout!r})")
+        if not (isinstance(sample_timeout, (int, float)) and 0.0 < sample_timeout < disconnect_after):
+            raise HapticsError(f"sample_timeout must be positive and below disconnect_after (got {sample_timeout!r} s)")
+        self.name = name
+        self.command_timeout = float(command_timeout)
+        self.sample_timeout = float(sample_timeout)
+        self.servo_errors = 0
+        self.last_servo_error = 0
+        self._hd = None
+        self._id = HD_INVALID_HANDLE
+        self._lock = threading.Lock()
+        self._sample = np.zeros(7)  # position (3) mm, velocity (3) mm/s, buttons
+        self._sample_t = -math.inf
+        self._poll_t = -math.inf
+        self._cmd = np.zeros(3)
+        self._cmd_t = -math.inf
+        self._callback = None
+        self._handle = 0
+        self._scheduled = False
+
+    # -- the servo callback (runs in the HD scheduler's thread) -------------------------------------
+    def _servo(self, _data) -> int:
+        hd = self._hd
+        try:
+            hd.begin_frame(self._id)
+            m = hd.get_transform()
+            vel = hd._get_doublev(HD_CURRENT_VELOCITY, hd.hduVector3Dd)
+            buttons = hd.get_buttons()
+            now = time.perf_counter()
+            with self._lock:
+                f = self._cmd if now - self._cmd_t <= self.command_timeout else (0.0, 0.0, 0.0)
+                force = [float(f[0]), float(f[1]), float(f[2])]
+            hd.set_force(force)
+            hd.end_frame(self._id)
+            err = hd._get_error().errorCode
+            if err:
+                self.servo_errors += 1
+                self.last_servo_error = int(err)
+                return HD_CALLBACK_CONTINUE
+            with self._lock:
+                s = self._sample
+                s[0], s[1], s[2] = m[3][0], m[3][1], m[3][2]  # column-major: the translation column
+                s[3], s[4], s[5] = vel[0], vel[1], vel[2]
+                s[6] = buttons
+                self._sample_t = now
+        except Exception:  # noqa: BLE001 - never let an exception unwind into the HD scheduler
+            self.servo_errors += 1
+        return HD_CALLBACK_CONTINUE
+
+    # -- connection -------------------------------------------------------------------------------
+    def _connect(self) -> DeviceInfo:
+        hd = self._hd = _binding()
+        lib = hd._lib_hd
+        with contextlib.redirect_stdout(io.StringIO()):  # the binding prints its progress
+            self._id = hd.init_device(self.name)
+        err = hd._get_error().errorCode
+        if self._id is None or self._id == HD_INVALID_HANDLE or err:
+            self._id = HD_INVALID_HANDLE
+            raise DeviceNotFound(f"OpenHaptics: no device {self.name!r} (hdInitDevice error 0x{err:x}); check Touch "
+                                 "Setup, the cable and the driver")
+        try:
+            model = f"{hd.get_vendor()} {hd.get_model()}"
+            box = np.array(hd._get_doublev(HD_USABLE_WORKSPACE_DIMENSIONS, ctypes.c_double * 6))
+            fmax = float(hd._get_doublev(HD_NOMINAL_MAX_FORCE, ctypes.c_double).value)
+            fcont = float(hd._get_doublev(HD_NOMINAL_MAX_CONTINUOUS_FORCE, ctypes.c_double).value)
+            k = float(hd._get_doublev(HD_NOMINAL_MAX_STIFFNESS, ctypes.c_double).value) * 1e3  # N/mm -> N/m
+            b = float(hd._get_doublev(HD_NOMINAL_MAX_DAMPING, ctypes.c_double).value) * 1e3  # N s/mm -> N s/m
+            lo, hi = box[:3], box[3:]
+            if not (np.isfinite(box).all() and (hi > lo).all() and fmax > 0 and fcont > 0 and k > 0):
+                raise HapticsError(f"OpenHaptics: {model} reports unusable limits (workspace {box.tolist()} mm, "
+                                   f"force {fcont}/{fmax} N, stiffness {k} N/m)")
+            self.home = 0.5 * (lo + hi)
+            user = self.user_max_force
+            if user is not None and user > fmax:
+                raise HapticsError(f"max_force {user:g} N is above {model}'s nominal maximum ({fmax:g} N)")
+            info = device_limits(model, fcont if user is None else fmax, user, self.axes.extents(hi - lo), k,
+                                 b if b > 0 else None, source="OpenHaptics")
+            lib.hdEnable.argtypes = [ctypes.c_uint]
+            lib.hdEnable(HD_MAX_FORCE_CLAMPING)
+            with contextlib.redirect_stdout(io.StringIO()):
+                hd.enable_force()
+            cb_type = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
+            self._callback = cb_type(self._servo)
+            lib.hdScheduleAsynchronous.argtypes = [cb_type, ctypes.c_void_p, ctypes.c_ushort]
+            lib.hdScheduleAsynchronous.restype = ctypes.c_ulong
+            self._handle = lib.hdScheduleAsynchronous(self._callback, None, HD_MAX_SCHEDULER_PRIORITY)
+            self._scheduled = True
+            hd.start_scheduler()
+            self._calibrate(model)
+            deadline = time.perf_counter() + 1.0
+            while self._sample_t == -math.inf:
+                if time.perf_counter() > deadline:
+                    raise DeviceNotFound(f"OpenHaptics: {model} gave no sample within 1 s of starting the servo "
+                                         f"scheduler (last HD error 0x{self.last_servo_error:x})")
+                time.sleep(0.002)
+        except BaseException:
+            self._release()
+            raise
+        return info
+
+    def _calibrate(self, model: str) -> None:
+        hd, lib = self._hd, self._hd._lib_hd
+        status = []
+        cb_type = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
+
+        def check(_data):
+            hd.begin_frame(self._id)
+            status.append(int(lib.hdCheckCalibration()))
+            hd.end_frame(self._id)
+            return HD_CALLBACK_DONE
+
+        cb = cb_type(check)
+        lib.hdCheckCalibration.restype = ctypes.c_uint
+        lib.hdScheduleSynchronous.argtypes = [cb_type, ctypes.c_void_p, ctypes.c_ushort]
+        lib.hdScheduleSynchronous(cb, None, HD_MAX_SCHEDULER_PRIORITY)
+        if not status or status[0] == HD_CALIBRATION_OK:
+            return
+        if status[0] == HD_CALIBRATION_NEEDS_MANUAL_INPUT:
+            raise HapticsError(f"OpenHaptics: {model} needs calibrating by hand: put the stylus in its inkwell (or "
+                               "follow Touch Diagnostic's calibration) and open it again")
+        style = int(hd._get_integerv(HD_CALIBRATION_STYLE, ctypes.c_int).value)
+        for s in (HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL, HD_CALIBRATION_ENCODER_RESET):
+            if style & s:
+                log.warning("%s: updating its calibration (style %d)", model, s)
+                lib.hdUpdateCalibration.argtypes = [ctypes.c_uint]
+                lib.hdUpdateCalibration(s)
+                return
+        raise HapticsError(f"OpenHaptics: {model} needs a calibration update but supports no style (0x{style:x})")
+
+    # -- the arsurf tick ----------------------------------------------------------------------------
+    def _poll(self, vpos, vvel):
+        now = time.perf_counter()
+        with self._lock:
+            t = self._sample_t
+            if not (now - t <= self.sample_timeout):  # no servo sample for that long
+                return None
+            s = self._sample
+            vpos[:] = s[:3]
+            vvel[:] = s[3:6]
+            buttons = int(s[6])
+        self._poll_t = t
+        return buttons
+
+    def _sample_time(self) -> float:
+        return self._poll_t
+
+    def _send(self, vforce) -> bool:
+        with self._lock:
+            self._cmd[:] = vforce
+            self._cmd_t = time.perf_counter()
+        return True
+
+    def _release(self) -> None:
+        hd = self._hd
+        if hd is None:
+            return
+        with self._lock:
+            self._cmd[:] = 0.0
+            self._cmd_t = -math.inf
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                if self._scheduled:
+                    hd.stop_scheduler()
+                    hd._lib_hd.hdUnschedule.argtypes = [ctypes.c_ulong]
+                    hd._lib_hd.hdUnschedule(self._handle)
+                    self._scheduled = False
+                if self._id != HD_INVALID_HANDLE:
+                    hd.close_device(self._id)
+        except Exception:  # noqa: BLE001 - releasing must not raise
+            pass
+        self._id = HD_INVALID_HANDLE
+        self._sample_t = -math.inf
+
+
+def probe() -> BackendReport:
+    """Is OpenHaptics there, and does the default device answer (initialised and released at once)."""
+    try:
+        hd = _binding()
+    except MissingDependency as exc:
+        return BackendReport("openhaptics", False, str(exc))
+    import importlib.metadata as md
+
+    detail = f"pyopenhaptics {md.version('pyopenhaptics')}"
+    with contextlib.redirect_stdout(io.StringIO()):
+        i = hd.init_device("Default Device")
+    err = hd._get_error().errorCode
+    if i is None or i == HD_INVALID_HANDLE or err:
+        return BackendReport("openhaptics", True, detail, [])
+    name = f"{hd.get_vendor()} {hd.get_model()}"
+    with contextlib.redirect_stdout(io.StringIO()):
+        hd.close_device(i)
+    return BackendReport("openhaptics", True, detail, [f"'Default Device': {name}"])

@@ -1,0 +1,174 @@
+"""Benchmark: round trip and jitter of the 1 kHz loop through each hardware adapter, on the
+simulated devices of the tests (tests/hardware_sim), with the virtual device as the peer.
+
+For each backend the Scheduler runs at 1 kHz for ``--seconds`` with the device's ``read_state`` as
+source and ``command_force`` as sink (a constant 0.1 N, so every tick talks to the device both
+ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library or
+serial exchange), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
+servo thread samples on its own clock); then the scheduler's period jitter (|period - 1 ms|),
+overruns and achieved rate. The simulated devices are not the real ones: a real USB device adds
+its bus latency (~0.1-1 ms) to ``io``; what this measures is arsurf's side of the round trip.
+
+BENCHMARKS maps a section name to a function returning its JSON dict; another link (e.g. an AFM
+controller simulator) adds its own entry. Run:
+.venv/bin/python bench/hardware.py [--seconds 3] [--only forcedimension,haply]   (prints JSON)
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "tests"))
+from _timing import emit, stats  # noqa: E402
+
+import hardware_sim  # noqa: E402
+
+from arsurf.haptics.scheduler import Scheduler  # noqa: E402
+
+FORCE = np.array([0.0, 0.0, 0.1])
+WORK = Path(tempfile.mkdtemp(prefix="arsurf-bench-hw-"))
+
+
+def loop_through(dev, seconds: float) -> dict:
+    """The 1 kHz Scheduler through ``dev`` (open): io and sample-age statistics, and the timing."""
+    n = int(seconds * 1000 * 1.2) + 100
+    io = np.zeros(n)
+    age = np.zeros(n)
+    k = [0]
+    clock = time.perf_counter_ns
+    t_read = [0]
+
+    def source():
+        t0 = clock()
+        s = dev.read_state()
+        t_read[0] = clock() - t0
+        i = k[0]
+        if i < n:
+            age[i] = dev.now() - s.timestamp
+        return s
+
+    def sink(f):
+        t0 = clock()
+        dev.command_force(f)
+        i = k[0]
+        if i < n:
+            io[i] = (t_read[0] + clock() - t0) * 1e-9
+        k[0] = i + 1
+
+    for _ in range(200):  # warm-up (kernels compiled or loaded, buffers filled), not timed
+        dev.read_state()
+        dev.command_force(FORCE)
+    sched = Scheduler(lambda st, inputs, dt: FORCE, None, rate=1000.0, source=source, sink=sink)
+    st = sched.run_for(seconds)
+    m = min(k[0], n)
+    ok = np.isfinite(age[:m])
+    return {
+        "io": stats(io[:m]),
+        "sample_age": stats(age[:m][ok]),
+        "missed_samples": int(getattr(dev, "missed_samples", 0)),
+        "period_jitter_p99_us": st.jitter_p99 * 1e6,
+        "period_jitter_max_us": st.jitter_max * 1e6,
+        "achieved_rate_hz": st.rate,
+        "overruns": st.overruns,
+        "ticks": st.ticks,
+    }
+
+
+def bench_virtual(seconds: float) -> dict:
+    """The peer: the virtual device (a simulation stepped in the call, no I/O)."""
+    from arsurf.haptics.virtual_device import VirtualDevice
+
+    with VirtualDevice(dt=1e-3) as dev:
+        return loop_through(dev, seconds)
+
+
+def _needs(module: str, compiler: bool = True) -> str | None:
+    if importlib.util.find_spec(module) is None:
+        return f"{module} is not installed (pip install 'arsurf[hardware]')"
+    if compiler and hardware_sim.CC is None:
+        return hardware_sim.NO_COMPILER
+    return None
+
+
+def bench_forcedimension(seconds: float) -> dict:
+    """Through forcedimension-core into the simulated SDK (ctypes calls into a C library)."""
+    why = _needs("forcedimension_core")
+    if why:
+        return {"skipped": why}
+    sdk, lib = hardware_sim.build_fdsdk(WORK / "fd")
+    os.environ["FDSDK"] = str(sdk)
+    from arsurf.haptics.forcedimension import ForceDimensionDevice
+
+    sim = hardware_sim.load(str(lib))
+    sim.sim_reset(33, 1, 1)
+    with ForceDimensionDevice(max_force=1.0) as dev:
+        return {"device": dev.info.name, **loop_through(dev, seconds)}
+
+
+def bench_openhaptics(seconds: float) -> dict:
+    """Through pyopenhaptics into the simulated libHD (its 1 kHz servo thread runs the callback)."""
+    why = _needs("pyOpenHaptics")
+    if why:
+        return {"skipped": why}
+    sim = hardware_sim.load(hardware_sim.build_libhd(WORK / "hd"))
+    sim.sim_reset(0x5000)
+    from arsurf.haptics.openhaptics import OpenHapticsDevice
+
+    try:
+        with OpenHapticsDevice(max_force=1.0, sample_timeout=0.04) as dev:
+            return {"device": dev.info.name, "servo_errors": dev.servo_errors, **loop_through(dev, seconds)}
+    finally:
+        sim.sim_reset(0x5000)
+
+
+def bench_haply(seconds: float) -> dict:
+    """Through haplyhardwareapi over a pseudo-terminal to the simulated Inverse3 (a Python thread)."""
+    why = _needs("HaplyHardwareAPI", compiler=False)
+    if why:
+        return {"skipped": why}
+    from hardware_sim.haply_pty import Inverse3Pty
+
+    from arsurf.haptics.haply import HaplyDevice
+
+    pty = Inverse3Pty().start()
+    try:
+        with HaplyDevice(pty.path, max_force=1.0, workspace=(0.2, 0.12, 0.15), read_timeout=0.1) as dev:
+            return {"device": dev.info.name, **loop_through(dev, seconds)}
+    finally:
+        pty.close()
+
+
+#: section name -> benchmark(seconds) -> dict (add a section for another simulated link here)
+BENCHMARKS = {
+    "virtual (peer)": bench_virtual,
+    "forcedimension": bench_forcedimension,
+    "openhaptics": bench_openhaptics,
+    "haply": bench_haply,
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=3.0)
+    ap.add_argument("--only", default="", help="comma-separated section names (default: all)")
+    args = ap.parse_args()
+    wanted = [s for s in args.only.split(",") if s] or list(BENCHMARKS)
+    results = {}
+    for name in wanted:
+        if name not in BENCHMARKS:
+            raise SystemExit(f"bench/hardware.py: unknown section {name!r}; known: {', '.join(BENCHMARKS)}")
+        results[name] = BENCHMARKS[name](args.seconds)
+    emit("hardware", results)
+
+
+if __name__ == "__main__":
+    main()

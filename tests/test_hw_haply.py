@@ -1,0 +1,142 @@
+"""The Haply adapter against a simulated Inverse3 and handle on pseudo-terminals, speaking the
+serial protocol as HaplyHardwareAPI implements it: the wake-up, frame and units, the limits it
+must be given, the handle's buttons (and its silence), the full 1 kHz loop recorded, and the
+device disappearing mid-session (the package itself never raises: it returns zeros)."""
+from __future__ import annotations
+
+import importlib.util
+import time
+
+import numpy as np
+import pytest
+
+if importlib.util.find_spec("HaplyHardwareAPI") is None:
+    pytest.skip("haplyhardwareapi is not installed (pip install 'arsurf[haply]')", allow_module_level=True)
+
+from hardware_sim.haply_pty import REST, HandlePty, Inverse3Pty, close_all  # noqa: E402
+from hardware_sim.session import run  # noqa: E402
+
+from arsurf.errors import DeviceDisconnected, DeviceNotFound, HapticsError  # noqa: E402
+from arsurf.haptics.device import BUTTON_1  # noqa: E402
+from arsurf.haptics.scheduler import Scheduler  # noqa: E402
+
+WS = (0.20, 0.12, 0.15)
+
+
+@pytest.fixture
+def inv():
+    p = Inverse3Pty().start()
+    yield p
+    close_all(p)
+
+
+@pytest.fixture
+def grip():
+    p = HandlePty().start()
+    yield p
+    close_all(p)
+
+
+def device(port, **kw):
+    """The adapter with a 100 ms read timeout (default 10 ms): the simulated device is a Python
+    thread on a shared machine, and answers in 0.1 ms typically but up to 30 ms under load."""
+    from arsurf.haptics.haply import HaplyDevice
+
+    return HaplyDevice(port, **{"max_force": 4.0, "workspace": WS, "read_timeout": 0.1, **kw})
+
+
+def test_limits_are_required_and_given(inv):
+    from arsurf.haptics.haply import HaplyDevice
+
+    with pytest.raises(HapticsError, match="reports no workspace"):
+        HaplyDevice(inv.path, max_force=3.0)
+    with pytest.raises(HapticsError, match="reports no force limit"):
+        HaplyDevice(inv.path, workspace=WS)
+    with device(inv.path) as dev:
+        assert dev.info.max_force == 4.0 and dev.info.workspace.tolist() == list(WS)
+        assert dev.device_id == UUID_HEX
+        np.testing.assert_allclose(dev.home, REST, atol=1e-4)  # home: where the handle was at opening
+
+
+UUID_HEX = bytes(range(0x10, 0x20)).hex()
+
+
+def test_nothing_answers_on_the_port(tmp_path):
+    import os
+    import pty
+
+    m, s = pty.openpty()  # a port where nothing answers: the package returns garbage, the adapter refuses
+    try:
+        with pytest.raises(DeviceNotFound, match="answered the wake-up"):
+            device(os.ttyname(s)).open()
+    finally:
+        os.close(m)
+        os.close(s)
+    with pytest.raises(DeviceNotFound, match="does not exist"):
+        device(str(tmp_path / "ttyACM9")).open()
+
+
+def test_axes_units_and_force_sign(inv):
+    """The hand moves the handle 10 mm to the right of where it was at opening: x = +0.01 m; a
+    constant +1 N along arsurf z (up) lifts it 1/k_hand."""
+    with device(inv.path) as dev:
+        inv.hand = REST + [0.010, 0.0, 0.0]
+        time.sleep(0.5)
+        dev.command_force([0.0, 0.0, 0.0])
+        np.testing.assert_allclose(dev.read_state().position, [0.010, 0.0, 0.0], atol=2e-4)
+        push = np.array([0.0, 0.0, 1.0])
+        Scheduler(lambda st, inputs, dt: push, None, rate=1000.0, source=dev.read_state,
+                  sink=dev.command_force).run_for(1.0)
+        s = dev.read_state()
+        np.testing.assert_allclose(inv.state()[2], [0.0, 0.0, 1.0], atol=1e-6)  # float32 on the wire
+        np.testing.assert_allclose(s.position, [0.010, 0.0, 1.0 / 200.0], atol=3e-4)
+
+
+def test_handle_buttons_and_a_silent_handle(inv, grip):
+    with device(inv.path, handle_port=grip.path, handle_timeout=0.1) as dev:
+        time.sleep(0.1)
+        assert dev.read_state().buttons == 0
+        grip.buttons = 1
+        time.sleep(0.1)
+        assert dev.read_state().buttons == BUTTON_1
+        grip.buttons = 0
+        time.sleep(0.1)
+        assert dev.read_state().buttons == 0
+        grip.unplug()  # silent: reads as the disengage button held
+        time.sleep(0.5)
+        assert dev.read_state().buttons == BUTTON_1
+
+
+def test_the_full_loop_records_positions_and_forces(inv, tmp_path):
+    inv.hand = REST + [0.0, 0.0, -0.003]  # the hand presses 3 mm below where it opened the device
+    with device(inv.path) as dev:
+        inv.hand = dev.home + [0.0, 0.0, -0.003]
+        r = run(dev, tmp_path / "s.h5", 1.5)
+        applied = inv.state()[2]
+    assert r.error is None and r.complete
+    t = r.ticks
+    z, fz = t["stylus_position"][:, 2], t["device_force"][:, 2]
+    assert -0.003 < z[-1] < -0.0005
+    rest = slice(-100, None)
+    np.testing.assert_allclose(fz[rest].mean(), 200.0 * (z[rest].mean() + 0.003), rtol=0.05)
+    assert np.linalg.norm(t["device_force"], axis=1).max() <= 4.0 * (1 + 1e-12)
+    assert inv.max_force_seen <= 4.0 * (1 + 1e-6)  # float32 on the wire
+    np.testing.assert_allclose(t["probe_position"][:, 2], 25e-9 + z * 1e-5, atol=1e-15)
+    np.testing.assert_allclose(applied, 0.0)  # the loop's stop commanded zero, and the device got it
+
+
+def test_the_device_disappearing_mid_session(inv, tmp_path):
+    """The cable is pulled at 0.5 s: the package returns zeros (it never raises), the adapter
+    counts them as missed samples, zero force, a clean DeviceDisconnected, the recording kept."""
+    dev = device(inv.path, disconnect_after=0.5)  # each miss blocks 2 x 0.1 s: a few are recorded before it gives up
+    dev.open()
+    inv.hand = dev.home + [0.0, 0.0, -0.003]
+    unplugged = []
+    r = run(dev, tmp_path / "s.h5", 3.0, events=[(0.5, lambda: (unplugged.append(dev.now()), inv.unplug()))])
+    dev.close()
+    assert isinstance(r.error.__cause__, DeviceDisconnected) and not r.complete
+    f = np.linalg.norm(r.ticks["device_force"], axis=1)
+    after = r.ticks["t"] > unplugged[0] - r.t0
+    # the first tick after the unplugging may still use the state its last exchange brought back
+    # (a good sample, from before); its command fails, and from the next read on the force is zero
+    assert f[~after].max() > 0.1 and after.sum() >= 2 and np.all(f[after][1:] == 0.0), f[after]
