@@ -121,7 +121,7 @@ def _viewer_contact() -> tuple[float, float]:
 # the virtual coupling of the demo's VirtualDevice at 1 kHz: 2 b / T (arsurf.haptics.gains.coupling_stiffness)
 _DEMO_COUPLING = 2.0 * (100.0 / 300.0) * 0.1 * 1000.0
 _DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
-                                  "source": "blended", "filter_cutoff": 200.0, "signal_noise": 2e-7,
+                                  "source": "blended", "filter_cutoff": 50.0, "signal_noise": 2e-7,
                                   "coupling_stiffness": _DEMO_COUPLING, "passivity": True})
 
 
