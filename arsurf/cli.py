@@ -42,8 +42,8 @@ def _scan_summary(scan) -> dict:
         "channel_units": scan.metadata.get("channel_units") or {},
         "pixels": f"{nx} x {ny}",
         "pixel_size_nm": [scan.dx * 1e9, scan.dy * 1e9],
-        "scan_size_nm": [nx * scan.dx * 1e9, ny * scan.dy * 1e9],
-        "first_to_last_pixel_nm": [scan.size[0] * 1e9, scan.size[1] * 1e9],
+        "scan_size_nm": [scan.extent[0] * 1e9, scan.extent[1] * 1e9],  # pixels x spacing (Scan.extent)
+        "first_to_last_pixel_nm": [scan.size[0] * 1e9, scan.size[1] * 1e9],  # centre to centre (Scan.size)
         f"z_min_{shown}": float(finite.min() * scale) if finite.size else None,
         f"z_max_{shown}": float(finite.max() * scale) if finite.size else None,
         f"z_range_{shown}": float(np.ptp(finite) * scale) if finite.size else None,
@@ -53,6 +53,9 @@ def _scan_summary(scan) -> dict:
     frames = scan.metadata.get("frames")
     if isinstance(frames, int) and not isinstance(frames, bool):  # a movie (.asd, .h5-jpk): which frame, of how many
         out["frame"] = f"{scan.metadata.get('frame', 0)} of 0..{frames - 1} (--frame N)"
+    if scan.metadata.get("height") is False:
+        out["height_channel"] = "no: not topography by its unit or name; arsurf fit refuses it (--as-height " \
+            "overrides for a channel in metres)"
     if scan.metadata.get("calibrated") is False:  # NanoScope: the file leaves the channel in arbitrary units
         out["calibrated"] = "no: the file gives this channel in arbitrary units (its sensitivity has no unit)"
     if scan.metadata.get("log10_decoded"):
@@ -83,14 +86,32 @@ def cmd_info(args) -> int:
     return 0
 
 
+def _prepare(args, path, channel=None, inpaint: bool = True, **options):
+    """:func:`prepare_scan` with the CLI's flags: a smoothing width wider than the scan is
+    reported in nanometres and names ``--sigma-nm`` (the library speaks metres)."""
+    from arsurf.errors import SigmaTooWide, SmoothingError
+
+    try:
+        return prepare_scan(path, channel, args.level, args.sigma_nm * 1e-9, inpaint, **options)
+    except SigmaTooWide as exc:
+        nm = exc.spacing * 1e9
+        raise SmoothingError(
+            f"--sigma-nm {args.sigma_nm:g} is {exc.pixels:.4g} pixels of {nm:.4g} nm along {exc.axis}, wider than "
+            f"the scan ({exc.widest} pixels, {exc.widest * nm:.4g} nm); give a width of a few pixels in nm, e.g. "
+            f"--sigma-nm {2 * nm:.3g}"
+        ) from None
+
+
 def cmd_fit(args) -> int:
-    from arsurf.spline.fit import fit_surface
+    from arsurf.spline.fit import check_control_shape, fit_surface
     from arsurf.spline.storage import save_surface
 
-    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
-                        frame=args.frame, **_calibration(args))
+    scan = _prepare(args, args.scan, args.channel, not args.no_inpaint, frame=args.frame, as_height=args.as_height,
+                    **_calibration(args))
+    ny, nx = scan.shape
+    control = check_control_shape(nx, ny, args.control, args.smoothing, names=("--control", "--smoothing")) \
+        if args.control else None
     t0 = time.perf_counter()
-    control = tuple(args.control) if args.control else None
     surface = fit_surface(scan, control_shape=control, smoothing=args.smoothing)
     elapsed = time.perf_counter() - t0
     xx, yy = np.meshgrid(scan.x, scan.y)
@@ -135,6 +156,17 @@ def _nm(minimum: float = 0.0, strict: bool = False):
             raise argparse.ArgumentTypeError(f"must be a finite length {rule} nm (got {text})")
         return value
     return parse
+
+
+def _penalty(text: str) -> float:
+    """An argparse type: a finite number >= 0 (the dimensionless P-spline penalty weight)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number (got {text!r})") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (got {text})")
+    return value
 
 
 def _seconds(text: str) -> float:
@@ -226,8 +258,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--channel")
     _processing_flags(s)
     s.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
-    s.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
+    s.add_argument("--smoothing", type=_penalty, default=0.0, help="P-spline penalty weight (dimensionless)")
     s.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
+    s.add_argument("--as-height", action="store_true", help="fit a channel in metres that its file names as "
+                   "another quantity (an amplitude...) as if it were the topography")
     s.add_argument("--json", action="store_true")
     _calibration_flags(s)
     _frame_flag(s)
@@ -335,7 +369,7 @@ def _batch_parser(sub) -> None:
     b.add_argument("--channel")
     _processing_flags(b)
     b.add_argument("--control", type=int, nargs=2, metavar=("NU", "NV"), help="control points (approximating fit)")
-    b.add_argument("--smoothing", type=float, default=0.0, help="P-spline penalty weight (dimensionless)")
+    b.add_argument("--smoothing", type=_penalty, default=0.0, help="P-spline penalty weight (dimensionless)")
     b.add_argument("--no-inpaint", action="store_true", help="refuse NaN pixels instead of filling them")
     b.add_argument("--export", action="append", metavar="EXT", choices=("stl", "ply", "glb", "gwy", "gsf", "npz", "npy"),
                    help="also write the fitted surface as a mesh (stl, ply, glb) or height map (gwy, gsf, npz, npy); "
@@ -496,7 +530,7 @@ def _view(args, bridge, record) -> int:
     from arsurf.assembly import BUNDLED_SCAN
     from arsurf_viewer import view_scan
 
-    scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
+    scan = _prepare(args, args.scan or str(BUNDLED_SCAN))
     view_scan(scan, tip_radius=args.tip_radius_nm * 1e-9, level_method=None, sigma=None, tubes=args.tubes,
               out_dir=args.out, frames=args.frames)
     return 0
@@ -609,8 +643,7 @@ def cmd_export(args) -> int:
 def cmd_convert(args) -> int:
     from arsurf.scan.io import save_scan
 
-    scan = prepare_scan(args.scan, args.channel, args.level, args.sigma_nm * 1e-9, not args.no_inpaint,
-                        frame=args.frame, **_calibration(args))
+    scan = _prepare(args, args.scan, args.channel, not args.no_inpaint, frame=args.frame, **_calibration(args))
     print(save_scan(scan, args.output))
     return 0
 

@@ -54,6 +54,16 @@ class SmoothingError(ScanError, ValueError):
     """A smoothing request cannot be carried out (bad width, truncation or input)."""
 
 
+class SigmaTooWide(SmoothingError):
+    """The smoothing width is wider than the scan (often a width in the wrong unit). The fields
+    let an interface restate it in its own units: ``axis`` ("x"/"y"), ``sigma`` and ``spacing``
+    (metres), ``pixels`` (sigma in pixels), ``widest`` (pixels of the scan's longer side)."""
+
+    def __init__(self, message: str, *, axis: str, sigma: float, spacing: float, pixels: float, widest: int):
+        super().__init__(message)
+        self.axis, self.sigma, self.spacing, self.pixels, self.widest = axis, sigma, spacing, pixels, widest
+
+
 class SyntheticError(ScanError, ValueError):
     """A synthetic surface cannot be built from the parameters given."""
 

@@ -1,24 +1,31 @@
 """Fuzz the scan readers at scale: mutated copies of every real scan, each read in an isolated
-worker process with a time limit. Prints one JSON document (not a test: it never asserts).
+worker process with a time and an address-space limit, every outcome counted. Prints one JSON
+document (not a test: it never asserts).
 
-Mutations (fixed seed), cycled per mutant: truncation anywhere, bit flips in the header (first
-4 KiB), bit flips anywhere, a run of random bytes, an edit of a number in a text header
-(huge, negative, zero, NaN), and for HDF5 files an edit of one numeric attribute or dataset
-shape-bearing attribute (grid size, lengths, calibration multipliers). Each mutant's outcome is:
+Mutations and classification are those of tests/test_readers_fuzz.py (``mutate``, ``classify``;
+fixed seed), cycled per mutant: truncation, bit flips in the header (first 4 KiB) and anywhere, a
+run of random bytes, a number of a text header made huge/negative/zero/NaN, one digit of such a
+number changed, and for HDF5 files one numeric attribute (grid, lengths, calibration) set to a
+hostile value. Outcomes of arsurf's ``load_scan``:
 
-- ``loaded``: a Scan came back (then checked: 2-D float64, a finite pixel, finite positive
-  spacings within the readers' plausibility range; ``implausible`` counts failures of that check);
-- ``refused``: an :class:`arsurf.errors.ScanError` (the project's one-line error);
-- ``other``: any other exception (type names listed; should be 0);
-- ``crash``: the worker died (signal or exit status; should be 0);
-- ``hang``: the worker took longer than the time limit (should be 0).
+- ``refused``: an :class:`arsurf.errors.ScanError` (``multi_line_message`` counts those not on one line);
+- ``equal``, ``damaged_pixels``, ``rescaled``, ``plausible``: accepted, and right or within the
+  plausibility rules (see the test module);
+- ``misread``: a silent misread the classification detects (should be 0; examples kept);
+- ``other``: any other exception (should be 0); ``crash``: the worker died; ``hang``: time limit.
 
-The worker runs ``load_scan`` on one file at a time under an address-space limit
-(``--mem-limit-mb``), so a header that asks for a huge allocation shows up as ``refused`` (our
-size checks) or ``other`` (MemoryError escaping), never as a machine that swaps; it is restarted
-after a crash or a hang.
+Memory: the worker reports the tracemalloc peak of each read; ``max_alloc_per_file_byte`` is the
+largest peak over the mutant's size and ``over_memory_bound`` counts reads above the test's
+bound (``MEMORY_FACTOR`` x size + slack), under an address-space limit (``--mem-limit-mb``).
 
-Run: python bench/fuzz_readers.py [--mutants 200] [--seed 1] [--timeout 20] [--files a.spm,...]
+Peers, on the same mutants in the same kind of worker: ``gsffile.read_gsf`` for .gsf files and
+``igor2.binarywave.load`` for .ibw (the maintained third-party readers we could use instead);
+their outcomes are ``refused`` (any exception: they have no error class of their own), the
+classification of their array against their reading of the intact file (``equal``,
+``damaged_pixels``, ``rescaled``, ``misread``; ``plausible`` for another shape: they check no
+calibration), ``crash``, ``hang``; their median time and largest allocation per read next to ours.
+
+Run: python bench/fuzz_readers.py [--mutants 200] [--seed 1] [--timeout 20] [--files a.spm,...] [--no-peers]
 The real scans are taken from $ARSURF_REAL_SCANS or ../shared/scans-real beside the project, plus
 the bundled samples of the .nhf, .mdt and .asd readers in tests/data (SOURCES.md there).
 """
@@ -40,42 +47,74 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-ROOT = Path(__file__).resolve().parents[1]
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from test_readers_fuzz import KINDS, MEMORY_FACTOR, MEMORY_SLACK, OUTCOMES, mutate  # noqa: E402
+
 REAL = Path(os.environ.get("ARSURF_REAL_SCANS", ROOT.parent / "shared" / "scans-real"))
 DATA = ROOT / "tests" / "data"
 DATA_SUFFIXES = (".nhf", ".mdt", ".asd")
 HDF5 = b"\x89HDF\r\n\x1a\n"
+PEERS = {".gsf": "gsffile", ".ibw": "igor2"}
 
 WORKER = r"""
-import json, resource, sys, traceback
+import json, resource, sys, time, tracemalloc
 limit = int(sys.argv[1]) * 2**20
 if limit > 0:
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+sys.path.insert(0, sys.argv[2])
 import numpy as np
 from arsurf.errors import ScanError
 from arsurf.scan.io import load_scan
-from arsurf.scan.readers._common import PIXEL_RANGE
+from test_readers_fuzz import classify, classify_values
+
+def peer_read(reader, path):
+    if reader == "gsffile":
+        from gsffile import read_gsf
+        return np.asarray(read_gsf(path)[0], dtype=np.float64)
+    import igor2.binarywave as bw
+    return np.asarray(bw.load(path)["wave"]["wData"], dtype=np.float64)
+
+intact = {}
 for line in sys.stdin:
-    path = line.rstrip("\n")
-    out = {}
+    req = json.loads(line)
+    reader, path = req["reader"], req["path"]
+    key = (reader, req["original"])
+    seconds = peak = None
     try:
-        s = load_scan(path)
-        h = s.heights
-        ok = (h.ndim == 2 and h.dtype == np.float64 and bool(np.isfinite(h).any())
-              and all(np.isfinite(v) and PIXEL_RANGE[0] <= v <= PIXEL_RANGE[1] for v in (s.dx, s.dy)))
-        out = {"outcome": "loaded", "plausible": bool(ok), "format": s.metadata.get("format"),
-               "unit": s.metadata.get("z_unit")}
+        if key not in intact:
+            intact[key] = load_scan(req["original"]) if reader == "arsurf" else peer_read(reader, req["original"])
+        tracemalloc.start()  # both readers traced: the same overhead on both times
+        try:
+            t0 = time.perf_counter()
+            got = load_scan(path) if reader == "arsurf" else peer_read(reader, path)
+            seconds = time.perf_counter() - t0
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        if reader == "arsurf":
+            outcome, reason = classify(intact[key], got, req["kind"], req["changed"])
+            out = {"outcome": outcome, "reason": reason}
+        else:
+            b = intact[key]
+            if got.shape != b.shape:
+                out = {"outcome": "misread" if req["kind"] == "truncate" else "plausible"}
+            else:
+                out = dict(zip(("outcome", "reason"), classify_values(b, got, req["kind"], req["changed"])))
     except ScanError as exc:
-        out = {"outcome": "refused", "type": type(exc).__name__, "one_line": "\n" not in str(exc)}
+        out = {"outcome": "refused", "one_line": "\n" not in str(exc)}
     except BaseException as exc:
-        out = {"outcome": "other", "type": type(exc).__name__, "message": str(exc)[:200]}
+        out = {"outcome": "other" if reader == "arsurf" else "refused", "type": type(exc).__name__,
+               "message": str(exc)[:200]}
+    out.update(seconds=seconds, peak=peak)
     sys.stdout.write(json.dumps(out) + "\n")
     sys.stdout.flush()
 """
 
 
 class Worker:
-    """One ``load_scan`` process fed file paths on stdin; restarted after a crash or a hang."""
+    """One reading process fed requests on stdin; restarted after a crash or a hang."""
 
     def __init__(self, mem_mb: int):
         self.mem_mb = mem_mb
@@ -83,14 +122,15 @@ class Worker:
 
     def start(self):
         env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen([sys.executable, "-c", WORKER, str(self.mem_mb)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+        self.proc = subprocess.Popen([sys.executable, "-c", WORKER, str(self.mem_mb), str(ROOT / "tests")],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                     text=True, env=env)
 
-    def run(self, path: Path, timeout: float) -> dict:
+    def run(self, request: dict, timeout: float) -> dict:
         if self.proc is None or self.proc.poll() is not None:
             self.start()
         try:
-            self.proc.stdin.write(str(path) + "\n")
+            self.proc.stdin.write(json.dumps(request) + "\n")
             self.proc.stdin.flush()
         except BrokenPipeError:
             return self._dead()
@@ -115,36 +155,6 @@ class Worker:
             self.proc = None
 
 
-_NUM = re.compile(rb"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
-
-
-def mutate_bytes(data: bytes, rng: np.random.Generator, kind: int) -> bytes:
-    b = bytearray(data)
-    n = len(b)
-    if kind == 0:  # truncation
-        return bytes(b[: int(rng.integers(0, n))])
-    if kind == 1:  # header bit flips
-        for _ in range(int(rng.integers(1, 8))):
-            i = int(rng.integers(0, min(n, 4096)))
-            b[i] ^= 1 << int(rng.integers(0, 8))
-    elif kind == 2:  # bit flips anywhere
-        for _ in range(int(rng.integers(1, 32))):
-            i = int(rng.integers(0, n))
-            b[i] ^= 1 << int(rng.integers(0, 8))
-    elif kind == 3:  # a run of random bytes
-        i, k = int(rng.integers(0, n)), int(rng.integers(1, 64))
-        b[i : i + k] = rng.integers(0, 256, k, dtype=np.uint8).tobytes()
-    else:  # a number of a text header replaced (huge, negative, zero, NaN)
-        head = bytes(b[: min(n, 1 << 16)])
-        nums = list(_NUM.finditer(head))
-        if not nums:
-            return mutate_bytes(data, rng, 2)
-        m = nums[int(rng.integers(0, len(nums)))]
-        new = [b"999999999999", b"-1", b"0", b"nan", b"1e308", b"-2147483648", b"4294967296"][int(rng.integers(0, 7))]
-        b[m.start() : m.end()] = new
-    return bytes(b)
-
-
 def mutate_hdf5(src: Path, dst: Path, rng: np.random.Generator) -> str:
     """Copy ``src`` and change one numeric attribute (grid, lengths, scaling) to a hostile value."""
     import h5py
@@ -163,8 +173,7 @@ def mutate_hdf5(src: Path, dst: Path, rng: np.random.Generator) -> str:
                 targets.append(("", k))
         if not targets:
             return "none"
-        prefer = [t for t in targets if re.search(r"length|multiplier|offset|scaling|calibration|axis|image_|points|"
-                                                  r"lines|version", t[1])]
+        prefer = [t for t in targets if re.search(r"length|multiplier|offset|scaling", t[1])]
         name, key = (prefer or targets)[int(rng.integers(0, len(prefer or targets)))]
         obj = f[name] if name else f
         value = [0, -1, 2**31 - 1, 1e308, float("nan"), -1e-300, 3][int(rng.integers(0, 7))]
@@ -174,13 +183,19 @@ def mutate_hdf5(src: Path, dst: Path, rng: np.random.Generator) -> str:
         return f"{name}@{key}={value}"
 
 
+def _median(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(np.median(values)) if values else None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mutants", type=int, default=200, help="mutants per file (default 200)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--timeout", type=float, default=20.0, help="seconds per file before it counts as a hang")
-    ap.add_argument("--mem-limit-mb", type=int, default=4096, help="address-space limit of the worker")
+    ap.add_argument("--timeout", type=float, default=20.0, help="seconds per read before it counts as a hang")
+    ap.add_argument("--mem-limit-mb", type=int, default=4096, help="address-space limit of the workers")
     ap.add_argument("--files", default="", help="comma-separated names in the real-scan folder (default: all)")
+    ap.add_argument("--no-peers", action="store_true", help="do not run gsffile/igor2 on the .gsf/.ibw mutants")
     args = ap.parse_args(argv)
     if not REAL.is_dir():
         print(json.dumps({"error": f"real scans not found in {REAL}; set ARSURF_REAL_SCANS"}))
@@ -192,9 +207,11 @@ def main(argv=None) -> int:
     if unknown:
         print(json.dumps({"error": f"not in {REAL} or {DATA}: {unknown}"}))
         return 2
-    worker = Worker(args.mem_limit_mb)
+    ours, peer = Worker(args.mem_limit_mb), Worker(args.mem_limit_mb)
+    counted = (*OUTCOMES, "other", "crash", "hang", "multi_line_message", "over_memory_bound")
     report: dict = {"seed": args.seed, "mutants_per_file": args.mutants, "timeout_s": args.timeout,
-                    "mem_limit_mb": args.mem_limit_mb, "files": {}}
+                    "mem_limit_mb": args.mem_limit_mb, "memory_bound": f"{MEMORY_FACTOR} x file size + "
+                    f"{MEMORY_SLACK >> 20} MiB", "files": {}}
     totals: Counter = Counter()
     t_all = time.perf_counter()
     # on stderr (stdout is the JSON report), only on a terminal
@@ -205,52 +222,68 @@ def main(argv=None) -> int:
             src = sources[name]
             data = src.read_bytes()
             is_h5 = data.startswith(HDF5)
+            peer_name = None if args.no_peers else PEERS.get(src.suffix.lower())
             rng = np.random.default_rng([args.seed, sum(name.encode())])
             counts: Counter = Counter()
+            peer_counts: Counter = Counter()
+            by_kind: dict = {}
             others: Counter = Counter()
             examples: dict = {}
-            times = []
-            base = worker.run(src, args.timeout)
+            times, peer_times, ratios, peer_ratios = [], [], [], []
+            kinds = (*KINDS, "hdf5-attr") if is_h5 else KINDS
             for k in range(args.mutants):
+                kind = kinds[k % len(kinds)]
                 dst = Path(tmp) / f"m{k}{src.suffix}"
-                kinds = 6 if is_h5 else 5
-                kind = k % kinds
-                if kind == 5:
-                    label = "hdf5-attr:" + mutate_hdf5(src, dst, rng)
+                if kind == "hdf5-attr":
+                    label, changed = "hdf5-attr:" + mutate_hdf5(src, dst, rng), 0
                 else:
-                    dst.write_bytes(mutate_bytes(data, rng, kind))
-                    label = ["truncate", "header-bits", "bits", "byte-run", "header-number"][kind]
-                t0 = time.perf_counter()
-                res = worker.run(dst, args.timeout)
-                times.append(time.perf_counter() - t0)
+                    mutant, changed = mutate(data, rng, kind)
+                    dst.write_bytes(mutant)
+                    label = kind
+                req = {"path": str(dst), "original": str(src), "kind": kind, "changed": changed}
+                res = ours.run({**req, "reader": "arsurf"}, args.timeout)
                 outcome = res["outcome"]
                 counts[outcome] += 1
-                if outcome == "loaded" and not res.get("plausible", True):
-                    counts["implausible"] += 1
+                by_kind.setdefault(kind, Counter())[outcome] += 1
+                times.append(res.get("seconds"))
+                if res.get("peak") is not None:
+                    ratio = res["peak"] / max(dst.stat().st_size, 1)
+                    ratios.append(ratio)
+                    if res["peak"] > MEMORY_FACTOR * dst.stat().st_size + MEMORY_SLACK:
+                        counts["over_memory_bound"] += 1
                 if outcome == "refused" and not res.get("one_line", True):
                     counts["multi_line_message"] += 1
                 if outcome == "other":
                     others[res["type"]] += 1
-                if outcome in ("other", "crash", "hang") and outcome not in examples:
+                if outcome in ("other", "crash", "hang", "misread") and outcome not in examples:
                     keep = Path(tmp).parent / f"arsurf-fuzz-{outcome}-{name}-{k}{src.suffix}"
                     shutil.copy(dst, keep)
                     examples[outcome] = {"mutation": label, "result": res, "kept": str(keep)}
+                if peer_name is not None:
+                    pres = peer.run({**req, "reader": peer_name}, args.timeout)
+                    peer_counts[pres["outcome"]] += 1
+                    peer_times.append(pres.get("seconds"))
+                    if pres.get("peak") is not None:
+                        peer_ratios.append(pres["peak"] / max(dst.stat().st_size, 1))
                 dst.unlink(missing_ok=True)
                 bar.update(1)
             totals.update(counts)
-            report["files"][name] = {
-                "original": base.get("outcome"), "mutants": args.mutants,
-                **{o: counts.get(o, 0) for o in ("loaded", "refused", "other", "crash", "hang", "implausible",
-                                                  "multi_line_message")},
+            entry = {
+                "mutants": args.mutants, **{o: counts.get(o, 0) for o in counted},
+                "by_kind": {kd: dict(c) for kd, c in by_kind.items()},
                 "other_types": dict(others), "examples": examples,
-                "median_s_per_file": float(np.median(times)) if times else None,
-                "max_s_per_file": float(np.max(times)) if times else None,
+                "max_alloc_per_file_byte": float(max(ratios)) if ratios else None,
+                "median_s_per_read": _median(times),
             }
+            if peer_name is not None:
+                entry["peer"] = {"reader": peer_name, **dict(peer_counts), "median_s_per_read": _median(peer_times),
+                                 "max_alloc_per_file_byte": float(max(peer_ratios)) if peer_ratios else None}
+            report["files"][name] = entry
     bar.close()
-    worker.stop()
-    report["total"] = {o: totals.get(o, 0) for o in ("loaded", "refused", "other", "crash", "hang", "implausible",
-                                                      "multi_line_message")}
-    report["total"]["mutants"] = sum(totals[o] for o in ("loaded", "refused", "other", "crash", "hang"))
+    ours.stop()
+    peer.stop()
+    report["total"] = {o: totals.get(o, 0) for o in counted}
+    report["total"]["mutants"] = sum(totals[o] for o in (*OUTCOMES, "other", "crash", "hang"))
     report["seconds"] = time.perf_counter() - t_all
     report["python"] = sys.version.split()[0]
     print(json.dumps(report, indent=2))

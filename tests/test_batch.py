@@ -282,7 +282,7 @@ def _exit_status(argv) -> int:
     (["process", "{f}", "--export", "obj"], "--export: invalid choice"),
     (["process", "{f}/nothing*.gsf"], "no file matches the pattern"),
     (["process", "{f}/missing.gsf"], "does not exist"),
-    (["process", "{f}", "--smoothing", "nan"], "option 'smoothing' must be finite"),
+    (["process", "{f}", "--smoothing", "nan"], "--smoothing: must be a finite number >= 0"),
     (["shuffle", "{f}"], "invalid choice: 'shuffle'"),
     (["process", "{f}", "--scheduler", " "], "scheduler address is empty"),
 ])

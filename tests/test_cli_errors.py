@@ -127,3 +127,113 @@ def test_convert_and_export_reach_gwyddion(tmp_path, capsys):
     back = load_scan(tmp_path / "s.gwy")
     assert back.shape == src.shape
     np.testing.assert_allclose(back.heights, src.heights, rtol=0, atol=1e-18)  # the fit interpolates
+
+
+def _fails(capsys, argv, *needles):
+    """``main(argv)`` returns 2 with one line on stderr holding every needle (no traceback)."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+def test_a_smoothing_width_wider_than_the_scan_is_reported_in_nanometres(capsys, tmp_path):
+    """`--sigma-nm 1e9` was answered in metres ("sigma is in metres (e.g. 2e-9...)") to someone
+    who typed nanometres: the CLI restates it in nm, with the scan's width and a usable value."""
+    err = _fails(capsys, ["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--sigma-nm", "1e9"],
+                 "--sigma-nm", "nm", "wider than the scan")
+    assert "metres" not in err and "2e-9" not in err
+    from arsurf.scan.io import load_scan
+
+    scan = load_scan(SCAN)
+    assert f"{scan.shape[1]} pixels, {scan.shape[1] * scan.dx * 1e9:.4g} nm" in err
+    _fails(capsys, ["convert", str(SCAN), "-o", str(tmp_path / "c.gsf"), "--sigma-nm", "1e9"], "--sigma-nm")
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf", "x"])
+def test_a_bad_penalty_weight_is_refused_by_its_flag(capsys, value, tmp_path):
+    _one_line_error(capsys, ["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--smoothing", value], "--smoothing")
+
+
+def test_the_control_flag_is_named_in_its_error(capsys, tmp_path):
+    err = _fails(capsys, ["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--control", "3", "3"],
+                 "--control", "got (3, 3)")
+    assert "control_shape" not in err
+    # what the message calls allowed is accepted: the interpolating net and the approximating limit
+    from arsurf.scan.io import load_scan
+
+    nx = load_scan(SCAN).shape[1]
+    for shape in ((nx + 2, nx + 2), (nx, nx), (4, 4)):
+        assert main(["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--control", *map(str, shape)]) == 0
+    assert main(["fit", str(SCAN), "-o", str(tmp_path / "s.npz"), "--control", str(nx + 2), str(nx + 2),
+                 "--smoothing", "1e-3"]) == 0
+
+
+def test_a_closed_pipe_is_silent_and_exits_cleanly(tmp_path):
+    """`arsurf info F | head -1` closes the pipe early; made deterministic by a pipe whose reading end
+    is closed before arsurf writes: no traceback, no 'Exception ignored' at exit."""
+    import os
+
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        run = subprocess.run([sys.executable, "-m", "arsurf", "info", str(SCAN)], stdout=w, stderr=subprocess.PIPE,
+                             text=True, timeout=120, cwd=ROOT)
+    finally:
+        os.close(w)
+    assert run.returncode == 0 and run.stderr == "", run.stderr
+    cmd = f"{sys.executable} -m arsurf info {SCAN} | head -1"
+    run = subprocess.run(cmd, shell=True, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert run.stderr == "" and run.stdout.startswith("file"), (run.stdout, run.stderr)
+
+
+def test_exporting_a_nanosurf_scan_says_to_fit_it_first(capsys, tmp_path):
+    """The case the issue found: `arsurf export scan.nid` gave numpy's 'pickled (object) data' error."""
+    nid = tmp_path / "scan.nid"
+    nid.write_bytes(b"[DataSet]\r\nVersion=2\r\nGroupCount=1\r\n#!" + bytes(64))
+    _fails(capsys, ["export", str(nid), "-o", str(tmp_path / "x.stl")], "scan.nid", "arsurf fit")
+    _fails(capsys, ["export", str(SCAN), "-o", str(tmp_path / "x.stl")], "arsurf fit")
+
+
+def test_a_bare_matrix_is_fitted_and_converted_with_its_calibration_flags(capsys, tmp_path):
+    import numpy as np
+
+    from arsurf.scan.io import load_scan
+
+    path = tmp_path / "bare.txt"
+    np.savetxt(path, np.add.outer(np.arange(8.0), np.arange(9.0)))
+    _fails(capsys, ["fit", str(path), "-o", str(tmp_path / "s.npz")], "--dx-nm", "--dy-nm")
+    _fails(capsys, ["fit", str(path), "-o", str(tmp_path / "s.npz"), "--dx-nm", "2", "--dy-nm", "2"], "--z-unit")
+    _one_line_error(capsys, ["fit", str(path), "-o", "s.npz", "--dx-nm", "-2"], "--dx-nm")
+    assert main(["convert", str(path), "-o", str(tmp_path / "c.npz"), "--dx-nm", "2", "--dy-nm", "3",
+                 "--z-unit", "nm"]) == 0
+    out = load_scan(tmp_path / "c.npz")
+    assert (out.dx, out.dy) == pytest.approx((2e-9, 3e-9)) and np.nanmax(out.heights) == pytest.approx(15e-9)
+    assert main(["fit", str(path), "-o", str(tmp_path / "s.npz"), "--dx-nm", "2", "--dy-nm", "3",
+                 "--z-unit", "nm", "--level", "none"]) == 0
+    _fails(capsys, ["info", str(SCAN), "--dx-nm", "3"], "states dx", "remove it")
+
+
+def test_info_reports_a_current_channel_in_amperes(capsys):
+    import json
+
+    assert main(["info", str(real_scan_path("STM_nanonis_generic_4_5.sxm")), "--channel", "Current (forward)",
+                 "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["units"]["reported"] == "A" and "z_min_A" in info and not any(k.endswith("_nm") and k.startswith("z_")
+                                                                               for k in info)
+    assert info["height_channel"].startswith("no")
+
+
+def test_a_channel_that_is_not_the_topography_is_fitted_only_on_request(capsys, tmp_path):
+    """An Asylum AmplitudeRetrace is in metres but is not a height: refused without --as-height;
+    PhaseRetrace (degrees) is refused even with it."""
+    ibw = str(real_scan_path("AR_20211011.ibw"))
+    out = str(tmp_path / "s.npz")
+    _fails(capsys, ["fit", ibw, "-o", out, "--channel", "AmplitudeRetrace", "--control", "20", "20"],
+           "AmplitudeRetrace", "--as-height")
+    assert main(["fit", ibw, "-o", out, "--channel", "AmplitudeRetrace", "--control", "20", "20", "--as-height"]) == 0
+    capsys.readouterr()
+    _fails(capsys, ["fit", ibw, "-o", out, "--channel", "PhaseRetrace", "--as-height"], "PhaseRetrace", "deg")

@@ -1,15 +1,33 @@
-"""Fuzz: truncated and bit-flipped copies of every real file must give a ScanError or a valid Scan.
+"""Fuzz: damaged copies of every real scan are refused or read right, and every outcome is counted.
 
-Never a raw exception from a parser, never a hang, never invented data (a truncated file that
-still loads must give the original pixels): each real file gets 20 damaged variants
-(fixed seed) written to tmp_path: truncations, bit flips in the header and in the whole file,
-overwritten byte runs and header numbers made huge, negative, zero or NaN. The loader must
-raise only :class:`arsurf.errors.ScanError` subclasses (or return a Scan whose heights are 2-D float64 with at least one finite pixel and
-whose spacings are positive).
+Each real file gets damaged variants (fixed seed) written to tmp_path: truncations, bit flips in
+the header and in the whole file, overwritten byte runs, numbers of a text header made huge,
+negative, zero or NaN, and one digit of such a number changed (same length, plausible-looking). Every variant is read by :func:`arsurf.load_scan` and classified
+(:func:`classify`) against the intact file's reading:
+
+- ``refused``: an :class:`arsurf.errors.ScanError` naming the file (any other exception fails);
+- ``equal``: the same channel, unit, shape, spacings and bit-identical pixels (the damage missed
+  what this channel needs);
+- ``damaged_pixels``: the same calibration, no more pixels changed than bytes were changed (the
+  damaged values themselves, read as stored);
+- ``rescaled``: the same calibration, the pixels changed by one affine map (a header scale or
+  offset edited), within the plausibility rules;
+- ``plausible``: anything else that was accepted (another shape, spacing, channel or unit) and
+  passes the plausibility rules (:func:`violations`, checked here independently of the readers);
+- ``misread``: a silent misread this test can detect: a truncated file read with other pixels
+  than the intact one (invented data), values outside the plausibility rules, a non-length
+  channel flagged as a height, or more pixels changed than bytes changed without one affine map
+  explaining them (data read from the wrong place). The test fails on any.
+
+Memory: the Python allocations of each read (tracemalloc peak) stay below
+``MEMORY_FACTOR x file size + MEMORY_SLACK``: no header field sizes an allocation on its own.
+``bench/fuzz_readers.py`` runs the same mutations and classification at scale in isolated workers.
 """
 from __future__ import annotations
 
 import re
+import tracemalloc
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -45,64 +63,199 @@ DATA_FILES = [
     "synthetic_v1.asd",
     "synthetic_v2.asd",
 ]
-VARIANTS = 20
+VARIANTS = 24
 #: fewer copies of the 33.6 MB PeakForce file (each one is written and read whole); bench/fuzz_readers.py
 #: runs thousands of mutants of every file in isolated worker processes
 VARIANTS_BY_FILE = {"sample_0.spm": 12}
 
-
-KINDS = 5
+KINDS = ("truncate", "header-bits", "bits", "byte-run", "header-number", "header-digit")
+OUTCOMES = ("refused", "equal", "damaged_pixels", "rescaled", "plausible", "misread")
+#: plausibility limits, restated from readers/_common.py's docstring (checked here independently)
+PIXEL_RANGE = (1e-13, 1e-3)
+HEIGHT_LIMIT = 1e-3
+#: a read may allocate (tracemalloc peak) at most this multiple of the file size, plus the slack:
+#: the file's bytes, their float64 copy and the orientation/scaling/Scan copies of one channel
+MEMORY_FACTOR = 16
+MEMORY_SLACK = 4 << 20
 _NUM = re.compile(rb"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+_HOSTILE = (b"999999999999", b"-1", b"0", b"nan", b"1e308", b"-2147483648", b"4294967296")
 
 
-def damaged(data: bytes, rng: np.random.Generator, k: int) -> bytes:
+def mutate(data: bytes, rng: np.random.Generator, kind: str) -> tuple[bytes, int]:
+    """One damaged copy of ``data`` and the number of bytes the damage touched. An edit that
+    changes the length counts every byte after it: in binary data a shift changes every later
+    value, which no reader can tell from a real one (where the format fixes the header's size,
+    GSF and NanoScope, the readers refuse such files; ``header-digit`` edits keep the length and
+    so keep the count strict). ``kind`` is one of :data:`KINDS`."""
     b = bytearray(data)
-    kind = k % KINDS
-    if kind == 0:  # truncation anywhere
-        return bytes(b[: int(rng.integers(0, len(b)))])
-    if kind == 1:  # bit flips in the header (first 4 KiB)
-        for _ in range(int(rng.integers(1, 8))):
-            i = int(rng.integers(0, min(len(b), 4096)))
+    n = len(b)
+    if kind == "truncate":
+        cut = int(rng.integers(0, n))
+        return bytes(b[:cut]), n - cut
+    if kind in ("header-bits", "bits"):  # in the first 4 KiB, or anywhere
+        span, most = (min(n, 4096), 8) if kind == "header-bits" else (n, 32)
+        hit = set()
+        for _ in range(int(rng.integers(1, most))):
+            i = int(rng.integers(0, span))
             b[i] ^= 1 << int(rng.integers(0, 8))
-    elif kind == 2:  # bit flips anywhere
-        for _ in range(int(rng.integers(1, 32))):
-            i = int(rng.integers(0, len(b)))
-            b[i] ^= 1 << int(rng.integers(0, 8))
-    elif kind == 3:  # a run of random bytes
-        i, n = int(rng.integers(0, len(b))), int(rng.integers(1, 64))
-        b[i : i + n] = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
-    else:  # a number in the first 64 KiB (a text header's field) made huge, negative, zero or NaN
+            hit.add(i)
+        return bytes(b), len(hit)
+    if kind == "byte-run":
+        i, k = int(rng.integers(0, n)), int(rng.integers(1, 64))
+        b[i : i + k] = rng.integers(0, 256, k, dtype=np.uint8).tobytes()
+        return bytes(b), k
+    if kind in ("header-number", "header-digit"):  # a number in the first 64 KiB (a text header's field)
         nums = list(_NUM.finditer(bytes(b[: 1 << 16])))
-        if nums:
-            m = nums[int(rng.integers(0, len(nums)))]
-            b[m.start() : m.end()] = [b"999999999999", b"-1", b"0", b"nan", b"1e308"][int(rng.integers(0, 5))]
-    return bytes(b)
+        if not nums:
+            return mutate(data, rng, "bits")
+        m = nums[int(rng.integers(0, len(nums)))]
+        if kind == "header-number":  # made huge, negative, zero or NaN
+            new = _HOSTILE[int(rng.integers(0, len(_HOSTILE)))]
+            b[m.start() : m.end()] = new
+            shifted = len(new) != m.end() - m.start()
+            return bytes(b), (len(b) - m.start()) if shifted else len(new)
+        # one digit changed to another: the same length, a plausible-looking wrong value
+        digits = [i for i in range(m.start(), m.end()) if chr(b[i]).isdigit()]
+        i = digits[int(rng.integers(0, len(digits)))]
+        b[i] = ord("0") + (b[i] - ord("0") + int(rng.integers(1, 10))) % 10
+        return bytes(b), 1
+    raise ValueError(kind)
+
+
+def violations(scan: Scan) -> list[str]:
+    """What makes ``scan`` impossible for an AFM reading (empty list: plausible)."""
+    out = []
+    h = scan.heights
+    for name, v in (("dx", scan.dx), ("dy", scan.dy)):
+        if not (np.isfinite(v) and PIXEL_RANGE[0] <= v <= PIXEL_RANGE[1]):
+            out.append(f"{name} = {v!r} m")
+    if h.ndim != 2 or h.dtype != np.float64:
+        out.append(f"heights {h.dtype} of shape {h.shape}")
+    if np.isinf(h).any():
+        out.append("infinite pixels")
+    if not np.isfinite(h).any():
+        out.append("no finite pixel")
+    unit = scan.metadata.get("z_unit")
+    if unit == "m" and np.isfinite(h).any() and np.nanmax(np.abs(h)) > HEIGHT_LIMIT:
+        out.append(f"|z| up to {np.nanmax(np.abs(h)):g} m")
+    if unit != "m" and scan.metadata.get("height"):
+        out.append(f"a channel in {unit!r} flagged as a height")
+    return out
+
+
+def _affine_outliers(a: np.ndarray, b: np.ndarray) -> int | None:
+    """Pixels that do not follow one affine map b = s a + t (s != 0) fitted to the rest, or None
+    when no such map exists (fewer than 2 distinct values)."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    if np.count_nonzero(ok) < 2 or np.ptp(a[ok]) == 0:
+        return None
+    x, y = a[ok], b[ok]
+    keep = np.ones(x.size, bool)
+    for _ in range(2):  # least squares, then again without the pixels it does not explain
+        s, t = np.polyfit(x[keep], y[keep], 1)
+        resid = np.abs(s * x + t - y)
+        keep = resid <= 1e-9 * max(np.abs(y).max(), 1e-300) + 1e-9 * abs(t)
+        if keep.sum() < 2:
+            return None
+    if s == 0.0:
+        return None
+    return int(np.count_nonzero(~keep) + np.count_nonzero(np.isfinite(a) != np.isfinite(b)))
+
+
+def classify_values(a: np.ndarray, b: np.ndarray, kind: str, changed: int) -> tuple[str, str]:
+    """(outcome, reason) of values ``b`` read from a mutant whose intact reading is ``a`` (same
+    shape, same calibration): ``equal``, ``damaged_pixels``, ``rescaled`` or ``misread``."""
+    if np.array_equal(a, b, equal_nan=True):
+        return "equal", ""
+    if kind == "truncate":
+        return "misread", "a truncated file was read with other values than the intact one (invented data)"
+    differ = int(np.count_nonzero(~((a == b) | (np.isnan(a) & np.isnan(b)))))
+    if differ <= changed:
+        return "damaged_pixels", f"{differ} pixels changed by {changed} changed bytes"
+    outliers = _affine_outliers(a, b)
+    if outliers is not None and outliers <= changed:
+        return "rescaled", f"one affine map, {outliers} other pixels"
+    return "misread", f"{differ} pixels changed by only {changed} changed bytes, not by one scale (data read from " \
+                      "the wrong place)"
+
+
+def classify(original: Scan, scan: Scan, kind: str, changed: int) -> tuple[str, str]:
+    """(outcome, reason) of an accepted mutant read as ``scan`` (see the module docstring)."""
+    bad = violations(scan)
+    if bad:
+        return "misread", "implausible: " + ", ".join(bad)
+    same = (scan.channel == original.channel and scan.shape == original.shape and scan.dx == original.dx
+            and scan.dy == original.dy and scan.metadata.get("z_unit") == original.metadata.get("z_unit"))
+    if same:
+        return classify_values(original.heights, scan.heights, kind, changed)
+    if kind == "truncate":
+        return "misread", "a truncated file was read with another calibration than the intact one"
+    return "plausible", "another calibration, within the plausibility rules"
+
+
+def read_mutant(path, original: Scan, kind: str, changed: int) -> tuple[str, str, int]:
+    """Read ``path`` and classify it: (outcome, reason, tracemalloc peak in bytes)."""
+    tracemalloc.start()
+    try:
+        try:
+            scan = load_scan(path)
+        except ScanError as exc:
+            assert str(path) in str(exc) or path.name in str(exc), f"message does not name the file: {exc}"
+            assert "\n" not in str(exc), f"not one line: {exc}"
+            return "refused", type(exc).__name__, tracemalloc.get_traced_memory()[1]
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return (*classify(original, scan, kind, changed), peak)
 
 
 @pytest.mark.parametrize("name", FILES + DATA_FILES)
-def test_damaged_copies_raise_only_scan_errors(tmp_path, name):
+def test_damaged_copies_are_refused_or_read_right(tmp_path, name):
     src = DATA / name if name in DATA_FILES else real_scan_path(name)
     data = src.read_bytes()
     rng = np.random.default_rng(sum(map(ord, name)))
-    intact = load_scan(src).heights
-    outcomes = {"ok": 0, "error": 0}
+    intact = load_scan(src)
+    counts: Counter = Counter()
+    misreads, peaks = [], []
     for k in range(VARIANTS_BY_FILE.get(name, VARIANTS)):
+        kind = KINDS[k % len(KINDS)]
+        mutant, changed = mutate(data, rng, kind)
         p = tmp_path / f"v{k}{src.suffix}"
-        p.write_bytes(damaged(data, rng, k))
-        try:
-            scan = load_scan(p)
-        except ScanError as exc:
-            assert str(p) in str(exc) or p.name in str(exc), f"message does not name the file: {exc}"
-            outcomes["error"] += 1
-            continue
-        assert isinstance(scan, Scan) and scan.heights.ndim == 2 and scan.heights.dtype == np.float64
-        assert np.isfinite(scan.heights).any() and scan.dx > 0 and scan.dy > 0
-        if k % KINDS == 0:
-            # a truncated file may still hold the whole default channel (the tail was a note or
-            # another channel), but a reader must never invent the missing bytes
-            np.testing.assert_array_equal(scan.heights, intact)
-        outcomes["ok"] += 1
+        p.write_bytes(mutant)
+        outcome, reason, peak = read_mutant(p, intact, kind, changed)
+        counts[outcome] += 1
+        peaks.append(peak / max(len(mutant), 1))
+        if outcome == "misread":
+            misreads.append(f"variant {k} ({kind}): {reason}")
+        assert peak <= MEMORY_FACTOR * len(mutant) + MEMORY_SLACK, \
+            f"variant {k} ({kind}) allocated {peak} bytes for a {len(mutant)}-byte file"
+        p.unlink()
+    print(f"{name}: {dict(counts)}; max allocation {max(peaks):.2f} x file size")
+    assert sum(counts.values()) == VARIANTS_BY_FILE.get(name, VARIANTS)
+    assert not misreads, f"{name}: silent misreads: {misreads}"
     if name not in VARIANTS_BY_FILE:
         # in the 33.6 MB PeakForce file the header is 0.2 % of the bytes and most of its numbers are
         # unused, so a dozen random mutants can all be harmless; bench/fuzz_readers.py covers it at scale
-        assert outcomes["error"] > 0
+        assert counts["refused"] > 0
+
+
+def test_the_classification_catches_the_misreads_it_claims_to():
+    """A shifted read, invented pixels and implausible values are 'misread'; a rescale, damaged
+    pixels and an intact read are not."""
+    rng = np.random.default_rng(3)
+    h = rng.normal(size=(16, 16)) * 1e-9
+    base = Scan(h, dx=1e-9, dy=1e-9, metadata={"z_unit": "m", "height": True})
+
+    def variant(heights, **meta):
+        return Scan(heights, dx=1e-9, dy=1e-9, metadata={"z_unit": "m", "height": True, **meta})
+
+    assert classify(base, variant(h), "bits", 4)[0] == "equal"
+    one = h.copy()
+    one[3, 4] = 7e-9
+    assert classify(base, variant(one), "bits", 1)[0] == "damaged_pixels"
+    assert classify(base, variant(one), "truncate", 0)[0] == "misread"
+    assert classify(base, variant(2.5 * h + 1e-9), "header-number", 3)[0] == "rescaled"
+    assert classify(base, variant(np.roll(h, 1)), "header-bits", 2)[0] == "misread"
+    assert classify(base, variant(h * 1e7), "header-number", 3)[0] == "misread"  # |z| ~ 0.03 m
+    assert classify(base, variant(h, z_unit="V"), "bits", 1)[0] == "misread"  # volts flagged as a height
+    assert classify(base, Scan(h, dx=2e-9, dy=1e-9, metadata={"z_unit": "m"}), "bits", 1)[0] == "plausible"

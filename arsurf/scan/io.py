@@ -16,7 +16,7 @@ format             extensions                       reader
 ``gwy``            .gwy                             own parser (gwyfile is unsafe on damaged files)
 ``gsf``            .gsf                             own parser and writer (checked against gsffile)
 ``sxm``            .sxm                             own parser (nanonispy broken, pySPM hangs)
-``ibw``            .ibw                             igor2
+``ibw``            .ibw                             igor2 after our header check; own labels
 ``nanoscope``      .spm, .000-.999                  own parser (pySPM hangs on damaged files)
 ``jpk``            .jpk                             tifffile + own JPK calibration slots
 ``park-tiff``      .tiff, .tif                      tifffile + own Park header
@@ -37,6 +37,11 @@ without a direction, else the first recorded backward (retrace); ``metadata["cha
 lists them all, ``metadata["direction"]`` says which was read. NaN pixels are kept (counted
 in ``metadata["nan_count"]``; infinite values become NaN): fill them with
 :func:`arsurf.inpaint` before fitting.
+
+What a header says is checked against what the file holds and what an AFM can be before it
+becomes a Scan (the plausibility rules of :mod:`arsurf.scan.readers._common`: data sizes,
+finite non-zero z scales, pixel spacings, heights, units); ``metadata["height"]`` says whether
+the channel is topography, and :func:`arsurf.fit_surface` refuses one that is not.
 
 Errors are :class:`arsurf.errors.ScanError` subclasses naming the file and the problem:
 :class:`~arsurf.errors.ScanFileNotFound`, :class:`~arsurf.errors.UnknownFormat`,

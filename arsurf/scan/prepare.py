@@ -3,7 +3,7 @@ from __future__ import annotations
 
 
 def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=True, *, dx=None, dy=None,
-                 z_unit=None, frame=None):
+                 z_unit=None, frame=None, as_height=False):
     """Load a scan file and make it ready for :func:`arsurf.fit_surface`.
 
     Parameters
@@ -23,6 +23,9 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
         Unit of the values of such a file (``"nm"``, ``"m"``...).
     frame : int, optional
         Frame of a movie (``.asd``, ``.h5-jpk``), from 0: :func:`arsurf.load_scan`.
+    as_height : bool
+        Use a channel in metres that its file names as another quantity as a height
+        (:meth:`Scan.as_height`); without it :func:`arsurf.fit_surface` refuses such a channel.
 
     Returns
     -------
@@ -36,6 +39,8 @@ def prepare_scan(path, channel=None, level_method="plane", sigma=0.0, inpaint=Tr
     from arsurf.scan.smooth import smooth
 
     scan = load_scan(path, channel=channel, dx=dx, dy=dy, z_unit=z_unit, frame=frame)
+    if as_height:
+        scan = scan.as_height()
     if scan.nan_count and inpaint:
         from arsurf.scan.inpaint import inpaint as fill
 

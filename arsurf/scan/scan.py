@@ -36,8 +36,10 @@ class Scan:
     --------
     >>> import numpy as np
     >>> s = Scan(np.zeros((4, 5)), dx=1e-9, dy=2e-9)
-    >>> s.shape, [round(x * 1e9, 9) for x in s.size]      # centre-to-centre extent, nm
+    >>> s.shape, [round(x * 1e9, 9) for x in s.size]      # first to last pixel centre, nm
     ((4, 5), [4.0, 6.0])
+    >>> [round(x * 1e9, 9) for x in s.extent]              # scan size: pixels x spacing, nm
+    [5.0, 8.0]
     """
 
     heights: np.ndarray
@@ -79,9 +81,18 @@ class Scan:
 
     @property
     def size(self) -> tuple[float, float]:
-        """Physical extent (x, y) in metres, centre of first pixel to centre of last."""
+        """Extent (x, y) in metres from the centre of the first pixel to the centre of the last,
+        ``((nx - 1) dx, (ny - 1) dy)``: the domain of the fitted surface. Not the scan size that
+        instruments state as nx pixels of width dx: that is :attr:`extent`."""
         ny, nx = self.shape
         return ((nx - 1) * self.dx, (ny - 1) * self.dy)
+
+    @property
+    def extent(self) -> tuple[float, float]:
+        """Scan size (x, y) in metres as pixels times spacing, ``(nx dx, ny dy)`` (Gwyddion's
+        ``xreal``, what most instruments call the scan size; Asylum's ``ScanSize`` is :attr:`size`)."""
+        ny, nx = self.shape
+        return (nx * self.dx, ny * self.dy)
 
     @property
     def x(self) -> np.ndarray:
@@ -102,6 +113,23 @@ class Scan:
     def history(self) -> list:
         """Processing steps applied so far (levelling, smoothing, inpainting...)."""
         return list(self.metadata.get("history", []))
+
+    def as_height(self) -> "Scan":
+        """This scan marked as topography by the caller's decision (``metadata["height"] = True``,
+        recorded in the history), for a channel in metres that its file names as another
+        quantity (e.g. an Amplitude channel used as a height on purpose).
+
+        Raises
+        ------
+        InvalidHeights
+            The channel is not in metres (V, A, Pa...): no decision makes it a height.
+        """
+        unit = self.metadata.get("z_unit")
+        if unit not in (None, "m"):
+            raise InvalidHeights(f"channel {self.channel!r} of {self.source or 'scan'} is in {unit!r}, not metres: "
+                                 "it cannot be used as a height")
+        marked = replace(self, metadata={**self.metadata, "height": True})
+        return marked.with_heights(self.heights, step={"operation": "as_height", "channel": self.channel})
 
     def with_heights(self, heights: np.ndarray, step: dict | None = None, **changes) -> "Scan":
         """A new Scan with other heights (same spacing), appending ``step`` to the history."""

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from arsurf.errors import SmoothingError
+from arsurf.errors import SigmaTooWide, SmoothingError
 from arsurf.scan.scan import Scan
 
 __all__ = ["smooth", "SmoothingError"]
@@ -106,11 +106,12 @@ def smooth(
     px = sx / scan.dx if nx > 1 else 0.0
     py = sy / scan.dy if ny > 1 else 0.0
     widest = max(nx, ny)
-    for name, value, width in (("x", px, sx), ("y", py, sy)):
+    for name, value, width, spacing in (("x", px, sx, scan.dx), ("y", py, sy, scan.dy)):
         if value > widest:
-            raise SmoothingError(
+            raise SigmaTooWide(
                 f"`sigma` along {name} is {width:g} m = {value:.4g} pixels, wider than the scan "
-                f"({widest} pixels); sigma is in metres (e.g. 2e-9 for 2 nm)"
+                f"({widest} pixels); sigma is in metres (e.g. 2e-9 for 2 nm)",
+                axis=name, sigma=width, spacing=spacing, pixels=value, widest=widest,
             )
     z = scan.heights
     valid = np.isfinite(z)

@@ -177,6 +177,33 @@ def _transpose(a, out):
 _PROGRESS_PIXELS = 1 << 22
 
 
+def check_control_shape(nx: int, ny: int, control_shape, smoothing: float = 0.0,
+                        names: tuple[str, str] = ("control_shape", "smoothing")) -> tuple[int, int]:
+    """The (nu, nv) control net of a fit of an (ny, nx) scan, or :class:`SurfaceError` stating the rule.
+
+    None gives the interpolating net (nx + 2, ny + 2); else 4 <= nu <= nx, 4 <= nv <= ny (least
+    squares needs no more unknowns than pixels), or up to (nx + 2, ny + 2) when ``smoothing`` > 0
+    (the penalty makes the system determined). ``names`` are the words the message uses for the
+    two settings (the CLI says ``--control`` and ``--smoothing``).
+
+    Examples
+    --------
+    >>> check_control_shape(256, 256, (258, 258)), check_control_shape(256, 256, (100, 80))
+    ((258, 258), (100, 80))
+    """
+    nu, nv = (nx + 2, ny + 2) if control_shape is None else (int(control_shape[0]), int(control_shape[1]))
+    interpolating = (nu, nv) == (nx + 2, ny + 2)
+    limit = (nx + 2, ny + 2) if (interpolating or smoothing > 0.0) else (nx, ny)
+    if not (4 <= nu <= limit[0] and 4 <= nv <= limit[1]):
+        what, penalty = names
+        raise SurfaceError(
+            f"{what} must be ({nx + 2}, {ny + 2}) to interpolate this {nx}x{ny} scan, or between (4, 4) and "
+            f"({nx}, {ny}) to approximate it by least squares (up to ({nx + 2}, {ny + 2}) with {penalty} > 0); "
+            f"got ({nu}, {nv})"
+        )
+    return nu, nv
+
+
 def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smoothing: float = 0.0) -> BSplineSurface:
     """Fit a bicubic B-spline surface to a scan's heights.
 
@@ -221,6 +248,12 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
             f"channel {scan.channel!r} of {where} holds values in {unit!r}, not heights: a surface is fitted to "
             f"a height channel (channels: {scan.metadata.get('channels')})"
         )
+    if scan.metadata.get("height") is False:
+        raise InvalidHeights(
+            f"channel {scan.channel!r} of {where} is in metres but its name says it is not the topography "
+            f"(an amplitude, a deflection, an error...): fit a height channel (channels: "
+            f"{scan.metadata.get('channels')}), or, if it is a height, say so with scan.as_height() (CLI: --as-height)"
+        )
     if not np.isfinite(z).all():
         raise InvalidHeights(
             f"{scan.nan_count} pixels are NaN in {where}; fill them with arsurf.inpaint(scan) "
@@ -229,15 +262,7 @@ def fit_surface(scan: Scan, control_shape: tuple[int, int] | None = None, smooth
     smoothing = float(smoothing)
     if not (np.isfinite(smoothing) and smoothing >= 0.0):
         raise SurfaceError(f"`smoothing` must be >= 0 (got {smoothing!r}); it is the penalty weight λ")
-    nu, nv = (nx + 2, ny + 2) if control_shape is None else (int(control_shape[0]), int(control_shape[1]))
-    interpolating = (nu, nv) == (nx + 2, ny + 2)
-    limit = (nx + 2, ny + 2) if (interpolating or smoothing > 0.0) else (nx, ny)
-    if not (4 <= nu <= limit[0] and 4 <= nv <= limit[1]):
-        raise SurfaceError(
-            f"control_shape must be ({nx + 2}, {ny + 2}) to interpolate this {nx}x{ny} scan, or between (4, 4) and "
-            f"({nx}, {ny}) to approximate it by least squares (up to ({nx + 2}, {ny + 2}) with smoothing > 0); "
-            f"got ({nu}, {nv})"
-        )
+    nu, nv = check_control_shape(nx, ny, control_shape, smoothing)
     # the two axis solves, their transpose and the surface's (nu, nv, 3) net: ~6 float64 per point
     _validation.check_memory(48.0 * nu * nv + 16.0 * nx * ny, f"fitting this {nx}x{ny} scan", SurfaceError,
                              "crop it, or fit fewer control points (control_shape) to approximate it")

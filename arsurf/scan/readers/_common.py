@@ -10,11 +10,42 @@ format stores.
 
 Readers raise only :class:`arsurf.errors.ScanError` subclasses for bad files;
 :func:`arsurf.scan.io.load_scan` wraps anything else a third-party parser throws.
+
+Plausibility rules (the one place they are stated; every reader applies them through
+:func:`check_shape`, :func:`check_data_size`, :func:`check_scale`, :func:`positive_length` and
+:func:`make_scan`). A header field outside them is a damaged or misread file, refused with a
+:class:`~arsurf.errors.CorruptScan` naming the field, never returned as a surface:
+
+- **Image size** (:data:`MAX_PIXELS`): 1 <= nx, ny and nx * ny <= 2**28. The largest AFM
+  images are 8192 x 8192 = 2**26 pixels; 2**28 float64 pixels are 2 GiB.
+- **Data size against the file** (:func:`check_data_size`): the bytes a header announces must
+  lie inside the file (exactly fill it where the format says so, e.g. GSF) *before* anything
+  is allocated, so no allocation is sized by a header field alone: a reader's memory is a small
+  multiple of the file size (the float64 copy of the stored values: 2x for float32 data, 4x for
+  int16).
+- **Pixel spacing** (:data:`PIXEL_RANGE`): finite, in [1e-13, 1e-3] m. 0.1 pm is a fiftieth of
+  the finest STM pixel (atomic images use ~5 pm); 1 mm per pixel is ten times the widest AFM
+  scanner field (~0.1 mm) spread over a single pixel. A spacing outside is a misread header
+  (``dx = 1e306`` from a flipped exponent, a size in the wrong unit).
+- **Z scale** (:func:`check_scale`): every scale factor a header gives (NanoScope Z scale and
+  sensitivity, JPK/Nanosurf/Park gains, WSxM amplitude) finite and non-zero: a zero scale makes
+  every pixel equal, an infinite or NaN one every pixel non-finite.
+- **Heights** (:data:`HEIGHT_LIMIT`): a channel in metres has |z| <= 1 mm. AFM z scanners travel
+  at most ~0.1 mm (100 um long-range scanners; 10-25 um is common), and the stored heights
+  include the piezo offset, so 1 mm leaves a factor 10. A 16-bit integer misread as metres gives
+  up to 3e4 m; float bits misread give 1e-38..1e38.
+- **Units**: a channel is returned in the unit its file states (SI base unit after
+  :func:`parse_unit`), never assumed to be metres when the file says otherwise or says nothing;
+  ``metadata["height"]`` (:func:`height_kind`) says whether it is topography: True for a length
+  unit and a height-like name, False for any other unit or for a length channel named as another
+  quantity (amplitude, deflection, error, deformation...), None when a length channel's name says
+  nothing (``image``, ``Channel 0``). :func:`arsurf.fit_surface` refuses ``height`` False.
 """
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import re
 import struct
 from dataclasses import dataclass, field
@@ -52,14 +83,44 @@ class Channel:
     unit: str = ""
     direction: str | None = None
     extra: dict = field(default_factory=dict)
+    height: bool | None = None
 
     @property
     def is_height(self) -> bool:
-        """Whether the channel is topography: a length unit and a height-like name."""
-        return is_length_unit(self.unit) and looks_like_height(self.name)
+        """Whether the channel is topography: a length unit and a height-like name (or a reader
+        that knows its format stores heights there, ``height=True``)."""
+        return height_kind(self) is True
 
 
 _HEIGHT_RE = re.compile(r"(^|[^a-z])(z|height|topograph|topo|zsensor)", re.IGNORECASE)
+#: names of channels that hold another quantity even when their unit is a length (an amplitude
+#: or a deflection in m, a Peak Force deformation, an error signal)
+_NOT_HEIGHT_RE = re.compile(
+    r"amplitude|phase|deflect|error|deformation|dissipation|adhesion|modulus|stiffness|current|"
+    r"frequency|friction|lateral|force|potential|capacitance", re.IGNORECASE)
+
+
+def height_kind(chan: "Channel") -> bool | None:
+    """Whether ``chan`` is topography: True, False, or None (a length whose name says nothing).
+
+    A reader's ``Channel(height=...)`` decides when it is set and the unit is a length; a
+    non-length unit is never a height; a length channel named as another quantity
+    (``AmplitudeRetrace``, ``Deformation``, ``Peak Force Error``) is not one either.
+
+    Examples
+    --------
+    >>> height_kind(Channel("ZSensorRetrace", unit="m")), height_kind(Channel("AmplitudeRetrace", unit="m"))
+    (True, False)
+    >>> height_kind(Channel("Z", unit="V")), height_kind(Channel("image", unit="nm"))
+    (False, None)
+    """
+    if not is_length_unit(chan.unit):
+        return False
+    if chan.height is not None:
+        return bool(chan.height)
+    if _NOT_HEIGHT_RE.search(chan.name.replace("_", " ")):
+        return False
+    return True if looks_like_height(chan.name) else None
 
 
 #: the first 8 bytes of every HDF5 file (superblock signature)
@@ -274,12 +335,43 @@ def parse_int(path, text: str, what: str) -> int:
         return int(f)
 
 
-#: plausible AFM pixel spacings, metres: from atomic resolution (0.1 pm) to a 1 mm step (the
-#: largest AFM scanners cover ~0.15 mm; a spacing outside this is a misread header)
+#: plausible AFM pixel spacings, metres (module docstring: "Plausibility rules")
 PIXEL_RANGE = (1e-13, 1e-3)
-#: plausible AFM heights, metres: z scanners travel at most ~0.1 mm (a 16-bit misread as a
-#: height in metres gives ~0.1 m)
+#: largest plausible |height| of a channel in metres (module docstring: "Plausibility rules")
 HEIGHT_LIMIT = 1e-3
+
+
+def check_data_size(path, available: int, needed: int, what: str, exact: bool = False) -> None:
+    """Refuse a header whose data do not fit in the file (or, with ``exact``, do not fill it
+    exactly, where the format says so), before anything is allocated from it.
+
+    Examples
+    --------
+    >>> check_data_size("f.gsf", 100, 96, "4 x 6 float32 pixels", exact=True)
+    Traceback (most recent call last):
+    ...
+    arsurf.errors.CorruptScan: f.gsf: 4 x 6 float32 pixels need 96 bytes of data but the file holds 100; the header's image size does not match the data (corrupt header or file)
+    """
+    if needed < 0 or needed > available or (exact and needed != available):
+        short = needed > available
+        raise CorruptScan(
+            f"{path}: {what} need {needed} bytes of data but the file holds {available}; "
+            + ("the file is truncated or the header's image size is wrong" if short
+               else "the header's image size does not match the data (corrupt header or file)")
+        )
+
+
+def check_scale(path, value, what: str) -> float:
+    """A scale factor from a header (a gain, a Z scale, a sensitivity): finite and non-zero,
+    else :class:`CorruptScan` naming ``what`` (zero would make every pixel equal)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise CorruptScan(f"{path}: {what} is not a number ({value!r}); the header is damaged") from None
+    if not (math.isfinite(v) and v != 0.0):
+        raise CorruptScan(f"{path}: {what} is {v!r}: a z scale must be finite and non-zero (every value would be "
+                          "0 or NaN); the header is damaged")
+    return v
 
 
 def positive_length(path, value: float, what: str) -> float:
@@ -359,16 +451,16 @@ def make_scan(
     It is multiplied by ``z_factor`` (default: the SI factor of ``chan.unit``), infinite pixels
     become NaN (missing), and ``metadata`` gets ``format``, ``channels``, ``channel_units``
     (each channel's SI unit, as the reader knows it before reading), ``direction``,
-    ``z_unit``, ``rows_flipped``, ``row0`` (always ``"bottom"``), ``nan_count`` and ``instrument``.
+    ``z_unit``, ``height`` (:func:`height_kind`), ``rows_flipped``, ``row0`` (always
+    ``"bottom"``), ``nan_count`` and ``instrument``. The plausibility rules of the module
+    docstring are applied here (z scale, heights of a length channel, pixel spacings).
     """
     from arsurf.scan.scan import Scan
 
     if z_factor is None:
         z_factor, base = parse_unit(chan.unit)
         z_unit = base if z_unit is None else z_unit
-    if not (np.isfinite(z_factor) and z_factor != 0.0):
-        raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {z_factor!r}: every value would be "
-                          "0 or NaN; the header is damaged")
+    z_factor = check_scale(path, z_factor, f"the z scale of channel {chan.name!r}")
     with np.errstate(invalid="ignore", over="ignore"):  # damaged floats: NaN/inf are counted below
         h = np.asarray(data, dtype=np.float64) * float(z_factor)
     if h.ndim != 2:
@@ -391,7 +483,8 @@ def make_scan(
         "channels": [c.name for c in channels],
         "channel_units": {c.name: parse_unit(c.unit)[1] for c in channels},
         "direction": chan.direction,
-        "z_unit": z_unit if z_unit is not None else parse_unit(chan.unit)[1],
+        "z_unit": unit,
+        "height": height_kind(Channel(chan.name, unit=unit, height=chan.height)),
         "file_z_unit": chan.unit,
         "row0": "bottom",
         "rows_flipped": bool(rows_flipped),

@@ -12,6 +12,15 @@ Format (gwyddion.net, "Gwyddion Simple Field"): the line ``Gwyddion Simple Field
 ``ZUnits``, ``Title``, offsets optional), then 1-4 NUL bytes padding the header to a multiple
 of 4, then ``XRes*YRes`` little-endian float32 values, row by row.
 
+What the format lets us check (as Gwyddion's ``gsf.c`` does): the data fill the file exactly
+(``4 XRes YRes`` bytes after the padding; a ``YRes`` that disagrees with the data is refused,
+Gwyddion's strict size check), the padding is NUL bytes. Units: the values are in ``ZUnits``; a
+file without ``ZUnits`` states no unit (the spec gives no default), so its channel is unitless
+and not a height unless ``z_unit`` is passed to :func:`arsurf.load_scan`; a ``ZUnits`` of ``V``
+gives a channel in volts, flagged ``metadata["height"] = False``, never metres. A file without
+``XReal``/``YReal`` does not state its size (the spec's default, 1 ``XYUnits``, is no AFM field)
+and is refused with :class:`~arsurf.errors.MissingCalibration`.
+
 Orientation: Gwyddion shows row 0 at the top (its y axis points down the screen), so the rows
 are flipped on reading (row 0 = bottom, y up) and flipped back on writing.
 Pixel spacing: ``dx = XReal / XRes`` (Gwyddion's convention: XReal is the field width, N pixels).
@@ -24,9 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf.errors import CorruptScan, MissingCalibration
 from arsurf.scan.readers._common import (
     Channel,
+    check_data_size,
     check_shape,
     flip_rows,
     frombuffer,
@@ -64,11 +74,16 @@ def parse_header(path, buf: bytes) -> tuple[dict[str, str], int]:
         key, value = line.split("=", 1)
         header[key.strip()] = value.strip()
     data_start = end + (4 - end % 4)
+    if buf[end:data_start].strip(b"\x00"):
+        raise CorruptScan(f"{path}: the GSF header padding (bytes {end}..{data_start}) is not NUL bytes (corrupt header)")
     return header, data_start
 
 
-def read(path: Path | str, channel: str | None = None):
+def read(path: Path | str, channel: str | None = None, *, z_unit: str | None = None):
     """Read a ``.gsf`` file as a :class:`~arsurf.scan.scan.Scan` (single channel, rows flipped).
+
+    ``z_unit`` is the unit of the values of a file whose header has no ``ZUnits``; a file that
+    states one keeps it (passing another is refused).
 
     Examples
     --------
@@ -82,16 +97,19 @@ def read(path: Path | str, channel: str | None = None):
     nx = parse_int(path, header["XRes"], "XRes")
     ny = parse_int(path, header["YRes"], "YRes")
     check_shape(path, nx, ny)
+    check_data_size(path, len(buf) - start, 4 * nx * ny, f"XRes x YRes = {nx} x {ny} float32 pixels", exact=True)
     xy_factor, xy_base = parse_unit(header.get("XYUnits", "m"))
     if xy_base != "m":
         raise CorruptScan(f"{path}: XYUnits {header.get('XYUnits')!r} is not a length unit")
-    xreal = parse_float(path, header.get("XReal", "1"), "XReal") * xy_factor
-    yreal = parse_float(path, header.get("YReal", "1"), "YReal") * xy_factor
-    need = start + 4 * nx * ny
-    if len(buf) < need:
-        raise CorruptScan(
-            f"{path}: {nx}x{ny} float32 pixels need {need} bytes but the file has {len(buf)} (truncated)"
-        )
+    missing = [k for k in ("XReal", "YReal") if k not in header]
+    if missing:
+        raise MissingCalibration(f"{path}: the GSF header has no {'/'.join(missing)} (the physical size of the "
+                                 "image); the spec's default of 1 m is no AFM scan: add it to the header")
+    xreal = parse_float(path, header["XReal"], "XReal") * xy_factor
+    yreal = parse_float(path, header["YReal"], "YReal") * xy_factor
+    if "ZUnits" in header and z_unit is not None and parse_unit(z_unit) != parse_unit(header["ZUnits"]):
+        raise CorruptScan(f"{path}: the file states ZUnits = {header['ZUnits']}; z_unit={z_unit!r} applies only "
+                          "to files without ZUnits: remove it")
     data = frombuffer(path, buf, start, "<f4", nx * ny, "the GSF data").reshape(ny, nx)
     dx, dy = xreal / nx, yreal / ny
     # our writer adds the exact spacings (XReal/XRes can differ from dx in the last bit)
@@ -101,13 +119,13 @@ def read(path: Path | str, channel: str | None = None):
             if np.isfinite(exact) and abs(exact - nominal) <= 1e-9 * abs(nominal):
                 dx, dy = (exact, dy) if key == "Arsurf_dx" else (dx, exact)
     title = header.get("Title", "") or "Height"
-    chan = Channel(title, key=0, unit=header.get("ZUnits", "m"))
+    chan = Channel(title, key=0, unit=header.get("ZUnits", z_unit if z_unit is not None else ""))
     chan = select_channel(path, [chan], channel)
     meta = {k: v for k, v in header.items() if k not in ("XRes", "YRes")}
     return make_scan(
         path, FORMAT, flip_rows(data), dx, dy, chan, [chan], rows_flipped=True,
         instrument={k: v for k, v in meta.items() if k.lower().startswith("neaspec")},
-        extra={"header": meta, "trailing_bytes": len(buf) - need},
+        extra={"header": meta},
     )
 
 

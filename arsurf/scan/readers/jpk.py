@@ -28,6 +28,7 @@ import numpy as np
 from arsurf.errors import CorruptScan, require
 from arsurf.scan.readers._common import (
     Channel,
+    check_scale,
     check_shape,
     check_tiff_chain,
     flip_rows,
@@ -74,7 +75,11 @@ def _slot(path, page) -> tuple[str, float, float, str]:
             mult, off = _tag(page, base + 20), _tag(page, base + 21, 0.0)
             if not isinstance(mult, (float, int)) or not isinstance(off, (float, int)):
                 raise CorruptScan(f"{path}: JPK slot {default!r} has no numeric multiplier/offset")
-            return default, float(mult), float(off), str(_tag(page, base + 18, ""))
+            off = float(off)
+            if not np.isfinite(off):
+                raise CorruptScan(f"{path}: JPK slot {default!r} has offset {off!r}")
+            return default, check_scale(path, mult, f"the multiplier of JPK slot {default!r}"), off, \
+                str(_tag(page, base + 18, ""))
     raise CorruptScan(f"{path}: the default JPK calibration slot {default!r} is not among the {n} slots")
 
 

@@ -60,6 +60,8 @@ import numpy as np
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
+    check_data_size,
+    check_scale,
     check_shape,
     frombuffer,
     make_scan,
@@ -216,6 +218,41 @@ def channel_scale(path, sections, d: dict[str, str], bpp: int) -> dict:
     }
 
 
+def check_layout(path, buf: bytes, sections) -> None:
+    """Refuse a file whose data blocks do not sit where the header says.
+
+    The first section's ``Data length`` is the size of the text header (40960 or 80960 bytes on
+    the real files); every section with a ``Data offset`` and ``Data length`` (the images) owns
+    that many bytes, after the header, without overlap, and the last block ends where the file
+    ends (NanoScope writes the header, then the blocks, nothing else; both real files, v5.31 and
+    v9.3, have exactly that size). A digit changed in an offset or a length, or bytes inserted
+    into the header (which shifts every block), would otherwise read other bytes as the image.
+    """
+    text_end = buf.find(_END) + len(_END)
+    first = sections[0][1] if sections else {}
+    header = parse_int(path, first.get("data length", str(text_end)), "the header size (File list Data length)")
+    if not text_end <= header <= len(buf):
+        raise CorruptScan(f"{path}: the header size (File list Data length) is {header}, but the text header ends at "
+                          f"byte {text_end} and the file has {len(buf)} bytes; the header is damaged")
+    blocks = []
+    for name, d in sections[1:]:
+        if "data offset" in d and "data length" in d:
+            off = parse_int(path, d["data offset"], f"{name} Data offset")
+            length = parse_int(path, d["data length"], f"{name} Data length")
+            if off < header or length < 0:
+                raise CorruptScan(f"{path}: {name} has Data offset {off} and Data length {length}; its data must "
+                                  f"start after the {header}-byte header; the header is damaged")
+            blocks.append((off, off + length, name))
+    blocks.sort()
+    for (a0, a1, an), (b0, b1, bn) in zip(blocks, blocks[1:]):
+        if b0 < a1:
+            raise CorruptScan(f"{path}: the data of {bn} (bytes {b0}..{b1}) overlap those of {an} (bytes {a0}..{a1}); "
+                              "an offset or a length in the header is damaged")
+    if blocks:
+        check_data_size(path, len(buf) - header, blocks[-1][1] - header,
+                        f"the {len(blocks)} data blocks the header lists", exact=True)
+
+
 def _image_name(d: dict[str, str], i: int) -> str:
     for key in ("@2:image data", "@3:image data", "image data"):
         if key in d:
@@ -275,6 +312,7 @@ def read(path: Path | str, channel: str | None = None):
     width = 4 if (length == nx * ny * 4 and bpp == 2) else bpp
     if length < nx * ny * width:
         raise CorruptScan(f"{path}: Data length {length} is less than {nx}x{ny}x{width} bytes")
+    check_layout(path, buf, sections)
     raw = frombuffer(path, buf, offset, f"<i{width}", nx * ny, f"image {chan.name!r}").reshape(ny, nx)
 
     # lateral size: "Scan size: 1.76908 1.76908 ~m" (image list) or "Scan size: 1769.08 nm"
@@ -298,9 +336,7 @@ def read(path: Path | str, channel: str | None = None):
 
     sc = channel_scale(path, sections, d, bpp)
     chan.unit = sc["unit"]
-    if not (np.isfinite(sc["per_lsb"]) and sc["per_lsb"] != 0.0):
-        raise CorruptScan(f"{path}: the z scale of channel {chan.name!r} is {sc['per_lsb']!r} per LSB: every value "
-                          "would be 0 or NaN; the header is damaged")
+    check_scale(path, sc["per_lsb"], f"the z scale of channel {chan.name!r} (per LSB: {sc['z_scale_line']})")
     if sc["log10"]:  # the file stores log10 of the quantity: decode it (overflow -> inf -> NaN, counted)
         with np.errstate(over="ignore", invalid="ignore"):
             data, z_factor = np.power(10.0, raw * sc["per_lsb"]), sc["factor"]

@@ -22,11 +22,13 @@ Pixel spacing: ``dx = Dim0Range / Points``, ``dy = Dim1Range / Lines``.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
+    check_scale,
     check_shape,
     frombuffer,
     make_scan,
@@ -114,7 +116,9 @@ def read(path: Path | str, channel: str | None = None):
     signed = sec.get("SaveSign", "Signed").lower() != "unsigned"
     raw = frombuffer(path, buf, off, ("<i" if signed else "<u") + str(bits // 8), nx * ny, chan.name)
     zmin = parse_float(path, sec.get("Dim2Min", "0"), f"{key} Dim2Min")
-    zrange = parse_float(path, sec.get("Dim2Range", "1"), f"{key} Dim2Range")
+    if not math.isfinite(zmin):
+        raise CorruptScan(f"{path}: {key} Dim2Min is {zmin!r}; the header is damaged")
+    zrange = check_scale(path, parse_float(path, sec.get("Dim2Range", "1"), f"{key} Dim2Range"), f"{key} Dim2Range")
     q = float(2**bits)
     frac = (raw + q / 2) / q if signed else raw / q
     data = (zmin + zrange * frac).reshape(ny, nx)

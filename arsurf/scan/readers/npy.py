@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf.errors import CorruptScan, ScanError
 from arsurf.scan.readers._common import Channel, check_shape, jsonable, make_scan, select_channel
 from arsurf.errors import MissingCalibration
 
@@ -51,6 +51,12 @@ def finish(path, fmt, data, info: dict, channel, dx, dy, z_unit, names=None, key
         raise CorruptScan(f"{path}: the array is not a 2-D numeric image (shape {getattr(data, 'shape', None)})")
     ny, nx = data.shape
     check_shape(path, nx, ny)
+    meta = info.get("metadata") if isinstance(info.get("metadata"), dict) else {}
+    for field, given in (("dx", dx), ("dy", dy), ("z_unit", z_unit)):
+        stated = meta.get(field, info.get(field)) if field == "z_unit" else info.get(field)
+        if given is not None and stated is not None and given != stated:
+            raise ScanError(f"{path}: the file states {field} = {stated!r}; {field}={given!r} (CLI: --dx-nm/--dy-nm/"
+                            "--z-unit) applies only to arrays that do not state it: remove it")
     dx = dx if dx is not None else info.get("dx")
     dy = dy if dy is not None else info.get("dy")
     if dx is None or dy is None:

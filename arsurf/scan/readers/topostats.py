@@ -60,7 +60,7 @@ def read(path: Path | str, channel: str | None = None):
             version = f["topostats_file_version"][()] if "topostats_file_version" in f else None
     except OSError as exc:  # h5py's errors for a damaged file
         raise CorruptScan(f"{path}: the HDF5 structure is damaged ({str(exc).splitlines()[0]})") from None
-    chan = Channel("image", key=0, unit="nm")
+    chan = Channel("image", key=0, unit="nm", height=True)  # TopoStats' images are topography
     chan = select_channel(path, [chan], channel)
     return make_scan(path, FORMAT, data[::-1], nm * 1e-9, nm * 1e-9, chan, [chan], rows_flipped=True,
                      z_factor=1e-9, z_unit="m",

@@ -26,6 +26,7 @@ import numpy as np
 from arsurf.errors import CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
+    check_scale,
     check_shape,
     flip_rows,
     frombuffer,
@@ -95,6 +96,7 @@ def read(path: Path | str, channel: str | None = None):
     if kind in ("double", "float"):
         z = data * zfactor
     else:
+        zamp = check_scale(path, zamp, "Z Amplitude")
         span = float(np.nanmax(data) - np.nanmin(data)) if data.size else 0.0
         z = data * (zamp / span) if span > 0 else np.zeros_like(data)
     xr, xu, _ = _quantity(path, meta.get("Control::X Amplitude", ""), "X Amplitude")
