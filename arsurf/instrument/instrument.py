@@ -162,6 +162,10 @@ RECTANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0140)
 TRIANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0195, low_frequency_fraction=0.5, corner=60.0)
 
 
+#: how far a withdraw backs the micro stage off (the engage's coarse step, seed 001), metres
+WITHDRAW_COARSE = 0.16e-6
+
+
 @dataclass(frozen=True)
 class InstrumentHistory:
     """Every simulated sample of a run (all arrays of the same length).
@@ -503,7 +507,10 @@ class VirtualAFM(Instrument):
         self._set_feedback(True)
 
     def _withdraw(self) -> None:
-        """Feedback off; the PicoCube and the nano stage fully retracted."""
+        """Feedback off; the PicoCube and the nano stage fully retracted and the micro stage backed
+        off by one engage step (0.16 um): the engage may have found the surface right after a
+        coarse step, where retracting the fine stages alone would leave the tip touching."""
         self._feedback = False
         self.move("pico", 0.0)
         self.move("nano", 0.0)
+        self.move("micro", max(0.0, self.position["micro"] - WITHDRAW_COARSE))

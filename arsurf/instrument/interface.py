@@ -69,7 +69,7 @@ class InstrumentLimits:
     low: np.ndarray
     high: np.ndarray
     max_speed: float
-    source: str = ""
+    source: str = "set by the user"
 
     def __post_init__(self) -> None:
         lo, hi = _vec3(self.low, "low"), _vec3(self.high, "high")
@@ -90,7 +90,7 @@ class InstrumentLimits:
             if a in axes and not (self.low[j] <= target[j] <= self.high[j]):
                 raise InstrumentError(
                     f"target {a} = {target[j]:.6g} m is outside the instrument's limits [{self.low[j]:.6g}, "
-                    f"{self.high[j]:.6g}] m ({self.source or 'set by the user'}); command a point inside them"
+                    f"{self.high[j]:.6g}] m ({self.source}); command a point inside them"
                 )
 
     def clamp(self, target: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -102,7 +102,7 @@ class InstrumentLimits:
         """The box both allow, at the lower of the two speeds."""
         return InstrumentLimits(np.maximum(self.low, other.low), np.minimum(self.high, other.high),
                                 min(self.max_speed, other.max_speed),
-                                " and ".join(s for s in (self.source, other.source) if s))
+                                " and ".join(dict.fromkeys(s for s in (self.source, other.source) if s)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,7 +50,7 @@ import struct
 
 from arsurf.errors import ControllerError, InstrumentLinkLost
 
-__all__ = ["COMMANDS", "HEADER_SIZE", "MAX_BODY", "decode_reply", "decode_request", "encode_reply",
+__all__ = ["COMMANDS", "HEADER_SIZE", "MAX_BODY", "decode_reply", "decode_request", "encode_error_reply", "encode_reply",
            "encode_reply_body", "encode_request", "parse_header"]
 
 HEADER_SIZE = 40
@@ -157,6 +157,13 @@ def encode_reply_body(command: str, values=(), error: str = "") -> bytes:
 def encode_reply(command: str, values=(), error: str = "") -> bytes:
     """The whole reply message (header + :func:`encode_reply_body`)."""
     body = encode_reply_body(command, values, error)
+    return _REPLY_HEADER.pack(_name_bytes(command), len(body)) + body
+
+
+def encode_error_reply(command: str, error: str) -> bytes:
+    """A reply to any command name with only an error section (status 1, ``error``)."""
+    desc = error.encode("utf-8")
+    body = _ERROR.pack(1, len(desc)) + desc
     return _REPLY_HEADER.pack(_name_bytes(command), len(body)) + body
 
 

@@ -94,12 +94,18 @@ dataset                   shape     dtype   fill   meaning
 ``tube_poses``            (n, k, 3) f8      NaN    optional, only with a ``tubes`` scene of k
                                                    tubes: each tube's pose after the tick,
                                                    x, y (m), axis angle (rad)
+``instrument_position``   (n, 3)    f8      NaN    optional, only with an ``instrument`` in the
+                                                   metadata (a session driven by an AFM,
+                                                   :mod:`arsurf.replay.instrument_session`): the
+                                                   tip position the instrument measured, m (scan
+                                                   frame, tip-sphere centre)
 ========================  ========  ======  =====  ===========================================
 
-``tube_poses`` is the only optional dataset: the writer adds it when the metadata has a
-``tubes`` scene, and readers accept its absence (sessions without nano-objects, and files
-written before it existed), so ``format_version`` stays 1. When present its shape is checked
-against the scene (k rows of 3 per tick).
+``tube_poses`` and ``instrument_position`` are the optional datasets: the writer adds each when
+the metadata has a ``tubes`` scene or an ``instrument``, and readers accept their absence
+(sessions without them, and files written before they existed), so ``format_version`` stays.
+When present their shapes are checked (k rows of 3 per tick for the tubes, 3 per tick for the
+instrument).
 
 Recording survives the process dying
 ------------------------------------
@@ -198,6 +204,7 @@ __all__ = [
     "journal_path",
     "contact_fields",
     "TUBE_POSES",
+    "INSTRUMENT_POSITION",
 ]
 
 FORMAT = "arsurf-session"
@@ -259,6 +266,9 @@ TICK_FIELDS: tuple[TickField, ...] = (
 )
 #: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
 TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick")
+#: the optional per-tick dataset of a session driven by an instrument (metadata key ``instrument``)
+INSTRUMENT_POSITION = TickField("instrument_position", 3, "f8", _NAN,
+                                "tip position the instrument measured, m (scan frame, tip-sphere centre)")
 _REQUIRED_TICK = ("t", "probe_position")
 #: ticks per chunk of the recorder (and per journal record), chunks in its pool
 _CHUNK_TICKS = 256
@@ -298,6 +308,8 @@ def _session_fields(metadata: Mapping) -> dict:
     k = tube_count(metadata)
     if k is not None:
         out[TUBE_POSES.name] = (TUBE_POSES, (k, TUBE_POSES.width))
+    if metadata.get("instrument") is not None:
+        out[INSTRUMENT_POSITION.name] = (INSTRUMENT_POSITION, INSTRUMENT_POSITION.row_shape)
     return out
 
 
@@ -1104,6 +1116,11 @@ def _check_session(s: Session, path) -> None:
             raise SessionError(f"session {str(path)!r}: /ticks/tube_poses has shape {poses.shape} and dtype "
                                f"{poses.dtype}, expected float ({s.n_ticks}, k, 3) with k the number of tubes of "
                                f"the metadata's tube scene ({'none' if k is None else k})")
+    pos = s.ticks.get(INSTRUMENT_POSITION.name)
+    if pos is not None and (s.metadata.get("instrument") is None or pos.dtype.kind != "f"
+                            or pos.shape != (s.n_ticks, 3)):
+        raise SessionError(f"session {str(path)!r}: /ticks/instrument_position has shape {pos.shape} and dtype "
+                           f"{pos.dtype}, expected float ({s.n_ticks}, 3) and an 'instrument' in the metadata")
 
 
 # ---------------------------------------------------------------------------------------------
