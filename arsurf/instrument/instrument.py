@@ -498,17 +498,24 @@ class VirtualAFM(Instrument):
         self._apply_feedback()
 
     def _engage(self) -> None:
-        """The procedure of seed 001 (:func:`arsurf.instrument.engage.engage`), then the feedback on."""
+        """The procedure of seed 001 (:func:`arsurf.instrument.engage.engage`), then the feedback on,
+        with the nano stage's position at contact moved to the PicoCube as its working range."""
         self._feedback = False
         result = engage(self, setpoint=self.setpoint, force_limit=self.engage_force_limit)
         if not result.engaged:
             raise InstrumentError(f"{self.name}: the engage stopped without contact ({result.reason}) after "
                                   f"{result.coarse_steps} coarse and {result.fine_steps} fine steps")
+        # give the feedback room both ways: trade the nano stage's travel for the PicoCube's, the
+        # sample lowered first (the tip lifts off a little, never presses harder)
+        trade = min(self.position["nano"], 0.5 * self.stages["pico"].travel - self.position["pico"])
+        if trade > 0.0:
+            self.move("nano", self.position["nano"] - trade)
+            self.move("pico", self.position["pico"] + trade)
         self._set_feedback(True)
 
     def _withdraw(self) -> None:
         """Feedback off; the PicoCube and the nano stage fully retracted and the micro stage backed
-        off by one engage step (0.16 um): the engage may have found the surface right after a
+        off by one engage step (0.16 um, on its 0.05 um grid): the engage may have found the surface right after a
         coarse step, where retracting the fine stages alone would leave the tip touching."""
         self._feedback = False
         self.move("pico", 0.0)

@@ -3,9 +3,9 @@ r"""The live link to an instrument: a thread that reads it as fast as it answers
 The haptic loop runs at 1 kHz and must never wait on a network: :class:`InstrumentLink` owns
 the instrument in its own thread, which, round after round,
 
-1. sends the newest commanded tip position, if a new one came (limited to the instrument's box
-   and to ``max_speed`` times the time since the last one: a jump of the stylus becomes a
-   bounded step),
+1. moves the tip one step towards the newest commanded position (clipped to the instrument's
+   box), the step at most ``max_speed`` times the time since the last round: a jump of the
+   stylus becomes a bounded ramp,
 2. reads one sample (tip position and both signals),
 3. publishes it with the host time it arrived.
 
@@ -165,32 +165,37 @@ class InstrumentLink:
         sample = InstrumentSample()
         sent = np.full(3, np.nan)
         goal = np.full(3, np.nan)
-        t_sent = -math.inf
+        moving = False
         clock = time.perf_counter
-        nxt = clock()
+        nxt = t_prev = clock()
         try:
             inst.read(sample)
             sent[:] = sample.position  # moves start from where the tip is
             while not self._stop.is_set():
                 t0 = clock()
                 with self._lock:
-                    move = self._new_target
-                    if move:
+                    if self._new_target:
                         goal[:] = self._target
                         self._new_target = False
-                if move:
+                        moving = True
+                    if self._holding:
+                        moving = False
+                if moving:  # one step towards the goal, at most max_speed x the time since the last round
                     step = goal - sent
                     if self.axes == "xy":
                         step[2] = 0.0
                     dist = float(np.linalg.norm(step))
-                    allowed = inst.limits.max_speed * max(period, t0 - t_sent)
+                    allowed = inst.limits.max_speed * max(period, t0 - t_prev)
                     if dist > allowed:
                         step *= allowed / dist
                         self.rate_limited += 1
-                    sent += step
-                    inst.move_to(sent if self.axes == "xyz" else (sent[0], sent[1], math.nan))
-                    t_sent = t0
-                    self.moves += 1
+                    else:
+                        moving = False  # this step reaches it
+                    if dist > 0.0:
+                        sent += step
+                        inst.move_to(sent if self.axes == "xyz" else (sent[0], sent[1], math.nan))
+                        self.moves += 1
+                t_prev = t0
                 inst.read(sample)
                 t1 = clock()
                 with self._lock:

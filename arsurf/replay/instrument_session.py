@@ -111,7 +111,8 @@ def _baseline(link: InstrumentLink, n: int, timeout: float) -> np.ndarray:
 
 
 def record_instrument_session(path: str | os.PathLike, metadata, device, instrument: Instrument, *,
-                              photodiode: Photodiode, seconds: float, probe_origin,
+                              photodiode: Photodiode, seconds: float | None = None, probe_origin,
+                              ticks: int | None = None,
                               frame: InstrumentFrame | None = None, baseline=None, baseline_samples: int = 50,
                               max_age: float = 0.02, axes: str = "xyz", scan_path=None, first_sample_timeout=2.0,
                               handle_signals: bool = False, **safety_kwargs) -> InstrumentSessionResult:
@@ -130,8 +131,10 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         Opened by the link if needed (and then closed).
     photodiode : Photodiode
         Radians per unit of each signal (its ``convention`` is recorded).
-    seconds : float
-        Wall time to run.
+    seconds : float, optional
+        Wall time to run ...
+    ticks : int, optional
+        ... or servo ticks to run (in real time; one of the two).
     probe_origin : (3,) float, m
         Tip-sphere centre (scan frame) when the stylus is at its origin.
     frame : InstrumentFrame, optional
@@ -162,9 +165,12 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     SessionError
         A metadata whose haptic source does not use measured signals.
     """
-    seconds = float(seconds)
-    if not (math.isfinite(seconds) and seconds > 0.0):
+    if (seconds is None) == (ticks is None):
+        raise SessionError("give the session's length as seconds (wall time) or ticks (servo ticks), one of the two")
+    if seconds is not None and not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0.0):
         raise SessionError(f"seconds must be a positive duration (got {seconds!r})")
+    if ticks is not None and not (isinstance(ticks, int) and ticks > 0):
+        raise SessionError(f"ticks must be a positive number of servo ticks (got {ticks!r})")
     if not (isinstance(max_age, (int, float)) and math.isfinite(max_age) and max_age > 0.0):
         raise SessionError(f"max_age must be a positive time in seconds (got {max_age!r})")
     if not isinstance(photodiode, Photodiode):
@@ -197,7 +203,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
                                "convention": photodiode.convention, "baseline": base.tolist()}
         if not device.is_open:
             device.open()
-        return _run(Path(path), meta, device, link, loop, model, frame, photodiode, base, seconds, max_age,
+        return _run(Path(path), meta, device, link, loop, model, frame, photodiode, base, seconds, ticks, max_age,
                     handle_signals)
     finally:
         link.stop()
@@ -206,7 +212,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
             device.close()
 
 
-def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, max_age, handle_signals):
+def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals):
     sample = InstrumentSample()
     ang = np.zeros(2)
     cmd = np.zeros(3)
@@ -258,7 +264,13 @@ def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, max_ag
     failure = None
     with writer:
         try:
-            stats = sched.run_for(seconds)
+            sched.start()
+            try:
+                end = time.perf_counter() + (seconds if seconds is not None else math.inf)
+                while sched.is_running and time.perf_counter() < end and (ticks is None or sched.ticks < ticks):
+                    time.sleep(2e-3)
+            finally:
+                stats = sched.stop()
         except LoopError as exc:
             cause = exc.__cause__
             failure = (str(cause) if isinstance(cause, InstrumentError) else str(exc)) + \
