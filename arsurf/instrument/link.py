@@ -24,7 +24,7 @@ Examples
 >>> afm = VirtualAFM(0.0, probe_height=1e-6, tip_xy=(5e-6, 5e-6), keep_history=False)
 >>> with InstrumentLink(afm, axes="xy") as link:
 ...     s = link.wait_first(timeout=2.0)
->>> round(s.position[0] * 1e6, 3), link.samples > 0
+>>> round(float(s.position[0]) * 1e6, 3), link.samples > 0
 (5.0, True)
 """
 from __future__ import annotations
