@@ -74,6 +74,7 @@ class InstrumentLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._opened_here = False
+        self._limits = None
         self.error: str | None = None
         #: rounds completed, moves sent, commands clipped to the box, steps limited by the speed
         self.samples = self.moves = self.clamped = self.rate_limited = 0
@@ -89,6 +90,7 @@ class InstrumentLink:
         if "z" in self.axes and self.instrument.feedback:
             raise InstrumentError(f"{self.instrument.name}: the Z feedback is on, so the link cannot command Z; "
                                   "switch it off, or give axes='xy' to let the feedback hold Z")
+        self._limits = self.instrument.limits  # read once: the servo thread's command() allocates nothing
         self.error = None
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="arsurf-instrument-link", daemon=True)
@@ -127,8 +129,11 @@ class InstrumentLink:
 
     def command(self, target: np.ndarray) -> None:
         """Ask for the tip at ``target`` (3,) m, instrument frame (the newest request wins; it
-        is clipped to the instrument's limits - counted in :attr:`clamped` - never raised on)."""
-        lim = self.instrument.limits
+        is clipped to the instrument's limits as :meth:`start` read them - counted in
+        :attr:`clamped` - never raised on). Only while the link runs."""
+        lim = self._limits
+        if lim is None:
+            raise InstrumentError("the instrument link is not started; start() it before commanding the tip")
         with self._lock:
             if self._holding:
                 return
@@ -185,7 +190,7 @@ class InstrumentLink:
                     if self.axes == "xy":
                         step[2] = 0.0
                     dist = float(np.linalg.norm(step))
-                    allowed = inst.limits.max_speed * max(period, t0 - t_prev)
+                    allowed = self._limits.max_speed * max(period, t0 - t_prev)
                     if dist > allowed:
                         step *= allowed / dist
                         self.rate_limited += 1
