@@ -151,7 +151,17 @@ class ManipulationError(ArsurfError, ValueError):
 
 
 class InstrumentError(ArsurfError, ValueError):
-    """Invalid virtual-instrument input (target outside a stage's travel, bad LSPB limits...)."""
+    """An instrument (virtual AFM or AFM controller) refused or cannot do what was asked: a target
+    outside a stage's travel or the commanded box, bad LSPB limits, a bad setting."""
+
+
+class ControllerError(InstrumentError):
+    """The AFM controller answered a command with an error (the message quotes its description)."""
+
+
+class InstrumentLinkLost(InstrumentError):
+    """The link to the AFM controller stalled, closed or sent bytes that are not its protocol; the
+    link is closed and the tip is left where it was (reopen the instrument to go on)."""
 
 
 class ViewerError(ArsurfError, ValueError):

@@ -37,7 +37,9 @@ import numpy as np
 
 from arsurf._logging import progress
 from arsurf.errors import InstrumentError
-from arsurf.instrument.instrument import InstrumentHistory, VirtualAFM
+
+#: what the procedure drives: the stages of a virtual AFM (:class:`~arsurf.instrument.instrument.VirtualAFM`)
+_STAGED = ("stages", "position", "dwell", "move", "history", "rate", "deflection_sensitivity", "spring_constant")
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,7 @@ class EngageResult:
     fine_steps: int
     coarse_steps: int
     max_force: float
-    history: InstrumentHistory
+    history: "InstrumentHistory"  # noqa: F821 - arsurf.instrument.instrument, which calls this module
 
     @property
     def duration(self) -> float:
@@ -77,7 +79,7 @@ class EngageResult:
         return float(self.history.time[-1]) if len(self.history) else 0.0
 
 
-def engage(afm: VirtualAFM, setpoint: float, *, fine_step: float = 1e-9, fine_range: float = 0.2e-6,
+def engage(afm, setpoint: float, *, fine_step: float = 1e-9, fine_range: float = 0.2e-6,
            coarse_step: float = 0.16e-6, fine_stage: str = "nano", coarse_stage: str = "micro",
            samples_per_check: int = 10, baseline_time: float = 0.05, force_limit: float | None = None,
            max_coarse_steps: int | None = None) -> EngageResult:
@@ -116,8 +118,9 @@ def engage(afm: VirtualAFM, setpoint: float, *, fine_step: float = 1e-9, fine_ra
         Invalid settings, or the lever already in contact (the signal at the start is beyond the
         set point).
     """
-    if not isinstance(afm, VirtualAFM):
-        raise InstrumentError(f"afm must be a VirtualAFM (got {type(afm).__name__})")
+    if not all(hasattr(afm, a) for a in _STAGED):
+        raise InstrumentError(f"afm must be a VirtualAFM, whose stages this procedure drives (got "
+                              f"{type(afm).__name__}); a controller engages with its own Instrument.engage()")
     sp = float(setpoint)
     if not (math.isfinite(sp) and 0.0 < abs(sp) < 1.0):
         raise InstrumentError(f"setpoint must be a signal change in (0, 1) (got {setpoint!r}); e.g. 0.05")

@@ -101,13 +101,19 @@ dataset                   shape     dtype   fill   meaning
 ``tube_poses``            (n, k, 3) f8      NaN    optional, only with a ``tubes`` scene of k
                                                    tubes: each tube's pose after the tick,
                                                    x, y (m), axis angle (rad)
+``instrument_position``   (n, 3)    f8      NaN    optional, only with an ``instrument`` in the
+                                                   metadata (a session driven by an AFM,
+                                                   :mod:`arsurf.replay.instrument_session`): the
+                                                   tip position the instrument measured, m (scan
+                                                   frame, tip-sphere centre)
 ========================  ========  ======  =====  ===========================================
 
-``safety_flags`` and ``tube_poses`` are the optional datasets: the writer always adds the first
-and adds the second when the metadata has a ``tubes`` scene; readers accept their absence
-(files written before they existed, sessions without nano-objects), so ``format_version``
-does not change. When present, ``safety_flags`` must be integers, one per tick, and the shape of
-``tube_poses`` is checked against the scene (k rows of 3 per tick).
+``safety_flags``, ``tube_poses`` and ``instrument_position`` are the optional datasets: the
+writer always adds the first, the second when the metadata has a ``tubes`` scene and the third
+when it has an ``instrument``; readers accept their absence (files written before they existed,
+sessions without nano-objects or an instrument), so ``format_version`` does not change. When
+present, ``safety_flags`` must be integers, one per tick, and the shapes of the others are
+checked (k rows of 3 per tick for the tubes, 3 per tick for the instrument).
 
 Recording survives the process dying
 ------------------------------------
@@ -209,6 +215,7 @@ __all__ = [
     "record_loop_tick",
     "TUBE_POSES",
     "SAFETY_FLAGS",
+    "INSTRUMENT_POSITION",
 ]
 
 FORMAT = "arsurf-session"
@@ -276,8 +283,11 @@ TICK_FIELDS: tuple[TickField, ...] = (
 SAFETY_FLAGS = TickField("safety_flags", 0, "i4", -1, "haptic loop safety flag bits (arsurf.status), -1 not recorded")
 #: the optional per-tick dataset of a session with a tube scene: (n, k, 3), k = number of tubes
 TUBE_POSES = TickField("tube_poses", 3, "f8", _NAN, "tube poses x, y (m), angle (rad), k rows per tick", "m,m,rad")
+#: the optional per-tick dataset of a session driven by an instrument (metadata key ``instrument``)
+INSTRUMENT_POSITION = TickField("instrument_position", 3, "f8", _NAN,
+                                "tip position the instrument measured, m (scan frame, tip-sphere centre)", "m")
 #: optional datasets whose unit is known (checked when the file gives one)
-_KNOWN_EXTRA = {TUBE_POSES.name: TUBE_POSES}
+_KNOWN_EXTRA = {TUBE_POSES.name: TUBE_POSES, INSTRUMENT_POSITION.name: INSTRUMENT_POSITION}
 _REQUIRED_TICK = ("t", "probe_position")
 #: ticks per chunk of the recorder (and per journal record), chunks in its pool
 _CHUNK_TICKS = 256
@@ -347,6 +357,8 @@ def _session_fields(metadata: Mapping) -> dict:
     k = tube_count(metadata)
     if k is not None:
         out[TUBE_POSES.name] = (TUBE_POSES, (k, TUBE_POSES.width))
+    if metadata.get("instrument") is not None:
+        out[INSTRUMENT_POSITION.name] = (INSTRUMENT_POSITION, INSTRUMENT_POSITION.row_shape)
     return out
 
 
@@ -1208,6 +1220,11 @@ def _check_session(s: Session, path) -> None:
             raise SessionError(f"session {str(path)!r}: /ticks/tube_poses has shape {poses.shape} and dtype "
                                f"{poses.dtype}, expected float ({s.n_ticks}, k, 3) with k the number of tubes of "
                                f"the metadata's tube scene ({'none' if k is None else k})")
+    pos = s.ticks.get(INSTRUMENT_POSITION.name)
+    if pos is not None and (s.metadata.get("instrument") is None or pos.dtype.kind != "f"
+                            or pos.shape != (s.n_ticks, 3)):
+        raise SessionError(f"session {str(path)!r}: /ticks/instrument_position has shape {pos.shape} and dtype "
+                           f"{pos.dtype}, expected float ({s.n_ticks}, 3) and an 'instrument' in the metadata")
 
 
 # ---------------------------------------------------------------------------------------------
