@@ -141,12 +141,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                        coupling_stiffness=math.inf if k_vc is None else k_vc / (gain * scale))
     (u0, u1), (v0, v1) = surface.domain
     x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if at is None else at
-    # 2 nm above the highest point under the tip sphere where the motion starts: out of contact
-    x0 = x - (150e-9 if motion == "stroke" else 0.0)
-    gx, gy = np.meshgrid(np.linspace(-1.0, 1.0, 21), np.linspace(-1.0, 1.0, 21))
-    disc = gx**2 + gy**2 <= 1.0
-    z = float(np.max(surface.evaluate(np.clip(x0 + p.tip_radius * gx[disc], u0, u1),
-                                      np.clip(y + p.tip_radius * gy[disc], v0, v1))[..., 2]))
+    z = float(surface.evaluate(x - (150e-9 if motion == "stroke" else 0.0), y)[2])
     origin = (x, y, z + p.tip_radius + 2e-9)
     h.update(rate=float(rate), source=source, signal_noise=0.0 if source == "simulated" else signal_noise,
              passivity=passivity, seed=seed)
