@@ -765,17 +765,20 @@ def cmd_live(args) -> int:
 
     main_thread = threading.current_thread() is threading.main_thread()
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
-    print(f"arsurf live: haptic loop at 1 kHz on {args.device}"
-          + (f" with {args.instrument} (measured force)" if args.instrument else "")
-          + (f" for {args.seconds:g} s" if args.seconds else " until Ctrl-C")
-          + (f"; recording to {record}" if record else ""), file=sys.stderr)
     try:
+        device.open()  # a missing vendor package or device is reported here, before anything is recorded
+        print(f"arsurf live: haptic loop at 1 kHz on {device.info.name}"
+              + (f" with {args.instrument} (measured force)" if args.instrument else "")
+              + (f" for {args.seconds:g} s" if args.seconds else " until Ctrl-C")
+              + (f"; recording to {record}" if record else ""), file=sys.stderr)
         result = run_live(meta, device, backend=args.device, instrument=instrument, photodiode=photodiode,
                           frame=frame, axes=args.instrument_axes, max_age=args.max_age_ms * 1e-3, record=record,
                           seconds=args.seconds, stop=stop, setup=setup)
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+        if device.is_open:  # run_live closes it; not if it never ran
+            device.close()
         if instrument is not None and instrument.is_open:  # the virtual AFM was opened to place its tip
             instrument.close()
     print(f"arsurf live: loop stopped after {result.ticks} ticks at {result.rate:.0f} Hz"
