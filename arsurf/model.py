@@ -199,8 +199,8 @@ def model_tick_kernel(proj,                                              # Proje
         kc = friction[F_COUPLING]
         if kc < math.inf:
             k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
-        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, load, k_t, friction[F_MU_S], friction[F_MU_K],
-                                       state, S_FRICTION, dec)
+        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, load, k_t, friction[F_MU_S],
+                                       friction[F_MU_K], state, S_FRICTION, dec)
         out[M_SLIPPING] = slipped
         fx += dec[0]
         fy += dec[1]
@@ -413,7 +413,7 @@ class ARModel:
     def _clear_state(self) -> None:
         self.state[:] = np.nan
         self.state[S_INTERACTING] = 0.0
-        self.state[S_FRICTION + fr.SLIPPING:S_FRICTION + fr.STATE_SIZE] = 0.0
+        self.state[S_FRICTION + fr.SLIPPING] = 0.0
 
     def kernel_args(self) -> tuple:
         """The model's arguments of the compiled tick (:func:`model_tick_kernel` and the loop

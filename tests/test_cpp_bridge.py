@@ -615,8 +615,8 @@ def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_
     assert main(["replay", str(session), "--scan", str(BUNDLED_SCAN), "--out", str(out_dir), "-q"]) == 0
     summary = json.loads((out_dir / "summary.json").read_text())
     assert summary["n_ticks"] == rec.n_ticks and summary["contact_mismatches"] == 0
-    assert summary["load_difference"] == 0.0 and summary["depth_difference"] == 0.0
+    assert summary["load_difference_N"] == 0.0 and summary["depth_difference_m"] == 0.0
     rows = np.genfromtxt(out_dir / "forces.csv", delimiter=",", names=True)
     for axis in "xyz":  # the loop's force on the tip, recomputed offline to the last bit
-        np.testing.assert_array_equal(rows[f"F_recorded_{axis}"], rows[f"F_simulated_{axis}"])
-    assert np.abs(rows["F_simulated_z"]).max() > 0
+        np.testing.assert_array_equal(rows[f"F_recorded_{axis}_N"], rows[f"F_simulated_{axis}_N"])
+    assert np.abs(rows["F_simulated_z_N"]).max() > 0

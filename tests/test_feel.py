@@ -239,3 +239,37 @@ def test_measured_force_keeps_its_friction_where_the_directional_decoupling_turn
             conds.append(out[M_CONDITION])
     assert max(conds) > 300  # the slide crosses the ill-conditioned band
     assert worst < 1e-6
+
+
+def test_a_contact_point_jumping_to_the_next_asperity_keeps_its_friction():
+    """The closest point jumps 1 nm while the tip moves 1 pm: the anchor is carried along, the
+    friction stays what it was (before: the stretch to the old anchor reversed, and so did the
+    friction, mu_k P in one tick)."""
+    from arsurf.contact import friction as fr
+
+    state = np.full(fr.STATE_SIZE, np.nan)
+    state[fr.SLIPPING] = 0.0
+    out = np.zeros(7)
+    n, load, k_t = (0.0, 0.0, 1.0), 1e-7, 10.0
+    for k in range(40):  # slide along +x: the friction settles at -mu_k P along x
+        fr.stick_slip_kernel(1e-10 * k, 0.0, 0.0, *n, 1e-10 * k, 0.0, 20e-9, load, k_t, 0.2, 0.2, state, 0, out)
+    before = out[:3].copy()
+    assert before[0] == pytest.approx(-0.2 * load)
+    fr.stick_slip_kernel(1e-10 * 39 - 1e-9, 0.0, 0.0, *n, 1e-10 * 39 + 1e-12, 0.0, 20e-9, load, k_t, 0.2, 0.2,
+                         state, 0, out)  # the contact point jumps back 1 nm: another asperity
+    np.testing.assert_allclose(out[:3], before, rtol=0, atol=1e-12 * load)
+
+
+@pytest.mark.parametrize("rate", [1000.0, 10000.0])
+def test_sliding_across_a_rough_real_scan_has_no_friction_steps(rate):
+    """Veeco scan, 10 nm/s: where the contact passed to the next asperity the friction reversed
+    (7 mN steps at the hand at 10 kHz, 2 reversals at 1 kHz)."""
+    from conftest import real_scan_path
+
+    from arsurf.feel_scenarios import prepared_surface, run_scenario
+
+    surface = prepared_surface(real_scan_path("Veeco_20160622.003"))[1]
+    run = run_scenario(surface, motion="slide-10", source="simulated", rate=rate)
+    assert not run.score.buzzes, run.score.summary()
+    after = int(rate)  # after the press
+    assert np.linalg.norm(np.diff(run.force[after:], axis=0), axis=1).max() < 1.5e-3

@@ -77,7 +77,7 @@ def test_a_live_device_loop_records_a_session_that_replays_bit_for_bit(setup, tm
     assert r.contact_mismatches == 0 and r.load_difference == 0.0 and r.depth_difference == 0.0
     out = np.genfromtxt(tmp_path / "replay" / "forces.csv", delimiter=",", names=True)
     for axis in "xyz":
-        np.testing.assert_array_equal(out[f"F_recorded_{axis}"], out[f"F_simulated_{axis}"])
+        np.testing.assert_array_equal(out[f"F_recorded_{axis}_N"], out[f"F_simulated_{axis}_N"])
 
 
 def test_a_fault_mid_session_keeps_the_recording_and_zeroes_the_force(setup, tmp_path):

@@ -150,13 +150,23 @@ def _affine_outliers(a: np.ndarray, b: np.ndarray) -> int | None:
     if np.count_nonzero(ok) < 2 or np.ptp(a[ok]) == 0:
         return None
     x, y = a[ok], b[ok]
-    keep = np.ones(x.size, bool)
-    for _ in range(2):  # least squares, then again without the pixels it does not explain
-        s, t = np.polyfit(x[keep], y[keep], 1)
+    # a start that a few wild pixels cannot drag (Theil-Sen: median slope over pixel pairs), then
+    # least squares on the pixels it explains, twice
+    i = np.random.default_rng(0).integers(0, x.size, size=(2, min(4000, x.size * 4)))
+    dx = x[i[0]] - x[i[1]]
+    pick = dx != 0
+    if not pick.any():
+        return None
+    s = float(np.median((y[i[0]] - y[i[1]])[pick] / dx[pick]))
+    t = float(np.median(y - s * x))
+    for _ in range(2):
         resid = np.abs(s * x + t - y)
         keep = resid <= 1e-9 * max(np.abs(y).max(), 1e-300) + 1e-9 * abs(t)
         if keep.sum() < 2:
             return None
+        s, t = np.polyfit(x[keep], y[keep], 1)
+    resid = np.abs(s * x + t - y)
+    keep = resid <= 1e-9 * max(np.abs(y).max(), 1e-300) + 1e-9 * abs(t)
     if s == 0.0:
         return None
     return int(np.count_nonzero(~keep) + np.count_nonzero(np.isfinite(a) != np.isfinite(b)))

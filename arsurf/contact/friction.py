@@ -35,8 +35,16 @@ no-motion fallback to the directional solution as :math:`s` grows (:mod:`arsurf.
 standing still - whose offset from the anchor is tiny and points anywhere as it jitters - gets
 the no-motion answer steadily, and nothing jumps when the hand starts or stops pushing sideways.
 
-State (4 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
-tick) and the slip flag of the previous tick.
+Where the closest point *jumps* - on a rough scan the sphere's contact can pass from one
+asperity to the next between two ticks, the contact point moving far more than the tip did - the
+anchor is carried along by the same jump: the tangential stretch, hence the friction, is that of
+the contact, which the jump does not undo (a tip sliding across two asperities keeps resisting the
+same way). Without it the stretch to the old anchor pointed backwards after the jump and the
+friction reversed in one tick (+-mu_k P: a 7 mN step at the hand on a real scan). A jump is a
+contact-point move larger than :data:`JUMP_RATIO` times the tip's move plus :data:`JUMP_FLOOR`.
+
+State (10 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
+tick), the slip flag of the previous tick, the previous contact point and tip centre (NaN: none).
 """
 from __future__ import annotations
 
@@ -45,8 +53,12 @@ import math
 from numba import njit
 
 #: state layout (offsets into the state vector given to :func:`stick_slip_kernel`)
-ANCHOR, SLIPPING = 0, 3
-STATE_SIZE = 4
+ANCHOR, SLIPPING, LAST_POINT, LAST_CENTER = 0, 3, 4, 7
+STATE_SIZE = 10
+#: the contact point jumped when it moved more than this many times the tip centre's move ...
+JUMP_RATIO = 10.0
+#: ... plus this (m): far below the moves of a contact point sliding with the tip
+JUMP_FLOOR = 1e-11
 #: ratio of Mindlin's tangential to the normal contact stiffness for like materials with
 #: Poisson's ratio 0.3: 2 (1 - nu) / (2 - nu) (Johnson 1985, Sec. 7.2)
 MINDLIN_RATIO = 2.0 * (1.0 - 0.3) / (2.0 - 0.3)
@@ -55,17 +67,16 @@ MINDLIN_RATIO = 2.0 * (1.0 - 0.3) / (2.0 - 0.3)
 @njit(cache=True)
 def release(state, at) -> None:
     """Forget the anchor (out of contact): ``state[at:at + STATE_SIZE]``."""
-    state[at + ANCHOR] = math.nan
-    state[at + ANCHOR + 1] = math.nan
-    state[at + ANCHOR + 2] = math.nan
+    for j in range(STATE_SIZE):
+        state[at + j] = math.nan
     state[at + SLIPPING] = 0.0
 
 
 @njit(cache=True)
-def stick_slip_kernel(px, py, pz, nx, ny, nz, load, k_t, mu_s, mu_k, state, at, out):
+def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, load, k_t, mu_s, mu_k, state, at, out):
     r"""One tick of the stick-slip proxy (module docstring).
 
-    ``p`` contact point (m), ``n`` unit normal, ``load`` P (N, > 0), ``k_t`` tangential stiffness
+    ``p`` contact point (m), ``n`` unit normal, ``c`` the tip centre (m; for the jump test), ``load`` P (N, > 0), ``k_t`` tangential stiffness
     (N/m, > 0), friction coefficients ``mu_s >= mu_k >= 0``; ``state[at:at + STATE_SIZE]`` (updated).
     Writes ``out[0:3]`` the friction force on the tip (N), ``out[3:6]`` the friction direction
     (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and
@@ -73,6 +84,23 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, load, k_t, mu_s, mu_k, state, at, 
     the contact slipped this tick, else 0."""
     for j in range(7):
         out[j] = 0.0
+    lp = at + LAST_POINT
+    lc = at + LAST_CENTER
+    if math.isfinite(state[at + ANCHOR]) and math.isfinite(state[lp]) and math.isfinite(state[lc]):
+        jx = px - state[lp]
+        jy = py - state[lp + 1]
+        jz = pz - state[lp + 2]
+        moved = math.sqrt((cx - state[lc]) ** 2 + (cy - state[lc + 1]) ** 2 + (cz - state[lc + 2]) ** 2)
+        if math.sqrt(jx * jx + jy * jy + jz * jz) > JUMP_RATIO * moved + JUMP_FLOOR:
+            state[at + ANCHOR] += jx  # carried along by the jump (module docstring)
+            state[at + ANCHOR + 1] += jy
+            state[at + ANCHOR + 2] += jz
+    state[lp] = px
+    state[lp + 1] = py
+    state[lp + 2] = pz
+    state[lc] = cx
+    state[lc + 1] = cy
+    state[lc + 2] = cz
     if not math.isfinite(state[at + ANCHOR]):
         state[at + ANCHOR] = px
         state[at + ANCHOR + 1] = py

@@ -124,8 +124,8 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
             out[L_MEAS_PART + j] = 0.0
             f[j] = 0.0 if st < 0 else mout[M_SIM_FX + j]
         else:
-            out[L_MEAS_PART + j] = w * (mout[M_MEAS_FX + j] - mout[M_SIM_FX + j])
-            f[j] = mout[M_SIM_FX + j] + out[L_MEAS_PART + j]
+            f[j] = w * mout[M_MEAS_FX + j] + (1.0 - w) * mout[M_SIM_FX + j]  # exactly F_meas for w = 1
+            out[L_MEAS_PART + j] = f[j] - mout[M_SIM_FX + j]
     return st
 
 

@@ -127,6 +127,16 @@ def height_kind(chan: "Channel") -> bool | None:
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
+def h5_text(value) -> str:
+    """An HDF5 attribute as text: bytes decoded as UTF-8 (undecodable bytes replaced), a
+    one-element array unwrapped, anything else through ``str``."""
+    if isinstance(value, (bytes, np.bytes_)):
+        return bytes(value).decode("utf-8", "replace")
+    if isinstance(value, np.ndarray) and value.size == 1:
+        return h5_text(value.reshape(-1)[0])
+    return str(value)
+
+
 def require_hdf5(path: Path | str, what: str) -> None:
     """Raise :class:`CorruptScan` unless ``path`` starts with the HDF5 signature (checked before
     h5py sees the file); ``what`` names the expected format in the message."""

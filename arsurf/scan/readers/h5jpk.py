@@ -38,6 +38,7 @@ import numpy as np
 from arsurf.errors import ChannelNotFound, CorruptScan
 from arsurf.scan.readers._common import (
     Channel,
+    h5_text,
     check_shape,
     make_scan,
     parse_unit,
@@ -57,20 +58,12 @@ def sniff(head: bytes) -> bool:
     return False
 
 
-def _text(value) -> str:
-    if isinstance(value, (bytes, np.bytes_)):
-        return bytes(value).decode("utf-8", "replace")
-    if isinstance(value, np.ndarray) and value.size == 1:
-        return _text(value.reshape(-1)[0])
-    return str(value)
-
-
 def _number(path, attrs, key: str, what: str) -> float:
     if key not in attrs:
         raise CorruptScan(f"{path}: {what} has no attribute {key!r}")
     v = attrs[key]
     try:
-        x = float(np.asarray(v).reshape(-1)[0]) if not isinstance(v, (bytes, np.bytes_)) else float(_text(v))
+        x = float(np.asarray(v).reshape(-1)[0]) if not isinstance(v, (bytes, np.bytes_)) else float(h5_text(v))
     except (TypeError, ValueError, IndexError):
         raise CorruptScan(f"{path}: {what} attribute {key!r} is not a number ({v!r})") from None
     if not math.isfinite(x):
@@ -80,16 +73,16 @@ def _number(path, attrs, key: str, what: str) -> float:
 
 def is_h5jpk(f) -> bool:
     """Whether an open h5py File is a JPK scan (root attribute ``file-format-info``)."""
-    return _text(f.attrs.get("file-format-info", b"")).strip().upper() == "JPK SCAN"
+    return h5_text(f.attrs.get("file-format-info", b"")).strip().upper() == "JPK SCAN"
 
 
 def calibration(path, attrs, what: str) -> tuple[float, float, str]:
     """(multiplier, offset, unit) from a raw integer to the channel's default calibration slot."""
     m = _number(path, attrs, "encoder.scaling.multiplier", what)
     o = _number(path, attrs, "encoder.scaling.offset", what)
-    unit = _text(attrs.get("encoder.scaling.unit.unit", b""))
-    base = _text(attrs.get("conversions.base", b"")).strip()
-    slot = _text(attrs.get("conversions.default", base.encode())).strip() or base
+    unit = h5_text(attrs.get("encoder.scaling.unit.unit", b""))
+    base = h5_text(attrs.get("conversions.base", b"")).strip()
+    slot = h5_text(attrs.get("conversions.default", base.encode())).strip() or base
     chain = []
     while slot and slot != base:
         if len(chain) > _MAX_CHAIN or slot in chain:
@@ -98,16 +91,16 @@ def calibration(path, attrs, what: str) -> tuple[float, float, str]:
         key = f"conversion.{slot}.base-calibration-slot"
         if key not in attrs:
             raise CorruptScan(f"{path}: {what}: calibration slot {slot!r} has no {key!r}")
-        slot = _text(attrs[key]).strip()
+        slot = h5_text(attrs[key]).strip()
     for s in reversed(chain):
-        style = _text(attrs.get(f"conversion.{s}.scaling.style", b"offsetmultiplier"))
+        style = h5_text(attrs.get(f"conversion.{s}.scaling.style", b"offsetmultiplier"))
         if style != "offsetmultiplier":
             raise CorruptScan(f"{path}: {what}: calibration slot {s!r} has scaling style {style!r}; only "
                               "'offsetmultiplier' is defined")
         ms = _number(path, attrs, f"conversion.{s}.scaling.multiplier", what)
         os_ = _number(path, attrs, f"conversion.{s}.scaling.offset", what)
         m, o = m * ms, o * ms + os_
-        unit = _text(attrs.get(f"conversion.{s}.scaling.unit.unit", unit.encode()))
+        unit = h5_text(attrs.get(f"conversion.{s}.scaling.unit.unit", unit.encode()))
     if "net-encoder.scaling.multiplier" in attrs and "net-encoder.scaling.offset" in attrs:
         nm = _number(path, attrs, "net-encoder.scaling.multiplier", what)
         no = _number(path, attrs, "net-encoder.scaling.offset", what)
@@ -134,7 +127,7 @@ def read(path: Path | str, channel: str | None = None, frame: int | None = None)
             f = stack.enter_context(h5py.File(path, "r"))
             if not is_h5jpk(f):
                 raise CorruptScan(f"{path}: the root attribute 'file-format-info' is not 'JPK SCAN' "
-                                  f"(got {_text(f.attrs.get('file-format-info', b''))!r}); not a JPK scan file")
+                                  f"(got {h5_text(f.attrs.get('file-format-info', b''))!r}); not a JPK scan file")
             meas = sorted(k for k in f.keys() if k.startswith("Measurement_"))
             if not meas or not isinstance(f[meas[0]], h5py.Group):
                 raise CorruptScan(f"{path}: no 'Measurement_000' group (keys: {sorted(f.keys())[:10]})")
@@ -144,7 +137,7 @@ def read(path: Path | str, channel: str | None = None, frame: int | None = None)
             check_shape(path, ni, nj)
             ul = _number(path, mg.attrs, "position-pattern.grid.ulength", "the grid")
             vl = _number(path, mg.attrs, "position-pattern.grid.vlength", "the grid")
-            unit = _text(mg.attrs.get("position-pattern.grid.unit.unit", b"m"))
+            unit = h5_text(mg.attrs.get("position-pattern.grid.unit.unit", b"m"))
             f_xy, base_xy = parse_unit(unit)
             if base_xy != "m":
                 raise CorruptScan(f"{path}: the grid unit {unit!r} is not a length")
@@ -167,7 +160,7 @@ def read(path: Path | str, channel: str | None = None, frame: int | None = None)
                 if ni * nj * nf * ds.dtype.itemsize > 256 * size + (1 << 20):
                     raise CorruptScan(f"{path}: {ck}/{data[0]} claims {ni}x{nj}x{nf} values, more than a "
                                       f"{size}-byte file can hold")
-                retrace = _text(g.attrs.get("retrace", b"false")).strip().lower() == "true"
+                retrace = h5_text(g.attrs.get("retrace", b"false")).strip().lower() == "true"
                 label = f"{data[0]} ({'retrace' if retrace else 'trace'})"
                 frames_of[ck] = nf
                 for k in range(nf):

@@ -44,7 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import Channel, check_shape, make_scan, parse_unit, require_hdf5, select_channel
+from arsurf.scan.readers._common import (Channel, check_shape, h5_text, make_scan, parse_unit, require_hdf5,
+                                         select_channel)
 
 EXTENSIONS = (".nhf",)
 FORMAT = "nhf"
@@ -67,17 +68,9 @@ def sniff(head: bytes) -> bool:
     return False
 
 
-def _text(value) -> str:
-    if isinstance(value, (bytes, np.bytes_)):
-        return bytes(value).decode("utf-8", "replace")
-    if isinstance(value, np.ndarray) and value.size == 1:
-        return _text(value.reshape(-1)[0])
-    return str(value)
-
-
 def unit_of(text) -> str:
     """The unit in a Nanosurf unit text: ``"Meter (m)" -> "m"``, ``"V" -> "V"``."""
-    s = _text(text).strip()
+    s = h5_text(text).strip()
     m = _UNIT_IN_PARENS.search(s)
     return m.group(1).strip() if m else s
 
@@ -141,13 +134,13 @@ def _calibration_nodes(path, f) -> list[dict]:
     nodes = []
     for key in f.keys():
         g = f[key]
-        if not (isinstance(g, h5py.Group) and _text(g.attrs.get("group_type", "")) == "calibration"):
+        if not (isinstance(g, h5py.Group) and h5_text(g.attrs.get("group_type", "")) == "calibration"):
             continue
         for d in g.values():
             a = d.attrs
             try:
-                src, sink = _text(a["signal_source_id"]), _text(a["signal_sink_id"])
-                kind, inv = _text(a["signal_mapping_type"]), _text(a["signal_invertibility"])
+                src, sink = h5_text(a["signal_source_id"]), h5_text(a["signal_sink_id"])
+                kind, inv = h5_text(a["signal_mapping_type"]), h5_text(a["signal_invertibility"])
                 par = [float(x) for x in np.asarray(a["signal_mapping_parameters"]).reshape(-1)]
                 units = unit_of(a["signal_sink_unit"]), unit_of(a["signal_source_unit"])
             except (KeyError, TypeError, ValueError):
@@ -225,9 +218,9 @@ def read(path: Path | str, channel: str | None = None):
             for key in sorted(f.keys()):
                 g = f[key]
                 if isinstance(g, h5py.Group) and mkey in g.attrs:
-                    kind = _text(g.attrs.get(tkey, ""))
+                    kind = h5_text(g.attrs.get(tkey, ""))
                     if kind in IMAGE_TYPES:
-                        measurements.append((key, _text(g.attrs[mkey]), kind))
+                        measurements.append((key, h5_text(g.attrs[mkey]), kind))
             if not measurements:
                 raise CorruptScan(f"{path}: no image measurement ({' or '.join(IMAGE_TYPES)}) in the file")
             chans: list[Channel] = []
@@ -238,7 +231,7 @@ def read(path: Path | str, channel: str | None = None):
                     seg = g[sk]
                     if not (isinstance(seg, h5py.Group) and skey in seg.attrs):
                         continue
-                    sname = _text(seg.attrs[skey])
+                    sname = h5_text(seg.attrs[skey])
                     sgeom = geom or _size(path, seg.attrs, f"segment {sname!r}")
                     if sgeom is None:
                         raise CorruptScan(f"{path}: measurement {mname!r} gives no image size")
@@ -256,7 +249,7 @@ def read(path: Path | str, channel: str | None = None):
                         a = ds.attrs
                         unit = unit_of(a.get("signal_calibration_unit" if major >= 2 else "base_calibration_unit",
                                              ""))
-                        label = f"{_text(a[ckey])} ({sname})"
+                        label = f"{h5_text(a[ckey])} ({sname})"
                         if len(measurements) > 1:
                             label = f"{mname}: {label}"
                         direction = {"forward": "forward", "backward": "backward"}.get(sname.strip().lower())
@@ -271,7 +264,7 @@ def read(path: Path | str, channel: str | None = None):
             raw = np.asarray(ds[()], dtype=np.float64)
             fill = ds.fillvalue
             nodes = _calibration_nodes(path, f) if major >= 2 else []
-            meta = {k: _text(v) if isinstance(v, (bytes, np.bytes_, str)) else v
+            meta = {k: h5_text(v) if isinstance(v, (bytes, np.bytes_, str)) else v
                     for k, v in f[key].attrs.items() if np.size(v) < 16}
     except OSError as exc:  # h5py's errors for a damaged file
         raise CorruptScan(f"{path}: the HDF5 structure is damaged ({str(exc).splitlines()[0]})") from None
@@ -290,7 +283,7 @@ def _scale(path, raw: np.ndarray, a: dict, major: int, fill, nodes, what: str) -
     """Raw dataset values -> calibrated values and their unit (see the module docstring)."""
     etype = a.get("dataset_element_type")
     if major >= 2:
-        name = _text(etype) if etype is not None else ""
+        name = h5_text(etype) if etype is not None else ""
         if name not in TYPES_V2:
             raise CorruptScan(f"{path}: {what}: dataset_element_type {name!r} is not a Nanosurf type "
                               f"({', '.join(TYPES_V2)})")
@@ -315,7 +308,7 @@ def _scale(path, raw: np.ndarray, a: dict, major: int, fill, nodes, what: str) -
                           "value would be equal")
     v = (raw - tmin) * ((smax - smin) / (tmax - tmin)) + smin
     if major >= 2 and "signal_selected" in a and "signal_id" in a:
-        target, source = _text(a["signal_selected"]), _text(a["signal_id"])
+        target, source = h5_text(a["signal_selected"]), h5_text(a["signal_id"])
         if target and target != source:  # the graph maps the stored values of signal_id to the selected signal
             v = raw
             for node in _chain(path, nodes, source, target, what):
