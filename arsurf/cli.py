@@ -662,7 +662,8 @@ def _live_parser(sub) -> None:
     g.add_argument("--workspace-mm", type=_positive("mm"), nargs=3, metavar=("X", "Y", "Z"),
                    help="workspace extents in mm (required for haply; forcedimension: a model the SDK does not "
                         "describe)")
-    g.add_argument("--serial-port", metavar="PATH", help="haply: the Inverse3's serial port (default: the first found)")
+    g.add_argument("--serial-port", metavar="PATH",
+                   help="haply: the Inverse3's serial port (default: the first found)")
     g.add_argument("--handle-port", metavar="PATH", help="haply: the handle's serial port, or auto")
     g.add_argument("--device-index", type=_count, help="forcedimension: which connected device (default the first)")
     g.add_argument("--device-name", help="openhaptics: the device's configured name (default 'Default Device')")

@@ -44,7 +44,7 @@ import numpy as np
 from arsurf.assembly import build_loop, build_model, preset_metadata
 from arsurf.errors import InstrumentError, LoopError
 
-__all__ = ["LiveResult", "Z_MARGIN", "live_metadata", "open_instrument", "parse_instrument", "press_trajectory",
+__all__ = ["Z_MARGIN", "LiveResult", "live_metadata", "open_instrument", "parse_instrument", "press_trajectory",
            "run_live"]
 
 #: how far (m) above and below the scan's heights the tip may be commanded on a real instrument
@@ -151,8 +151,8 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
                          spring_constant=lever.normal_stiffness, keep_history=False, **kw).open()
         afm.move_to(apex)
         # calibrated as the virtual lever is: its torsion signal is S_l newtons per unit, a twist of c S_l
-        pd = Photodiode.from_deflection_sensitivity(afm.deflection_sensitivity, lever.length,
-                                                    lateral_sensitivity=lever.torsion_compliance * afm.lateral_sensitivity)
+        twist = lever.torsion_compliance * afm.lateral_sensitivity  # rad per unit of the torsion signal
+        pd = Photodiode.from_deflection_sensitivity(afm.deflection_sensitivity, lever.length, lateral_sensitivity=twist)
         return afm, pd, frame
     from arsurf.instrument.nanonis import NanonisAFM
 

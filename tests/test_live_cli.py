@@ -76,7 +76,7 @@ def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path
                              "--instrument-origin-nm", "4490", "4490", "0", "--max-age-ms", "500", "--seconds", "1.2",
                              "--record", str(path))
     assert rc == 0, err
-    assert "instrument samples" in err
+    assert "instrument samples" in err and f"session recorded: {path}" in out
     s = load_session(path)
     t = s.ticks
     assert s.complete and s.n_ticks > 300
@@ -141,8 +141,8 @@ def test_ctrl_c_ends_the_session_normally(tmp_path):
 
 @pytest.mark.parametrize("argv, match", [
     (["--device", "falcon"], "unknown device 'falcon'; devices are: virtual, forcedimension, haply, openhaptics"),
-    (["--device", "virtual", "--serial-port", "/dev/ttyACM0"], "--serial-port is not an option of --device virtual "
-                                                               "(it takes --max-force-n, --workspace-mm, --device-name)"),
+    (["--device", "virtual", "--serial-port", "/dev/ttyACM0"],
+     "--serial-port is not an option of --device virtual (it takes --max-force-n, --workspace-mm, --device-name)"),
     (["--instrument", "nanonis://lab-afm"], "instrument 'nanonis://lab-afm' is not nanonis://HOST:PORT"),
     (["--instrument", "bruker://x:1"], "unknown instrument 'bruker://x:1'; give --instrument virtual or"),
     (["--deflection-sensitivity-nm", "50"], "--deflection-sensitivity-nm set up an instrument; give --instrument"),
@@ -160,15 +160,16 @@ def test_a_missing_vendor_package_names_the_extra(capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "HaplyHardwareAPI", None)  # import HaplyHardwareAPI -> ImportError
     rc, out, err = _live(capsys, "--device", "haply", "--max-force-n", "1", "--workspace-mm", "200", "120", "150",
                          "--seconds", "0.1")
-    assert rc == 2 and err.count("\n") == 1
+    assert rc == 2 and out == "" and err.count("\n") == 1
     assert "Haply devices need haplyhardwareapi; install it with: pip install 'arsurf[haply]'" in err
 
 
 def test_a_device_that_is_not_there_is_one_line(capsys, tmp_path):
     pytest.importorskip("HaplyHardwareAPI", reason="haplyhardwareapi is not installed (pip install 'arsurf[haply]')")
-    rc, out, err = _live(capsys, "--device", "haply", "--serial-port", str(tmp_path / "ttyACM9"), "--max-force-n", "1",
+    port = str(tmp_path / "ttyACM9")
+    rc, out, err = _live(capsys, "--device", "haply", "--serial-port", port, "--max-force-n", "1",
                          "--workspace-mm", "200", "120", "150", "--seconds", "0.1", "--record", str(tmp_path / "x.h5"))
-    assert rc == 2 and err.count("\n") == 1
+    assert rc == 2 and out == "" and err.count("\n") == 1
     assert f"Haply: serial port {tmp_path / 'ttyACM9'} does not exist" in err
     assert not (tmp_path / "x.h5").exists()  # nothing recorded: the device failed before the loop
 

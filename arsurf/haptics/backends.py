@@ -14,7 +14,7 @@ Examples
 >>> make_device("falcon")
 Traceback (most recent call last):
 ...
-arsurf.errors.HapticsError: unknown device 'falcon'; devices are: virtual, forcedimension, haply, openhaptics (a Novint Falcon is a forcedimension device)
+arsurf.errors.HapticsError: unknown device 'falcon'; devices are: virtual, forcedimension, haply, openhaptics (a ...
 """
 from __future__ import annotations
 
