@@ -121,6 +121,7 @@ _EXPORTS = {
     "suggest_gains": "arsurf.haptics.gains",
     "SafetyLayer": "arsurf.haptics.safety",
     "Scheduler": "arsurf.haptics.scheduler",
+    "make_device": "arsurf.haptics.backends",
     # manipulation
     "Nanotube": "arsurf.manipulation.nanotube",
     "push_tube": "arsurf.manipulation.nanotube",
@@ -141,6 +142,7 @@ _EXPORTS = {
     "load_session": "arsurf.replay.session",
     "recover_session": "arsurf.replay.session",
     "replay_session": "arsurf.replay.replay",  # arsurf.replay is the subpackage
+    "run_live": "arsurf.live",
     # model assembly
     "PRESETS": "arsurf.assembly",
     "Preset": "arsurf.assembly",

@@ -1,6 +1,7 @@
 """``arsurf devices``: which haptic device backends are installed, and which devices answer.
 
-One line per backend (:data:`BACKENDS`), whatever is missing: a backend that is not installed
+One line per backend (:data:`~arsurf.haptics.backends.BACKENDS`: name -> adapter module, each with
+``probe() -> BackendReport``), whatever is missing: a backend that is not installed
 says what to install, one that is installed lists the devices it finds (``none connected`` is not
 an error). Exit status 0 in every case; ``--json`` prints the same as a JSON list.
 
@@ -14,22 +15,16 @@ from __future__ import annotations
 import importlib
 import json
 
+from arsurf.haptics.backends import BACKENDS
 from arsurf.haptics.hardware import BackendReport
 
 __all__ = ["BACKENDS", "list_backends", "register"]
-
-#: backend name -> adapter module (each has ``probe() -> BackendReport``)
-BACKENDS = {
-    "forcedimension": "arsurf.haptics.forcedimension",
-    "haply": "arsurf.haptics.haply",
-    "openhaptics": "arsurf.haptics.openhaptics",
-}
 
 
 def list_backends() -> list[BackendReport]:
     """Probe every backend; a probe that fails is reported on its line, never raised."""
     reports = []
-    for name, module in BACKENDS.items():
+    for name, (module, _) in BACKENDS.items():
         try:
             reports.append(importlib.import_module(module).probe())
         except Exception as exc:  # noqa: BLE001 - one backend's failure must not hide the others

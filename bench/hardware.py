@@ -9,8 +9,9 @@ servo thread samples on its own clock); then the scheduler's period jitter (|per
 overruns and achieved rate. The simulated devices are not the real ones: a real USB device adds
 its bus latency (~0.1-1 ms) to ``io``; what this measures is arsurf's side of the round trip.
 
-BENCHMARKS maps a section name to a function returning its JSON dict; another link (e.g. an AFM
-controller simulator) adds its own entry. Run:
+BENCHMARKS maps a section name to a function returning its JSON dict; the ``nanonis`` section is
+the AFM controller link through the simulated Nanonis server (:mod:`hardware_nanonis`, its own
+peers: a bare TCP echo and the vendor's client). Run:
 .venv/bin/python bench/hardware.py [--seconds 3] [--only forcedimension,haply]   (prints JSON)
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ sys.path.insert(0, str(HERE.parent / "tests"))
 from _timing import emit, stats  # noqa: E402
 
 import hardware_sim  # noqa: E402
+from hardware_nanonis import bench_nanonis  # noqa: E402
 
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 
@@ -153,6 +155,7 @@ BENCHMARKS = {
     "forcedimension": bench_forcedimension,
     "openhaptics": bench_openhaptics,
     "haply": bench_haply,
+    "nanonis": bench_nanonis,  # the AFM controller link (bench/hardware_nanonis.py)
 }
 
 

@@ -29,6 +29,7 @@ LAYERS = [
     ("viewer", ["arsurf_viewer"]),
     ("sessions", ["arsurf.replay", "arsurf.feel_scenarios"]),
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
+    ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
     ("entry point", ["arsurf.__main__"]),
 ]

@@ -115,7 +115,8 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
                               ticks: int | None = None,
                               frame: InstrumentFrame | None = None, baseline=None, baseline_samples: int = 50,
                               max_age: float = 0.02, axes: str = "xyz", scan_path=None, first_sample_timeout=2.0,
-                              handle_signals: bool = False, **safety_kwargs) -> InstrumentSessionResult:
+                              handle_signals: bool = False, setup=None, stop=None,
+                              **safety_kwargs) -> InstrumentSessionResult:
     """Run and record ``seconds`` of the haptic loop on ``instrument``'s measured signals.
 
     Parameters
@@ -134,7 +135,10 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     seconds : float, optional
         Wall time to run ...
     ticks : int, optional
-        ... or servo ticks to run (in real time; one of the two).
+        ... or servo ticks to run (in real time; at most one of the two).
+    stop : threading.Event, optional
+        Ends the session normally (complete) when it is set, e.g. by the command line's Ctrl-C;
+        with neither ``seconds`` nor ``ticks`` the session runs until then.
     probe_origin : (3,) float, m
         Tip-sphere centre (scan frame) when the stylus is at its origin.
     frame : InstrumentFrame, optional
@@ -150,6 +154,9 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         The scan, if not where ``metadata`` says.
     handle_signals : bool
         SIGINT/SIGTERM close the recording (incomplete) before stopping.
+    setup : ModelSetup, optional
+        The model :func:`~arsurf.assembly.build_model` already built from ``metadata`` (default:
+        built here).
     **safety_kwargs
         For the loop's safety layer (``ramp_time`` ...).
 
@@ -165,8 +172,11 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     SessionError
         A metadata whose haptic source does not use measured signals.
     """
-    if (seconds is None) == (ticks is None):
-        raise SessionError("give the session's length as seconds (wall time) or ticks (servo ticks), one of the two")
+    if (seconds is not None and ticks is not None) or all(v is None for v in (seconds, ticks, stop)):
+        raise SessionError("give the session's length as seconds (wall time) or ticks (servo ticks), one of the two "
+                           "(or a stop event that ends it)")
+    if stop is not None and not callable(getattr(stop, "is_set", None)):
+        raise SessionError(f"stop must be a threading.Event (got {type(stop).__name__})")
     if seconds is not None and not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0.0):
         raise SessionError(f"seconds must be a positive duration (got {seconds!r})")
     if ticks is not None and not (isinstance(ticks, int) and ticks > 0):
@@ -179,7 +189,8 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     if source not in ("measured", "blended"):
         raise SessionError(f"an instrument session renders the measured force: the metadata's haptics source must "
                            f"be 'measured' or 'blended' (got {source!r})")
-    setup = build_model(metadata, scan_path)
+    if setup is None:
+        setup = build_model(metadata, scan_path)
     model = setup.model
     if frame is None:
         frame = InstrumentFrame(origin=(0.0, 0.0, -model.tip_radius))
@@ -204,7 +215,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         if not device.is_open:
             device.open()
         return _run(Path(path), meta, device, link, loop, model, frame, photodiode, base, seconds, ticks, max_age,
-                    handle_signals)
+                    handle_signals, stop)
     finally:
         link.stop()
         if device.is_open:
@@ -212,7 +223,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
             device.close()
 
 
-def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals):
+def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals, stop):
     sample = InstrumentSample()
     ang = np.zeros(2)
     cmd = np.zeros(3)
@@ -267,7 +278,8 @@ def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks,
             sched.start()
             try:
                 end = time.perf_counter() + (seconds if seconds is not None else math.inf)
-                while sched.is_running and time.perf_counter() < end and (ticks is None or sched.ticks < ticks):
+                while sched.is_running and time.perf_counter() < end and (ticks is None or sched.ticks < ticks) \
+                        and (stop is None or not stop.is_set()):
                     time.sleep(2e-3)
             finally:
                 stats = sched.stop()

@@ -1,0 +1,191 @@
+"""``arsurf live``: the 1 kHz loop on a device chosen by name, optionally on an instrument's measured
+signals, from the command line: recorded sessions that ``arsurf replay`` gives back exactly, the
+simulated Nanonis controller driven through its TCP interface, a link that dies mid-session, Ctrl-C,
+and one-line errors (the Force Dimension adapter's run is in tests/test_hw_forcedimension.py)."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_nanonis import _afm
+
+from arsurf.assembly import BUNDLED_SCAN
+from arsurf.cli import main
+from arsurf.errors import HapticsError
+from arsurf.haptics.backends import DEVICES, make_device
+from arsurf.instrument.nanonis_sim import NanonisSimulator
+from arsurf.live import parse_instrument
+from arsurf.replay.session import load_session
+
+pytestmark = pytest.mark.timeout(600)
+ROOT = Path(__file__).resolve().parents[1]
+R, SCALE = 20e-9, 1e-5
+
+
+def _live(capsys, *argv):
+    rc = main(["live", *argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _replayed_exactly(capsys, path, out_dir):
+    assert main(["replay", str(path), "--scan", str(BUNDLED_SCAN), "--out", str(out_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "max |depth diff| 0 m, contact-state mismatches 0" in out, out
+
+
+def test_virtual_device_session_is_recorded_and_replays_exactly(capsys, tmp_path):
+    """The virtual hand presses the stylus (1.5 R + 10 nm) / scale = 4 mm down in 0.3 s: the probe
+    goes 10 nm into the bundled scan, the loop pushes the hand back up, every tick recorded."""
+    path = tmp_path / "s.h5"
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "1", "--record", str(path))
+    assert rc == 0, err
+    assert f"session recorded: {path}" in out and "arsurf replay" in out
+    s = load_session(path)
+    t = s.ticks
+    assert s.complete and s.n_ticks > 300
+    assert s.metadata["device"]["interface"] == "virtual" and s.metadata["haptics"]["source"] == "simulated"
+    assert s.metadata["haptics"]["scale"] == SCALE
+    # the stylus went down (4 mm at most) and the probe followed it at 1 mm -> 10 nm
+    z = t["stylus_position"][:, 2]
+    assert -4.2e-3 < z.min() < -2e-3
+    np.testing.assert_allclose(t["probe_position"][:, 2] - t["probe_position"][0, 2], (z - z[0]) * SCALE,
+                               atol=1e-15)
+    pressing = t["in_contact"] == 1
+    assert pressing.sum() > 50 and np.median(t["device_force"][pressing, 2]) > 0.0  # pushed back up
+    assert np.linalg.norm(t["device_force"], axis=1).max() <= s.metadata["device"]["max_force"] * (1 + 1e-12)
+    _replayed_exactly(capsys, path, tmp_path / "replay")
+
+
+def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path):
+    """The simulated Nanonis controller (a virtual AFM over a flat sample, tip at (5, 5) um) with the
+    scan's origin at (4.49, 4.49, 0) um: the scan's middle, whose height is ~0 after levelling, is
+    over the tip. The virtual hand presses 10 nm in: the controller's deflection input reads the
+    lever bending, F = k delta, and that is the force the loop rendered."""
+    afm = _afm()
+    path = tmp_path / "n.h5"
+    with NanonisSimulator(afm) as sim:
+        host, port = sim.address
+        rc, out, err = _live(capsys, "--instrument", f"nanonis://{host}:{port}", "--deflection-sensitivity-nm", "1117",
+                             "--instrument-origin-nm", "4490", "4490", "0", "--max-age-ms", "500", "--seconds", "1.2",
+                             "--record", str(path))
+    assert rc == 0, err
+    assert "instrument samples" in err and f"session recorded: {path}" in out
+    s = load_session(path)
+    t = s.ticks
+    assert s.complete and s.n_ticks > 300
+    inst = s.metadata["instrument"]
+    assert inst["name"] == f"Nanonis at {host}:{port}" and inst["frame"]["origin"][0] == pytest.approx(4.49e-6)
+    assert s.metadata["haptics"]["source"] == "measured"
+    assert s.metadata["calibration"]["vertical_sensitivity"] == pytest.approx(1.5 * 1117e-9 / 450e-6)
+    # the controller measured the tip where the loop commanded it (scan frame)
+    lag = np.abs(t["instrument_position"] - t["probe_position"])
+    assert np.nanmedian(lag[:, 2]) < 2e-9
+    # the measured force: the lever's deflection read back, pushing the hand up while pressing
+    pressing = t["in_contact"] == 1
+    assert pressing.sum() > 50
+    k = 169e9 * 50e-6 * 2.5e-6**3 / (4 * 450e-6**3)  # the viewer preset's lever, E w t^3 / (4 L^3)
+    deep = pressing & (t["depth"] > 9e-9)
+    assert deep.sum() > 20
+    assert np.median(t["force"][deep, 2]) == pytest.approx(k * 10e-9, rel=0.25)  # ~10 nm of bending
+    assert np.median(t["device_force"][deep, 2]) > 0.0
+    _replayed_exactly(capsys, path, tmp_path / "replay")
+
+
+def test_a_nanonis_link_that_dies_leaves_zero_force_and_keeps_the_recording(capsys, tmp_path):
+    path = tmp_path / "dead.h5"
+    with NanonisSimulator(_afm()) as sim:
+        sim.faults.close_after = 600  # replies: the connection closes mid-session
+        host, port = sim.address
+        rc, out, err = _live(capsys, "--instrument", f"nanonis://{host}:{port}", "--deflection-sensitivity-nm", "1117",
+                             "--instrument-origin-nm", "4490", "4490", "0", "--max-age-ms", "500", "--seconds", "60",
+                             "--record", str(path))
+    assert rc == 2
+    lines = err.strip().splitlines()
+    msg = lines[-1]
+    assert msg.startswith("arsurf live: error: instrument link lost: ") and "closed the connection" in msg
+    assert "the hand got zero force and the tip was left at (" in msg and "marked incomplete" in msg
+    assert str(path) in msg and out == ""
+    s = load_session(path, allow_incomplete=True)
+    assert not s.complete and s.n_ticks > 10 and "the hand got zero force" in s.attrs["aborted"]
+
+
+def test_ctrl_c_ends_the_session_normally(tmp_path):
+    """Without --seconds the loop runs until SIGINT, which ends it cleanly: exit 0, a complete session."""
+    path = tmp_path / "c.h5"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *sys.path]))
+    p = subprocess.Popen([sys.executable, "-m", "arsurf", "live", "--record", str(path)], cwd=tmp_path, env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        journal = Path(str(path) + ".journal")
+        deadline = time.monotonic() + 300
+        while not journal.exists() and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # some ticks
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "stopping (Ctrl-C again aborts)" in err and "session recorded" in out
+    s = load_session(path)
+    assert s.complete and s.n_ticks > 50
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--device", "falcon"], "unknown device 'falcon'; devices are: virtual, forcedimension, haply, openhaptics"),
+    (["--device", "virtual", "--serial-port", "/dev/ttyACM0"],
+     "--serial-port is not an option of --device virtual (it takes --max-force-n, --workspace-mm, --device-name)"),
+    (["--instrument", "nanonis://lab-afm"], "instrument 'nanonis://lab-afm' is not nanonis://HOST:PORT"),
+    (["--instrument", "bruker://x:1"], "unknown instrument 'bruker://x:1'; give --instrument virtual or"),
+    (["--deflection-sensitivity-nm", "50"], "--deflection-sensitivity-nm set up an instrument; give --instrument"),
+    (["--record", "/no/such/folder/s.h5"], "its folder does not exist"),
+])
+def test_bad_setups_are_one_line_before_anything_runs(capsys, argv, match):
+    t0 = time.perf_counter()
+    rc, out, err = _live(capsys, *argv, "--seconds", "0.1")
+    assert rc == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("arsurf live: error: ") and match in err, err
+    assert time.perf_counter() - t0 < 60  # refused before the model is built and the loop runs
+
+
+def test_a_missing_vendor_package_names_the_extra(capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "HaplyHardwareAPI", None)  # import HaplyHardwareAPI -> ImportError
+    rc, out, err = _live(capsys, "--device", "haply", "--max-force-n", "1", "--workspace-mm", "200", "120", "150",
+                         "--seconds", "0.1")
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert "Haply devices need haplyhardwareapi; install it with: pip install 'arsurf[haply]'" in err
+
+
+def test_a_device_that_is_not_there_is_one_line(capsys, tmp_path):
+    pytest.importorskip("HaplyHardwareAPI", reason="haplyhardwareapi is not installed (pip install 'arsurf[haply]')")
+    port = str(tmp_path / "ttyACM9")
+    rc, out, err = _live(capsys, "--device", "haply", "--serial-port", port, "--max-force-n", "1",
+                         "--workspace-mm", "200", "120", "150", "--seconds", "0.1", "--record", str(tmp_path / "x.h5"))
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert f"Haply: serial port {tmp_path / 'ttyACM9'} does not exist" in err
+    assert not (tmp_path / "x.h5").exists()  # nothing recorded: the device failed before the loop
+
+
+def test_make_device_and_parse_instrument():
+    assert DEVICES == ("virtual", "forcedimension", "haply", "openhaptics")
+    dev = make_device("virtual", max_force=2.0)
+    assert dev.info.max_force == 2.0 and not dev.is_open
+    fd = make_device("forcedimension", max_force=3.0, calibrate=True, index=1)
+    assert fd.calibrate and fd.index == 1 and fd.user_max_force == 3.0 and not fd.is_open  # nothing opened
+    with pytest.raises(HapticsError, match="device 'openhaptics' takes no option port; it takes: name, max_force"):
+        make_device("openhaptics", port="/dev/ttyACM0")
+    with pytest.raises(HapticsError, match="disconnect_after must be in"):
+        make_device("haply", max_force=1.0, workspace=(0.1, 0.1, 0.1), disconnect_after=-1.0)
+    assert parse_instrument("virtual") == ("virtual",)
+    assert parse_instrument("nanonis://[::1]:6501") == ("nanonis", "::1", 6501)
+    for bad in ("nanonis://host:0", "nanonis://host:99999", "nanonis://:6501", "nanonis://host:65x"):
+        with pytest.raises(Exception, match="is not nanonis://HOST:PORT"):
+            parse_instrument(bad)
