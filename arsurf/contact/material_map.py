@@ -23,7 +23,9 @@ How a map is built (:func:`build_material_map`), per channel
        :math:`\ln(E^*/E^*_{ref})` and :math:`\ln(w/w_{ref})`, the references being the medians:
        the values between pixels are continuous, always positive, and a uniform map is the
        zero spline exactly. The kernel clamps the spline to the range of the pixel values, so
-       the cubic's overshoot at a sharp step never leaves the measured range.
+       the cubic's overshoot at a sharp step never leaves the measured range; between the pixels
+       next to a step the interpolating cubic still ripples by a few per cent of the step (as the
+       height's fit does): ``sigma`` (or ``smoothing``) removes it.
 
 Registration to the height image
     The map's pixel (ix, iy) sits at (x0 + ix dx, y0 + iy dy) in the height image's frame
