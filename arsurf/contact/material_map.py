@@ -291,9 +291,13 @@ class MaterialMap:
                              self.reference_work / c.dugdale_range)
 
     def to_metadata(self) -> dict:
-        """What a session records to rebuild the map (the scan file is the session's)."""
-        return {"channels": dict(self.channels), "conversion": self.conversion.to_metadata(),
-                "offset": list(self.offset), "processing": dict(self.processing), "sha256": self.sha256}
+        """What a session records to rebuild the map: channel names (and units given for a file
+        that does not state them), the conversion, the offset, the processing and the hash."""
+        p = self.processing
+        return {"channels": dict(self.channels), "units": dict(p.get("units") or {}),
+                "conversion": self.conversion.to_metadata(), "offset": list(self.offset),
+                "processing": {"sigma": p["sigma"], "smoothing": p["smoothing"], "control_shape": p["control_shape"]},
+                "sha256": self.sha256}
 
     def summary(self) -> dict:
         """Statistics, masked fractions and the conversion, JSON-ready (SI units)."""
@@ -568,7 +572,7 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
                   "modulus_conversion": how_e, "adhesion_conversion": how_f}
     return MaterialMap(MappingProxyType(fields), offset, (ref.dx, ref.dy), conv,
                        MappingProxyType({k: v.channel for k, v in present.items()}),
-                       MappingProxyType(masked), MappingProxyType(stats), registration, MappingProxyType(processing),
+                       MappingProxyType(masked), MappingProxyType(stats), registration, processing,
                        source or ref.source)
 
 
@@ -579,14 +583,17 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan | None = None,
-                           channels: Mapping[str, str | None] | None = None, offset=(0.0, 0.0), sigma: float = 0.0,
-                           smoothing: float = 0.0, control_shape=None) -> MaterialMap:
+                           channels: Mapping[str, str | None] | None = None, units: Mapping[str, str] | None = None,
+                           offset=(0.0, 0.0), sigma: float = 0.0, smoothing: float = 0.0,
+                           control_shape=None) -> MaterialMap:
     """A :class:`MaterialMap` from the mechanical channels of a scan file.
 
     ``channels`` maps a role to a channel name (default :data:`CHANNEL_NAMES`; ``deformation``
     and ``dissipation`` are optional and skipped when the file lacks them, a name given as None
-    is skipped too). ``height`` is the image the map registers to (default: the file's height
-    channel as read, which has the grid of the model's fit). Other arguments as
+    is skipped too). ``units`` gives the unit of a role's channel in a file that does not state
+    it (a bare ``.npz``: ``{"modulus": "Pa", "adhesion": "N"}``, as ``z_unit`` of
+    :func:`arsurf.load_scan`). ``height`` is the image the map registers to (default: the file's
+    height channel as read, which has the grid of the model's fit). Other arguments as
     :func:`build_material_map`.
     """
     from arsurf.errors import ChannelNotFound
@@ -594,19 +601,26 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
 
     names = dict(CHANNEL_NAMES)
     names.update(channels or {})
+    units = dict(units or {})
+    bad = sorted(set(units) - set(CHANNEL_NAMES))
+    if bad:
+        raise MaterialMapError(f"units for unknown roles {bad}; roles are {sorted(CHANNEL_NAMES)}")
     scans: dict[str, Scan] = {}
     for role, name in names.items():
         if name is None:
             continue
         try:
-            scans[role] = load_scan(path, channel=name)
+            scans[role] = load_scan(path, channel=name, z_unit=units.get(role))
         except ChannelNotFound:
             if role in ("modulus", "adhesion") or (channels and channels.get(role)):
                 raise
     if height is None:
         height = load_scan(path)
-    return build_material_map(height, scans, conversion, offset=offset, sigma=sigma, smoothing=smoothing,
-                              control_shape=control_shape, source=str(path))
+    m = build_material_map(height, scans, conversion, offset=offset, sigma=sigma, smoothing=smoothing,
+                           control_shape=control_shape, source=str(path))
+    if units:
+        m.processing["units"] = units  # type: ignore[index]  (recorded: a replay reads the same way)
+    return m
 
 
 def material_kernel_args(material: MaterialMap | None, contact) -> tuple:
