@@ -82,33 +82,10 @@ def cmd_info(args) -> int:
     return 0
 
 
-def material_conversion(args):
-    """The :class:`~arsurf.contact.material_conversion.MaterialConversion` of the material flags
-    (lengths in nm, moduli in GPa at this edge)."""
-    from arsurf.contact.material_conversion import MaterialConversion
-
-    def opt(name, scale=1.0):
-        v = getattr(args, name, None)
-        return None if v is None else v * scale
-
-    kw = {k: v for k, v in (("sample_poisson", opt("sample_poisson")), ("tip_modulus", opt("tip_modulus_gpa", 1e9)),
-                            ("tip_poisson", opt("tip_poisson"))) if v is not None}
-    return MaterialConversion(
-        tip_radius=args.tip_radius_nm * 1e-9, regime=args.regime, modulus_scale=opt("modulus_scale"),
-        adhesion_scale=opt("adhesion_scale"), deflection_sensitivity=opt("deflection_sensitivity_nm_per_v", 1e-9),
-        spring_constant=opt("spring_constant"), adhesion_floor=opt("adhesion_floor_nn", 1e-9), **kw)
-
-
-def material_channels(args) -> dict:
-    """Role -> channel name of the material flags (None: skip)."""
-    from arsurf.contact.material_map import CHANNEL_NAMES
-
-    return {role: getattr(args, f"{role}_channel", None) or CHANNEL_NAMES[role] for role in CHANNEL_NAMES}
-
-
 def _material_info(args, scan) -> int:
     """``arsurf info --material``: the mechanical channels with their units, then (when their
     conversions are stated) the E* and w statistics of the map, median and 5-95 %."""
+    from arsurf.contact.material_conversion import MaterialConversion
     from arsurf.contact.material_map import mechanical_channels, material_map_from_file
 
     listing = mechanical_channels(scan)
@@ -117,9 +94,9 @@ def _material_info(args, scan) -> int:
     if not listing:
         _print(out, args.json)
         return 0
-    conv = material_conversion(args)
+    conv = MaterialConversion.from_cli(args)
     try:
-        m = material_map_from_file(args.scan, conv, channels=material_channels(args))
+        m = material_map_from_file(args.scan, conv, channels=MaterialConversion.cli_channels(args))
     except ArsurfError:
         _print(out, args.json)  # the listing, then the one-line reason on stderr (exit 2)
         raise
@@ -270,50 +247,6 @@ def _processing_flags(s, level: str = "plane") -> None:
     s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
 
 
-def _float_type(unit: str, minimum: float, strict: bool, maximum: float | None = None):
-    """An argparse type: a finite number in ``unit``, >= (or >) ``minimum`` (and <= ``maximum``)."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number{' in ' + unit if unit else ''} (got {text!r})") from None
-        if not np.isfinite(value) or value < minimum or (strict and value == minimum) or (
-                maximum is not None and value > maximum):
-            rule = (f"> {minimum:g}" if strict else f">= {minimum:g}") + (f" and <= {maximum:g}" if maximum else "")
-            raise argparse.ArgumentTypeError(f"must be finite and {rule}{' ' + unit if unit else ''} (got {text})")
-        return value
-    return parse
-
-
-def material_flags(s, tip_radius_nm: float = 20.0) -> None:
-    """The material map's channels and conversions (arsurf.contact.material_conversion): units at
-    this edge are nm, GPa, nN, N/m."""
-    g = s.add_argument_group("material map (mechanical channels -> E*, w)")
-    g.add_argument("--tip-radius-nm", type=_nm(strict=True), default=tip_radius_nm,
-                   help=f"tip radius of the adhesion conversion and the model, nm (default {tip_radius_nm:g})")
-    g.add_argument("--modulus-scale", type=_float_type("Pa per unit", 0.0, True), metavar="PA_PER_UNIT",
-                   help="pascals per unit of a modulus channel the file leaves uncalibrated (Arb); never assumed")
-    g.add_argument("--adhesion-scale", type=_float_type("N per unit", 0.0, True), metavar="N_PER_UNIT",
-                   help="newtons per unit of an adhesion channel in Arb")
-    g.add_argument("--deflection-sensitivity-nm-per-v", type=_float_type("nm/V", 0.0, True), metavar="NM_PER_V",
-                   help="deflection sensitivity for an adhesion channel in volts of deflection (F = V S k)")
-    g.add_argument("--spring-constant", type=_float_type("N/m", 0.0, True), metavar="N_PER_M",
-                   help="cantilever spring constant for an adhesion channel in V or m of deflection")
-    g.add_argument("--sample-poisson", type=_float_type("", -1.0, True, 0.5), metavar="NU",
-                   help="sample Poisson ratio of the instrument's DMT fit (default 0.3)")
-    g.add_argument("--tip-modulus-gpa", type=_float_type("GPa", 0.0, True), metavar="GPA",
-                   help="tip Young modulus (default silicon, 130 GPa)")
-    g.add_argument("--tip-poisson", type=_float_type("", -1.0, True, 0.5), metavar="NU",
-                   help="tip Poisson ratio (default 0.28)")
-    g.add_argument("--regime", default="md", choices=("md", "dmt", "jkr"),
-                   help="pull-off law of the adhesion -> w conversion (default md: Maugis-Dugdale at the local E*)")
-    g.add_argument("--adhesion-floor-nn", type=_float_type("nN", 0.0, True), metavar="NN",
-                   help="pull-offs below it are raised to it (default: the rms of the negative ones)")
-    for role, default in (("modulus", "DMTModulus"), ("adhesion", "Adhesion"), ("deformation", "Deformation"),
-                          ("dissipation", "Dissipation")):
-        g.add_argument(f"--{role}-channel", metavar="NAME", help=f"the {role} channel (default {default})")
-
-
 def _calibration_flags(s) -> None:
     s.add_argument("--dx-nm", type=_nm(strict=True), help="pixel spacing along x in nm, for a file that does "
                    "not state it (a bare .txt/.npy matrix)")
@@ -340,7 +273,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--material", action="store_true", help="list the mechanical channels (modulus, adhesion, "
                    "deformation, dissipation) with their units and print the E* and w statistics of the material "
                    "map (median, 5-95 %%); channels the file leaves uncalibrated need the conversion flags")
-    material_flags(s)
+    from arsurf.contact.material_conversion import MaterialConversion
+
+    MaterialConversion.cli_arguments(s)
     s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("fit", help="level, smooth and fit a bicubic B-spline; write it as .npz")

@@ -223,3 +223,16 @@ def test_the_dents_rim_is_the_contact_radius(case):
     # (the largest errors sit at the edge of the Dugdale zone, where the profile has a log kink)
     scale = max(abs(depth), a * a / R_TIP, a * a / R_TIP - depth)   # the Hertz and the adhesive parts
     np.testing.assert_allclose(P0[near, 2] - P[near, 2], u, atol=1e-2 * scale)
+
+
+def test_a_contact_wider_than_the_tip_leaves_no_nan(flat):
+    """a > R (a very soft sample): the points with R <= rho < a follow the contact's paraboloid."""
+    R, a, depth = 5e-9, 7e-9, 6e-9
+    c = np.array([200e-9, 200e-9, R - depth])
+    Deformer(flat).apply(c, R, (0, 0, 1), a, depth=depth, zone_radius=8e-9)
+    P, P0 = flat.control_points.reshape(-1, 3), flat.rest_control_points.reshape(-1, 3)
+    assert np.isfinite(P).all()
+    rho, _ = _rho(P0, c, np.array([0.0, 0.0, 1.0]))
+    ring = (rho >= R) & (rho < a)
+    assert ring.any()
+    np.testing.assert_allclose(P0[ring, 2] - P[ring, 2], depth - rho[ring] ** 2 / (2 * R), rtol=1e-12)

@@ -10,7 +10,10 @@ radius (Maugis-Dugdale), a control point P at rest position P₀ has the axial a
 **Inside the contact** (ρ < a: pressed in on approach, held up by adhesion on retraction - the
 neck) it is moved onto the sample-side cap of the tip sphere,
 
-.. math:: P = C + \mathbf r - \sqrt{R^2 - ρ^2}\; n .
+.. math:: P = C + \mathbf r - \sqrt{R^2 - ρ^2}\; n
+
+(for a contact wider than the tip, a > R, far beyond the small-strain theory, the points with
+R <= ρ < a follow the contact's paraboloid, :math:`u = δ - ρ^2/2R`).
 
 **Outside the contact** (ρ ≥ a) the surface is not on the sphere: it follows the elastic
 half-space under the Maugis-Dugdale tractions, moved along -n by the normal displacement
@@ -268,10 +271,16 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             if rho2 >= rb2:
                 continue
             if rho2 < a2:
-                cap = -math.sqrt(r2 - rho2)
-                ctrl[i, j, 0] = cx + rx + cap * nx
-                ctrl[i, j, 1] = cy + ry + cap * ny
-                ctrl[i, j, 2] = cz + rz + cap * nz
+                if rho2 < r2:
+                    cap = -math.sqrt(r2 - rho2)
+                    ctrl[i, j, 0] = cx + rx + cap * nx
+                    ctrl[i, j, 1] = cy + ry + cap * ny
+                    ctrl[i, j, 2] = cz + rz + cap * nz
+                else:  # a > R (far beyond small strain): the contact's own paraboloid there
+                    u = depth - 0.5 * rho2 / radius
+                    ctrl[i, j, 0] = rest[i, j, 0] - u * nx
+                    ctrl[i, j, 1] = rest[i, j, 1] - u * ny
+                    ctrl[i, j, 2] = rest[i, j, 2] - u * nz
                 moved += 1
                 continue
             qx = rest[i, j, 0]

@@ -41,8 +41,9 @@ from the DMT value, about 12 iterations reach 1e-14. :math:`\bar P_c` is read by
 interpolation, every 2e-4 in :math:`\ln\lambda`, from a cubic spline through its exact values at 50
 points per unit over :math:`\lambda \in [10^{-6}, 10^6]` (relative error < 1e-9, tested), so a
 1024² image converts in about a second. A pull-off at or below zero is below the instrument's
-detection (noise around a non-adhesive pixel): it is raised to ``adhesion_floor`` (default: the
-rms of the negative pull-offs, the noise's own estimate) and counted.
+detection (noise around a non-adhesive pixel): pull-offs below ``adhesion_floor`` are raised
+to it and counted (default: the rms of the negative pull-offs of the processed field, the
+noise's own estimate; :mod:`arsurf.contact.material_map`).
 
 Sources: K. L. Johnson, *Contact Mechanics* (1985) Eq. 4.22; B. V. Derjaguin, V. M. Muller,
 Yu. P. Toporov (1975); K. L. Johnson, K. Kendall, A. D. Roberts (1971); D. Maugis, J. Colloid
@@ -115,7 +116,7 @@ class MaterialConversion:
     spring_constant : float, N/m, optional
         Needed for an adhesion channel in V (both) or in m of deflection (the spring constant).
     adhesion_floor : float, N, optional
-        Pull-offs at or below zero are raised to it (default: the rms of the negative ones).
+        Pull-offs below it are raised to it (default: the rms of the negative ones).
     outlier_mads : float
         A modulus pixel farther than this many robust standard deviations (1.4826 MAD) from
         the median of log E is an outlier (masked and filled); default 6.
@@ -183,10 +184,75 @@ class MaterialConversion:
             raise MaterialMapError("the material conversion lacks tip_radius (m)")
         return cls(**dict(meta))
 
+    # -- the command line (units at this edge: nm, GPa, nN, N/m) ------------------------------
+    @staticmethod
+    def cli_arguments(parser, tip_radius_nm: float = 20.0) -> None:
+        """Add the conversion's flags and the channel names to an argparse parser (``arsurf
+        info --material``, ``arsurf demo --material``); :meth:`from_cli` reads them back."""
+        g = parser.add_argument_group("material map (mechanical channels -> E*, w)")
+        g.add_argument("--tip-radius-nm", type=_number_type("nm", 0.0), default=tip_radius_nm,
+                       help=f"tip radius of the adhesion conversion and of the model, nm (default {tip_radius_nm:g})")
+        flags = (("--modulus-scale", "PA_PER_UNIT", "pascals per unit of a modulus channel the file leaves "
+                                                    "uncalibrated (Arb); never assumed"),
+                 ("--adhesion-scale", "N_PER_UNIT", "newtons per unit of an adhesion channel in Arb"),
+                 ("--deflection-sensitivity-nm-per-v", "NM_PER_V", "deflection sensitivity, for an adhesion "
+                                                                    "channel in volts of deflection (F = V S k)"),
+                 ("--spring-constant", "N_PER_M", "cantilever spring constant, for an adhesion channel in V or m"),
+                 ("--tip-modulus-gpa", "GPA", "tip Young modulus (default silicon, 130 GPa)"),
+                 ("--adhesion-floor-nn", "NN", "pull-offs below it are raised to it (default: rms of the negative "
+                                               "ones)"))
+        for flag, metavar, text in flags:
+            g.add_argument(flag, type=_number_type("", 0.0), metavar=metavar, help=text)
+        for flag, text in (("--sample-poisson", "sample Poisson ratio of the instrument's DMT fit (default 0.3)"),
+                           ("--tip-poisson", "tip Poisson ratio (default 0.28)")):
+            g.add_argument(flag, type=_number_type("", -1.0, 0.5), metavar="NU", help=text)
+        g.add_argument("--regime", default="md", choices=REGIMES, help="pull-off law of the adhesion -> w "
+                       "conversion (default md: Maugis-Dugdale at the local E*)")
+        for role in ("modulus", "adhesion", "deformation", "dissipation"):
+            g.add_argument(f"--{role}-channel", metavar="NAME", help=f"the {role} channel (default: the "
+                           "PeakForce QNM name)")
+
+    @classmethod
+    def from_cli(cls, args) -> "MaterialConversion":
+        """The conversion of the flags of :meth:`cli_arguments` (converted to SI)."""
+        def opt(name, scale=1.0):
+            v = getattr(args, name, None)
+            return None if v is None else v * scale
+
+        kw = {k: v for k, v in (("sample_poisson", opt("sample_poisson")), ("tip_poisson", opt("tip_poisson")),
+                                ("tip_modulus", opt("tip_modulus_gpa", 1e9))) if v is not None}
+        return cls(tip_radius=args.tip_radius_nm * 1e-9, regime=args.regime, modulus_scale=opt("modulus_scale"),
+                   adhesion_scale=opt("adhesion_scale"),
+                   deflection_sensitivity=opt("deflection_sensitivity_nm_per_v", 1e-9),
+                   spring_constant=opt("spring_constant"), adhesion_floor=opt("adhesion_floor_nn", 1e-9), **kw)
+
+    @staticmethod
+    def cli_channels(args) -> dict:
+        """Role -> channel name of the ``--<role>-channel`` flags (None: the default name)."""
+        return {role: getattr(args, f"{role}_channel", None)
+                for role in ("modulus", "adhesion", "deformation", "dissipation")
+                if getattr(args, f"{role}_channel", None) is not None}
+
     @property
     def tip_plane_strain_compliance(self) -> float:
         """:math:`(1-\\nu_t^2)/E_t` in 1/Pa."""
         return (1.0 - self.tip_poisson ** 2) / self.tip_modulus
+
+
+def _number_type(unit: str, minimum: float, maximum: float | None = None):
+    """An argparse type: a finite number > ``minimum`` (and <= ``maximum``) in ``unit``."""
+    import argparse
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number{' in ' + unit if unit else ''} (got {text!r})") from None
+        if not (math.isfinite(value) and value > minimum and (maximum is None or value <= maximum)):
+            rule = f"> {minimum:g}" + (f" and <= {maximum:g}" if maximum is not None else "")
+            raise argparse.ArgumentTypeError(f"must be finite and {rule}{' ' + unit if unit else ''} (got {text})")
+        return value
+    return parse
 
 
 def channel_to_si(values: np.ndarray, unit: str, quantity: str, conv: MaterialConversion,

@@ -16,7 +16,8 @@ How a map is built (:func:`build_material_map`), per channel
        of each reason is reported (``masked``).
     3. **Fill** the masked pixels by Laplace inpainting (:func:`arsurf.inpaint`), in log E for
        the modulus; optional Gaussian **smoothing** (``sigma``, :func:`arsurf.smooth`), like the
-       height. Pull-offs at or below zero are then raised to the adhesion floor (counted).
+       height. Pull-offs below the adhesion floor are then raised to it (counted): by default the
+       rms of the field's negative values, its own noise (a pull-off cannot be compressive).
     4. **Convert**: :math:`E^*` from the sample modulus, *w* from the pull-off at the local
        :math:`E^*` (the conversion's regime).
     5. **Fit** a bicubic B-spline (:func:`arsurf.fit_surface`, the height's fit) to
@@ -526,17 +527,17 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
     ok = ~(reasons["not_finite"] | reasons["zero"] | reasons["saturated"])
     reasons["outlier"] = _robust_outliers(fo, ok, conv.outlier_mads)
     m_adh = record("adhesion", reasons)
+    f_fill = _smooth(_fill(fo, m_adh, adh), adh, sigma)
     floor = conv.adhesion_floor
-    if floor is None:
-        neg = fo[~m_adh & (fo < 0.0)]
-        pos = fo[~m_adh & (fo > 0.0)]
+    if floor is None:  # the noise of the field the map is made of (smoothing lowers it)
+        neg = f_fill[f_fill < 0.0]
+        pos = f_fill[f_fill > 0.0]
         if neg.size:
             floor = float(np.sqrt(np.mean(neg * neg)))
         elif pos.size:
             floor = 1e-3 * float(np.median(pos))
         else:
             raise MaterialMapError(f"the adhesion channel {adh.channel!r} has no positive pull-off force")
-    f_fill = _smooth(_fill(fo, m_adh, adh), adh, sigma)
     floored = f_fill < floor
     masked["adhesion"]["floored"] = float(floored.sum()) / n
     masked["adhesion"]["floor_N"] = floor
