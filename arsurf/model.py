@@ -141,10 +141,10 @@ def model_tick_kernel(proj,                                              # Proje
     state[S_HINT_V] = coll[pj.OUT_V]
     # the contact law where the tip touches: a material map's local E* and w, else the reference
     md, stiffness, jump_out, zero_load, local = local_contact_kernel(
-        md_args[0], md_args[1], md_args[2], md_args[3], md_args[4], md_args[5], coll[pj.OUT_U], coll[pj.OUT_V],
-        coll[pj.OUT_DEPTH])
+        md_args[0], md_args[1], md_args[2], md_args[3], md_args[4], md_args[5], md_args[6], coll[pj.OUT_U],
+        coll[pj.OUT_V])
     if local:
-        fl = md_args[6]
+        fl = md_args[7]
         for k in range(friction.size):
             fl[k] = friction[k]
         fl[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
@@ -198,7 +198,7 @@ def model_tick_kernel(proj,                                              # Proje
         r_dent = tip_radius if md_st == MD_CONTACT else 0.0
         zone = md_zone_radius(a, depth, md[0], md[1], md[3])
         out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth, zone,
-                                     md_args[7], patch)
+                                     md_args[8], patch)
     # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     fx = load * nx
     fy = load * ny

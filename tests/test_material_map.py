@@ -11,7 +11,8 @@ from arsurf.contact.material_conversion import (MaterialConversion, channel_to_s
 from arsurf.contact.material_map import (FOLD_LOWER_BOUND, ZERO_LOAD_BOUND, build_material_map,
                                          local_contact_kernel)
 from arsurf.contact.materials import MATERIALS, effective_modulus
-from arsurf.contact.maugis_dugdale import LAMBDA_TRANSITION, MaugisDugdale, md_critical_point_kernel, md_solve_load
+from arsurf.contact.maugis_dugdale import (LAMBDA_TRANSITION, MaugisDugdale, md_critical_point_kernel, md_curve,
+                                          md_solve_load)
 from arsurf.errors import MaterialMapError
 from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
@@ -294,7 +295,7 @@ def test_a_step_in_modulus_changes_the_indentation_by_the_md_prediction_on_each_
 def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     """Against a reference law elsewhere (10 GPa, 0.05 J/m^2), the kernel's scaled arguments equal
     a MaugisDugdale built from the map's values (lambda from ~0.1 to ~10: with and without a fold),
-    every depth gives the same state, and the bracket bounds hold."""
+    every depth gives the same state, and the coupled solver's bracket ends hold."""
     from arsurf.contact.material_map import material_kernel_args
     from arsurf.contact.maugis_dugdale import md_contact_from_depth_kernel
 
@@ -305,21 +306,23 @@ def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     assert m.reference_work == pytest.approx(w, rel=1e-9)
     ref_law = MaugisDugdale(R, 10e9, 0.05, 0.05 / conv.dugdale_range)
     args = material_kernel_args(m, ref_law)
-    for depth in (2.0 * local_law.depth_scale, -0.5 * local_law.depth_scale):   # the fold later / now
-        md, ratio, jump, zero, here = local_contact_kernel(*args, 60e-9, 60e-9, depth)
-        assert here and ratio == pytest.approx(m.reference_modulus / 10e9, rel=1e-12)
-        np.testing.assert_allclose(md[:4], local_law.kernel_args[:4], rtol=1e-12)
-        if not math.isnan(md[4]):
-            assert md[4] == pytest.approx(local_law.kernel_args[4], rel=1e-9)
-            assert md[5] == pytest.approx(local_law.kernel_args[5], rel=1e-12)
-        assert jump <= local_law.jump_out_depth() + 1e-12 * local_law.depth_scale
-        assert zero >= float(local_law.depth(0.0))
-        for q in np.linspace(-1.0, 3.0, 9) * local_law.depth_scale:     # every depth: the same state
-            st = local_law.contact_state(depth=q)
-            s, a, p = md_contact_from_depth_kernel(q, *md)
-            assert s == {"contact": 0, "cohesive": 1, "separated": 2}[st.branch]
-            assert a == pytest.approx(st.radius, rel=1e-7, abs=1e-12 * local_law.radius_scale)
-            assert p == pytest.approx(st.load, rel=1e-7, abs=1e-9 * local_law.load_scale)
+    md, ratio, jump, zero, here = local_contact_kernel(*args, 60e-9, 60e-9)
+    assert here and ratio == pytest.approx(m.reference_modulus / 10e9, rel=1e-12)
+    np.testing.assert_allclose(md[:4], local_law.kernel_args[:4], rtol=1e-12)
+    if math.isfinite(local_law.kernel_args[4]):          # the fold, interpolated in the map's table
+        assert md_curve(math.exp(md[4]), md[3])[2] == pytest.approx(local_law.kernel_args[5], rel=1e-6)
+        assert md[5] == pytest.approx(local_law.kernel_args[5], rel=1e-5)
+    else:
+        assert md[4] == math.inf and md[5] == local_law.kernel_args[5]
+    assert jump == pytest.approx(local_law.jump_out_depth(), rel=1e-5)
+    zero_load = float(local_law.depth(0.0))
+    assert zero_load <= zero <= zero_load + 2e-4 * local_law.depth_scale   # an upper bound, and tight
+    for q in np.linspace(-1.0, 3.0, 9) * local_law.depth_scale:         # every depth: the same state
+        st = local_law.contact_state(depth=q)
+        s, a, p = md_contact_from_depth_kernel(q, *md)
+        assert s == {"contact": 0, "cohesive": 1, "separated": 2}[st.branch]
+        assert a == pytest.approx(st.radius, rel=1e-7, abs=1e-12 * local_law.radius_scale)
+        assert p == pytest.approx(st.load, rel=1e-7, abs=1e-9 * local_law.load_scale)
 
 
 def test_bracket_bounds_hold_for_every_lambda():
@@ -329,3 +332,27 @@ def test_bracket_bounds_hold_for_every_lambda():
         assert md_solve_load(0.0, lam, tp, pp)[2] < ZERO_LOAD_BOUND
         if lam > LAMBDA_TRANSITION:
             assert md_critical_point_kernel(lam, 0)[1] > FOLD_LOWER_BOUND
+
+
+def test_the_critical_point_table_interpolates_the_exact_values(rng):
+    """Fold (its depth to 1e-5; its ln s lands where the depth is the fold's to 1e-6) and zero-load depth (an upper bound within 2e-4 depth
+    scales) between the rows; the lazily found fold next to lambda_t agrees with the exact one."""
+    from arsurf.contact.material_map import (T_FOLD_TABLE_MAX, ZERO_LOAD_MARGIN, critical_point_table)
+
+    table, x0, h = critical_point_table(0.01, 100.0)
+    for lam in np.exp(rng.uniform(math.log(0.01), math.log(100.0), 300)):
+        pos = (math.log(lam) - x0) / h
+        k = int(pos)
+        f = pos - k
+        tf, df = md_critical_point_kernel(lam, 0)
+        tp, pp = md_critical_point_kernel(lam, 1)
+        z = md_solve_load(0.0, lam, tp, pp)[2]
+        zi = table[k, 2] + f * (table[k + 1, 2] - table[k, 2])
+        assert z <= zi + ZERO_LOAD_MARGIN <= z + 2e-4
+        if lam > LAMBDA_TRANSITION and max(table[k, 0], table[k + 1, 0]) <= T_FOLD_TABLE_MAX:
+            ti = table[k, 0] + f * (table[k + 1, 0] - table[k, 0])
+            # the branch's end: its depth is flat there, so where the interpolated ln s lands
+            # (within ~0.2 next to lambda_t, 3e-3 beyond lambda = 1.1) its depth is the fold's
+            assert ti == pytest.approx(tf, abs=0.3)
+            assert md_curve(math.exp(ti), lam)[2] == pytest.approx(df, rel=1e-6)
+            assert table[k, 1] + f * (table[k + 1, 1] - table[k, 1]) == pytest.approx(df, rel=1e-5)

@@ -40,8 +40,9 @@ In the tick (:func:`local_contact_kernel`)
     scaled from the reference law (R fixed, the Dugdale range :math:`h_0 = w/\sigma_0` fixed):
     with :math:`r_E = E^*/E^*_{ref}`, :math:`r_w = w/w_{ref}`, the radius scale goes as
     :math:`(r_w/r_E)^{1/3}`, the depth scale and :math:`\lambda` as :math:`(r_w/r_E)^{2/3}`, the load
-    scale as :math:`r_w`. For :math:`\lambda > \lambda_t` the fold of the depth curve is found in
-    the tick only when the depth needs it (:func:`~arsurf.contact.maugis_dugdale.md_solve_depth`).
+    scale as :math:`r_w`. The fold of the depth curve (:math:`\lambda > \lambda_t`) and the depth at
+    zero load come from a table of their exact values over the map's range of :math:`\lambda`
+    (built with the model, 64 rows per unit of :math:`\ln\lambda`).
     Where both ratios are exactly 1 (a uniform map, or the reference point) the reference law's
     own arguments are used: a uniform map reproduces the constant model bit for bit.
 
@@ -82,6 +83,7 @@ __all__ = [
     "MapField",
     "MaterialMap",
     "build_material_map",
+    "critical_point_table",
     "field_values",
     "local_contact_kernel",
     "material_kernel_args",
@@ -96,18 +98,26 @@ CHANNEL_NAMES = MappingProxyType({"modulus": "DMTModulus", "adhesion": "Adhesion
 _MECHANICAL = ("modulus", "adhesion", "deformation", "dissipation", "stiffness", "pull", "elastic", "young")
 #: the fields a map holds, their unit and whether the spline is fitted to the log of the value
 _FIELDS = {"reduced_modulus": "Pa", "work_of_adhesion": "J/m^2"}
-#: for lambda > lambda_t the tick finds the fold eagerly when the target depth is within this many
-#: depth scales above Delta0 (else on demand: md_solve_depth); only speed depends on it
-FOLD_BAND = 0.5
 #: upper bound of the zero-load depth / depth scale over all lambda (1.1006 JKR ... 1.5859 DMT):
-#: the coupled-depth solver's bracket (tested over lambda in [1e-6, 1e6])
+#: the coupled-depth solver's bracket where the table does not reach (tested over [1e-6, 1e6])
 ZERO_LOAD_BOUND = 1.6
 #: lower bound of the fold depth / depth scale for lambda > lambda_t (-0.9957 at lambda_t ... -0.9086 JKR)
 FOLD_LOWER_BOUND = -1.0
+#: the critical-point table of a map: rows per unit of ln(lambda) over the map's lambda range
+TABLE_PER_UNIT = 64
+#: linear interpolation in the table errs by < 1e-5 in the zero-load depth (tested): this margin
+#: keeps the interpolated value an upper bound, as the coupled-depth solver's bracket needs
+ZERO_LOAD_MARGIN = 1e-4
+#: a fold beyond this ln s (A < 1e-6 at lambda just above lambda_t) is not interpolated: found on
+#: demand instead (md_solve_depth with t_fold = NaN)
+T_FOLD_TABLE_MAX = 9.0
 
 # the info vector of the kernel arguments
-I_ON, I_X0, I_Y0, I_OFF_E, I_OFF_W, I_LO_E, I_HI_E, I_LO_W, I_HI_W = range(9)
-INFO_SIZE = 9
+I_ON, I_X0, I_Y0, I_OFF_E, I_OFF_W, I_LO_E, I_HI_E, I_LO_W, I_HI_W, I_LNLAM0, I_TABLE_STEP = range(11)
+INFO_SIZE = 11
+# columns of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
+# depth at zero load (all in the law's own units)
+T_TFOLD, T_DFOLD, T_DZERO = range(3)
 
 
 @njit(cache=True)
@@ -139,16 +149,22 @@ def field_values(coef, ku, kv, xs, ys, lo, hi, out):
 
 
 @njit(cache=True)
-def local_contact_kernel(ref, local, info, coef, ku, kv, u, v, depth):
+def local_contact_kernel(ref, local, info, coef, ku, kv, table, u, v):
     """The Maugis-Dugdale kernel arguments at the contact point (u, v) (m, the height's frame).
 
     ``ref`` (6,) the reference law's ``kernel_args``; ``local`` (6,) scratch; ``info``,
-    ``coef``, ``ku``, ``kv`` from :func:`material_kernel_args`; ``depth`` the tick's target
-    indentation (m: decides whether the fold is found now). Returns ``(md, stiffness_ratio,
-    jump_out_depth, zero_load_depth, here)``: ``md`` is ``ref`` itself (``here`` False) without a
-    map or where both ratios are 1, else ``local``; the ratio :math:`E^*/E^*_{ref}`; the two
-    depths (m) bound the coupled-depth solver's bracket (exact jump-out when known, else the
-    lower bound ``FOLD_LOWER_BOUND``; the zero-load depth's upper bound ``ZERO_LOAD_BOUND``).
+    ``coef``, ``ku``, ``kv``, ``table`` from :func:`material_kernel_args`. Returns ``(md,
+    stiffness_ratio, jump_out_depth, zero_load_depth, here)``: ``md`` is ``ref`` itself (``here``
+    False) without a map or where both ratios are 1, else ``local``; the ratio
+    :math:`E^*/E^*_{ref}`; the two depths (m) bound the coupled-depth solver's bracket.
+
+    The fold (:math:`\\lambda > \\lambda_t`) and the zero-load depth are interpolated linearly in
+    the map's critical-point table (exact values every 1/64 of ln lambda: the fold's depth to
+    1e-5; its ln s, the branch's end, errs by up to ~0.2 next to lambda_t, where the depth is flat:
+    the depth there is the fold's to 1e-6); just above
+    :math:`\\lambda_t`, where the fold runs off to a = 0, the fold is left to
+    :func:`~arsurf.contact.maugis_dugdale.md_solve_depth` (found when a depth needs it) and the
+    jump-out depth is bounded by ``FOLD_LOWER_BOUND``.
     """
     if info[I_ON] == 0.0:
         return ref, 1.0, 0.0, 0.0, False
@@ -164,22 +180,48 @@ def local_contact_kernel(ref, local, info, coef, ku, kv, u, v, depth):
     local[2] = ref[2] * math.exp(lw)  # load scale pi w R
     lam = ref[3] * c2                # 2 (w/h0) (R / pi w K^2)^(1/3) ~ (w / E*)^(2/3)
     local[3] = lam
-    c0, d0, p0 = md_zero_radius_limit(lam)
+    pos = (math.log(lam) - info[I_LNLAM0]) / info[I_TABLE_STEP]
+    k = min(max(int(pos), 0), table.shape[0] - 2)
+    f = min(max(pos - k, 0.0), 1.0)
+    zero = table[k, T_DZERO] + f * (table[k + 1, T_DZERO] - table[k, T_DZERO]) + ZERO_LOAD_MARGIN
     if lam <= LAMBDA_TRANSITION:
+        c0, d0, p0 = md_zero_radius_limit(lam)
         local[4] = math.inf
         local[5] = d0
         cs = 8.0 * lam / (3.0 * math.pi)
         jump = -2.0 / (lam * math.pi) - 0.5 * cs * cs if cs < c0 else d0
-    elif depth / local[0] <= d0 + FOLD_BAND:
-        t_f, d_f = md_critical_point_kernel(lam, 0)
-        local[4] = t_f
-        local[5] = d_f
-        jump = d_f
     else:
-        local[4] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
-        local[5] = d0
-        jump = FOLD_LOWER_BOUND
-    return local, math.exp(le), jump * local[0], ZERO_LOAD_BOUND * local[0], True
+        t0 = table[k, T_TFOLD]
+        t1 = table[k + 1, T_TFOLD]
+        if t0 <= T_FOLD_TABLE_MAX and t1 <= T_FOLD_TABLE_MAX:
+            local[4] = t0 + f * (t1 - t0)
+            jump = table[k, T_DFOLD] + f * (table[k + 1, T_DFOLD] - table[k, T_DFOLD])
+            local[5] = jump
+        else:
+            c0, d0, p0 = md_zero_radius_limit(lam)
+            local[4] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
+            local[5] = d0
+            jump = FOLD_LOWER_BOUND
+    return local, math.exp(le), jump * local[0], zero * local[0], True
+
+
+def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, float, float]:
+    """``(table, ln lambda of row 0, row step)``: fold (ln s, depth) and zero-load depth at
+    :data:`TABLE_PER_UNIT` rows per unit of ln lambda over [lam_lo, lam_hi] (one row of margin
+    each side), exact (:func:`~arsurf.contact.maugis_dugdale.md_critical_point_kernel`,
+    :func:`~arsurf.contact.maugis_dugdale.md_solve_load`)."""
+    from arsurf.contact.maugis_dugdale import md_solve_load
+
+    h = 1.0 / TABLE_PER_UNIT
+    x0 = math.log(lam_lo) - h
+    n = max(int(math.ceil((math.log(lam_hi) + h - x0) / h)) + 1, 2)
+    table = np.empty((n, 3))
+    for i in range(n):
+        lam = math.exp(x0 + i * h)
+        table[i, T_TFOLD], table[i, T_DFOLD] = md_critical_point_kernel(lam, 0)
+        tp, pp = md_critical_point_kernel(lam, 1)
+        table[i, T_DZERO] = md_solve_load(0.0, lam, tp, pp)[2]
+    return table, x0, h
 
 
 @dataclass(frozen=True, eq=False)
@@ -625,7 +667,7 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
 
 
 def material_kernel_args(material: MaterialMap | None, contact) -> tuple:
-    """``(ref, local, info, coef, ku, kv)``: the arguments of :func:`local_contact_kernel`.
+    """``(ref, local, info, coef, ku, kv, table)``: the arguments of :func:`local_contact_kernel`.
 
     ``contact`` is the model's reference Maugis-Dugdale law; without a map, ``info`` says so and
     the kernel returns ``ref`` (= ``contact.kernel_args``). With a map the law's tip radius and
@@ -634,7 +676,7 @@ def material_kernel_args(material: MaterialMap | None, contact) -> tuple:
     ref = np.array(contact.kernel_args, dtype=np.float64)
     info = np.zeros(INFO_SIZE)
     if material is None:
-        return ref, ref.copy(), info, np.zeros((1, 1, 2)), np.zeros(5), np.zeros(5)
+        return ref, ref.copy(), info, np.zeros((1, 1, 2)), np.zeros(5), np.zeros(5), np.zeros((2, 3))
     if not isinstance(material, MaterialMap):
         raise MaterialMapError(f"material must be an arsurf MaterialMap (got {type(material).__name__})")
     conv = material.conversion
@@ -651,4 +693,9 @@ def material_kernel_args(material: MaterialMap | None, contact) -> tuple:
     info[I_OFF_W] = math.log(fw.reference / contact.work_of_adhesion)
     info[I_LO_E], info[I_HI_E], info[I_LO_W], info[I_HI_W] = fe.lo, fe.hi, fw.lo, fw.hi
     coef = np.ascontiguousarray(np.stack([fe.coef, fw.coef], axis=-1))
-    return ref, ref.copy(), info, coef, fe.knots_u, fe.knots_v
+    # the lambda range the kernel can reach: lambda ~ (w / E*)^(2/3) within the clamped ratios
+    lam = contact.maugis_parameter
+    lo = lam * math.exp(2.0 / 3.0 * ((fw.lo + info[I_OFF_W]) - (fe.hi + info[I_OFF_E])))
+    hi = lam * math.exp(2.0 / 3.0 * ((fw.hi + info[I_OFF_W]) - (fe.lo + info[I_OFF_E])))
+    table, info[I_LNLAM0], info[I_TABLE_STEP] = critical_point_table(lo, hi)
+    return ref, ref.copy(), info, coef, fe.knots_u, fe.knots_v, table
