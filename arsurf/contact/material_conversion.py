@@ -320,8 +320,8 @@ def reduced_modulus(sample_modulus, conv: MaterialConversion):
     Examples
     --------
     >>> conv = MaterialConversion(10e-9)
-    >>> round(float(reduced_modulus(3.4e9, conv)) / 1e9, 4)    # polystyrene on Si, cf. arsurf.effective_modulus
-    3.6364
+    >>> round(float(reduced_modulus(3.4e9, conv)) / 1e9, 4)    # a 3.4 GPa sample (nu 0.3) under a Si tip
+    3.6399
     """
     e = np.asarray(sample_modulus, dtype=np.float64)
     return 1.0 / ((1.0 - conv.sample_poisson ** 2) / e + conv.tip_plane_strain_compliance)
