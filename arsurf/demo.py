@@ -219,30 +219,17 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     in_contact = np.empty(n, bool)
     views = {}
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
-    clock = time.perf_counter_ns
     tube_force = np.zeros(n)
-    extra = {}
     with writer:  # an exception or a signal still closes the file (incomplete) with every tick
         for k in progress_bar(range(n), desc="session", unit="tick"):
-            st = dev.read_state()
-            t0 = clock()
-            f = loop.step(st, st.timestamp)
-            compute[k] = clock() - t0
-            dev.command_force(f)
+            st, f, compute[k] = _session_tick(dev, loop, model, writer, scene)
             o, mo = loop.out, model.out
-            get = LOOP_OUT.get
             device_force[k] = f
-            energy[k] = get(o, "energy")
-            damping[k] = get(o, "passivity_damping")
+            energy[k] = LOOP_OUT.get(o, "energy")
+            damping[k] = LOOP_OUT.get(o, "passivity_damping")
             in_contact[k] = mo[M_IN_CONTACT] > 0.5
             if scene is not None:
-                extra["tube_poses"] = scene.poses
                 tube_force[k] = math.hypot(scene.force[0], scene.force[1])
-            writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
-                          probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
-                          tip_position=get(o, "tip"), energy=energy[k], passivity_damping=damping[k],
-                          signals=get(o, "signals"), force=get(o, "probe_force"), device_force=get(o, "device_force"),
-                          **contact_fields(model.record(mo)), **extra)
             for name, tick in marks.items():
                 if k == tick:
                     views[name] = _scene(model, loop, contact, RATE, scene)
@@ -320,6 +307,25 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         summary["tube"] = tube_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def _session_tick(dev, loop, model, writer, scene=None):
+    """One tick of a scripted session: read the device, step the loop, command the force, record
+    the tick (stylus, probe, tip, energy, signals, forces, contact, and the tube poses after this
+    tick's push); ``(state, force, compute ns)``."""
+    st = dev.read_state()
+    t0 = time.perf_counter_ns()
+    f = loop.step(st, st.timestamp)
+    compute = time.perf_counter_ns() - t0
+    dev.command_force(f)
+    o, get = loop.out, LOOP_OUT.get
+    extra = {"tube_poses": scene.poses} if scene is not None else {}
+    writer.append(t=st.timestamp, stylus_position=st.position, stylus_velocity=st.velocity, buttons=st.buttons,
+                  probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"), tip_position=get(o, "tip"),
+                  energy=get(o, "energy"), passivity_damping=get(o, "passivity_damping"), signals=get(o, "signals"),
+                  force=get(o, "probe_force"), device_force=get(o, "device_force"),
+                  **contact_fields(model.record(model.out)), **extra)
+    return st, f, compute
 
 
 def _scene(model, loop, contact, rate, scene=None):
@@ -588,21 +594,10 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     compute = np.empty(n)
     hand = np.empty(n)
     views = {}
-    clock = time.perf_counter_ns
     with writer:
         for k in progress_bar(range(n), desc="session", unit="tick"):
-            s = dev.read_state()
-            t0 = clock()
-            f = loop.step(s, s.timestamp)
-            compute[k] = clock() - t0
-            dev.command_force(f)
-            o, mo = loop.out, model.out
-            get = LOOP_OUT.get
+            s, f, compute[k] = _session_tick(dev, loop, model, writer)
             hand[k] = float(np.linalg.norm(f))
-            writer.append(t=s.timestamp, stylus_position=s.position, stylus_velocity=s.velocity, buttons=s.buttons,
-                          probe_position=get(o, "probe"), probe_velocity=get(o, "probe_velocity"),
-                          tip_position=get(o, "tip"), signals=get(o, "signals"), force=get(o, "probe_force"),
-                          device_force=get(o, "device_force"), **contact_fields(model.record(mo)))
             for name, (a, b) in windows.items():
                 if name in ("soft", "stiff") and abs(s.timestamp - (a + 1.5)) < 0.5 / RATE:
                     views[name] = _scene(model, loop, model.contact, RATE)

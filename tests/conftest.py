@@ -28,3 +28,14 @@ def real_scans_dir() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261121)
+
+
+@pytest.fixture(scope="module")
+def gl():
+    """An OpenGL context for the viewer's rendering tests (skipped, saying why, without one)."""
+    from arsurf_viewer.backend import probe
+
+    result = probe()
+    if not result.ok:
+        pytest.skip(f"no OpenGL context can be made here: {result.detail}")
+    return result

@@ -14,7 +14,9 @@ finder, an explicit matrix solve. The fast code is checked against them on rando
 * the model tick: the four references chained (:func:`reference_model_tick`);
 * the surface around a contact: Boussinesq's point-load solution summed over rings of Maugis'
   traction (Hertz pressure plus Dugdale stress) by adaptive quadrature
-  (:func:`ref_surface_displacement`, :func:`ref_md_traction`).
+  (:func:`ref_surface_displacement`, :func:`ref_md_traction`);
+* a model's indentation at a given load: plain bisection on the tip height, a fresh tip each
+  time (:func:`ref_tick_at_load`).
 """
 from __future__ import annotations
 
@@ -321,3 +323,17 @@ def ref_surface_displacement(rho, a, c, tip_radius, effective_modulus, sigma0):
         if hi > lo:
             total += quad(ring, lo, hi, limit=400, epsabs=0.0, epsrel=1e-11)[0]
     return 4.0 / (math.pi * effective_modulus) * total
+
+
+def ref_tick_at_load(model, x, y, z0, load, lo=-2e-9, hi=8e-9, iterations=80):
+    """The tick of a fresh tip (``model.reset()`` before each try, so approaching) at (x, y) whose
+    height z0 - d carries ``load`` (N), by bisection on d in [lo, hi] (m)."""
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        model.reset()
+        if model.step((x, y, z0 - mid)).load < load:
+            lo = mid
+        else:
+            hi = mid
+    model.reset()
+    return model.step((x, y, z0 - 0.5 * (lo + hi)))

@@ -18,6 +18,7 @@ from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
+from tests.reference import ref_tick_at_load
 
 R = 20e-9
 H = 2e-9
@@ -246,16 +247,9 @@ def test_a_uniform_map_reproduces_the_constant_haptic_loop_bit_for_bit():
     assert np.abs(outs[0][:, :]).max() > 0 and np.array_equal(outs[0], outs[1], equal_nan=True)
 
 
-def _depth_at_load(model, x, y, load, lo=-2e-9, hi=8e-9):
-    """Indentation at which a fresh tip (approaching) carries ``load`` on a flat sample at (x, y)."""
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        model.reset()
-        if model.step((x, y, R - mid)).load < load:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+def _depth_at_load(model, x, y, load):
+    """Indentation at which a fresh tip (approaching) carries ``load`` on the flat sample at (x, y)."""
+    return ref_tick_at_load(model, x, y, R, load).depth
 
 
 def test_a_step_in_modulus_changes_the_indentation_by_the_md_prediction_on_each_side():

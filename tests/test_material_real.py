@@ -21,6 +21,7 @@ from arsurf.scan.level import level
 from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
 from tests.conftest import real_scan_path
+from tests.reference import ref_tick_at_load
 
 R = 5e-9                                  # the file's own "Tip Radius: 5" (nm)
 #: the stated conversions (assumptions: the file leaves both channels uncalibrated)
@@ -87,20 +88,6 @@ def _crop(scan, rows, cols):
     return Scan(np.array(scan.heights[rows, cols]), scan.dx, scan.dy, scan.channel, dict(scan.metadata), scan.source)
 
 
-def _depth_at_load(model, x, y, z0, load):
-    """Tip height below z0 at which a fresh tip at (x, y) carries ``load``; returns the tick."""
-    lo, hi = -2e-9, 6e-9
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        model.reset()
-        if model.step((x, y, z0 - mid)).load < load:
-            lo = mid
-        else:
-            hi = mid
-    model.reset()
-    return model.step((x, y, z0 - 0.5 * (lo + hi)))
-
-
 def _pull_off(model, x, y, z0):
     """Press in, then retract in 0.005 nm steps: the most tensile load before the contact breaks."""
     model.reset()
@@ -140,7 +127,7 @@ def test_the_stiffest_and_the_softest_decile_feel_different(spm):
         x, y = spots[name]
         assert (m.reduced_modulus(x, y) <= lo) if name == "soft" else (m.reduced_modulus(x, y) >= hi)
         z0 = float(model.surface.evaluate(x, y)[2]) + R
-        t = _depth_at_load(model, x, y, z0, load)
+        t = ref_tick_at_load(model, x, y, z0, load, hi=6e-9, iterations=60)
         ex, wx = m.reduced_modulus(*t.point[:2]), m.work_of_adhesion(*t.point[:2])
         md = MaugisDugdale(R, ex, wx, wx / conv.dugdale_range)
         assert t.load == pytest.approx(load, rel=1e-6)

@@ -15,16 +15,6 @@ H = 4e-9
 N = 40
 
 
-@pytest.fixture(scope="module")
-def gl():
-    from arsurf_viewer.backend import probe
-
-    result = probe()
-    if not result.ok:
-        pytest.skip(f"no OpenGL context can be made here: {result.detail}")
-    return result
-
-
 def _material():
     x = np.arange(N) * H
     es = np.where(x < N * H / 2, 0.1e9, 10e9) * np.ones((N, 1))           # soft left, stiff right (100x)
