@@ -41,6 +41,7 @@ from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.feel import score_force
 from arsurf.model import M_IN_CONTACT, MODEL_OUT
+from arsurf.replay.session import contact_fields
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +166,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, contact_fields, journal_path
+    from arsurf.replay.session import SessionWriter, journal_path
     from arsurf.scan.prepare import prepare_scan
 
     progress = progress or log.info
@@ -504,13 +505,14 @@ def _press_tour(surface, spots: dict, tip_radius: float, origin):
     return np.array(times), np.array(pts), windows
 
 
-def press_measures(t, depth, load, in_contact, windows: dict, load_ref: float | None = None) -> dict:
+def press_measures(t, depth, load, in_contact, windows: dict, reference=("soft", "stiff")) -> dict:
     """Per press: the peak load, the indentation at the reference load on the way in (first
     crossing in contact, interpolated; NaN if the press never reached it), and the pull-off (the
-    most tensile load, retracting). The reference load defaults to half the smallest peak load of
-    the presses (NaN when a press never became compressive)."""
+    most tensile load, retracting). The reference load is half the smaller peak load of the
+    ``reference`` presses (NaN when one of them never became compressive)."""
     peaks = {k: float(np.nanmax(np.where((t >= a) & (t <= b), load, np.nan))) for k, (a, b) in windows.items()}
-    ref = (0.5 * min(peaks.values()) if min(peaks.values()) > 0.0 else math.nan) if load_ref is None else load_ref
+    low = min(peaks[k] for k in reference)
+    ref = 0.5 * low if low > 0.0 else math.nan
     out = {"reference_load": ref}
     for k, (a, b) in windows.items():
         sel = np.flatnonzero((t >= a) & (t <= b))
@@ -529,7 +531,7 @@ def press_measures(t, depth, load, in_contact, windows: dict, load_ref: float | 
 
 
 def run_material_demo(out_dir, scan_path, conversion, channels=None, images: bool = True, progress=None,
-                      handle_signals: bool = False, sigma: float | None = None) -> dict:
+                      handle_signals: bool = False, sigma: float | None = None, units=None) -> dict:
     """``arsurf demo --material``: the haptic loop on a PeakForce QNM file, pressing where the
     sample is softest, stiffest and stickiest; the hand feels the difference.
 
@@ -538,7 +540,8 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     (:mod:`arsurf.contact.material_map`; ``channels`` role -> name overrides the QNM names),
     smoothed over ``sigma`` (default half the tip radius: a contact feels the sample averaged
     over its area, not one pixel's fit, which on a QNM image scatters by a decade from pixel to
-    pixel). The scripted hand (:func:`_press_tour`) presses the same stylus stroke at the three spots of
+    pixel); ``units`` (role -> unit) for a file that does not state its channels' units. The
+    scripted hand (:func:`_press_tour`) presses the same stylus stroke at the three spots of
     :func:`pick_spots`; the session is recorded with the map and replayed (which rebuilds the
     map and must give back every contact). ``summary.json`` compares, per spot, the local E* and
     w, the peak load the hand felt, the indentation at one reference load and the pull-off with
@@ -548,7 +551,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     from arsurf.contact.material_map import material_map_from_file
     from arsurf.contact.maugis_dugdale import MaugisDugdale
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, contact_fields, journal_path, load_session
+    from arsurf.replay.session import SessionWriter, journal_path, load_session
     from arsurf.scan.prepare import prepare_scan
 
     progress = progress or log.info
@@ -559,7 +562,8 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     R = conversion.tip_radius
     prepared = prepare_scan(scan_path, None, DEMO.level, DEMO.sigma, True)
     sigma = 0.5 * R if sigma is None else float(sigma)
-    material = material_map_from_file(scan_path, conversion, height=prepared, channels=channels, sigma=sigma)
+    material = material_map_from_file(scan_path, conversion, height=prepared, channels=channels, sigma=sigma,
+                                      units=units)
     st = material.statistics
     progress(f"material map of {scan_path}: {', '.join(f'{k} <- {v}' for k, v in material.channels.items())}; "
              f"E* median {st['reduced_modulus']['median'] / 1e9:.3g} GPa (5-95 % "
