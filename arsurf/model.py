@@ -42,7 +42,7 @@ from arsurf._layout import Layout
 from arsurf.contact import projection as pj
 from arsurf.contact import friction as fr
 from arsurf.contact.deformation import PROFILE_SIZE, deform_kernel
-from arsurf.contact.material_map import local_contact_kernel, material_kernel_args
+from arsurf.contact.material_map import H_FRICTION, H_PROFILE, contact_vector, local_contact_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale, md_zone_radius
 from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
@@ -111,8 +111,9 @@ def model_tick_kernel(proj,                                              # Proje
     (OUT_SIZE,), ``dec`` (8,) and ``ev`` (6, 3) are scratch arrays of the collision, the friction,
     the decoupling and the second contact.
 
-    ``md_args`` is the contact tuple of :meth:`ARModel.kernel_args`: the reference law, a
-    material map (:func:`~arsurf.contact.material_map.local_contact_kernel`) and scratch arrays.
+    ``md_args`` is the contact vector of :meth:`ARModel.kernel_args`: the reference law, a
+    material map (:func:`~arsurf.contact.material_map.local_contact_kernel`) and scratch space,
+    one float64 array (:func:`~arsurf.contact.material_map.contact_vector`).
 
     ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
     are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
@@ -140,11 +141,10 @@ def model_tick_kernel(proj,                                              # Proje
     state[S_HINT_U] = coll[pj.OUT_U]
     state[S_HINT_V] = coll[pj.OUT_V]
     # the contact law where the tip touches: a material map's local E* and w, else the reference
-    md, stiffness, jump_out, zero_load, local = local_contact_kernel(
-        md_args[0], md_args[1], md_args[2], md_args[3], md_args[4], md_args[5], md_args[6], coll[pj.OUT_U],
-        coll[pj.OUT_V])
+    md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
     if local:
-        fl = md_args[7]
+        f0 = int(md_args[H_FRICTION])
+        fl = md_args[f0:f0 + friction.size]
         for k in range(friction.size):
             fl[k] = friction[k]
         fl[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
@@ -197,8 +197,9 @@ def model_tick_kernel(proj,                                              # Proje
     if deform:
         r_dent = tip_radius if md_st == MD_CONTACT else 0.0
         zone = md_zone_radius(a, depth, md[0], md[1], md[3])
+        p0 = int(md_args[H_PROFILE])
         out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth, zone,
-                                     md_args[8], patch)
+                                     md_args[p0:p0 + PROFILE_SIZE], patch)
     # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     fx = load * nx
     fy = load * ny
@@ -388,9 +389,8 @@ class ARModel:
         self._friction = np.array([static, friction, fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
                                    coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
         self.material = material
-        # the contact tuple: reference law, material map, a local copy of the friction vector, the dent's profile
-        self._md_args = (*material_kernel_args(material, contact), np.zeros(self._friction.size),
-                         np.zeros(PROFILE_SIZE))
+        # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
+        self._md_args = contact_vector(material, contact, self._friction.size, PROFILE_SIZE)
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.empty(S_SIZE)
         self._clear_state()

@@ -217,7 +217,7 @@ def test_the_dents_rim_is_the_contact_radius(case):
         assert between.any() and np.all(dist[between] > R_TIP)
     outside = rho >= a
     assert np.all(dist[outside] > R_TIP)                                     # below the tip
-    near = outside & (rho < 0.5 * max(R_TIP, PATCH_PER_CONTACT * a))         # inside the fade
+    near = outside & (rho < 0.5 * PATCH_PER_CONTACT * a)                      # before the fade
     u = np.array([elastic_displacement(r, a, R_TIP, depth, c) for r in rho[near]])
     # the compiled dent reads tables (bilinear, then a 48-point profile): within 1 % of the dent's scale
     # (the largest errors sit at the edge of the Dugdale zone, where the profile has a log kink)

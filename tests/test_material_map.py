@@ -290,7 +290,7 @@ def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     """Against a reference law elsewhere (10 GPa, 0.05 J/m^2), the kernel's scaled arguments equal
     a MaugisDugdale built from the map's values (lambda from ~0.1 to ~10: with and without a fold),
     every depth gives the same state, and the coupled solver's bracket ends hold."""
-    from arsurf.contact.material_map import material_kernel_args
+    from arsurf.contact.material_map import contact_vector
     from arsurf.contact.maugis_dugdale import md_contact_from_depth_kernel
 
     conv = MaterialConversion(R, tip_modulus=1e30, sample_poisson=0.0)       # E* = the sample modulus
@@ -299,8 +299,8 @@ def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     local_law = MaugisDugdale(R, m.reference_modulus, m.reference_work, m.reference_work / conv.dugdale_range)
     assert m.reference_work == pytest.approx(w, rel=1e-9)
     ref_law = MaugisDugdale(R, 10e9, 0.05, 0.05 / conv.dugdale_range)
-    args = material_kernel_args(m, ref_law)
-    md, ratio, jump, zero, here = local_contact_kernel(*args, 60e-9, 60e-9)
+    cv = contact_vector(m, ref_law, 6, 8)
+    md, ratio, jump, zero, here = local_contact_kernel(cv, 60e-9, 60e-9)
     assert here and ratio == pytest.approx(m.reference_modulus / 10e9, rel=1e-12)
     np.testing.assert_allclose(md[:4], local_law.kernel_args[:4], rtol=1e-12)
     if math.isfinite(local_law.kernel_args[4]):          # the fold, interpolated in the map's table

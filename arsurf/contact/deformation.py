@@ -42,19 +42,20 @@ tractions).
 
 In the tick both bracketed shapes are read from tables built once at import (the Hertz shape
 on q = a/ρ, the zone's on (a/c, √((ρ - a)/(c - a))) inside the zone and (a/c, c/ρ) beyond it),
-the profile is tabulated at :data:`PROFILE_SIZE` radii uniform in :math:`\sqrt{ρ - a}` (dense at
-the rim, where an adhesive neck is steep), and each control point reads it by linear
-interpolation: a few flops per point. The tables cost at most ~0.5 % of the depth, at the edge of
-the Dugdale zone where the profile has a logarithmic kink (tested to 1 %). The 1/ρ tail is faded to zero (raised cosine) over the outer half
-of the patch radius :math:`r_b = \max(R, 3a)`, so the dent stays local; inside r_b/2 the profile
-is the elastic one. A rest point that the profile would still leave inside the sphere (a rough
-patch under the tip, which the half-space solution does not know) is put on the sphere.
-Every other control point keeps its rest position **bitwise**.
+the profile is tabulated at :data:`PROFILE_SIZE` radii uniform in :math:`\sqrt{ρ^2 - a^2}`
+(dense at the rim, where an adhesive neck is steep), and each control point reads it by linear
+interpolation: a few flops and one square root per point. The tables cost at most ~0.5 % of
+the depth, at the edge of the Dugdale zone where the profile has a logarithmic kink (tested to
+1 %). The elastic surface is drawn out to 3a, its 1/ρ tail faded to zero (raised cosine) over
+[1.5a, 3a], so the dent stays local (on a flat sample the rest surface is already below the
+tip beyond 1.5a, Hertz included, so the fade never leaves a point inside it). Out to R, a rest
+point still inside the sphere (a rough patch under the tip, which the half-space solution does
+not know) is put on the sphere. Every other control point keeps its rest position **bitwise**.
 
-Only the index box of control points whose rest (x, y) lies within r_b (+ one knot spacing) of
-the tip axis' foot can move: the kernel restores the previous box from the rest net and writes
-the new one, so a tick costs O((2 r_b/h)²) whatever the scan size. :meth:`Deformer.release` puts
-the box back to rest; ``surface.reset()`` restores everything.
+Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
+(+ one knot spacing) of the tip axis' foot can move: the kernel restores the previous box from
+the rest net and writes the new one, so a tick costs O((2 r_b/h)²) whatever the scan size.
+:meth:`Deformer.release` puts the box back to rest; ``surface.reset()`` restores everything.
 
 The rest net must be a height-field net on the Greville abscissae (what
 :func:`arsurf.fit_surface` builds), so the index box is found in O(1) from the knot spacing.
@@ -78,9 +79,10 @@ from arsurf.spline.surface import BSplineSurface
 DEFORM_OK = 0
 DEFORM_NO_PATCH = 1  # the tip is outside the net's footprint: nothing to move
 
-#: radii of the per-tick profile table (uniform in sqrt(rho - a)): the scratch array's length
-PROFILE_SIZE = 48
-#: the dent's patch radius is max(R, PATCH_PER_CONTACT * a); the tail fades over its outer half
+#: radii of the per-tick profile table (uniform in sqrt(rho^2 - a^2)): the scratch array's length
+PROFILE_SIZE = 32
+#: the elastic surface reaches PATCH_PER_CONTACT * a, its tail faded over the outer half; the
+#: patch is max(R, that): points inside the tip are put on it out to R
 PATCH_PER_CONTACT = 3.0
 _GAUSS = np.polynomial.legendre.leggauss(48)
 
@@ -206,18 +208,19 @@ def _table_displacement(rho, a, tip_radius, d_adh, c):
 
 
 @njit(cache=True)
-def _fill_profile(profile, a, tip_radius, depth, zone_radius, r_box):
-    """profile[k] = u(a + y_k^2) times the fade, y_k uniform from 0 to sqrt(r_box - a)."""
+def _fill_profile(profile, a, tip_radius, depth, zone_radius, r_elastic):
+    """profile[k] = u(rho_k) times the fade, rho_k^2 = a^2 + w_k^2 with w_k uniform from 0 to
+    sqrt(r_elastic^2 - a^2) (dense at the rim, where an adhesive neck is steep)."""
     n = profile.size
-    fade0 = 0.5 * r_box
-    y_max = math.sqrt(r_box - a)
+    fade0 = 0.5 * r_elastic
+    w_max2 = r_elastic * r_elastic - a * a
     d_adh = depth - a * a / tip_radius
     for k in range(n):
-        y = y_max * k / (n - 1)
-        rho = a + y * y
+        f = k / (n - 1)
+        rho = math.sqrt(a * a + f * f * w_max2)
         u = _table_displacement(rho, a, tip_radius, d_adh, zone_radius)
         if rho > fade0:
-            u *= 0.5 * (1.0 + math.cos(math.pi * min((rho - fade0) / (r_box - fade0), 1.0)))
+            u *= 0.5 * (1.0 + math.cos(math.pi * min((rho - fade0) / (r_elastic - fade0), 1.0)))
         profile[k] = u
 
 
@@ -241,7 +244,8 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     if radius <= 0.0:
         return 0
     a = contact_radius if contact_radius > 0.0 else 0.0
-    r_box = max(radius, PATCH_PER_CONTACT * a)
+    r_elastic = PATCH_PER_CONTACT * a          # the elastic surface, faded over its outer half
+    r_box = max(radius, r_elastic)             # ... and the no-interpenetration guard out to R
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
     hu = (ku[nu] - ku[3]) / (nu - 3)
@@ -251,11 +255,13 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     if i0 >= i1 or j0 >= j1:
         return 0
     n_prof = profile.size
+    scale = 0.0
     if a > 0.0:
-        _fill_profile(profile, a, radius, depth, zone_radius, r_box)
-    scale = (n_prof - 1) / math.sqrt(r_box - a) if a > 0.0 else 0.0
+        _fill_profile(profile, a, radius, depth, zone_radius, r_elastic)
+        scale = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
     r2 = radius * radius
     rb2 = r_box * r_box
+    re2 = r_elastic * r_elastic
     a2 = a * a
     moved = 0
     for i in range(i0, i1):
@@ -286,18 +292,18 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             qx = rest[i, j, 0]
             qy = rest[i, j, 1]
             qz = rest[i, j, 2]
-            if a > 0.0:  # the elastic surface outside the contact
-                x = math.sqrt(math.sqrt(rho2) - a) * scale
+            if rho2 < re2:  # the elastic surface outside the contact
+                x = math.sqrt(rho2 - a2) * scale
                 k = int(x)
                 if k >= n_prof - 1:
                     k = n_prof - 2
                 f = x - k
                 u = profile[k] + f * (profile[k + 1] - profile[k])
-                if u == 0.0 and not rho2 < r2:
-                    continue
                 qx -= u * nx
                 qy -= u * ny
                 qz -= u * nz
+            elif px * px + py * py + pz * pz >= r2:
+                continue   # beyond the elastic surface and outside the tip: at rest, bitwise
             if rho2 < r2:
                 dx = qx - cx
                 dy = qy - cy
@@ -307,8 +313,6 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
                     qx = cx + rx + cap * nx
                     qy = cy + ry + cap * ny
                     qz = cz + rz + cap * nz
-                elif a == 0.0:
-                    continue
             ctrl[i, j, 0] = qx
             ctrl[i, j, 1] = qy
             ctrl[i, j, 2] = qz

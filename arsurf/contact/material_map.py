@@ -85,8 +85,8 @@ __all__ = [
     "build_material_map",
     "critical_point_table",
     "field_values",
+    "contact_vector",
     "local_contact_kernel",
-    "material_kernel_args",
     "material_map_from_file",
     "mechanical_channels",
 ]
@@ -112,26 +112,40 @@ ZERO_LOAD_MARGIN = 1e-4
 #: demand instead (md_solve_depth with t_fold = NaN)
 T_FOLD_TABLE_MAX = 9.0
 
-# the info vector of the kernel arguments
-I_ON, I_X0, I_Y0, I_OFF_E, I_OFF_W, I_LO_E, I_HI_E, I_LO_W, I_HI_W, I_LNLAM0, I_TABLE_STEP = range(11)
-INFO_SIZE = 11
+# the contact vector (one float64 array, so that the compiled tick's callers pass one argument):
+# [0:6] the reference law's kernel args, [6:12] the local law's (scratch), then a header of
+# scalars, then the sections whose offsets the header holds (scratch for the model's friction
+# vector and the dent's profile, the knots, the critical-point table, the two fields' spline)
+C_REF, C_LOCAL = 0, 6
+C_HEAD = 12
+(H_ON, H_X0, H_Y0, H_OFF_E, H_OFF_W, H_LO_E, H_HI_E, H_LO_W, H_HI_W, H_LNLAM0, H_TABLE_STEP, H_NU, H_NV, H_NTABLE,
+ H_FRICTION, H_PROFILE, H_KU, H_KV, H_TABLE, H_COEF) = range(C_HEAD, C_HEAD + 20)
+C_BODY = C_HEAD + 20
 # columns of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
 # depth at zero load (all in the law's own units)
 T_TFOLD, T_DFOLD, T_DZERO = range(3)
+T_COLS = 3
 
 
 @njit(cache=True)
-def _field_pair(coef, ku, kv, x, y):
-    """The two spline fields of ``coef`` (nu, nv, 2) at (x, y) (clamped to the domain)."""
-    i0, bu = basis_at(ku, x)
-    j0, bv = basis_at(kv, y)
+def _field_pair(cv, x, y):
+    """The two spline fields of the contact vector ``cv`` at (x, y) (map frame, clamped to the domain)."""
+    nu = int(cv[H_NU])
+    nv = int(cv[H_NV])
+    k0 = int(cv[H_KU])
+    k1 = int(cv[H_KV])
+    i0, bu = basis_at(cv[k0:k0 + nu + 4], x)
+    j0, bv = basis_at(cv[k1:k1 + nv + 4], y)
+    base = int(cv[H_COEF])
     e = 0.0
     w = 0.0
     for a in range(4):
+        row = base + 2 * (i0 + a) * nv
         for b in range(4):
             wt = bu[a] * bv[b]
-            e += wt * coef[i0 + a, j0 + b, 0]
-            w += wt * coef[i0 + a, j0 + b, 1]
+            at = row + 2 * (j0 + b)
+            e += wt * cv[at]
+            w += wt * cv[at + 1]
     return e, w
 
 
@@ -149,30 +163,30 @@ def field_values(coef, ku, kv, xs, ys, lo, hi, out):
 
 
 @njit(cache=True)
-def local_contact_kernel(ref, local, info, coef, ku, kv, table, u, v):
+def local_contact_kernel(cv, u, v):
     """The Maugis-Dugdale kernel arguments at the contact point (u, v) (m, the height's frame).
 
-    ``ref`` (6,) the reference law's ``kernel_args``; ``local`` (6,) scratch; ``info``,
-    ``coef``, ``ku``, ``kv``, ``table`` from :func:`material_kernel_args`. Returns ``(md,
-    stiffness_ratio, jump_out_depth, zero_load_depth, here)``: ``md`` is ``ref`` itself (``here``
-    False) without a map or where both ratios are 1, else ``local``; the ratio
+    ``cv`` the contact vector of :func:`contact_vector`. Returns ``(md, stiffness_ratio,
+    jump_out_depth, zero_load_depth, here)``: ``md`` (6,) is the reference law's arguments
+    (``here`` False) without a map or where both ratios are 1, else the local law's; the ratio
     :math:`E^*/E^*_{ref}`; the two depths (m) bound the coupled-depth solver's bracket.
 
     The fold (:math:`\\lambda > \\lambda_t`) and the zero-load depth are interpolated linearly in
     the map's critical-point table (exact values every 1/64 of ln lambda: the fold's depth to
     1e-5; its ln s, the branch's end, errs by up to ~0.2 next to lambda_t, where the depth is flat:
-    the depth there is the fold's to 1e-6); just above
-    :math:`\\lambda_t`, where the fold runs off to a = 0, the fold is left to
-    :func:`~arsurf.contact.maugis_dugdale.md_solve_depth` (found when a depth needs it) and the
-    jump-out depth is bounded by ``FOLD_LOWER_BOUND``.
+    the depth there is the fold's to 1e-6); just above :math:`\\lambda_t`, where the fold runs off
+    to a = 0, the fold is left to :func:`~arsurf.contact.maugis_dugdale.md_solve_depth` (found when
+    a depth needs it) and the jump-out depth is bounded by ``FOLD_LOWER_BOUND``.
     """
-    if info[I_ON] == 0.0:
+    ref = cv[C_REF:C_REF + 6]
+    if cv[H_ON] == 0.0:
         return ref, 1.0, 0.0, 0.0, False
-    le, lw = _field_pair(coef, ku, kv, u - info[I_X0], v - info[I_Y0])
-    le = min(max(le, info[I_LO_E]), info[I_HI_E]) + info[I_OFF_E]
-    lw = min(max(lw, info[I_LO_W]), info[I_HI_W]) + info[I_OFF_W]
+    le, lw = _field_pair(cv, u - cv[H_X0], v - cv[H_Y0])
+    le = min(max(le, cv[H_LO_E]), cv[H_HI_E]) + cv[H_OFF_E]
+    lw = min(max(lw, cv[H_LO_W]), cv[H_HI_W]) + cv[H_OFF_W]
     if le == 0.0 and lw == 0.0:
         return ref, 1.0, 0.0, 0.0, False
+    local = cv[C_LOCAL:C_LOCAL + 6]
     c1 = math.exp((lw - le) / 3.0)   # (r_w / r_E)^(1/3)
     c2 = c1 * c1
     local[0] = ref[0] * c2           # depth scale
@@ -180,28 +194,29 @@ def local_contact_kernel(ref, local, info, coef, ku, kv, table, u, v):
     local[2] = ref[2] * math.exp(lw)  # load scale pi w R
     lam = ref[3] * c2                # 2 (w/h0) (R / pi w K^2)^(1/3) ~ (w / E*)^(2/3)
     local[3] = lam
-    pos = (math.log(lam) - info[I_LNLAM0]) / info[I_TABLE_STEP]
-    k = min(max(int(pos), 0), table.shape[0] - 2)
+    n = int(cv[H_NTABLE])
+    t0 = int(cv[H_TABLE])
+    pos = (math.log(lam) - cv[H_LNLAM0]) / cv[H_TABLE_STEP]
+    k = min(max(int(pos), 0), n - 2)
     f = min(max(pos - k, 0.0), 1.0)
-    zero = table[k, T_DZERO] + f * (table[k + 1, T_DZERO] - table[k, T_DZERO]) + ZERO_LOAD_MARGIN
+    r0 = t0 + T_COLS * k
+    r1 = r0 + T_COLS
+    zero = cv[r0 + T_DZERO] + f * (cv[r1 + T_DZERO] - cv[r0 + T_DZERO]) + ZERO_LOAD_MARGIN
     if lam <= LAMBDA_TRANSITION:
         c0, d0, p0 = md_zero_radius_limit(lam)
         local[4] = math.inf
         local[5] = d0
         cs = 8.0 * lam / (3.0 * math.pi)
         jump = -2.0 / (lam * math.pi) - 0.5 * cs * cs if cs < c0 else d0
+    elif cv[r0 + T_TFOLD] <= T_FOLD_TABLE_MAX and cv[r1 + T_TFOLD] <= T_FOLD_TABLE_MAX:
+        local[4] = cv[r0 + T_TFOLD] + f * (cv[r1 + T_TFOLD] - cv[r0 + T_TFOLD])
+        jump = cv[r0 + T_DFOLD] + f * (cv[r1 + T_DFOLD] - cv[r0 + T_DFOLD])
+        local[5] = jump
     else:
-        t0 = table[k, T_TFOLD]
-        t1 = table[k + 1, T_TFOLD]
-        if t0 <= T_FOLD_TABLE_MAX and t1 <= T_FOLD_TABLE_MAX:
-            local[4] = t0 + f * (t1 - t0)
-            jump = table[k, T_DFOLD] + f * (table[k + 1, T_DFOLD] - table[k, T_DFOLD])
-            local[5] = jump
-        else:
-            c0, d0, p0 = md_zero_radius_limit(lam)
-            local[4] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
-            local[5] = d0
-            jump = FOLD_LOWER_BOUND
+        c0, d0, p0 = md_zero_radius_limit(lam)
+        local[4] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
+        local[5] = d0
+        jump = FOLD_LOWER_BOUND
     return local, math.exp(le), jump * local[0], zero * local[0], True
 
 
@@ -666,36 +681,64 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
     return m
 
 
-def material_kernel_args(material: MaterialMap | None, contact) -> tuple:
-    """``(ref, local, info, coef, ku, kv, table)``: the arguments of :func:`local_contact_kernel`.
+def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_profile: int) -> np.ndarray:
+    """The contact vector of the model's tick: the reference law, the map, and scratch space.
 
-    ``contact`` is the model's reference Maugis-Dugdale law; without a map, ``info`` says so and
-    the kernel returns ``ref`` (= ``contact.kernel_args``). With a map the law's tip radius and
-    Dugdale range must be the conversion's (the same tip and interface law).
+    ``contact`` is the model's reference Maugis-Dugdale law; without a map the vector says so and
+    :func:`local_contact_kernel` returns the reference law's arguments. With a map the law's tip
+    radius and Dugdale range must be the conversion's (the same tip and interface law).
+    ``n_friction``, ``n_profile``: the sizes of the scratch sections for the model's local friction
+    vector (:func:`friction_section`) and the dent's profile (:func:`profile_section`).
     """
     ref = np.array(contact.kernel_args, dtype=np.float64)
-    info = np.zeros(INFO_SIZE)
-    if material is None:
-        return ref, ref.copy(), info, np.zeros((1, 1, 2)), np.zeros(5), np.zeros(5), np.zeros((2, 3))
-    if not isinstance(material, MaterialMap):
-        raise MaterialMapError(f"material must be an arsurf MaterialMap (got {type(material).__name__})")
-    conv = material.conversion
-    if not math.isclose(contact.tip_radius, conv.tip_radius, rel_tol=1e-12):
-        raise MaterialMapError(f"the material map was converted for a {conv.tip_radius * 1e9:.6g} nm tip, the model's "
-                               f"tip is {contact.tip_radius * 1e9:.6g} nm: convert the map with the model's tip radius")
-    if not math.isclose(contact.interaction_range, conv.dugdale_range, rel_tol=1e-9):
-        raise MaterialMapError(f"the contact law's Dugdale range w/sigma0 ({contact.interaction_range!r} m) differs from the "
-                               f"map's ({conv.dugdale_range!r} m); build the law with MaterialMap.contact_law()")
-    fe, fw = material.fields["reduced_modulus"], material.fields["work_of_adhesion"]
-    info[I_ON] = 1.0
-    info[I_X0], info[I_Y0] = material.offset
-    info[I_OFF_E] = math.log(fe.reference / contact.effective_modulus)
-    info[I_OFF_W] = math.log(fw.reference / contact.work_of_adhesion)
-    info[I_LO_E], info[I_HI_E], info[I_LO_W], info[I_HI_W] = fe.lo, fe.hi, fw.lo, fw.hi
-    coef = np.ascontiguousarray(np.stack([fe.coef, fw.coef], axis=-1))
-    # the lambda range the kernel can reach: lambda ~ (w / E*)^(2/3) within the clamped ratios
-    lam = contact.maugis_parameter
-    lo = lam * math.exp(2.0 / 3.0 * ((fw.lo + info[I_OFF_W]) - (fe.hi + info[I_OFF_E])))
-    hi = lam * math.exp(2.0 / 3.0 * ((fw.hi + info[I_OFF_W]) - (fe.lo + info[I_OFF_E])))
-    table, info[I_LNLAM0], info[I_TABLE_STEP] = critical_point_table(lo, hi)
-    return ref, ref.copy(), info, coef, fe.knots_u, fe.knots_v, table
+    head = np.zeros(C_BODY - C_HEAD)
+    parts: list[np.ndarray] = []
+    pos = C_BODY
+
+    def section(a) -> int:
+        nonlocal pos
+        at = pos
+        parts.append(np.ascontiguousarray(a, dtype=np.float64).ravel())
+        pos += parts[-1].size
+        return at
+
+    head[H_FRICTION - C_HEAD] = section(np.zeros(n_friction))
+    head[H_PROFILE - C_HEAD] = section(np.zeros(n_profile))
+    head[H_KU - C_HEAD] = pos     # the end of the profile without a map
+    if material is not None:
+        if not isinstance(material, MaterialMap):
+            raise MaterialMapError(f"material must be an arsurf MaterialMap (got {type(material).__name__})")
+        conv = material.conversion
+        if not math.isclose(contact.tip_radius, conv.tip_radius, rel_tol=1e-12):
+            raise MaterialMapError(f"the material map was converted for a {conv.tip_radius * 1e9:.6g} nm tip, the "
+                                   f"model's tip is {contact.tip_radius * 1e9:.6g} nm: convert the map with the model's "
+                                   "tip radius")
+        if not math.isclose(contact.interaction_range, conv.dugdale_range, rel_tol=1e-9):
+            raise MaterialMapError(f"the contact law's Dugdale range w/sigma0 ({contact.interaction_range!r} m) differs "
+                                   f"from the map's ({conv.dugdale_range!r} m); build the law with "
+                                   "MaterialMap.contact_law()")
+        fe, fw = material.fields["reduced_modulus"], material.fields["work_of_adhesion"]
+        off_e = math.log(fe.reference / contact.effective_modulus)
+        off_w = math.log(fw.reference / contact.work_of_adhesion)
+        # the lambda range the kernel can reach: lambda ~ (w / E*)^(2/3) within the clamped ratios
+        lam = contact.maugis_parameter
+        table, x0, step = critical_point_table(lam * math.exp(2.0 / 3.0 * ((fw.lo + off_w) - (fe.hi + off_e))),
+                                               lam * math.exp(2.0 / 3.0 * ((fw.hi + off_w) - (fe.lo + off_e))))
+        values = {H_ON: 1.0, H_X0: material.offset[0], H_Y0: material.offset[1], H_OFF_E: off_e, H_OFF_W: off_w,
+                  H_LO_E: fe.lo, H_HI_E: fe.hi, H_LO_W: fw.lo, H_HI_W: fw.hi, H_LNLAM0: x0, H_TABLE_STEP: step,
+                  H_NU: fe.coef.shape[0], H_NV: fe.coef.shape[1], H_NTABLE: table.shape[0],
+                  H_KU: section(fe.knots_u), H_KV: section(fe.knots_v), H_TABLE: section(table),
+                  H_COEF: section(np.stack([fe.coef, fw.coef], axis=-1))}
+        for key, val in values.items():
+            head[key - C_HEAD] = val
+    return np.concatenate([ref, ref, head, *parts])
+
+
+def friction_section(cv: np.ndarray) -> slice:
+    """Where the model's local friction vector lives in a contact vector."""
+    return slice(int(cv[H_FRICTION]), int(cv[H_PROFILE]))
+
+
+def profile_section(cv: np.ndarray) -> slice:
+    """Where the dent's profile scratch lives in a contact vector."""
+    return slice(int(cv[H_PROFILE]), int(cv[H_KU]))
