@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from arsurf.contact.deformation import PATCH_PER_CONTACT, Deformer
+from arsurf.contact.deformation import PATCH_PER_CONTACT, RIM_MARGIN, Deformer
 from arsurf.errors import ContactError
 from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
@@ -142,7 +142,7 @@ def test_projection_stays_exact_on_the_dented_surface(rng):
 
 import math  # noqa: E402
 
-from arsurf.contact.deformation import elastic_displacement  # noqa: E402
+from arsurf.contact.deformation import dent_displacement, elastic_displacement  # noqa: E402
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from tests.reference import ref_md_traction, ref_surface_displacement  # noqa: E402
 
@@ -218,7 +218,7 @@ def test_the_dents_rim_is_the_contact_radius(case):
     outside = rho >= a
     assert np.all(dist[outside] > R_TIP)                                     # below the tip
     near = outside & (rho < 0.5 * PATCH_PER_CONTACT * a)                      # before the fade
-    u = np.array([elastic_displacement(r, a, R_TIP, depth, c) for r in rho[near]])
+    u = dent_displacement(rho[near], a, R_TIP, depth, c)    # the elastic surface, lifted onto the sphere at a
     # the compiled dent reads tables (bilinear, then a 48-point profile): within 1 % of the dent's scale
     # (the largest errors sit at the edge of the Dugdale zone, where the profile has a log kink)
     scale = max(abs(depth), a * a / R_TIP, a * a / R_TIP - depth)   # the Hertz and the adhesive parts
@@ -226,13 +226,34 @@ def test_the_dents_rim_is_the_contact_radius(case):
 
 
 def test_a_contact_wider_than_the_tip_leaves_no_nan(flat):
-    """a > R (a very soft sample): the points with R <= rho < a follow the contact's paraboloid."""
+    """a > 0.9 R (a very soft sample): the contact zone follows the contact's paraboloid."""
     R, a, depth = 5e-9, 7e-9, 6e-9
     c = np.array([200e-9, 200e-9, R - depth])
     Deformer(flat).apply(c, R, (0, 0, 1), a, depth=depth, zone_radius=8e-9)
     P, P0 = flat.control_points.reshape(-1, 3), flat.rest_control_points.reshape(-1, 3)
     assert np.isfinite(P).all()
     rho, _ = _rho(P0, c, np.array([0.0, 0.0, 1.0]))
-    ring = (rho >= R) & (rho < a)
+    ring = rho < a
     assert ring.any()
     np.testing.assert_allclose(P0[ring, 2] - P[ring, 2], depth - rho[ring] ** 2 / (2 * R), rtol=1e-12)
+
+
+@pytest.mark.parametrize("a_over_r", [0.2, 0.5, 0.85])
+def test_the_dent_is_continuous_where_it_leaves_the_tip(a_over_r):
+    """At the rim the elastic surface (on the contact's paraboloid) is lifted onto the sphere:
+    the net's step across rho = a is a fraction of the knot spacing's worth of slope, not the
+    sphere-paraboloid gap (a^4/8R^3 ~ 0.14 nm at a = 0.85 R = 17 nm)."""
+    s, h = _fine_flat()
+    a = a_over_r * R_TIP
+    depth = a * a / R_TIP
+    centre = np.array([29e-9, 29e-9, R_TIP - depth])
+    Deformer(s).apply(centre, R_TIP, (0.0, 0.0, 1.0), a, depth=depth, zone_radius=a)
+    P, P0 = s.control_points.reshape(-1, 3), s.rest_control_points.reshape(-1, 3)
+    rho, _ = _rho(P0, centre, np.array([0.0, 0.0, 1.0]))
+    inner = (rho < a) & (rho > a - 2 * h)
+    outer = (rho >= a) & (rho < a + 2 * h)
+    slope = abs(np.polyfit(rho[outer | inner], P[outer | inner, 2], 1)[0])
+    step = P[outer, 2].mean() - P[inner, 2].mean()
+    assert abs(step) <= 4 * h * max(slope, 0.05) + 0.02 * a * a / R_TIP
+    on_sphere = depth - (R_TIP - np.sqrt(R_TIP ** 2 - a ** 2))       # the sphere at the rim, within the margin
+    assert 0.0 <= dent_displacement(a, a, R_TIP, depth, a) - on_sphere <= RIM_MARGIN * a * a / R_TIP * (1 + 1e-9)

@@ -12,8 +12,8 @@ neck) it is moved onto the sample-side cap of the tip sphere,
 
 .. math:: P = C + \mathbf r - \sqrt{R^2 - ρ^2}\; n
 
-(for a contact wider than the tip, a > R, far beyond the small-strain theory, the points with
-R <= ρ < a follow the contact's paraboloid, :math:`u = δ - ρ^2/2R`).
+(for a contact wider than 0.9 R, far beyond the small-strain theory, where the sphere turns
+vertical, the contact zone follows the contact's own paraboloid, :math:`u = δ - ρ^2/2R`).
 
 **Outside the contact** (ρ ≥ a) the surface is not on the sphere: it follows the elastic
 half-space under the Maugis-Dugdale tractions, moved along -n by the normal displacement
@@ -31,7 +31,7 @@ inside a and :math:`-σ_0` on the annulus); a flat punch of radius t displaces t
          + \frac{2δ_D}{π}\Big[\arcsin\frac aρ + \frac{J(ρ)}{\sqrt{c^2-a^2}}\Big],
     \qquad J(ρ) = \int_a^{\min(ρ, c)} \sqrt{\frac{c^2 - t^2}{ρ^2 - t^2}}\,dt .
 
-It meets the cap at ρ = a (u(a) = δ - a²/2R, the paraboloid of the contact solution), gives the
+It meets the contact's paraboloid at ρ = a (u(a) = δ - a²/2R), gives the
 gap :math:`h_0` at ρ = c (Maugis' condition, tested), and decays as 1/ρ (a point load). For Hertz
 (c = a, δ = a²/R) only the first term is left, and the surface meets the tip exactly on the
 circle ρ = a: the dent's rim is the contact radius, not the geometric overlap √(2Rδ) (the
@@ -44,7 +44,10 @@ In the tick both bracketed shapes are read from tables built once at import (the
 on q = a/ρ, the zone's on (a/c, √((ρ - a)/(c - a))) inside the zone and (a/c, c/ρ) beyond it),
 the profile is tabulated at :data:`PROFILE_SIZE` radii uniform in :math:`\sqrt{ρ^2 - a^2}`
 (dense at the rim, where an adhesive neck is steep), and each control point reads it by linear
-interpolation: a few flops and one square root per point. The tables cost at most ~0.5 % of
+interpolation: a few flops and one square root per point. The paraboloid lies below the
+sphere at the rim by :math:`R - \sqrt{R^2-a^2} - a^2/2R` (~a⁴/8R³): the net is lifted by that
+much at ρ = a, the lift fading out by 1.5 a, so the dent is continuous where it leaves the tip
+(:func:`dent_displacement`, what the dent draws). The tables cost at most ~0.5 % of
 the depth, at the edge of the Dugdale zone where the profile has a logarithmic kink (tested to
 1 %). The elastic surface is drawn out to 3a, its 1/ρ tail faded to zero (raised cosine) over
 [1.5a, 3a], so the dent stays local (on a flat sample the rest surface is already below the
@@ -81,6 +84,12 @@ DEFORM_NO_PATCH = 1  # the tip is outside the net's footprint: nothing to move
 
 #: radii of the per-tick profile table (uniform in sqrt(rho^2 - a^2)): the scratch array's length
 PROFILE_SIZE = 32
+#: the contact zone is put on the sphere up to a = SPHERE_LIMIT R; a wider contact (far beyond
+#: small strain, where the sphere turns vertical) follows the contact's own paraboloid
+SPHERE_LIMIT = 0.9
+#: the net meets the sphere at the rim to within this many a^2/R (0.2 % of the Hertz depth): the
+#: profile table's chord next to the rim (at most a^2/960R) stays below the tip
+RIM_MARGIN = 2e-3
 #: the elastic surface reaches PATCH_PER_CONTACT * a, its tail faded over the outer half; the
 #: patch is max(R, that): points inside the tip are put on it out to R
 PATCH_PER_CONTACT = 3.0
@@ -207,21 +216,65 @@ def _table_displacement(rho, a, tip_radius, d_adh, c):
     return u + 2.0 * d_adh / math.pi * g
 
 
+@njit(cache=True, inline="always")
+def rim_lift(a, tip_radius):
+    """How far the net is lifted at the rim, m: the height of the tip sphere above the contact's
+    paraboloid there, :math:`R - \\sqrt{R^2 - a^2} - a^2/2R`, less :data:`RIM_MARGIN` a²/R (so that
+    the table's chord near the rim never puts a point inside the tip); 0 when the contact zone
+    follows the paraboloid (a > :data:`SPHERE_LIMIT` R)."""
+    if a <= 0.0 or a > SPHERE_LIMIT * tip_radius:
+        return 0.0
+    gap = tip_radius - math.sqrt((tip_radius - a) * (tip_radius + a)) - 0.5 * a * a / tip_radius
+    return max(gap - RIM_MARGIN * a * a / tip_radius, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _rim_fade(rho, a):
+    """1 at the rim, 0 from 1.5 a on (raised cosine)."""
+    x = (rho - a) / (0.5 * a)
+    return 0.0 if x >= 1.0 else 0.5 * (1.0 + math.cos(math.pi * max(x, 0.0)))
+
+
 @njit(cache=True)
 def _fill_profile(profile, a, tip_radius, depth, zone_radius, r_elastic):
-    """profile[k] = u(rho_k) times the fade, rho_k^2 = a^2 + w_k^2 with w_k uniform from 0 to
-    sqrt(r_elastic^2 - a^2) (dense at the rim, where an adhesive neck is steep)."""
+    """profile[k] = the dent's displacement at rho_k (:func:`dent_displacement`), rho_k^2 = a^2 +
+    w_k^2 with w_k uniform from 0 to sqrt(r_elastic^2 - a^2) (dense at the rim, where an adhesive
+    neck is steep)."""
     n = profile.size
     fade0 = 0.5 * r_elastic
     w_max2 = r_elastic * r_elastic - a * a
     d_adh = depth - a * a / tip_radius
+    lift = rim_lift(a, tip_radius)
     for k in range(n):
         f = k / (n - 1)
         rho = math.sqrt(a * a + f * f * w_max2)
-        u = _table_displacement(rho, a, tip_radius, d_adh, zone_radius)
+        u = _table_displacement(rho, a, tip_radius, d_adh, zone_radius) - lift * _rim_fade(rho, a)
         if rho > fade0:
             u *= 0.5 * (1.0 + math.cos(math.pi * min((rho - fade0) / (r_elastic - fade0), 1.0)))
         profile[k] = u
+
+
+def dent_displacement(rho, a, tip_radius, depth, zone_radius):
+    """What the dent does to a flat net at ρ >= a (m, into the sample): the elastic surface
+    (:func:`elastic_displacement`) lifted at the rim onto the tip sphere by :func:`rim_lift`,
+    the lift fading out by 1.5 a (raised cosine), and the tail faded over [1.5 a, 3 a]; the
+    compiled dent reads a table of it. Arrays of ρ broadcast.
+
+    Examples
+    --------
+    >>> R, a = 20e-9, 4e-9
+    >>> sphere = a * a / R - (R - (R * R - a * a) ** 0.5)   # how far the sphere is pushed in at rho = a
+    >>> round((dent_displacement(a, a, R, a * a / R, a) - sphere) / (a * a / R), 6)   # RIM_MARGIN
+    0.002
+    """
+    rho = np.asarray(rho, dtype=np.float64)
+    u = elastic_displacement(rho, a, tip_radius, depth, zone_radius)
+    x = np.clip((rho - a) / (0.5 * a), 0.0, 1.0)
+    u = u - rim_lift(a, tip_radius) * 0.5 * (1.0 + np.cos(np.pi * x))
+    r_el = PATCH_PER_CONTACT * a
+    y = np.clip((rho - 0.5 * r_el) / (0.5 * r_el), 0.0, 1.0)
+    u = np.where(rho > 0.5 * r_el, u * 0.5 * (1.0 + np.cos(np.pi * y)), u)
+    return u if np.ndim(u) else float(u)
 
 
 @njit(cache=True)
@@ -263,6 +316,7 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     rb2 = r_box * r_box
     re2 = r_elastic * r_elastic
     a2 = a * a
+    sphere = a <= SPHERE_LIMIT * radius
     moved = 0
     for i in range(i0, i1):
         for j in range(j0, j1):
@@ -277,12 +331,12 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             if rho2 >= rb2:
                 continue
             if rho2 < a2:
-                if rho2 < r2:
+                if sphere:
                     cap = -math.sqrt(r2 - rho2)
                     ctrl[i, j, 0] = cx + rx + cap * nx
                     ctrl[i, j, 1] = cy + ry + cap * ny
                     ctrl[i, j, 2] = cz + rz + cap * nz
-                else:  # a > R (far beyond small strain): the contact's own paraboloid there
+                else:  # a > 0.9 R (far beyond small strain): the contact's own paraboloid
                     u = depth - 0.5 * rho2 / radius
                     ctrl[i, j, 0] = rest[i, j, 0] - u * nx
                     ctrl[i, j, 1] = rest[i, j, 1] - u * ny
