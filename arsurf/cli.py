@@ -319,6 +319,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
     s.add_argument("--frames", type=_positive_count, default=90, help="without a display: how many frames (default 90)")
+    s.add_argument("--material", action="store_true", help="colour the surface by the file's mechanical channels "
+                   "(key c cycles the colourings); uncalibrated channels need the conversion flags below")
+    s.add_argument("--color-by", default=None, choices=("height", "deformation", "modulus", "adhesion",
+                                                        "sample_deformation", "dissipation"),
+                   help="the surface's colouring (default height; the last four need --material)")
+    from arsurf.contact.material_conversion import MaterialConversion
+
+    MaterialConversion.cli_arguments(s, tip_radius_nm=None)
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("export", help="write a fitted (or deformed) surface as a mesh (STL/PLY/GLB) or a height "
@@ -523,12 +531,22 @@ def _view(args, bridge) -> int:
     from arsurf.assembly import BUNDLED_SCAN
 
     tip_radius = args.tip_radius_nm * 1e-9
-    scan = prepare_scan(args.scan or str(BUNDLED_SCAN), None, args.level, args.sigma_nm * 1e-9)
+    path = args.scan or str(BUNDLED_SCAN)
+    scan = prepare_scan(path, None, args.level, args.sigma_nm * 1e-9)
+    colour = {}
+    if args.material:
+        from arsurf.contact.material_conversion import MaterialConversion
+        from arsurf.contact.material_map import material_map_from_file
+
+        colour["material"] = material_map_from_file(path, MaterialConversion.from_cli(args), height=scan,
+                                                    channels=MaterialConversion.cli_channels(args))
+    if args.color_by is not None:
+        colour["color_by"] = args.color_by
     if bridge is None:
         from arsurf_viewer import view_scan
 
         view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
-                  frames=args.frames)
+                  frames=args.frames, **colour)
         return 0
     # real hardware: the full haptic loop runs at 1 kHz against the UDP bridge, the view follows it
     from arsurf.spline.fit import fit_surface
@@ -537,12 +555,12 @@ def _view(args, bridge) -> int:
 
     surface = fit_surface(scan)
     live = bridge_loop(surface, tip_radius, host=bridge.host, port=bridge.port, key=bridge.key,
-                       peer_timeout=bridge.peer_timeout, scale=args.scale).start()
+                       peer_timeout=bridge.peer_timeout, scale=args.scale, material=colour.get("material")).start()
     print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
           f"{bridge.host}:{bridge.port} (`python -m arsurf.haptics.client` is a reference client)", file=sys.stderr)
     try:
         run_interactive(surface, tip_radius=tip_radius, physics=live.physics, pose_source=live.pose,
-                        out_dir=args.out, frames=args.frames)
+                        out_dir=args.out, frames=args.frames, **colour)
     finally:
         stats = live.stop()
         print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)

@@ -68,3 +68,35 @@ def test_the_surface_shows_stiff_and_soft_halves_with_a_colour_bar_in_the_unit(g
         assert view.scalar_bar.GetTitle() == "sample deformation (V)"   # uncalibrated: the channel's unit
     finally:
         view.close()
+
+
+@pytest.mark.viewer
+def test_the_c_key_cycles_through_the_material_colourings(gl):
+    from arsurf_viewer import SurfaceView
+    from arsurf_viewer.interactive import StylusController
+
+    height, m = _material()
+    s = fit_surface(height)
+    view = SurfaceView(s, material=m, off_screen=True, window_size=(200, 150), anti_aliasing=None)
+    try:
+        assert view.color_modes == ["height", "deformation", "modulus", "adhesion", "sample_deformation"]
+        ctl = StylusController(s, (80e-9, 80e-9, 30e-9), view=view)
+        seen = [ctl.handle_key("c") for _ in range(5)]
+        assert seen == ["colour by deformation", "colour by modulus", "colour by adhesion",
+                        "colour by sample_deformation", "colour by height"]
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
+def test_arsurf_view_material_renders_the_qnm_file_by_modulus(gl, tmp_path):
+    from arsurf.cli import main
+    from tests.conftest import real_scan_path
+
+    spm = real_scan_path("sample_0.spm")
+    out = tmp_path / "view"
+    assert main(["view", str(spm), "--material", "--color-by", "modulus", "--frames", "4", "--out", str(out),
+                 "--tip-radius-nm", "5", "--modulus-scale", "1.7e10", "--deflection-sensitivity-nm-per-v", "50",
+                 "--spring-constant", "40"]) == 0
+    assert len(list(out.glob("frame_*.png"))) == 4
+    assert main(["view", str(spm), "--material", "--frames", "4", "--out", str(out)]) == 2   # Arb refused

@@ -389,6 +389,12 @@ class SurfaceView:
         self.set_layer(name, not self._layers[name])
         return self._layers[name]
 
+    @property
+    def color_modes(self) -> list[str]:
+        """The colourings this view offers: height, deformation and the material map's fields."""
+        fields = self.material.fields if self.material is not None else {}
+        return ["height", "deformation"] + [m for m, (name, _, _) in _MATERIAL_MODES.items() if name in fields]
+
     def _material_field(self, mode: str):
         """The material map's field behind a colour mode (refused without a map or the field)."""
         name = _MATERIAL_MODES[mode][0]

@@ -186,12 +186,16 @@ class MaterialConversion:
 
     # -- the command line (units at this edge: nm, GPa, nN, N/m) ------------------------------
     @staticmethod
-    def cli_arguments(parser, tip_radius_nm: float = 20.0) -> None:
+    def cli_arguments(parser, tip_radius_nm: float | None = 20.0) -> None:
         """Add the conversion's flags and the channel names to an argparse parser (``arsurf
-        info --material``, ``arsurf demo --material``); :meth:`from_cli` reads them back."""
+        info --material``, ``arsurf demo --material``, ``arsurf view --material``);
+        :meth:`from_cli` reads them back. ``tip_radius_nm`` None: the parser has its own
+        ``--tip-radius-nm``."""
         g = parser.add_argument_group("material map (mechanical channels -> E*, w)")
-        g.add_argument("--tip-radius-nm", type=_number_type("nm", 0.0), default=tip_radius_nm,
-                       help=f"tip radius of the adhesion conversion and of the model, nm (default {tip_radius_nm:g})")
+        if tip_radius_nm is not None:
+            g.add_argument("--tip-radius-nm", type=_number_type("nm", 0.0), default=tip_radius_nm,
+                           help=f"tip radius of the adhesion conversion and of the model, nm (default "
+                                f"{tip_radius_nm:g})")
         flags = (("--modulus-scale", "PA_PER_UNIT", "pascals per unit of a modulus channel the file leaves "
                                                     "uncalibrated (Arb); never assumed"),
                  ("--adhesion-scale", "N_PER_UNIT", "newtons per unit of an adhesion channel in Arb"),

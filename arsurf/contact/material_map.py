@@ -688,7 +688,7 @@ def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_pro
     :func:`local_contact_kernel` returns the reference law's arguments. With a map the law's tip
     radius and Dugdale range must be the conversion's (the same tip and interface law).
     ``n_friction``, ``n_profile``: the sizes of the scratch sections for the model's local friction
-    vector (:func:`friction_section`) and the dent's profile (:func:`profile_section`).
+    vector and the dent's profile (their offsets at ``H_FRICTION`` and ``H_PROFILE``).
     """
     ref = np.array(contact.kernel_args, dtype=np.float64)
     head = np.zeros(C_BODY - C_HEAD)
@@ -732,13 +732,3 @@ def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_pro
         for key, val in values.items():
             head[key - C_HEAD] = val
     return np.concatenate([ref, ref, head, *parts])
-
-
-def friction_section(cv: np.ndarray) -> slice:
-    """Where the model's local friction vector lives in a contact vector."""
-    return slice(int(cv[H_FRICTION]), int(cv[H_PROFILE]))
-
-
-def profile_section(cv: np.ndarray) -> slice:
-    """Where the dent's profile scratch lives in a contact vector."""
-    return slice(int(cv[H_PROFILE]), int(cv[H_KU]))
