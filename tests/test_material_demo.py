@@ -2,13 +2,13 @@
 spots, and the feel differs as the local Maugis-Dugdale laws say (the real file: make demo-material)."""
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 
 from arsurf.contact.material_conversion import MaterialConversion
+from tests.conftest import write_qnm_npz
 from arsurf.demo import pick_spots, run_material_demo
 
 R = 5e-9
@@ -24,10 +24,7 @@ def qnm(tmp_path_factory):
     modulus = np.where(x < 60e-9, 0.3e9, 8e9)
     adhesion = np.where(np.hypot(x - 30e-9, y - 85e-9) < 12e-9, 12e-9, 3e-9)
     height = 0.05e-9 * np.sin(x / 7e-9) * np.cos(y / 9e-9)
-    path = d / "qnm.npz"
-    np.savez(path, Height=height, DMTModulus=modulus, Adhesion=adhesion,
-             arsurf_meta=np.array(json.dumps({"dx": H, "dy": H, "z_unit": "m"})))
-    return path
+    return write_qnm_npz(d / "qnm.npz", height, modulus, adhesion, H)
 
 
 @pytest.fixture(scope="module")

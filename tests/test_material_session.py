@@ -8,6 +8,7 @@ import pytest
 
 from arsurf.assembly import build_model, check_metadata, session_metadata
 from arsurf.contact.material_conversion import MaterialConversion
+from tests.conftest import write_qnm_npz
 from arsurf.contact.material_map import material_map_from_file
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever
@@ -32,10 +33,7 @@ def qnm_file(tmp_path_factory):
     height = 2e-9 * np.exp(-((x - 50e-9) ** 2 + (y - 50e-9) ** 2) / (30e-9) ** 2)
     modulus = np.where(x < 48e-9, 0.5e9, 5e9)
     adhesion = np.where(np.abs(y - 60e-9) < 10e-9, 8e-9, 3e-9)
-    path = d / "qnm.npz"
-    np.savez(path, Height=height, DMTModulus=modulus, Adhesion=adhesion,
-             arsurf_meta=np.array(json.dumps({"dx": H, "dy": H, "z_unit": "m"})))
-    return path
+    return write_qnm_npz(d / "qnm.npz", height, modulus, adhesion, H)
 
 
 @pytest.fixture(scope="module")
