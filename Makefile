@@ -7,7 +7,9 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.arsurf-installed
 OUT    ?= out/demo
 
-.PHONY: demo test setup system bench scans docs clean
+.PHONY: demo demo-material test setup system bench scans docs clean
+# the PeakForce QNM file of the material demo (third-party test data, ../shared: never copied here)
+QNM ?= ../shared/scans-real/sample_0.spm
 
 setup: system $(STAMP)
 
@@ -23,6 +25,14 @@ $(STAMP): pyproject.toml
 
 demo: setup
 	$(VENV)/bin/arsurf demo --out $(OUT)
+
+# feel a QNM file's soft, stiff and sticky regions. sample_0.spm leaves its DMTModulus (Arb) and
+# Adhesion (V of deflection) uncalibrated: the conversions below are stated assumptions (README,
+# "Material maps"), not the file's: 1.7e10 Pa per Arb (median E* ~1 GPa), 50 nm/V, 40 N/m; R 5 nm
+# is the file's own Tip Radius
+demo-material: setup
+	$(VENV)/bin/arsurf demo --material $(QNM) --out out/demo-material --tip-radius-nm 5 \
+		--modulus-scale 1.7e10 --deflection-sensitivity-nm-per-v 50 --spring-constant 40
 
 test: setup
 	$(PY) -m pytest -q -p no:cacheprovider $(PYTEST_ARGS)

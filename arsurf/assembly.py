@@ -248,7 +248,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
                      level: str = "plane", sigma: float = 0.0, inpaint: bool = True,
                      control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
                      calibration: Mapping | None = None, haptics: Mapping | None = None,
-                     loop_rate: float | None = None, **extra) -> dict:
+                     loop_rate: float | None = None, material=None, **extra) -> dict:
     """The metadata dict of a session, checked and JSON-ready.
 
     Parameters
@@ -270,6 +270,10 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     calibration, haptics : dict, optional
         Free JSON objects (:func:`build_loop` reads ``haptics``).
     loop_rate : float, Hz, optional
+    material : MaterialMap or dict, optional
+        The material map of the model (:mod:`arsurf.contact.material_map`): its channels,
+        conversion, processing and hash are recorded (``material``), with the channel file's path
+        and SHA-256 when it is not the scan file; :func:`build_model` rebuilds it and checks the hash.
     **extra
         More JSON values to keep.
 
@@ -304,6 +308,8 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     meta = {"scan": scan_meta, "tip_radius": tip_radius, "contact": contact_meta, "friction": friction,
             "deform": deform, "cantilever": lever_meta, "calibration": dict(calibration or {}),
             "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
+    if material is not None:
+        meta["material"] = _material_meta(material, scan_meta["path"])
     meta = _jsonable(meta, "metadata")
     check_metadata(meta)
     return meta
@@ -385,6 +391,97 @@ def check_metadata(meta: Mapping) -> None:
         raise SessionError(f"metadata haptics must be an object (got {haptics!r})")
     _model_parts(meta)  # builds the contact law and the cantilever: their own checks apply
     _tube_scene(meta)
+    _check_material(meta.get("material"))
+
+
+def _material_meta(material, scan_path: str) -> dict:
+    """The ``material`` record of a MaterialMap (or a dict as recorded): channels, units,
+    conversion, offset, processing, hash, and the channel file when it is not the scan's."""
+    if isinstance(material, Mapping):
+        return dict(material)
+    spec = material.to_metadata()
+    src = material.source
+    if src and os.path.abspath(src) != os.path.abspath(scan_path):
+        spec["path"], spec["file_sha256"] = src, scan_sha256(src)
+    else:
+        spec["path"] = None
+    return spec
+
+
+def _check_material(spec) -> None:
+    """Raise :class:`SessionError` unless ``spec`` (metadata ``material``) can rebuild a map."""
+    if spec is None:
+        return
+    from arsurf.contact.material_conversion import MaterialConversion
+    from arsurf.contact.material_map import CHANNEL_NAMES
+
+    if not isinstance(spec, Mapping):
+        raise SessionError(f"metadata material must be an object (got {spec!r})")
+    chans = _need(spec, "channels", "material")
+    if not (isinstance(chans, Mapping) and all(isinstance(k, str) and isinstance(v, str) for k, v in chans.items())
+            and set(chans) <= set(CHANNEL_NAMES) and {"modulus", "adhesion"} <= set(chans)):
+        raise SessionError(f"metadata material.channels must map roles {sorted(CHANNEL_NAMES)} (modulus and "
+                           f"adhesion at least) to channel names (got {chans!r})")
+    units = spec.get("units") or {}
+    if not (isinstance(units, Mapping) and all(isinstance(v, str) for v in units.values())
+            and set(units) <= set(CHANNEL_NAMES)):
+        raise SessionError(f"metadata material.units must map roles to unit names (got {units!r})")
+    try:
+        MaterialConversion.from_metadata(_need(spec, "conversion", "material"))
+    except ArsurfError as exc:
+        raise SessionError(f"metadata material.conversion is not valid: {exc}") from exc
+    off = spec.get("offset", [0.0, 0.0])
+    if not (isinstance(off, (list, tuple)) and len(off) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in off)):
+        raise SessionError(f"metadata material.offset must be two finite numbers in metres (got {off!r})")
+    proc = spec.get("processing") or {}
+    for key in ("sigma", "smoothing"):
+        v = proc.get(key, 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0.0:
+            raise SessionError(f"metadata material.processing.{key} must be >= 0 (got {v!r})")
+    digest = spec.get("sha256")
+    for key in ("sha256", "file_sha256"):
+        d = spec.get(key)
+        if d is not None and not (isinstance(d, str) and len(d) == 64 and all(c in "0123456789abcdef" for c in d)):
+            raise SessionError(f"metadata material.{key} must be 64 lowercase hex digits (got {d!r})")
+    if digest is None:
+        raise SessionError("metadata material lacks sha256 (the hash of the map); record it with "
+                           "arsurf.session_metadata(material=...)")
+    path = spec.get("path")
+    if path is not None and not (isinstance(path, str) and path and spec.get("file_sha256")):
+        raise SessionError(f"metadata material.path must be null (the scan file) or a path with its file_sha256 "
+                           f"(got {path!r})")
+
+
+def _material_map(meta: Mapping, scan, scan_path):
+    """The MaterialMap a session recorded, rebuilt on the prepared ``scan``'s grid and checked
+    against its hash (None without ``material``)."""
+    spec = meta.get("material")
+    if spec is None:
+        return None
+    from arsurf.contact.material_conversion import MaterialConversion
+    from arsurf.contact.material_map import CHANNEL_NAMES, material_map_from_file
+
+    path = spec.get("path") or scan_path
+    if spec.get("path") is not None:
+        actual = scan_sha256(path)
+        if actual != spec["file_sha256"]:
+            raise SessionError(f"the material channels file {path!r} has SHA-256 {actual}, the session recorded "
+                               f"{spec['file_sha256']}; pass the file the session was recorded with")
+    proc = spec.get("processing") or {}
+    cs = proc.get("control_shape")
+    try:
+        m = material_map_from_file(
+            path, MaterialConversion.from_metadata(spec["conversion"]), height=scan,
+            channels={role: spec["channels"].get(role) for role in CHANNEL_NAMES}, units=spec.get("units") or None,
+            offset=tuple(spec.get("offset", (0.0, 0.0))), sigma=float(proc.get("sigma", 0.0)),
+            smoothing=float(proc.get("smoothing", 0.0)), control_shape=None if cs is None else tuple(cs))
+    except ArsurfError as exc:
+        raise SessionError(f"the session's material map cannot be rebuilt from {str(path)!r}: {exc}") from exc
+    if m.sha256 != spec["sha256"]:
+        raise SessionError(f"the material map rebuilt from {str(path)!r} has hash {m.sha256}, the session recorded "
+                           f"{spec['sha256']}: the channels or their processing differ from the recording")
+    return m
 
 
 def _tube_scene(meta: Mapping):
@@ -458,7 +555,8 @@ class ModelSetup:
 
 def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
-               deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf):
+               deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf,
+               material=None):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -477,6 +575,9 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     deform : bool
     coupling_stiffness : float, N/m
         The virtual coupling at the probe's scale (:mod:`arsurf.contact.proxy`; inf: none).
+    material : MaterialMap, optional
+        Per-location E* and w; the contact law given is then the reference (its
+        :meth:`~arsurf.contact.material_map.MaterialMap.contact_law`).
     """
     meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform, "static_friction": static_friction,
             "contact": {"effective_modulus": effective_modulus, "work_of_adhesion": work_of_adhesion,
@@ -485,7 +586,8 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     from arsurf.model import ARModel
 
     radius, md, lever, kwargs, dent = _model_parts(meta)
-    return ARModel(surface, radius, md, lever, deform=dent, **dict(kwargs, coupling_stiffness=coupling_stiffness))
+    return ARModel(surface, radius, md, lever, deform=dent, material=material,
+                   **dict(kwargs, coupling_stiffness=coupling_stiffness))
 
 
 def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
@@ -493,8 +595,9 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
 
     The steps are exactly those of the recording (:func:`arsurf.scan.prepare.prepare_scan` with the
     recorded channel, levelling, smoothing and inpainting, then :func:`arsurf.fit_surface`
-    with the recorded control shape and smoothing). A live loop that builds its model with this
-    function is guaranteed to be replayed bit for bit.
+    with the recorded control shape and smoothing; a recorded material map is rebuilt from its
+    channels and conversion and must have the recorded hash). A live loop that builds its model
+    with this function is guaranteed to be replayed bit for bit.
 
     Parameters
     ----------
@@ -524,7 +627,13 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
     surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
                           smoothing=float(proc.get("smoothing", 0.0)))
     tip_radius, md, lever, kwargs, deform = _model_parts(metadata)
-    model = ARModel(surface, tip_radius, md, lever, deform=deform, **kwargs)
+    material = _material_map(metadata, scan, path)
+    try:
+        model = ARModel(surface, tip_radius, md, lever, deform=deform, material=material, **kwargs)
+    except ArsurfError as exc:
+        if material is None:
+            raise
+        raise SessionError(f"the session's material map does not fit its contact law: {exc}") from exc
     return ModelSetup(scan, surface, model, scene, metadata)
 
 

@@ -82,6 +82,8 @@ def cmd_info(args) -> int:
     from arsurf.scan.io import load_scan
 
     scan = load_scan(args.scan, channel=args.channel, frame=args.frame, **_calibration(args))
+    if getattr(args, "material", False):
+        return _material_info(args, scan)
     _print(_scan_summary(scan), args.json)
     return 0
 
@@ -100,6 +102,52 @@ def _prepare(args, path, channel=None, inpaint: bool = True, **options):
             f"the scan ({exc.widest} pixels, {exc.widest * nm:.4g} nm); give a width of a few pixels in nm, e.g. "
             f"--sigma-nm {2 * nm:.3g}"
         ) from None
+
+
+def _material_info(args, scan) -> int:
+    """``arsurf info --material``: the mechanical channels with their units, then (when their
+    conversions are stated) the E* and w statistics of the map, median and 5-95 %."""
+    from arsurf.contact.material_conversion import MaterialConversion
+    from arsurf.contact.material_map import mechanical_channels, material_map_from_file
+
+    listing = mechanical_channels(scan)
+    out = {"file": scan.source, "format": scan.metadata.get("format"),
+           "mechanical_channels": listing or "none (no modulus, adhesion, deformation or dissipation channel)"}
+    if not listing:
+        _print(out, args.json)
+        return 0
+    conv = MaterialConversion.from_cli(args)
+    try:
+        m = material_map_from_file(args.scan, conv, channels=MaterialConversion.cli_channels(args))
+    except ArsurfError:
+        _print(out, args.json)  # the listing, then the one-line reason on stderr (exit 2)
+        raise
+    st = m.statistics
+
+    def pct(d, scale):
+        v = {"median": d["median"] * scale, "p5": d["p5"] * scale, "p95": d["p95"] * scale}
+        return v if args.json else f"median {v['median']:.6g}, 5-95 % {v['p5']:.6g} .. {v['p95']:.6g}"
+
+    out.update({
+        "channels_used": ", ".join(f"{k}: {v}" for k, v in m.channels.items()),
+        "tip_radius_nm": conv.tip_radius * 1e9,
+        "regime": conv.regime,
+        "E*_GPa": pct(st["reduced_modulus"], 1e-9),
+        "w_mJ_per_m2": pct(st["work_of_adhesion"], 1e3),
+        "sample_modulus_GPa": pct(st["sample_modulus"], 1e-9),
+        "pull_off_nN": pct(st["pull_off_force"], 1e9),
+        "masked_modulus_percent": 100.0 * m.masked["modulus"]["masked"],
+        "masked_adhesion_percent": 100.0 * m.masked["adhesion"]["masked"],
+        "adhesion_floor_nN": m.masked["adhesion"]["floor_N"] * 1e9,
+        "below_floor_percent": 100.0 * m.masked["adhesion"]["floored"],
+        "conversion": ", ".join(f"{k}={v}" for k, v in conv.to_metadata().items() if v is not None),
+        "registration": m.registration,
+        "map_sha256": m.sha256,
+    })
+    if args.json:
+        out["summary"] = m.summary()
+    _print(out, args.json)
+    return 0
 
 
 def cmd_fit(args) -> int:
@@ -244,12 +292,19 @@ def build_parser() -> argparse.ArgumentParser:
     _log_flags(p, argparse.SUPPRESS)
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range")
+    s = sub.add_parser("info", help="describe a scan file: format, channel, pixels, size, z range (--material: "
+                       "its mechanical channels and the E* and w they give)")
     s.add_argument("scan")
     s.add_argument("--channel", help="channel name (default: topography/height)")
     s.add_argument("--json", action="store_true", help="print JSON")
     _calibration_flags(s)
     _frame_flag(s)
+    s.add_argument("--material", action="store_true", help="list the mechanical channels (modulus, adhesion, "
+                   "deformation, dissipation) with their units and print the E* and w statistics of the material "
+                   "map (median, 5-95 %%); channels the file leaves uncalibrated need the conversion flags")
+    from arsurf.contact.material_conversion import MaterialConversion
+
+    MaterialConversion.cli_arguments(s)
     s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("fit", help="level, smooth and fit a bicubic B-spline; write it as .npz")
@@ -299,6 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default out/view)")
     s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90); with "
                    "--bridge-port, 0: no view at all, the loop serves the client until it sends RELEASE")
+    s.add_argument("--material", action="store_true", help="colour the surface by the file's mechanical channels "
+                   "(key c cycles the colourings); uncalibrated channels need the conversion flags below")
+    s.add_argument("--color-by", default=None, choices=("height", "deformation", "modulus", "adhesion",
+                                                        "sample_deformation", "dissipation"),
+                   help="the surface's colouring (default height; the last four need --material)")
+    from arsurf.contact.material_conversion import MaterialConversion
+
+    MaterialConversion.cli_arguments(s, tip_radius_nm=None)
     s.set_defaults(func=cmd_view)
 
     _live_parser(sub)
@@ -470,6 +533,9 @@ def _bridge_setup(args):
     if args.tubes:
         raise HapticsError("--tubes is not available with --bridge-port yet (the bridge loop has no tube scene); "
                            "leave out one of them")
+    if args.material or args.color_by is not None:
+        raise HapticsError("--material/--color-by are not available with --bridge-port yet (the bridge session's "
+                           "model is rebuilt from its metadata, which has no material map); leave out one of them")
     host = args.bridge_host or "127.0.0.1"
     if args.bridge_key is not None and args.bridge_key_file is not None:
         raise HapticsError("give the bridge key once: --bridge-key HEX or --bridge-key-file PATH, not both")
@@ -532,9 +598,20 @@ def _view(args, bridge, record) -> int:
     from arsurf.assembly import BUNDLED_SCAN
     from arsurf_viewer import view_scan
 
-    scan = _prepare(args, args.scan or str(BUNDLED_SCAN))
-    view_scan(scan, tip_radius=args.tip_radius_nm * 1e-9, level_method=None, sigma=None, tubes=args.tubes,
-              out_dir=args.out, frames=args.frames)
+    tip_radius = args.tip_radius_nm * 1e-9
+    path = args.scan or str(BUNDLED_SCAN)
+    scan = _prepare(args, path)
+    colour = {}
+    if args.material:
+        from arsurf.contact.material_conversion import MaterialConversion
+        from arsurf.contact.material_map import material_map_from_file
+
+        colour["material"] = material_map_from_file(path, MaterialConversion.from_cli(args), height=scan,
+                                                    channels=MaterialConversion.cli_channels(args))
+    if args.color_by is not None:
+        colour["color_by"] = args.color_by
+    view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
+              frames=args.frames, **colour)
     return 0
 
 

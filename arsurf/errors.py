@@ -88,6 +88,11 @@ class ContactError(ArsurfError, ValueError):
     """Invalid contact-mechanics input (non-positive radius, modulus, NaN depth...)."""
 
 
+class MaterialMapError(ContactError):
+    """A material map cannot be built as asked: a channel in arbitrary units without its stated
+    conversion, a grid that does not cover the height image, a channel with no usable pixel."""
+
+
 class PositionError(SurfaceError, ContactError):
     """A position (tip centre, query point) is not 3 finite coordinates in metres.
 

@@ -10,8 +10,10 @@ attached or a session is replayed, the measured bending and torsion angles),
    into itself;
 2. **contact mechanics**: Maugis-Dugdale with approach/retract hysteresis under displacement
    control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
-   and load P (> 0 compressive);
-3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`);
+   and load P (> 0 compressive); with a material map (:mod:`arsurf.contact.material_map`) the law
+   has the E* and w of the contact point;
+3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`): the contact
+   zone onto the tip, the elastic surface of the same (local) law around it;
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
    :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
@@ -39,8 +41,9 @@ from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import projection as pj
 from arsurf.contact import friction as fr
-from arsurf.contact.deformation import deform_kernel
-from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.contact.deformation import PROFILE_SIZE, deform_kernel
+from arsurf.contact.material_map import H_FRICTION, H_PROFILE, contact_vector, local_contact_kernel
+from arsurf.contact.maugis_dugdale import MaugisDugdale, md_zone_radius
 from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
@@ -114,6 +117,10 @@ def model_tick_kernel(proj,                                              # Proje
     (OUT_SIZE,), ``dec`` (8,) and ``ev`` (6, 3) are scratch arrays of the collision, the friction,
     the decoupling and the second contact.
 
+    ``md_args`` is the contact vector of :meth:`ARModel.kernel_args`: the reference law, a
+    material map (:func:`~arsurf.contact.material_map.local_contact_kernel`) and scratch space,
+    one float64 array (:func:`~arsurf.contact.material_map.contact_vector`).
+
     ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
     are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
     force through the cantilever model, ``bending``/``torsion`` being the noise added to them).
@@ -139,9 +146,20 @@ def model_tick_kernel(proj,                                              # Proje
         return st
     state[S_HINT_U] = coll[pj.OUT_U]
     state[S_HINT_V] = coll[pj.OUT_V]
+    # the contact law where the tip touches: a material map's local E* and w, else the reference
+    md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
+    if local:
+        f0 = int(md_args[H_FRICTION])
+        fl = md_args[f0:f0 + friction.size]
+        for k in range(friction.size):
+            fl[k] = friction[k]
+        fl[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
+        fl[F_JUMP_OUT] = jump_out
+        fl[F_ZERO_LOAD] = zero_load
+        friction = fl
     # a valley narrower than the tip: blend in the slope it also rests on
     second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
-                          SECOND_CONTACT_MARGIN * md_args[0], state, S_SECOND, coll)
+                          SECOND_CONTACT_MARGIN * md[0], state, S_SECOND, coll)
     nx = coll[pj.OUT_NX]
     ny = coll[pj.OUT_NY]
     nz = coll[pj.OUT_NZ]
@@ -160,7 +178,7 @@ def model_tick_kernel(proj,                                              # Proje
     target_depth = coll[pj.OUT_DEPTH]
     md_st, a, load, depth, coupled = coupled_depth_kernel(
         target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
-        friction[F_ZERO_LOAD], md_args[0], md_args[1], md_args[2], md_args[3], md_args[4], md_args[5])
+        friction[F_ZERO_LOAD], md[0], md[1], md[2], md[3], md[4], md[5])
     lift = target_depth - depth  # the tip sits this far out along n from the target
     tx = cx + lift * nx
     ty = cy + lift * ny
@@ -184,7 +202,10 @@ def model_tick_kernel(proj,                                              # Proje
     # dent the live net (restores the previous patch first)
     if deform:
         r_dent = tip_radius if md_st == MD_CONTACT else 0.0
-        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, patch)
+        zone = md_zone_radius(a, depth, md[0], md[1], md[3])
+        p0 = int(md_args[H_PROFILE])
+        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth, zone,
+                                     md_args[p0:p0 + PROFILE_SIZE], patch)
     # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     fx = load * nx
     fy = load * ny
@@ -319,6 +340,10 @@ class ARModel:
         (:mod:`arsurf.contact.proxy`); ``inf`` (default): the tip is the target.
     deform : bool
         Dent the surface (False: only compute contacts and forces).
+    material : MaterialMap, optional
+        Per-location E* and w (:mod:`arsurf.contact.material_map`); ``contact`` is then the
+        reference law (:meth:`~arsurf.contact.material_map.MaterialMap.contact_law`: same tip
+        radius and Dugdale range). A uniform map gives exactly the model without one.
 
     Examples
     --------
@@ -335,7 +360,7 @@ class ARModel:
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, contact: MaugisDugdale,
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
-                 static_friction: float | None = None, coupling_stiffness: float = math.inf):
+                 static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -376,10 +401,12 @@ class ARModel:
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
         self._proj_args = proj.kernel_args()
-        self._md_args = np.array(contact.kernel_args, dtype=np.float64)
         self._dec = decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL)
         self._friction = np.array([static, friction, fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
                                    coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
+        self.material = material
+        # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
+        self._md_args = contact_vector(material, contact, self._friction.size, PROFILE_SIZE)
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.empty(S_SIZE)
         self._clear_state()

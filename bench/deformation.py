@@ -14,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import emit, stats, time_calls  # noqa: E402
 
 from arsurf.contact.deformation import Deformer, deform_kernel  # noqa: E402
+from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.spline.surface import BSplineSurface  # noqa: E402
 
 H = 4e-9
@@ -40,12 +41,17 @@ def main() -> None:
     for R in (5e-9, 20e-9, 50e-9):
         d = Deformer(s)
         ctrl, rest, ku, kv = s.kernel_arrays()
-        a = 0.6 * R
+        # a Maugis-Dugdale contact 0.1 R deep (lambda ~ 1): contact zone and elastic surface around it
+        md = MaugisDugdale(R, 10e9, 0.1)
+        depth = 0.1 * R
+        st = md.contact_state(depth=depth)
+        a, zone = st.radius, st.cohesive_radius
         state = {"x": 400e-9}
 
         def tick_kernel():
             state["x"] += 0.1e-9
-            deform_kernel(ctrl, rest, ku, kv, state["x"], 500e-9, 0.9 * R, R, 0.0, 0.0, 1.0, a, d.patch)
+            deform_kernel(ctrl, rest, ku, kv, state["x"], 500e-9, 0.9 * R, R, 0.0, 0.0, 1.0, a, depth, zone, d.profile,
+                          d.patch)
 
         def tick_numpy():
             state["x"] += 0.1e-9

@@ -25,6 +25,28 @@ def real_scans_dir() -> Path:
     return REAL_SCANS
 
 
+def write_qnm_npz(path, height, modulus, adhesion, pixel: float) -> Path:
+    """A PeakForce-QNM-like .npz (Height, DMTModulus, Adhesion arrays on one grid of ``pixel``
+    metres): it states the spacing and that heights are in metres, not the mechanical channels'
+    units (pass them as ``units``)."""
+    import json
+
+    np.savez(path, Height=height, DMTModulus=modulus, Adhesion=adhesion,
+             arsurf_meta=np.array(json.dumps({"dx": pixel, "dy": pixel, "z_unit": "m"})))
+    return Path(path)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261121)
+
+
+@pytest.fixture(scope="module")
+def gl():
+    """An OpenGL context for the viewer's rendering tests (skipped, saying why, without one)."""
+    from arsurf_viewer.backend import probe
+
+    result = probe()
+    if not result.ok:
+        pytest.skip(f"no OpenGL context can be made here: {result.detail}")
+    return result

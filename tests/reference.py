@@ -11,7 +11,12 @@ finder, an explicit matrix solve. The fast code is checked against them on rando
   :func:`ref_radius_from_depth`, :func:`ref_radius_from_load`);
 * decoupling: the DESIGN.md 3 x 3 system written literally and solved with ``numpy.linalg.solve``
   (:func:`reference_decouple`);
-* the model tick: the four references chained (:func:`reference_model_tick`).
+* the model tick: the four references chained (:func:`reference_model_tick`);
+* the surface around a contact: Boussinesq's point-load solution summed over rings of Maugis'
+  traction (Hertz pressure plus Dugdale stress) by adaptive quadrature
+  (:func:`ref_surface_displacement`, :func:`ref_md_traction`);
+* a model's indentation at a given load: plain bisection on the tip height, a fresh tip each
+  time (:func:`ref_tick_at_load`).
 """
 from __future__ import annotations
 
@@ -275,3 +280,60 @@ def reference_model_tick(surface, center, tip_radius, effective_modulus, work_of
                 else np.full(3, np.nan))
     return {"point": s, "normal": n, "depth": depth, "radius": radius, "load": load, "force": force,
             "bending": bending, "torsion": torsion, "measured": measured}
+
+
+# ---------------------------------------------------------------------------------------------
+# the elastic surface around a Maugis-Dugdale contact
+
+
+def ref_md_traction(t, a, c, tip_radius, effective_modulus, sigma0):
+    """Maugis' normal traction (Pa, compressive > 0) at radius t: the Hertz pressure of radius a,
+    (2E*/pi R) sqrt(a^2 - t^2), plus the Dugdale stress, -(sigma0/pi) arccos((2a^2 - c^2 - t^2)/(c^2 - t^2))
+    inside a and -sigma0 on a < t < c (Maugis 1992, as printed)."""
+    p = 0.0
+    if t < a:
+        p += 2.0 * effective_modulus / (math.pi * tip_radius) * math.sqrt(a * a - t * t)
+        if c > a:
+            p -= sigma0 / math.pi * math.acos(min(max((2 * a * a - c * c - t * t) / (c * c - t * t), -1.0), 1.0))
+    elif t < c:
+        p -= sigma0
+    return p
+
+
+def ref_surface_displacement(rho, a, c, tip_radius, effective_modulus, sigma0):
+    """Normal surface displacement (m, into the body) at radius rho under :func:`ref_md_traction`.
+
+    Boussinesq: a point load P displaces the surface by P / (pi E* r); a ring of radius t carrying
+    p(t) t dt dphi gives, integrated over phi, (4 / pi E*) p(t) t K(m) / (rho + t) dt with
+    m = 4 rho t / (rho + t)^2 (scipy's parameter convention). The log singularity at t = rho is
+    handed to quad as a break point."""
+    from scipy.integrate import quad
+    from scipy.special import ellipkm1
+
+    def ring(t):
+        if t == rho or rho + t == 0.0:
+            return 0.0
+        p = ((rho - t) / (rho + t)) ** 2      # 1 - m, accurate next to t = rho: K(m) = ellipkm1(p)
+        return ref_md_traction(t, a, c, tip_radius, effective_modulus, sigma0) * t * ellipkm1(p) / (rho + t)
+
+    breaks = sorted({x for x in (rho, a, c) if 0.0 < x < c})
+    total = 0.0
+    edges = [0.0, *breaks, c]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        if hi > lo:
+            total += quad(ring, lo, hi, limit=400, epsabs=0.0, epsrel=1e-11)[0]
+    return 4.0 / (math.pi * effective_modulus) * total
+
+
+def ref_tick_at_load(model, x, y, z0, load, lo=-2e-9, hi=8e-9, iterations=80):
+    """The tick of a fresh tip (``model.reset()`` before each try, so approaching) at (x, y) whose
+    height z0 - d carries ``load`` (N), by bisection on d in [lo, hi] (m)."""
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        model.reset()
+        if model.step((x, y, z0 - mid)).load < load:
+            lo = mid
+        else:
+            hi = mid
+    model.reset()
+    return model.step((x, y, z0 - 0.5 * (lo + hi)))

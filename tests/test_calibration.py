@@ -60,8 +60,18 @@ def test_seed000_lateral_sensitivity():
     assert lateral_sensitivity_from_vertical(706e-9, l_c, model="chord") == pytest.approx(0.00565, rel=1e-12)
     kv = vertical_sensitivity_from_steps(STEPS, JUMPS).value
     assert lateral_sensitivity_from_vertical(kv, l_c, model="chord") == pytest.approx(0.00565, rel=0.01)
-    # the end-load slope of the calibrated deflection is 3/2 of the chord
+    # the end-load slope of the calibrated deflection is 3/2 of the chord (the default: 0.00848 rad/V)
     assert lateral_sensitivity_from_vertical(706e-9, l_c) == pytest.approx(1.5 * 0.00565, rel=1e-12)
+
+
+def test_the_default_lateral_sensitivity_is_the_photodiodes_bending_sensitivity():
+    """Why k_h defaults to the end-load slope, not seed 000's chord: torsion and bending share
+    one angular sensitivity (the seed's premise), and the bending one arsurf reads from the same
+    deflection sensitivity is the end slope."""
+    from arsurf.force.photodiode import Photodiode
+
+    pd = Photodiode.from_deflection_sensitivity(706e-9, 125e-6)
+    assert lateral_sensitivity_from_vertical(706e-9, 125e-6) == pytest.approx(pd.vertical_sensitivity, rel=1e-15)
 
 
 # ---- approach curve --------------------------------------------------------------------------------

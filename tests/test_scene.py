@@ -439,3 +439,31 @@ def test_a_nan_tip_in_the_fast_path_does_nothing():
     scene = TubeScene([Nanotube(L, D)])
     f = scene.tick(np.zeros(3), np.array([np.nan, 0.0, 0.0]), R)
     assert (f == 0).all() and (scene.poses == [[0.0, 0.0, 0.0]]).all()
+
+
+def test_seed000_fig10_configuration_end_pushes_stay_in_its_0_30_nN():
+    """Seed 000 Fig. 10 (0-30 nN lateral force) is the first push of the "Z" strategy: the tip at a
+    tube end, moving across the axis. There the resistance is f L (sqrt 2 - 1): for the demo's
+    tubes (0.33 and 0.52 um) 14-22 nN at f = 0.1 N/m, inside the figure's range. The 32-52 nN of
+    the same tubes is f L, a push at the middle (pure translation) or along the axis: another
+    configuration, which Fig. 10 does not show (the seed gives neither f nor the tube length)."""
+    from arsurf.data import bundled_scan
+    from arsurf.scan.io import load_scan
+
+    scene = TubeScene.from_scan(load_scan(bundled_scan("nanotubes")))
+    lengths = sorted(t.length for t in scene.initial)
+    assert 0.32e-6 < lengths[0] and lengths[-1] < 0.53e-6
+    for tube in scene.initial:
+        u = tube.direction
+        nrm = np.array([-u[1], u[0]])
+        end = tube.point_at(tube.length)[:2]
+        reach = (R + tube.radius) * (1 - CONTACT_ALLOWANCE)
+        start = np.r_[end - (reach + 1e-9) * nrm, tube.axis_height]
+        one = TubeScene([tube])
+        step = one.step(start, start + np.r_[3e-9 * nrm, 0.0], R)
+        assert step.touched[0]
+        fh = math.hypot(*step.force[:2])
+        expected = F_LEN * tube.length * (math.sqrt(2.0) - 1.0)
+        assert fh == pytest.approx(expected, rel=0.02)          # the tip just past the very end
+        assert 10e-9 < fh < 30e-9
+        assert F_LEN * tube.length > 30e-9                       # a middle push: beyond Fig. 10's range

@@ -139,16 +139,6 @@ def test_backend_choice_errors_name_the_way_out(monkeypatch):
 
 
 # -- rendering -------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def gl():
-    from arsurf_viewer.backend import probe
-
-    result = probe()
-    if not result.ok:
-        pytest.skip(f"no OpenGL context can be made here: {result.detail}")
-    return result
-
-
 def make_view(surface, **kw):
     from arsurf_viewer import SurfaceView
 

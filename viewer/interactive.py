@@ -130,7 +130,8 @@ class StylusController:
             layer = _LAYER_KEYS[int(key) - 1]
             return f"{layer} {'on' if self.view.toggle_layer(layer) else 'off'}"
         if key == "c":
-            self.view.set_color_by("deformation" if self.view.color_by == "height" else "height")
+            modes = self.view.color_modes
+            self.view.set_color_by(modes[(modes.index(self.view.color_by) + 1) % len(modes)])
             return f"colour by {self.view.color_by}"
         if key == "v":
             self.view.set_camera("top" if self.view.camera_mode == "oblique" else "oblique")
@@ -155,20 +156,29 @@ class ContactPhysics:
         Nano-objects pushed by the tip (:class:`arsurf.manipulation.scene.TubeScene`): each call
         pushes them with the tip moving from the previous call's centre to this one, adds their
         force to the shown force and draws them at their poses; ``release`` puts them back.
+    material : MaterialMap, optional
+        The sample's material map (:mod:`arsurf.contact.material_map`): E* and w where the tip
+        touches, instead of the two materials.
     """
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, *, tip_material="Si",
-                 sample_material="polystyrene", deform: bool = True, scene=None):
+                 sample_material="polystyrene", deform: bool = True, scene=None, material=None):
         from arsurf.assembly import make_model
         from arsurf.contact.materials import effective_modulus, work_of_adhesion
 
         self.surface = surface
         self.tip_radius = float(tip_radius)
-        self.model = make_model(surface, tip_radius=self.tip_radius,
-                                effective_modulus=effective_modulus(tip_material, sample_material),
-                                work_of_adhesion=work_of_adhesion(tip_material, sample_material), deform=deform)
+        if material is None:
+            e, w, s0 = effective_modulus(tip_material, sample_material), work_of_adhesion(tip_material,
+                                                                                           sample_material), None
+            self.status = f"keyboard · {tip_material} on {sample_material}"
+        else:
+            law = material.contact_law()
+            e, w, s0 = law.effective_modulus, law.work_of_adhesion, law.dugdale_stress
+            self.status = f"keyboard · material map {material.sha256[:8]}"
+        self.model = make_model(surface, tip_radius=self.tip_radius, effective_modulus=e, work_of_adhesion=w,
+                                dugdale_stress=s0, deform=deform, material=material)
         self.contact = self.model.contact
-        self.status = f"keyboard · {tip_material} on {sample_material}"
         if scene is not None and not (callable(getattr(scene, "tick", None)) and hasattr(scene, "viewer_tubes")):
             raise ViewerError(f"`scene` must be an arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")
         self.scene = scene
@@ -355,7 +365,8 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
         (:meth:`arsurf.manipulation.scene.TubeScene.from_scan`): the surface is fitted to the
         substrate (tube pixels inpainted) and the tip pushes the tubes live.
     kwargs
-        Passed to :func:`run_interactive`.
+        Passed to :func:`run_interactive` (and a ``material`` map to the physics too: the tip
+        feels the map's E* and w, the view colours by it).
     """
     import arsurf
 
@@ -372,6 +383,7 @@ def view_scan(scan, *, tip_radius: float = 20e-9, level_method: str | None = "pl
         scene = TubeScene.from_scan(scan)
         scan = scene.substrate(scan)
     surface = arsurf.fit_surface(scan, control_shape=control_shape, smoothing=smoothing)
-    if scene is not None and kwargs.get("physics") is None:
-        kwargs["physics"] = ContactPhysics(surface, tip_radius, scene=scene)
+    material = kwargs.get("material")
+    if (scene is not None or material is not None) and kwargs.get("physics") is None:
+        kwargs["physics"] = ContactPhysics(surface, tip_radius, scene=scene, material=material)
     return run_interactive(surface, tip_radius=tip_radius, **kwargs)

@@ -77,7 +77,16 @@ COLORS = {
     "background": "#202124",
     "background_top": "#4a4c50",
 }
-_SURFACE_CMAPS = {"height": "afmhot", "deformation": "YlOrBr"}
+_SURFACE_CMAPS = {"height": "afmhot", "deformation": "YlOrBr", "modulus": "viridis", "adhesion": "plasma",
+                  "sample_deformation": "cividis", "dissipation": "inferno"}
+#: colour modes read from a material map (arsurf.contact.material_map): field, and the unit shown
+#: for each unit the field may have (scale to the shown unit, title); a log colour scale for E*
+_MATERIAL_MODES = {
+    "modulus": ("reduced_modulus", {"Pa": (1e-9, "E* (GPa)")}, True),
+    "adhesion": ("work_of_adhesion", {"J/m^2": (1e3, "w (mJ/m^2)")}, False),
+    "sample_deformation": ("deformation", {"m": (1e9, "deformation (nm)")}, False),
+    "dissipation": ("dissipation", {"J": (1.0 / 1.602176634e-19, "dissipation (eV)")}, False),
+}
 
 
 def _check_resolution(resolution) -> tuple[int, int]:
@@ -154,7 +163,12 @@ class SurfaceView:
         The surface to show (the same object the loop deforms).
     resolution : int or (nu, nv)
         Samples of S(u, v) along u and v (default 128 per axis, capped by 4 per control point).
-    color_by : {"height", "deformation"}
+    color_by : {"height", "deformation", "modulus", "adhesion", "sample_deformation", "dissipation"}
+        The last four need ``material``: E* (GPa, log scale), w (mJ/m^2), and the instrument's
+        deformation and dissipation maps where measured (in their unit: nm, eV, or the channel's
+        own when the file leaves it uncalibrated), each with its colour bar.
+    material : MaterialMap, optional
+        The sample's material map (:mod:`arsurf.contact.material_map`), in the surface's frame.
     off_screen : bool, optional
         Render without a window; default: True when there is no display.
     window_size : (width, height) pixels
@@ -176,7 +190,7 @@ class SurfaceView:
         "ssaa" for the best still pictures.
     """
 
-    def __init__(self, surface: BSplineSurface, *, resolution=128, color_by: str = "height",
+    def __init__(self, surface: BSplineSurface, *, resolution=128, color_by: str = "height", material=None,
                  off_screen: bool | None = None, window_size=(960, 720), camera: str = "oblique",
                  tip_opacity: float = 0.55, force_scale: float = 1e-9, force_threshold: float = 1e-12,
                  probe_height: float | None = None, layers: dict | None = None, anti_aliasing: str | None = "auto",
@@ -197,6 +211,9 @@ class SurfaceView:
         w, h = (int(v) for v in window_size)
         if w < 16 or h < 16:
             raise ViewerError(f"`window_size` must be at least 16 x 16 pixels (got {window_size!r})")
+        self.material = material
+        if color_by in _MATERIAL_MODES:
+            self._material_field(color_by)  # refuse now, before any window opens
         self._requested_resolution = _check_resolution(resolution)
         self.backend = choose_backend()
         pv = require("pyvista", "viewer", "the 3D viewer")
@@ -264,6 +281,19 @@ class SurfaceView:
         self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
         self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
         self._resample(0, nu, 0, nv)
+        self._material_clim = {}
+        if self.material is not None:  # the material fields on the rest grid (they move with the surface)
+            for mode, (name, units, log) in _MATERIAL_MODES.items():
+                if name not in self.material.fields:
+                    continue
+                scale, _ = self._material_unit(mode)
+                vals = np.asarray(self.material.values(name, uu, vv), dtype=np.float64) * scale
+                grid.point_data[mode] = vals.ravel()
+                lo, hi = (float(vals.min()), float(vals.max())) if log else (
+                    float(np.percentile(vals, 1.0)), float(np.percentile(vals, 99.0)))
+                if not hi > lo:
+                    lo, hi = lo - 0.5 * abs(lo) - 1e-12, hi + 0.5 * abs(hi) + 1e-12
+                self._material_clim[mode] = (lo, hi)
         zr = self._rest_points[..., 2]
         lo, hi = float(zr.min()), float(zr.max())
         if hi - lo < 1e-3:
@@ -383,22 +413,63 @@ class SurfaceView:
         self.set_layer(name, not self._layers[name])
         return self._layers[name]
 
+    @property
+    def color_modes(self) -> list[str]:
+        """The colourings this view offers: height, deformation and the material map's fields."""
+        fields = self.material.fields if self.material is not None else {}
+        return ["height", "deformation"] + [m for m, (name, _, _) in _MATERIAL_MODES.items() if name in fields]
+
+    def _material_field(self, mode: str):
+        """The material map's field behind a colour mode (refused without a map or the field)."""
+        name = _MATERIAL_MODES[mode][0]
+        if self.material is None:
+            raise ViewerError(f"colouring by {mode} needs the sample's material map: SurfaceView(..., material=map) "
+                              "(arsurf.contact.material_map)")
+        if name not in self.material.fields:
+            raise ViewerError(f"this material map has no {name} field (the file has no such channel); it has "
+                              f"{sorted(self.material.fields)}")
+        return self.material.fields[name]
+
+    def _material_unit(self, mode: str) -> tuple[float, str]:
+        """(scale to the shown unit, colour bar title) of a material mode."""
+        field = self._material_field(mode)
+        shown = _MATERIAL_MODES[mode][1].get(field.unit)
+        if shown is None:  # a viewer map the file left uncalibrated: its own unit
+            return 1.0, f"{mode.replace('_', ' ')} ({field.unit})"
+        return shown
+
     def set_color_by(self, mode: str) -> None:
-        """Colour the surface by ``"height"`` (nm) or ``"deformation"`` (:math:`|S - S_{rest}|`, nm)."""
+        """Colour the surface by ``"height"`` (nm), ``"deformation"`` (|S - S_rest|, nm), or a
+        field of the material map: ``"modulus"`` (E*, GPa, log scale), ``"adhesion"`` (w, mJ/m^2),
+        ``"sample_deformation"``, ``"dissipation"`` (the instrument's maps, in their unit)."""
         if mode not in _SURFACE_CMAPS:
             raise ViewerError(f"`color_by` must be one of {sorted(_SURFACE_CMAPS)} (got {mode!r})")
+        if mode in _MATERIAL_MODES:
+            self._material_field(mode)
         self.color_by = mode
-        name = "height_nm" if mode == "height" else "deformation_nm"
+        name = {"height": "height_nm", "deformation": "deformation_nm"}.get(mode, mode)
         self.grid.point_data.active_scalars_name = name
         self._mapper.SetScalarModeToUsePointFieldData()
         self._mapper.SelectColorArray(name)
-        self._mapper.lookup_table.cmap = _SURFACE_CMAPS[mode]
-        self.scalar_bar.SetTitle("z (nm)" if mode == "height" else "dent (nm)")
-        self._update_clim()
+        lut = self._mapper.lookup_table
+        lut.cmap = _SURFACE_CMAPS[mode]
+        log = bool(mode in _MATERIAL_MODES and _MATERIAL_MODES[mode][2])
+        if not log:
+            lut.log_scale = False
+        self._update_clim()  # a positive range before a log scale is switched on
+        lut.log_scale = log
+        if mode in _MATERIAL_MODES:
+            title = self._material_unit(mode)[1]
+        else:
+            title = "z (nm)" if mode == "height" else "dent (nm)"
+        self.scalar_bar.SetTitle(title)
+        self.scalar_bar.SetLabelFormat("%.3g" if mode in _MATERIAL_MODES else "%.1f")
 
     def _update_clim(self) -> None:
         if self.color_by == "height":
             self._mapper.scalar_range = self._height_clim
+        elif self.color_by in _MATERIAL_MODES:
+            self._mapper.scalar_range = self._material_clim[self.color_by]
         else:
             self._mapper.scalar_range = (0.0, max(float(self._deform.max()), 0.5))
 

@@ -7,22 +7,65 @@ radius (Maugis-Dugdale), a control point P at rest position P₀ has the axial a
 
 .. math:: s = (P_0 - C)\cdot n, \qquad \mathbf r = (P_0 - C) - s\,n, \qquad ρ = |\mathbf r|.
 
-It is moved onto the sample-side cap of the tip sphere,
+**Inside the contact** (ρ < a: pressed in on approach, held up by adhesion on retraction - the
+neck) it is moved onto the sample-side cap of the tip sphere,
 
-.. math:: P = C + \mathbf r - \sqrt{R^2 - ρ^2}\; n,
+.. math:: P = C + \mathbf r - \sqrt{R^2 - ρ^2}\; n
 
-when ρ < a (the adhered contact zone: pressed in on approach, held up by adhesion on
-retraction - the neck), or when ρ < R and P₀ lies inside the sphere (no interpenetration: this
-happens only where a is smaller than the geometric intersection radius, e.g. Hertz, where
-a² = Rδ < 2Rδ). Every other control point keeps its rest position **bitwise**.
+(for a contact wider than 0.9 R, far beyond the small-strain theory, where the sphere turns
+vertical, the contact zone follows the contact's own paraboloid, :math:`u = δ - ρ^2/2R`).
 
-Only the index box of control points whose rest (x, y) lies within R (+ one knot spacing) of the
-tip axis' foot can move: the kernel restores the previous box from the rest net and writes the
-new one, so a tick costs O((2R/h)²) whatever the scan size. :meth:`Deformer.release` puts the
-box back to rest; ``surface.reset()`` restores everything.
+**Outside the contact** (ρ ≥ a) the surface is not on the sphere: it follows the elastic
+half-space under the Maugis-Dugdale tractions, moved along -n by the normal displacement
+u(ρ) (positive into the sample; Johnson 1985 Eq. 3.42 for the Hertz part, Maugis 1992 for the
+Dugdale zone). The tractions are a Hertz pressure of radius a plus the Dugdale stress written as
+a superposition of flat punches, :math:`G_D(t) = -\tfrac{2σ_0}{π}\,t/\sqrt{c^2-t^2}` on a < t < c
+(its Abel transform is exactly Maugis' :math:`-\tfrac{σ_0}{π}\arccos\frac{2a^2-c^2-r^2}{c^2-r^2}`
+inside a and :math:`-σ_0` on the annulus); a flat punch of radius t displaces the surface by
+π/E* inside t and :math:`\tfrac{2}{E^*}\arcsin(t/ρ)` outside. With
+:math:`δ_D = δ - a^2/R \le 0` (the adhesive part of the depth, :math:`-2σ_0\sqrt{c^2-a^2}/E^*`):
+
+.. math::
+
+    u(ρ) = \frac{1}{πR}\Big[(2a^2 - ρ^2)\arcsin\frac aρ + a\sqrt{ρ^2 - a^2}\Big]
+         + \frac{2δ_D}{π}\Big[\arcsin\frac aρ + \frac{J(ρ)}{\sqrt{c^2-a^2}}\Big],
+    \qquad J(ρ) = \int_a^{\min(ρ, c)} \sqrt{\frac{c^2 - t^2}{ρ^2 - t^2}}\,dt .
+
+It meets the contact's paraboloid at ρ = a (u(a) = δ - a²/2R), gives the
+gap :math:`h_0` at ρ = c (Maugis' condition, tested), and decays as 1/ρ (a point load). For Hertz
+(c = a, δ = a²/R) only the first term is left, and the surface meets the tip exactly on the
+circle ρ = a: the dent's rim is the contact radius, not the geometric overlap √(2Rδ) (the
+points between a and √(2Rδ) lie *below* the tip, where the elastic surface is). J is a smooth
+integral after t = ρ - v² (ρ ≤ c) or t = c - v² (ρ > c): Gauss-Legendre
+(:func:`elastic_displacement`, checked against Boussinesq's solution summed over Maugis'
+tractions).
+
+In the tick both bracketed shapes are read from tables built once at import (the Hertz shape
+on q = a/ρ, the zone's on (a/c, √((ρ - a)/(c - a))) inside the zone and (a/c, c/ρ) beyond it),
+the profile is tabulated at :data:`PROFILE_SIZE` radii uniform in :math:`\sqrt{ρ^2 - a^2}`
+(dense at the rim, where an adhesive neck is steep), and each control point reads it by linear
+interpolation: a few flops and one square root per point. The paraboloid lies below the
+sphere at the rim by :math:`R - \sqrt{R^2-a^2} - a^2/2R` (~a⁴/8R³): the net is lifted by that
+much at ρ = a, the lift fading out by 1.5 a, so the dent is continuous where it leaves the tip
+(:func:`dent_displacement`, what the dent draws). The tables cost at most ~0.5 % of
+the depth, at the edge of the Dugdale zone where the profile has a logarithmic kink (tested to
+1 %). The elastic surface is drawn out to 3a, its 1/ρ tail faded to zero (raised cosine) over
+[1.5a, 3a], so the dent stays local (on a flat sample the rest surface is already below the
+tip beyond 1.5a, Hertz included, so the fade never leaves a point inside it). Out to R, a rest
+point still inside the sphere (a rough patch under the tip, which the half-space solution does
+not know) is put on the sphere. Every other control point keeps its rest position **bitwise**.
+
+Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
+(+ one knot spacing) of the tip axis' foot can move: the kernel restores the previous box from
+the rest net and writes the new one, so a tick costs O((2 r_b/h)²) whatever the scan size.
+:meth:`Deformer.release` puts the box back to rest; ``surface.reset()`` restores everything.
 
 The rest net must be a height-field net on the Greville abscissae (what
 :func:`arsurf.fit_surface` builds), so the index box is found in O(1) from the knot spacing.
+
+Sources: seed 002 (the dent); K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.42 (Hertz
+displacement outside the contact) and §3.8 (flat punch); D. Maugis, J. Colloid Interface Sci.
+150, 243 (1992) (the Dugdale zone).
 """
 from __future__ import annotations
 
@@ -39,6 +82,19 @@ from arsurf.spline.surface import BSplineSurface
 DEFORM_OK = 0
 DEFORM_NO_PATCH = 1  # the tip is outside the net's footprint: nothing to move
 
+#: radii of the per-tick profile table (uniform in sqrt(rho^2 - a^2)): the scratch array's length
+PROFILE_SIZE = 32
+#: the contact zone is put on the sphere up to a = SPHERE_LIMIT R; a wider contact (far beyond
+#: small strain, where the sphere turns vertical) follows the contact's own paraboloid
+SPHERE_LIMIT = 0.9
+#: the net meets the sphere at the rim to within this many a^2/R (0.2 % of the Hertz depth): the
+#: profile table's chord next to the rim (at most a^2/960R) stays below the tip
+RIM_MARGIN = 2e-3
+#: the elastic surface reaches PATCH_PER_CONTACT * a, its tail faded over the outer half; the
+#: patch is max(R, that): points inside the tip are put on it out to R
+PATCH_PER_CONTACT = 3.0
+_GAUSS = np.polynomial.legendre.leggauss(48)
+
 
 @njit(cache=True, inline="always")
 def _index_range(lo, hi, u0, h, n):
@@ -52,12 +108,185 @@ def _index_range(lo, hi, u0, h, n):
     return i0, i1
 
 
+def _hertz_shape(q):
+    """f(q) = (2 - 1/q^2) arcsin q + sqrt(1/q^2 - 1), q = a/rho in (0, 1]; the series
+    4q/3 + 2q^3/15 + 3q^5/70 below q = 0.02 (no cancellation)."""
+    q = np.asarray(q, dtype=np.float64)
+    qs = np.maximum(q, 0.02)
+    exact = (2.0 - 1.0 / qs ** 2) * np.arcsin(np.minimum(qs, 1.0)) + np.sqrt(np.maximum(1.0 / qs ** 2 - 1.0, 0.0))
+    q2 = q * q
+    return np.where(q < 0.02, q * (4.0 / 3.0 + q2 * (2.0 / 15.0 + q2 * 3.0 / 70.0)), exact)
+
+
+def _zone_shape(x, m):
+    """G = arcsin(1/x) + J/sqrt(m^2 - 1) at x = rho/a >= 1 for a Dugdale zone m = c/a > 1 (a = 1):
+    J = int_1^min(x, m) sqrt((m^2 - t^2)/(x^2 - t^2)) dt, by 48-point Gauss-Legendre after
+    t = x - v^2 (x <= m: the integrand becomes 2 sqrt(m^2 - t^2)/sqrt(x + t)) or t = m - v^2 (x > m:
+    2 v^2 sqrt(m + t)/sqrt(x^2 - t^2)); both smooth, no trigonometry. Broadcasts."""
+    x, m = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(m, dtype=np.float64))
+    gx, gw = _GAUSS
+    inside = x <= m
+    top = np.sqrt(np.where(inside, x, m) - 1.0)          # v runs over [0, top]
+    v = 0.5 * top[..., None] * (gx + 1.0)
+    t = np.where(inside, x, m)[..., None] - v * v
+    xx, mm = x[..., None], m[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_in = 2.0 * np.sqrt(np.maximum((mm - t) * (mm + t), 0.0)) / np.sqrt(xx + t)
+        f_out = 2.0 * v * v * np.sqrt(mm + t) / np.sqrt(np.maximum((xx - t) * (xx + t), 1e-300))
+    j = 0.5 * top * np.sum(gw * np.where(inside[..., None], f_in, f_out), axis=-1)
+    return np.arcsin(1.0 / x) + j / np.sqrt((m - 1.0) * (m + 1.0))
+
+
+def elastic_displacement(rho, a, tip_radius, depth, zone_radius):
+    """Normal displacement u (m, into the sample) of the surface at ρ >= a outside a contact.
+
+    ``a`` contact radius, ``tip_radius`` R, ``depth`` δ, ``zone_radius`` c >= a (Dugdale zone;
+    c = a and δ = a²/R is Hertz), all metres; ``rho`` a float or an array. The equation is in
+    the module docstring (quadrature to ~1e-12; the compiled dent reads tables of it). For ρ < a
+    it returns u(a); δ above a²/R (no adhesive part) is taken as a²/R.
+
+    Examples
+    --------
+    >>> R, a = 20e-9, 4e-9
+    >>> round(elastic_displacement(a, a, R, a * a / R, a) / (a * a / (2 * R)), 12)   # Hertz: u(a) = a^2/2R
+    1.0
+    """
+    rho = np.maximum(np.asarray(rho, dtype=np.float64), a)
+    u = a * a / (math.pi * tip_radius) * _hertz_shape(a / rho)
+    d_adh = depth - a * a / tip_radius
+    if zone_radius > a and d_adh < 0.0:
+        u = u + 2.0 * d_adh / math.pi * _zone_shape(rho / a, zone_radius / a)
+    return u if np.ndim(u) else float(u)
+
+
+# tables of the shapes, read by the compiled dent (bilinear; built once at import, ~10 ms):
+# Hertz f(q) on q = a/rho; the zone shape G inside the zone on (mu = a/c, sqrt((rho - a)/(c - a)))
+# and outside it on (mu, c/rho), mu from 0 (c >> a) to 1 (c = a)
+_NQ, _NMU, _NR = 513, 97, 97
+_Q = np.linspace(0.0, 1.0, _NQ)
+_F_HERTZ = _hertz_shape(_Q)
+
+
+def _zone_tables():
+    mu = np.linspace(0.0, 1.0, _NMU)
+    mu[0] = 1e-8                      # c -> infinity: the limit (the elliptic integral E(rho/c)) to 1e-8
+    r = np.linspace(0.0, 1.0, _NR)
+    g_in = np.empty((_NMU, _NR))
+    g_out = np.zeros((_NMU, _NR))     # r = c/rho = 0: infinitely far, no displacement
+    m = 1.0 / mu[:-1, None]
+    g_in[:-1] = _zone_shape(1.0 + r[None, :] ** 2 * (m - 1.0), m)
+    g_out[:-1, 1:] = _zone_shape(m / r[None, 1:], m)
+    g_in[-1] = 0.5 * math.pi          # c -> a: the zone is a line; outside it a flat punch, arcsin(a/rho)
+    g_out[-1] = np.arcsin(r)
+    return g_in, g_out
+
+
+_G_IN, _G_OUT = _zone_tables()
+
+
+@njit(cache=True, inline="always")
+def _lerp2(table, x, y):
+    """Bilinear interpolation of table (n, k) over [0, 1] x [0, 1]."""
+    n, k = table.shape
+    fx = min(max(x, 0.0), 1.0) * (n - 1)
+    fy = min(max(y, 0.0), 1.0) * (k - 1)
+    i = min(int(fx), n - 2)
+    j = min(int(fy), k - 2)
+    fx -= i
+    fy -= j
+    return ((1.0 - fx) * ((1.0 - fy) * table[i, j] + fy * table[i, j + 1])
+            + fx * ((1.0 - fy) * table[i + 1, j] + fy * table[i + 1, j + 1]))
+
+
 @njit(cache=True)
-def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, patch):
+def _table_displacement(rho, a, tip_radius, d_adh, c):
+    """:func:`elastic_displacement` from the tables (rho >= a > 0)."""
+    q = a / rho
+    fq = q * (_NQ - 1)
+    i = min(int(fq), _NQ - 2)
+    fq -= i
+    u = a * a / (math.pi * tip_radius) * (_F_HERTZ[i] + fq * (_F_HERTZ[i + 1] - _F_HERTZ[i]))
+    if c <= a or d_adh >= 0.0:
+        return u
+    mu = a / c
+    if rho <= c:
+        g = _lerp2(_G_IN, mu, math.sqrt((rho - a) / (c - a)))
+    else:
+        g = _lerp2(_G_OUT, mu, c / rho)
+    return u + 2.0 * d_adh / math.pi * g
+
+
+@njit(cache=True, inline="always")
+def rim_lift(a, tip_radius):
+    """How far the net is lifted at the rim, m: the height of the tip sphere above the contact's
+    paraboloid there, :math:`R - \\sqrt{R^2 - a^2} - a^2/2R`, less :data:`RIM_MARGIN` a²/R (so that
+    the table's chord near the rim never puts a point inside the tip); 0 when the contact zone
+    follows the paraboloid (a > :data:`SPHERE_LIMIT` R)."""
+    if a <= 0.0 or a > SPHERE_LIMIT * tip_radius:
+        return 0.0
+    gap = tip_radius - math.sqrt((tip_radius - a) * (tip_radius + a)) - 0.5 * a * a / tip_radius
+    return max(gap - RIM_MARGIN * a * a / tip_radius, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _rim_fade(rho, a):
+    """1 at the rim, 0 from 1.5 a on (raised cosine)."""
+    x = (rho - a) / (0.5 * a)
+    return 0.0 if x >= 1.0 else 0.5 * (1.0 + math.cos(math.pi * max(x, 0.0)))
+
+
+@njit(cache=True)
+def _fill_profile(profile, a, tip_radius, depth, zone_radius, r_elastic):
+    """profile[k] = the dent's displacement at rho_k (:func:`dent_displacement`), rho_k^2 = a^2 +
+    w_k^2 with w_k uniform from 0 to sqrt(r_elastic^2 - a^2) (dense at the rim, where an adhesive
+    neck is steep)."""
+    n = profile.size
+    fade0 = 0.5 * r_elastic
+    w_max2 = r_elastic * r_elastic - a * a
+    d_adh = depth - a * a / tip_radius
+    lift = rim_lift(a, tip_radius)
+    for k in range(n):
+        f = k / (n - 1)
+        rho = math.sqrt(a * a + f * f * w_max2)
+        u = _table_displacement(rho, a, tip_radius, d_adh, zone_radius) - lift * _rim_fade(rho, a)
+        if rho > fade0:
+            u *= 0.5 * (1.0 + math.cos(math.pi * min((rho - fade0) / (r_elastic - fade0), 1.0)))
+        profile[k] = u
+
+
+def dent_displacement(rho, a, tip_radius, depth, zone_radius):
+    """What the dent does to a flat net at ρ >= a (m, into the sample): the elastic surface
+    (:func:`elastic_displacement`) lifted at the rim onto the tip sphere by :func:`rim_lift`,
+    the lift fading out by 1.5 a (raised cosine), and the tail faded over [1.5 a, 3 a]; the
+    compiled dent reads a table of it. Arrays of ρ broadcast.
+
+    Examples
+    --------
+    >>> R, a = 20e-9, 4e-9
+    >>> sphere = a * a / R - (R - (R * R - a * a) ** 0.5)   # how far the sphere is pushed in at rho = a
+    >>> round((dent_displacement(a, a, R, a * a / R, a) - sphere) / (a * a / R), 6)   # RIM_MARGIN
+    0.002
+    """
+    rho = np.asarray(rho, dtype=np.float64)
+    u = elastic_displacement(rho, a, tip_radius, depth, zone_radius)
+    x = np.clip((rho - a) / (0.5 * a), 0.0, 1.0)
+    u = u - rim_lift(a, tip_radius) * 0.5 * (1.0 + np.cos(np.pi * x))
+    r_el = PATCH_PER_CONTACT * a
+    y = np.clip((rho - 0.5 * r_el) / (0.5 * r_el), 0.0, 1.0)
+    u = np.where(rho > 0.5 * r_el, u * 0.5 * (1.0 + np.cos(np.pi * y)), u)
+    return u if np.ndim(u) else float(u)
+
+
+@njit(cache=True)
+def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
+                  profile, patch):
     """Restore ``patch`` (i0, i1, j0, j1) to rest, then dent the new patch; write it to ``patch``.
 
-    Returns the number of control points moved (>= 0). ``contact_radius`` <= 0 only pushes
-    points out of the sphere (no adhered zone); a ``radius`` <= 0 releases.
+    ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface outside the contact
+    (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a scratch array of
+    :data:`PROFILE_SIZE` floats. Returns the number of control points moved (>= 0).
+    ``contact_radius`` <= 0 only pushes points out of the sphere (no contact zone, no elastic
+    surface); a ``radius`` <= 0 releases.
     """
     # 1. restore the previous patch
     for i in range(patch[0], patch[1]):
@@ -67,16 +296,27 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     patch[0] = patch[1] = patch[2] = patch[3] = 0
     if radius <= 0.0:
         return 0
+    a = contact_radius if contact_radius > 0.0 else 0.0
+    r_elastic = PATCH_PER_CONTACT * a          # the elastic surface, faded over its outer half
+    r_box = max(radius, r_elastic)             # ... and the no-interpenetration guard out to R
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
     hu = (ku[nu] - ku[3]) / (nu - 3)
     hv = (kv[nv] - kv[3]) / (nv - 3)
-    i0, i1 = _index_range(cx - radius, cx + radius, ku[3], hu, nu)
-    j0, j1 = _index_range(cy - radius, cy + radius, kv[3], hv, nv)
+    i0, i1 = _index_range(cx - r_box, cx + r_box, ku[3], hu, nu)
+    j0, j1 = _index_range(cy - r_box, cy + r_box, kv[3], hv, nv)
     if i0 >= i1 or j0 >= j1:
         return 0
+    n_prof = profile.size
+    scale = 0.0
+    if a > 0.0:
+        _fill_profile(profile, a, radius, depth, zone_radius, r_elastic)
+        scale = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
     r2 = radius * radius
-    a2 = contact_radius * contact_radius if contact_radius > 0.0 else 0.0
+    rb2 = r_box * r_box
+    re2 = r_elastic * r_elastic
+    a2 = a * a
+    sphere = a <= SPHERE_LIMIT * radius
     moved = 0
     for i in range(i0, i1):
         for j in range(j0, j1):
@@ -88,15 +328,49 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             ry = py - s * ny
             rz = pz - s * nz
             rho2 = rx * rx + ry * ry + rz * rz
-            if rho2 >= r2:
+            if rho2 >= rb2:
                 continue
-            inside = px * px + py * py + pz * pz < r2
-            if rho2 < a2 or inside:
-                cap = -math.sqrt(r2 - rho2)
-                ctrl[i, j, 0] = cx + rx + cap * nx
-                ctrl[i, j, 1] = cy + ry + cap * ny
-                ctrl[i, j, 2] = cz + rz + cap * nz
+            if rho2 < a2:
+                if sphere:
+                    cap = -math.sqrt(r2 - rho2)
+                    ctrl[i, j, 0] = cx + rx + cap * nx
+                    ctrl[i, j, 1] = cy + ry + cap * ny
+                    ctrl[i, j, 2] = cz + rz + cap * nz
+                else:  # a > 0.9 R (far beyond small strain): the contact's own paraboloid
+                    u = depth - 0.5 * rho2 / radius
+                    ctrl[i, j, 0] = rest[i, j, 0] - u * nx
+                    ctrl[i, j, 1] = rest[i, j, 1] - u * ny
+                    ctrl[i, j, 2] = rest[i, j, 2] - u * nz
                 moved += 1
+                continue
+            qx = rest[i, j, 0]
+            qy = rest[i, j, 1]
+            qz = rest[i, j, 2]
+            if rho2 < re2:  # the elastic surface outside the contact
+                x = math.sqrt(rho2 - a2) * scale
+                k = int(x)
+                if k >= n_prof - 1:
+                    k = n_prof - 2
+                f = x - k
+                u = profile[k] + f * (profile[k + 1] - profile[k])
+                qx -= u * nx
+                qy -= u * ny
+                qz -= u * nz
+            elif px * px + py * py + pz * pz >= r2:
+                continue   # beyond the elastic surface and outside the tip: at rest, bitwise
+            if rho2 < r2:
+                dx = qx - cx
+                dy = qy - cy
+                dz = qz - cz
+                if dx * dx + dy * dy + dz * dz < r2:  # still inside the tip: onto the sphere
+                    cap = -math.sqrt(r2 - rho2)
+                    qx = cx + rx + cap * nx
+                    qy = cy + ry + cap * ny
+                    qz = cz + rz + cap * nz
+            ctrl[i, j, 0] = qx
+            ctrl[i, j, 1] = qy
+            ctrl[i, j, 2] = qz
+            moved += 1
     patch[0] = i0
     patch[1] = i1
     patch[2] = j0
@@ -142,8 +416,10 @@ class Deformer:
             )
         self.surface = surface
         self.patch = np.zeros(4, dtype=np.int64)
+        self.profile = np.zeros(PROFILE_SIZE)
 
-    def apply(self, center, radius: float, normal, contact_radius: float) -> DeformationResult:
+    def apply(self, center, radius: float, normal, contact_radius: float, *, depth: float | None = None,
+              zone_radius: float | None = None) -> DeformationResult:
         """Release the previous dent and press the tip sphere (centre, radius) into the net.
 
         Parameters
@@ -151,7 +427,11 @@ class Deformer:
         center : (3,) float, metres
         radius : float, metres (> 0)
         normal : (3,) float, unit contact normal out of the sample
-        contact_radius : float, metres (>= 0; 0 = no adhered zone)
+        contact_radius : float, metres (>= 0; 0 = no contact zone: only points inside the sphere move)
+        depth : float, metres, optional
+            Indentation δ of the contact (default a²/R: Hertz).
+        zone_radius : float, metres, optional
+            Outer radius c >= a of the Dugdale zone (default a: no adhesive zone).
         """
         c = np.asarray(center, dtype=np.float64).reshape(3)
         n = np.asarray(normal, dtype=np.float64).reshape(3)
@@ -163,13 +443,20 @@ class Deformer:
             raise ContactError(f"`radius` must be positive (got {radius!r} m); it is the tip radius in metres")
         if not (math.isfinite(contact_radius) and contact_radius >= 0.0):
             raise ContactError(f"`contact_radius` must be >= 0 (got {contact_radius!r} m)")
+        depth = contact_radius ** 2 / radius if depth is None else float(depth)
+        zone_radius = contact_radius if zone_radius is None else float(zone_radius)
+        if not math.isfinite(depth):
+            raise ContactError(f"`depth` must be finite (got {depth!r} m); it is the indentation of the contact")
+        if not (math.isfinite(zone_radius) and zone_radius >= contact_radius):
+            raise ContactError(f"`zone_radius` must be >= contact_radius ({contact_radius!r} m) (got {zone_radius!r} m); "
+                               "it is the outer radius of the Dugdale zone")
         norm = float(np.linalg.norm(n))
         if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-6):
             raise ContactError(f"`normal` must be a unit vector (got {n}, |n| = {norm:.6g})")
         before = self.patch.copy()
         ctrl, rest, ku, kv = self.surface.kernel_arrays()
         moved = deform_kernel(ctrl, rest, ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2],
-                              contact_radius, self.patch)
+                              contact_radius, depth, zone_radius, self.profile, self.patch)
         self._refresh(before)
         return DeformationResult(int(moved), tuple(int(p) for p in self.patch))
 
@@ -177,7 +464,7 @@ class Deformer:
         """Put the last dented patch back to its rest positions (bitwise)."""
         before = self.patch.copy()
         ctrl, rest, ku, kv = self.surface.kernel_arrays()
-        deform_kernel(ctrl, rest, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, self.patch)
+        deform_kernel(ctrl, rest, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, self.profile, self.patch)
         self._refresh(before)
 
     def _refresh(self, before: np.ndarray) -> None:

@@ -109,12 +109,14 @@ __all__ = [
     "MaugisDugdale",
     "md_contact_from_depth_kernel",
     "md_contact_hysteresis_kernel",
+    "md_critical_point_kernel",
     "md_curve",
     "md_load_from_depth_kernel",
     "md_radius_from_depth_kernel",
     "md_solve_depth",
     "md_solve_load",
     "md_zero_radius_limit",
+    "md_zone_radius",
 ]
 
 #: Maugis' transition: above it a retracting contact jumps out from a finite radius under
@@ -290,7 +292,10 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
     t_fold, delta_fold : float
         ln s and :math:`\\bar\\Delta` at the fold of :math:`\\bar\\Delta(A)` (:math:`\\lambda > \\lambda_t`);
         ``t_fold = inf`` and ``delta_fold`` = :math:`\\bar\\Delta_0` when there is none. Precomputed by
-        :class:`MaugisDugdale` (``kernel_args``).
+        :class:`MaugisDugdale` (``kernel_args``). ``t_fold = NaN`` with ``delta_fold`` =
+        :math:`\\bar\\Delta_0`: the fold exists but was not computed (a local contact law of a
+        material map); it is then found (:func:`md_critical_point_kernel`) only when
+        :math:`\\bar\\Delta \\le \\bar\\Delta_0` needs it.
 
     Returns
     -------
@@ -300,6 +305,16 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
     """
     if not math.isfinite(delta_bar):
         return STATUS_INVALID, 0.0, 0.0, 0.0
+    if math.isnan(t_fold):
+        # a contact law made on the fly (a material map, lambda > lambda_t): the fold is found only
+        # for a depth that needs it. delta_fold then holds Delta0 (the depth at a = 0), above the
+        # fold: on the unstable side past the fold Delta < Delta0, so for delta_bar > Delta0 the
+        # fold-free solve (bracket up to t = +inf, Delta0 as the branch's end) finds the same root
+        if delta_bar > delta_fold:
+            st, A, P, D, t = _branch_solve(delta_bar, lam, 0, math.inf, delta_fold, False)
+            s = math.exp(t)
+            return st, A, P, A * math.sqrt(1.0 + s * s)
+        t_fold, delta_fold = md_critical_point_kernel(lam, 0)
     has_fold = math.isfinite(t_fold)
     if delta_bar > delta_fold:
         st, A, P, D, t = _branch_solve(delta_bar, lam, 0, t_fold, delta_fold, has_fold)
@@ -471,32 +486,133 @@ def _radius_solve(a_bar, lam):
 # critical points (computed once per model)
 # ---------------------------------------------------------------------------------------------
 
+@njit(cache=True)
+def _slope(t, lam, which):
+    """d(value)/dt on the contact branch at t = ln s: depth (which 0) or load (which 1)."""
+    s = math.exp(t)
+    A, P, D, dA, dP, dD = md_curve(s, lam)
+    return (dD if which == 0 else dP) * s
+
+
+@njit(cache=True)
+def md_critical_point_kernel(lam, which):
+    """The minimum of the contact branch: the fold of :math:`\\bar\\Delta(A)` (``which`` 0) or the
+    pull-off point, minimum of :math:`\\bar P(A)` (``which`` 1); ``(t, value)`` with t = ln s.
+
+    The slope of the value along the branch is negative on the stable (large-radius) side and
+    positive past the minimum (module docstring, *Shape of the curve*). It is bracketed from a
+    first guess fitted to the curve (:math:`t \\approx \\max(-1.5\\ln\\lambda - 0.6,\\; 0.14 - \\ln\\lambda)`
+    for the pull-off, :math:`0.5 - \\ln\\lambda` for the fold), stepping out by steps growing from 0.25
+    to at most 1 (beyond the minimum the slope soon drowns in rounding: a longer step could land
+    there), and its root found by the Illinois false-position method to :math:`|\\Delta t| \\le 10^{-13}`: about 15
+    evaluations of :func:`md_curve` (~1 us), so it can run inside a tick.
+
+    Returns ``(inf, Delta0)`` for the depth when :math:`\\lambda \\le \\lambda_t` (no fold) or when the
+    fold lies beyond t = 40 (:math:`A < 10^{-13}`: a hair above the transition, the fold is at
+    a = 0); ``(nan, nan)`` if no pull-off point is found in t = [-40, 40] (never for
+    :math:`\\lambda \\in [10^{-6}, 10^6]`).
+
+    Examples
+    --------
+    >>> t, p = md_critical_point_kernel(1.0, 1)
+    >>> round(p, 6)        # the pull-off load in units of pi w R, between DMT (-2) and JKR (-1.5)
+    -1.600735
+    """
+    if which == 0 and lam <= LAMBDA_TRANSITION:
+        c0, d0, p0 = md_zero_radius_limit(lam)
+        return math.inf, d0
+    ln = math.log(lam)
+    if which == 0:
+        t = 0.5 - ln
+    else:
+        t = max(-1.5 * ln - 0.6, 0.14 - ln)
+    t = min(max(t, -40.0), 40.0)
+    g = _slope(t, lam, which)
+    step = 0.25
+    lo = hi = t
+    g_lo = g_hi = g
+    if g < 0.0:          # still on the stable side: the minimum lies at larger t
+        while True:
+            hi = min(lo + step, 40.0)
+            g_hi = _slope(hi, lam, which)
+            if g_hi >= 0.0:
+                break
+            if hi >= 40.0:
+                if which == 0:
+                    c0, d0, p0 = md_zero_radius_limit(lam)
+                    return math.inf, d0
+                return math.nan, math.nan
+            lo, g_lo = hi, g_hi
+            step = min(1.6 * step, 1.0)  # not past the far side, where the slope is rounding noise
+    else:
+        while True:
+            lo = max(hi - step, -40.0)
+            g_lo = _slope(lo, lam, which)
+            if g_lo < 0.0:
+                break
+            if lo <= -40.0:
+                return math.nan, math.nan
+            hi, g_hi = lo, g_lo
+            step = min(1.6 * step, 1.0)
+    # Illinois false position on [lo, hi]: g_lo < 0 <= g_hi
+    side = 0
+    t = 0.5 * (lo + hi)
+    for _ in range(200):
+        if hi - lo <= 1e-13 * max(1.0, abs(lo)):
+            break
+        t = hi - g_hi * (hi - lo) / (g_hi - g_lo)
+        if not (lo < t < hi):
+            t = 0.5 * (lo + hi)
+        g = _slope(t, lam, which)
+        if g < 0.0:
+            lo, g_lo = t, g
+            if side == -1:
+                g_hi *= 0.5
+            side = -1
+        else:
+            hi, g_hi = t, g
+            if side == 1:
+                g_lo *= 0.5
+            side = 1
+        if g == 0.0:
+            break
+    A, P, D, dA, dP, dD = md_curve(math.exp(t), lam)
+    return t, (D if which == 0 else P)
+
+
 def _fold(lam: float, which: int) -> tuple[float, float]:
     """(t, value) at the minimum of value(t) on the contact branch; (inf, value at a=0) if none."""
-    from scipy.optimize import brentq
+    t, value = md_critical_point_kernel(float(lam), int(which))
+    if math.isnan(t):
+        raise ContactError(f"Maugis-Dugdale: no pull-off point found for lambda = {lam!r} in ln s = [-40, 40]; "
+                           "this should not happen for lambda in [1e-6, 1e6], please report these numbers")
+    return float(t), float(value)
 
-    c0, d0, p0 = md_zero_radius_limit(lam)
-    if which == 0 and lam <= LAMBDA_TRANSITION:
-        return math.inf, d0
 
-    def slope(t):
-        s = math.exp(t)
-        out = md_curve(s, lam)
-        return out[5 if which == 0 else 4]
+@njit(cache=True)
+def md_zone_radius(radius, depth, depth_scale, radius_scale, lam):
+    """Outer radius *c* (m) of the Dugdale zone of a contact of radius *a* > 0 at depth :math:`\\delta`.
 
-    ts = np.arange(-40.0, 40.0 + 1e-9, 0.25)
-    prev = slope(ts[0])
-    for t0, t1 in zip(ts[:-1], ts[1:]):
-        cur = slope(t1)
-        if prev < 0.0 <= cur:
-            t = brentq(slope, t0, t1, xtol=1e-14, rtol=1e-15, maxiter=200)
-            A, P, D, *_ = md_curve(math.exp(t), lam)
-            return t, (D if which == 0 else P)
-        prev = cur
-    if which == 0:   # lambda a hair above the transition: the fold sits at A < 1e-13, i.e. at a = 0
-        return math.inf, d0
-    raise ContactError(f"Maugis-Dugdale: no pull-off point found for lambda = {lam!r} in ln s = [-40, 40]; "
-                       "this should not happen for lambda in [1e-6, 1e6], please report these numbers")
+    From :math:`\\bar\\Delta = A^2 - \\tfrac43\\lambda A\\sqrt{m^2-1}`:
+    :math:`\\sqrt{m^2-1} = 3(A^2 - \\bar\\Delta)/(4\\lambda A)`, :math:`c = a\\sqrt{1 + (m^2-1)}` (the
+    dimensional form :math:`\\sqrt{c^2-a^2} = (a^2/R - \\delta)E^*/2\\sigma_0`). Arguments in metres
+    and the first, second and fourth of ``kernel_args``; returns *a* when :math:`a \\le 0`.
+
+    Examples
+    --------
+    >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 1e9)
+    >>> st = md.contact_state(depth=1e-9)
+    >>> ds, rs, ls, lam, tf, df = md.kernel_args
+    >>> round(md_zone_radius(st.radius, 1e-9, ds, rs, lam) / st.cohesive_radius, 9)
+    1.0
+    """
+    if not radius > 0.0:
+        return radius
+    A = radius / radius_scale
+    sm = 3.0 * (A * A - depth / depth_scale) / (4.0 * lam * A)
+    if not sm > 0.0:
+        return radius
+    return radius * math.sqrt(1.0 + sm * sm)
 
 
 @dataclass(frozen=True)

@@ -178,11 +178,21 @@ def lateral_sensitivity_from_vertical(vertical_sensitivity: float, length: float
     (how k_v is calibrated); ``"chord"`` is seed 000's small-angle chord delta / l, which gives its
     0.00565 rad/V from 706 nm/V (l_c = 125 um) and underestimates the slope by a third.
 
+    **Why the default is not the seed's figure.** ``model="end_load"`` gives 0.00848 rad/V for
+    seed 000's 706 nm/V and 125 um, 1.5x its printed 0.00565 rad/V. The default is kept on purpose:
+    the bending angle that the rest of arsurf reads from the same deflection sensitivity
+    (:meth:`arsurf.force.photodiode.Photodiode.from_deflection_sensitivity`, the cantilever model)
+    is the end slope of the end-loaded lever, and seed 000's own premise is that torsion and
+    bending share one angular sensitivity; with the chord here and the end slope there they would
+    differ by 1.5 and every decoupled lateral force would be off by that factor. To reproduce the
+    seed's number, pass ``model="chord"`` (tested).
+
     Parameters
     ----------
     vertical_sensitivity : float, m per signal unit
     length : float, metres
     model : {"end_load", "chord"}
+        Default ``"end_load"`` (see above); ``"chord"`` is seed 000's definition.
 
     Examples
     --------

@@ -53,9 +53,15 @@ resting against the tube without pressing. (With a purely kinetic resistance, fe
 ticks the tube slides, a slow push or a jittering hand made the force flicker between 0 and
 :math:`F_h` every tick: the demo's buzz.)
 
-The default :data:`FRICTION_PER_LENGTH` = 0.1 N/m (0.1 nN per nm of tube) puts the push force
-of 0.3-0.5 um tubes at 12-50 nN, the lateral force range of seed 000 Fig. 10 (0-30 nN while
-pushing MWCNTs on silicon).
+The default :data:`FRICTION_PER_LENGTH` = 0.1 N/m (0.1 nN per nm of tube) is set against seed
+000 Fig. 10: a lateral force of 0-30 nN (saw-toothed: stick-slip) in the first push of its "Z"
+strategy, MWCNTs on polycarbonate, the tip pushing a tube **end** across the axis. In that
+configuration the force above is :math:`f L(\sqrt2 - 1)`: 14 nN for the demo's 0.33 um tubes,
+22 nN for its 0.52 um one, inside the figure's range (tested). The larger forces of the same
+tubes, up to 52 nN, are :math:`f L`: a push at the middle (the tube translates) or along the axis,
+a configuration Fig. 10 does not show. The seed gives neither *f* nor its tube's length, so
+this is a calibration of *f* on the figure, not a reproduction of it; the stick-slip saw teeth
+are not modelled (the resistance is uniform kinetic friction).
 
 Limits: tubes do not collide with each other (a tube pushed onto another passes through it);
 they slide, never roll (seed 000: "it prefers sliding rather than rolling").
@@ -92,8 +98,9 @@ from arsurf.scan.scan import Scan
 __all__ = ["TubeScene", "SceneStep", "TubeMotion", "FRICTION_PER_LENGTH", "tube_mask", "rigid_motion",
            "scene_step_kernel"]
 
-#: Substrate resistance per unit tube length, N/m (= nN/nm). Chosen so that pushing the demo's
-#: 0.3-0.5 um tubes takes 12-50 nN, the lateral force range of seed 000 Fig. 10 (0-30 nN).
+#: Substrate resistance per unit tube length, N/m (= nN/nm). Chosen so that an end push of the
+#: demo's 0.33-0.52 um tubes (seed 000 Fig. 10's configuration) takes 14-22 nN, within the figure's
+#: 0-30 nN; middle or axial pushes take f L, up to 52 nN (module docstring).
 FRICTION_PER_LENGTH = 0.1
 #: Floor of the horizontal contact distance, as a fraction of R + r, in the vertical force.
 _MIN_HORIZONTAL = 0.1

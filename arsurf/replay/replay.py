@@ -549,6 +549,8 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
     }
     if tubes_summary is not None:
         summary["tubes"] = tubes_summary
+    if setup.model.material is not None:  # the map was rebuilt and its hash checked (assembly.build_model)
+        summary["material"] = {"sha256": setup.model.material.sha256, "channels": dict(setup.model.material.channels)}
     if not session.complete:  # only then: a complete session's summary is as before
         summary["session_incomplete"] = str(session.attrs.get("aborted", "not closed"))
         summary["session_recovered_from_journal"] = bool(session.recovered)

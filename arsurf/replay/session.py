@@ -59,6 +59,15 @@ key                         JSON value
                             (N/m), "middle_band", "max_substep" (m|null), "max_substeps",
                             "substrate_margin" (m|null)}``. :func:`arsurf.assembly.build_model` then fits the
                             substrate (tube pixels masked and inpainted) and rebuilds the scene
+``material``                optional: the material map the model looked E* and w up in
+                            (:meth:`arsurf.contact.material_map.MaterialMap.to_metadata`):
+                            ``{"channels": {role: channel name}, "units": {role: unit} (given for
+                            a file that does not state them), "conversion": {...}
+                            (:class:`~arsurf.contact.material_conversion.MaterialConversion`, SI),
+                            "offset": [x0, y0] (m), "processing": {"sigma" (m), "smoothing",
+                            "control_shape"}, "sha256" (the map's hash), "path" (null: the scan
+                            file), "file_sha256" (with a path)}``. :func:`arsurf.assembly.build_model`
+                            rebuilds the map and refuses one whose hash differs
 any other key               free JSON, kept as is
 ==========================  ===================================================================
 
