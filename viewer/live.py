@@ -122,7 +122,6 @@ class LiveLoop:
                           time=snap.time)
 
 
-<<<<<<< HEAD
 #: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
 #: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
 #: friction, no synthesised signals), a 200 Hz low-pass, no virtual coupling
@@ -152,30 +151,6 @@ def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 474
     from arsurf.assembly import build_loop
     from arsurf.haptics.udp_bridge import UdpBridgeDevice
 
-=======
-def bridge_loop(surface, tip_radius: float, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
-                peer_timeout: float | None = None, scale: float = 1e-5, force_gain: float = 1e5,
-                contact=None, start=None, material=None):
-    """A :class:`LiveLoop` for real hardware: the UDP bridge device on ``host``:``port`` with the
-    session ``key`` (a fresh one on loopback if None; see :class:`UdpBridgeDevice`), the AR model
-    on ``surface`` (Si tip on polystyrene unless ``contact`` is given; a ``material`` map's E* and
-    w where the tip touches, its reference law as the contact) and the direct coupling
-    (``scale`` probe m per stylus m, ``force_gain``). The stylus position the client sends first
-    maps to ``start`` (default: 2.5 R above the middle of the surface)."""
-    from arsurf.assembly import PRESETS, build_loop, make_model
-    from arsurf.haptics.udp_bridge import UdpBridgeDevice
-
-    p = PRESETS["viewer"]
-    if material is not None:
-        contact = material.contact_law()
-    if contact is None:
-        model = make_model(surface, tip_radius=tip_radius, effective_modulus=p.effective_modulus,
-                           work_of_adhesion=p.work_of_adhesion)
-    else:
-        model = make_model(surface, tip_radius=tip_radius, effective_modulus=contact.effective_modulus,
-                           work_of_adhesion=contact.work_of_adhesion, dugdale_stress=contact.dugdale_stress,
-                           material=material)
->>>>>>> h-material
     if start is None:
         start = bridge_start(model.surface, model.tip_radius)
     device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
