@@ -32,7 +32,7 @@ def write_qnm_npz(path, height, modulus, adhesion, pixel: float) -> Path:
     import json
 
     np.savez(path, Height=height, DMTModulus=modulus, Adhesion=adhesion,
-             arsurf_meta=np.array(json.dumps({"dx": pixel, "dy": pixel, "z_unit": "m"})))
+             arsurf_meta=np.array(json.dumps({"dx": pixel, "dy": pixel, "units": {"Height": "m"}})))
     return Path(path)
 
 

@@ -85,8 +85,8 @@ def test_a_different_conversion_or_channel_is_refused_with_both_hashes(recorded,
     with pytest.raises(SessionError, match=f"recorded {m.sha256}"):
         build_model(other)
     other = json.loads(json.dumps(meta))
-    other["material"]["channels"]["adhesion"] = "Height"
-    with pytest.raises(SessionError, match="hash"):
+    other["material"]["channels"]["adhesion"] = "Height"  # a channel in m given as N: the reader's unit check
+    with pytest.raises(SessionError, match="states z_unit = 'm'; z_unit='N'"):
         build_model(other)
 
 

@@ -7,7 +7,8 @@ Library: numpy (``np.load(..., allow_pickle=False)``; no unpickling).
 and the metadata: the round trip is bit-exact for the heights and the spacings, and the
 metadata come back as their JSON form (tuples become lists, numpy scalars plain numbers).
 Other ``.npz`` files are read too: every 2-D numeric array is a channel (``heights`` or the
-first one by default), ``dx``/``dy`` entries give the spacing, else pass ``dx``/``dy``/``z_unit``.
+first one by default), ``dx``/``dy`` entries give the spacing, else pass ``dx``/``dy``/``z_unit``;
+``arsurf_meta`` may state ``z_unit`` for the file or ``units`` per array (``{"Height": "m"}``).
 """
 from __future__ import annotations
 
@@ -61,6 +62,11 @@ def read(path: Path | str, channel: str | None = None, *, dx: float | None = Non
         else:
             key = select_channel(path, chans, channel).name
         data = z[key]
+    units = info.get("units")
+    if isinstance(units, dict):  # per-array units ({"Height": "m", "DMTModulus": "Pa"}): this array's
+        info = {k: v for k, v in info.items() if k not in ("units", "z_unit")}
+        if isinstance(units.get(key), str):
+            info["z_unit"] = units[key]
     if key == "heights" and "channel" in info:
         return finish(path, FORMAT, data, info, None, dx, dy, z_unit)
     info = {k: v for k, v in info.items() if k != "channel"}
