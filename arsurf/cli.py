@@ -217,17 +217,6 @@ def _penalty(text: str) -> float:
     return value
 
 
-def _seconds(text: str) -> float:
-    """An argparse type: a positive finite number of seconds."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds (got {text!r})") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number of seconds (got {text})")
-    return value
-
-
 def _count(text: str) -> int:
     """An argparse type: an integer >= 0."""
     try:
@@ -342,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "written there with mode 600 (default: a new key in a private temporary file, path printed)")
     s.add_argument("--bridge-key", metavar="HEX", help="the session key as hex (other users can see it in the "
                    "process list: prefer --bridge-key-file)")
-    s.add_argument("--bridge-peer-timeout", type=_seconds, default=None, metavar="S",
+    s.add_argument("--bridge-peer-timeout", type=_positive("seconds"), default=None, metavar="S",
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
@@ -750,7 +739,7 @@ def _live_parser(sub) -> None:
     _processing_flags(s)
     s.add_argument("--scale", type=_positive("probe m per stylus m"), default=1e-5,
                    help="probe metres per stylus metre (default 1e-5: 1 mm -> 10 nm)")
-    s.add_argument("--seconds", type=_seconds, help="run this long (default: until Ctrl-C)")
+    s.add_argument("--seconds", type=_positive("seconds"), help="run this long (default: until Ctrl-C)")
     s.add_argument("--record", metavar="FILE", help="record the session to FILE (.h5, must not exist), replayable "
                    "with `arsurf replay FILE --scan SCAN`")
     g = s.add_argument_group("instrument (the force read from its deflection and torsion signals)")
