@@ -143,7 +143,9 @@ def test_surface_html_and_thumbnail_show_the_net_and_the_dent():
     assert moved > 0 and "at most" in rows["deformed"]
     after = _image(surface._repr_png_())
     changed = np.argwhere(np.abs(after - before).max(axis=2) > 0.2)  # the outline, and only there
-    assert len(changed) > 50 and np.ptp(changed, axis=0).max() < 40
+    # the outline spans the moved points: the contact disc and the elastic profile around it (the
+    # dent's rim is the contact radius; outside it the surface follows the MD stresses' field)
+    assert len(changed) > 50 and np.ptp(changed, axis=0).max() < 80
     whitened = after[tuple(changed.T)].min(axis=1) > 0.75  # the outline, white over the (dented) map
     assert whitened.sum() > 30 and (before[tuple(changed.T)].min(axis=1) > 0.75).sum() < whitened.sum() / 3
 

@@ -439,7 +439,7 @@ class SurfaceView:
         return shown
 
     def set_color_by(self, mode: str) -> None:
-        """Colour the surface by ``"height"`` (nm), ``"deformation"`` (|S - S_rest|, nm), or a
+        """Colour the surface by ``"height"`` (nm), ``"deformation"`` (:math:`|S - S_{rest}|`, nm), or a
         field of the material map: ``"modulus"`` (E*, GPa, log scale), ``"adhesion"`` (w, mJ/m^2),
         ``"sample_deformation"``, ``"dissipation"`` (the instrument's maps, in their unit)."""
         if mode not in _SURFACE_CMAPS:
