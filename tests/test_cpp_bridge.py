@@ -540,6 +540,7 @@ def test_beyond_loopback_only_with_the_key(client_exe, tmp_path, capsys):
         assert server.dev.stats.bad_mac > 0 and server.dev.stats.pins == 0 and server.sent == []
         r = _run([client_exe, "--host", lan, "--port", str(server.port), "--key-file", key_file(tmp_path),
                   "--lockstep", "--duration", "0.05"], timeout=60)
+        server.thread.join(5.0)  # the client's last packet, RELEASE, may still be in the socket: the server ends on it
     finally:
         server.close()
     s = json.loads(r.stdout)
