@@ -277,10 +277,16 @@ def test_memory_stays_flat_however_long_the_recording(tmp_path):
 
     run(5000)  # warm: the pool and the writer thread exist
     tracemalloc.start()
+    # the recorder's own allocations (threads left by other tests allocate in this process too)
+    mine = [tracemalloc.Filter(True, "*arsurf/replay/*"), tracemalloc.Filter(True, "*h5py*")]
+
+    def traced() -> int:
+        return sum(st.size for st in tracemalloc.take_snapshot().filter_traces(mine).statistics("filename"))
+
     run(5000)
-    first = tracemalloc.get_traced_memory()[0]
+    first = traced()
     run(40000)
-    last = tracemalloc.get_traced_memory()[0]
+    last = traced()
     tracemalloc.stop()
     # 40 000 more ticks (15 MB of data) and the traced memory has not grown by 0.1 MB
     assert last - first < 100_000, (first, last)
@@ -331,12 +337,13 @@ def test_a_writer_dropped_without_close_leaves_its_ticks_in_the_journal(tmp_path
     import gc
     import threading
 
-    before = threading.active_count()
+    before = set(threading.enumerate())  # other tests' threads may end meanwhile: look at the new ones only
     w = SessionWriter(tmp_path / "s.h5", meta())
     for k in range(10):
         w.append(t=k * 1e-3, probe_position=position(k))
+    assert set(threading.enumerate()) - before  # the writer thread runs
     del w
     gc.collect()
-    assert threading.active_count() == before  # its writer thread stopped
+    assert not (set(threading.enumerate()) - before)  # its writer thread stopped
     s = load_session(tmp_path / "s.h5", allow_incomplete=True)
     assert s.recovered and s.n_ticks == 10
