@@ -78,7 +78,7 @@ from arsurf.contact.hull_tree import (
 from arsurf.contact.layout import (
     BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
     OUT_CACHED, OUT_CELLS, OUT_CONVERGED, OUT_DEPTH, OUT_DISTANCE, OUT_ITERATIONS, OUT_NX, OUT_NY, OUT_NZ,
-    OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, STACK_ROWS, STATUS_BAD_INPUT,
+    OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, OUT_WARM_U, OUT_WARM_V, STACK_ROWS, STATUS_BAD_INPUT,
     STATUS_DEGENERATE, STATUS_NON_FINITE, STATUS_NOT_CONVERGED, STATUS_OK, SUB_BASE, SUB_CAP, SUB_ENTRY,
 )
 from arsurf.contact.newton import MAX_ITER_CELL, MAX_ITER_DOMAIN, STEP_TOL, _clip, newton_box
@@ -463,6 +463,8 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
             su, sv = cx, cy
     bu, bv, bd2, iters, bconv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, su, sv,
                                            lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h, MAX_ITER_DOMAIN)
+    warm_u = bu if warm and bconv else np.nan
+    warm_v = bv if warm and bconv else np.nan
     _keep(work)
     nonfinite = not (bd2 - bd2 == 0.0)
     if nonfinite:
@@ -589,6 +591,8 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     out[OUT_ITERATIONS] = iters
     out[OUT_CELLS] = cells
     out[OUT_CACHED] = 1.0 if use_cache else 0.0
+    out[OUT_WARM_U] = warm_u
+    out[OUT_WARM_V] = warm_v
     out[OUT_CONVERGED] = 1.0 if bconv else 0.0
     out[OUT_BOUNDARY] = 1.0 if (bu <= lo_u or bu >= hi_u or bv <= lo_v or bv >= hi_v) else 0.0
     status = _finish(work[BEST_ROW:BEST_ROW + 3], cx, cy, cz, bu, bv, out)
@@ -801,6 +805,9 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
                     status = st
                     for k in range(OUT_SIZE):
                         out[k] = tmp[k]
+                    if not _inside_tile(ku, kv, i0, j0, ni, nj, ncu, ncv, tmp[OUT_WARM_U], tmp[OUT_WARM_V]):
+                        out[OUT_WARM_U] = np.nan  # the tile's box stopped that Newton run: not the
+                        out[OUT_WARM_V] = np.nan  # whole domain's
         r += 1
     out[OUT_ITERATIONS] = iters
     out[OUT_CELLS] = cells
@@ -818,6 +825,19 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
                                slot_info, ti, tj)
                 return status
     return status
+
+
+@njit(cache=True, inline="always")
+def _inside_tile(ku, kv, i0, j0, ni, nj, ncu, ncv, u, v) -> bool:
+    """(u, v) strictly inside the parameter rectangle of the tile (cells i0..i0+ni, j0..j0+nj),
+    or on a side that is the domain's own: where a Newton run boxed in the tile ended on a
+    point that a run over the whole domain also reaches (False for NaN)."""
+    lo_u = ku[i0 + 3]
+    hi_u = ku[i0 + ni + 3]
+    lo_v = kv[j0 + 3]
+    hi_v = kv[j0 + nj + 3]
+    return ((lo_u < u or (i0 == 0 and lo_u <= u)) and (u < hi_u or (i0 + ni == ncu and u <= hi_u))
+            and (lo_v < v or (j0 == 0 and lo_v <= v)) and (v < hi_v or (j0 + nj == ncv and v <= hi_v)))
 
 
 @njit(cache=True)

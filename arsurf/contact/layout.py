@@ -20,7 +20,8 @@ OUT_CONVERGED = 12    # 1.0 if the Newton run that produced the answer converged
 OUT_BOUNDARY = 13     # 1.0 if the closest point lies on the domain boundary
 OUT_STATUS = 14
 OUT_CACHED = 15       # 1.0 if the warm-start candidate list was used instead of the pyramid
-OUT_SIZE = 16
+OUT_WARM_U, OUT_WARM_V = 16, 17  # where Newton from the hint converged, over the whole domain (NaN: not known)
+OUT_SIZE = 18
 
 # status codes (returned by the kernels and stored at OUT_STATUS; the table is arsurf.status)
 STATUS_OK = status.OK

@@ -10,7 +10,9 @@ and the force it feels is the sum of two contact forces.
 Every tick, Newton's method (:func:`~arsurf.contact.newton.newton_box`) is run from the previous
 closest point: when it converges to another local minimum of the distance than the global search
 found (the closest point jumped basins), that point is a *second contact*, and it is followed the
-same way while it lasts.
+same way while it lasts. (The global search starts with that same run over the same domain,
+``OUT_WARM_U``/``OUT_WARM_V`` of its answer: when it ended at the closest point there is no
+second run.)
 While its depth :math:`\delta_2` is within ``margin`` of the deepest :math:`\delta_1`, the normal
 is the weighted sum
 
@@ -49,11 +51,16 @@ def second_contact_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, prev_u, prev_v, 
     h = max(ku[4] - ku[3], kv[4] - kv[3])
     ua = state[at]
     va = state[at + 1]
-    if not (math.isfinite(ua) and math.isfinite(va)):
-        ua = prev_u  # the point the closest point was at: if it jumped basins, that one is the second
-        va = prev_v
     state[at] = math.nan
     state[at + 1] = math.nan
+    if not (math.isfinite(ua) and math.isfinite(va)):
+        # the point the closest point was at: if it jumped basins, that one is the second. When
+        # the collision query's own Newton run from there (over the same domain) converged to the
+        # closest point, this one would too: one contact, no second run
+        if math.hypot(coll[ly.OUT_WARM_U] - u1, coll[ly.OUT_WARM_V] - v1) <= SAME_POINT * h:
+            return 0.0
+        ua = prev_u
+        va = prev_v
     if not (math.isfinite(ua) and math.isfinite(va)):
         return 0.0
     nu = ku.shape[0]
