@@ -158,8 +158,8 @@ def model_tick_kernel(proj,                                              # Proje
         fl[F_ZERO_LOAD] = zero_load
         friction = fl
     # a valley narrower than the tip: blend in the slope it also rests on
-    second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
-                          SECOND_CONTACT_MARGIN * md[0], state, S_SECOND, coll)
+    w2, jumped = second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
+                                       SECOND_CONTACT_MARGIN * md[0], state, S_SECOND, coll)
     nx = coll[pj.OUT_NX]
     ny = coll[pj.OUT_NY]
     nz = coll[pj.OUT_NZ]
@@ -220,7 +220,7 @@ def model_tick_kernel(proj,                                              # Proje
         kc = friction[F_COUPLING]
         if kc < math.inf:
             k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
-        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, load, k_t, friction[F_MU_S],
+        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, friction[F_MU_S],
                                        friction[F_MU_K], state, S_FRICTION, dec)
         out[M_SLIPPING] = slipped
         fx += dec[0]

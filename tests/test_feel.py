@@ -252,12 +252,54 @@ def test_a_contact_point_jumping_to_the_next_asperity_keeps_its_friction():
     out = np.zeros(7)
     n, load, k_t = (0.0, 0.0, 1.0), 1e-7, 10.0
     for k in range(40):  # slide along +x: the friction settles at -mu_k P along x
-        fr.stick_slip_kernel(1e-10 * k, 0.0, 0.0, *n, 1e-10 * k, 0.0, 20e-9, load, k_t, 0.2, 0.2, state, 0, out)
+        fr.stick_slip_kernel(1e-10 * k, 0.0, 0.0, *n, 1e-10 * k, 0.0, 20e-9, False, load, k_t, 0.2, 0.2, state, 0, out)
     before = out[:3].copy()
     assert before[0] == pytest.approx(-0.2 * load)
-    fr.stick_slip_kernel(1e-10 * 39 - 1e-9, 0.0, 0.0, *n, 1e-10 * 39 + 1e-12, 0.0, 20e-9, load, k_t, 0.2, 0.2,
+    fr.stick_slip_kernel(1e-10 * 39 - 1e-9, 0.0, 0.0, *n, 1e-10 * 39 + 1e-12, 0.0, 20e-9, False, load, k_t, 0.2, 0.2,
                          state, 0, out)  # the contact point jumps back 1 nm: another asperity
     np.testing.assert_allclose(out[:3], before, rtol=0, atol=1e-12 * load)
+
+
+def test_a_jump_known_from_the_basin_change_keeps_the_friction_however_fast_the_tip_moves():
+    """A 150 nm/s stroke at 1 kHz moves the tip 0.18 nm per tick; the contact point hops 1.6 nm
+    across a valley: less than 10 times the tip's move, so the ratio test alone took it for a
+    slide and the friction turned towards the old anchor (y reversed in one tick). Flagged as a
+    basin change (``jumped``), the anchor is carried along and the friction stays."""
+    from arsurf.contact import friction as fr
+
+    state = np.full(fr.STATE_SIZE, np.nan)
+    state[fr.SLIPPING] = 0.0
+    out = np.zeros(7)
+    n, load, k_t, step = (0.0, 0.0, 1.0), 1e-7, 10.0, 0.18e-9
+    for k in range(40):  # slide along +x: the friction settles at -mu_k P along x
+        fr.stick_slip_kernel(step * k, 0.0, 0.0, *n, step * k, 0.0, 20e-9, False, load, k_t, 0.2, 0.2, state, 0, out)
+    before = out[:3].copy()
+    saved = state.copy()
+    args = (step * 40, -1.6e-9, 0.0, *n, step * 40, 0.0, 20e-9)  # the tip moves on, the point hops 1.6 nm in y
+    fr.stick_slip_kernel(*args, False, load, k_t, 0.2, 0.2, state, 0, out)
+    assert out[1] > 0.5 * 0.2 * load  # unflagged: the friction turned towards +y (the reversal)
+    state[:] = saved
+    fr.stick_slip_kernel(*args, True, load, k_t, 0.2, 0.2, state, 0, out)
+    np.testing.assert_allclose(out[:3], before, rtol=0, atol=1e-9 * load)
+
+
+@pytest.mark.parametrize("motion, source", [("stroke", "simulated"), ("slide-10", "measured")])
+def test_a_contact_hopping_between_two_slopes_of_the_real_jpk_scan_does_not_buzz(motion, source):
+    """sample_0.jpk at 1 kHz: the closest point hops between two slopes of a valley. In the
+    stroke the hop (1.6 nm) was shorter than 10 tip moves, the friction anchor stayed behind and
+    the friction reversed (2 reversals, ~6 mN at the hand); in the 10 nm/s slide the closest point
+    jumped back into the basin of the second contact being followed, which was then dropped
+    instead of swapped, and the normal stepped back for a tick (1 reversal of 0.16 mN)."""
+    from conftest import real_scan_path
+
+    from arsurf.feel_scenarios import prepared_surface, run_scenario
+    from arsurf.haptics.feel import reversal_ticks
+
+    surface = prepared_surface(real_scan_path("sample_0.jpk"))[1]
+    run = run_scenario(surface, motion=motion, source=source, rate=1000.0)
+    assert not reversal_ticks(run.force, 1e-3).any(), run.score.summary()
+    assert not run.score.buzzes, run.score.summary()
+    assert run.transparency == pytest.approx(1.0, abs=1e-3)
 
 
 @pytest.mark.parametrize("rate", [1000.0, 10000.0])

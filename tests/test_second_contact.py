@@ -3,7 +3,7 @@
 The kernel skips its own Newton run from the previous closest point when the collision query's
 run from that same point (OUT_WARM_U/V) already ended at the closest point. That is a shortcut,
 not a new rule: with the record hidden (NaN: the kernel runs Newton itself) every answer - the
-weight, the blended normal, the followed second contact - must be the same, on one pyramid and
+weight, the jump flag, the blended normal, the followed second contact - must be the same, on one pyramid and
 on tiles.
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ def test_skipping_the_second_newton_run_changes_no_answer(kind):
     ev = np.empty((6, 3))
     fast, slow = np.full(2, np.nan), np.full(2, np.nan)
     pu = pv = np.nan
-    weights, skipped = [], 0
+    weights, jumps, skipped = [], 0, 0
     h = max(ku[4] - ku[3], kv[4] - kv[3])
     for cx, cy, cz in _walk(3):
         assert collide_any(proj, cx, cy, cz, R, pu, pv, coll) >= 0
@@ -56,16 +56,17 @@ def test_skipping_the_second_newton_run_changes_no_answer(kind):
                                           coll[ly.OUT_WARM_V] - coll[ly.OUT_V]) <= SAME_POINT * h:
             skipped += 1
         margin = 1e-9
-        w_fast = second_contact_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, pu, pv, margin, fast, 0, coll)
-        w_slow = second_contact_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, pu, pv, margin, slow, 0, hidden)
-        assert w_fast == w_slow
+        w_fast, jumped_fast = second_contact_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, pu, pv, margin, fast, 0, coll)
+        w_slow, jumped_slow = second_contact_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, pu, pv, margin, slow, 0, hidden)
+        assert (w_fast, jumped_fast) == (w_slow, jumped_slow)
         np.testing.assert_array_equal(fast, slow)
         np.testing.assert_array_equal(coll[ly.OUT_NX:ly.OUT_NZ + 1], hidden[ly.OUT_NX:ly.OUT_NZ + 1])
         weights.append(w_fast)
+        jumps += jumped_fast
         pu, pv = coll[ly.OUT_U], coll[ly.OUT_V]
     weights = np.asarray(weights)
-    # the walk does meet second contacts, and the shortcut is taken on most other ticks
-    assert (weights > 0).sum() >= 20
+    # the walk does meet second contacts and jumps, and the shortcut is taken on most other ticks
+    assert (weights > 0).sum() >= 20 and jumps >= 1
     assert skipped >= 0.3 * len(weights)
 
 

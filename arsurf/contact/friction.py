@@ -41,7 +41,12 @@ anchor is carried along by the same jump: the tangential stretch, hence the fric
 the contact, which the jump does not undo (a tip sliding across two asperities keeps resisting the
 same way). Without it the stretch to the old anchor pointed backwards after the jump and the
 friction reversed in one tick (+-mu_k P: a 7 mN step at the hand on a real scan). A jump is a
+change of basin of the closest point (Newton from the previous closest point ends at another
+local minimum, :mod:`arsurf.contact.second_contact`; the model passes it as ``jumped``) or a
 contact-point move larger than :data:`JUMP_RATIO` times the tip's move plus :data:`JUMP_FLOOR`.
+The ratio alone misses a jump that is short against a fast tip's move: a 1.6 nm hop across a
+valley while a 150 nm/s stroke moves the tip 0.15-0.19 nm per 1 ms tick (a friction reversal of
+about 6 mN at the hand on a real scan).
 
 State (10 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
 tick), the slip flag of the previous tick, the previous contact point and tip centre (NaN: none).
@@ -73,10 +78,12 @@ def release(state, at) -> None:
 
 
 @njit(cache=True)
-def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, load, k_t, mu_s, mu_k, state, at, out):
+def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_s, mu_k, state, at, out):
     r"""One tick of the stick-slip proxy (module docstring).
 
-    ``p`` contact point (m), ``n`` unit normal, ``c`` the tip centre (m; for the jump test), ``load`` P (N, > 0), ``k_t`` tangential stiffness
+    ``p`` contact point (m), ``n`` unit normal, ``c`` the tip centre (m; for the jump test),
+    ``jumped`` True when the closest point is known to have changed basins this tick (a jump
+    whatever the two moves), ``load`` P (N, > 0), ``k_t`` tangential stiffness
     (N/m, > 0), friction coefficients ``mu_s >= mu_k >= 0``; ``state[at:at + STATE_SIZE]`` (updated).
     Writes ``out[0:3]`` the friction force on the tip (N), ``out[3:6]`` the friction direction
     (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and
@@ -91,7 +98,7 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, load, k_t, mu_s, mu_k,
         jy = py - state[lp + 1]
         jz = pz - state[lp + 2]
         moved = math.sqrt((cx - state[lc]) ** 2 + (cy - state[lc + 1]) ** 2 + (cz - state[lc + 2]) ** 2)
-        if math.sqrt(jx * jx + jy * jy + jz * jz) > JUMP_RATIO * moved + JUMP_FLOOR:
+        if jumped or math.sqrt(jx * jx + jy * jy + jz * jz) > JUMP_RATIO * moved + JUMP_FLOOR:
             state[at + ANCHOR] += jx  # carried along by the jump (module docstring)
             state[at + ANCHOR + 1] += jy
             state[at + ANCHOR + 2] += jz
