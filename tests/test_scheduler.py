@@ -183,3 +183,33 @@ def test_the_loop_thread_asks_for_a_tight_timer_slack():
     t.start()
     t.join()
     assert seen == [1]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "sched_getscheduler"), reason="POSIX scheduling policies")
+@pytest.mark.parametrize("priority", [0, 40])
+def test_the_loop_thread_runs_under_the_policy_it_reports(priority):
+    """A granted priority puts the step's own thread under SCHED_FIFO at that priority (what the
+    stats report); 0, or a refusal, leaves the ordinary policy and reports 0. The caller's thread
+    is never changed."""
+    import os
+
+    seen = []
+
+    def step(state, inputs, dt):
+        if not seen:
+            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+    before = os.sched_getscheduler(0)
+    stats = Scheduler(step, rate=1000.0, priority=priority).run_for(0.05)
+    assert os.sched_getscheduler(0) == before
+    assert stats.realtime_priority in (0, priority)
+    if stats.realtime_priority:
+        assert seen[0] == (os.SCHED_FIFO, priority)
+    else:
+        assert seen[0][0] != os.SCHED_FIFO
+
+
+def test_priority_is_checked():
+    for bad in (-1, 100, 2.5, True, "40"):
+        with pytest.raises(HapticsError, match="priority must be an integer in \\[0, 99\\]"):
+            Scheduler(lambda s, i, d: None, priority=bad)

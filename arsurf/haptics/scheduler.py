@@ -5,7 +5,7 @@ thousands of times without sleeping (:meth:`Scheduler.run_ticks`), and this sche
 the thread, the clock and the timing statistics. The scheduler knows nothing of devices or
 physics; per tick it does::
 
-    inputs = source()                 # e.g. device.read_state   (None: inputs = None)
+    inputs = source()                 # e.g. partial(device.read_state, DeviceState())   (None: inputs = None)
     output = step(state, inputs, dt)  # the pipeline tick, dt is the nominal period
     sink(output)                      # e.g. device.command_force (None: ignored)
     publish snapshot(state, inputs, output) for the viewer   (at most snapshot_rate per second)
@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import sys
 import threading
 import time
@@ -83,7 +84,8 @@ class Snapshot:
 class TimingStats:
     """Timing of a scheduler run (over the last ``history`` ticks for the distributions).
 
-    Times in seconds. ``rate`` is the achieved tick rate over the whole run.
+    Times in seconds. ``rate`` is the achieved tick rate over the whole run;
+    ``realtime_priority`` the ``SCHED_FIFO`` priority the loop thread got (0: none).
     """
 
     ticks: int
@@ -100,6 +102,7 @@ class TimingStats:
     skipped: int
     snapshots_published: int
     snapshots_skipped: int
+    realtime_priority: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         return dict(self.__dict__)
@@ -119,6 +122,23 @@ def _tight_timer_slack() -> None:
         pass
 
 
+def _realtime_priority(priority: int) -> int:
+    """Put the calling thread under the real-time policy ``SCHED_FIFO`` at ``priority`` (1-99):
+    it then preempts every ordinary thread at once when its sleep ends, instead of waiting for
+    the time-sharing scheduler's turn (tens to hundreds of microseconds on a busy machine, a
+    missed deadline at 10 kHz). Linux with CAP_SYS_NICE or an ``rtprio`` limit; best effort:
+    returns the priority granted, 0 when refused or unavailable (the thread then keeps the
+    ordinary policy). The kernel's RT throttling (95 % of each second) keeps a runaway step from
+    freezing the machine; the thread's policy ends with the thread."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        return 0
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # 0: this thread
+    except (OSError, AttributeError):
+        return 0
+    return priority
+
+
 class Scheduler:
     """Run ``step(state, inputs, dt)`` at a fixed rate in a thread, with statistics and snapshots.
 
@@ -131,7 +151,9 @@ class Scheduler:
     rate : float, Hz
         Tick rate, 1 to 20000 (default 1000; the seeds' loops run at 1-10 kHz).
     source : callable, optional
-        ``source() -> inputs`` called at the start of each tick (e.g. ``device.read_state``).
+        ``source() -> inputs`` called at the start of each tick (e.g.
+        ``functools.partial(device.read_state, DeviceState())``: one sample filled in place, no
+        allocation per tick).
     sink : callable, optional
         ``sink(output)`` called after each step (e.g. ``device.command_force``).
     snapshot : callable, optional
@@ -143,9 +165,11 @@ class Scheduler:
         ``on_stop()`` called in the loop thread when the loop ends (normally or on an error),
         e.g. to command zero force.
     spin : float, s, optional
-        Busy-wait margin before each deadline (default: 2e-4 s, at most half a period). Spinning a
-        whole period is counter-productive on a shared machine: the OS scheduler then preempts
-        the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
+        Busy-wait margin before each deadline (default: 2e-4 s, at most three quarters of a
+        period). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
+        missed 0.17-0.35 % of the deadlines and a three-quarter one 0.03-0.09 % (``bench/haptic_loop.py``).
+        Spinning a whole period is counter-productive on a shared machine: the OS scheduler then
+        preempts the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
     history : int
         Ticks kept for the timing distributions (default 65536).
     pause_gc : bool
@@ -153,6 +177,13 @@ class Scheduler:
         collector off while the loop runs (default True): a full collection stops every thread
         for milliseconds, a missed deadline at 10 kHz. The tick allocates nothing that needs it
         (reference counting frees its temporaries); the collector is restored at the end.
+    priority : int
+        Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
+        (default 40, below the 50 of Linux's interrupt threads; 0: the ordinary policy), as
+        haptic servo threads run (CHAI3D, OpenHaptics). What was granted is
+        :attr:`TimingStats.realtime_priority`. At 10 kHz over 60 s on the 2-core test machine
+        it missed 0.08 % of the deadlines against 0.22 % under the ordinary policy, same run
+        (``bench/haptic_loop.py`` times both).
 
     Examples
     --------
@@ -166,7 +197,8 @@ class Scheduler:
                  source: Callable[[], Any] | None = None, sink: Callable[[Any], Any] | None = None,
                  snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
                  snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
-                 spin: float | None = None, history: int = 65536, pause_gc: bool = True) -> None:
+                 spin: float | None = None, history: int = 65536, pause_gc: bool = True,
+                 priority: int = 40) -> None:
         if not callable(step):
             raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
         for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
@@ -182,7 +214,7 @@ class Scheduler:
         if not (snapshot_rate > 0.0 and math.isfinite(snapshot_rate)):
             raise HapticsError(f"snapshot_rate must be a positive rate in Hz (got {snapshot_rate!r})")
         if spin is None:
-            spin = min(2e-4, 0.5 / rate)
+            spin = min(2e-4, 0.75 / rate)
         try:
             spin = float(spin)
         except (TypeError, ValueError) as exc:
@@ -191,6 +223,10 @@ class Scheduler:
             raise HapticsError(f"spin must be between 0 and 0.01 s (got {spin!r})")
         if not isinstance(history, int) or history < 16:
             raise HapticsError(f"history must be an integer >= 16 (got {history!r})")
+        if not isinstance(priority, int) or isinstance(priority, bool) or not 0 <= priority <= 99:
+            raise HapticsError(f"priority must be an integer in [0, 99] (got {priority!r}); 0: no real-time policy")
+        self.priority = priority
+        self.realtime_priority = 0
         self.step, self.state = step, state
         self.source, self.sink, self.snapshot_fn, self.on_stop = source, sink, snapshot, on_stop
         self.rate = rate
@@ -303,11 +339,17 @@ class Scheduler:
 
     def run_for(self, seconds: float) -> TimingStats:
         """Start, let the loop run for ``seconds`` of wall time, stop; returns the statistics."""
+        try:
+            seconds = float(seconds)
+        except (TypeError, ValueError) as exc:
+            raise HapticsError(f"seconds must be a duration in seconds (got {seconds!r})") from exc
+        if not (math.isfinite(seconds) and seconds >= 0.0):
+            raise HapticsError(f"seconds must be a finite duration >= 0 s (got {seconds!r})")
         self.start()
         try:
-            deadline = time.perf_counter() + float(seconds)
-            while time.perf_counter() < deadline and self.is_running:
-                time.sleep(min(0.05, max(0.0, deadline - time.perf_counter())))
+            # one blocking wait, no polling: a waking caller takes the GIL from the loop thread
+            # (up to the switch interval), which made ticks late at 10 kHz
+            self._thread.join(seconds)
         finally:
             stats = self.stop()
         return stats
@@ -324,6 +366,7 @@ class Scheduler:
 
     def _run(self) -> None:
         _tight_timer_slack()
+        self.realtime_priority = _realtime_priority(self.priority)
         gc_was_on = gc.isenabled()
         if self.pause_gc:
             gc.freeze()
@@ -417,4 +460,5 @@ class Scheduler:
             skipped=self.skipped,
             snapshots_published=self.snapshots_published,
             snapshots_skipped=self.snapshots_skipped,
+            realtime_priority=self.realtime_priority,
         )

@@ -40,6 +40,7 @@ import math
 import os
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ import numpy as np
 from arsurf.assembly import build_loop, build_model
 from arsurf.errors import InstrumentError, InstrumentLinkLost, LoopError, SessionError
 from arsurf.force.photodiode import Photodiode
+from arsurf.haptics.device import DeviceState
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.scheduler import Scheduler, TimingStats
 from arsurf.instrument.interface import Instrument, InstrumentFrame, InstrumentSample
@@ -270,7 +272,8 @@ def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks,
         if device.is_open:
             device.command_force(np.zeros(3))
 
-    sched = Scheduler(step, loop, rate=loop.config.rate, source=device.read_state, sink=device.command_force,
+    sched = Scheduler(step, loop, rate=loop.config.rate, source=partial(device.read_state, DeviceState()),
+                      sink=device.command_force,
                       on_stop=on_stop)
     failure = None
     with writer:
