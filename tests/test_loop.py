@@ -111,6 +111,24 @@ def test_warm_up_compiles_on_a_copy_and_leaves_the_loop_untouched():
     assert np.array_equal(cont, ref, equal_nan=True)               # the run goes on as if never warmed
 
 
+def test_a_copied_loop_is_its_own_and_ticks_as_the_original():
+    """The compiled tick reads the loop's arrays through one struct (LoopArrays): a copy must get
+    a struct of its own arrays (not the original's), and a device-force view of its own output."""
+    import copy
+
+    s, model, dev, loop = _setup(noise=1e-8, seed=5)
+    _run(dev, loop, 1500)                                          # in contact, dent, filters, noise drawn
+    twin, dev2 = copy.deepcopy(loop), copy.deepcopy(dev)
+    a, b = _run(dev, loop, 800), _run(dev2, twin, 800)
+    assert np.array_equal(a, b, equal_nan=True)                    # bit-identical continuation
+    assert twin._packed is not loop._packed and np.shares_memory(twin._device_force, twin.out)
+    assert not np.shares_memory(twin.out, loop.out) and not np.shares_memory(twin.model.state, loop.model.state)
+    before = loop.out.copy()
+    st = dev2.read_state()
+    twin.step(st, st.timestamp)
+    assert np.array_equal(loop.out, before, equal_nan=True)        # stepping the copy leaves the original
+
+
 def test_runs_under_the_scheduler_without_sleeping():
     _, _, dev, loop = _setup()
     sched = Scheduler(loop.scheduler_step, loop, rate=1000.0, source=dev.read_state, sink=dev.command_force)
