@@ -507,8 +507,10 @@ def _model_parts(meta: Mapping):
     """(tip_radius, MaugisDugdale, Cantilever, model keyword arguments, deform) from checked metadata.
 
     The keyword arguments are the friction coefficients (``friction`` = mu_k, ``static_friction``
-    mu_s, default mu_k) and the coupling stiffness at the probe's scale, k_vc / (K_f s) from
-    ``haptics.coupling_stiffness`` (hand side) of a direct coupling (inf without one)."""
+    mu_s, default mu_k), the coupling stiffness at the probe's scale, k_vc / (K_f s) from
+    ``haptics.coupling_stiffness`` (hand side) of a direct coupling (inf without one), and the
+    measured angles' rms noise, ``haptics.signal_noise`` (the loop synthesises signals with it; 0:
+    noise-free), None without one (the model's default for signals of unknown noise)."""
     from arsurf.contact.maugis_dugdale import MaugisDugdale
     from arsurf.force.cantilever import Cantilever
 
@@ -524,6 +526,8 @@ def _model_parts(meta: Mapping):
         k_vc = h.get("coupling_stiffness") if h.get("coupling", "direct") == "direct" else None
         k_probe = math.inf if k_vc is None else float(k_vc) / (
             float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
+        noise = h.get("signal_noise")
+        noise = None if noise is None else float(noise)
     except (ArsurfError, TypeError, ValueError) as exc:
         raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
     if not (math.isfinite(friction) and friction >= 0.0):
@@ -532,8 +536,10 @@ def _model_parts(meta: Mapping):
         raise SessionError(f"metadata static_friction must be >= friction (got {static!r})")
     if not k_probe > 0.0:
         raise SessionError(f"metadata haptics.coupling_stiffness must be > 0 N/m (got {k_vc!r})")
-    return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe), \
-        bool(meta.get("deform", True))
+    if noise is not None and not (math.isfinite(noise) and noise >= 0.0):
+        raise SessionError(f"metadata haptics.signal_noise must be >= 0 rad (got {noise!r})")
+    return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe,
+                                       signal_noise=noise), bool(meta.get("deform", True))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -556,7 +562,7 @@ class ModelSetup:
 def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
                deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf,
-               material=None):
+               material=None, signal_noise: float | None = None):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -578,11 +584,14 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     material : MaterialMap, optional
         Per-location E* and w; the contact law given is then the reference (its
         :meth:`~arsurf.contact.material_map.MaterialMap.contact_law`).
+    signal_noise : float, rad rms, optional
+        Noise of the measured angles (:class:`~arsurf.model.ARModel`; default: unknown).
     """
     meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform, "static_friction": static_friction,
             "contact": {"effective_modulus": effective_modulus, "work_of_adhesion": work_of_adhesion,
                         "dugdale_stress": dugdale_stress},
-            "cantilever": dict(LEVER if cantilever is None else cantilever)}
+            "cantilever": dict(LEVER if cantilever is None else cantilever),
+            "haptics": {} if signal_noise is None else {"signal_noise": signal_noise}}
     from arsurf.model import ARModel
 
     radius, md, lever, kwargs, dent = _model_parts(meta)

@@ -138,7 +138,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     model = make_model(surface, tip_radius=p.tip_radius, effective_modulus=p.effective_modulus,
                        work_of_adhesion=p.work_of_adhesion, cantilever=p.cantilever,
                        friction=p.friction if friction is None else friction, static_friction=static_friction,
-                       coupling_stiffness=math.inf if k_vc is None else k_vc / (gain * scale))
+                       coupling_stiffness=math.inf if k_vc is None else k_vc / (gain * scale),
+                       signal_noise=0.0 if source == "simulated" else signal_noise)  # the loop's, below
     (u0, u1), (v0, v1) = surface.domain
     x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if at is None else at
     z = float(surface.evaluate(x - (150e-9 if motion == "stroke" else 0.0), y)[2])

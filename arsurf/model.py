@@ -49,7 +49,7 @@ from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_MAX_CONDITION, P_TORSION_COMPLIANCE, DecouplingFlag,
-                                     decouple_kernel, decoupling_parameters)
+                                     decouple_kernel, decoupling_parameters, directional_noise_kernel)
 from arsurf.spline.surface import BSplineSurface
 
 #: the model output vector (``ARModel.out``): m, N, rad; statuses and counts as floats
@@ -103,6 +103,36 @@ FADE_STRENGTH = (0.05, 0.25)
 #: no-motion answer; with it, a slide whose directional system turns
 #: singular keeps its friction instead of dropping it for a few ticks (a dip the hand felt).
 FADE_CONDITION = (100.0, 1000.0)
+#: ... and, below that edge, by how much each answer can be trusted. The two solutions agree on
+#: F_y = tau and on F_z + kappa F_x = beta (both reproduce the angles); they differ only in how the
+#: beam-plane bending is split, i.e. in F_x. The directional F_x carries the signal noise times
+#: the system's noise gain, sigma_D = sqrt(p_y^2 sigma_tau^2 + p_z^2 sigma_beta^2) / |p_x - kappa p_z|
+#: (:func:`~arsurf.force.decoupling.directional_noise_kernel`; what cond * noise / signal * |F|
+#: bounds), which grows without bound as the friction direction sweeps through the beam axis (a
+#: stuck contact starting to slide along x); the fallback's F_x carries its model error, the
+#: proxy's friction share, which can be wrong by at most the friction the proxy can hold,
+#: sigma_B = mu_s P. Weighing the two by their inverse variances (minimum-variance combination of
+#: two independent estimates of F_x),
+#:
+#:     w_noise = sigma_B^2 / (sigma_B^2 + sigma_D^2),
+#:
+#: keeps the measured friction while the directional error is below the friction scale and lets
+#: the fallback take over where noise would dominate; w_noise is continuous (sigma_D is, away from
+#: the refused band the condition fade covers) and 1 without noise (the fade above is then all).
+#: sigma_D uses the model's ``signal_noise`` (rad rms on each angle): the loop's configured
+#: photodiode noise when it synthesises the signals (metadata ``haptics.signal_noise``; 0 declares
+#: noise-free signals), else DEFAULT_SIGNAL_NOISE. The decoupling status gets the NO_MOTION bit
+#: (fallback mixed in) where one of the two fades is below 1, as before, or where the noise makes
+#: the fallback the better estimate (sigma_D > sigma_B, w_noise < 1/2); a well-conditioned
+#: slide stays flagged 0, its w_noise ~ 1.
+#:
+#: Rms noise (rad) assumed on given signals of unknown noise: 1e-7 rad is ~30 pm of tip deflection
+#: on the demo's 450 um lever (z = 2 l theta / 3), a typical optical-lever detection floor at a
+#: kHz bandwidth; an over-estimate only moves the force towards the fallback, which reproduces
+#: the angles as well.
+DEFAULT_SIGNAL_NOISE = 1e-7
+#: slot of the model's decoupling vector holding ``signal_noise`` (after the decoupling's own six)
+P_SIGNAL_NOISE = 6
 
 
 @njit(cache=True)
@@ -257,10 +287,19 @@ def model_tick_kernel(proj,                                              # Proje
             # the two measured angles exactly, so every blend does too
             ds = decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, dec_params, dec[0:4])
             w = 0.0
+            flag = False  # the fallback is reported (NO_MOTION) where a fade applies or it outweighs
             if ds == 0:
                 w = min(max((strength - FADE_STRENGTH[0]) / (FADE_STRENGTH[1] - FADE_STRENGTH[0]), 0.0), 1.0)
                 w *= min(max(math.log(FADE_CONDITION[1] / dec[3]) / math.log(FADE_CONDITION[1] / FADE_CONDITION[0]),
                              0.0), 1.0)
+                flag = w < 1.0
+                if w > 0.0:  # inverse-variance weight of the two F_x estimates (FADE_CONDITION comment)
+                    noise = dec_params[P_SIGNAL_NOISE]
+                    var_d = directional_noise_kernel(nx, ny, nz, sx, sy, dec_params, noise, noise) ** 2
+                    if var_d > 0.0:
+                        var_b = (friction[F_MU_S] * load) ** 2
+                        w *= var_b / (var_b + var_d)
+                        flag = flag or var_d > var_b
             if w < 1.0:
                 d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, dec_params, dec[4:8])
                 den = nz + share_z + dec_params[P_COUPLING] * (nx + share_x)
@@ -274,7 +313,7 @@ def model_tick_kernel(proj,                                              # Proje
                 if w == 0.0:
                     ds = d0
                     dec[3] = dec[7]
-                else:
+                elif flag:
                     ds |= NO_MOTION
             out[M_DECOUPLE_STATUS] = ds
             out[M_MEAS_FX] = dec[0]
@@ -344,6 +383,9 @@ class ARModel:
         Per-location E* and w (:mod:`arsurf.contact.material_map`); ``contact`` is then the
         reference law (:meth:`~arsurf.contact.material_map.MaterialMap.contact_law`: same tip
         radius and Dugdale range). A uniform map gives exactly the model without one.
+    signal_noise : float, rad rms, optional
+        Noise on each measured angle; the measured force trusts the directional decoupling less
+        as its noise gain grows (:data:`FADE_CONDITION`). Default :data:`DEFAULT_SIGNAL_NOISE`.
 
     Examples
     --------
@@ -360,7 +402,8 @@ class ARModel:
 
     def __init__(self, surface: BSplineSurface, tip_radius: float, contact: MaugisDugdale,
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
-                 static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None):
+                 static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
+                 signal_noise: float | None = None):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -377,6 +420,8 @@ class ARModel:
         if static < friction:
             raise ContactError(f"static_friction ({static!r}) must be >= friction ({friction!r}): the static cone "
                                "contains the kinetic one")
+        signal_noise = DEFAULT_SIGNAL_NOISE if signal_noise is None else _validation.non_negative(
+            signal_noise, "signal_noise", ContactError, hint="the rms noise of the measured angles, rad")
         coupling_stiffness = float(coupling_stiffness)
         if not coupling_stiffness > 0.0:
             raise ContactError(f"`coupling_stiffness` must be > 0 N/m or inf (got {coupling_stiffness!r})")
@@ -398,10 +443,12 @@ class ARModel:
         self.friction = friction
         self.static_friction = static
         self.coupling_stiffness = coupling_stiffness
+        self.signal_noise = signal_noise
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
         self._proj_args = proj.kernel_args()
-        self._dec = decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL)
+        # the decoupling's parameters, then the signal noise level (P_SIGNAL_NOISE)
+        self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
         self._friction = np.array([static, friction, fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
                                    coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
         self.material = material

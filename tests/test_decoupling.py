@@ -22,6 +22,7 @@ from arsurf.force.decoupling import (
     decouple_kernel,
     decouple_many,
     decoupling_parameters,
+    directional_noise_kernel,
     method_from_status,
 )
 
@@ -209,6 +210,34 @@ def test_flat_surface_motion_along_beam_is_singular():
     assert est.method == "normal_plus_torsion"
     # friction along x cannot be separated from F_z: the fallback puts the bending in F_z
     assert est.force == pytest.approx([0.0, 0.0, b / lever.bending_compliance], abs=1e-20)
+
+
+@pytest.mark.parametrize("angle_deg", [60.0, 10.0, 1.0, 0.3])
+def test_directional_noise_gain_matches_the_scatter_of_noisy_solutions(angle_deg):
+    """sigma_Fx of directional_noise_kernel is the rms scatter of F_x over angles with independent
+    noise (first-order exact: the solve is linear in the signals); it grows as the motion turns
+    towards the beam axis, and stays below the condition-number bound cond * ||noise||."""
+    lever = LEVERS[0]
+    params = decoupling_parameters(lever)
+    n = np.array([0.1, 0.05, 1.0])
+    n /= np.linalg.norm(n)
+    phi = math.radians(angle_deg)
+    v = (1e-6 * math.cos(phi), 1e-6 * math.sin(phi))
+    sb, st = 2e-7, 3e-7
+    b0, t0 = lever.angles(np.array([-5e-9, 2e-9, 60e-9]))
+    rng = np.random.default_rng(3)
+    fx, out = np.empty(4000), np.empty(4)
+    for i in range(fx.size):
+        assert decouple_kernel(b0 + sb * rng.standard_normal(), t0 + st * rng.standard_normal(), *n, *v,
+                               params, out) == 0
+        fx[i] = out[0]
+    sigma = directional_noise_kernel(*n, *v, params, sb, st)
+    assert fx.std() == pytest.approx(sigma, rel=0.05)
+    g, _, c = lever.kernel_parameters()
+    assert sigma <= out[3] * math.hypot(sb / g, st / c)  # ||M^-1|| <= cond / ||M|| and ||M||_1 >= 1
+    if angle_deg < 60.0:
+        assert sigma > directional_noise_kernel(*n, 1e-6 * math.cos(math.radians(60.0)),
+                                                1e-6 * math.sin(math.radians(60.0)), params, sb, st)
 
 
 @pytest.mark.parametrize("seed", range(20))

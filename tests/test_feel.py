@@ -241,6 +241,47 @@ def test_measured_force_keeps_its_friction_where_the_directional_decoupling_turn
     assert worst < 1e-6
 
 
+def test_photodiode_noise_is_not_amplified_where_the_friction_direction_sweeps_through_the_beam_axis():
+    """The demo's buzz at the start of its slide, reduced to the model: the friction direction
+    turns through the beam axis (x), the directional system's noise gain grows as 1/|det|, and
+    the angles carry the demo's photodiode noise. Weighing the directional F_x (noise error) and
+    the fallback's (model error, at most mu_s P) by their inverse variances keeps the blend's
+    error below sigma_B / 2 = mu_s P / 2 wherever the noise gain is large (before: the directional
+    answer passed up to condition 100, ~40 nN rms on a 110 nN load there), and at the noise level
+    where the system is well conditioned."""
+    from arsurf.assembly import LEVER, make_model
+    from arsurf.model import (M_CONDITION, M_IN_CONTACT, M_LOAD, M_MEAS_FX, M_SIM_FX, SIGNALS_SYNTHESISED,
+                              model_tick_kernel)
+    from arsurf.spline.surface import BSplineSurface
+
+    sigma, mu = 2e-7, 0.2  # rad rms on each angle (the demo's), friction coefficient
+    x = np.arange(64) * 4e-9
+    z = 3e-9 * np.sin(2 * np.pi * x / 120e-9)
+    surf = BSplineSurface.from_heights(np.tile(z, (64, 1)).T, (0.0, x[-1]), (0.0, x[-1]))
+    m = make_model(surf, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER,
+                   friction=mu, deform=False, signal_noise=sigma)
+    (proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, state, coll, decout, ev, out) = m.kernel_args()
+    noise = np.random.default_rng(1).standard_normal((400, 2)) * sigma
+    err, cond, load = [], [], []
+    for k in range(400):  # along x, the slip direction turning through the beam axis at k = 200
+        cx = 60e-9 + 0.25e-9 * k
+        cz = float(surf.evaluate(cx, 128e-9)[2]) + 20e-9 - 1.5e-9
+        model_tick_kernel(proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
+                          128e-9 + 2e-12 * (k - 200) ** 2, cz, noise[k, 0], noise[k, 1], SIGNALS_SYNTHESISED, state,
+                          coll, decout, ev, out)
+        if out[M_IN_CONTACT] > 0.5 and k > 5:
+            err.append(out[M_MEAS_FX] - out[M_SIM_FX])
+            cond.append(out[M_CONDITION])
+            load.append(out[M_LOAD])
+    err, cond, load = np.array(err), np.array(cond), np.array(load)
+    sigma_tau = sigma / m.cantilever.kernel_parameters()[2]  # the torsion noise as a force (N)
+    crossing = cond > 30.0
+    assert crossing.sum() >= 5 and cond.max() > 300  # the slide crosses the ill-conditioned band
+    assert np.sqrt(np.mean(err[crossing] ** 2)) < 0.5 * mu * load[crossing].min()
+    well = cond < 10.0  # there the directional answer is kept, with its small noise gain
+    assert np.sqrt(np.mean(err[well] ** 2)) < 2.0 * sigma_tau
+
+
 def test_a_contact_point_jumping_to_the_next_asperity_keeps_its_friction():
     """The closest point jumps 1 nm while the tip moves 1 pm: the anchor is carried along, the
     friction stays what it was (before: the stretch to the old anchor reversed, and so did the

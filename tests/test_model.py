@@ -84,6 +84,29 @@ def test_bad_input(flat, md):
         m.step((1e-7, 1e-7, 1e-8), signals=(np.nan, 0.0))
 
 
+def test_the_signal_noise_reaches_the_kernel_from_the_model_and_the_session_metadata(flat, md):
+    """The measured force weighs its two answers with the angles' noise: the model's own
+    (unknown: DEFAULT_SIGNAL_NOISE), the loop's synthesised noise recorded in the session
+    (haptics.signal_noise, 0 = noise-free), the same for the live model and its replay."""
+    from arsurf.assembly import _model_parts
+    from arsurf.errors import SessionError
+    from arsurf.model import DEFAULT_SIGNAL_NOISE, P_SIGNAL_NOISE
+
+    assert ARModel(flat, R, md, LEVER).kernel_args()[7][P_SIGNAL_NOISE] == DEFAULT_SIGNAL_NOISE
+    assert ARModel(flat, R, md, LEVER, signal_noise=2e-7).kernel_args()[7][P_SIGNAL_NOISE] == 2e-7
+    with pytest.raises(ContactError, match="signal_noise"):
+        ARModel(flat, R, md, LEVER, signal_noise=-1e-7)
+    meta = {"tip_radius": R, "friction": 0.2, "cantilever": {"length": 450e-6, "width": 50e-6, "thickness": 2.5e-6,
+                                                              "tip_height": 15e-6, "youngs_modulus": 169e9,
+                                                              "poisson_ratio": 0.27},
+            "contact": {"effective_modulus": 50e9, "work_of_adhesion": 0.1}}
+    assert _model_parts(meta)[3]["signal_noise"] is None
+    for noise in (0.0, 2e-7):
+        assert _model_parts(dict(meta, haptics={"signal_noise": noise}))[3]["signal_noise"] == noise
+    with pytest.raises(SessionError, match="signal_noise"):
+        _model_parts(dict(meta, haptics={"signal_noise": float("nan")}))
+
+
 def test_out_of_contact_the_measured_force_is_the_classical_reading(flat, md):
     """No contact, no normal to decouple with: all bending is F_z, torsion is F_y (flagged)."""
     from arsurf.force.decoupling import DecouplingFlag

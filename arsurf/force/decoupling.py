@@ -71,6 +71,7 @@ __all__ = [
     "decouple_kernel",
     "decouple_many",
     "decouple_many_kernel",
+    "directional_noise_kernel",
     "decoupling_parameters",
     "method_from_status",
 ]
@@ -212,6 +213,42 @@ def decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, params, out):
     out[2] = beta
     out[3] = 1.0
     return status | _FALLBACK_DEGENERATE
+
+
+@njit(cache=True)
+def directional_noise_kernel(nx, ny, nz, vx, vy, params, sigma_bending, sigma_torsion):
+    """Standard deviation (N) of the contact-normal solution's F_x from independent noise on the
+    two angles, ``sigma_bending`` and ``sigma_torsion`` (rad rms); 0 where it is not solved.
+
+    First-order propagation through the closed form (module docstring), with
+    :math:`\\sigma_\\tau = \\sigma_\\theta / c`, :math:`\\sigma_\\beta = \\sigma_\\alpha / g`:
+
+    .. math::
+
+        \\sigma_{F_x} = \\frac{\\sqrt{p_y^2 \\sigma_\\tau^2 + p_z^2 \\sigma_\\beta^2}}{|p_x - \\kappa p_z|},
+        \\qquad \\delta F_y = \\delta\\tau, \\quad \\delta F_z = \\delta\\beta - \\kappa\\,\\delta F_x .
+
+    It is the exact noise gain the 1-norm condition number bounds (``cond * |noise| / |signal| *
+    |F|``): it grows as 1/|det| towards the singular direction. Same inputs as
+    :func:`decouple_kernel` (no validation: call it where that returned 0)."""
+    g = params[0]
+    kappa = params[1]
+    c = params[2]
+    fx = -vx * nz
+    fy = -vy * nz
+    fz = vx * nx + vy * ny
+    px = ny * fz - nz * fy
+    py = nz * fx - nx * fz
+    pz = nx * fy - ny * fx
+    pn = math.sqrt(px * px + py * py + pz * pz)
+    if not pn > 0.0:
+        return 0.0
+    ad = abs(px - kappa * pz) / pn
+    if not ad > SINGULAR_TOLERANCE:
+        return 0.0
+    st = py / pn * (sigma_torsion / c)
+    sb = pz / pn * (sigma_bending / g)
+    return math.sqrt(st * st + sb * sb) / ad
 
 
 @njit(cache=True)
