@@ -179,11 +179,13 @@ class Scheduler:
         (reference counting frees its temporaries); the collector is restored at the end.
     priority : int
         Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
-        (default 40, below the 50 of Linux's interrupt threads; 0: the ordinary policy), as
-        haptic servo threads run (CHAI3D, OpenHaptics). What was granted is
-        :attr:`TimingStats.realtime_priority`. At 10 kHz over 60 s on the 2-core test machine
-        it missed 0.08 % of the deadlines against 0.22 % under the ordinary policy, same run
-        (``bench/haptic_loop.py`` times both).
+        (40 is below the 50 of Linux's interrupt threads), or 0 (default): the ordinary policy.
+        What was granted is :attr:`TimingStats.realtime_priority`. A real-time loop thread
+        keeps the machine's other work from delaying a tick, but it also runs before this
+        process's other threads on its core: a device whose driver answers from a thread of
+        this process (the simulated Haply's reader) then went unanswered for 0.4 s. At 10 kHz
+        over 60 s on the 2-core test machine it missed 0.048-0.085 % of the deadlines in three
+        runs, the ordinary policy 0.056-0.22 % (``bench/haptic_loop.py`` times both).
 
     Examples
     --------
@@ -198,7 +200,7 @@ class Scheduler:
                  snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
                  snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
                  spin: float | None = None, history: int = 65536, pause_gc: bool = True,
-                 priority: int = 40) -> None:
+                 priority: int = 0) -> None:
         if not callable(step):
             raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
         for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
