@@ -700,6 +700,17 @@ _DEVICE_FLAGS = (
 )
 
 
+def _priority(text: str) -> int:
+    """An argparse type: a real-time priority, an integer in [0, 99] (0: none)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 99] (got {text!r})") from None
+    if not 0 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 99] (got {text}); 0: the ordinary policy")
+    return value
+
+
 def _positive(unit: str):
     """An argparse type: a positive finite number in ``unit``."""
     def parse(text: str) -> float:
@@ -740,6 +751,10 @@ def _live_parser(sub) -> None:
     s.add_argument("--scale", type=_positive("probe m per stylus m"), default=1e-5,
                    help="probe metres per stylus metre (default 1e-5: 1 mm -> 10 nm)")
     s.add_argument("--seconds", type=_positive("seconds"), help="run this long (default: until Ctrl-C)")
+    s.add_argument("--realtime-priority", type=_priority, default=0, metavar="N",
+                   help="run the loop thread under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
+                        "CAP_SYS_NICE or an rtprio limit); 0, the default: the ordinary policy. Not with a device "
+                        "that answers from a thread of this process (haply, openhaptics): see README")
     s.add_argument("--record", metavar="FILE", help="record the session to FILE (.h5, must not exist), replayable "
                    "with `arsurf replay FILE --scan SCAN`")
     g = s.add_argument_group("instrument (the force read from its deflection and torsion signals)")
@@ -840,7 +855,7 @@ def cmd_live(args) -> int:
               + (f"; recording to {record}" if record else ""), file=sys.stderr)
         result = run_live(meta, device, backend=args.device, instrument=instrument, photodiode=photodiode,
                           frame=frame, axes=args.instrument_axes, max_age=args.max_age_ms * 1e-3, record=record,
-                          seconds=args.seconds, stop=stop, setup=setup)
+                          seconds=args.seconds, stop=stop, setup=setup, priority=args.realtime_priority)
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)

@@ -178,7 +178,7 @@ def _device_metadata(device, backend: str) -> dict:
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,
              axes: str = "xyz", max_age: float = 0.02, record=None, seconds: float | None = None, stop=None,
-             setup=None, **safety_kwargs) -> LiveResult:
+             setup=None, priority: int = 0, **safety_kwargs) -> LiveResult:
     """Run the live loop on ``device`` until ``seconds`` pass, ``stop`` is set or a fault stops it.
 
     Parameters
@@ -200,6 +200,9 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
         Wall time; None: until ``stop`` (a :class:`threading.Event`) is set.
     setup : ModelSetup, optional
         ``build_model(metadata)``, if already built.
+    priority : int
+        ``SCHED_FIFO`` priority of the loop thread where the OS grants it (0: the ordinary policy;
+        :class:`~arsurf.haptics.scheduler.Scheduler`).
     **safety_kwargs
         For the loop's safety layer.
 
@@ -222,8 +225,8 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
         meta = dict(metadata, device=_device_metadata(device, backend or type(device).__name__))
         if instrument is not None:
             return _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, axes, max_age, record,
-                                   seconds, stop, safety_kwargs)
-        return _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs)
+                                   seconds, stop, dict(safety_kwargs, priority=priority))
+        return _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs, priority)
     finally:
         if device.is_open:
             device.close()
@@ -243,12 +246,12 @@ def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, 
     return LiveResult(r.ticks, r.stats.rate, None if record is None else Path(record), r.instrument_samples)
 
 
-def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs) -> LiveResult:
+def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs, priority) -> LiveResult:
     from arsurf.replay.session import SessionWriter, record_loop_tick
     from arsurf_viewer.live import LiveLoop
 
     loop = build_loop(setup.model, meta["haptics"], device.info, origin, scene=setup.scene, **safety_kwargs)
-    live = LiveLoop(loop, device)
+    live = LiveLoop(loop, device, priority=priority)
     writer = contextlib.nullcontext()
     if record is not None:
         writer = SessionWriter(record, meta)

@@ -189,3 +189,27 @@ def test_make_device_and_parse_instrument():
     for bad in ("nanonis://host:0", "nanonis://host:99999", "nanonis://:6501", "nanonis://host:65x"):
         with pytest.raises(Exception, match="is not nanonis://HOST:PORT"):
             parse_instrument(bad)
+
+
+def test_the_realtime_priority_reaches_the_loop_thread(capsys, monkeypatch):
+    """--realtime-priority N asks the scheduler's loop thread for SCHED_FIFO at N (what the OS
+    grants is its business); without it the loop keeps the ordinary policy (asks for 0)."""
+    import arsurf.haptics.scheduler as sched
+
+    asked = []
+    real = sched._realtime_priority
+    monkeypatch.setattr(sched, "_realtime_priority", lambda p: asked.append(p) or real(p))
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.3", "--realtime-priority", "40")
+    assert rc == 0, err
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.3")
+    assert rc == 0, err
+    assert asked == [40, 0]
+
+
+@pytest.mark.parametrize("bad", ["100", "-1", "high"])
+def test_a_bad_realtime_priority_is_one_line(capsys, bad):
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--device", "virtual", "--seconds", "0.1", "--realtime-priority", bad])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1
+    assert "argument --realtime-priority: must be an integer in [0, 99]" in err, err

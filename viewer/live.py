@@ -40,6 +40,9 @@ class LiveLoop:
         the viewer does not import the sessions layer); the attribute :attr:`record` may be set
         until :meth:`start`. A recorder that raises is a fault of the tick: zero force, the loop
         stops.
+    priority : int
+        ``SCHED_FIFO`` priority of the loop thread where the OS grants it, 0: the ordinary policy
+        (:class:`~arsurf.haptics.scheduler.Scheduler`).
 
     Examples
     --------
@@ -47,7 +50,7 @@ class LiveLoop:
     >>> # run_interactive(loop.model.surface, physics=live.physics, pose_source=live.pose)
     """
 
-    def __init__(self, loop, device, snapshot_rate: float = 60.0, record=None):
+    def __init__(self, loop, device, snapshot_rate: float = 60.0, record=None, priority: int = 0):
         if record is not None and not callable(record):
             raise ViewerError(f"record must be a callable record(loop, t, state) or None (got {type(record).__name__})")
         self.loop = loop
@@ -66,7 +69,7 @@ class LiveLoop:
 
         self.scheduler = Scheduler(tick, loop, rate=loop.config.rate, source=device.read_state,
                                    sink=device.command_force, snapshot=self._snapshot, snapshot_rate=snapshot_rate,
-                                   on_stop=self._zero_force)
+                                   on_stop=self._zero_force, priority=priority)
         self._status = getattr(device.info, "name", type(device).__name__)
 
     def _snapshot(self, state, inputs, output) -> dict:

@@ -117,7 +117,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
                               ticks: int | None = None,
                               frame: InstrumentFrame | None = None, baseline=None, baseline_samples: int = 50,
                               max_age: float = 0.02, axes: str = "xyz", scan_path=None, first_sample_timeout=2.0,
-                              handle_signals: bool = False, setup=None, stop=None,
+                              handle_signals: bool = False, setup=None, stop=None, priority: int = 0,
                               **safety_kwargs) -> InstrumentSessionResult:
     """Run and record ``seconds`` of the haptic loop on ``instrument``'s measured signals.
 
@@ -141,6 +141,9 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     stop : threading.Event, optional
         Ends the session normally (complete) when it is set, e.g. by the command line's Ctrl-C;
         with neither ``seconds`` nor ``ticks`` the session runs until then.
+    priority : int
+        ``SCHED_FIFO`` priority of the servo thread where the OS grants it (0: the ordinary
+        policy; :class:`~arsurf.haptics.scheduler.Scheduler`).
     probe_origin : (3,) float, m
         Tip-sphere centre (scan frame) when the stylus is at its origin.
     frame : InstrumentFrame, optional
@@ -217,7 +220,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         if not device.is_open:
             device.open()
         return _run(Path(path), meta, device, link, loop, model, frame, photodiode, base, seconds, ticks, max_age,
-                    handle_signals, stop)
+                    handle_signals, stop, priority)
     finally:
         link.stop()
         if device.is_open:
@@ -225,7 +228,8 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
             device.close()
 
 
-def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals, stop):
+def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals, stop,
+         priority):
     sample = InstrumentSample()
     ang = np.zeros(2)
     cmd = np.zeros(3)
@@ -274,7 +278,7 @@ def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks,
 
     sched = Scheduler(step, loop, rate=loop.config.rate, source=partial(device.read_state, DeviceState()),
                       sink=device.command_force,
-                      on_stop=on_stop)
+                      on_stop=on_stop, priority=priority)
     failure = None
     with writer:
         try:
