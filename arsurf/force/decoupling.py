@@ -117,6 +117,20 @@ _FLAGS = [DecouplingFlag(i) for i in range(64)]  # status -> flag, prebuilt (Int
 P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, P_MIN_SPEED, P_MIN_NORMAL_Z, P_MAX_CONDITION = range(6)
 
 
+@njit(cache=True, inline="always")
+def _plane_normal(nx, ny, nz, vx, vy):
+    """Normal p of the plane of the contact normal n and the friction direction (along -v in the
+    tangent plane): :math:`n_z f = (-v_x n_z, -v_y n_z, v_x n_x + v_y n_y)`, :math:`p = n \\times (n_z f)`;
+    returns (p_x, p_y, p_z, |p|), not normalised."""
+    fx = -vx * nz
+    fy = -vy * nz
+    fz = vx * nx + vy * ny
+    px = ny * fz - nz * fy
+    py = nz * fx - nx * fz
+    pz = nx * fy - ny * fx
+    return px, py, pz, math.sqrt(px * px + py * py + pz * pz)
+
+
 @njit(cache=True)
 def decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, params, out):
     """Contact-normal decoupling of one sample; writes (F_x, F_y, F_z, condition) into ``out``.
@@ -165,14 +179,7 @@ def decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, params, out):
     if not (nz >= min_nz):
         status |= _STEEP_NORMAL
     if status == 0:
-        # n_z f = (-v_x n_z, -v_y n_z, v_x n_x + v_y n_y); p = n x (n_z f), then normalised
-        fx = -vx * nz
-        fy = -vy * nz
-        fz = vx * nx + vy * ny
-        px = ny * fz - nz * fy
-        py = nz * fx - nx * fz
-        pz = nx * fy - ny * fx
-        pn = math.sqrt(px * px + py * py + pz * pz)
+        px, py, pz, pn = _plane_normal(nx, ny, nz, vx, vy)  # then normalised
         px /= pn
         py /= pn
         pz /= pn
@@ -234,13 +241,7 @@ def directional_noise_kernel(nx, ny, nz, vx, vy, params, sigma_bending, sigma_to
     g = params[0]
     kappa = params[1]
     c = params[2]
-    fx = -vx * nz
-    fy = -vy * nz
-    fz = vx * nx + vy * ny
-    px = ny * fz - nz * fy
-    py = nz * fx - nx * fz
-    pz = nx * fy - ny * fx
-    pn = math.sqrt(px * px + py * py + pz * pz)
+    px, py, pz, pn = _plane_normal(nx, ny, nz, vx, vy)
     if not pn > 0.0:
         return 0.0
     ad = abs(px - kappa * pz) / pn
