@@ -225,7 +225,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
         meta = dict(metadata, device=_device_metadata(device, backend or type(device).__name__))
         if instrument is not None:
             return _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, axes, max_age, record,
-                                   seconds, stop, dict(safety_kwargs, priority=priority))
+                                   seconds, stop, priority, safety_kwargs)
         return _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs, priority)
     finally:
         if device.is_open:
@@ -233,7 +233,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
 
 
 def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, axes, max_age, record, seconds,
-                    stop, safety_kwargs) -> LiveResult:
+                    stop, priority, safety_kwargs) -> LiveResult:
     from arsurf.replay.instrument_session import record_instrument_session
 
     with contextlib.ExitStack() as stack:
@@ -242,7 +242,7 @@ def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, 
             path = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="arsurf-live-"))) / "session.h5"
         r = record_instrument_session(path, meta, device, instrument, photodiode=photodiode, seconds=seconds,
                                       stop=stop, probe_origin=origin, frame=frame, axes=axes, max_age=max_age,
-                                      setup=setup, **safety_kwargs)
+                                      setup=setup, priority=priority, **safety_kwargs)
     return LiveResult(r.ticks, r.stats.rate, None if record is None else Path(record), r.instrument_samples)
 
 
