@@ -213,3 +213,11 @@ def test_priority_is_checked():
     for bad in (-1, 100, 2.5, True, "40"):
         with pytest.raises(HapticsError, match="priority must be an integer in \\[0, 99\\]"):
             Scheduler(lambda s, i, d: None, priority=bad)
+
+
+def test_run_for_takes_a_finite_duration():
+    sched = Scheduler(lambda s, i, d: None, rate=1000.0)
+    for bad in (-1.0, math.inf, math.nan, "soon", None):
+        with pytest.raises(HapticsError, match="seconds must be a"):
+            sched.run_for(bad)
+    assert not sched.is_running
