@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arsurf import batch
+from arsurf.batch import runner as batch
 from arsurf.batch import PIPELINES, collect_inputs, read_results, run_batch
 from arsurf.cli import main
 from arsurf.contact.maugis_dugdale import MaugisDugdale
