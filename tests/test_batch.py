@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arsurf.batch import runner as batch
+from arsurf.batch import executors, table
 from arsurf.batch import PIPELINES, collect_inputs, read_results, run_batch
 from arsurf.cli import main
 from arsurf.contact.maugis_dugdale import MaugisDugdale
@@ -139,7 +139,7 @@ def test_resume_skips_the_finished_items(folder, tmp_path):
 
 def test_an_interrupted_batch_resumes_where_it_stopped(folder, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    append = batch._Table.append
+    append = table.ResultTable.append
     written = []
 
     def interrupt_after_two(self, row):
@@ -148,10 +148,10 @@ def test_an_interrupted_batch_resumes_where_it_stopped(folder, tmp_path, monkeyp
         append(self, row)
         written.append(row["item"])
 
-    monkeypatch.setattr(batch._Table, "append", interrupt_after_two)
+    monkeypatch.setattr(table.ResultTable, "append", interrupt_after_two)
     with pytest.raises(KeyboardInterrupt):
         run_batch("process", [folder], out, workers=0, progress=False)
-    monkeypatch.setattr(batch._Table, "append", append)
+    monkeypatch.setattr(table.ResultTable, "append", append)
     summary = json.loads((out / "summary.json").read_text())
     assert not summary["complete"] and summary["not_run"] == 2
     # the process was killed in the middle of writing a third row: a torn line without its newline
@@ -244,7 +244,7 @@ def _die_on_three(x):
 def test_a_worker_that_dies_is_found_and_the_others_complete():
     results, crashes = {}, {}
     calls = [(x,) for x in range(7)]
-    batch._execute_local(_die_on_three, calls, 2, results.__setitem__, crashes.__setitem__)
+    executors.execute_local(_die_on_three, calls, 2, results.__setitem__, crashes.__setitem__)
     assert results == {i: i * i for i in range(7) if i != 3}
     assert list(crashes) == [3] and "worker process died" in crashes[3]
 

@@ -1,109 +1,33 @@
-r"""Batch runs: one pipeline over many scans or sessions, on local processes or a Dask cluster.
-
-:func:`run_batch` (and ``arsurf batch PIPELINE INPUT... --out DIR``) applies one of three
-pipelines to every file of a folder, a glob or a list of files:
-
-===========  =====================================================================================
-pipeline     what each item does
-===========  =====================================================================================
-``process``  load, inpaint, level, smooth (:func:`arsurf.scan.prepare.prepare_scan`), fit a bicubic
-             B-spline (:func:`arsurf.spline.fit.fit_surface`), save it (``<item>.surface.npz``,
-             :func:`arsurf.spline.storage.save_surface`) and export it if asked (mesh: STL/PLY/GLB by
-             :func:`arsurf.export.export_surface`; height map: .gwy/.gsf/.npz/.npy, as ``arsurf export``)
-``replay``   replay a recorded session (:func:`arsurf.replay.replay.replay`) into ``<item>/``
-``sweep``    a contact sweep over a grid of friction coefficient x tip radius x effective modulus on
-             each scan: one item per scan and grid point (below)
-===========  =====================================================================================
-
-Execution: local worker processes by default (:class:`concurrent.futures.ProcessPoolExecutor`,
-``workers``; 0 runs the items in this process), or the workers of a Dask cluster when a scheduler
-address is given (``dask.distributed``, the optional extra ``arsurf[dask]``; the workers must
-have arsurf installed and see ``out_dir`` and the input files on a shared file system). Whichever
-runs them, the items give the same results: the sweep and the fit are deterministic.
-
-Errors of one item never stop the batch: the item gets a row with ``status`` = ``error`` and a
-one-line reason (``CorruptScan: ...``). A worker process that dies (a crash, the OOM killer) breaks
-the local pool: the items it held are rerun one at a time in a fresh pool, so the one that kills
-its worker is found and reported, and the others complete.
-
-Files written to ``out_dir``:
-
-=================  ===============================================================================
-``results.csv``    one row per finished item, appended and flushed (``fsync``) as each finishes; the
-                   columns carry their unit (``rms_roughness_m``, ``fit_time_s``, ``peak_load_N``;
-                   counts and ratios have none). Floats are written with ``repr`` (exact round trip),
-                   ``nan`` where a value does not exist, empty cells in the rows of failed items
-``batch.json``     the pipeline and its options (SI, each named with its unit: ``sigma_m``,
-                   ``tip_radius_m``; :mod:`arsurf.units`), written at the start; a resumed batch must
-                   have the same
-``summary.json``   counts (ok, failed, skipped), the failures with their reasons, ``elapsed_s``,
-                   ``items_per_s``, and min / median / max of every numeric column over the items
-                   that succeeded (under the column's name, so in its unit); rewritten at the end
-                   (``"complete": false`` when interrupted)
-per item           ``process``: ``<item>.surface.npz`` (+ exports), ``replay``: ``<item>/``
-=================  ===============================================================================
-
-``<item>`` is the input's path relative to the common folder of all inputs, with ``/`` written
-``__``. With ``resume``, the items whose latest row has ``status`` ``ok`` are skipped; the others
-(failed, or never finished) run again. A row is written only after an item's files are complete,
-and a torn last line (the batch killed while writing it) is cut off before appending, so the table
-stays valid whatever moment the batch was stopped.
-
-Sweep (one item per scan x friction x tip radius x modulus; the scan prepared and fitted as the
-``preset`` says, once per worker): on the fitted surface at ``at`` (default the middle of the
-scan), with the preset's work of adhesion, cantilever and deformation, the tip centre is driven in
-three straight legs of ``steps`` ticks each through the :class:`~arsurf.model.ARModel`:
-
-1. **press**: from 2 nm above contact down to the indentation ``depth`` (on the rest surface);
-2. **slide**: ``slide`` metres along +x at that centre height (the depth follows the topography);
-3. **retract**: straight up to 10 nm above the start of contact.
-
-The row gives the largest depth and load and the contact radius at the largest load
-(Maugis-Dugdale, :mod:`arsurf.contact.maugis_dugdale`), the pull-off force (the most tensile load
-while retracting), and the friction during the slide: the mean tangential force
-:math:`|F - P n|` and the mean ratio :math:`|F_t| / P` over the ticks where the friction proxy
-slipped (:mod:`arsurf.contact.friction`; on a flat surface it equals the kinetic coefficient).
-The motion is scripted, without a hand, device or haptic loop, so the answers depend only on the
-contact physics being swept (:mod:`arsurf.feel_scenarios` scores the feel through the whole loop).
-
-Examples
---------
->>> # run_batch("process", ["scans/"], "out", options={"sigma": 1e-9, "export": [".stl"]}, workers=4)
->>> # run_batch("sweep", ["scan.gsf"], "out", options={"friction": [0.1, 0.3], "tip_radius": [10e-9, 20e-9],
->>> #           "effective_modulus": [1e9, 1e10]}, scheduler="tcp://10.0.0.5:8786")
->>> sorted(PIPELINES)
-['process', 'replay', 'sweep']
->>> PIPELINES["sweep"].columns[4:7]
-('friction', 'tip_radius_m', 'effective_modulus_Pa')
+"""The batch runner, :func:`run_batch`: checks the request, writes ``batch.json`` (the settings a
+resumed batch must share), runs the items that are not done on an executor
+(:mod:`arsurf.batch.executors`), appends each row to ``results.csv`` (:mod:`arsurf.batch.table`)
+and writes ``summary.json``. The files and the pipelines are described in :mod:`arsurf.batch`.
 """
 from __future__ import annotations
 
-import csv
-import functools
-import glob
-import itertools
 import json
-import math
 import logging
+import math
 import os
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from arsurf._logging import progress as progress_bar
-from arsurf.errors import ArsurfError, BatchError, SessionError, require
+from arsurf.batch.executors import connect, execute_dask, execute_local
+from arsurf.batch.inputs import Item, collect_inputs
+from arsurf.batch.pipelines import Pipeline, make_items, get_pipeline, run_item
+from arsurf.batch.table import BASE_COLUMNS, TABLE, ResultTable, cell, read_results, repair_table
+from arsurf.errors import BatchError, require
 from arsurf.units import summary_json, with_unit
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PIPELINES", "BatchResult", "Item", "Pipeline", "collect_inputs", "make_items", "read_results",
-           "run_batch"]
+__all__ = ["BatchResult", "run_batch"]
 
-TABLE = "results.csv"
 SUMMARY = "summary.json"
 SETTINGS = "batch.json"
 BATCH_FORMAT = "arsurf-batch"
@@ -112,37 +36,6 @@ BATCH_FORMAT_VERSION = 2
 #: the SI unit of each option in batch.json (:mod:`arsurf.units`); the others are dimensionless or text
 _OPTION_UNITS = {"sigma": "m", "dx": "m", "dy": "m", "tip_radius": "m", "effective_modulus": "Pa", "depth": "m",
                  "slide": "m", "at": "m"}
-#: most items one batch accepts (a typo in a sweep grid must not allocate millions of rows)
-MAX_ITEMS = 1_000_000
-#: the columns every table starts with
-BASE_COLUMNS = ("item", "status", "error")
-#: longest error reason kept in the table (characters)
-MAX_REASON = 400
-
-
-@dataclass(frozen=True)
-class Item:
-    """One unit of work: ``key`` (unique in the table), ``path`` (the input file, absolute) and
-    ``params`` (the sweep's grid point as ``((name, value), ...)``, SI; empty otherwise)."""
-
-    key: str
-    path: str
-    params: tuple = ()
-
-
-@dataclass(frozen=True)
-class Pipeline:
-    """A batch pipeline: its ``name``, table ``columns`` (units in the names), the input files a
-    folder contributes (``suffixes``; None: the scan extensions :func:`arsurf.scan.io.load_scan`
-    knows), the option check (``check(options) -> options``, SI, JSON-ready) and the work of one
-    item (``task(item, options, out_dir) -> {column: value}``)."""
-
-    name: str
-    columns: tuple[str, ...]
-    check: Callable[[Mapping], dict]
-    task: Callable[[Item, Mapping, Path], dict]
-    suffixes: tuple[str, ...] | None = None
-    description: str = ""
 
 
 @dataclass(frozen=True)
@@ -168,552 +61,6 @@ class BatchResult:
     items_per_second: float
 
 
-# ---------------------------------------------------------------------------------------------
-# inputs
-
-
-def _scan_suffixes() -> tuple[str, ...]:
-    from arsurf.scan.io import _ext_map
-
-    return tuple(sorted(_ext_map()))
-
-
-def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] | None = None, *,
-                   exclude: str | os.PathLike | None = None) -> tuple[list[Path], Path]:
-    """The input files of a batch, sorted, and the folder they are named relative to.
-
-    Each input is a file (taken as it is), a folder (its files whose extension is in
-    ``suffixes``, case-insensitive, not recursive) or a glob pattern (``*``, ``?``, ``[...]``;
-    ``**`` recurses; every regular file it matches). Files inside ``exclude`` (the batch's output
-    folder) are left out.
-
-    Returns
-    -------
-    files : list of Path
-        Absolute (symbolic links are not resolved), without duplicates.
-    root : Path
-        The deepest folder holding all of them (item keys are relative to it).
-
-    Raises
-    ------
-    BatchError
-        An input does not exist, a folder holds no such file, a pattern matches nothing.
-    """
-    if isinstance(inputs, (str, os.PathLike)):
-        inputs = [inputs]
-    if not inputs:
-        raise BatchError("no input given: name scan files, folders or glob patterns")
-    wanted = {s.lower() for s in (suffixes if suffixes is not None else _scan_suffixes())}
-    skips = set() if exclude is None else {Path(os.path.abspath(exclude)), Path(exclude).resolve()}
-    found: dict[Path, None] = {}
-    for entry in inputs:
-        text = os.fspath(entry)
-        if glob.has_magic(text):
-            matches = [Path(m) for m in sorted(glob.glob(text, recursive=True)) if Path(m).is_file()]
-            if not matches:
-                raise BatchError(f"no file matches the pattern {text!r}")
-        elif os.path.isdir(text):
-            matches = sorted(p for p in Path(text).iterdir() if p.is_file() and p.suffix.lower() in wanted)
-            if not matches:
-                raise BatchError(f"folder {text!r} holds no input file (extensions {', '.join(sorted(wanted))}); "
-                                 "name the files or a glob pattern to take others")
-        elif os.path.isfile(text):
-            matches = [Path(text)]
-        else:
-            raise BatchError(f"input {text!r} does not exist (a file, a folder or a glob pattern)")
-        for m in matches:
-            path = Path(os.path.abspath(m))  # symbolic links kept: a linked copy is an item of its own
-            if any(s == p or s in p.parents for s in skips for p in (path, path.resolve())):
-                continue
-            found.setdefault(path, None)
-    files = sorted(found)
-    if not files:
-        raise BatchError(f"every input is inside the output folder {os.fspath(exclude)!r}; choose another output "
-                         "folder")
-    root = Path(os.path.commonpath([str(p.parent) for p in files]))
-    return files, root
-
-
-def _key(path: Path, root: Path) -> str:
-    return path.relative_to(root).as_posix()
-
-
-def _safe(key: str) -> str:
-    """A file name for an item key: ``/`` -> ``__``; characters a file system refuses -> ``_``."""
-    name = key.replace("/", "__")
-    return "".join("_" if c in '<>:"\\|?*' or ord(c) < 32 else c for c in name)
-
-
-def make_items(pipeline: str | Pipeline, files: Sequence[Path], root: Path, options: Mapping) -> list[Item]:
-    """The items of a batch: one per file, and for ``sweep`` one per file and grid point.
-
-    The sweep's grid is the Cartesian product of ``options["friction"]``, ``["tip_radius"]`` and
-    ``["effective_modulus"]`` (SI); its key is ``<file>;friction=...;tip_radius_m=...;
-    effective_modulus_Pa=...`` with the values as Python writes them (exact).
-    """
-    p = _pipeline(pipeline)
-    items = [Item(_key(f, root), str(f)) for f in files]
-    if p.name != "sweep":
-        return items
-    axes = [(name, unit, options[name]) for name, unit in _SWEEP_AXES]
-    n = len(items) * math.prod(len(values) for _, _, values in axes)
-    if n > MAX_ITEMS:
-        raise BatchError(f"the sweep has {n} items ({len(items)} scans x "
-                         f"{' x '.join(str(len(v)) for _, _, v in axes)}), more than {MAX_ITEMS}; use a coarser grid")
-    out = []
-    for item in items:
-        for point in itertools.product(*(values for _, _, values in axes)):
-            key = ";".join([item.key] + [f"{name}{unit}={v!r}" for (name, unit, _), v in zip(axes, point)])
-            out.append(Item(key, item.path, tuple((name, v) for (name, _, _), v in zip(axes, point))))
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# option checks (SI, JSON-ready)
-
-
-def _number(options: Mapping, name: str, default, *, minimum: float = 0.0, strict: bool = False,
-            unit: str = "", what: str = "") -> float:
-    value = options.get(name, default)
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise BatchError(f"option {name!r} must be a number{' in ' + unit if unit else ''} (got {value!r}); "
-                         f"{what}") from None
-    if not math.isfinite(x) or x < minimum or (strict and x == minimum):
-        rule = f"> {minimum:g}" if strict else f">= {minimum:g}"
-        raise BatchError(f"option {name!r} must be finite and {rule}{' ' + unit if unit else ''} (got {value!r}); "
-                         f"{what}")
-    return x
-
-
-def _int_pair(options: Mapping, name: str, minimum: int, what: str):
-    value = options.get(name)
-    if value is None:
-        return None
-    try:
-        pair = [int(v) for v in value]
-        ok = len(pair) == 2 and all(float(v) == p for v, p in zip(value, pair))
-    except (TypeError, ValueError):
-        ok = False
-    if not ok or min(pair) < minimum:
-        raise BatchError(f"option {name!r} must be two integers >= {minimum} (got {value!r}); {what}")
-    return pair
-
-
-def _unknown(options: Mapping, known: Sequence[str], pipeline: str) -> None:
-    extra = sorted(set(options) - set(known))
-    if extra:
-        raise BatchError(f"unknown option(s) {extra} for the {pipeline!r} pipeline; it takes {sorted(known)}")
-
-
-_MESH_EXPORTS = (".stl", ".ply", ".glb")
-_MAP_EXPORTS = (".gwy", ".gsf", ".npz", ".npy")
-_PROCESS_OPTIONS = ("channel", "level", "sigma", "inpaint", "control_shape", "smoothing", "export", "resolution",
-                    "solid", "dx", "dy", "z_unit")
-
-
-def _check_process(options: Mapping) -> dict:
-    from arsurf.scan.level import METHODS
-
-    _unknown(options, _PROCESS_OPTIONS, "process")
-    level = options.get("level", "plane")
-    if level is None:
-        level = "none"
-    if level not in (*METHODS, "none"):
-        raise BatchError(f"option 'level' must be one of {(*METHODS, 'none')} (got {level!r})")
-    exports = options.get("export") or ()
-    if isinstance(exports, str):
-        exports = [exports]
-    norm = []
-    for ext in exports:
-        e = str(ext).lower()
-        e = e if e.startswith(".") else "." + e
-        if e not in _MESH_EXPORTS + _MAP_EXPORTS:
-            raise BatchError(f"export format {ext!r} is not one of {', '.join(_MESH_EXPORTS + _MAP_EXPORTS)}")
-        if e not in norm:
-            norm.append(e)
-    if any(e in _MESH_EXPORTS for e in norm):
-        require("trimesh", "mesh", "arsurf batch process --export " + "/".join(e for e in norm if e in _MESH_EXPORTS))
-    out = {
-        "channel": None if options.get("channel") is None else str(options["channel"]),
-        "level": level,
-        "sigma": _number(options, "sigma", 0.0, unit="m", what="it is the Gaussian smoothing width in metres"),
-        "inpaint": bool(options.get("inpaint", True)),
-        "control_shape": _int_pair(options, "control_shape", 4, "they are the control points of an approximating fit"),
-        "smoothing": _number(options, "smoothing", 0.0, what="it is the P-spline penalty weight"),
-        "export": norm,
-        "resolution": _int_pair(options, "resolution", 2, "they are the samples along u and v of an export"),
-        "solid": bool(options.get("solid", False)),
-        "z_unit": None if options.get("z_unit") is None else str(options["z_unit"]),
-    }
-    for name in ("dx", "dy"):
-        out[name] = (None if options.get(name) is None else
-                     _number(options, name, None, strict=True, unit="m", what="it is the pixel spacing in metres"))
-    return out
-
-
-def _check_replay(options: Mapping) -> dict:
-    _unknown(options, ("scan",), "replay")
-    scan = options.get("scan")
-    if scan is not None and not os.path.isfile(scan):
-        raise BatchError(f"scan file {os.fspath(scan)!r} does not exist (option 'scan': the scan every session was "
-                         "recorded on; leave it out to use the path each session recorded)")
-    return {"scan": None if scan is None else str(Path(scan).resolve())}
-
-
-#: the sweep's axes: option name, unit in the key and in the column name
-_SWEEP_AXES = (("friction", ""), ("tip_radius", "_m"), ("effective_modulus", "_Pa"))
-_SWEEP_OPTIONS = ("friction", "tip_radius", "effective_modulus", "preset", "depth", "slide", "steps", "at")
-_SWEEP_DEFAULT_STEPS = 40
-#: most grid values on one axis
-_MAX_AXIS = 10_000
-
-
-def _axis(options: Mapping, name: str, default: float, *, strict: bool, unit: str, what: str) -> list[float]:
-    values = options.get(name)
-    if values is None:
-        values = [default]
-    elif isinstance(values, (int, float)):
-        values = [values]
-    try:
-        values = list(values)
-    except TypeError:
-        raise BatchError(f"option {name!r} must be a list of numbers{' in ' + unit if unit else ''} "
-                         f"(got {values!r})") from None
-    if not values or len(values) > _MAX_AXIS:
-        raise BatchError(f"option {name!r} needs 1 to {_MAX_AXIS} values (got {len(values)})")
-    out = [_number({name: v}, name, None, strict=strict, unit=unit, what=what) for v in values]
-    if len(set(out)) != len(out):
-        raise BatchError(f"option {name!r} repeats a value ({values!r}); give each grid value once")
-    return out
-
-
-def _check_sweep(options: Mapping) -> dict:
-    from arsurf.assembly import PRESETS
-
-    _unknown(options, _SWEEP_OPTIONS, "sweep")
-    name = options.get("preset", "demo")
-    if name not in PRESETS:
-        raise BatchError(f"option 'preset' must be one of {sorted(PRESETS)} (got {name!r})")
-    p = PRESETS[name]
-    out = {
-        "preset": name,
-        "friction": _axis(options, "friction", p.friction, strict=False, unit="",
-                          what="it is the kinetic friction coefficient"),
-        "tip_radius": _axis(options, "tip_radius", p.tip_radius, strict=True, unit="m",
-                            what="it is the tip sphere radius in metres"),
-        "effective_modulus": _axis(options, "effective_modulus", p.effective_modulus, strict=True, unit="Pa",
-                                   what="it is the contact modulus E* in pascals"),
-        "depth": _number(options, "depth", 2e-9, strict=True, unit="m",
-                         what="it is the indentation of the press in metres"),
-        "slide": _number(options, "slide", 20e-9, unit="m", what="it is the slide length along x in metres"),
-    }
-    steps = options.get("steps", _SWEEP_DEFAULT_STEPS)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 2 <= steps <= 100_000:
-        raise BatchError(f"option 'steps' must be an integer in [2, 100000] (got {steps!r}); it is the ticks of "
-                         "each leg (press, slide, retract)")
-    out["steps"] = int(steps)
-    at = options.get("at")
-    if at is not None:
-        try:
-            at = [float(v) for v in at]
-        except (TypeError, ValueError):
-            at = None
-        if at is None or len(at) != 2 or not all(map(math.isfinite, at)):
-            raise BatchError(f"option 'at' must be (x, y) in metres, finite (got {options.get('at')!r})")
-    out["at"] = at
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# the work of one item (runs in a worker: module-level functions, picklable by reference)
-
-
-def _residual_and_roughness(scan, surface) -> tuple[float, float, float]:
-    xx, yy = np.meshgrid(scan.x, scan.y)
-    resid = surface.evaluate(xx, yy)[..., 2] - scan.heights
-    z = scan.heights
-    return (float(np.sqrt(np.mean(resid ** 2))), float(np.abs(resid).max()),
-            float(np.sqrt(np.mean((z - z.mean()) ** 2))))
-
-
-def _process(item: Item, o: Mapping, out_dir: Path) -> dict:
-    from arsurf.scan.prepare import prepare_scan
-    from arsurf.spline.fit import fit_surface
-    from arsurf.spline.storage import save_surface
-
-    scan = prepare_scan(item.path, o["channel"], o["level"], o["sigma"], o["inpaint"], dx=o["dx"], dy=o["dy"],
-                        z_unit=o["z_unit"])
-    t0 = time.perf_counter()
-    cs = o["control_shape"]
-    surface = fit_surface(scan, control_shape=tuple(cs) if cs else None, smoothing=o["smoothing"])
-    fit_time = time.perf_counter() - t0
-    rms_resid, max_resid, rq = _residual_and_roughness(scan, surface)
-    stem = _safe(item.key)
-    outputs = [f"{stem}.surface.npz"]
-    _atomic(out_dir / outputs[0], lambda tmp: save_surface(
-        surface, tmp, metadata={"scan": item.path, "history": scan.history}))
-    res = tuple(o["resolution"]) if o["resolution"] else None
-    for ext in o["export"]:
-        name = f"{stem}{ext}"
-        if ext in _MESH_EXPORTS:
-            from arsurf.export import export_surface
-
-            export_surface(surface, out_dir / name, res, solid=o["solid"])  # writes to a temporary name itself
-        else:
-            from arsurf.scan.io import save_scan
-            from arsurf.spline.sampling import surface_to_scan
-
-            sampled = surface_to_scan(surface, res, source=item.path)
-            _atomic(out_dir / name, lambda tmp: save_scan(sampled, tmp))
-        outputs.append(name)
-    ny, nx = scan.shape
-    filled = sum(int(s.get("nan_filled", 0)) for s in scan.history if s.get("step") == "inpaint")
-    return {"format": scan.metadata.get("format"), "nx_px": nx, "ny_px": ny, "dx_m": scan.dx, "dy_m": scan.dy,
-            "z_range_m": float(np.ptp(scan.heights)), "rms_roughness_m": rq, "inpainted_pixels": filled,
-            "control_nu": surface.shape[0], "control_nv": surface.shape[1], "rms_residual_m": rms_resid,
-            "max_residual_m": max_resid, "fit_time_s": fit_time, "outputs": ";".join(outputs)}
-
-
-def _atomic(path: Path, write: Callable[[Path], Any]) -> None:
-    """``write(tmp)`` to a temporary name beside ``path`` (same extension), then rename it to ``path``."""
-    tmp = path.with_name(f".{path.stem}.part-{os.getpid()}-{id(write)}{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-        sidecar = Path(str(tmp) + ".json")  # .npy height maps: the spacing in a sidecar
-        if sidecar.exists():
-            os.replace(sidecar, Path(str(path) + ".json"))
-    finally:
-        for p in (tmp, Path(str(tmp) + ".json")):
-            if p.exists():
-                p.unlink()
-
-
-def _recorded_scan(session_path: str) -> str:
-    """The scan path a session recorded (relative paths: to the session's folder when the recorded
-    one does not exist from here)."""
-    import h5py
-
-    try:
-        with h5py.File(session_path, "r") as f:
-            text = f["metadata"].attrs["scan"]
-        text = text.decode() if isinstance(text, bytes) else str(text)
-        path = json.loads(text)["path"]
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise SessionError(f"{session_path!r}: cannot read the scan path the session recorded "
-                           f"({type(exc).__name__}: {exc}); is it an arsurf session? Give the scan with --scan") from exc
-    if not isinstance(path, str):
-        raise SessionError(f"{session_path!r}: the recorded scan path is not a string ({path!r}); give --scan")
-    beside = Path(session_path).parent / path
-    return path if (os.path.isabs(path) or os.path.exists(path) or not beside.exists()) else str(beside)
-
-
-def _replay(item: Item, o: Mapping, out_dir: Path) -> dict:
-    from arsurf.replay.replay import replay
-
-    scan = o["scan"] or _recorded_scan(item.path)
-    name = _safe(item.key)
-    r = replay(item.path, scan, out_dir / name, progress=False, overwrite=True)
-    return {"scan": scan, "n_ticks": r.n_ticks, "peak_force_N": r.peak_force,
-            "peak_measured_force_N": r.peak_measured_force, "max_depth_m": r.max_depth,
-            "max_contact_radius_m": r.max_contact_radius, "depth_difference_m": r.depth_difference,
-            "load_difference_N": r.load_difference, "contact_mismatches": r.contact_mismatches,
-            "collision_failures": r.collision_failures, "replay_time_s": r.elapsed, "outputs": name}
-
-
-@functools.lru_cache(maxsize=4)
-def _fitted(path: str, stamp: tuple, level: str, sigma: float):
-    """The scan prepared and fitted once per worker (``stamp``: size and mtime, so an edited file is refitted).
-    Never handed out: callers take a copy (the model dents its surface)."""
-    from arsurf.scan.prepare import prepare_scan
-    from arsurf.spline.fit import fit_surface
-
-    return fit_surface(prepare_scan(path, None, level, sigma, True))
-
-
-def _sweep(item: Item, o: Mapping, out_dir: Path) -> dict:
-    from arsurf.assembly import PRESETS, make_model
-    from arsurf.model import M_IN_CONTACT, M_LOAD, M_NX, M_RADIUS, M_SIM_FX, M_SLIPPING, M_DEPTH
-
-    p = PRESETS[o["preset"]]
-    st = os.stat(item.path)
-    surface = _fitted(item.path, (st.st_size, st.st_mtime_ns), p.level, p.sigma).copy()
-    g = dict(item.params)
-    mu, radius, modulus = g["friction"], g["tip_radius"], g["effective_modulus"]
-    model = make_model(surface, tip_radius=radius, effective_modulus=modulus, work_of_adhesion=p.work_of_adhesion,
-                       cantilever=p.cantilever, friction=mu)
-    (u0, u1), (v0, v1) = surface.domain
-    x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if o["at"] is None else o["at"]
-    if not (u0 <= x <= u1 and v0 <= y <= v1):
-        raise BatchError(f"sweep point at=({x!r}, {y!r}) m is outside the scan ({u0!r}..{u1!r}, {v0!r}..{v1!r} m)")
-    z_touch = float(surface.evaluate(x, y)[2]) + radius  # centre height of first contact (no adhesion)
-    n = o["steps"]
-    ramp = np.linspace(0.0, 1.0, n)
-    legs = [np.column_stack([np.full(n, x), np.full(n, y), z_touch + 2e-9 - (2e-9 + o["depth"]) * ramp]),
-            np.column_stack([x + o["slide"] * ramp, np.full(n, y), np.full(n, z_touch - o["depth"])]),
-            np.column_stack([np.full(n, x + o["slide"]), np.full(n, y), z_touch - o["depth"] + (o["depth"] + 10e-9) * ramp])]
-    rows = []
-    for leg in legs:
-        out = np.empty((n, model.out.size))
-        for k in range(n):
-            model.step(leg[k])
-            out[k] = model.out
-        rows.append(out)
-    press_slide = np.vstack(rows[:2])
-    k_peak = int(np.argmax(press_slide[:, M_LOAD]))
-    slide, retract = rows[1], rows[2]
-    normal = slide[:, M_NX:M_NX + 3]
-    tangential = np.linalg.norm(slide[:, M_SIM_FX:M_SIM_FX + 3] - slide[:, M_LOAD:M_LOAD + 1] * normal, axis=1)
-    touching = slide[:, M_IN_CONTACT] > 0.5
-    slipping = touching & (slide[:, M_SLIPPING] > 0.5) & (slide[:, M_LOAD] > 0.0)
-    ratio = float(np.mean(tangential[slipping] / slide[slipping, M_LOAD])) if slipping.any() else math.nan
-    model.reset()
-    return {"scan": item.key.split(";", 1)[0], "friction": mu, "tip_radius_m": radius,
-            "effective_modulus_Pa": modulus, "work_of_adhesion_J_per_m2": p.work_of_adhesion,
-            "max_depth_m": float(np.max(press_slide[:, M_DEPTH])), "peak_load_N": float(press_slide[k_peak, M_LOAD]),
-            "contact_radius_m": float(press_slide[k_peak, M_RADIUS]),
-            "pull_off_force_N": float(max(0.0, -np.min(retract[:, M_LOAD]))),
-            "mean_friction_force_N": float(np.mean(tangential[touching])) if touching.any() else 0.0,
-            "friction_ratio": ratio, "slip_fraction": float(np.mean(slipping))}
-
-
-PIPELINES: Mapping[str, Pipeline] = {
-    "process": Pipeline(
-        "process",
-        (*BASE_COLUMNS, "format", "nx_px", "ny_px", "dx_m", "dy_m", "z_range_m", "rms_roughness_m", "inpainted_pixels",
-         "control_nu", "control_nv", "rms_residual_m", "max_residual_m", "fit_time_s", "item_time_s", "outputs"),
-        _check_process, _process, None, "level, smooth, fit and export scans"),
-    "replay": Pipeline(
-        "replay",
-        (*BASE_COLUMNS, "scan", "n_ticks", "peak_force_N", "peak_measured_force_N", "max_depth_m",
-         "max_contact_radius_m", "depth_difference_m", "load_difference_N", "contact_mismatches",
-         "collision_failures", "replay_time_s", "item_time_s", "outputs"),
-        _check_replay, _replay, (".h5",), "replay recorded sessions"),
-    "sweep": Pipeline(
-        "sweep",
-        (*BASE_COLUMNS, "scan", "friction", "tip_radius_m", "effective_modulus_Pa", "work_of_adhesion_J_per_m2",
-         "max_depth_m", "peak_load_N", "contact_radius_m", "pull_off_force_N", "mean_friction_force_N",
-         "friction_ratio", "slip_fraction", "item_time_s"),
-        _check_sweep, _sweep, None, "press-slide-retract over a friction x tip radius x modulus grid"),
-}
-
-
-def _pipeline(name: str | Pipeline) -> Pipeline:
-    if isinstance(name, Pipeline):
-        return name
-    if name not in PIPELINES:
-        raise BatchError(f"unknown pipeline {name!r}; choose one of {', '.join(PIPELINES)}")
-    return PIPELINES[name]
-
-
-def _reason(exc: BaseException) -> str:
-    """``Type: first line of the message``, at most :data:`MAX_REASON` characters."""
-    text = str(exc).strip().splitlines()
-    line = f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
-    return line if len(line) <= MAX_REASON else line[:MAX_REASON - 3] + "..."
-
-
-def run_item(pipeline: str, item: Item, options: Mapping, out_dir: str) -> dict:
-    """Run one item and return its table row; any exception becomes an ``error`` row (one line).
-
-    This is what the workers run (local processes or Dask): a module-level function, so it is
-    pickled by reference.
-    """
-    t0 = time.perf_counter()
-    try:
-        values = PIPELINES[pipeline].task(item, options, Path(out_dir))
-    except Exception as exc:  # noqa: BLE001 - one bad item must not stop the batch; the reason is kept
-        return {"item": item.key, "status": "error", "error": _reason(exc)}
-    return {"item": item.key, "status": "ok", "error": "", **values, "item_time_s": time.perf_counter() - t0}
-
-
-# ---------------------------------------------------------------------------------------------
-# the results table
-
-
-def _cell(value) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, (bool, np.bool_)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return repr(float(value))
-    return str(value).replace("\r", " ").replace("\n", " ")
-
-
-class _Table:
-    """``results.csv``: the header once, then one row per item, flushed and fsynced as it comes."""
-
-    def __init__(self, path: Path, columns: tuple[str, ...]):
-        self.path = path
-        self.columns = columns
-        new = not path.exists() or path.stat().st_size == 0
-        self.fh = open(path, "a", encoding="utf-8", newline="")
-        self.writer = csv.writer(self.fh, lineterminator="\n")
-        if new:
-            self._write(columns)
-
-    def _write(self, cells) -> None:
-        self.writer.writerow(cells)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-
-    def append(self, row: Mapping) -> None:
-        self._write([_cell(row.get(c)) for c in self.columns])
-
-    def close(self) -> None:
-        self.fh.close()
-
-
-def _repair(path: Path) -> None:
-    """Cut a torn last line (the batch killed while writing it) so appending keeps the table valid."""
-    if not path.exists():
-        return
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        with open(path, "r+b") as fh:
-            fh.truncate(data.rfind(b"\n") + 1)
-
-
-def read_results(path: str | os.PathLike, columns: Sequence[str] | None = None) -> dict[str, dict[str, str]]:
-    """The rows of a results table, the latest per item (a resumed item's last attempt), as strings.
-
-    Parameters
-    ----------
-    path : path-like
-        ``results.csv`` (or the batch's output folder).
-    columns : sequence of str, optional
-        The header the table must have (BatchError otherwise).
-
-    Returns
-    -------
-    dict
-        item -> {column: cell}. A torn last line is ignored.
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / TABLE
-    if not path.exists():
-        return {}
-    text = path.read_text(encoding="utf-8")
-    if text and not text.endswith("\n"):
-        text = text[:text.rfind("\n") + 1]
-    lines = list(csv.reader(text.splitlines()))
-    if not lines:
-        return {}
-    header = tuple(lines[0])
-    if columns is not None and header != tuple(columns):
-        raise BatchError(f"{str(path)!r} has the columns {list(header)}, not those of this pipeline "
-                         f"{list(columns)}; choose another output folder")
-    return {row[0]: dict(zip(header, row)) for row in lines[1:] if len(row) == len(header)}
-
-
-# ---------------------------------------------------------------------------------------------
-# progress
-
-
 class _Progress:
     """Items done as a tqdm bar on stderr (:func:`arsurf._logging.progress`: on a terminal, unless
     ``-q``), failures in its postfix; the resume note is logged (INFO)."""
@@ -732,110 +79,6 @@ class _Progress:
 
     def close(self) -> None:
         self.bar.close()
-
-
-# ---------------------------------------------------------------------------------------------
-# execution
-
-
-def _execute_local(func: Callable, calls: Sequence[tuple], workers: int, on_result: Callable[[int, Any], None],
-                   on_crash: Callable[[int, str], None]) -> None:
-    """Run ``func(*calls[i])`` for every i on ``workers`` processes, calling ``on_result(i, value)``
-    as each finishes (in this process). A worker that dies breaks the pool: the calls it held run
-    again one at a time in a fresh pool, and one that breaks it alone is given to ``on_crash``."""
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
-
-    if workers == 0:
-        for i, args in enumerate(calls):
-            on_result(i, func(*args))
-        return
-    context = multiprocessing.get_context("spawn")  # no fork of a process that holds threads (Dask, BLAS)
-    pending = deque(range(len(calls)))
-    suspects: deque[int] = deque()
-    window = 2 * workers  # calls handed to the pool at once: the suspects if it breaks
-    pool = None
-    try:
-        while pending or suspects:
-            if pool is None:
-                pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
-            if suspects:  # after a break: one call at a time, so a call that breaks the pool alone is known
-                i = suspects.popleft()
-                try:
-                    value = pool.submit(func, *calls[i]).result()
-                except BrokenProcessPool:
-                    on_crash(i, "the worker process died while running this item (a crash or the out-of-memory "
-                                "killer)")
-                    pool.shutdown(wait=True, cancel_futures=True)
-                    pool = None
-                    continue
-                on_result(i, value)
-                continue
-            inflight: dict = {}
-            broken = False
-            while (pending or inflight) and not broken:
-                while pending and len(inflight) < window:
-                    i = pending.popleft()
-                    try:
-                        inflight[pool.submit(func, *calls[i])] = i
-                    except BrokenProcessPool:
-                        pending.appendleft(i)
-                        broken = True
-                        break
-                if not inflight:
-                    break
-                done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = inflight.pop(fut)
-                    try:
-                        value = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        suspects.append(i)
-                        continue
-                    on_result(i, value)
-            if broken:  # the calls the broken pool held: not run, or not known to have run
-                suspects.extend(sorted(inflight.values()))
-                pool.shutdown(wait=True, cancel_futures=True)
-                pool = None
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _connect(scheduler, connect_timeout: float):
-    """``(client, own)``: a ``distributed.Client`` for an address (``own``: close it after), or the client given."""
-    distributed = require("distributed", "dask", "arsurf batch on a Dask cluster (--scheduler)")
-    if isinstance(scheduler, distributed.Client):
-        return scheduler, False
-    try:
-        return distributed.Client(scheduler, timeout=connect_timeout), True
-    except (OSError, TimeoutError, ValueError, TypeError) as exc:
-        raise BatchError(f"cannot reach the Dask scheduler at {scheduler!r} within {connect_timeout:g} s "
-                         f"({_reason(exc)}); start one with `dask scheduler` or check the address") from None
-
-
-def _execute_dask(func: Callable, calls: Sequence[tuple], client, on_result: Callable[[int, Any], None],
-                  on_crash: Callable[[int, str], None]) -> None:
-    """Run the calls on the Dask cluster of ``client``. A task that fails on the cluster (a worker
-    killed three times running it: ``KilledWorker``) goes to ``on_crash``."""
-    import distributed
-
-    futures = [client.submit(func, *args, pure=False) for args in calls]
-    index = {f.key: i for i, f in enumerate(futures)}
-    try:
-        for fut in distributed.as_completed(futures):
-            i = index[fut.key]
-            try:
-                value = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the cluster lost the task; the others go on
-                on_crash(i, f"the Dask cluster could not run this item ({_reason(exc)})")
-            else:
-                on_result(i, value)
-            fut.release()
-    finally:
-        client.cancel([f for f in futures if not f.done()])
 
 
 def _settings(pipeline: Pipeline, options: dict, version: int = BATCH_FORMAT_VERSION) -> dict:
@@ -945,7 +188,7 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         ``scheduler`` without ``dask.distributed`` installed (``pip install 'arsurf[dask]'``).
     """
     t0 = time.perf_counter()
-    p = _pipeline(pipeline)
+    p = get_pipeline(pipeline)
     if scheduler is not None and workers is not None:
         raise BatchError("give the local worker count or a Dask scheduler, not both (--workers or --scheduler)")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
@@ -963,7 +206,7 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
     items = make_items(p, files, root, opts)
     if len({it.key for it in items}) != len(items):
         raise BatchError("two inputs give the same item name; rename one of them")
-    client, own = _connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
+    client, own = connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
     try:
         return _run(p, items, opts, out, workers, client, resume, progress, t0)
     finally:
@@ -976,18 +219,18 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
     """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
     table_path = out / TABLE
-    _repair(table_path)
+    repair_table(table_path)
     rows = read_results(table_path, p.columns) if resume else {}
     todo = [it for it in items if rows.get(it.key, {}).get("status") != "ok"]
     skipped = len(items) - len(todo)
-    table = _Table(table_path, p.columns)
+    table = ResultTable(table_path, p.columns)
     bar = _Progress(len(items), skipped, progress)
     ran = 0
 
     def record(i: int, row: Mapping) -> None:
         nonlocal ran
         table.append(row)
-        rows[row["item"]] = {c: _cell(row.get(c)) for c in p.columns}
+        rows[row["item"]] = {c: cell(row.get(c)) for c in p.columns}
         ran += 1
         bar.update(row["status"] == "ok")
 
@@ -1000,10 +243,10 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
         if not calls:
             pass
         elif client is not None:
-            _execute_dask(run_item, calls, client, record, crashed)
+            execute_dask(run_item, calls, client, record, crashed)
         else:
             n = (os.cpu_count() or 1) if workers is None else int(workers)
-            _execute_local(run_item, calls, min(n, len(calls)), record, crashed)
+            execute_local(run_item, calls, min(n, len(calls)), record, crashed)
         complete = True
     finally:
         table.close()
