@@ -37,6 +37,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from arsurf.config import UNSET, CantileverConfig, ContactConfig, HapticsConfig, SessionConfig
 from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
 
@@ -63,7 +64,6 @@ BUNDLED_SCAN = bundled_scan("nanotubes")
 LEVER = MappingProxyType(dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6,
                               youngs_modulus=169e9, poisson_ratio=0.27))
 
-_REQUIRED_META = ("scan", "tip_radius", "contact", "friction", "cantilever")
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
                     "normal_stiffness", "torsional_stiffness", "beta")
 _HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
@@ -318,9 +318,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
             "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
     if material is not None:
         meta["material"] = _material_meta(material, scan_meta["path"])
-    meta = _jsonable(meta, "metadata")
-    check_metadata(meta)
-    return meta
+    return check_metadata(_jsonable(meta, "metadata")).to_metadata()
 
 
 def preset_metadata(scan: str | os.PathLike, preset_name: str | Preset = "demo", **overrides) -> dict:
@@ -345,61 +343,19 @@ def preset_metadata(scan: str | os.PathLike, preset_name: str | Preset = "demo",
     return session_metadata(**args)
 
 
-def _need(d: Mapping, key: str, where: str):
-    if not isinstance(d, Mapping) or key not in d:
-        raise SessionError(f"session metadata lacks {where}.{key}; record it with arsurf.session_metadata")
-    return d[key]
+def check_metadata(meta: Mapping | SessionConfig) -> SessionConfig:
+    """The typed configuration of session metadata (:class:`~arsurf.config.SessionConfig`), checked
+    once: the records' rules, then the contact law, cantilever, tube scene and material conversion
+    they describe are built (their own checks apply). Raises :class:`SessionError` unless ``meta``
+    describes a model that can be rebuilt."""
+    from arsurf.contact.material_map import CHANNEL_NAMES
 
-
-def check_metadata(meta: Mapping) -> None:
-    """Raise :class:`SessionError` unless ``meta`` describes a model that can be rebuilt."""
-    if not isinstance(meta, Mapping):
-        raise SessionError(f"session metadata must be a dict (got {type(meta).__name__})")
-    missing = [k for k in _REQUIRED_META if k not in meta]
-    if missing:
-        raise SessionError(f"session metadata lacks {missing}; build it with arsurf.session_metadata")
-    scan = meta["scan"]
-    path = _need(scan, "path", "scan")
-    if not isinstance(path, str) or not path:
-        raise SessionError(f"metadata scan.path must be a non-empty string (got {path!r})")
-    digest = _need(scan, "sha256", "scan")
-    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
-        raise SessionError(f"metadata scan.sha256 must be 64 lowercase hex digits (got {digest!r}); "
-                           "compute it with arsurf.scan_sha256(path)")
-    channel = scan.get("channel")
-    if channel is not None and not isinstance(channel, str):
-        raise SessionError(f"metadata scan.channel must be a string or null (got {channel!r})")
-    proc = _need(scan, "processing", "scan")
-    lv = _need(proc, "level", "scan.processing")
-    if not isinstance(lv, str):
-        raise SessionError(f"metadata scan.processing.level must be a method name (got {lv!r})")
-    sg = _need(proc, "sigma", "scan.processing")
-    if isinstance(sg, bool) or not isinstance(sg, (int, float)) or not sg >= 0.0:
-        raise SessionError(f"metadata scan.processing.sigma must be >= 0 metres (got {sg!r})")
-    ip = _need(proc, "inpaint", "scan.processing")
-    if not isinstance(ip, bool):
-        raise SessionError(f"metadata scan.processing.inpaint must be true or false (got {ip!r})")
-    cs = proc.get("control_shape")
-    if cs is not None and not (isinstance(cs, (list, tuple)) and len(cs) == 2
-                               and all(isinstance(c, int) and not isinstance(c, bool) and c >= 4 for c in cs)):
-        raise SessionError(f"metadata scan.processing.control_shape must be null or two integers >= 4 (got {cs!r})")
-    sm = proc.get("smoothing", 0.0)
-    if isinstance(sm, bool) or not isinstance(sm, (int, float)) or not sm >= 0.0:
-        raise SessionError(f"metadata scan.processing.smoothing must be >= 0 (got {sm!r})")
-    lever = meta["cantilever"]
-    if not isinstance(lever, Mapping):
-        raise SessionError(f"metadata cantilever must be an object of constructor arguments (got {lever!r})")
-    unknown = sorted(set(lever) - set(_CANTILEVER_ARGS))
-    if unknown:
-        raise SessionError(f"metadata cantilever has unknown arguments {unknown}; allowed: {list(_CANTILEVER_ARGS)}")
-    for k in ("effective_modulus", "work_of_adhesion"):
-        _need(meta["contact"], k, "contact")
-    haptics = meta.get("haptics") or {}
-    if not isinstance(haptics, Mapping):
-        raise SessionError(f"metadata haptics must be an object (got {haptics!r})")
-    _model_parts(meta)  # builds the contact law and the cantilever: their own checks apply
-    _tube_scene(meta)
-    _check_material(meta.get("material"))
+    config = meta if isinstance(meta, SessionConfig) else SessionConfig.from_metadata(
+        meta, material_roles=CHANNEL_NAMES)
+    _model_parts(config)
+    _tube_scene(config)
+    _check_material(config.material)
+    return config
 
 
 def _material_meta(material, scan_path: str) -> dict:
@@ -416,57 +372,25 @@ def _material_meta(material, scan_path: str) -> dict:
     return spec
 
 
-def _check_material(spec) -> None:
-    """Raise :class:`SessionError` unless ``spec`` (metadata ``material``) can rebuild a map."""
-    if spec is None:
+def _check_material(material) -> None:
+    """Raise :class:`SessionError` unless the recorded conversion of a material map (a
+    :class:`~arsurf.config.MaterialConfig`, or None) is valid."""
+    if material is None:
         return
     from arsurf.contact.material_conversion import MaterialConversion
-    from arsurf.contact.material_map import CHANNEL_NAMES
 
-    if not isinstance(spec, Mapping):
-        raise SessionError(f"metadata material must be an object (got {spec!r})")
-    chans = _need(spec, "channels", "material")
-    if not (isinstance(chans, Mapping) and all(isinstance(k, str) and isinstance(v, str) for k, v in chans.items())
-            and set(chans) <= set(CHANNEL_NAMES) and {"modulus", "adhesion"} <= set(chans)):
-        raise SessionError(f"metadata material.channels must map roles {sorted(CHANNEL_NAMES)} (modulus and "
-                           f"adhesion at least) to channel names (got {chans!r})")
-    units = spec.get("units") or {}
-    if not (isinstance(units, Mapping) and all(isinstance(v, str) for v in units.values())
-            and set(units) <= set(CHANNEL_NAMES)):
-        raise SessionError(f"metadata material.units must map roles to unit names (got {units!r})")
     try:
-        MaterialConversion.from_metadata(_need(spec, "conversion", "material"))
+        MaterialConversion.from_metadata(material.conversion)
     except ArsurfError as exc:
         raise SessionError(f"metadata material.conversion is not valid: {exc}") from exc
-    off = spec.get("offset", [0.0, 0.0])
-    if not (isinstance(off, (list, tuple)) and len(off) == 2
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in off)):
-        raise SessionError(f"metadata material.offset must be two finite numbers in metres (got {off!r})")
-    proc = spec.get("processing") or {}
-    for key in ("sigma", "smoothing"):
-        v = proc.get(key, 0.0)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0.0:
-            raise SessionError(f"metadata material.processing.{key} must be >= 0 (got {v!r})")
-    digest = spec.get("sha256")
-    for key in ("sha256", "file_sha256"):
-        d = spec.get(key)
-        if d is not None and not (isinstance(d, str) and len(d) == 64 and all(c in "0123456789abcdef" for c in d)):
-            raise SessionError(f"metadata material.{key} must be 64 lowercase hex digits (got {d!r})")
-    if digest is None:
-        raise SessionError("metadata material lacks sha256 (the hash of the map); record it with "
-                           "arsurf.session_metadata(material=...)")
-    path = spec.get("path")
-    if path is not None and not (isinstance(path, str) and path and spec.get("file_sha256")):
-        raise SessionError(f"metadata material.path must be null (the scan file) or a path with its file_sha256 "
-                           f"(got {path!r})")
 
 
-def _material_map(meta: Mapping, scan, scan_path):
+def _material_map(config: SessionConfig, scan, scan_path):
     """The MaterialMap a session recorded, rebuilt on the prepared ``scan``'s grid and checked
     against its hash (None without ``material``)."""
-    spec = meta.get("material")
-    if spec is None:
+    if config.material is None:
         return None
+    spec = config.material.to_metadata()
     from arsurf.contact.material_conversion import MaterialConversion
     from arsurf.contact.material_map import CHANNEL_NAMES, material_map_from_file
 
@@ -492,9 +416,9 @@ def _material_map(meta: Mapping, scan, scan_path):
     return m
 
 
-def _tube_scene(meta: Mapping):
-    """The :class:`~arsurf.manipulation.scene.TubeScene` of the metadata (None without ``tubes``)."""
-    spec = meta.get("tubes")
+def _tube_scene(config: SessionConfig):
+    """The :class:`~arsurf.manipulation.scene.TubeScene` of the configuration (None without ``tubes``)."""
+    spec = config.tubes
     if spec is None:
         return None
     from arsurf.manipulation.scene import TubeScene
@@ -511,8 +435,18 @@ def tube_count(meta: Mapping) -> int | None:
     return None if spec is None else len(spec["tubes"])
 
 
-def _model_parts(meta: Mapping):
-    """(tip_radius, MaugisDugdale, Cantilever, model keyword arguments, deform) from checked metadata.
+def _model_parts(config: SessionConfig | Mapping):
+    """:func:`_parts` of a configuration's records (or of a metadata dict's model keys:
+    ``tip_radius``, ``contact``, ``friction``, ``static_friction``, ``deform``, ``cantilever``,
+    ``haptics``)."""
+    if isinstance(config, Mapping):
+        return _parts(ContactConfig.from_metadata(config), CantileverConfig.from_metadata(config["cantilever"]),
+                      HapticsConfig.from_metadata(config.get("haptics")))
+    return _parts(config.contact, config.cantilever, config.haptics)
+
+
+def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: HapticsConfig):
+    """(tip_radius, MaugisDugdale, Cantilever, model keyword arguments, deform) of the records.
 
     The keyword arguments are the friction coefficients (``friction`` = mu_k, ``static_friction``
     mu_s, default mu_k), the coupling stiffness at the probe's scale, k_vc / (K_f s) from
@@ -522,15 +456,14 @@ def _model_parts(meta: Mapping):
     from arsurf.contact.maugis_dugdale import MaugisDugdale
     from arsurf.force.cantilever import Cantilever
 
-    c = meta["contact"]
-    h = dict(meta.get("haptics") or {})
+    c, h = contact, haptics
     try:
-        tip_radius = float(meta["tip_radius"])
-        md = MaugisDugdale(tip_radius, c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"))
-        lever = Cantilever(**meta["cantilever"])
-        friction = float(meta["friction"])
-        static = meta.get("static_friction")
-        static = friction if static is None else float(static)
+        tip_radius = float(c.tip_radius)
+        md = MaugisDugdale(tip_radius, c.effective_modulus, c.work_of_adhesion, c.dugdale_stress)
+        lever = Cantilever(**cantilever.arguments())
+        friction = float(c.friction)
+        static = c.static_friction
+        static = friction if static is None or static is UNSET else float(static)
         k_vc = h.get("coupling_stiffness") if h.get("coupling", "direct") == "direct" else None
         k_probe = math.inf if k_vc is None else float(k_vc) / (
             float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
@@ -547,7 +480,7 @@ def _model_parts(meta: Mapping):
     if noise is not None and not (math.isfinite(noise) and noise >= 0.0):
         raise SessionError(f"metadata haptics.signal_noise must be >= 0 rad (got {noise!r})")
     return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe,
-                                       signal_noise=noise), bool(meta.get("deform", True))
+                                       signal_noise=noise), bool(c.deform)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -557,14 +490,15 @@ def _model_parts(meta: Mapping):
 @dataclass(frozen=True)
 class ModelSetup:
     """What :func:`build_model` made: the processed scan (the substrate when there is a tube scene),
-    the fitted (live) surface, the model, the tube scene (None without ``tubes`` metadata) and the
-    metadata it was built from."""
+    the fitted (live) surface, the model, the tube scene (None without ``tubes`` metadata), the
+    metadata it was built from and its typed form (:class:`~arsurf.config.SessionConfig`)."""
 
     scan: Any
     surface: Any
     model: Any
     scene: Any = None
     metadata: Mapping | None = None
+    config: SessionConfig | None = None
 
 
 def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
@@ -595,19 +529,18 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     signal_noise : float, rad rms, optional
         Noise of the measured angles (:class:`~arsurf.model.ARModel`; default: unknown).
     """
-    meta = {"tip_radius": tip_radius, "friction": friction, "deform": deform, "static_friction": static_friction,
-            "contact": {"effective_modulus": effective_modulus, "work_of_adhesion": work_of_adhesion,
-                        "dugdale_stress": dugdale_stress},
-            "cantilever": dict(LEVER if cantilever is None else cantilever),
-            "haptics": {} if signal_noise is None else {"signal_noise": signal_noise}}
+    contact = ContactConfig(tip_radius, effective_modulus, work_of_adhesion, dugdale_stress, friction,
+                            static_friction, deform)
+    haptics = HapticsConfig() if signal_noise is None else HapticsConfig(signal_noise=signal_noise)
     from arsurf.model import ARModel
 
-    radius, md, lever, kwargs, dent = _model_parts(meta)
+    radius, md, lever, kwargs, dent = _parts(
+        contact, CantileverConfig.from_metadata(dict(LEVER if cantilever is None else cantilever)), haptics)
     return ARModel(surface, radius, md, lever, deform=dent, material=material,
                    **dict(kwargs, coupling_stiffness=coupling_stiffness))
 
 
-def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -> ModelSetup:
+def build_model(metadata: Mapping | SessionConfig, scan_path: str | os.PathLike | None = None) -> ModelSetup:
     """Build the model a session describes: prepare the scan as recorded, fit it, make the ARModel.
 
     The steps are exactly those of the recording (:func:`arsurf.scan.prepare.prepare_scan` with the
@@ -618,43 +551,42 @@ def build_model(metadata: Mapping, scan_path: str | os.PathLike | None = None) -
 
     Parameters
     ----------
-    metadata : dict
-        Session metadata (:func:`session_metadata`, :func:`preset_metadata`).
+    metadata : dict or SessionConfig
+        Session metadata (:func:`session_metadata`, :func:`preset_metadata`), or its typed form.
     scan_path : path-like, optional
-        The scan file; default ``metadata["scan"]["path"]``. Its hash is not checked here
+        The scan file; default the recorded ``scan.path``. Its hash is not checked here
         (:func:`arsurf.replay.replay.replay` does).
 
     Returns
     -------
     ModelSetup
     """
-    check_metadata(metadata)
+    config = check_metadata(metadata)
+    if isinstance(metadata, SessionConfig):
+        metadata = config.to_metadata()
     from arsurf.model import ARModel
     from arsurf.scan.prepare import prepare_scan
     from arsurf.spline.fit import fit_surface
 
-    scan_meta = metadata["scan"]
-    proc = scan_meta["processing"]
-    path = scan_meta["path"] if scan_path is None else scan_path
-    scan = prepare_scan(path, scan_meta.get("channel"), proc["level"], float(proc["sigma"]), bool(proc["inpaint"]))
-    scene = _tube_scene(metadata)
+    sc = config.scan
+    path = sc.path if scan_path is None else scan_path
+    scan = prepare_scan(path, sc.channel, sc.level, float(sc.sigma), bool(sc.inpaint))
+    scene = _tube_scene(config)
     if scene is not None:  # the tubes are scene objects: the spline holds only the substrate
         scan = scene.substrate(scan)
-    cs = proc.get("control_shape")
-    surface = fit_surface(scan, control_shape=tuple(cs) if cs is not None else None,
-                          smoothing=float(proc.get("smoothing", 0.0)))
-    tip_radius, md, lever, kwargs, deform = _model_parts(metadata)
-    material = _material_map(metadata, scan, path)
+    surface = fit_surface(scan, control_shape=sc.control_shape, smoothing=float(sc.smoothing))
+    tip_radius, md, lever, kwargs, deform = _model_parts(config)
+    material = _material_map(config, scan, path)
     try:
         model = ARModel(surface, tip_radius, md, lever, deform=deform, material=material, **kwargs)
     except ArsurfError as exc:
         if material is None:
             raise
         raise SessionError(f"the session's material map does not fit its contact law: {exc}") from exc
-    return ModelSetup(scan, surface, model, scene, metadata)
+    return ModelSetup(scan, surface, model, scene, metadata, config)
 
 
-def build_loop(model, haptics: Mapping, device_info, probe_origin, *, scene=None, seed: int = 0, **safety_kwargs):
+def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origin, *, scene=None, seed: int = 0, **safety_kwargs):
     """The :class:`~arsurf.haptics.loop.HapticLoop` of recorded haptic settings (``metadata["haptics"]``).
 
     Only the direct coupling is assembled here (``haptics["coupling"]`` absent or ``"direct"``):
@@ -675,6 +607,8 @@ def build_loop(model, haptics: Mapping, device_info, probe_origin, *, scene=None
     """
     from arsurf.haptics.loop import HapticLoop, LoopConfig
 
+    if isinstance(haptics, HapticsConfig):
+        haptics = haptics.to_metadata()
     h = {**_DEMO_HAPTICS, **dict(haptics or {})}
     unknown = sorted(set(h) - set(_HAPTIC_KEYS) - {"K_fp", "B_fp", "G_n"})
     if unknown:

@@ -156,8 +156,7 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
     from arsurf.instrument.interface import InstrumentFrame, InstrumentLimits
 
     kind = parse_instrument(spec)
-    meta = setup.metadata
-    lever = Cantilever(**{k: v for k, v in meta["cantilever"].items() if v is not None})
+    lever = Cantilever(**setup.config.cantilever.arguments(drop_none=True))
     R = setup.model.tip_radius
     frame = InstrumentFrame(origin=np.asarray(origin, dtype=np.float64) + (0.0, 0.0, -R))
     if deflection_sensitivity is not None and not (math.isfinite(deflection_sensitivity)
@@ -275,7 +274,7 @@ def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwarg
     from arsurf.haptics.live_loop import LiveLoop
     from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
-    loop = build_loop(setup.model, meta["haptics"], device.info, origin, scene=setup.scene, **safety_kwargs)
+    loop = build_loop(setup.model, setup.config.haptics, device.info, origin, scene=setup.scene, **safety_kwargs)
     live = LiveLoop(loop, device, priority=priority)
     writer = contextlib.nullcontext()
     if record is not None:

@@ -22,7 +22,7 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 #: the pipeline, lowest first (DESIGN.md): a module may import its own package and lower layers.
 #: An entry is one module, or ``pkg.*``: the package ``pkg`` and every module under it.
 LAYERS = [
-    ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data.*",
+    ("foundation", ["arsurf", "arsurf.errors", "arsurf.config", "arsurf._validation", "arsurf.status", "arsurf.data.*",
                     "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout"]),
     ("scan", ["arsurf.scan.*"]),
     ("spline", ["arsurf.spline.*"]),

@@ -172,7 +172,7 @@ def _bridge_view(args, bridge, record) -> int:
     meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
                            sigma=args.sigma_nm * 1e-9, haptics=dict(BRIDGE_HAPTICS, scale=args.scale))
     setup = build_model(meta)
-    live = bridge_loop(setup.model, meta["haptics"], host=bridge.host, port=bridge.port, key=bridge.key,
+    live = bridge_loop(setup.model, setup.config.haptics, host=bridge.host, port=bridge.port, key=bridge.key,
                        peer_timeout=bridge.peer_timeout)
     dev = live.device
     try:

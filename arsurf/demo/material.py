@@ -204,7 +204,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     origin = np.array([first[0], first[1], float(surface.evaluate(*first)[2]) + R + MATERIAL_HOVER])
     times, pts, windows = _press_tour(surface, spots, R, origin)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel((times, pts))).open()
-    loop = build_loop(model, meta["haptics"], dev.info, origin, seed=7, ramp_time=0.2)
+    loop = build_loop(model, setup.config.haptics, dev.info, origin, seed=7, ramp_time=0.2)
     n = int(math.ceil(times[-1] * RATE))
     journal_path(out / "session.h5").unlink(missing_ok=True)
     writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)

@@ -212,7 +212,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     z_hover = max(z_found, z_strip) if eng.engaged else z_strip
     origin = (x0, y0, z_hover + TIP_RADIUS + 8e-9)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
-    loop = build_loop(model, meta["haptics"], dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
+    loop = build_loop(model, setup.config.haptics, dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
     n = int(seconds * RATE)
     journal_path(out / "session.h5").unlink(missing_ok=True)  # a killed earlier run's: replaced like the rest
     # the loop runs in simulated time, faster than real time: wait for the disk rather than drop ticks

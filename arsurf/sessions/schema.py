@@ -36,7 +36,7 @@ The file is *sealed* (:mod:`arsurf.sessions.sealed`): its first 512 bytes (the H
 hold its length and a SHA-256 of all its bytes.
 
 Group ``/metadata``: one attribute per key, its value a JSON text (:func:`arsurf.assembly.session_metadata`
-builds it):
+builds it; :class:`arsurf.config.SessionConfig` is its typed form, read and written in one place):
 
 ==========================  ===================================================================
 key                         JSON value
