@@ -5,7 +5,6 @@ device disappearing mid-session (the package itself never raises: it returns zer
 from __future__ import annotations
 
 import importlib.util
-import time
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from hardware_sim.session import run  # noqa: E402
 from arsurf.errors import DeviceDisconnected, DeviceNotFound, HapticsError  # noqa: E402
 from arsurf.haptics.device import BUTTON_1  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
+from tests.support.waiting import wait_until  # noqa: E402
 
 WS = (0.20, 0.12, 0.15)
 
@@ -81,7 +81,12 @@ def test_axes_units_and_force_sign(inv):
     constant +1 N along arsurf z (up) lifts it 1/k_hand."""
     with device(inv.path) as dev:
         inv.hand = REST + [0.010, 0.0, 0.0]
-        time.sleep(0.5)
+
+        def moved():
+            dev.command_force([0.0, 0.0, 0.0])
+            return np.allclose(dev.read_state().position, [0.010, 0.0, 0.0], atol=2e-4)
+
+        wait_until(moved, what="the handle's 10 mm move reaching read_state")
         dev.command_force([0.0, 0.0, 0.0])
         np.testing.assert_allclose(dev.read_state().position, [0.010, 0.0, 0.0], atol=2e-4)
         push = np.array([0.0, 0.0, 1.0])
@@ -94,16 +99,16 @@ def test_axes_units_and_force_sign(inv):
 
 def test_handle_buttons_and_a_silent_handle(inv, grip):
     with device(inv.path, handle_port=grip.path, handle_timeout=0.1) as dev:
-        time.sleep(0.1)
+        wait_until(lambda: dev.read_state().buttons == 0, what="the released buttons")
         assert dev.read_state().buttons == 0
         grip.buttons = 1
-        time.sleep(0.1)
+        wait_until(lambda: dev.read_state().buttons == BUTTON_1, what="button 1 pressed")
         assert dev.read_state().buttons == BUTTON_1
         grip.buttons = 0
-        time.sleep(0.1)
+        wait_until(lambda: dev.read_state().buttons == 0, what="button 1 released")
         assert dev.read_state().buttons == 0
         grip.unplug()  # silent: reads as the disengage button held
-        time.sleep(0.5)
+        wait_until(lambda: dev.read_state().buttons == BUTTON_1, what="the silent handle read as disengaged")
         assert dev.read_state().buttons == BUTTON_1
 
 
