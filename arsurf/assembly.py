@@ -12,7 +12,7 @@ live bridge loop and offline replay - so a recorded session rebuilds exactly the
   a surface that is already fitted; :func:`build_loop` adds the
   :class:`~arsurf.haptics.loop.HapticLoop` from the recorded haptic settings.
 
-The steps of :func:`build_model` are those of the pipeline (DESIGN.md): load → level → smooth
+The steps of :func:`build_model` are those of the pipeline (docs/design.rst, "The pipeline"): load → level → smooth
 (Gaussian, :math:`\sigma` in metres) → fit (bicubic B-spline) → ARModel (tip sphere of radius R,
 Maugis-Dugdale contact with :math:`E^*, w, \sigma_0`, friction coefficient, cantilever).
 

@@ -1,7 +1,7 @@
 r"""The augmented-reality surface model: one tick of tip -> contact -> dent -> 3D force.
 
 This is the part of the pipeline shared by the live haptic loop and offline replay
-(DESIGN.md, "The pipeline"): given the target tip centre C (and, when an AFM is
+(docs/design.rst, "The pipeline"): given the target tip centre C (and, when an AFM is
 attached or a session is replayed, the measured bending and torsion angles),
 
 1. **collide** C (radius R) with the *rest* surface (Newton projection, :mod:`arsurf.contact.projection`):
@@ -17,7 +17,8 @@ attached or a session is replayed, the measured bending and torsion angles),
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
    :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
-   *measured* F from the two angles by the contact-normal decoupling (seed 002, DESIGN.md,
+   *measured* F from the two angles by the contact-normal decoupling (seed 002;
+   docs/design.rst, "Force from the two angles",
    :mod:`arsurf.force.decoupling`) with the proxy's slip direction as the friction direction; a
    stuck tip has none, and the decoupling takes its ``NO_MOTION`` fallback (force along n plus
    the torsion) steadily, tick after tick. The model reports both forces.

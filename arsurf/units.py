@@ -1,7 +1,7 @@
 r"""Units at the edge: how every file arsurf writes names the unit of each number (one convention).
 
-Inside arsurf every value is SI and names carry no unit (DESIGN.md). Where numbers leave the
-program - files for people and for other programs - each one says its SI unit, the same way in
+Inside arsurf every value is SI and names carry no unit (docs/design.rst, "Units and conventions"). Where numbers
+leave the program - files for people and for other programs - each one says its SI unit, the same way in
 every file:
 
 ================  =================================================================================

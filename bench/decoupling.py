@@ -8,7 +8,8 @@ Peers timed in the same run, on the same 2,000 random well-posed cases:
   i.e. the cost inside a numba servo step;
 * ``python_api``          - :func:`arsurf.decouple` (validation + kernel + result record);
 * ``motion_api``          - :func:`arsurf.decouple_by_motion`;
-* ``numpy_solve``         - build the 3x3 system of DESIGN.md and call ``numpy.linalg.solve``.
+* ``numpy_solve``         - build the 3x3 system of docs/design.rst ("Force from the two angles") and
+                            call ``numpy.linalg.solve``.
 
 Per-call times come from batches of calls (the timer costs more than a kernel call); the
 distribution over batches gives the median and p99. Prints one JSON document.

@@ -9,7 +9,8 @@ finder, an explicit matrix solve. The fast code is checked against them on rando
   Newton (:func:`brute_force`);
 * Maugis-Dugdale: Maugis' equations as printed, solved with scipy's brentq (:func:`ref_load_depth`,
   :func:`ref_radius_from_depth`, :func:`ref_radius_from_load`);
-* decoupling: the DESIGN.md 3 x 3 system written literally and solved with ``numpy.linalg.solve``
+* decoupling: the 3 x 3 system of docs/design.rst ("Force from the two angles") written literally and
+  solved with ``numpy.linalg.solve``
   (:func:`reference_decouple`);
 * the model tick: the four references chained (:func:`reference_model_tick`);
 * the surface around a contact: Boussinesq's point-load solution summed over rings of Maugis'
@@ -213,7 +214,8 @@ def ref_radius_from_load(P: float, lam: float) -> float:
 # decoupling
 
 def reference_matrix(n, v, lever):
-    """The DESIGN.md system, written literally (division by n_z), in physical units."""
+    """The system of docs/design.rst ("Force from the two angles"), written literally (division by n_z),
+    in physical units."""
     g, c = lever.bending_compliance, lever.torsion_compliance
     kappa = 2 * lever.lever_arm / lever.length
     f = np.array([-v[0], -v[1], (v[0] * n[0] + v[1] * n[1]) / n[2]])
@@ -245,8 +247,8 @@ def reference_model_tick(surface, center, tip_radius, effective_modulus, work_of
     |S_u \\times S_v|`; depth :math:`\\delta = R - d`; Maugis-Dugdale radius and load from the
     depth (stable branch, :func:`ref_radius_from_depth`, then :func:`ref_load_depth`) when the tip
     penetrates; simulated force :math:`P n`; the two angles it bends and twists the lever by
-    (DESIGN.md: :math:`\\Delta\\theta = c F_y`, :math:`\\Delta\\alpha = g (F_z + \\kappa F_x)`),
-    decoupled again with :func:`reference_decouple`.
+    (docs/design.rst, "Force from the two angles": :math:`\\Delta\\theta = c F_y`, :math:`\\Delta\\alpha = g (F_z +
+    \\kappa F_x)`), decoupled again with :func:`reference_decouple`.
 
     Returns a dict: ``point``, ``normal``, ``depth``, ``radius``, ``load``, ``force``,
     ``bending``, ``torsion``, ``measured`` (the decoupled force; NaN when the tip stands still).

@@ -19,7 +19,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 
-#: the pipeline, lowest first (DESIGN.md): a module may import its own package and lower layers.
+#: the pipeline, lowest first (docs/design.rst, "The pipeline"): a module may import its own package and lower layers.
 #: An entry is one module, or ``pkg.*``: the package ``pkg`` and every module under it.
 LAYERS = [
     ("foundation", ["arsurf", "arsurf.errors", "arsurf.config", "arsurf._validation", "arsurf.status", "arsurf.data.*",

@@ -311,7 +311,8 @@ def test_envelope_decay_ratio():
 @pytest.mark.parametrize("A_f, B_fp, G_n", [(25e6, 0.1, 825.0), (2e6, 1.5, 19.8)])
 def test_the_seed003_gains_are_099_of_the_bound_applied_with_Te(A_f, B_fp, G_n):
     """Seed 003 Figs. 5-6: G_n = 825 (x) and 19.8 (y) are 0.99 A_f / (A_d (K_fp T_e + B_fp)) - the
-    slave bound applied with T_e, not Table II's printed T_e/2 (DESIGN.md). Both are reported; the
+    slave bound applied with T_e, not Table II's printed T_e/2 (docs/design.rst, "Known errors in the
+    sources"). Both are reported; the
     conservative one is required by default."""
     kw = dict(A_f=A_f, A_d=50e3, mass=0.5, damping=0.2, dt=5e-3)
     c = check_gains(100.0, B_fp, G_n, **kw)

@@ -54,7 +54,7 @@ def test_end_push_gives_the_classical_pivot():
 
 
 def test_printed_eq10_is_not_a_solution_of_eq9():
-    # DESIGN.md: seed 000's Eq. 10 (L^2 under the root) violates its own Eq. 9
+    # docs/design.rst, "Known errors in the sources": seed 000's Eq. 10 (L^2 under the root) violates its own Eq. 9
     L, l = L0, 0.9 * L0
     s_printed = l - math.sqrt(l * l - l * L + L * L)
     assert abs(eq9_residuals(l, s_printed, L)[1]) > 0.01

@@ -2,8 +2,8 @@ r"""From an instrument's mechanical channels to contact parameters: reduced modu
 
 A PeakForce QNM (Bruker), QI (JPK) or force-volume (Asylum) image holds, per pixel, a *sample*
 modulus fitted by the instrument and the *pull-off force* of the retract curve. The contact
-model takes the reduced modulus :math:`E^*` and the work of adhesion *w* (DESIGN.md). This
-module converts one into the other, with every assumption a parameter of
+model takes the reduced modulus :math:`E^*` and the work of adhesion *w* (docs/design.rst, "Material maps (PeakForce
+QNM)"). This module converts one into the other, with every assumption a parameter of
 :class:`MaterialConversion` (recorded in a session, so a replay converts the same way).
 
 **Units first.** A channel in SI (``Pa``, ``N``) is used as it is. A channel the file leaves

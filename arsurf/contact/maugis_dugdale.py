@@ -1,6 +1,6 @@
 """Maugis-Dugdale (MD) adhesive contact of a sphere on a flat, from DMT to JKR, at haptic rates.
 
-Units and equations (Maugis 1992; Johnson & Greenwood 1997; DESIGN.md). With
+Units and equations (Maugis 1992; Johnson & Greenwood 1997; docs/design.rst, "Contact mechanics (Maugis-Dugdale)"). With
 :math:`K = 4E^*/3` (:math:`1/E^* = (1-\\nu_1^2)/E_1 + (1-\\nu_2^2)/E_2`), work of adhesion *w*,
 Dugdale stress :math:`\\sigma_0` (range :math:`h_0 = w/\\sigma_0`):
 

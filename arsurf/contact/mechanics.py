@@ -1,8 +1,8 @@
 """Sphere-on-flat contact models with one interface: Hertz, DMT and JKR.
 
 A rigid-or-elastic sphere of radius ``R`` (the AFM tip) indents an elastic half-space (the
-sample) by ``depth`` :math:`\\delta` (DESIGN.md: :math:`\\delta = R - ` signed distance of the tip
-centre, positive when the sphere penetrates). Each model answers the same questions:
+sample) by ``depth`` :math:`\\delta` (docs/design.rst, "Units and conventions": :math:`\\delta = R - ` signed distance
+of the tip centre, positive when the sphere penetrates). Each model answers the same questions:
 
 * ``contact_radius(depth=...)`` / ``contact_radius(load=...)`` - radius *a* of the contact disk,
 * ``load(depth)`` - normal load *P* (positive compressive, negative tensile),

@@ -3,7 +3,7 @@ r"""Safeguarded Newton iteration for the closest point on a bicubic B-spline sur
 Minimises :math:`D(u, v) = \tfrac12 |S(u, v) - C|^2` in a parameter box (a knot cell, a
 sub-cell or the whole domain): Newton step when the Hessian is positive definite, else
 Gauss-Newton, else the gradient; step capped, projected onto the box (active set) and
-backtracked to the Armijo condition; iterations and halvings bounded (DESIGN.md, "Closest
+backtracked to the Armijo condition; iterations and halvings bounded (docs/design.rst, "Closest
 point (Newton)"). The global search that calls it is :mod:`arsurf.contact.closest_point`.
 """
 from __future__ import annotations

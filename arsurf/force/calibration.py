@@ -9,7 +9,7 @@ Each function returns a :class:`CalibrationResult` (value, one-sigma uncertainty
   contact-point detection (seed 001, 4.1.1).
 * :func:`wedge_calibration` / :func:`wedge_from_slopes` - lateral gain G_l and friction mu from
   sliding up and down a tilted surface (seed 001, 4.1.2; derived from the force balance Eq. 15-18,
-  not from the thesis' Eq. 23-24, which invert the signal ratio - DESIGN.md "Known errors").
+  not from the thesis' Eq. 23-24, which invert the signal ratio - docs/design.rst, "Known errors in the sources").
 * :func:`thermal_spring_constant` - k from the thermal noise spectrum (Hutter & Bechhoefer 1993,
   with the Butt & Jaschke 1995 correction).
 * :func:`torsional_stiffness_from_geometry` (re-exported from :mod:`arsurf.force.cantilever`).

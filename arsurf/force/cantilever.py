@@ -1,7 +1,7 @@
 """Rectangular AFM cantilever: stiffnesses, load-point formulas and the forward force -> angles model.
 
-Frame (DESIGN.md, seed 001 Fig. 2.1): x runs along the beam from the clamp to the free end, y is
-lateral, z points out of the sample (up). The tip hangs below the free end; its apex is at a
+Frame (docs/design.rst, "Units and conventions"; seed 001 Fig. 2.1): x runs along the beam from the clamp to the free
+end, y is lateral, z points out of the sample (up). The tip hangs below the free end; its apex is at a
 distance ``lever_arm = tip_height + thickness/2`` below the beam's neutral axis (seed 000 uses
 the same lever arm, ``h_t + b/2``). A force ``F = (F_x, F_y, F_z)`` is the force *of the sample on
 the tip apex*, in newtons.
@@ -15,7 +15,7 @@ The optical lever measures two angles at the free end:
 
 the bending (end slope of an Euler-Bernoulli beam loaded by the end force F_z and the end moment
 a F_x, positive when the end tilts towards +z) and the torsion (twist about x, positive for a
-positive moment a F_y). Seed 002 Eq. 1-2, completed in DESIGN.md.
+positive moment a F_y). Seed 002 Eq. 1-2, completed in docs/design.rst, "Force from the two angles".
 
 Stiffness at a load point x_p (seed 003, Eq. 4-11): ``k_z(x_p) = (L/x_p)^3 k_z(L)`` and
 ``k_tphi(x_p) = G beta w t^3 / x_p``.
@@ -332,7 +332,7 @@ class Cantilever:
         out = 2.0 * L**3 / (x**2 * (3.0 * L - x)) * self.normal_stiffness * d
         return float(out) if out.ndim == 0 else out
 
-    # ---- forward model (seed 002, DESIGN.md) ---------------------------------------------
+    # ---- forward model (seed 002, docs/design.rst, "Force from the two angles") -----------------------
     @property
     def bending_compliance(self) -> float:
         """g = l^2 / (2 EI): end slope per newton of end force (rad/N)."""

@@ -1,14 +1,15 @@
 """3D tip force from the two measured angles (bending, torsion): contact-normal and motion methods.
 
-The optical lever measures only (DESIGN.md, seed 002 Eq. 1-2; frame of :mod:`arsurf.force.cantilever`)
+The optical lever measures only (docs/design.rst, "Force from the two angles"; seed 002 Eq. 1-2;
+frame of :mod:`arsurf.force.cantilever`)
 
 .. math::
 
     \\Delta\\theta = c F_y, \\qquad \\Delta\\alpha = g\\,(F_z + \\kappa F_x), \\qquad
     g = \\frac{l^2}{2EI},\\; \\kappa = \\frac{2a}{l},\\; c = \\frac{a}{k_{t\\phi}}.
 
-A third equation comes from the contact geometry (seed 002 Eq. 3, completed in DESIGN.md): the
-force lies in the plane of the contact normal n and the friction direction f, which is tangent to
+A third equation comes from the contact geometry (seed 002 Eq. 3, completed in docs/design.rst, "Force from the two
+angles"): the force lies in the plane of the contact normal n and the friction direction f, which is tangent to
 the surface and opposite to the horizontal tip motion v:
 
 .. math::
@@ -426,7 +427,8 @@ def decouple(
     min_normal_z: float = DEFAULT_MIN_NORMAL_Z,
     max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> ForceEstimate:
-    """3D tip force from bending and torsion using the contact normal (seed 002, DESIGN.md).
+    """3D tip force from bending and torsion using the contact normal (seed 002; docs/design.rst,
+    "Force from the two angles").
 
     Solves {torsion, bending, F . p = 0} with p = n x f (module docstring); degenerate cases
     are flagged and answered by the documented fallback.
@@ -498,8 +500,8 @@ def decouple_by_motion(
     to v, so F_x and F_y share the sign factor :math:`-|f|` and no extra minus appears (seed 001 Eq. 18's
     minus contradicts its own Eq. 16 and is not used). Its Eq. 6, F_z = k k_v S_v - F_y(h_t+b/2)/l_c,
     has our beta = k delta for k k_v S_v but coupling a/l, from a moment balance on the end
-    deflection; the optical lever measures the end slope, whose coupling is 2a/l (DESIGN.md),
-    used here by default. Pass ``coupling=cantilever.lever_arm / cantilever.length`` to
+    deflection; the optical lever measures the end slope, whose coupling is 2a/l (docs/design.rst, "Force from the two
+    angles"), used here by default. Pass ``coupling=cantilever.lever_arm / cantilever.length`` to
     reproduce seed 000 literally.
 
     This is the contact-normal system with a flat normal n = e_z, so the same kernel, flags and

@@ -16,7 +16,7 @@ stable for every cutoff (the pole :math:`e^{-\\omega_c\\Delta T}` lies in (0, 1)
 :math:`1 - \\omega_c\\Delta T` leaves the unit circle for :math:`\\omega_c\\Delta T > 2`, and rings
 (alternates sign) for :math:`\\omega_c\\Delta T > 1`. The thesis' own setting, :math:`f_c` = 5 kHz at
 10 kHz, gives :math:`\\omega_c\\Delta T = \\pi`: the filter diverges. :func:`check_forward_euler`
-refuses it (DESIGN.md, "Known errors").
+refuses it (docs/design.rst, "Known errors in the sources").
 
 **Second order.** A Butterworth low-pass of order 2 (one biquad; any order as cascaded
 second-order sections) designed by :func:`scipy.signal.butter` with the bilinear transform

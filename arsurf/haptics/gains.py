@@ -1,6 +1,7 @@
 r"""Admissible gains of the force-position coupling (seed 003 Table II, corrected).
 
-**Admissible gains** (DESIGN.md's corrected Table II of seed 003), per axis, with master
+**Admissible gains** (the corrected Table II of seed 003: docs/design.rst, "Known errors in the
+sources"), per axis, with master
 :math:`H_m = 1/(B_v + M_v s)` and sampling period :math:`T_e`:
 
 .. math::
@@ -161,7 +162,7 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
                 slave_bound: str = "applied") -> GainCheck:
     r"""Check force-position gains against the admissible ranges (corrected Table II + joint).
 
-    The slave-gain bound is reported twice. Table II as printed (DESIGN.md) reads
+    The slave-gain bound is reported twice. Table II as printed (docs/design.rst, "Known errors in the sources") reads
     :math:`G_n \le A_f / (A_d (K_{fp} T_e/2 + B_{fp}))` (``G_n_max``); the gains the authors used
     (825 and 19.8, seed 003 Figs. 5-6) are :math:`0.99\,A_f / (A_d (K_{fp} T_e + B_{fp}))`: they
     applied the bound with :math:`T_e`, up to 1.7x tighter (``G_n_max_applied``). By default
@@ -207,7 +208,7 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
     if slave_bound not in ("applied", "printed"):
         raise HapticsError(f"slave_bound must be 'applied' or 'printed' (got {slave_bound!r})")
     K, B, G, Af, Ad, M, Bv, T, ke = _gain_arrays(K_fp, B_fp, G_n, A_f, A_d, mass, damping, dt, env_stiffness)
-    table = "seed 003 Table II as corrected in DESIGN.md"
+    table = "seed 003 Table II as corrected in docs/design.rst"
     applied = "seed 003 as applied by its authors (T_e, not T_e/2: G_n = 825 and 19.8 are 0.99 of it)"
     g_applied = Af / (Ad * (K * T + B))
     derived = "same sampled-data analysis (Jury criterion at z = -1), arsurf.haptics.coupling"

@@ -1,6 +1,6 @@
 r"""The haptic rendering loop: one deterministic, compiled tick from stylus to device force.
 
-``step`` (seeds 001 and 003; DESIGN.md "haptic loop") runs, in one compiled call:
+``step`` (seeds 001 and 003; docs/design.rst, "The pipeline") runs, in one compiled call:
 
 1. **position**: master position -> probe (tip centre) position, per-axis scale and clutch
    (:func:`arsurf.haptics.scaling.position_map_step`), or the slave position of the

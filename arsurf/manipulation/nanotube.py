@@ -26,7 +26,7 @@ The first gives :math:`F = f (L - 2 s)`; substituting into the second,
     s = l - \sqrt{l^2 - l L + L^2/2} = \frac{L (l - L/2)}{l + \sqrt{l^2 - l L + L^2/2}} .
 
 (The printed Eq. 10 of seed 000 has :math:`L^2` instead of :math:`L^2/2`; it violates its own
-Eq. 9 - DESIGN.md, "Known errors".) The second form avoids cancellation near the middle.
+Eq. 9 - docs/design.rst, "Known errors in the sources".) The second form avoids cancellation near the middle.
 Pushing at the end, :math:`l = L`, gives :math:`s = L (1 - 1/\sqrt2)`, the classical pivot of a
 rod pushed at its end. The same root minimises the force :math:`F(s) = f[(L-s)^2 + s^2] / (2(l-s))`
 that the moment balance alone requires, so S is the pivot that needs the least push ("minimal

@@ -1,7 +1,7 @@
 """The :class:`Scan` record: one height channel of an AFM image, in SI units.
 
-Convention (DESIGN.md): ``heights[iy, ix]`` float64 metres, x grows with the column index ix,
-y with the row index iy; ``dx``, ``dy`` are the pixel spacings (centre to centre) in metres.
+Convention (docs/design.rst, "Units and conventions"): ``heights[iy, ix]`` float64 metres, x grows with the column
+index ix, y with the row index iy; ``dx``, ``dy`` are the pixel spacings (centre to centre) in metres.
 Pixel (ix, iy) sits at x = ix*dx, y = iy*dy: the origin is the centre of the first pixel.
 """
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Helpers shared by the scan-file readers: channels, units, orientation, guarded binary reads.
 
 Every reader in :mod:`arsurf.scan.readers` returns a :class:`~arsurf.scan.scan.Scan` in the
-project convention (DESIGN.md): ``heights[iy, ix]`` float64, x grows with the column, y with
-the row, and **row 0 is the bottom of the image** (the smallest y), so that (x, y, z) is a
+project convention (docs/design.rst, "Units and conventions"): ``heights[iy, ix]`` float64, x grows with the column, y
+with the row, and **row 0 is the bottom of the image** (the smallest y), so that (x, y, z) is a
 right-handed frame with z out of the sample when the image is seen from above as the
 instrument software shows it. Formats that store the top row first (Gwyddion, WSxM, ASCII
 matrix exports, Nanonis "down" scans) are flipped on reading; each reader module says what its
