@@ -195,9 +195,12 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
 
 
 def _device_metadata(device, backend: str) -> dict:
+    """The ``device`` record of the session (:class:`~arsurf.config.DeviceConfig`)."""
+    from arsurf.config import DeviceConfig
+
     info = device.info
-    return {"interface": backend, "name": info.name, "max_force": float(info.max_force),
-            "workspace": np.asarray(info.workspace, dtype=np.float64).tolist()}
+    return DeviceConfig(interface=backend, name=info.name, max_force=float(info.max_force),
+                        workspace=np.asarray(info.workspace, dtype=np.float64).tolist()).to_metadata()
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,
