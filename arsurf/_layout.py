@@ -6,7 +6,7 @@ once, in order, with their widths; the module that owns the kernel turns the off
 module-level integer constants (numba folds them into the compiled code), allocates the vector
 with :meth:`Layout.zeros`/:meth:`Layout.full`, and Python code reads fields by name. A vector that
 carries another's fields first (a parameter vector with extra entries) is :meth:`Layout.extended`.
-No kernel vector is sized or indexed by a hand-counted number (``tests/test_layout.py``).
+No kernel vector is sized or indexed by a hand-counted number (``tests/model/test_layout.py``).
 
 Examples
 --------

@@ -44,7 +44,7 @@ def kernel_loop(depths, out, ds, rs, ls, lam, tf, df):
     return out
 
 
-# --- the plain reference (as in tests/test_maugis_dugdale.py) ---------------------------------
+# --- the plain reference (as in tests/contact/test_maugis_dugdale.py) ---------------------------------
 def ref_m(A, lam):
     def f(u):
         m = 1.0 + u

@@ -1,4 +1,4 @@
-"""Fuzz the Nanonis protocol parsers (prints JSON): the big run of tests/test_nanonis.py's sample.
+"""Fuzz the Nanonis protocol parsers (prints JSON): the big run of tests/instrument/test_nanonis.py's sample.
 
 Random bodies, and valid replies/requests of every command with bytes flipped, cut or appended,
 go through :func:`~arsurf.instrument.nanonis_protocol.decode_reply`,

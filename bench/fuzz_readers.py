@@ -2,7 +2,7 @@
 worker process with a time and an address-space limit, every outcome counted. Prints one JSON
 document (not a test: it never asserts).
 
-Mutations and classification are those of tests/test_readers_fuzz.py (``mutate``, ``classify``;
+Mutations and classification are those of tests/scan/test_readers_fuzz.py (``mutate``, ``classify``;
 fixed seed), cycled per mutant: truncation, bit flips in the header (first 4 KiB) and anywhere, a
 run of random bytes, a number of a text header made huge/negative/zero/NaN, one digit of such a
 number changed, and for HDF5 files one numeric attribute (grid, lengths, calibration) set to a
@@ -27,7 +27,7 @@ calibration), ``crash``, ``hang``; their median time and largest allocation per 
 
 Run: python bench/fuzz_readers.py [--mutants 200] [--seed 1] [--timeout 20] [--files a.spm,...] [--no-peers]
 The real scans are taken from $ARSURF_REAL_SCANS or ../shared/scans-real beside the project, plus
-the bundled samples of the .nhf, .mdt and .asd readers in tests/data (SOURCES.md there).
+the bundled samples of the .nhf, .mdt and .asd readers in tests/support/data (SOURCES.md there).
 """
 from __future__ import annotations
 
@@ -49,11 +49,11 @@ from tqdm import tqdm
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "scan")]
 from test_readers_fuzz import KINDS, MEMORY_FACTOR, MEMORY_SLACK, OUTCOMES, mutate  # noqa: E402
 
 REAL = Path(os.environ.get("ARSURF_REAL_SCANS", ROOT.parent / "shared" / "scans-real"))
-DATA = ROOT / "tests" / "data"
+DATA = ROOT / "tests" / "support" / "data"
 DATA_SUFFIXES = (".nhf", ".mdt", ".asd")
 HDF5 = b"\x89HDF\r\n\x1a\n"
 PEERS = {".gsf": "gsffile", ".ibw": "igor2"}
@@ -63,7 +63,7 @@ import json, resource, sys, time, tracemalloc
 limit = int(sys.argv[1]) * 2**20
 if limit > 0:
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-sys.path.insert(0, sys.argv[2])
+sys.path[:0] = [sys.argv[2], sys.argv[3]]
 import numpy as np
 from arsurf.errors import ScanError
 from arsurf.scan.io import load_scan
@@ -122,7 +122,7 @@ class Worker:
 
     def start(self):
         env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen([sys.executable, "-c", WORKER, str(self.mem_mb), str(ROOT / "tests")],
+        self.proc = subprocess.Popen([sys.executable, "-c", WORKER, str(self.mem_mb), str(ROOT / "tests" / "scan"), str(ROOT)],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, env=env)
 

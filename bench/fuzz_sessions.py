@@ -1,6 +1,6 @@
 """Fuzz the session readers at scale: every mutant must load exactly as written or be refused.
 
-Mutants (fixed seed; the operators of tests/test_session_fuzz.py: bit flips, byte overwrites,
+Mutants (fixed seed; the operators of tests/sessions/test_session_fuzz.py: bit flips, byte overwrites,
 truncations, extensions, zeroed / copied / inserted blocks) of
 
 * ``sealed``    - a small session file as :class:`SessionWriter` writes it (format 2, sealed),
@@ -48,7 +48,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "sessions"))
 from _timing import emit  # noqa: E402
 from test_session_fuzz import _meta, _record, mutate  # noqa: E402
 from test_session import _write_v1  # noqa: E402

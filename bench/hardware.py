@@ -1,5 +1,5 @@
 """Benchmark: round trip and jitter of the 1 kHz loop through each hardware adapter, on the
-simulated devices of the tests (tests/hardware_sim), with the virtual device as the peer.
+simulated devices of the tests (tests/support/hardware_sim), with the virtual device as the peer.
 
 For each backend the Scheduler runs at 1 kHz for ``--seconds`` with the device's ``read_state`` as
 source and ``command_force`` as sink (a constant 0.1 N, so every tick talks to the device both
@@ -28,7 +28,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent / "tests" / "support"))
 from _timing import emit, stats  # noqa: E402
 
 import hardware_sim  # noqa: E402

@@ -1,4 +1,4 @@
-"""Sphinx configuration of the arsurf documentation (``make docs``; tests/test_docs.py builds it with -W)."""
+"""Sphinx configuration of the arsurf documentation (``make docs``; tests/project/test_docs.py builds it with -W)."""
 from __future__ import annotations
 
 import os

@@ -4,7 +4,7 @@
 Standard library only, so this one file can be copied to the haptic PC as it is and run there
 (``python client.py ...``); with arsurf installed it is ``python -m arsurf.haptics.client``. The packet layout is the one
 documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.md`` (protocol version
-2, little-endian, HMAC-SHA256 tag last); ``tests/test_udp_bridge.py`` checks that this file and
+2, little-endian, HMAC-SHA256 tag last); ``tests/haptics/test_udp_bridge.py`` checks that this file and
 the bridge agree byte for byte and that this client drops every bad FORCE packet.
 
 Run it against a bridge with the session key the bridge wrote (``arsurf view --bridge-port``

@@ -19,7 +19,7 @@ Why not call the vendor's ``nanonis_spm.Nanonis`` in the loop: its ``send`` wait
 without a time limit (it sets a 1000 s socket timeout after each message), reads the body with
 a thousand extra ``recv`` calls, and prints errors instead of raising them; a stalled controller
 would hang the servo thread. The message layouts here are checked byte for byte against it
-instead (``tests/test_nanonis.py``, when ``pip install 'arsurf[nanonis]'`` installed it).
+instead (``tests/instrument/test_nanonis.py``, when ``pip install 'arsurf[nanonis]'`` installed it).
 
 Examples
 --------

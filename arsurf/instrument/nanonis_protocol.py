@@ -26,7 +26,7 @@ Type codes (those of the vendor's ``quickSend``): ``H`` uint16, ``I`` uint32, ``
 byte size and count are the two values before it (replies).
 
 :data:`COMMANDS` lists every command arsurf sends with its argument and return types, checked
-against the protocol document and ``nanonis_spm.Nanonis`` (``tests/test_nanonis.py`` compares
+against the protocol document and ``nanonis_spm.Nanonis`` (``tests/instrument/test_nanonis.py`` compares
 the bytes with the vendor package's when it is installed).
 
 Everything received is untrusted: :func:`decode_reply` and :func:`decode_request` check every

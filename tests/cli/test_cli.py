@@ -8,7 +8,7 @@ import pytest
 
 from arsurf.cli import main
 from arsurf.spline.storage import load_surface
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 
 def test_info_reports_the_real_figures(capsys):

@@ -7,12 +7,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 from arsurf import __version__
 from arsurf.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCAN = ROOT / "scans" / "sinusoid.npz"
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-import hardware_sim
+from tests.support import hardware_sim
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _devices(env_extra: dict, *args) -> subprocess.CompletedProcess:

@@ -1,7 +1,7 @@
 """``arsurf live``: the 1 kHz loop on a device chosen by name, optionally on an instrument's measured
 signals, from the command line: recorded sessions that ``arsurf replay`` gives back exactly, the
 simulated Nanonis controller driven through its TCP interface, a link that dies mid-session, Ctrl-C,
-and one-line errors (the Force Dimension adapter's run is in tests/test_hw_forcedimension.py)."""
+and one-line errors (the Force Dimension adapter's run is in tests/haptics/test_hw_forcedimension.py)."""
 from __future__ import annotations
 
 import os
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_nanonis import _afm
+from tests.support.nanonis import quiet_afm as _afm
 
 from arsurf.assembly import BUNDLED_SCAN
 from arsurf.cli import main
@@ -24,7 +24,7 @@ from arsurf.live import parse_instrument
 from arsurf.sessions.reader import load_session
 
 pytestmark = pytest.mark.timeout(600)
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 R, SCALE = 20e-9, 1e-5
 
 

@@ -144,7 +144,7 @@ import math  # noqa: E402
 
 from arsurf.contact.deformation import dent_displacement, elastic_displacement  # noqa: E402
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
-from tests.reference import ref_md_traction, ref_surface_displacement  # noqa: E402
+from tests.support.reference import ref_md_traction, ref_surface_displacement  # noqa: E402
 
 R_TIP = 20e-9
 #: (E*, w, sigma0, depth): DMT-like (lambda 0.2), the transition (~1), JKR-like (lambda 4), and a tensile neck

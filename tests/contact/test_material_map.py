@@ -18,7 +18,7 @@ from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
-from tests.reference import ref_tick_at_load
+from tests.support.reference import ref_tick_at_load
 
 R = 20e-9
 H = 2e-9

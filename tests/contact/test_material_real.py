@@ -20,8 +20,8 @@ from arsurf.scan.io import load_scan
 from arsurf.scan.level import level
 from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
-from tests.conftest import real_scan_path
-from tests.reference import ref_tick_at_load
+from tests.support.real_scans import real_scan_path
+from tests.support.reference import ref_tick_at_load
 
 R = 5e-9                                  # the file's own "Tip Radius: 5" (nm)
 #: the stated conversions (assumptions: the file leaves both channels uncalibrated)

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from reference import ref_load_depth, ref_min, ref_radius_from_depth, ref_radius_from_load
+from tests.support.reference import ref_load_depth, ref_min, ref_radius_from_depth, ref_radius_from_load
 
 from arsurf.contact.maugis_dugdale import (
     LAMBDA_TRANSITION,

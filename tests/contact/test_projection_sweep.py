@@ -6,19 +6,19 @@ longer height fields), and crops of real scans from ../shared/scans-real. Querie
 domain and a margin beyond its edges and corners, from below the surface to far above it.
 
 For every query: our distance is never larger than the brute force's (dense sampling + Newton,
-tests/test_projection.py) by more than 1e-12 m (a "wrong basin"), agrees with it to 1e-12 m
+tests/contact/test_projection.py) by more than 1e-12 m (a "wrong basin"), agrees with it to 1e-12 m
 where both found the same minimum, is never larger than the nearest dense sample, and our point
 is on the surface at the distance reported. Warm-started chains (random walks, the candidate
 cache in use) must give the cold answers.
 
-Run ``pytest tests/test_projection_sweep.py -s`` to print the per-surface figures (~15 s).
+Run ``pytest tests/contact/test_projection_sweep.py -s`` to print the per-surface figures (~15 s).
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference import DenseSampling
-from test_projection import (
+from tests.support.reference import DenseSampling
+from tests.support.projection_surfaces import (
     SCANS, TOL, check_against, perturbed, queries, ridges_scan, rough_scan,
 )
 
@@ -37,7 +37,7 @@ REAL = {  # file, crop origin (iy, ix) of a 40 x 40 window
 
 
 def _real_scan(name):
-    from conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     from arsurf.scan.io import load_scan
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
-from test_projection import TOL, ridges_scan, steps_scan, trench_scan
+from tests.support.projection_surfaces import TOL, ridges_scan, steps_scan, trench_scan
 
 from arsurf.assembly import make_model
 from arsurf import status

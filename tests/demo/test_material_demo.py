@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from arsurf.contact.material_conversion import MaterialConversion
-from tests.conftest import write_qnm_npz
+from tests.support.real_scans import write_qnm_npz
 from arsurf.demo import pick_spots, run_material_demo
 
 R = 5e-9

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reference import reference_condition, reference_decouple, reference_matrix
+from tests.support.reference import reference_condition, reference_decouple, reference_matrix
 
 from arsurf.errors import ForceError
 from arsurf.force.cantilever import Cantilever

@@ -14,7 +14,7 @@ from arsurf.assembly import make_model
 from arsurf.errors import ArsurfError, ContactError, PositionError, SurfaceError
 from arsurf.spline.surface import BSplineSurface
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _exception_classes_defined_outside_errors() -> list[str]:

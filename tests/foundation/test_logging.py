@@ -11,7 +11,7 @@ import pytest
 
 from arsurf._logging import LOGGER, configure_cli, progress
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SOURCES = sorted((ROOT / "arsurf").rglob("*.py")) + sorted((ROOT / "viewer").rglob("*.py"))
 
 

@@ -18,7 +18,7 @@ from arsurf.replay.replay import REPLAY_FIELDS
 from arsurf.sessions.schema import TICK_FIELDS, SAFETY_FLAGS, TUBE_POSES
 from arsurf.units import SUFFIXES, summary_json, undeclared, unit_of, with_unit
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FIELD_UNITS = {f.name: f.unit for f in (*TICK_FIELDS, *REPLAY_FIELDS, TUBE_POSES, SAFETY_FLAGS)}
 
 

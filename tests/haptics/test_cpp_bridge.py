@@ -39,7 +39,7 @@ from arsurf.haptics.udp_bridge import (
     save_key,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HEADER = ROOT / "include" / "arsurf_bridge.h"
 EXAMPLE = ROOT / "examples" / "cpp"
 TOOL = ROOT / "tests" / "cpp" / "bridge_tool.c"
@@ -102,7 +102,7 @@ def client_exe(cxx, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def tool(cc, tmp_path_factory):
-    """tests/cpp/bridge_tool.c built as C99 (the header is plain C)."""
+    """tests/support/cpp/bridge_tool.c built as C99 (the header is plain C)."""
     exe = tmp_path_factory.mktemp("ctool") / "bridge_tool"
     _run([*shlex.split(cc), "-std=c99", "-O2", "-ffp-contract=off", f"-I{ROOT / 'include'}", str(TOOL), "-o", str(exe),
           "-lm"])

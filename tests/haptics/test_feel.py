@@ -96,7 +96,7 @@ def test_the_passivity_controller_keeps_a_too_stiff_wall_passive_and_at_rest():
 # --- the loop on real scans (issue #13's buzz scenarios) ---------------------------------------
 @pytest.fixture(scope="module")
 def spm_surface():
-    from conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     from arsurf.feel_scenarios import prepared_surface
 
@@ -331,7 +331,7 @@ def test_a_contact_hopping_between_two_slopes_of_the_real_jpk_scan_does_not_buzz
     the friction reversed (2 reversals, ~6 mN at the hand); in the 10 nm/s slide the closest point
     jumped back into the basin of the second contact being followed, which was then dropped
     instead of swapped, and the normal stepped back for a tick (1 reversal of 0.16 mN)."""
-    from conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     from arsurf.feel_scenarios import prepared_surface, run_scenario
     from arsurf.haptics.feel import reversal_ticks
@@ -347,7 +347,7 @@ def test_a_contact_hopping_between_two_slopes_of_the_real_jpk_scan_does_not_buzz
 def test_sliding_across_a_rough_real_scan_has_no_friction_steps(rate):
     """Veeco scan, 10 nm/s: where the contact passed to the next asperity the friction reversed
     (7 mN steps at the hand at 10 kHz, 2 reversals at 1 kHz)."""
-    from conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     from arsurf.feel_scenarios import prepared_surface, run_scenario
 

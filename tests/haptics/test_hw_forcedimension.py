@@ -17,8 +17,8 @@ import pytest
 if importlib.util.find_spec("forcedimension_core") is None:  # importing it would load the SDK library
     pytest.skip("forcedimension-core is not installed (pip install 'arsurf[forcedimension]')", allow_module_level=True)
 
-import hardware_sim  # noqa: E402
-from hardware_sim.session import run  # noqa: E402
+from tests.support import hardware_sim  # noqa: E402
+from tests.support.hardware_sim.session import run  # noqa: E402
 
 from arsurf.errors import DeviceDisconnected, DeviceNotFound, HapticsError, MissingDependency  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
@@ -242,7 +242,7 @@ def test_arsurf_live_drives_the_device_and_records_a_replayable_session(sim, tmp
     assert -0.0045 < z.min() and z.max() < -0.0035  # where the hand holds it (SDK z is arsurf z)
     np.testing.assert_allclose(t["probe_position"][:, 2] - t["probe_position"][0, 2], (z - z[0]) * 1e-5, atol=1e-15)
     # pushes the hand up, except in the ticks the safety layer faulted (its deadline watchdog trips when
-    # a shared machine makes the 1 kHz thread late: zero force at once, tests/test_safety.py)
+    # a shared machine makes the 1 kHz thread late: zero force at once, tests/haptics/test_safety.py)
     from arsurf.haptics.safety import STALE, WATCHDOG
 
     faulted = (t["safety_flags"] & (STALE | WATCHDOG)) != 0

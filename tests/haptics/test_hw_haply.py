@@ -12,8 +12,8 @@ import pytest
 if importlib.util.find_spec("HaplyHardwareAPI") is None:
     pytest.skip("haplyhardwareapi is not installed (pip install 'arsurf[haply]')", allow_module_level=True)
 
-from hardware_sim.haply_pty import REST, HandlePty, Inverse3Pty, close_all  # noqa: E402
-from hardware_sim.session import run  # noqa: E402
+from tests.support.hardware_sim.haply_pty import REST, HandlePty, Inverse3Pty, close_all  # noqa: E402
+from tests.support.hardware_sim.session import run  # noqa: E402
 
 from arsurf.errors import DeviceDisconnected, DeviceNotFound, HapticsError  # noqa: E402
 from arsurf.haptics.device import BUTTON_1  # noqa: E402

@@ -17,8 +17,8 @@ import pytest
 if importlib.util.find_spec("pyOpenHaptics") is None:  # importing it loads libHD.so
     pytest.skip("pyopenhaptics is not installed (pip install 'arsurf[openhaptics]')", allow_module_level=True)
 
-import hardware_sim  # noqa: E402
-from hardware_sim.session import run  # noqa: E402
+from tests.support import hardware_sim  # noqa: E402
+from tests.support.hardware_sim.session import run  # noqa: E402
 
 from arsurf.errors import DeviceDisconnected, HapticsError  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402

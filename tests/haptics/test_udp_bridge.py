@@ -40,7 +40,7 @@ from arsurf.haptics.udp_bridge import (
     save_key,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 import arsurf.haptics.client as client_mod  # noqa: E402  (the reference client, standard library only)
 
 LOOPBACK = "127.0.0.1"

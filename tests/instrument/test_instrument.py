@@ -17,7 +17,7 @@ from arsurf.instrument.instrument import (
 )
 from arsurf.instrument.stages import MICRO_STAGE, NANO_STAGE, NANO_STAGE_XY, PICOCUBE, Stage
 from arsurf.scan.scan import Scan
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 K = 0.3  # N/m, seed 001 Table 4.1
 S_N = 1117e-9  # m per signal unit, seed 001 Sec. 4.1.1

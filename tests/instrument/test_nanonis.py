@@ -12,21 +12,14 @@ import pytest
 
 from arsurf.errors import ControllerError, InstrumentError, InstrumentLinkLost
 from arsurf.instrument import nanonis_protocol as proto
-from arsurf.instrument.instrument import PhotodiodeNoise, VirtualAFM
 from arsurf.instrument.interface import InstrumentLimits
 from arsurf.instrument.nanonis import NanonisAFM, NanonisConnection
 from arsurf.instrument.nanonis_sim import SIGNAL_NAMES, Faults, NanonisSimulator
+from tests.support.nanonis import X0, Y0, quiet_afm as _afm
 
 pytestmark = pytest.mark.timeout(120)
 
-X0, Y0 = 5e-6, 5e-6
 LIMITS = InstrumentLimits((0.0, 0.0, -5e-6), (20e-6, 20e-6, 5e-6), 50e-6)
-QUIET = PhotodiodeNoise(peak_to_peak=1e-4)
-
-
-def _afm(**kw):
-    kw = {"probe_height": 0.3e-6, "tip_xy": (X0, Y0), "noise": QUIET, "keep_history": False, **kw}
-    return VirtualAFM(0.0, **kw)
 
 
 @pytest.fixture()

@@ -297,7 +297,7 @@ def test_the_scene_loop_is_deterministic(pushed):
 
 def test_a_scene_the_tip_never_touches_leaves_the_loop_bit_identical():
     """The three-call tick with a scene equals the single compiled tick when the scene is idle,
-    so the no-scene path is the same computation (tests/test_loop.py covers it unchanged)."""
+    so the no-scene path is the same computation (tests/haptics/test_loop.py covers it unchanged)."""
     far = TubeScene([Nanotube(100e-9, D, x=110e-9, y=360e-9)])
     with_scene = run_loop(far, n=1500, source="blended")
     without = run_loop(None, n=1500, source="blended")

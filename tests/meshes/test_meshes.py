@@ -14,7 +14,7 @@ trimesh = pytest.importorskip("trimesh", reason="the [mesh] extra (trimesh) is n
 from arsurf import meshes  # noqa: E402
 from arsurf.meshes import MeshError  # noqa: E402
 
-MESH_DIR = Path(__file__).resolve().parents[1] / "meshes"
+MESH_DIR = Path(__file__).resolve().parents[2] / "meshes"
 
 
 NM = 1e9  # the meshes are in nanometres (trimesh's tolerances are absolute)

@@ -28,7 +28,7 @@ from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, PositionScal
 from arsurf.model import MODEL_ARGS, MODEL_OUT, MODEL_STATE, PROXY_PARAMS, SCRATCH_SIZE, ARModel, model_tick_kernel
 from arsurf.spline.surface import BSplineSurface
 
-ENGINE = Path(__file__).resolve().parents[1] / "arsurf"
+ENGINE = Path(__file__).resolve().parents[2] / "arsurf"
 LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
 R = 20e-9
 PAD = 5  # elements after a vector that a kernel must never touch

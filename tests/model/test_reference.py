@@ -1,4 +1,4 @@
-"""The fast model tick against the references chained (tests/reference.py), on random inputs.
+"""The fast model tick against the references chained (tests/support/reference.py), on random inputs.
 
 The module tests compare each kernel with its own reference (spline, closest point,
 Maugis-Dugdale, decoupling); here the whole compiled tick of :class:`arsurf.model.ARModel` -
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference import reference_model_tick
+from tests.support.reference import reference_model_tick
 
 from arsurf.assembly import LEVER, make_model
 from arsurf.force.cantilever import Cantilever

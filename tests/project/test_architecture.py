@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 
 #: the pipeline, lowest first (docs/design.rst, "The pipeline"): a module may import its own package and lower layers.
@@ -269,3 +269,18 @@ def test_headless_commands_run_where_pyvista_and_vtk_cannot_be_imported(argv, tm
     proc = subprocess.run([sys.executable, "-c", _NO_VTK, *args], capture_output=True, text=True, timeout=600,
                           cwd=tmp_path)
     assert proc.returncode == 0, f"arsurf {' '.join(args)} failed without the viewer:\n{proc.stderr[-3000:]}"
+
+
+def test_tests_import_shared_helpers_from_tests_support_never_another_test_module():
+    """The test tree mirrors the packages; what several tests share lives in ``tests/support``: a
+    test module never imports another test module, nor ``conftest`` (its fixtures come by name)."""
+    bad = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for node in ast.walk(_tree(path)):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                last = name.split(".")[-1]
+                if last == "conftest" or last.startswith("test_"):
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {name}")
+    assert not bad, f"move what they share to tests/support: {bad}"

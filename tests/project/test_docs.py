@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 for module in ("sphinx", "numpydoc", "sphinx_gallery"):
     pytest.importorskip(module, reason=f"the docs build needs {module}: pip install 'arsurf[docs]'")

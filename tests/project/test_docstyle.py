@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FILES = sorted([*(ROOT / "arsurf").rglob("*.py"), *(ROOT / "viewer").rglob("*.py")])
 # numpydoc's section names; a heading is a line followed by a line of dashes of its length
 SECTIONS = {"Parameters", "Returns", "Yields", "Receives", "Other Parameters", "Raises", "Warns", "Warnings",

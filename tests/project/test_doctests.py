@@ -9,7 +9,7 @@ import pytest
 
 from arsurf.errors import MissingDependency
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _module_names() -> list[str]:

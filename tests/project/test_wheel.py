@@ -29,7 +29,7 @@ import pytest
 
 pytestmark = pytest.mark.wheel  # every subprocess has its own timeout
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: summary.json keys that hold wall-clock measurements (differ between any two runs)
 TIMING_KEYS = ("wall_time_s", "tick_compute_median_s", "tick_compute_p99_s")
 #: keys that hold where the files were (the scan's and the session's paths and hashes of the session)

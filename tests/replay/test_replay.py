@@ -353,7 +353,7 @@ def test_command_line(recording, replayed, tmp_path, capsys):
     assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out)]) == 0
     captured = capsys.readouterr()
     assert f"replayed {N} ticks" in captured.out and "forces.csv" in captured.out
-    assert captured.err == ""  # no bar (stderr is not a terminal: tests/test_logging.py) and no note
+    assert captured.err == ""  # no bar (stderr is not a terminal: tests/foundation/test_logging.py) and no note
     assert _files(out) == _files(replayed.out)
     # an existing folder, then a wrong scan: exit status 2 and a message
     assert main(["replay", str(recording.session), "--scan", str(recording.scan), "--out", str(out), "--quiet"]) == 2

@@ -8,7 +8,7 @@ import shutil
 import h5py
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 from arsurf.errors import ScanError
 from arsurf.scan.io import detect_format, load_scan

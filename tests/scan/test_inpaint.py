@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -9,7 +9,7 @@ from arsurf.errors import ScanError
 from arsurf.scan.level import level
 from arsurf.errors import LevelingError
 from arsurf.scan.scan import Scan
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 
 def _grid(ny, nx, dx, dy):

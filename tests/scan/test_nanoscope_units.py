@@ -13,7 +13,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 from arsurf.cli import main
 from arsurf.scan.io import load_scan

@@ -1,6 +1,6 @@
 """Readers of issue #14 §3: Nanosurf ``.nhf``, NT-MDT ``.mdt``, high-speed AFM ``.asd`` (a movie).
 
-The checks that count compare with the formats' reference readers (tests/data/SOURCES.md):
+The checks that count compare with the formats' reference readers (tests/support/data/SOURCES.md):
 
 - ``.nhf``: a verbatim excerpt of Nanosurf's own example file; heights equal the values Nanosurf's
   reader (``nanosurf.utils.io.nhf_reader`` 2.0.7) gives, and the ``Position Z`` channel equals
@@ -23,14 +23,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from conftest import REAL_SCANS
-from format_samples import ER, PH, TP, asd_file, asd_frames, mdt_file, mdt_scanned_frame, samples
+from tests.support.real_scans import REAL_SCANS
+from tests.support.format_samples import ER, PH, TP, asd_file, asd_frames, mdt_file, mdt_scanned_frame, samples
 
 from arsurf.cli import main
 from arsurf.errors import ChannelNotFound, CorruptScan, ScanError
 from arsurf.scan.io import detect_format, load_scan
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "support" / "data"
 NHF = DATA / "nanosurf_wavemode_excerpt.nhf"
 NHF_GWY = DATA / "nanosurf_wavemode_export.gwy"
 MDA = DATA / "ntmdt_mda_excerpt.mdt"
@@ -40,7 +40,7 @@ ASD_DIRS = [Path(p) for p in os.environ.get("ARSURF_EXTRA_SCANS", "").split(os.p
 
 def test_synthetic_samples_are_up_to_date():
     for name, blob in samples().items():
-        assert (DATA / name).read_bytes() == blob, f"rerun: python tests/format_samples.py ({name})"
+        assert (DATA / name).read_bytes() == blob, f"rerun: python tests/support/format_samples.py ({name})"
 
 
 # ------------------------------------------------------------------------------------------ nhf

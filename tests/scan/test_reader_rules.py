@@ -18,14 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 import arsurf
 from arsurf.errors import ChannelNotFound, CorruptScan, InvalidHeights, MissingCalibration, ScanError
 from arsurf.scan.io import load_scan, save_scan
 from arsurf.scan.scan import Scan
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ------------------------------------------------------------------------------------ GSF
@@ -179,7 +179,7 @@ def test_park_width_edit_of_the_real_file_is_refused(tmp_path):
 
 # ---------------------------------------------------------------------------- other z scales
 def test_a_zero_or_non_finite_z_scale_is_refused_by_every_reader(tmp_path, rng):
-    from test_scan_io import write_nanoscope, write_nid, write_wsxm
+    from tests.support.scan_writers import write_nanoscope, write_nid, write_wsxm
 
     img = rng.integers(-2000, 2000, size=(8, 8))
     write_nid(tmp_path / "z.nid", [("Scan forward", "Z-Axis", img)], zrange=0.0)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 from arsurf.errors import ScanError
 from arsurf.scan.io import load_scan
@@ -53,8 +53,8 @@ FILES = [
     "sample_0_1.topostats",
     "sample_0.spm",
 ]
-DATA = Path(__file__).resolve().parent / "data"
-#: the bundled samples of the readers of issue #14 section 3 (tests/data/SOURCES.md)
+DATA = Path(__file__).resolve().parents[1] / "support" / "data"
+#: the bundled samples of the readers of issue #14 section 3 (tests/support/data/SOURCES.md)
 DATA_FILES = [
     "nanosurf_wavemode_excerpt.nhf",
     "ntmdt_mda_excerpt.mdt",

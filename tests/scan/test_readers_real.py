@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 from arsurf.errors import ChannelNotFound
 from arsurf.scan.io import load_scan
@@ -230,7 +230,7 @@ def test_bruker_v9_peakforce_file_reads_as_pyspm_does():
     """NanoScope v9.3 (sample_0.spm, SOURCES.md): keys written with capitals ("Scan Size"),
     4-byte images, a Height channel stored as int32 but scaled as 16-bit, Height Sensor the
     default; every channel selectable by the name listed."""
-    from conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     from arsurf.scan.io import load_scan
 

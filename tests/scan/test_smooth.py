@@ -10,7 +10,7 @@ from arsurf.scan.level import level
 from arsurf.scan.scan import Scan
 from arsurf.scan.smooth import smooth
 from arsurf.errors import SmoothingError
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 
 def _attenuation(sigma, wavelength):

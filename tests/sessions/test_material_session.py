@@ -8,7 +8,7 @@ import pytest
 
 from arsurf.assembly import build_model, check_metadata, session_metadata
 from arsurf.contact.material_conversion import MaterialConversion
-from tests.conftest import write_qnm_npz
+from tests.support.real_scans import write_qnm_npz
 from arsurf.contact.material_map import material_map_from_file
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever

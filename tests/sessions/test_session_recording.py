@@ -28,7 +28,7 @@ from arsurf.sessions.reader import load_session
 from arsurf.sessions.recover import recover_session
 from arsurf.sessions.writer import SessionWriter
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 R = 20e-9
 SCAN = {"path": "scans/sinusoid.npz", "sha256": "ab" * 32, "channel": None,
         "processing": {"level": "plane", "sigma": 2e-9, "inpaint": True}}

@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 from arsurf.errors import SurfaceError
 from arsurf.spline.basis import cubic_basis, find_span
 from arsurf.spline.knots import check_clamped_uniform, clamped_uniform_knots, greville
-from reference import cox_de_boor, cox_de_boor_derivative
+from tests.support.reference import cox_de_boor, cox_de_boor_derivative
 
 KNOTS = clamped_uniform_knots(9, 0.0, 3e-9)  # 6 spans of 0.5 nm
 

@@ -6,7 +6,7 @@ from arsurf.scan.inpaint import dropout_mask, inpaint
 from arsurf.scan.io import load_scan
 from arsurf.scan.level import level
 from arsurf.spline.fit import fit_surface
-from conftest import real_scan_path
+from tests.support.real_scans import real_scan_path
 
 REAL = [
     "2024-10-24_104052_PH_wg_wv_No3_15slits_pol45deg_anal90deg_fine.gwy",

@@ -5,7 +5,7 @@ import pytest
 from arsurf.errors import SurfaceError
 from arsurf.spline.knots import clamped_uniform_knots
 from arsurf.spline.surface import BSplineSurface
-from reference import surface_reference
+from tests.support.reference import surface_reference
 
 
 @pytest.fixture

@@ -1,11 +1,11 @@
 """Writers of small files by the formats' own layouts, for the formats whose public real samples
-cannot be bundled (see tests/data/SOURCES.md): NT-MDT scanned-image frames (no public sample
+cannot be bundled (see tests/support/data/SOURCES.md): NT-MDT scanned-image frames (no public sample
 found; layout of Gwyddion's ``nt-mdt.c``) and high-speed AFM ``.asd`` versions 0, 1 and 2
 (AFMReader's real samples are GPL and 16-37 MB; layout of libasd and AFMReader).
 
 Each writer stores known raw values with known scales, so a test can compute the expected
-physical values independently of the reader. ``python tests/format_samples.py`` rewrites the
-synthetic samples of tests/data (``test_new_formats.py`` checks they are up to date).
+physical values independently of the reader. ``python tests/support/format_samples.py`` rewrites the
+synthetic samples of tests/support/data (``test_new_formats.py`` checks they are up to date).
 """
 from __future__ import annotations
 
@@ -109,7 +109,7 @@ def asd_frames(nx: int = 24, ny: int = 16, nf: int = 3, seed: int = 7) -> list[n
 
 
 def samples() -> dict[str, bytes]:
-    """The synthetic samples kept in tests/data, by file name."""
+    """The synthetic samples kept in tests/support/data, by file name."""
     rng = np.random.default_rng(11)
     y, x = np.mgrid[0:40, 0:48]
     height = (300 * np.sin(x / 5.0) + 40 * y + rng.integers(-20, 21, (40, 48))).astype(np.int16)

@@ -2,7 +2,7 @@
 
 Each is written for clarity, not speed: the textbook formula, a dense sampling, a plain root
 finder, an explicit matrix solve. The fast code is checked against them on random inputs
-(tests/test_reference.py and the module tests).
+(tests/model/test_reference.py and the module tests).
 
 * B-spline: Cox-de Boor recursion and a sum over every basis function (no span logic);
 * closest point: the surface sampled densely, the nearest samples polished by plain projected

@@ -91,7 +91,7 @@ def test_the_c_key_cycles_through_the_material_colourings(gl):
 @pytest.mark.viewer
 def test_arsurf_view_material_renders_the_qnm_file_by_modulus(gl, tmp_path):
     from arsurf.cli import main
-    from tests.conftest import real_scan_path
+    from tests.support.real_scans import real_scan_path
 
     spm = real_scan_path("sample_0.spm")
     out = tmp_path / "view"

@@ -1,4 +1,4 @@
-/* bridge_tool.c - include/arsurf_bridge.h driven line by line from stdin, for tests/test_cpp_bridge.py.
+/* bridge_tool.c - include/arsurf_bridge.h driven line by line from stdin, for tests/haptics/test_cpp_bridge.py.
  *
  * Compiled as C99 (the header must be plain C too). Doubles travel as the 16 hex digits of their
  * IEEE-754 bits (exact, NaN payloads and -0.0 included); byte strings as hex ("-": empty).

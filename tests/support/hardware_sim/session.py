@@ -9,7 +9,7 @@ callable)`` run from the test thread while the loop runs (e.g. unplugging the de
 The safety layer is the one every loop has, with one setting changed: its deadline watchdog
 counts a tick as missed only after a 50 ms gap (``miss_factor=50``), because the test machine is
 shared and a 1 kHz Python thread there misses 1.5 ms deadlines by the hundred; the watchdog itself
-is tested in ``tests/test_safety.py``.
+is tested in ``tests/haptics/test_safety.py``.
 """
 from __future__ import annotations
 
