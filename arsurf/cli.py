@@ -697,6 +697,7 @@ _DEVICE_FLAGS = (
     ("device_index", "--device-index", "index", None),
     ("device_name", "--device-name", "name", None),
     ("calibrate", "--calibrate", "calibrate", None),
+    ("allow_no_watchdog", "--allow-no-watchdog", "allow_no_watchdog", None),
 )
 
 
@@ -735,7 +736,7 @@ def _live_parser(sub) -> None:
                         "stylus into the surface every 2 s; `arsurf devices` lists what is connected)")
     g = s.add_argument_group("device options (each adapter takes some; see README, Haptic devices)")
     g.add_argument("--max-force-n", type=_positive("N"), help="force limit in N, at most the device's own (required "
-                   "for haply)")
+                   "for haply; default 1 N, the first-connection limit, or the device's if lower)")
     g.add_argument("--workspace-mm", type=_positive("mm"), nargs=3, metavar=("X", "Y", "Z"),
                    help="workspace extents in mm (required for haply; forcedimension: a model the SDK does not "
                         "describe)")
@@ -746,6 +747,8 @@ def _live_parser(sub) -> None:
     g.add_argument("--device-name", help="openhaptics: the device's configured name (default 'Default Device')")
     g.add_argument("--calibrate", action="store_true", help="forcedimension: let an uncalibrated device calibrate "
                    "itself (it moves by itself: hands off, workspace clear)")
+    g.add_argument("--allow-no-watchdog", action="store_true", help="forcedimension: run even if the device's "
+                   "firmware watchdog cannot be set (a stalled loop then keeps its last force; recorded in the session)")
     s.add_argument("--tip-radius-nm", type=_nm(strict=True), default=20.0, help="tip radius in nm (default 20)")
     _processing_flags(s)
     s.add_argument("--scale", type=_positive("probe m per stylus m"), default=1e-5,

@@ -172,8 +172,10 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
 
 def _device_metadata(device, backend: str) -> dict:
     info = device.info
+    record = getattr(device, "safety_record", None)  # a hardware adapter: its watchdog, limits' sources
     return {"interface": backend, "name": info.name, "max_force": float(info.max_force),
-            "workspace": np.asarray(info.workspace, dtype=np.float64).tolist()}
+            "workspace": np.asarray(info.workspace, dtype=np.float64).tolist(),
+            **(record() if callable(record) else {})}
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,
