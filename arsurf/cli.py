@@ -772,8 +772,15 @@ def _live_parser(sub) -> None:
                    help="nanonis: largest speed of a commanded tip move in um/s (default 10)")
     g.add_argument("--instrument-axes", choices=("xyz", "xy"), default="xyz",
                    help="xyz: the stylus commands X, Y and Z (the Z feedback must be off); xy: the feedback holds Z")
-    g.add_argument("--max-age-ms", type=_positive("ms"), default=20.0,
-                   help="oldest instrument sample a force is rendered from, ms (default 20); older: zero force, stop")
+    g.add_argument("--max-age-ms", type=_positive("ms"), default=None,
+                   help="oldest instrument sample a force is rendered from, ms (default: nanonis derives it from "
+                        "its acquisition period Tap and round trip; virtual 20); older: zero force, stop")
+    g.add_argument("--acq-period-ms", type=_positive("ms"), default=None,
+                   help="nanonis: set the TCP receiver's acquisition period Tap at open (default: keep the "
+                        "controller's; it is read and recorded either way)")
+    g.add_argument("--on-link-loss", choices=("withdraw", "feedback", "hold"), default="withdraw",
+                   help="nanonis: what to do to the tip when the link is lost (default withdraw, over a second "
+                        "connection; feedback: Z controller on; hold: leave it)")
     s.set_defaults(func=cmd_live)
 
 
@@ -839,7 +846,9 @@ def cmd_live(args) -> int:
         instrument, photodiode, frame = open_instrument(
             args.instrument, setup, bridge_start(setup.surface, setup.model.tip_radius),
             deflection_sensitivity=None if sens is None else sens * 1e-9, max_speed=args.max_speed_um_s * 1e-6,
-            origin=[v * 1e-9 for v in (args.instrument_origin_nm or (0.0, 0.0, 0.0))])
+            origin=[v * 1e-9 for v in (args.instrument_origin_nm or (0.0, 0.0, 0.0))],
+            acquisition_period=None if args.acq_period_ms is None else args.acq_period_ms * 1e-3,
+            on_link_loss=args.on_link_loss)
     stop = threading.Event()
 
     def on_signal(signum, frame_):
@@ -857,7 +866,7 @@ def cmd_live(args) -> int:
               + (f" for {args.seconds:g} s" if args.seconds else " until Ctrl-C")
               + (f"; recording to {record}" if record else ""), file=sys.stderr)
         result = run_live(meta, device, backend=args.device, instrument=instrument, photodiode=photodiode,
-                          frame=frame, axes=args.instrument_axes, max_age=args.max_age_ms * 1e-3, record=record,
+                          frame=frame, axes=args.instrument_axes, max_age=None if args.max_age_ms is None else args.max_age_ms * 1e-3, record=record,
                           seconds=args.seconds, stop=stop, setup=setup, priority=args.realtime_priority)
     finally:
         for sig, handler in old.items():

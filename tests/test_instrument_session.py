@@ -203,7 +203,7 @@ def _device():
     return _LoggedDevice(dt=1e-3, hand=HandModel((times, pts)))
 
 
-def _record(bench, path, afm, faults=None, ticks=1600, max_age=0.5, **kw):
+def _record(bench, path, afm, faults=None, ticks=1600, max_age=None, **kw):
     d, scan_path, meta, setup, lever, zs = bench
     pd = Photodiode.from_deflection_sensitivity(S_N, lever.length)
     dev = _device()

@@ -173,7 +173,7 @@ class _Capture:
 _VENDOR_ARGS = {
     "FolMe.XYPosGet": (1,), "FolMe.XYPosSet": (1.25e-6, -2.5e-6, 0), "FolMe.SpeedSet": (2e-6, 1),
     "ZCtrl.ZPosSet": (3e-9,), "ZCtrl.OnOffSet": (1,), "ZCtrl.Withdraw": (1, 5000), "Signals.ValsGet": ([3, 20, 21], 0),
-    "AutoApproach.OnOffSet": (1,),
+    "AutoApproach.OnOffSet": (1,), "Util.AcqPeriodSet": (0.005,),
 }
 
 
@@ -319,9 +319,10 @@ def test_slow_replies_within_the_timeout_are_fine(nanonis, sim):
 
 
 def test_a_stalled_link_raises_after_the_timeout_and_stays_closed(nanonis, sim):
-    sim.faults.stall_after = 0
+    sim.faults.stall_after = 0  # the controller itself: the withdraw over a second connection stalls too
     with pytest.raises(InstrumentLinkLost, match=r"did not answer Signals.ValsGet within 500 ms: the link stalled; "
-                                                 "it is closed and the tip was left where it was"):
+                                                 r"it is closed; securing the tip \(withdraw\) failed too: .* did not "
+                                                 "answer ZCtrl.Withdraw .* the tip was left where it was"):
         nanonis.read()
     with pytest.raises(InstrumentLinkLost, match="reopen the instrument"):
         nanonis.move_to((6e-6, 6e-6, math.nan))
@@ -360,3 +361,64 @@ def test_a_request_that_is_not_the_protocol_closes_the_connection(sim):
         body = link.request("Bogus.Cmd", b"Bogus.Cmd".ljust(32, b"\0") + struct.pack(">iHH", 0, 1, 0))
         proto.decode_reply("FolMe.Stop", body)
     link.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# the vendor's timing (Tap), the names list, the tip after a lost link
+
+
+def test_tap_is_read_at_open_and_sets_the_sample_age_limit(sim):
+    """Util.AcqPeriodGet at open; Util.AcqPeriodSet when asked; the sample-age limit covers Tap/2
+    (the middle of the oversampled window) + the ValsGet wait (up to Tap) + three round trips."""
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        assert n.acquisition_period == pytest.approx(0.02, rel=1e-6) and sim.requests["Util.AcqPeriodGet"] == 1
+        assert n.round_trip >= sim.latency
+        assert n.sample_age_limit("xyz") >= 2.0 * (1.5 * 0.02 + 3 * sim.latency)
+        assert n.sample_age_limit("xy") < n.sample_age_limit("xyz")
+    with NanonisAFM(*sim.address, limits=LIMITS, acquisition_period=0.004) as n:
+        assert sim.tap == pytest.approx(0.004, rel=1e-6) and n.acquisition_period == pytest.approx(0.004, rel=1e-6)
+    with pytest.raises(InstrumentError, match="acquisition_period must be"):
+        NanonisAFM(*sim.address, limits=LIMITS, acquisition_period=0.0)
+
+
+def test_signals_valsget_waits_for_the_acquisition_period(sim):
+    """The simulated controller answers ValsGet at the end of the current period of Tap: replies
+    arrive on the period's grid, never faster than one per period."""
+    import time
+
+    sim.tap = 0.01
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        t = []
+        for _ in range(6):
+            n.read()
+            t.append(time.perf_counter())
+    gaps = np.diff(t)
+    assert gaps.min() > 0.5 * sim.tap  # one reply per period at most
+
+
+def test_names_size_is_tolerated_where_controllers_differ(sim):
+    """A names array whose declared byte size counts only the strings (not their length prefixes)
+    opens; a body with bytes left after the last name is still refused (strict where the protocol is)."""
+    sim.names_size = "strings"
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        assert n.signal_names[0] == "X (m)"
+    body = proto.encode_reply_body("Signals.NamesGet", (["a", "b"],)) + b"\0\0\0\0"
+    with pytest.raises(InstrumentLinkLost, match="unexpected bytes"):
+        proto.decode_reply("Signals.NamesGet", body)
+
+
+def test_a_lost_link_withdraws_the_tip_over_a_second_connection(sim):
+    """The first connection's network dies (the controller is fine): the read raises, and the tip
+    is withdrawn over a new connection; with on_link_loss='hold' it is left where it was."""
+    sim.faults.first_connection_only = True
+    with NanonisAFM(*sim.address, limits=LIMITS, timeout=0.3) as n:
+        sim.faults.stall_after = 0
+        with pytest.raises(InstrumentLinkLost, match="the tip was withdrawn over a second connection"):
+            n.read()
+    assert sim.requests.get("ZCtrl.Withdraw") == 1
+    with NanonisSimulator(_afm(), faults=Faults(first_connection_only=True)) as other:
+        with NanonisAFM(*other.address, limits=LIMITS, timeout=0.3, on_link_loss="hold") as n:
+            other.faults.stall_after = 0
+            with pytest.raises(InstrumentLinkLost, match="the tip was left where it was"):
+                n.read()
+        assert "ZCtrl.Withdraw" not in other.requests

@@ -8,6 +8,19 @@ Moves are ``FolMe.XYPosSet`` (Follow Me, at the speed set with ``FolMe.SpeedSet`
 ``ZCtrl.ZPosSet`` (the Z controller off); ``ZCtrl.OnOffSet`` switches the feedback,
 ``AutoApproach`` engages and ``ZCtrl.Withdraw`` withdraws.
 
+**Tap.** ``Signals.ValsGet`` returns its values 0 to Tap seconds after the call, oversampled
+over the TCP receiver's acquisition period Tap (``Util.AcqPeriodGet``; ``acquisition_period``
+sets it with ``Util.AcqPeriodSet`` at open). A sample's time is therefore its reply's arrival minus
+Tap/2 (the middle of the window it averages), and :meth:`NanonisAFM.sample_age_limit` - the
+oldest a sample may be before the haptic loop refuses it (``arsurf live --max-age-ms``'s default)
+- follows from Tap and the round trip measured at open.
+
+**Link loss.** ``on_link_loss`` says what happens to the tip when the link is lost (in xyz mode
+the Z feedback is off and the tip would stay where it was): ``"withdraw"`` (default) opens a
+second connection (the server takes up to four) and sends ``ZCtrl.Withdraw``; ``"feedback"``
+switches the Z controller on the same way; ``"hold"`` leaves it. A controller that does not answer
+that either is reported in the error.
+
 Every reply has a deadline: a controller that does not answer within ``timeout`` seconds (or
 closes the connection, or sends bytes that are not its protocol) raises
 :class:`~arsurf.errors.InstrumentLinkLost`, after which the link is closed - a late reply can
@@ -29,6 +42,7 @@ Examples
 from __future__ import annotations
 
 import math
+import re
 import socket
 import struct
 import threading
@@ -44,6 +58,10 @@ __all__ = ["NanonisAFM", "NanonisConnection"]
 
 #: the signals read for the tip position, by the names the Nanonis software gives them
 POSITION_SIGNALS = ("X (m)", "Y (m)", "Z (m)")
+#: what NanonisAFM may do to the tip when the link is lost
+LINK_LOSS = ("withdraw", "feedback", "hold")
+#: s: the longest acquisition period accepted (a Tap read beyond it is refused at open)
+MAX_TAP = 10.0
 
 
 class NanonisConnection:
@@ -194,13 +212,29 @@ class NanonisAFM(Instrument):
     move_timeout, withdraw_timeout, approach_timeout : float, s
         Longest waits of a move with ``wait=True``, a withdraw, an auto-approach.
     connect_timeout : float, s
+    acquisition_period : float, s, optional
+        Set the TCP receiver's Tap at open (None: keep the controller's; it is read either way).
+    on_link_loss : {"withdraw", "feedback", "hold"}
+        What to do to the tip when the link is lost (module docstring).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 6501, *, limits: InstrumentLimits,
                  deflection="Input 1 (V)", torsion="Input 2 (V)", position=POSITION_SIGNALS, timeout: float = 0.25,
                  move_timeout: float = 30.0, withdraw_timeout: float = 10.0, approach_timeout: float = 300.0,
-                 connect_timeout: float = 2.0) -> None:
+                 connect_timeout: float = 2.0, acquisition_period: float | None = None,
+                 on_link_loss: str = "withdraw") -> None:
         super().__init__()
+        if acquisition_period is not None and not (isinstance(acquisition_period, (int, float))
+                                                   and math.isfinite(acquisition_period)
+                                                   and 0.0 < acquisition_period <= MAX_TAP):
+            raise InstrumentError(f"acquisition_period must be in (0, {MAX_TAP:g}] s (got {acquisition_period!r})")
+        if on_link_loss not in LINK_LOSS:
+            raise InstrumentError(f"on_link_loss must be one of {', '.join(LINK_LOSS)} (got {on_link_loss!r})")
+        self.set_tap = acquisition_period
+        self.on_link_loss = on_link_loss
+        self.acquisition_period = math.nan  # Tap, s, read at open
+        self.round_trip = math.nan  # s: the slowest of a few round trips measured at open
+        self.loss_action = ""  # what was done to the tip after a lost link
         if not isinstance(limits, InstrumentLimits):
             raise InstrumentError(f"limits must be an InstrumentLimits: the box the tip may be commanded in and the "
                                   f"largest speed (got {type(limits).__name__}); measure them at bring-up")
@@ -236,7 +270,39 @@ class NanonisAFM(Instrument):
     def _call(self, command: str, *args, timeout: float | None = None) -> tuple:
         if self.link.lost is not None:
             raise InstrumentLinkLost(f"{self.link.lost} (reopen the instrument to go on)")
-        return self.link.call(command, *args, timeout=timeout)
+        try:
+            return self.link.call(command, *args, timeout=timeout)
+        except InstrumentLinkLost as exc:
+            raise self._lost(exc) from None
+
+    def _lost(self, exc: InstrumentLinkLost) -> InstrumentLinkLost:
+        """The link was just lost: secure the tip as ``on_link_loss`` says, over a new connection."""
+        if self.on_link_loss == "hold" or self.loss_action or not self.is_open:
+            return exc
+        spare = NanonisConnection(self.link.host, self.link.port, self.link.timeout, min(self.link.connect_timeout, 0.5))
+        try:
+            spare.open()
+            if self.on_link_loss == "withdraw":
+                spare.call("ZCtrl.Withdraw", 0, int(self.withdraw_timeout * 1e3))
+                self.loss_action = "the tip was withdrawn over a second connection (ZCtrl.Withdraw)"
+            else:
+                spare.call("ZCtrl.OnOffSet", 1)
+                self.loss_action = "the Z controller was switched on over a second connection"
+        except InstrumentError as why:
+            self.loss_action = f"securing the tip ({self.on_link_loss}) failed too: {why}"
+        finally:
+            spare.close()
+        said = re.sub(r"(;| and) the tip was left where it was", "", str(exc))
+        return InstrumentLinkLost(f"{said}; {self.loss_action}")
+
+    def sample_age_limit(self, axes: str = "xyz") -> float:
+        """The oldest a sample may be before the haptic loop refuses it, s: one read cycle -
+        Tap/2 (the middle of the oversampling window) + up to Tap (the wait of Signals.ValsGet) +
+        its round trip and, in xyz mode, two more (``ZCtrl.ZPosSet``, ``FolMe.XYPosSet``) - twice
+        over, and 10 ms for the host's scheduling: 76 ms at Tap = 20 ms and 1 ms round trips."""
+        self._require_open()
+        trips = 3 if axes == "xyz" else 2
+        return 2.0 * (1.5 * self.acquisition_period + trips * self.round_trip) + 10e-3
 
     def _open(self) -> None:
         self.link.open()
@@ -261,8 +327,22 @@ class NanonisAFM(Instrument):
                                     "the controller's Z limits (ZCtrl.LimitsGet)")
             self._limits = u.intersect(ctrl)
             self._call("FolMe.SpeedSet", u.max_speed, 1)
-            (on,) = self._call("ZCtrl.OnOffGet")
+            if self.set_tap is not None:
+                self._call("Util.AcqPeriodSet", float(self.set_tap))
+            (tap,) = self._call("Util.AcqPeriodGet")
+            if not (math.isfinite(tap) and 0.0 < tap <= MAX_TAP):
+                raise InstrumentError(f"the controller's acquisition period Tap is {tap!r} s (Util.AcqPeriodGet); "
+                                      f"expected (0, {MAX_TAP:g}] s: set it in the TCP receiver or with "
+                                      "acquisition_period=")
+            self.acquisition_period = float(tap)
+            trips = []
+            for _ in range(5):  # the round trip of a command that does not wait for data
+                t0 = time.perf_counter()
+                (on,) = self._call("ZCtrl.OnOffGet")
+                trips.append(time.perf_counter() - t0)
+            self.round_trip = max(trips)
             self._feedback = bool(on)
+            self.loss_action = ""
         except BaseException:
             self.link.close()
             raise
@@ -273,8 +353,11 @@ class NanonisAFM(Instrument):
     def _read(self, out: InstrumentSample) -> None:
         if self.link.lost is not None:
             raise InstrumentLinkLost(f"{self.link.lost} (reopen the instrument to go on)")
-        body = self.link.request("Signals.ValsGet", self._vals_request)
-        t = time.perf_counter()
+        try:
+            body = self.link.request("Signals.ValsGet", self._vals_request)
+        except InstrumentLinkLost as exc:
+            raise self._lost(exc) from None
+        t = time.perf_counter() - 0.5 * self.acquisition_period  # the middle of the window it averages
         if len(body) == self._vals.size:  # the usual reply: five values and no error, read in one go
             n, x, y, z, d, tor, status, err = self._vals.unpack(body)
             if n == 5 and status == 0 and err == 0:

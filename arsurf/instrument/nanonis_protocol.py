@@ -94,6 +94,10 @@ COMMANDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "Signals.ValsGet": (("+*i", "I"), ("i", "*f")),
     # range X, Y, Z (m, float32)
     "Piezo.RangeGet": ((), ("f", "f", "f")),
+    # the TCP receiver's acquisition period Tap (s, float32): Signals.ValsGet returns 0..Tap after the
+    # call (Tap..2 Tap waiting for newest data), its values oversampled over Tap
+    "Util.AcqPeriodGet": ((), ("f",)),
+    "Util.AcqPeriodSet": (("f",), ()),
     "AutoApproach.Open": ((), ()),
     # on/off (uint16): starts (1) or stops (0) the auto-approach
     "AutoApproach.OnOffSet": (("H",), ()),
@@ -239,13 +243,15 @@ class _Reader:
         return s
 
     def strings(self, size: int, n: int) -> list:
+        """A string array. Strict where the protocol is: the count and every string's length are
+        bounded by the bytes left and the body must be consumed exactly (:meth:`done`). Tolerant
+        of the array's declared byte size, which clients used on real controllers ignore (the
+        document does not say whether it counts the strings' 4-byte length prefixes): it must
+        only be a size this body could hold."""
         n = self.count(n, 4, "a string array")
-        start = self.pos
-        out = [self.string() for _ in range(n)]
-        if self.pos - start != size:
-            raise InstrumentLinkLost(f"{self.what}: the string array is {self.pos - start} bytes but its size says "
-                                     f"{size}")
-        return out
+        if not 0 <= size <= len(self.body):
+            raise InstrumentLinkLost(f"{self.what}: a string array of {size} bytes in a body of {len(self.body)}")
+        return [self.string() for _ in range(n)]
 
     def done(self) -> None:
         if self.pos != len(self.body):

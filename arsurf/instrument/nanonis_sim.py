@@ -18,6 +18,16 @@ simulator does not implement gets an error reply (chosen); a request whose heade
 the protocol closes the connection (chosen). An instrument's refusal (a target outside its
 limits) becomes the reply's error description.
 
+Timing, from the vendor's documentation of ``Signals.ValsGet`` (nanonis-spm 1.0.9's docstring,
+the TCP protocol document): the TCP receiver acquires in periods of Tap (``Util.AcqPeriodGet/Set``,
+default ``tap`` 20 ms here: chosen, the real one is read at open) and ``Signals.ValsGet`` answers
+at the end of the current period, 0 to Tap after the call (waiting for newest data: the end of
+the next one, Tap to 2 Tap); every reply also takes ``latency`` (default 1 ms: chosen, a
+LabVIEW TCP server's command handling on a lab PC; the document gives no figure). The
+``Signals.NamesGet`` array's declared byte size counts the strings' length prefixes unless
+``names_size="strings"``: the document does not say which, and a controller may count only the
+strings.
+
 Faults, for the tests and the benchmark (:class:`Faults`, changeable while it runs): a delay
 before replies (slow replies), replies that stop coming (a stalled controller), a connection
 closed after some replies (a dead one), error replies to chosen commands, and corrupt replies.
@@ -38,7 +48,9 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import threading
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -90,6 +102,7 @@ class Faults:
     close_after: int | None = None
     errors: dict = field(default_factory=dict)
     corrupt: str | None = None
+    first_connection_only: bool = False  # stall/close faults hit the first connection only (its network died)
 
 
 class NanonisSimulator:
@@ -108,11 +121,18 @@ class NanonisSimulator:
     volts_per_unit : float
         Input volts per unit of the instrument's signals.
     faults : Faults, optional
+    tap : float, s
+        The acquisition period Tap (module docstring).
+    latency : float, s
+        Time every reply takes.
+    names_size : {"prefixed", "strings"}
+        What the declared byte size of the signal names counts (module docstring).
     """
 
     def __init__(self, instrument: Instrument, *, host: str = "127.0.0.1", port: int = 0, signal_names=SIGNAL_NAMES,
                  deflection: str = "Input 1 (V)", torsion: str = "Input 2 (V)", volts_per_unit: float = 1.0,
-                 faults: Faults | None = None) -> None:
+                 faults: Faults | None = None, tap: float = 0.02, latency: float = 1e-3,
+                 names_size: str = "prefixed") -> None:
         if not isinstance(instrument, Instrument):
             raise InstrumentError(f"instrument must be an arsurf Instrument (got {type(instrument).__name__})")
         self.instrument = instrument
@@ -122,6 +142,11 @@ class NanonisSimulator:
         self._roles = {self.names.index(n): r for n, r in role.items() if n in self.names}
         self.volts_per_unit = float(volts_per_unit)
         self.faults = faults or Faults()
+        if names_size not in ("prefixed", "strings"):
+            raise InstrumentError(f"names_size must be 'prefixed' or 'strings' (got {names_size!r})")
+        self.tap, self.latency, self.names_size = float(tap), float(latency), names_size
+        self._t0 = time.perf_counter()  # the acquisition clock: periods of Tap from here
+        self._accepted = 0
         self.speed, self.custom_speed = 1e-6, 1
         self.requests: dict[str, int] = {}
         self._lock = threading.Lock()  # one command at a time on the instrument
@@ -173,7 +198,9 @@ class NanonisSimulator:
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._conns.append(conn)
-            t = threading.Thread(target=self._connection, args=(conn,), name="nanonis-sim-conn", daemon=True)
+            self._accepted += 1
+            t = threading.Thread(target=self._connection, args=(conn, self._accepted == 1), name="nanonis-sim-conn",
+                                 daemon=True)
             self._threads.append(t)
             t.start()
 
@@ -189,7 +216,7 @@ class NanonisSimulator:
             got += k
         return bytes(buf)
 
-    def _connection(self, conn: socket.socket) -> None:
+    def _connection(self, conn: socket.socket, first: bool = True) -> None:
         replies = 0
         f = self.faults
         try:
@@ -205,9 +232,10 @@ class NanonisSimulator:
                 reply = self._answer(name, body)
                 if not respond:
                     continue
-                if f.close_after is not None and replies >= f.close_after:
+                hit = first or not f.first_connection_only
+                if hit and f.close_after is not None and replies >= f.close_after:
                     return
-                if f.stall_after is not None and replies >= f.stall_after:
+                if hit and f.stall_after is not None and replies >= f.stall_after:
                     continue  # read, never answered: the link stalls
                 if f.delay > 0.0 and replies % max(1, f.delay_every) == 0 and self._stop.wait(f.delay):
                     return
@@ -234,7 +262,16 @@ class NanonisSimulator:
             return reply[:proto.HEADER_SIZE + max(0, (len(reply) - proto.HEADER_SIZE) // 2)]
         raise InstrumentError(f"unknown corruption {kind!r}; use 'name', 'size' or 'truncated'")
 
+    def _wait_for_data(self, newest: bool) -> None:
+        """Signals.ValsGet's wait: to the end of the current acquisition period (and one more when
+        waiting for newest data)."""
+        now = time.perf_counter() - self._t0
+        end = (math.floor(now / self.tap) + 1 + int(bool(newest))) * self.tap
+        self._stop.wait(end - now)
+
     def _answer(self, name: str, body: bytes) -> bytes:
+        if self.latency > 0.0:
+            self._stop.wait(self.latency)
         if name not in proto.COMMANDS:  # answered under its own name, with an error and no values
             return proto.encode_error_reply(name, f"command {name!r} is not implemented by the simulated controller")
         args = proto.decode_request(name, body)
@@ -248,7 +285,12 @@ class NanonisSimulator:
                 values = self._execute(name, args)
         except InstrumentError as exc:
             return proto.encode_reply(name, (), str(exc))
-        return proto.encode_reply(name, values)
+        reply = proto.encode_reply(name, values)
+        if name == "Signals.NamesGet" and self.names_size == "strings":  # the size without the length prefixes
+            at = proto.HEADER_SIZE
+            size = sum(len(n.encode()) for n in self.names)
+            reply = reply[:at] + struct.pack(">i", size) + reply[at + 4:]
+        return reply
 
     # -- the commands ----------------------------------------------------------------------------------
     def _approach(self) -> None:
@@ -273,11 +315,23 @@ class NanonisSimulator:
         nan = math.nan
         if name == "Signals.NamesGet":
             return (list(self.names),)
+        if name == "Util.AcqPeriodGet":
+            return (self.tap,)
+        if name == "Util.AcqPeriodSet":
+            if not (math.isfinite(args[0]) and args[0] > 0.0):
+                raise InstrumentError(f"the acquisition period must be positive (got {args[0]!r} s)")
+            self.tap = float(args[0])
+            return ()
         if name == "Signals.ValsGet":
-            indexes, _wait = args
+            indexes, wait = args
             bad = [i for i in indexes if not 0 <= i < len(self.names)]
             if bad:
                 raise InstrumentError(f"signal indexes {bad} are outside 0..{len(self.names) - 1}")
+            self._lock.release()  # the acquisition runs on: other commands are not held by the wait
+            try:
+                self._wait_for_data(wait)
+            finally:
+                self._lock.acquire()
             s = afm.read(self._sample)
             return ([self._value(i, s) for i in indexes],)
         if name in ("FolMe.XYPosGet", "ZCtrl.ZPosGet"):
