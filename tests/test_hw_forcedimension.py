@@ -166,7 +166,7 @@ def test_a_device_without_watchdog_needs_an_explicit_flag(sim, tmp_path, capsys)
     path = tmp_path / "nowd.h5"
     assert main(["live", "--device", "forcedimension", "--seconds", "0.2", "--allow-no-watchdog",
                  "--record", str(path)]) == 0
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     meta = load_session(path).metadata["device"]
     assert meta["watchdog_set"] is False and meta["allow_no_watchdog"] is True
@@ -318,7 +318,7 @@ def test_arsurf_live_drives_the_device_and_records_a_replayable_session(sim, tmp
     replays exactly, and the device gets zero force when the command ends."""
     from arsurf.assembly import BUNDLED_SCAN
     from arsurf.cli import main
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     reset(sim, hand=(0.0, 0.0, -0.004))
     path = tmp_path / "fd.h5"
