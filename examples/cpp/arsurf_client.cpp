@@ -7,9 +7,13 @@
 // summary on stdout. All protocol code is include/arsurf_bridge.h.
 //
 // It moves a simulated stylus; a CHAI3D or OpenHaptics program replaces the two functions marked
-// DEVICE below (read_stylus, apply_force) with its device's calls, e.g. for OpenHaptics in the
-// servo callback: hdGetDoublev(HD_CURRENT_POSITION, p) (millimetres: multiply by 1e-3) and
-// hdSetDoublev(HD_CURRENT_FORCE, f); for CHAI3D: device->getPosition(p), device->setForce(f).
+// DEVICE below (read_stylus, apply_force) with its device's calls. The bridge's frame is arsurf's
+// (docs/bridge-protocol.md: x right, y away from the operator, z up, metres, newtons; the force
+// is the one to apply to the stylus), not the device's: for OpenHaptics (x right, y up, z towards
+// the operator, millimetres), in the servo callback,
+//   hdGetDoublev(HD_CURRENT_POSITION, p_mm); from_openhaptics(p_mm, pos);   // and the velocity alike
+//   to_openhaptics(f, f_hd); hdSetDoublev(HD_CURRENT_FORCE, f_hd);
+// for CHAI3D (x towards the operator, y right, z up, metres): pos = (y, -x, z), force (-Fy, Fx, Fz).
 //
 // Build (POSIX: Linux, macOS):
 //   g++ -std=c++11 -O2 -ffp-contract=off -I../../include arsurf_client.cpp -o arsurf_client
@@ -123,6 +127,27 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// ---- frames: OpenHaptics' HD frame (x right, y up, z towards the operator; mm) <-> the bridge's ----
+// (x right, y away from the operator, z up; m). A rotation, so the power F.v is the same in both.
+inline void from_openhaptics(const double hd_mm[3], double out_m[3]) {
+    out_m[0] = 1e-3 * hd_mm[0];
+    out_m[1] = -1e-3 * hd_mm[2];
+    out_m[2] = 1e-3 * hd_mm[1];
+}
+inline void to_openhaptics(const double f[3], double hd[3]) {
+    hd[0] = f[0];
+    hd[1] = f[2];
+    hd[2] = -f[1];
+}
+// the two conversions: a press down (bridge -z) is HD -y, and a force back up (bridge +z) is HD +y
+inline bool frames_ok() {
+    const double down_hd[3] = {0.0, -2.0, 0.0}, up[3] = {0.0, 0.0, 1.5};
+    double p[3], f[3];
+    from_openhaptics(down_hd, p);
+    to_openhaptics(up, f);
+    return p[0] == 0.0 && p[1] == 0.0 && p[2] == -2e-3 && f[0] == 0.0 && f[1] == 1.5 && f[2] == 0.0;
 }
 
 // ---- DEVICE: the simulated stylus (replace with the device's position and velocity, in m, m/s) ----
@@ -264,6 +289,10 @@ void json_number(FILE *out, double x) {
 
 int main(int argc, char **argv) {
     Options o = parse(argc, argv);
+    if (!frames_ok()) {  // the frame conversions a device client needs (docs/bridge-protocol.md)
+        std::fprintf(stderr, "arsurf_client: the OpenHaptics frame conversion is wrong\n");
+        return 1;
+    }
     if (arsurf_self_test() != 0) {  // a compiler or platform that gets the bytes wrong never talks to a device
         std::fprintf(stderr, "arsurf_client: error: the protocol self-test failed (check %d) on this platform\n",
                      arsurf_self_test());
