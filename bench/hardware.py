@@ -156,15 +156,20 @@ def _inverse3_child(conn) -> None:
     sys.path.insert(0, str(HERE.parent / "tests"))
     from hardware_sim.haply_pty import Inverse3Pty
 
-    pty = Inverse3Pty().start()
-    conn.send(pty.path)
+    pty = None
     while True:
         msg = conn.recv()
-        if msg == "lose":
+        if msg == "new":  # a fresh device per case (closing the port ends the pty's server)
+            if pty is not None:
+                pty.close()
+            pty = Inverse3Pty().start()
+            conn.send(pty.path)
+        elif msg == "lose":
             pty.lose(1)
         else:
             break
-    pty.close()
+    if pty is not None:
+        pty.close()
 
 
 def bench_haply(seconds: float) -> dict:
@@ -180,11 +185,12 @@ def bench_haply(seconds: float) -> dict:
     child = mp.get_context("spawn").Process(target=_inverse3_child, args=(there,), daemon=True)
     child.start()
     try:
-        path = here.recv()
         out = {}
-        # shipped defaults, then a 5 ms read timeout: a Python simulator on a loaded machine may
+        # shipped defaults, then a 20 ms read timeout: a Python simulator on a loaded machine may
         # not answer within the shipped 1 ms (a real Inverse3 answers from its firmware)
-        for name, kw in (("shipped defaults", {}), ("read_timeout 5 ms", {"read_timeout": 0.005})):
+        for name, kw in (("shipped defaults", {}), ("read_timeout 20 ms", {"read_timeout": 0.02, "disconnect_after": 0.2})):
+            here.send("new")
+            path = here.recv()
             try:
                 with HaplyDevice(path, workspace=(0.2, 0.12, 0.15), **kw) as dev:
                     out[name] = {"device": dev.info.name, "read_timeout_ms": dev.read_timeout * 1e3,
