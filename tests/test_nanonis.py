@@ -373,7 +373,7 @@ def test_tap_is_read_at_open_and_sets_the_sample_age_limit(sim):
     with NanonisAFM(*sim.address, limits=LIMITS) as n:
         assert n.acquisition_period == pytest.approx(0.02, rel=1e-6) and sim.requests["Util.AcqPeriodGet"] == 1
         assert n.round_trip >= sim.latency
-        assert n.sample_age_limit("xyz") >= 2.0 * (1.5 * 0.02 + 3 * sim.latency)
+        assert n.sample_age_limit("xyz") >= 3.0 * (1.5 * 0.02 + 3 * sim.latency)
         assert n.sample_age_limit("xy") < n.sample_age_limit("xyz")
     with NanonisAFM(*sim.address, limits=LIMITS, acquisition_period=0.004) as n:
         assert sim.tap == pytest.approx(0.004, rel=1e-6) and n.acquisition_period == pytest.approx(0.004, rel=1e-6)

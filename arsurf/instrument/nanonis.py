@@ -298,11 +298,12 @@ class NanonisAFM(Instrument):
     def sample_age_limit(self, axes: str = "xyz") -> float:
         """The oldest a sample may be before the haptic loop refuses it, s: one read cycle -
         Tap/2 (the middle of the oversampling window) + up to Tap (the wait of Signals.ValsGet) +
-        its round trip and, in xyz mode, two more (``ZCtrl.ZPosSet``, ``FolMe.XYPosSet``) - twice
-        over, and 10 ms for the host's scheduling: 76 ms at Tap = 20 ms and 1 ms round trips."""
+        its round trip and, in xyz mode, two more (``ZCtrl.ZPosSet``, ``FolMe.XYPosSet``) - three
+        such cycles (one late cycle is not a stalled link), and 10 ms for the host's scheduling:
+        109 ms at Tap = 20 ms and 1 ms round trips."""
         self._require_open()
         trips = 3 if axes == "xyz" else 2
-        return 2.0 * (1.5 * self.acquisition_period + trips * self.round_trip) + 10e-3
+        return 3.0 * (1.5 * self.acquisition_period + trips * self.round_trip) + 10e-3
 
     def _open(self) -> None:
         self.link.open()
