@@ -31,15 +31,23 @@ import sys
 
 import numpy as np
 
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 
-__all__ = ["SIZE", "ServoBlock", "compile_servo"]
+__all__ = ["SERVO_BLOCK", "SIZE", "ServoBlock", "compile_servo"]
 
-# slots of the shared block (int64 / float64 views of one buffer)
-_SEQ, _POS, _VEL, _BUTTONS, _T, _ERR, _NERR, _DEV = 0, 1, 4, 7, 8, 9, 10, 11
-_CSEQ, _FORCE, _SEEN, _AGE, _TIMEOUT = 16, 17, 20, 21, 22
-_TS, _TS2, _XFORM, _IBUF, _VBUF, _OUT, _ZERO = 24, 26, 28, 44, 45, 48, 51
-SIZE = 56
+#: the shared block, 64-bit slots read as int64 or float64: the sample (its sequence counter,
+#: position mm, velocity mm/s, buttons, time s, the last HD error and their count), the device
+#: handle, the command (its sequence counter, force N, the counter the servo last took, its age in
+#: ticks, the timeout in ticks) and the servo's scratch (two timespecs, the 4x4 transform, the
+#: button word, the velocity, the force it applies, a zero force)
+SERVO_BLOCK = Layout("OpenHaptics servo block", [
+    ("seq", 1), ("position", 3), ("velocity", 3), ("buttons", 1), ("time", 1), ("error", 1), ("errors", 1),
+    ("device", 1), ("command_seq", 1), ("force", 3), ("seen", 1), ("age", 1), ("timeout", 1), ("clock", 2),
+    ("clock_after", 2), ("transform", 16), ("button_word", 1), ("velocity_read", 3), ("out", 3), ("zero", 3)])
+(_SEQ, _POS, _VEL, _BUTTONS, _T, _ERR, _NERR, _DEV, _CSEQ, _FORCE, _SEEN, _AGE, _TIMEOUT, _TS, _TS2, _XFORM, _IBUF,
+ _VBUF, _OUT, _ZERO) = (SERVO_BLOCK.offset(f) for f in SERVO_BLOCK.fields)
+SIZE = SERVO_BLOCK.size
 HD_CURRENT_BUTTONS, HD_CURRENT_VELOCITY, HD_CURRENT_TRANSFORM, HD_CURRENT_FORCE = 0x2000, 0x2051, 0x2052, 0x2700
 CLOCK_MONOTONIC = 1
 
@@ -122,7 +130,7 @@ class ServoBlock:
     """
 
     def __init__(self, device: int, timeout_ticks: int) -> None:
-        self._f = np.zeros(SIZE)
+        self._f = SERVO_BLOCK.zeros()
         self._i = self._f.view(np.int64)
         self._i[_DEV] = int(device)
         self._i[_TIMEOUT] = max(1, int(timeout_ticks))
