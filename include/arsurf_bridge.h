@@ -565,39 +565,99 @@ ARSURF_INLINE int arsurf_key_from_hex(const char *text, size_t len, uint8_t *key
 #ifndef ARSURF_BRIDGE_NO_FILES
 #include <stdio.h>
 #if defined(__unix__) || defined(__APPLE__)
+#include <fcntl.h>
 #include <sys/stat.h>
-#define ARSURF_HAVE_POSIX_STAT 1
+#include <unistd.h>
+#define ARSURF_HAVE_POSIX_FILES 1
+#ifdef O_NOFOLLOW
+#define ARSURF_O_NOFOLLOW O_NOFOLLOW
+#else
+#define ARSURF_O_NOFOLLOW 0
+#endif
+#endif
+
+#ifdef ARSURF_HAVE_POSIX_FILES
+/* 0 if the folder holding `path` may hold a key file (as ssh judges it): owned by this user or
+ * root and writable by its owner only; else -1 with a one-line reason in `err`. */
+ARSURF_INLINE int arsurf_check_key_folder(const char *path, char *err, size_t errlen) {
+    char folder[4096];
+    size_t n = strlen(path), cut;
+    struct stat st;
+    if (n >= sizeof folder) {
+        snprintf(err, errlen, "the key file path is longer than %u bytes", (unsigned)(sizeof folder - 1));
+        return -1;
+    }
+    memcpy(folder, path, n + 1);
+    cut = n;
+    while (cut > 0 && folder[cut - 1] != '/') --cut;  /* the folder: up to the last '/' */
+    if (cut == 0) {
+        folder[0] = '.';
+        folder[1] = '\0';
+    } else {
+        folder[cut > 1 ? cut - 1 : 1] = '\0';  /* "/k" -> "/" */
+    }
+    if (stat(folder, &st) != 0) {
+        snprintf(err, errlen, "cannot read the folder %s of the key file %s", folder, path);
+        return -1;
+    }
+    if ((st.st_uid != geteuid() && st.st_uid != 0) || (st.st_mode & 022)) {
+        snprintf(err, errlen, "the key file %s is in a folder other users own or can write to (%s, uid %lu, mode "
+                 "%03o): someone else could have planted it; keep key files in a folder of your own",
+                 path, folder, (unsigned long)st.st_uid, (unsigned)(st.st_mode & 0777));
+        return -1;
+    }
+    return 0;
+}
 #endif
 
 /* Read the session key file arsurf wrote (one line of hex). Refused, with a one-line message in
- * `err`, if it cannot be read, is not a regular file, is longer than 4096 bytes, is not a key,
- * or (POSIX) other users may read or write it, as arsurf refuses it. Returns 0 or -1. */
+ * `err`, if it cannot be read, is not a regular file, is longer than 4096 bytes or is not a key,
+ * and (POSIX, as arsurf and ssh refuse it) if it is a symbolic link, is owned by another user, other
+ * users may read or write it, or its folder is owned by another user or writable by others
+ * (someone else could have planted it). The checks are made on the opened file, which is opened
+ * without blocking (a FIFO cannot hang the client). Returns 0 or -1. */
 ARSURF_INLINE int arsurf_read_key_file(const char *path, uint8_t *key, size_t *keylen, char *err, size_t errlen) {
     char text[4097];
-    size_t n;
-    FILE *fh;
-#ifdef ARSURF_HAVE_POSIX_STAT
+    size_t n = 0;
+#ifdef ARSURF_HAVE_POSIX_FILES
     struct stat st;
-    if (stat(path, &st) != 0) {
-        snprintf(err, errlen, "cannot read the key file %s", path);
+    ssize_t got;
+    int fd = open(path, O_RDONLY | O_NONBLOCK | ARSURF_O_NOFOLLOW);
+    if (fd < 0) {
+        snprintf(err, errlen, "cannot read the key file %s (missing, unreadable or a symbolic link)", path);
         return -1;
     }
-    if (!S_ISREG(st.st_mode)) {
+    if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        close(fd);
         snprintf(err, errlen, "the key file %s is not a regular file", path);
         return -1;
     }
+    if (st.st_uid != geteuid()) {
+        close(fd);
+        snprintf(err, errlen, "the key file %s is owned by uid %lu, not by you (uid %lu): someone else may have "
+                 "planted it", path, (unsigned long)st.st_uid, (unsigned long)geteuid());
+        return -1;
+    }
     if (st.st_mode & 077) {
+        close(fd);
         snprintf(err, errlen, "the key file %s is accessible to other users; make it owner-only: chmod 600 %s", path, path);
         return -1;
     }
-#endif
-    fh = fopen(path, "rb");
+    if (arsurf_check_key_folder(path, err, errlen) != 0) {
+        close(fd);
+        return -1;
+    }
+    while (n < sizeof text && (got = read(fd, text + n, sizeof text - n)) > 0) n += (size_t)got;
+    close(fd);
+#else
+    FILE *fh = fopen(path, "rb");
     if (!fh) {
         snprintf(err, errlen, "cannot read the key file %s", path);
         return -1;
     }
     n = fread(text, 1, sizeof text, fh);
     fclose(fh);
+#endif
     if (n > 4096) {
         snprintf(err, errlen, "the key file %s is longer than 4096 bytes; a key file is one line of hex", path);
         return -1;

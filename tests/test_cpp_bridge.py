@@ -317,6 +317,14 @@ def test_the_client_refuses_bad_key_files_and_arguments(client_exe, tmp_path):
         assert r.returncode == 2, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, r.stderr
         assert KEY.hex() not in r.stderr
+    if os.name == "posix" and os.geteuid() == 0:  # files a second user could have planted (as root: chown)
+        from test_udp_bridge import _planted_key_files
+
+        for path, needle in _planted_key_files(tmp_path / "planted"):
+            r = subprocess.run([client_exe, "--key-file", str(path)], capture_output=True, text=True, timeout=10)
+            assert r.returncode == 2, (path, r.stderr)
+            assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+            assert needle in r.stderr or "cannot read" in r.stderr, (path, r.stderr)
 
 
 def test_tampered_forces_never_reach_the_hand_on_the_wire(client_exe, tmp_path):

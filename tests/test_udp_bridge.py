@@ -496,6 +496,98 @@ def test_keys_are_written_owner_only_and_refused_when_shared(tmp_path):
         load_key(tmp_path / "missing")
 
 
+def _planted_key_files(tmp_path):
+    """Key files a second user could have planted or could read: (path, what the refusal names)."""
+    key_hex = KEY.hex() + "\n"
+    tmp_path.mkdir(exist_ok=True)
+    foreign = tmp_path / "foreign.key"  # mode 0600 but owned by another user (uid 65534, nobody)
+    foreign.write_text(key_hex)
+    os.chmod(foreign, 0o600)
+    os.chown(foreign, 65534, -1)
+    shared_dir = tmp_path / "shared"  # a folder others can write to (even with the sticky bit, as /tmp)
+    shared_dir.mkdir()
+    os.chmod(shared_dir, 0o1777)
+    in_shared = shared_dir / "k"
+    in_shared.write_text(key_hex)
+    os.chmod(in_shared, 0o600)
+    other_dir = tmp_path / "others"  # a folder owned by another user
+    other_dir.mkdir(mode=0o755)
+    (other_dir / "k").write_text(key_hex)
+    os.chmod(other_dir / "k", 0o600)
+    os.chown(other_dir, 65534, -1)
+    link = tmp_path / "link.key"  # a link to a good key file
+    good = tmp_path / "good.key"
+    good.write_text(key_hex)
+    os.chmod(good, 0o600)
+    link.symlink_to(good)
+    directory = tmp_path / "dir.key"
+    directory.mkdir(mode=0o700)
+    fifo = tmp_path / "fifo.key"  # would block a plain open() forever
+    os.mkfifo(fifo, 0o600)
+    return [(foreign, "owned by uid 65534"), (in_shared, "writ"), (other_dir / "k", "uid 65534"),
+            (link, "symbolic link"), (directory, "not a regular file"), (fifo, "not a regular file")]
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() != 0, reason="planting a file as another user needs root")
+def test_key_files_someone_else_could_have_planted_are_refused(tmp_path):
+    """As ssh does for a private key: owner, mode and folder are checked, on the server and the
+    reference client, on the opened file (a link, a FIFO or a directory is refused in one line)."""
+    for path, needle in _planted_key_files(tmp_path):
+        t0 = time.monotonic()
+        with pytest.raises(HapticsError, match=needle) as info:
+            load_key(path)
+        assert len(str(info.value).splitlines()) == 1
+        with pytest.raises(SystemExit) as info:
+            client_mod.read_key(key_file=str(path))
+        msg = str(info.value)
+        assert len(msg.splitlines()) == 1 and (needle in msg or "cannot read" in msg), (path, msg)
+        assert time.monotonic() - t0 < 1.0  # nothing blocks
+    with pytest.raises(HapticsError, match="folder .* is writable by other users"):
+        save_key(tmp_path / "shared" / "new.key", KEY)
+    assert not (tmp_path / "shared" / "new.key").exists()
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() != 0, reason="running the client as another user needs root")
+def test_the_reference_client_says_one_line_for_an_unreadable_key_file(tmp_path):
+    """Run as an unprivileged user, the client cannot open its own mode-000 key file: one line
+    on stderr naming the file, exit status non-zero, no traceback."""
+    import subprocess
+    import sys
+    import tempfile
+
+    d = tempfile.mkdtemp(prefix="arsurf-keytest-")
+    try:
+        os.chown(d, 65534, -1)
+        os.chmod(d, 0o700)
+        k = os.path.join(d, "bridge.key")
+        Path(k).write_text(KEY.hex() + "\n")
+        os.chown(k, 65534, -1)
+        os.chmod(k, 0o000)
+        client_py = os.path.join(d, "client.py")  # the one-file copy a haptic PC runs
+        Path(client_py).write_bytes((ROOT / "arsurf" / "haptics" / "client.py").read_bytes())
+        os.chmod(client_py, 0o644)
+        python = None
+        for cand in (sys.executable, os.path.realpath(sys.executable), "/usr/bin/python3"):
+            try:
+                if subprocess.run([cand, "-c", "0"], user=65534, group=65534, capture_output=True,
+                                  timeout=30).returncode == 0:
+                    python = cand
+                    break
+            except OSError:
+                continue
+        if python is None:
+            pytest.skip("no Python interpreter the unprivileged user may run")
+        r = subprocess.run([python, client_py, "--key-file", k, "--duration", "0"], capture_output=True,
+                           text=True, user=65534, group=65534, timeout=30, cwd=d)
+        err = r.stderr.strip()
+        assert r.returncode != 0 and "Traceback" not in err and len(err.splitlines()) == 1, err
+        assert k in err and "cannot read" in err
+    finally:
+        import shutil
+
+        shutil.rmtree(d)
+
+
 # ---------------------------------------------------------------------------------------------
 # the client: no bad FORCE packet reaches the hand
 # ---------------------------------------------------------------------------------------------

@@ -40,6 +40,7 @@ import json
 import math
 import os
 import socket
+import stat
 import struct
 import sys
 import time
@@ -95,19 +96,50 @@ def decode_force(key, data):
     return {"flags": f[3], "seq": f[4], "ack": f[5], "t": f[6], "echo": f[7], "force": f[8:11]}
 
 
+def _key_file_problem(path, fd):
+    """Why the open key file ``fd`` may not be trusted (as ssh judges a private key), or None."""
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    if os.name != "posix":
+        return None
+    if st.st_uid != os.geteuid():
+        return f"is owned by uid {st.st_uid}, not by you (uid {os.geteuid()}): someone else may have planted it"
+    if st.st_mode & 0o077:
+        return f"is accessible to other users (mode {oct(st.st_mode & 0o777)}); chmod 600 it"
+    folder = os.path.dirname(os.path.abspath(path))
+    fst = os.stat(folder)
+    if fst.st_uid not in (os.geteuid(), 0) or fst.st_mode & 0o022:
+        return (f"is in a folder other users can write to or own ({folder}, uid {fst.st_uid}, mode "
+                f"{oct(fst.st_mode & 0o777)}): someone else could have planted it; use a folder of your own")
+    if st.st_size > 4096:
+        return f"is {st.st_size} bytes; a key file is one line of hex"
+    return None
+
+
 def read_key(key=None, key_file=None):
-    """The session key from hex text or from a key file (refused if other users may read it)."""
+    """The session key from hex text or from a key file.
+
+    The file is opened without following a link or blocking, and refused (one line, exit status
+    2) unless it is a regular file owned by this user, readable by its owner only, in a folder
+    no one else can write to: the rules of the bridge's ``load_key`` (and of ssh).
+    """
     if (key is None) == (key_file is None):
         raise SystemExit("haptic_client: give the session key with exactly one of --key HEX or --key-file PATH")
     if key_file is not None:
+        flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
         try:
-            st = os.stat(key_file)
+            fd = os.open(key_file, flags)
+            try:
+                why = _key_file_problem(key_file, fd)
+                if why is None:
+                    key = os.read(fd, 4097).decode("ascii", errors="replace")
+            finally:
+                os.close(fd)
         except OSError as exc:
             raise SystemExit(f"haptic_client: cannot read key file {key_file} ({exc.strerror})") from None
-        if os.name == "posix" and st.st_mode & 0o077:
-            raise SystemExit(f"haptic_client: key file {key_file} is accessible to other users; chmod 600 it")
-        with open(key_file, encoding="ascii", errors="replace") as fh:
-            key = fh.read(4096)
+        if why is not None:
+            raise SystemExit(f"haptic_client: key file {key_file} {why}")
     try:
         k = bytes.fromhex(key.strip())
     except ValueError:

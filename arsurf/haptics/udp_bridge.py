@@ -95,6 +95,7 @@ Examples
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import hmac
 import ipaddress
@@ -208,10 +209,23 @@ def key_from_hex(text: str) -> bytes:
     return _check_key(key)
 
 
+def _folder_problem(folder: str, st: os.stat_result) -> str | None:
+    """Why ``folder`` may not hold a key file (as ssh judges a key's folder), or None.
+
+    Owned by the current user or root, and writable by its owner only: in a folder others can
+    write to, one of them could plant the key file first (then read, or drive, the session)."""
+    if st.st_uid not in (os.geteuid(), 0):
+        return f"is owned by uid {st.st_uid}, not by you (uid {os.geteuid()}) or root"
+    if st.st_mode & 0o022:
+        return f"is writable by other users (mode {oct(stat.S_IMODE(st.st_mode))})"
+    return None
+
+
 def save_key(path, key: bytes) -> str:
     """Write ``key`` as one line of hex to a new file readable by its owner only (mode 0o600).
 
-    The file is created exclusively (an existing file is never overwritten or followed).
+    The file is created exclusively (an existing file is never overwritten or followed), in a
+    folder only its owner can write to (the rule :func:`load_key` checks).
 
     Returns
     -------
@@ -220,11 +234,23 @@ def save_key(path, key: bytes) -> str:
     """
     key = _check_key(key)
     path = os.fspath(path)
+    if os.name == "posix":
+        folder = os.path.dirname(os.path.abspath(path))
+        try:
+            why = _folder_problem(folder, os.stat(folder))
+        except OSError as exc:
+            raise HapticsError(f"cannot write the bridge key file {path!r}: its folder {folder!r} "
+                               f"({exc.strerror})") from None
+        if why:
+            raise HapticsError(f"refusing to write the bridge key file {path!r}: its folder {folder!r} {why}; "
+                               "pick a folder of your own (chmod go-w)")
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
     except FileExistsError:
         raise HapticsError(f"key file {path!r} already exists; refusing to overwrite it "
                            "(read it with load_key, or pick a new path)") from None
+    except OSError as exc:
+        raise HapticsError(f"cannot write the bridge key file {path!r} ({exc.strerror})") from None
     with os.fdopen(fd, "w") as fh:
         if hasattr(os, "fchmod"):
             os.fchmod(fh.fileno(), 0o600)  # whatever the umask did
@@ -233,7 +259,13 @@ def save_key(path, key: bytes) -> str:
 
 
 def load_key(path) -> bytes:
-    """Read a key written by :func:`save_key`; refuse a file that other users can read or write.
+    """Read a key written by :func:`save_key`, refusing a file someone else could have planted or read.
+
+    As ssh does for a private key: the file must be a regular file (not a link, FIFO or device),
+    owned by the current user, readable and writable by its owner only (mode ``0600`` or
+    stricter), in a folder owned by the current user or root that no one else can write to.
+    Checked on the opened file (no race between the check and the read), opened without
+    following a link and without blocking.
 
     Examples
     --------
@@ -243,20 +275,37 @@ def load_key(path) -> bytes:
     True
     """
     path = os.fspath(path)
+    how = "create one with save_key or let the bridge generate it"
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
     try:
-        st = os.stat(path)
+        fd = os.open(path, flags)
     except OSError as exc:
-        raise HapticsError(f"cannot read the bridge key file {path!r} ({exc.strerror}); "
-                           "create one with save_key or let the bridge generate it") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise HapticsError(f"the bridge key file {path!r} is not a regular file")
-    if os.name == "posix" and st.st_mode & 0o077:
-        raise HapticsError(f"the bridge key file {path!r} is accessible to other users (mode "
-                           f"{oct(st.st_mode & 0o777)}); make it owner-only: chmod 600 {path}")
-    if st.st_size > 4096:
-        raise HapticsError(f"the bridge key file {path!r} is {st.st_size} bytes; a key file is one line of hex")
-    with open(path, encoding="ascii", errors="replace") as fh:
-        return key_from_hex(fh.read(4096))
+        why = "it is a symbolic link" if exc.errno == errno.ELOOP else exc.strerror
+        raise HapticsError(f"cannot read the bridge key file {path!r} ({why}); {how}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise HapticsError(f"the bridge key file {path!r} is not a regular file; {how}")
+        if os.name == "posix":
+            if st.st_uid != os.geteuid():
+                raise HapticsError(f"the bridge key file {path!r} is owned by uid {st.st_uid}, not by you (uid "
+                                   f"{os.geteuid()}): someone else may have planted it; {how} in a folder of your own")
+            if st.st_mode & 0o077:
+                raise HapticsError(f"the bridge key file {path!r} is accessible to other users (mode "
+                                   f"{oct(st.st_mode & 0o777)}); make it owner-only: chmod 600 {path}")
+            folder = os.path.dirname(os.path.abspath(path))
+            why = _folder_problem(folder, os.stat(folder))
+            if why:
+                raise HapticsError(f"the bridge key file {path!r} is in a folder that {why} ({folder!r}): someone "
+                                   "else could have planted it; keep key files in a folder of your own (chmod go-w)")
+        if st.st_size > 4096:
+            raise HapticsError(f"the bridge key file {path!r} is {st.st_size} bytes; a key file is one line of hex")
+        text = os.read(fd, 4097).decode("ascii", errors="replace")
+    except OSError as exc:
+        raise HapticsError(f"cannot read the bridge key file {path!r} ({exc.strerror}); {how}") from None
+    finally:
+        os.close(fd)
+    return key_from_hex(text)
 
 
 def is_loopback(host: str) -> bool:
