@@ -35,7 +35,7 @@ class RecordingDevice(VirtualDevice):
 
 
 def _live(fail_after: int):
-    from arsurf_viewer.live import LiveLoop
+    from arsurf.haptics.live_loop import LiveLoop
 
     s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 37 * 4e-9), (0.0, 37 * 4e-9))
     model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)
@@ -198,7 +198,8 @@ def test_a_sample_that_cannot_be_real_is_a_fault_with_zero_force_in_its_tick(kin
 
 def test_a_refused_sample_is_recorded_as_the_sample_the_tick_ran_on_with_its_flag(tmp_path):
     from arsurf import status
-    from arsurf.replay.session import SessionWriter, load_session, record_loop_tick
+    from arsurf.sessions.reader import load_session
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
     from arsurf.assembly import BUNDLED_SCAN, preset_metadata
 
