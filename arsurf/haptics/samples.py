@@ -74,7 +74,8 @@ _SHAPE3 = (3,)
 @njit(cache=True)
 def sample_check_step(params, state, x, v, t, now):
     """Flags of the sample ``x`` (3,) m, ``v`` (3,) m/s stamped ``t`` s at loop clock ``now`` s
-    (module docstring); a sample with no flag becomes the last good one. Allocation-free."""
+    (module docstring); a sample with no flag, stamped no later than ``now``, becomes the last
+    good one. Allocation-free."""
     flags = 0
     for j in range(3):
         if not (math.isfinite(x[j]) and math.isfinite(v[j])):
@@ -102,8 +103,8 @@ def sample_check_step(params, state, x, v, t, now):
             elapsed = max(t - state[_S_T], params[_P_DT])
             if math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > params[_P_VMAX] * elapsed:
                 flags |= SAMPLE_TOO_FAST
-    if flags == 0 and math.isfinite(t):
-        for j in range(3):
+    if flags == 0 and math.isfinite(t) and not t > now:  # a sample stamped ahead of the clock (stale for
+        for j in range(3):                                 # the safety layer) never becomes the reference
             state[_S_X + j] = x[j]
         state[_S_T] = t
         state[_S_HAVE] = 1.0
