@@ -526,6 +526,11 @@ class VirtualAFM(Instrument):
             self.move("pico", self.position["pico"] + trade)
         self._set_feedback(True)
 
+    @property
+    def scan_settings(self):
+        """The raster :meth:`scan_image` runs without settings (:class:`~arsurf.instrument.imaging.ScanSettings`)."""
+        return self._imaging.settings or self._imaging.default_settings()
+
     def _scan_image(self, settings) -> Scan:
         """One frame of :mod:`arsurf.instrument.imaging` (the instrument's clock moves on by its
         duration); the photodiode noise read as height through the deflection sensitivity."""
