@@ -28,6 +28,7 @@ LAYERS = [
     ("assembly", ["arsurf.assembly"]),
     ("viewer", ["arsurf_viewer"]),
     ("sessions", ["arsurf.replay", "arsurf.feel_scenarios"]),
+    ("verification", ["arsurf.verify"]),  # the model against the scan after a session (arsurf verify)
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
