@@ -492,7 +492,7 @@ def cmd_batch(args) -> int:
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
-_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices"]
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices", "arsurf.verify.command"]
 
 
 def _bridge_setup(args):

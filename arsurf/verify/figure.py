@@ -38,7 +38,7 @@ def after_in_before_frame(after: np.ndarray, reg: Registration) -> np.ndarray:
 
 
 def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float, dy: float, tubes: Sequence,
-                  checks: Sequence[ObjectCheck], wrong: bool):
+                  checks: Sequence[ObjectCheck], wrong: bool, tip_radius: float = 0.0):
     """Prediction, scan after, overlay (module docstring).
 
     Parameters
@@ -53,6 +53,8 @@ def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float
     checks : sequence of ObjectCheck
     wrong : bool
         The model was flagged (said in the title of (c)).
+    tip_radius : float, m
+        The model's tubes are drawn as this tip images them (comparable with the scan after).
     """
     from arsurf.manipulation.nanotube import Nanotube
 
@@ -61,7 +63,7 @@ def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float
     yy, xx = np.mgrid[0:ny, 0:nx]
     model = np.array(substrate, dtype=np.float64)
     for t in tubes:
-        model = np.fmax(model, t.height_map(xx * dx, yy * dy))
+        model = np.fmax(model, t.height_map(xx * dx, yy * dy, tip_radius=tip_radius))
     after = np.asarray(after_registered, dtype=np.float64)
     lo = np.nanmedian(after) - np.nanmedian(model)
     after_z = (after - lo) * 1e9  # the same substrate level as the model's (the scans are levelled apart)
@@ -71,7 +73,7 @@ def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float
     with style.context("default"):
         axes = fig.subplots(1, 3, sharex=True, sharey=True)
         _map(axes[0], fig, model_z, extent, clim, colorbar=False)
-        axes[0].set_title("(a) model: predicted poses", loc="left", fontsize=9)
+        axes[0].set_title("(a) model: predicted poses (as the tip images them)", loc="left", fontsize=9)
         _map(axes[1], fig, after_z, extent, clim, colorbar=False)
         axes[1].set_title("(b) scan after (registered)", loc="left", fontsize=9)
         im = _map(axes[2], fig, after_z, extent, clim, colorbar=False)
@@ -87,8 +89,9 @@ def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float
                 axes[2].plot(m[:, 0], m[:, 1], color=_AFTER, linewidth=1.2, label="measured" if k == 0 else None)
                 if c.moved:
                     axes[2].annotate(f"{c.index}: {c.position_error * 1e9:.1f} nm, {math.degrees(c.angle_error):+.1f}°",
-                                     (f.x * 1e9, f.y * 1e9), xytext=(6, 6), textcoords="offset points", fontsize=7,
-                                     color="white", fontweight="bold")
+                                     (f.x * 1e9, f.y * 1e9), xytext=(10, -18), textcoords="offset points", fontsize=7,
+                                     color="white", bbox={"boxstyle": "round,pad=0.2", "facecolor": "black",
+                                                          "alpha": 0.6, "edgecolor": "none"})
         for ax in axes[1:]:
             ax.set_ylabel("")
         axes[2].legend(loc="upper right", fontsize=7, framealpha=0.7)

@@ -200,7 +200,7 @@ def verify_session(session_path, after_path, *, before_path=None, out_dir=None, 
         margin = scene.substrate_margin or 2.0 * max(before.dx, before.dy)
         substrate = scene.substrate(before.with_heights(hb), margin=margin).heights
         fig = verify_figure(substrate, after_in_before_frame(ha, result.registration), before.dx, before.dy, tubes,
-                            result.checks, result.wrong)
+                            result.checks, result.wrong, tip_radius=result.tip_radius)
         result.files["figure"] = save_figure(fig, out / f"verify.{figure_format}", dpi=dpi or 200)
         result.files["report"] = out / "verify.json"
         (out / "verify.json").write_text(json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
