@@ -205,20 +205,19 @@ class TipShape:
 
 @njit(cache=True)
 def _dilate_kernel(z, oy, ox, t, out):
-    """out[i, j] = max_k z[i + oy_k, j + ox_k] - t_k over the offsets inside the grid."""
+    """out[i, j] = max_k z[i + oy_k, j + ox_k] - t_k over the offsets inside the grid (one pass
+    per offset over the rows and columns it keeps inside: contiguous inner loops)."""
     ny, nx = z.shape
-    m = oy.size
-    for i in range(ny):
-        for j in range(nx):
-            best = -np.inf
-            for k in range(m):
-                ii = i + oy[k]
-                jj = j + ox[k]
-                if 0 <= ii < ny and 0 <= jj < nx:
-                    v = z[ii, jj] - t[k]
-                    if v > best:
-                        best = v
-            out[i, j] = best
+    out[:, :] = -np.inf
+    for k in range(oy.size):
+        dy, dx, tk = oy[k], ox[k], t[k]
+        i0, i1 = max(0, -dy), min(ny, ny - dy)
+        j0, j1 = max(0, -dx), min(nx, nx - dx)
+        for i in range(i0, i1):
+            zr = z[i + dy]
+            orow = out[i]
+            for j in range(j0, j1):
+                orow[j] = max(orow[j], zr[j + dx] - tk)
 
 
 def dilate(heights: np.ndarray, dx: float, dy: float, tip: TipShape) -> np.ndarray:

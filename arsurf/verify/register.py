@@ -48,6 +48,8 @@ MIN_OVERLAP = 0.5
 #: variance s^2 with pixel noise n^2 correlate s^2 / (s^2 + n^2) (0.8 for the benchmark's 0.4 nm
 #: roughness and 0.2 nm noise), two unrelated areas about 0 (0.07 measured)
 MIN_CORRELATION = 0.3
+#: Gaussian width (pixels) of the low pass both scans get before the refinement
+SMOOTH_PX = 0.8
 #: Huber threshold in robust standard deviations
 _HUBER = 1.5
 
@@ -232,17 +234,19 @@ def _tile_affine(hb, ha, mb, ma, s0: np.ndarray, tiles: int) -> np.ndarray:
     return np.array([[1.0 + cx_[0], cx_[1], cx_[2]], [cy_[0], 1.0 + cy_[1], cy_[2]]])
 
 
-def _refine(hb, ha, mb, ma, affine: np.ndarray, iterations: int = 12):
+def _refine(hb, ha, mb, ma, affine: np.ndarray, iterations: int = 12, smooth: float = 0.0):
     """Gauss-Newton on the heights: min sum w (B(A p) + c0 + c1 x + c2 y - H_a(p))^2 over the
     substrate pixels p of the scan after whose image lies on the scan before's substrate."""
     ny, nx = ha.shape
     scale = float(np.std(ha[~ma])) or 1.0  # heights in units of the substrate's spread: a well-scaled solve
     hb, ha = hb / scale, ha / scale
+    if smooth > 0.0:  # the same low pass on both: less noise in the gradients, the same geometry
+        hb, ha = ndimage.gaussian_filter(hb, smooth), ndimage.gaussian_filter(ha, smooth)
     yy, xx = np.mgrid[0:ny, 0:nx]
     xx, yy = xx.ravel().astype(np.float64), yy.ravel().astype(np.float64)
     hav = ha.ravel()
     keep_a = ~ma.ravel()
-    gy, gx = np.gradient(hb)
+    coef = ndimage.spline_filter(hb, order=3, mode="nearest")
     mbf = mb.astype(np.float64)
     a = affine.copy()
     plane = np.zeros(3)
@@ -259,9 +263,14 @@ def _refine(hb, ha, mb, ma, affine: np.ndarray, iterations: int = 12):
             raise VerifyError("the scans share too little substrate to register (objects or the frame's edges cover "
                               "it); rescan with more of the same area")
         c = coords[:, use]
-        b = ndimage.map_coordinates(hb, c, order=3, mode="nearest")
-        bx = ndimage.map_coordinates(gx, c, order=1, mode="nearest")
-        by = ndimage.map_coordinates(gy, c, order=1, mode="nearest")
+        b = ndimage.map_coordinates(coef, c, order=3, mode="nearest", prefilter=False)
+        # the interpolant's own gradient (central differences of the cubic spline, 0.1 px): the
+        # Gauss-Newton fixed point is then the least-squares optimum
+        e = np.array([[0.1], [0.0]])
+        by = (ndimage.map_coordinates(coef, c + e, order=3, mode="nearest", prefilter=False)
+              - ndimage.map_coordinates(coef, c - e, order=3, mode="nearest", prefilter=False)) / 0.2
+        bx = (ndimage.map_coordinates(coef, c + e[::-1], order=3, mode="nearest", prefilter=False)
+              - ndimage.map_coordinates(coef, c - e[::-1], order=3, mode="nearest", prefilter=False)) / 0.2
         x, y = xx[use], yy[use]
         r = b + plane[0] + plane[1] * x + plane[2] * y - hav[use]
         w = _huber_weights(r)
@@ -308,7 +317,7 @@ def register(before: Scan, after: Scan, *, tiles: int = 4, min_height: float = 2
         raise VerifyError(f"the scans do not overlap: the best shift ({s0[1]:+.1f}, {s0[0]:+.1f}) px has a correlation "
                           f"peak of {peak:.3f} (need > 0.03 and half the frame shared); scan the same area again")
     affine = _tile_affine(hb, ha, mb, ma, s0, int(tiles))
-    affine, used, rms, ncc = _refine(hb, ha, mb, ma, affine)
+    affine, used, rms, ncc = _refine(hb, ha, mb, ma, affine, smooth=SMOOTH_PX)
     if not ncc >= MIN_CORRELATION:
         raise VerifyError(f"the scans do not show the same substrate: after the best affine fit their heights correlate "
                           f"{ncc:.2f} (need {MIN_CORRELATION}); scan the same area again, or pass the right --before")
