@@ -158,3 +158,15 @@ def test_no_objects_and_no_scene_are_one_line(experiments, tmp_path, capsys):
     assert len(err) == 1 and "no objects found" in err[0]
     assert main(["verify", str(e.session), str(e.after), "--before", str(tmp_path / "missing.npz")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_the_docs_page_code_runs_and_shows_the_flag(capsys):
+    """docs/verify.rst's Python block runs as printed."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "verify.rst").read_text(encoding="utf-8")
+    block = re.search(r"\.\. code-block:: python\n\n((?:    .*\n|\n)+)", text).group(1)
+    code = "\n".join(line[4:] for line in block.splitlines())
+    exec(compile(code, "docs/verify.rst", "exec"), {})
+    assert capsys.readouterr().out.startswith("True [")

@@ -1,7 +1,7 @@
 """The model meets the scan after, in the manner of seed 000 Fig. 9 (live display beside the scan
 after each push): (a) the model's prediction - the substrate the session fitted with every tube
 at the pose the model left it, (b) the scan after carried into the same frame by the
-registration, (c) the two overlaid - the scan after with the predicted outlines (dashed) and the
+registration (grey where it did not reach), (c) the two overlaid - the scan after with the predicted outlines (dashed) and the
 measured ones (solid), each moved tube labelled with its errors.
 
 The conventions of :mod:`arsurf.replay.plots`: nm axes with a scale bar, :data:`HEIGHT_CMAP`,
@@ -94,6 +94,7 @@ def verify_figure(substrate: np.ndarray, after_registered: np.ndarray, dx: float
                                                           "alpha": 0.6, "edgecolor": "none"})
         for ax in axes[1:]:
             ax.set_ylabel("")
+            ax.set_facecolor("0.45")  # outside the scan after (drift): grey, so the white scale bar shows
         axes[2].legend(loc="upper right", fontsize=7, framealpha=0.7)
         fig.colorbar(im, ax=list(axes), label="height (nm)", shrink=0.9, pad=0.01, fraction=0.02)
     return fig
