@@ -159,7 +159,7 @@ def verify_session(session_path, after_path, *, before_path=None, out_dir=None, 
         Of the figure (:func:`arsurf.replay.plots.save_figure`).
     """
     from arsurf.manipulation.scene import TubeScene
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     session = load_session(session_path)
     meta = session.metadata

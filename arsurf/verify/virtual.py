@@ -85,7 +85,7 @@ def run_experiment(case: Case, out_dir) -> Experiment:
     from arsurf.instrument.instrument import VirtualAFM
     from arsurf.manipulation.nanotube import Nanotube
     from arsurf.manipulation.scene import FRICTION_PER_LENGTH, TubeScene
-    from arsurf.replay.session import SessionWriter
+    from arsurf.sessions.writer import SessionWriter
     from arsurf.scan.io import save_scan
     from arsurf.scan.synthetic import rough
 
