@@ -170,3 +170,31 @@ def test_the_docs_page_code_runs_and_shows_the_flag(capsys):
     code = "\n".join(line[4:] for line in block.splitlines())
     exec(compile(code, "docs/verify.rst", "exec"), {})
     assert capsys.readouterr().out.startswith("True [")
+
+
+def test_the_virtual_afm_images_what_the_session_left_and_the_model_agrees_with_it(experiments, tmp_path):
+    """session_sample: the substrate, the model's dent (where the tip pressed, <= 0) and the tubes at
+    the model's final poses; the virtual AFM's image of it, checked by verify against the same
+    session, agrees with the model (it is the model's own world) and shows the dent."""
+    from arsurf.instrument.imaging import ScanSettings, TipShape, acquire
+    from arsurf.verify.verify import verify_session
+    from arsurf.verify.virtual import session_sample
+
+    e, _ = experiments[0]
+    sample = session_sample(e.session)
+    assert sample.dent.min() < -0.1e-9 and sample.dent.max() < 0.02 * -sample.dent.min()  # a dent (spline ringing aside)
+    iy, ix = np.unravel_index(int(np.argmin(sample.dent)), sample.dent.shape)
+    end = load_scan(e.before)
+    np.testing.assert_allclose(np.array([o.pose for o in sample.objects]), e.model_poses, rtol=0, atol=1e-15)
+    ny, nx = sample.substrate.shape
+    st = ScanSettings((nx, ny), (nx * end.dx, ny * end.dy), feedback_bandwidth=1e6)
+    image, _ = acquire(sample, st, TipShape(e.case.tip_radius), noise_sigma=0.05e-9, seed=3)
+    flat, _ = acquire(type(sample)(sample.substrate, objects=sample.objects), st, TipShape(e.case.tip_radius),
+                      noise_sigma=0.05e-9, seed=3)
+    seen = (image.heights - flat.heights)[iy, ix]  # the dent is in the image, shallower: the tip, wider than the
+    assert sample.dent.min() < seen < -0.01e-9     # dent, cannot reach its bottom (the dilation)
+    save_scan(image.with_heights(image.heights, step={"operation": "virtual scan of the session's sample"}),
+              tmp_path / "model_world.npz")
+    r = verify_session(e.session, tmp_path / "model_world.npz", before_path=e.before)
+    assert not r.wrong and max(c.position_error for c in r.checks) < 0.5 * r.dx
+    assert np.abs(r.registration.shift_px).max() < 0.1  # no drift in this image

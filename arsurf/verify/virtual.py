@@ -7,10 +7,16 @@ session whose model pushes one tube along a straight tip path (the model's
 :class:`~arsurf.manipulation.scene.TubeScene`, possibly *wrong*: another middle band, so it
 translates a tube that truly turns; or another friction, which changes the force and not the
 motion), moves the real tubes with the true physics along the same path (carried into the
-sample's frame by the scan before's true drift map), leaves a shallow dent where the tip
-pressed, scans again, and returns the files and the truth: the map from the scan after's pixels
+sample's frame by the scan before's true drift map; the tip's apex 0.5 nm below the
+substrate's mean plane, so the model dents it), leaves a shallow dent where the tip pressed,
+scans again, and returns the files and the truth: the map from the scan after's pixels
 to the scan before's, and the tubes' true final poses in the scan before's frame (the frame of
 the session).
+
+:func:`session_sample` is the other direction: the sample a recorded session left as its model
+sees it - the substrate it fitted, the dent the model made (the model re-run over the recorded
+ticks, :math:`z_{now} - z_{rest}` of the live surface on the scan's pixels) and the tubes at
+their last recorded poses - for the virtual AFM to image.
 """
 from __future__ import annotations
 
@@ -22,7 +28,7 @@ import numpy as np
 
 from arsurf.errors import VerifyError
 
-__all__ = ["Case", "Experiment", "run_experiment", "true_map_error"]
+__all__ = ["Case", "Experiment", "run_experiment", "true_map_error", "session_sample"]
 
 
 @dataclass(frozen=True)
@@ -147,7 +153,7 @@ def run_experiment(case: Case, out_dir) -> Experiment:
         start = c - (reach + 15e-9) * nrm
         travel = 15e-9 + case.push
         steps = max(2, int(travel / 0.5e-9))
-        z = case.tip_radius
+        z = case.tip_radius - 0.5e-9  # the apex 0.5 nm under the substrate's mean plane: the model dents it
         path = np.array([[*(start + s * travel * nrm), z] for s in np.linspace(0.0, 1.0, steps)])
         meta = session_metadata(scan=before_path, tip_radius=case.tip_radius,
                                 contact={"effective_modulus": 10e9, "work_of_adhesion": 0.1, "dugdale_stress": None},
@@ -188,3 +194,34 @@ def true_map_error(affine: np.ndarray, true_affine: np.ndarray, shape) -> float:
     ny, nx = shape
     c = np.array([[0, 0, 1], [nx - 1, 0, 1], [0, ny - 1, 1], [nx - 1, ny - 1, 1]], dtype=np.float64).T
     return float(np.hypot(*((affine - true_affine) @ c)).max())
+
+
+def session_sample(session_path, scan_path=None):
+    """The sample a session left, as its model has it (module docstring): an
+    :class:`~arsurf.instrument.imaging.Sample` on the session's processed scan (the substrate when
+    it has tubes), with the model's dent and the tubes at their last recorded poses."""
+    from arsurf.assembly import build_model
+    from arsurf.instrument.imaging import Sample
+    from arsurf.sessions.reader import load_session
+    from arsurf.spline.surface import BSplineSurface
+
+    session = load_session(session_path)
+    setup = build_model(session.metadata, scan_path)
+    model, scan = setup.model, setup.scan
+    model.reset()
+    pos = session.ticks["probe_position"]
+    for k in range(session.n_ticks):  # the dent as the model made it (no signals: the simulated force)
+        model.tick(pos[k], None)
+    ny, nx = scan.shape
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    surface = model.surface
+    rest = BSplineSurface.construct_fast(np.array(surface.rest_control_points), np.array(surface.knots_u),
+                                         np.array(surface.knots_v))
+    dent = surface.evaluate(xx * scan.dx, yy * scan.dy)[..., 2] - rest.evaluate(xx * scan.dx, yy * scan.dy)[..., 2]
+    objects = ()
+    if setup.scene is not None:
+        poses = session.ticks.get("tube_poses")
+        last = poses[-1] if poses is not None and len(poses) else setup.scene.poses
+        objects = tuple(t.with_pose(*map(float, p)) for t, p in zip(setup.scene.initial, last))
+    return Sample(scan.with_heights(np.nan_to_num(scan.heights, nan=float(np.nanmedian(scan.heights)))),
+                  dent=dent, objects=objects)
