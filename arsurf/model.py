@@ -464,7 +464,7 @@ class ARModel:
         self._ev = np.empty((6, 3))
         self.out = np.zeros(M_SIZE)
 
-    def adhesion_energy(self) -> float:
+    def adhesion_energy(self, with_map: bool = True) -> float:
         """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.
 
         Over the adhesive part of the contact curve the pull towards the surface is at most the
@@ -476,15 +476,15 @@ class ARModel:
 
         With a material map the well is the deepest of the local laws the tick can meet: the
         bound is taken over the map's pixels and the points half-way between them
-        (:func:`~arsurf.contact.material_map.deepest_well_kernel`), computed once (~0.3 s for a
-        1024² map) and kept."""
+        (:func:`~arsurf.contact.material_map.deepest_well_kernel`), computed once (~3 s for a
+        1024² map) and kept; ``with_map=False`` gives the reference law's alone."""
         c = self.contact
         pc = abs(c.pull_off_force())
         if pc == 0.0:
             return 0.0
         reach = float(c.depth(0.0)) - min(c.jump_out_depth(), c.jump_in_depth())
         e0 = pc * (reach + pc / self.coupling_stiffness)
-        if self.material is None:
+        if self.material is None or not with_map:
             return e0
         if self._deepest_well is None:
             m = self.material

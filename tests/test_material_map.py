@@ -60,6 +60,8 @@ def test_the_same_probe_gets_the_fits_own_reduced_modulus(e_s, nu):
     m = _map(np.full((N, N), e_s), np.full((N, N), 2e-9), MaterialConversion(R, sample_poisson=nu))
     assert m.reduced_modulus(40e-9, 70e-9) == pytest.approx(e_s / (1.0 - nu * nu), rel=1e-12)
     assert m.summary()["convention"].startswith("rigid-tip DMT fit, same probe")
+    from arsurf.units import undeclared
+    assert undeclared(m.summary()) == []                 # every number's key names its SI unit
     other = reduced_modulus(e_s, MaterialConversion(R, sample_poisson=nu, probe="other"))
     si = MATERIALS["Si"]
     assert other / same - 1.0 == pytest.approx(-1.0 / (1.0 + si.youngs_modulus / (1 - si.poisson_ratio ** 2)
@@ -131,7 +133,9 @@ def test_uncalibrated_units_are_refused_without_a_stated_conversion():
 def test_conversion_parameters_are_checked_and_round_trip():
     conv = MaterialConversion(R, sample_poisson=0.35, regime="jkr", modulus_scale=1e9)
     assert MaterialConversion.from_metadata(conv.to_metadata()) == conv
-    assert conv.summary()["tip_radius_m"] == R and conv.summary()["modulus_scale_Pa_per_unit"] == 1e9
+    assert conv.summary()["tip_radius_m"] == R and conv.summary()["modulus_scale_Pa"] == 1e9
+    from arsurf.units import undeclared
+    assert undeclared(conv.summary()) == []
     # a recording made before the convention was stated: converted as it was (Si tip again, no cross-check)
     old = {k: v for k, v in conv.to_metadata().items() if k not in ("probe", "cross_check")}
     assert MaterialConversion.from_metadata(old) == MaterialConversion(R, sample_poisson=0.35, regime="jkr",

@@ -143,6 +143,8 @@ def test_the_two_modulus_channels_disagree_and_none_of_those_pixels_stays_unmask
     pix = m.fields["reduced_modulus"].pixels
     factor = disagree & (k >= 1)
     assert np.all(np.abs(pix[factor] / e_lin[factor] - 1.0) > 0.5)          # none kept at its linear value
+    keep = usable & ~disagree                 # the rest: E* = E_s / (1 - nu_s^2), nu_s = 0.3 from the header
+    assert np.isclose(pix[keep], e_lin[keep], rtol=1e-12, atol=0.0).mean() > 0.998   # (0.15 % outliers)
     assert m.statistics["reduced_modulus"]["pixels"] == round((1 - m.masked["modulus"]["masked"]) * lin.size)
     top = usable & (lin >= np.percentile(lin[usable], 90))
     assert factor[top].mean() > 0.99                                       # the linear top decile: those pixels
@@ -198,9 +200,62 @@ def test_the_stiffest_and_the_softest_decile_feel_different(spm):
         md = MaugisDugdale(R, ex, wx, wx / conv.dugdale_range)
         assert t.load == pytest.approx(load, rel=1e-6)
         assert t.depth == pytest.approx(md.depth(load), rel=1e-6)       # MD of the local law
+        # and Maugis' equations as printed (tests/reference.py), at the local E*, w: the tick's load
+        k = 4.0 * ex / 3.0
+        lam = 2.0 * (wx / conv.dugdale_range) * (R / (math.pi * wx * k * k)) ** (1.0 / 3.0)
+        depth_scale = (math.pi ** 2 * wx ** 2 * R / k ** 2) ** (1.0 / 3.0)
+        a_bar = ref_radius_from_depth(t.depth / depth_scale, lam)
+        assert t.load == pytest.approx(ref_load_depth(a_bar, lam)[0] * math.pi * wx * R, rel=1e-6)
         p, point = _pull_off(model, x, y, z0)
         ep, wp = m.reduced_modulus(*point[:2]), m.work_of_adhesion(*point[:2])
         assert p == pytest.approx(MaugisDugdale(R, ep, wp, wp / conv.dugdale_range).pull_off_force(), rel=0.02)
         feel[name] = (t.depth, p)
     assert feel["soft"][0] > 2.0 * feel["stiff"][0]                     # the soft decile indents far deeper
     assert abs(feel["soft"][1] - feel["stiff"][1]) > 0.2 * max(abs(feel["soft"][1]), abs(feel["stiff"][1]))
+
+
+def _well(law, kc):
+    """E0 of one Maugis-Dugdale law (ARModel.adhesion_energy's formula, from the law's own methods)."""
+    pc = abs(law.pull_off_force())
+    return pc * (float(law.depth(0.0)) - min(law.jump_out_depth(), law.jump_in_depth()) + pc / kc)
+
+
+@pytest.mark.parametrize("kc", [math.inf, 5.0])
+def test_the_passivity_bound_covers_the_deepest_adhesive_well_of_the_map(spm, default_map, kc):
+    """The passivity reserve E0 (ARModel.adhesion_energy) with the real map is at least the
+    well of every pixel's own law (exact MaugisDugdale at the 1000 pixels of largest
+    w R (depth scale + h0), the DMT-like estimate), far beyond the median law's, which alone was
+    the reserve before."""
+    m = default_map
+    height = level(load_scan(spm), "plane")
+    model = ARModel(fit_surface(height), R, m.contact_law(), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27),
+                    material=m, coupling_stiffness=kc)
+    e0 = model.adhesion_energy()
+    e = m.fields["reduced_modulus"].pixels.ravel()
+    w = m.fields["work_of_adhesion"].pixels.ravel()
+    h0 = m.conversion.dugdale_range
+    scale = (math.pi ** 2 * w ** 2 * R / (4 * e / 3) ** 2) ** (1 / 3)
+    candidates = np.argsort(w * R * (scale + h0))[-1000:]
+    wells = [_well(MaugisDugdale(R, e[i], w[i], w[i] / h0), kc) for i in candidates]
+    deepest = max(wells)
+    assert e0 >= deepest
+    assert e0 < 3.0 * deepest                     # a bound of the map's wells (and between its pixels), not more
+    assert deepest > 10.0 * _well(m.contact_law(), kc)
+
+
+def test_the_docs_page_runs_as_printed(default_map, capsys, monkeypatch):
+    """docs/materials.rst: its code block builds the map tested here (same hash) and prints the legend."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "docs" / "materials.rst").read_text(encoding="utf-8")
+    block = re.search(r"\.\. code-block:: python\n\n((?:   .*\n|\n)+)", text).group(1)
+    code = "\n".join(line[3:] for line in block.splitlines())
+    monkeypatch.chdir(root)
+    namespace: dict = {}
+    exec(compile(code, "docs/materials.rst", "exec"), namespace)
+    m = namespace["m"]
+    assert m.sha256 == default_map.sha256
+    assert capsys.readouterr().out.splitlines() == m.describe()
+    assert round(m.summary()["cross_check"]["disagreeing_fraction"], 4) == 0.1717      # as the page says

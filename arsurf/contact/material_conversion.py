@@ -112,9 +112,10 @@ CROSS_CHECKS = ("mask", "log", "off")
 #: (the silicon tip combined, no cross-check): :meth:`MaterialConversion.from_metadata` fills them in
 LEGACY = {"probe": "other", "cross_check": "off"}
 #: the unit of each parameter, for the summaries (JSON keys with their unit)
-_UNITS = {"tip_radius": "m", "tip_modulus": "Pa", "dugdale_range": "m", "modulus_scale": "Pa_per_unit",
-          "adhesion_scale": "N_per_unit", "deflection_sensitivity": "m_per_V", "spring_constant": "N_per_m",
-          "adhesion_floor": "N", "deformation_scale": "m_per_unit", "dissipation_scale": "J_per_unit"}
+#: (a scale is SI per unit of a channel the file leaves uncalibrated: Pa per Arb is named ``_Pa``)
+_UNITS = {"tip_radius": "m", "tip_modulus": "Pa", "dugdale_range": "m", "modulus_scale": "Pa",
+          "adhesion_scale": "N", "deflection_sensitivity": "m_per_V", "spring_constant": "N_per_m",
+          "adhesion_floor": "N", "deformation_scale": "m", "dissipation_scale": "J"}
 _TIP = MATERIALS["Si"]
 #: the channel roles of a map (``--<role>-channel`` flags): log_modulus is the cross-check's
 ROLES = ("modulus", "log_modulus", "adhesion", "deformation", "dissipation")

@@ -434,14 +434,16 @@ class MaterialMap:
         that holds a dimensional value names its SI unit."""
         units = {"reduced_modulus": "Pa", "sample_modulus": "Pa", "work_of_adhesion": "J_per_m2",
                  "pull_off_force": "N"}
-        stats = {k: {(f"{q}_{units[k]}" if q != "pixels" else q): v for q, v in st.items()}
+        stats = {k: {(f"{q}_{units[k]}" if q != "pixels" else "n_pixels"): v for q, v in st.items()}
                  for k, st in self.statistics.items()}
+        masked = {role: {(k if k.endswith("_N") else f"{k}_fraction"): v for k, v in m.items()}
+                  for role, m in self.masked.items()}
         p = self.processing
         cross = dict(p.get("cross_check") or {})
         return {"channels": dict(self.channels), "convention": self.convention,
                 "sample_poisson": self.conversion.sample_poisson,
                 "sample_poisson_source": p.get("sample_poisson_source", "stated"), "cross_check": cross,
-                "statistics": stats, "masked_fraction": {k: dict(v) for k, v in self.masked.items()},
+                "statistics": stats, "masked": masked,
                 "registration": self.registration,
                 "reference": {"reduced_modulus_Pa": self.reference_modulus,
                               "work_of_adhesion_J_per_m2": self.reference_work},
