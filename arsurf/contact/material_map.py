@@ -11,9 +11,13 @@ How a map is built (:func:`build_material_map`), per channel
        channel needs its stated conversion, never a guess.
     2. **Mask** the pixels the instrument's fit failed on: not finite, exactly zero, saturated
        (at the channel's full scale, from the file's Z scale: NanoScope writes the clipped fits
-       there), a modulus <= 0, and outliers (beyond ``outlier_mads`` robust standard deviations
-       of the median, in log E for the modulus, linearly for the pull-off). The masked fraction
-       of each reason is reported (``masked``).
+       there), a modulus <= 0, the pixels where the linear and the log modulus channels disagree
+       (:func:`channel_disagreement`; the conversion's ``cross_check``), and outliers (beyond
+       ``outlier_mads`` robust scales of the median, in log E for the modulus, linearly for the
+       pull-off; the scale is 1.4826 MAD but never below :data:`OUTLIER_SCALE_FLOOR` or the
+       channel's quantum, so a uniform map still masks an absurd pixel). The masked fraction of
+       each reason is reported (``masked``). The sample Poisson ratio is resolved here (stated,
+       else the file's header, else 0.3; ``processing["sample_poisson_source"]``).
     3. **Fill** the masked pixels by Laplace inpainting (:func:`arsurf.inpaint`), in log E for
        the modulus; optional Gaussian **smoothing** (``sigma``, :func:`arsurf.smooth`), like the
        height. Pull-offs below the adhesion floor are then raised to it (counted): by default the
@@ -393,8 +397,11 @@ class MaterialMap:
         """What a session records to rebuild the map: channel names (and units given for a file
         that does not state them), the conversion, the offset, the processing and the hash."""
         p = self.processing
+        conv = self.conversion.to_metadata()
+        if p.get("sample_poisson_source", "stated") != "stated":
+            conv["sample_poisson"] = None  # from the file (or its default): a rebuild reads it there again
         return {"channels": dict(self.channels), "units": dict(p.get("units") or {}),
-                "conversion": self.conversion.to_metadata(), "offset": list(self.offset),
+                "conversion": conv, "offset": list(self.offset),
                 "processing": {"sigma": p["sigma"], "smoothing": p["smoothing"], "control_shape": p["control_shape"]},
                 "sha256": self.sha256}
 
