@@ -477,3 +477,21 @@ def test_the_two_modulus_channels_are_checked_against_each_other(rng):
     other = _chan(true * 1e10, "LogDMTModulus", "Pa")
     with pytest.raises(MaterialMapError, match="cannot be compared.*--cross-check off"):
         build_material_map(_flat(), {**chans, "log_modulus": other}, conv)
+
+
+def test_another_tip_is_an_explicit_command_line_option():
+    """--probe same is the default; --tip-modulus-gpa/--tip-poisson only with --probe other (a
+    one-line refusal otherwise); --sample-poisson unset leaves nu_s to the file."""
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    MaterialConversion.cli_arguments(parser, tip_radius_nm=5.0)
+    conv = MaterialConversion.from_cli(parser.parse_args([]))
+    assert conv.probe == "same" and conv.sample_poisson is None and conv.cross_check == "mask"
+    conv = MaterialConversion.from_cli(parser.parse_args(["--probe", "other", "--tip-modulus-gpa", "169",
+                                                          "--cross-check", "log", "--sample-poisson", "0.35"]))
+    assert (conv.probe, conv.tip_modulus, conv.cross_check, conv.sample_poisson) == ("other", 169e9, "log", 0.35)
+    with pytest.raises(MaterialMapError, match="--tip-modulus-gpa describes another tip.*--probe other"):
+        MaterialConversion.from_cli(parser.parse_args(["--tip-modulus-gpa", "169"]))
+    assert MaterialConversion.cli_channels(parser.parse_args(["--log-modulus-channel", "LogX"])) == {
+        "log_modulus": "LogX"}
