@@ -37,7 +37,7 @@ LAYERS = [
     ("replay", ["arsurf.replay.*"]),  # re-run the model over a recorded session
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
-    ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),
+    ("applications", ["arsurf.demo", "arsurf.cli.*", "arsurf.devices"]),
     ("entry point", ["arsurf.__main__"]),
 ]
 
@@ -45,9 +45,9 @@ LAYERS = [
 #: one, as (module, function). Anywhere else, ``arsurf_viewer`` is out of bounds: ``arsurf live``
 #: and ``arsurf demo --no-images`` run on a machine without pyvista (test below).
 VIEW_COMMANDS = {
-    ("arsurf.cli", "_view"),  # arsurf view SCAN: the interactive window / offscreen frames
-    ("arsurf.cli", "_bridge_view"),  # arsurf view --bridge-port: the window following the live loop
-    ("arsurf.cli", "_serve_headless"),  # the same without a display: frames of the live loop
+    ("arsurf.cli.view", "_view"),  # arsurf view SCAN: the interactive window / offscreen frames
+    ("arsurf.cli.view", "_bridge_view"),  # arsurf view --bridge-port: the window following the live loop
+    ("arsurf.cli.view", "_serve_headless"),  # the same without a display: frames of the live loop
     ("arsurf.demo", "_viewer_or_none"),  # arsurf demo: the PNG views (not with --no-images)
     ("arsurf.replay.replay", "_viewer"),  # arsurf replay --frames N: the replayed frames
 }
