@@ -17,7 +17,7 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 #: the pipeline, lowest first (DESIGN.md): a module may import its own package and lower layers
 LAYERS = [
     ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data", "arsurf._logging",
-                    "arsurf.units", "arsurf._display"]),
+                    "arsurf.units", "arsurf._display", "arsurf._files", "arsurf._h5safe"]),
     ("scan", ["arsurf.scan"]),
     ("spline", ["arsurf.spline"]),
     ("meshes", ["arsurf.export", "arsurf.meshes"]),

@@ -151,19 +151,18 @@ def _sniff_hdf5(path: Path) -> str | None:
     """``"h5-jpk"``, ``"nhf"`` or ``"topostats"`` when an HDF5 file says so in its content, else
     None (a damaged file: None, and the extension decides; its reader then names the damage)."""
     try:
-        import h5py
-
+        from arsurf._h5safe import open_hdf5
         from arsurf.scan.readers.h5jpk import is_h5jpk
         from arsurf.scan.readers.nhf import is_nhf
 
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path, "scan file", error=CorruptScan) as f:
             if is_h5jpk(f):
                 return "h5-jpk"
             if is_nhf(f):
                 return "nhf"
             if "image" in f and "pixel_to_nm_scaling" in f:
                 return "topostats"
-    except Exception:  # noqa: BLE001 - any failure to open means "the content does not say"
+    except Exception:  # noqa: BLE001 - any failure or refusal: "the content does not say" (the reader names it)
         return None
     return None
 
