@@ -16,7 +16,7 @@ the victim. :func:`atomic_write` never opens a name it did not create:
 1. the target is refused when it is a symbolic link, or exists and is not a regular file;
 2. the data go to a temporary created in the target's folder with
    ``O_CREAT | O_EXCL | O_NOFOLLOW`` under an unpredictable name (``.<name>.<64 random
-   bits>.tmp``): ``O_EXCL`` fails on any existing name, planted link included;
+   bits>.tmp<suffix>``): ``O_EXCL`` fails on any existing name, planted link included;
 3. the temporary is flushed, fsynced, and renamed over the target (``os.replace`` replaces a
    directory entry, it never writes through a link), then the folder is fsynced. On any error
    the temporary is removed and the target is left as it was.
@@ -51,7 +51,7 @@ from typing import Iterator
 
 from arsurf.errors import ArsurfError, UnsafeFile
 
-__all__ = ["read_regular", "atomic_write", "write_bytes", "write_text", "check_target", "fsync_dir"]
+__all__ = ["read_regular", "check_regular", "atomic_write", "write_bytes", "write_text", "check_target", "fsync_dir"]
 
 _KINDS = {stat.S_IFIFO: "a FIFO (named pipe)", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
           stat.S_IFSOCK: "a socket", stat.S_IFDIR: "a directory", stat.S_IFLNK: "a symbolic link"}
@@ -102,6 +102,16 @@ def read_regular(path: str | os.PathLike, what: str = "file", *, error: type[Ars
     return data
 
 
+def check_regular(path: str | os.PathLike, what: str = "file", *, error: type[ArsurfError] = UnsafeFile) -> int:
+    """Refuse ``path`` unless it is a regular file (following links, without opening it, so a FIFO
+    never blocks); return its size. For a file another process will read (the isolated reader)."""
+    st = os.stat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{what} {os.fspath(path)!r} is {_kind(st.st_mode)}, not a regular file; arsurf reads only "
+                    "regular files (copy the data into a file)")
+    return st.st_size
+
+
 def check_target(path: str | os.PathLike, what: str = "output", *, error: type[ArsurfError] = UnsafeFile) -> Path:
     """Refuse a write target that is a symbolic link or exists and is not a regular file.
 
@@ -138,7 +148,7 @@ def _create_temp(folder: Path, name: str) -> tuple[int, Path]:
     flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0) \
         | getattr(os, "O_BINARY", 0)
     for _ in range(16):
-        tmp = folder / f".{name[:80]}.{secrets.token_hex(8)}.tmp"
+        tmp = folder / f".{name[:80]}.{secrets.token_hex(8)}.tmp{Path(name).suffix[:16]}"  # the suffix tells writers the type
         try:
             return os.open(tmp, flags, 0o666), tmp
         except FileExistsError:  # 2**-64 per try, or a name planted on purpose: draw again

@@ -21,9 +21,15 @@ readers ``.topostats``, ``.nhf``, ``.h5-jpk``, sessions, replay outputs, batch r
    - a dataset with **external storage** or a **virtual** layout;
    - a dataset with a **filter** not in :data:`ALLOWED_FILTERS` (deflate, shuffle, fletcher32:
      what the supported formats use; anything else would make libhdf5 look for a plugin);
-   - **declared sizes** above :data:`MAX_EXPANSION` times the file's size: every dataset's and
+   - a dataset whose values are not all **stored** (``prod(shape) * itemsize`` above the bytes
+     it stores, or above :data:`GZIP_LIMIT` times them when deflated): reading would fill
+     elements that were never written, the way a 2 kB file asks for 2 GB;
+   - **declared sizes** above ``max_expansion`` times the file's size: every dataset's and
      attribute's ``prod(shape) * itemsize``, each and in total, so no read of the file allocates
-     more than 16x the file (the rule the binary readers follow, :mod:`arsurf.scan.readers._common`).
+     more than that. Scans use :data:`MAX_EXPANSION` (16x, the rule the binary readers follow,
+     :mod:`arsurf.scan.readers._common`); sessions, whose unused columns are constant and
+     gzip-compressed, allow :data:`GZIP_LIMIT` (a 100,000-tick session holding only times and
+     positions declares 82x its file), still with every value stored.
 
 Errors are raised as the caller's family (``error``: ``CorruptScan`` for scans, ``SessionError``
 for sessions), one line naming the feature. The checks read only object headers: well under a
@@ -55,12 +61,14 @@ import posixpath
 from arsurf._files import read_regular
 from arsurf.errors import ArsurfError, UnsafeFile, require
 
-__all__ = ["open_hdf5", "check_tree", "MAX_EXPANSION", "ALLOWED_FILTERS"]
+__all__ = ["open_hdf5", "check_tree", "MAX_EXPANSION", "GZIP_LIMIT", "ALLOWED_FILTERS"]
 
 #: no dataset or attribute (each, and all together) may declare more bytes than this times the file
 MAX_EXPANSION = 16
 #: the HDF5 filters the supported formats use (HDF5 filter ids); any other is refused
 ALLOWED_FILTERS = {1: "deflate (gzip)", 2: "shuffle", 3: "fletcher32"}
+#: the most deflate (gzip) can inflate a stored byte (its limit is 1032:1)
+GZIP_LIMIT = 1100
 #: objects (groups, datasets, named types) one file may hold: each costs header bytes anyway
 MAX_OBJECTS = 200_000
 
@@ -134,7 +142,7 @@ def _attrs_declared(obj, h5py) -> int:
     return total
 
 
-def _check_dataset(ds, path: str, shown: str, error, budget: float, h5py) -> int:
+def _check_dataset(ds, path: str, shown: str, error, budget: float, max_expansion: float, h5py) -> int:
     """Refuse external storage, a virtual layout or an unexpected filter; the declared bytes."""
     dcpl = ds.id.get_create_plist()
     if dcpl.get_external_count():
@@ -152,8 +160,14 @@ def _check_dataset(ds, path: str, shown: str, error, budget: float, h5py) -> int
             raise error(f"{shown}: {path} uses HDF5 filter {code} ({fname or 'unnamed'}), not one arsurf expects "
                         f"({', '.join(ALLOWED_FILTERS.values())}); the file is refused")
     declared = _declared(ds.id.shape, ds.id.dtype.itemsize)
+    stored = ds.id.get_storage_size()
+    deflated = any(dcpl.get_filter(i)[0] == 1 for i in range(dcpl.get_nfilters()))
+    if declared and (declared > GZIP_LIMIT * stored if deflated else stored < declared):
+        raise error(f"{shown}: {path} declares {declared} bytes of data but stores {stored}"
+                    f"{' compressed' if deflated else ''} (elements never written, which a read would fill); "
+                    "the file is damaged or crafted and is refused")
     if declared > budget:
-        raise error(f"{shown}: {path} declares {declared} bytes of data, more than {MAX_EXPANSION}x the file's "
+        raise error(f"{shown}: {path} declares {declared} bytes of data, more than {max_expansion:g}x the file's "
                     f"size ({budget:.0f} bytes allowed); the file is damaged or crafted and is refused")
     return declared
 
@@ -202,11 +216,11 @@ def check_tree(f, size: int, shown: str, *, error: type[ArsurfError] = UnsafeFil
             if isinstance(obj, h5py.Group):
                 stack.append(obj)
             elif isinstance(obj, h5py.Dataset):
-                total += _check_dataset(obj, path, shown, error, budget, h5py)
+                total += _check_dataset(obj, path, shown, error, budget, max_expansion, h5py)
                 total += _attrs_declared(obj, h5py)
             if total > budget:
                 raise error(f"{shown} declares {total} bytes of data and attributes up to {path}, more than "
-                            f"{MAX_EXPANSION}x the file's size ({budget:.0f} bytes allowed); the file is refused")
+                            f"{max_expansion:g}x the file's size ({budget:.0f} bytes allowed); the file is refused")
     for path, target in soft:  # every link is known to stay in the file: resolving is safe now
         try:
             found = f.get(target)
