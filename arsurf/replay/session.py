@@ -133,8 +133,9 @@ rather than HDF5 SWMR or segment files is argued there). :meth:`SessionWriter.ap
 one row into a preallocated chunk and returns: O(1), no allocation, never blocks (when the disk
 falls behind by more than the chunk pool, ticks are dropped, counted in ``dropped_ticks``).
 Memory stays flat for any session length. :meth:`SessionWriter.close` merges the journal into
-``<path>.part`` (gzip, checksums, seal), fsyncs it, renames it over ``<path>`` and deletes the
-journal. If the process is killed (SIGKILL, crash, power cut) the journal remains:
+an exclusive temporary beside ``<path>`` (:func:`arsurf._files.atomic_write`: created
+``O_EXCL | O_NOFOLLOW`` under an unpredictable name; gzip, checksums, seal), fsyncs it, renames it
+over ``<path>`` (a symbolic link there is refused) and deletes the journal. If the process is killed (SIGKILL, crash, power cut) the journal remains:
 :func:`load_session` with ``allow_incomplete=True`` (``arsurf replay --allow-incomplete``) reads
 every tick of its intact records - everything appended more than ~50 ms (plus one write) before
 the kill - and :func:`recover_session` turns it into a session file marked incomplete. With
@@ -188,12 +189,13 @@ from __future__ import annotations
 import atexit
 import datetime
 import hashlib
-import io
 import json
+import logging
 import math
 import os
 import re
 import signal
+import stat
 import threading
 import weakref
 from dataclasses import dataclass, field
@@ -202,11 +204,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from arsurf._files import atomic_write, check_regular, check_target, read_regular
+from arsurf._h5safe import GZIP_LIMIT, open_hdf5
 from arsurf.assembly import _jsonable, check_metadata, tube_count
 from arsurf.errors import RecordingInterrupted, SessionError, SessionFileNotFound, require
 from arsurf.replay import journal as _journal
-from arsurf.replay.sealed import SEAL_SIZE, check_superblock, read_sealed, run_isolated, seal_file
+from arsurf.replay.sealed import SEAL_SIZE, check_superblock, read_sealed, run_isolated, seal_open
 from arsurf.units import UNITS_ATTR
+
+_log = logging.getLogger("arsurf.session")
 
 __all__ = [
     "FORMAT",
@@ -433,9 +439,13 @@ class _H5Out:
                  dtypes: Mapping[str, np.dtype], units: Mapping[str, str]):
         h5py = _h5py()
         self.path = Path(path)
-        self.part = self.path.with_name(self.path.name + ".part")
-        self._f = h5py.File(self.part, "w", userblock_size=SEAL_SIZE)
+        self._f = None
+        # an exclusive temporary in the target's folder (arsurf._files): a planted link is never written
+        self._cm = atomic_write(self.path, "wb", what="session file", error=SessionError)
+        self._fh = self._cm.__enter__()
+        self.part = self._fh.temp
         try:
+            self._f = h5py.File(self._fh, "w", userblock_size=SEAL_SIZE)
             f = self._f
             self._attrs = {}
             for key, value in attrs.items():
@@ -485,29 +495,32 @@ class _H5Out:
             self._sums["attrs"] = _sha(_canonical(self._attrs))
             self._f.attrs["checksums"] = json.dumps(self._sums, sort_keys=True)
             self._f.close()
-            seal_file(self.part)
-            os.replace(self.part, self.path)
+            seal_open(self._fh)
+            cm, self._cm = self._cm, None
+            cm.__exit__(None, None, None)  # fsynced, renamed over the path, folder fsynced
         except BaseException:
             self.abort()
             raise
-        _fsync_dir(self.path.parent)
         return self.path
 
     def abort(self) -> None:
         try:
-            self._f.close()
+            if self._f is not None:
+                self._f.close()
         except Exception:  # pragma: no cover - already closed or never opened
             pass
-        if self.part.exists():
-            self.part.unlink()
+        if self._cm is not None:  # the temporary is removed, the target left as it was
+            cm, self._cm = self._cm, None
+            cm.__exit__(SessionError, SessionError("aborted"), None)
 
 
 def write_h5(path: str | os.PathLike, attrs: Mapping[str, Any], metadata: Mapping[str, Any],
              datasets: Mapping[str, np.ndarray], units: Mapping[str, str]) -> Path:
     """Write root ``attrs``, ``/metadata`` (JSON per key) and ``/ticks/<name>`` datasets atomically.
 
-    The file goes to ``<path>.part`` with ``checksums`` and a seal
-    (:func:`arsurf.replay.sealed.seal_file`), is fsynced and renamed over ``path``; each dataset
+    The file goes to an exclusive temporary beside ``path`` (:func:`arsurf._files.atomic_write`)
+    with ``checksums`` and a seal (:func:`arsurf.replay.sealed.seal_open`), is fsynced and renamed
+    over ``path`` (a symbolic link there is refused); each dataset
     gets the ``units`` attribute ``units[name]`` (:mod:`arsurf.units`); datasets carry no
     timestamps, so equal inputs give equal bytes. Used for sessions and replay outputs.
     """
@@ -616,7 +629,8 @@ class SessionWriter:
     Parameters
     ----------
     path : path-like
-        The session file (``.h5``); written at :meth:`close` via ``<path>.part``. While
+        The session file (``.h5``; not a symbolic link); written at :meth:`close` through an
+        exclusive temporary (:func:`arsurf._files.atomic_write`). While
         recording, ticks stream into ``<path>.journal`` (:func:`journal_path`), which must not
         exist.
     metadata : dict
@@ -677,6 +691,7 @@ class SessionWriter:
             raise SessionError(f"session path {str(self.path)!r} is a directory; pass a file name such as run.h5")
         if not self.path.parent.is_dir():
             raise SessionError(f"the folder of the session file {str(self.path)!r} does not exist; create it first")
+        check_target(self.path, "session file", error=SessionError)  # a planted link: refused before recording
         self.metadata = _jsonable(metadata, "metadata")
         check_metadata(self.metadata)
         capacity = int(capacity)
@@ -704,6 +719,8 @@ class SessionWriter:
         self._stream = _journal.TickStreamer(layout, self._file, chunk_ticks=capacity, queue_chunks=queue_chunks,
                                              interval=flush_interval, when_full=when_full)
         self._closed = False
+        #: True once an append saw that the journal could not be written (full disk, I/O error)
+        self.failed = False
         self._written: Path | None = None
         self._end: dict | None = None
         self._signal: str | None = None
@@ -742,6 +759,28 @@ class SessionWriter:
     def dropped_ticks(self) -> int:
         """Ticks dropped because the disk fell behind (``when_full="drop"``)."""
         return self._stream.dropped
+
+    @property
+    def write_error(self) -> BaseException | None:
+        """The error that stopped the journal (a full disk: ``OSError`` ENOSPC), or None.
+
+        Set by the writer thread at the failed write (it writes at least every
+        ``flush_interval``); the next :meth:`append` then flags it (:attr:`failed`, a warning
+        on the ``arsurf.session`` logger) without raising, so a real-time loop keeps running and
+        :meth:`close` says it again."""
+        return self._stream.error
+
+    @property
+    def unrecorded_ticks(self) -> int:
+        """Ticks appended but not in the journal because writing failed (0 while it works)."""
+        st = self._stream
+        return 0 if st.error is None else max(0, st.appended - st.dropped - st.written)
+
+    def _flag_failure(self) -> None:
+        self.failed = True
+        _log.warning("recording to %r failed: %s; from tick %d on nothing more is recorded (the journal %r "
+                     "keeps the %d ticks before; free disk space and recover_session it)", str(self.path),
+                     self._stream.error, self._stream.written, str(self.journal), self._stream.written)
 
     def _clear_row(self, arrays, i: int) -> None:
         for a, fill in zip(arrays, self._fills):
@@ -806,6 +845,8 @@ class SessionWriter:
                 self._clear_row(arrays, i)
                 raise SessionError(f"every tick needs `t` (s) and `probe_position` ((3,) m); got only {sorted(fields)}")
             st.commit_locked()
+            if st.error is not None and not self.failed:  # one attribute read per tick while the disk works
+                self._flag_failure()
 
     def close(self, complete: bool = True, reason: str = "") -> Path:
         """Stop recording, merge the journal into the sealed session file and return its path.
@@ -1097,19 +1138,17 @@ def _read_file(p: Path, spec: dict, allow_incomplete: bool, isolate) -> Session:
         data = read_sealed(p, what)
     except OSError as exc:
         raise SessionError(f"{name} cannot be read: {exc}") from exc
+    sealed = data is not None
     if data is None:
         if isolate == "auto":
             return _read_isolated(p, spec, allow_incomplete)
-        with open(p, "rb") as fh:
-            head = fh.read(4096)
-        size = p.stat().st_size
-        check_superblock(head, 0, name, size)
-        source = p
-    else:
-        source, size = io.BytesIO(data), len(data)
-    h5py = _h5py()
-    try:
-        f = h5py.File(source, "r")
+        data = read_regular(p, what, error=SessionError)
+        check_superblock(data[:4096], 0, name, len(data))
+    size = len(data)
+    try:  # the bytes in memory, nothing outside them followed (arsurf._h5safe)
+        f = open_hdf5(data, what, error=SessionError, soft_links=False, max_expansion=GZIP_LIMIT, name=name)
+    except SessionError:
+        raise
     except Exception as exc:
         raise SessionError(f"{str(p)!r} is not a readable HDF5 {what} file (truncated, corrupt or another "
                            f"format): {exc}") from None
@@ -1121,7 +1160,7 @@ def _read_file(p: Path, spec: dict, allow_incomplete: bool, isolate) -> Session:
         raise
     except (Exception, MemoryError) as exc:  # h5py's errors on damaged files, whatever their class
         raise SessionError(f"{str(p)!r} is damaged (truncated or corrupt HDF5): {type(exc).__name__}: {exc}") from None
-    s.notes = (*s.notes, *(() if data is not None else ("read without a seal",)))
+    s.notes = (*s.notes, *(() if sealed else ("read without a seal",)))
     return s
 
 
@@ -1165,7 +1204,7 @@ def _read_isolated(p: Path, spec: dict, allow_incomplete: bool, session: bool = 
     """Read (and fully check) the file in a child process; build the Session from its answer."""
     import tempfile
 
-    size = p.stat().st_size
+    size = check_regular(p, spec["what"], error=SessionError)  # a FIFO never reaches the child
     name = f"reading {spec['what']} {str(p)!r}"
     spec = {**spec, "allow_incomplete": bool(allow_incomplete), "session": session}
     limit = (2 << 30) + 3 * _MAX_INFLATION * size
@@ -1212,12 +1251,92 @@ def _existing(path, what: str) -> Path:
     return p
 
 
+#: no desk haptic device reaches farther than this from its home position, m (the largest,
+#: Haption's Virtuose 6D, spans about 1.1 m); a session may record a smaller ``workspace``
+DEVICE_REACH = 1.0
+#: no desk haptic device pushes harder than this, N (the strongest give ~35-40 N peak); a session
+#: may record its device's ``max_force``
+DEVICE_FORCE_LIMIT = 100.0
+#: no tip position in a scan frame lies farther than this from its origin, m (AFM scanners travel
+#: at most ~0.1 mm); the replay checks the scan's own extent once the scan is read
+PROBE_REACH = 1e-2
+
+
+def _first(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad)[0])
+
+
+def check_ticks(s: Session, name: str) -> None:
+    """Refuse ticks that cannot be real, naming the tick and the field (:class:`SessionError`).
+
+    - ``t``: finite and strictly increasing;
+    - ``probe_position`` (and ``tip_position``, ``contact_point``, ``instrument_position`` where
+      given): finite, within :data:`PROBE_REACH` of the scan frame's origin (the replay then checks
+      the scan's extent, :func:`arsurf.replay.replay.check_probe_extent`);
+    - ``stylus_position`` where given: within the device's reach (its recorded
+      ``haptics.workspace`` half-extents plus half again, else :data:`DEVICE_REACH`);
+    - ``device_force`` where given: finite, norm within the device's limit (recorded
+      ``haptics.max_force`` plus 1 %, else :data:`DEVICE_FORCE_LIMIT`); ``force`` finite where given.
+
+    NaN is the fill of an optional field (not given) and is allowed there; an infinity never is.
+    """
+    t = s.ticks["t"]
+    if t.size:
+        bad = ~np.isfinite(t)
+        if bad.any():
+            k = _first(bad)
+            raise SessionError(f"{name}: tick {k}: t = {float(t[k])!r} s is not finite; time must be finite")
+        steps = np.diff(t)
+        if (steps <= 0).any():
+            k = _first(steps <= 0) + 1
+            raise SessionError(f"{name}: tick {k}: t = {float(t[k])!r} s is not after tick {k - 1} "
+                               f"(t = {float(t[k - 1])!r} s); time must increase strictly")
+    haptics = s.metadata.get("haptics") if isinstance(s.metadata.get("haptics"), dict) else {}
+    reach, where = DEVICE_REACH, "no desk haptic device reaches farther"
+    ws = haptics.get("workspace")
+    if isinstance(ws, list) and len(ws) == 3 and all(isinstance(x, (int, float)) and x > 0 for x in ws):
+        reach, where = 0.75 * max(ws), "outside the recorded device workspace (half-extents plus half again)"
+    limit, what = DEVICE_FORCE_LIMIT, "no desk haptic device pushes harder"
+    mf = haptics.get("max_force")
+    if isinstance(mf, (int, float)) and not isinstance(mf, bool) and 0 < mf < DEVICE_FORCE_LIMIT:
+        limit, what = 1.01 * mf, "above the recorded device's max_force"
+    checks = [("probe_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("tip_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("contact_point", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("instrument_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("stylus_position", reach, "m", where, False),
+              ("device_force", limit, "N", what, False),
+              ("force", math.inf, "N", "", False)]
+    for field_name, bound, unit, why, required in checks:
+        a = s.ticks.get(field_name)
+        if a is None or not a.size:
+            continue
+        a = a.reshape(a.shape[0], -1)
+        given = ~np.isnan(a).any(axis=1)
+        if required and not given.all():
+            k = _first(~given)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is not finite; it is "
+                               "required at every tick")
+        inf = np.isinf(a).any(axis=1)
+        if inf.any():
+            k = _first(inf)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is infinite")
+        size = np.linalg.norm(np.where(given[:, None], a, 0.0), axis=1)
+        far = size > bound
+        if far.any():
+            k = _first(far)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} (norm {size[k]:.3g} {unit}) "
+                               f"is {why} ({bound:g} {unit}); the file is damaged or crafted")
+
+
 def _check_session(s: Session, path) -> None:
-    """The checks a session adds to the schema: metadata that rebuilds a model, tube poses."""
+    """The checks a session adds to the schema: metadata that rebuilds a model, tube poses, ticks
+    that make sense (:func:`check_ticks`)."""
     try:
         check_metadata(s.metadata)
     except SessionError as exc:
         raise SessionError(f"session {str(path)!r}: {exc}") from exc
+    check_ticks(s, f"session {str(path)!r}")
     flags = s.ticks.get(SAFETY_FLAGS.name)
     if flags is not None and (flags.dtype.kind not in "iu" or flags.shape != (s.n_ticks,)):
         raise SessionError(f"session {str(path)!r}: /ticks/safety_flags has shape {flags.shape} and dtype "
@@ -1290,9 +1409,11 @@ def _journal_session(jpath: Path, allow_incomplete: bool, shown: Path) -> Sessio
     notes = [summary + ("" if complete else " (the recording is incomplete)")]
     if end is not None and complete:
         notes.append("the recording was closed but its .h5 was never written")
-    return Session(metadata=meta, ticks=dict(zip(lay.names, arrays)), n_ticks=n, attrs=attrs, path=jpath,
-                   verified=True, recovered=True, notes=tuple(notes),
-                   units={name: f.unit for name, (f, _) in fields.items()})
+    s = Session(metadata=meta, ticks=dict(zip(lay.names, arrays)), n_ticks=n, attrs=attrs, path=jpath,
+                verified=True, recovered=True, notes=tuple(notes),
+                units={name: f.unit for name, (f, _) in fields.items()})
+    check_ticks(s, name)
+    return s
 
 
 def recover_session(path: str | os.PathLike) -> Path:
@@ -1389,8 +1510,15 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False, iso
 
 
 def _unsealed(p: Path) -> bool:
+    """True for a regular file starting with the HDF5 signature (no seal); a FIFO is opened
+    without blocking and is not one (the reader then refuses it)."""
     try:
-        with open(p, "rb") as fh:
-            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_BINARY", 0))
     except OSError:
         return False
+    try:
+        return stat.S_ISREG(os.fstat(fd).st_mode) and os.read(fd, 8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
