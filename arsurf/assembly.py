@@ -257,7 +257,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
         The scan file (its SHA-256 is computed here, and the processing is taken from
         ``channel``, ``level``, ``sigma``, ``inpaint``, ``control_shape``, ``smoothing``: the
         arguments of :func:`arsurf.scan.prepare.prepare_scan` and :func:`arsurf.fit_surface`), or a
-        complete ``scan`` dict as in the schema (:mod:`arsurf.replay.session`).
+        complete ``scan`` dict as in the schema (:mod:`arsurf.sessions.schema`).
     tip_radius : float, metres
     contact : MaugisDugdale or dict
         The contact law (or ``{"effective_modulus", "work_of_adhesion", "dugdale_stress"}``).

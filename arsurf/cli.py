@@ -609,7 +609,7 @@ def _bridge_view(args, bridge, record) -> int:
     the session recorded with ``--record``.
 
     The model is built from session metadata by :func:`arsurf.assembly.build_model` (as replay
-    rebuilds it) and every tick is recorded by :func:`arsurf.replay.session.record_loop_tick`
+    rebuilds it) and every tick is recorded by :func:`arsurf.sessions.writer.record_loop_tick`
     (as in ``arsurf demo``), so ``arsurf replay FILE`` gives back the forces bit for bit. With a
     display the loop runs until the window closes; without one (or with ``--frames 0``) it waits
     for a client, renders the frames while it plays, and serves it until it sends RELEASE (or
@@ -621,7 +621,7 @@ def _bridge_view(args, bridge, record) -> int:
     from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
-    from arsurf.replay.session import SessionWriter, record_loop_tick
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
     from arsurf_viewer.backend import has_display
     from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_loop
 

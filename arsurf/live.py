@@ -6,9 +6,9 @@ as replay rebuilds it), maps the stylus origin 2.5 tip radii above the middle of
 (:func:`arsurf_viewer.live.bridge_start`) and runs
 
 * without an instrument: :class:`arsurf_viewer.live.LiveLoop` on the device, every tick recorded
-  by :func:`arsurf.replay.session.record_loop_tick` (the simulated force, as ``arsurf view
+  by :func:`arsurf.sessions.writer.record_loop_tick` (the simulated force, as ``arsurf view
   --bridge-port --record``);
-* with an instrument: :func:`arsurf.replay.instrument_session.record_instrument_session` (the
+* with an instrument: :func:`arsurf.sessions.instrument_session.record_instrument_session` (the
   force the decoupling reads from the instrument's deflection and torsion signals,
   ``source="measured"``; the commanded tip centre sent to the instrument through its
   :class:`~arsurf.instrument.link.InstrumentLink`).
@@ -192,7 +192,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
         The device's backend name, recorded in the metadata.
     instrument, photodiode, frame : optional
         :func:`open_instrument`'s; ``axes`` and ``max_age`` (s) as in
-        :func:`~arsurf.replay.instrument_session.record_instrument_session`.
+        :func:`~arsurf.sessions.instrument_session.record_instrument_session`.
     record : path-like, optional
         The session file (must not exist); without one nothing is kept (an instrument session
         is written to a temporary file, deleted at the end).
@@ -234,7 +234,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
 
 def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, axes, max_age, record, seconds,
                     stop, priority, safety_kwargs) -> LiveResult:
-    from arsurf.replay.instrument_session import record_instrument_session
+    from arsurf.sessions.instrument_session import record_instrument_session
 
     with contextlib.ExitStack() as stack:
         path = record
@@ -247,7 +247,7 @@ def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, 
 
 
 def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs, priority) -> LiveResult:
-    from arsurf.replay.session import SessionWriter, record_loop_tick
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
     from arsurf_viewer.live import LiveLoop
 
     loop = build_loop(setup.model, meta["haptics"], device.info, origin, scene=setup.scene, **safety_kwargs)

@@ -85,8 +85,8 @@ def plant(path: str | os.PathLike, target: str, kind: str, workdir: str | os.Pat
 def reseal_session(path: str | os.PathLike) -> None:
     """Redo a session's checksums (over what each dataset reads as, where it can be read without
     blocking or allocating gigabytes) and its seal: the bytes are then 'intact'."""
-    from arsurf.replay.sealed import seal_file
-    from arsurf.replay.session import _array_digest
+    from arsurf.sessions.sealed import seal_file
+    from arsurf.sessions.schema import _array_digest
 
     with h5py.File(path, "r+") as f:
         sums = json.loads(f.attrs["checksums"])

@@ -567,7 +567,7 @@ def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_
     and contacts bit for bit."""
     from arsurf.assembly import BUNDLED_SCAN
     from arsurf.cli import main
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
     from arsurf_viewer.live import BRIDGE_HAPTICS
 
     session, kf, log = tmp_path / "run.h5", tmp_path / "bridge.key", tmp_path / "server.err"

@@ -143,7 +143,7 @@ def test_soft_links_inside_the_tree_are_kept(tmp_path):
 
 
 def _session(tmp_path, n=40):
-    from arsurf.replay.session import SessionWriter
+    from arsurf.sessions.writer import SessionWriter
     from test_session_fuzz import _meta, _record
 
     p = tmp_path / "s.h5"
@@ -158,7 +158,7 @@ def test_a_resealed_session_is_checked_by_the_same_rules(tmp_path, kind, isolate
     """The issue's attack: probe_position re-pointed outside the file, checksums and seal redone.
     Refused in this process (sealed: isolate False / "auto"), and by the isolated
     reader (True) with the same one line."""
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     p = _session(tmp_path)
     assert load_session(p).verified
@@ -174,7 +174,7 @@ def test_a_resealed_session_is_checked_by_the_same_rules(tmp_path, kind, isolate
 
 @pytest.mark.parametrize("kind", ["external_storage", "external_link", "virtual_dataset"])
 def test_an_unsealed_session_is_refused_in_process_too(tmp_path, kind):
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     p = _session(tmp_path)
     data = p.read_bytes()
@@ -190,7 +190,7 @@ def test_an_unsealed_session_is_refused_in_process_too(tmp_path, kind):
 
 
 def test_a_fifo_session_is_refused_without_blocking(tmp_path):
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     fifo = make_fifo(tmp_path)
     for isolate in ("auto", False, True):
@@ -199,7 +199,9 @@ def test_a_fifo_session_is_refused_without_blocking(tmp_path):
 
 
 def test_a_replay_output_is_read_by_the_same_rules(tmp_path):
-    from arsurf.replay.session import TickField, read_h5, write_h5
+    from arsurf.sessions.reader import read_h5
+    from arsurf.sessions.schema import TickField
+    from arsurf.sessions.writer import write_h5
 
     p = tmp_path / "r.h5"
     fields = (TickField("t", 0, "f8", float("nan"), "", "s"),)

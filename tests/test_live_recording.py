@@ -13,7 +13,8 @@ from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
 from arsurf.errors import LoopError, SessionError
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.replay.replay import replay
-from arsurf.replay.session import SessionWriter, load_session, record_loop_tick
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
 
 class ClosingDevice(VirtualDevice):

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from arsurf.errors import SessionError
-from arsurf.replay import journal as _journal
-from arsurf.replay.session import _OPEN_WRITERS, DEVICE_FORCE_LIMIT, SessionWriter, load_session
+from arsurf.sessions import journal as _journal
+from arsurf.sessions.reader import DEVICE_FORCE_LIMIT, load_session
+from arsurf.sessions.writer import _OPEN_WRITERS, SessionWriter
 from test_session_fuzz import _meta
 
 N = 30

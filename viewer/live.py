@@ -36,7 +36,7 @@ class LiveLoop:
     record : callable, optional
         ``record(loop, t, state)``, called in the loop thread after every tick with the loop time
         ``t`` (s, the device's clock) and the device sample ``state`` the tick ran on: the
-        session recorder (``functools.partial(arsurf.replay.session.record_loop_tick, writer)``;
+        session recorder (``functools.partial(arsurf.sessions.writer.record_loop_tick, writer)``;
         the viewer does not import the sessions layer); the attribute :attr:`record` may be set
         until :meth:`start`. A recorder that raises is a fault of the tick: zero force, the loop
         stops.
