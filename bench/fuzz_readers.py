@@ -86,17 +86,19 @@ for line in sys.stdin:
     req = json.loads(line)
     reader, path = req["reader"], req["path"]
     key = (reader, req["original"])
-    seconds = peak = None
+    seconds = peak = refused_s = refused_peak = None
     try:
         if key not in intact:
             intact[key] = load_scan(req["original"]) if reader == "arsurf" else peer_read(reader, req["original"])
         tracemalloc.start()  # both readers traced: the same overhead on both times
+        t0 = time.perf_counter()
         try:
-            t0 = time.perf_counter()
             got = load_scan(path) if reader == "arsurf" else peer_read(reader, path)
             seconds = time.perf_counter() - t0
             peak = tracemalloc.get_traced_memory()[1]
         finally:
+            if seconds is None:  # refused: its time and memory, apart (the HDF5 features are timed so)
+                refused_s, refused_peak = time.perf_counter() - t0, tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
         if req["kind"] == "hdf5-feature":  # a feature reaching outside the file must be refused, never read
             out = {"outcome": "followed"}
@@ -114,7 +116,7 @@ for line in sys.stdin:
     except BaseException as exc:
         out = {"outcome": "other" if reader == "arsurf" else "refused", "type": type(exc).__name__,
                "message": str(exc)[:200]}
-    out.update(seconds=seconds, peak=peak)
+    out.update(seconds=seconds, peak=peak, refused_s=refused_s, refused_peak=refused_peak)
     sys.stdout.write(json.dumps(out) + "\n")
     sys.stdout.flush()
 """
@@ -274,10 +276,12 @@ def main(argv=None) -> int:
                 by_kind.setdefault(kind, Counter())[outcome] += 1
                 times.append(res.get("seconds"))
                 if feature is not None:
-                    fe = features.setdefault(feature, {"outcomes": Counter(), "named": 0, "max_s": 0.0})
+                    fe = features.setdefault(feature, {"outcomes": Counter(), "named": 0, "max_s": 0.0, "alloc": 0.0})
                     fe["outcomes"][outcome] += 1
                     fe["named"] += int(outcome == "refused" and FEATURES[feature] in res.get("message", ""))
-                    fe["max_s"] = max(fe["max_s"], res.get("seconds") or 0.0)
+                    fe["max_s"] = max(fe["max_s"], res.get("seconds") or res.get("refused_s") or 0.0)
+                    fe["alloc"] = max(fe["alloc"], (res.get("peak") or res.get("refused_peak") or 0)
+                                      / max(dst.stat().st_size, 1))
                 if res.get("peak") is not None:
                     ratio = res["peak"] / max(dst.stat().st_size, 1)
                     ratios.append(ratio)
@@ -309,7 +313,8 @@ def main(argv=None) -> int:
             }
             if features:  # per HDF5 feature: outcomes, refusals naming it, slowest read (s)
                 entry["hdf5_features"] = {f: {"outcomes": dict(v["outcomes"]), "refusals_naming_it": v["named"],
-                                              "max_s_per_read": v["max_s"]} for f, v in sorted(features.items())}
+                                              "max_s_per_read": v["max_s"], "max_alloc_per_file_byte": v["alloc"]}
+                                          for f, v in sorted(features.items())}
             if peer_name is not None:
                 entry["peer"] = {"reader": peer_name, **dict(peer_counts), "median_s_per_read": _median(peer_times),
                                  "max_alloc_per_file_byte": float(max(peer_ratios)) if peer_ratios else None}

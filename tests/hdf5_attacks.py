@@ -82,14 +82,25 @@ def plant(path: str | os.PathLike, target: str, kind: str, workdir: str | os.Pat
     return KINDS[kind]
 
 
+def set_recorded_scan(path: str | os.PathLike, scan: str) -> None:
+    """Make a session name another scan file (its metadata edited, checksums and seal redone)."""
+    with h5py.File(path, "r+") as f:
+        meta = json.loads(f["metadata"].attrs["scan"])
+        meta["path"] = scan
+        f["metadata"].attrs["scan"] = json.dumps(meta, sort_keys=True)
+    reseal_session(path)
+
+
 def reseal_session(path: str | os.PathLike) -> None:
-    """Redo a session's checksums (over what each dataset reads as, where it can be read without
-    blocking or allocating gigabytes) and its seal: the bytes are then 'intact'."""
+    """Redo a session's checksums (its metadata, and what each dataset reads as where it can be read
+    without blocking or allocating gigabytes) and its seal: the bytes are then 'intact'."""
     from arsurf.sessions.sealed import seal_file
-    from arsurf.sessions.schema import _array_digest
+    from arsurf.sessions.schema import _array_digest, _canonical, _sha
 
     with h5py.File(path, "r+") as f:
         sums = json.loads(f.attrs["checksums"])
+        texts = {k: v.decode() if isinstance(v, bytes) else str(v) for k, v in f["metadata"].attrs.items()}
+        sums["metadata"] = _sha(_canonical(texts))
         for name in f["ticks"]:
             link = f["ticks"].get(name, getlink=True)
             obj = f["ticks"].get(name)

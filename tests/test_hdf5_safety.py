@@ -209,5 +209,6 @@ def test_a_replay_output_is_read_by_the_same_rules(tmp_path):
              {}, {"t": np.arange(4.0)}, {"t": "s"})
     assert read_h5(p, fmt="x-test", versions=(1,), fields=fields, isolate=False).ticks["t"].tolist() == [0, 1, 2, 3]
     plant(p, "ticks/t", "external_storage", tmp_path)
+    reseal_session(p)
     _refused(lambda: read_h5(p, fmt="x-test", versions=(1,), fields=fields, isolate=False), SessionError,
              "external storage")
