@@ -41,6 +41,7 @@ from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
 
 __all__ = [
+    "BRIDGE_HAPTICS",
     "BUNDLED_SCAN",
     "LEVER",
     "ModelSetup",
@@ -168,6 +169,13 @@ def _presets() -> dict[str, Preset]:
 
 #: the named presets (read-only); :func:`preset_metadata` turns one into session metadata
 PRESETS: Mapping[str, Preset] = MappingProxyType(_presets())
+
+#: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
+#: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
+#: friction, no synthesised signals), a 200 Hz low-pass, no virtual coupling
+BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
+                                   "source": "simulated", "filter_cutoff": 200.0, "signal_noise": 0.0,
+                                   "passivity": True})
 
 
 def preset(name: str | Preset) -> Preset:

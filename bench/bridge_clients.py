@@ -100,7 +100,8 @@ def tick_costs(rounds: int, n: int = 2000) -> dict:
     from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, preset_metadata
     from arsurf.haptics.device import TOUCH_X, DeviceState
     from arsurf.sessions.writer import SessionWriter, record_loop_tick
-    from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_start
+    from arsurf.assembly import BRIDGE_HAPTICS
+    from arsurf.haptics.live_loop import bridge_start
 
     meta = preset_metadata(BUNDLED_SCAN, "viewer", haptics=dict(BRIDGE_HAPTICS))
     setup = build_model(meta)

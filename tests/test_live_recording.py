@@ -31,7 +31,7 @@ class ClosingDevice(VirtualDevice):
 
 @pytest.fixture(scope="module")
 def setup():
-    from arsurf_viewer.live import BRIDGE_HAPTICS
+    from arsurf.assembly import BRIDGE_HAPTICS
 
     meta = preset_metadata(BUNDLED_SCAN, "viewer", haptics=dict(BRIDGE_HAPTICS))
     return meta, build_model(meta)
@@ -39,7 +39,7 @@ def setup():
 
 def _live(setup, record=None):
     from arsurf.assembly import build_loop
-    from arsurf_viewer.live import LiveLoop, bridge_start
+    from arsurf.haptics.live_loop import LiveLoop, bridge_start
 
     meta, s = setup
     s.model.reset()

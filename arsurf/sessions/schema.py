@@ -232,7 +232,8 @@ def _h5py():
 
 
 def contact_fields(tick) -> dict:
-    """The contact fields of :meth:`SessionWriter.append <arsurf.sessions.writer.SessionWriter.append>` from a :class:`~arsurf.model.ModelTick`.
+    """The contact fields of :meth:`~arsurf.sessions.writer.SessionWriter.append` from a
+    :class:`~arsurf.model.ModelTick`.
 
     Examples
     --------
