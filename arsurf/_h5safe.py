@@ -9,9 +9,9 @@ readers ``.topostats``, ``.nhf``, ``.h5-jpk``, sessions, replay outputs, batch r
 :func:`open_hdf5`, which:
 
 1. reads the file with :func:`arsurf._files.read_regular` (a FIFO, device or directory is
-   refused without blocking) and hands h5py the *bytes in memory* (a :class:`io.BytesIO`), so
-   libhdf5 parses exactly the bytes that were read, and nothing it parses can name a file to
-   open instead;
+   refused without blocking) and hands libhdf5 the *bytes in memory* (a file image for its core
+   driver, ``backing_store`` off), so it parses exactly the bytes that were read and opens no file
+   for them;
 2. walks the whole tree, without following any link, before the caller sees the file
    (:func:`check_tree`), and refuses, naming the feature and the object:
 
@@ -24,9 +24,10 @@ readers ``.topostats``, ``.nhf``, ``.h5-jpk``, sessions, replay outputs, batch r
    - a dataset whose values are not all **stored** (``prod(shape) * itemsize`` above the bytes
      it stores, or above :data:`GZIP_LIMIT` times them when deflated): reading would fill
      elements that were never written, the way a 2 kB file asks for 2 GB;
-   - **declared sizes** above ``max_expansion`` times the file's size: every dataset's and
-     attribute's ``prod(shape) * itemsize``, each and in total, so no read of the file allocates
-     more than that. Scans use :data:`MAX_EXPANSION` (16x, the rule the binary readers follow,
+   - **declared sizes** above ``max_expansion`` times the file's size: every dataset's
+     ``prod(shape) * itemsize``, each and in total, so no read of the file allocates more than
+     that (an attribute's value is stored whole in its object's header, bytes of the file, which
+     libhdf5 bounds-checks when it decodes it). Scans use :data:`MAX_EXPANSION` (16x, the rule the binary readers follow,
      :mod:`arsurf.scan.readers._common`); sessions, whose unused columns are constant and
      gzip-compressed, allow :data:`GZIP_LIMIT` (a 100,000-tick session holding only times and
      positions declares 82x its file), still with every value stored.
@@ -54,7 +55,6 @@ arsurf.errors.UnsafeFile: scan ...: /outside is an HDF5 external link (to 'other
 """
 from __future__ import annotations
 
-import io
 import os
 import posixpath
 
@@ -63,7 +63,7 @@ from arsurf.errors import ArsurfError, UnsafeFile, require
 
 __all__ = ["open_hdf5", "check_tree", "MAX_EXPANSION", "GZIP_LIMIT", "ALLOWED_FILTERS"]
 
-#: no dataset or attribute (each, and all together) may declare more bytes than this times the file
+#: no dataset (each, and all together) may declare more bytes than this times the file
 MAX_EXPANSION = 16
 #: the HDF5 filters the supported formats use (HDF5 filter ids); any other is refused
 ALLOWED_FILTERS = {1: "deflate (gzip)", 2: "shuffle", 3: "fletcher32"}
@@ -118,7 +118,7 @@ def open_hdf5(source, what: str = "HDF5 file", *, error: type[ArsurfError] = Uns
     else:
         shown = f"{what} {os.fspath(source)!r}"
         data = read_regular(source, what, error=error)
-    f = h5py.File(io.BytesIO(data), "r")
+    f = _from_image(data, h5py)
     try:
         check_tree(f, len(data), shown, error=error, soft_links=soft_links, tree=tree, max_expansion=max_expansion)
     except BaseException:
@@ -127,19 +127,20 @@ def open_hdf5(source, what: str = "HDF5 file", *, error: type[ArsurfError] = Uns
     return f
 
 
+def _from_image(data: bytes, h5py):
+    """The file opened read-only from ``data`` by HDF5's core driver given a file image: libhdf5
+    reads the image in memory and opens no file (the name is only a label)."""
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_fapl_core(backing_store=False)
+    fapl.set_file_image(data)
+    return h5py.File(h5py.h5f.open(b"arsurf in-memory image", h5py.h5f.ACC_RDONLY, fapl=fapl))
+
+
 def _declared(shape, itemsize: int) -> int:
     n = 1
     for d in shape or ():
         n *= int(d)
     return n * int(itemsize)
-
-
-def _attrs_declared(obj, h5py) -> int:
-    total = 0
-    for aname in obj.attrs:  # H5Aiterate: names only
-        aid = h5py.h5a.open(obj.id, aname.encode("utf-8") if isinstance(aname, str) else aname)
-        total += _declared(aid.shape, aid.dtype.itemsize)
-    return total
 
 
 def _check_dataset(ds, path: str, shown: str, error, budget: float, max_expansion: float, h5py) -> int:
@@ -187,7 +188,6 @@ def check_tree(f, size: int, shown: str, *, error: type[ArsurfError] = UnsafeFil
     seen.add(h5py.h5o.get_info(root.id).addr)
     while stack:
         g = stack.pop()
-        total += _attrs_declared(g, h5py)
         base = g.name or "/"
         for name in g:  # H5Literate: link names, nothing resolved
             path = posixpath.join(base, name)
@@ -217,9 +217,8 @@ def check_tree(f, size: int, shown: str, *, error: type[ArsurfError] = UnsafeFil
                 stack.append(obj)
             elif isinstance(obj, h5py.Dataset):
                 total += _check_dataset(obj, path, shown, error, budget, max_expansion, h5py)
-                total += _attrs_declared(obj, h5py)
             if total > budget:
-                raise error(f"{shown} declares {total} bytes of data and attributes up to {path}, more than "
+                raise error(f"{shown} declares {total} bytes of data up to {path}, more than "
                             f"{max_expansion:g}x the file's size ({budget:.0f} bytes allowed); the file is refused")
     for path, target in soft:  # every link is known to stay in the file: resolving is safe now
         try:

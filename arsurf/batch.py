@@ -105,7 +105,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from arsurf._files import write_text
+from arsurf._files import check_target, write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, BatchError, SessionError, require
 from arsurf.units import summary_json, with_unit
@@ -735,8 +735,10 @@ class _Table:
     def __init__(self, path: Path, columns: tuple[str, ...]):
         self.path = path
         self.columns = columns
-        new = not path.exists() or path.stat().st_size == 0
-        self.fh = open(path, "a", encoding="utf-8", newline="")
+        check_target(path, "results table", error=BatchError)  # a planted link is refused, never appended to
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        new = os.fstat(fd).st_size == 0
+        self.fh = os.fdopen(fd, "a", encoding="utf-8", newline="")
         self.writer = csv.writer(self.fh, lineterminator="\n")
         if new:
             self._write(columns)
@@ -1070,7 +1072,7 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
          t0: float, item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
     """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
-    table_path = out / TABLE
+    table_path = check_target(out / TABLE, "results table", error=BatchError)  # not a planted link
     _repair(table_path)
     rows = read_results(table_path, p.columns) if resume else {}
     todo = [it for it in items if not _row_stands(rows.get(it.key), p.columns, out)]

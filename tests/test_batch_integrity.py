@@ -112,15 +112,13 @@ def test_batch_replay_never_opens_a_scan_outside_its_inputs(tmp_path, monkeypatc
         assert "outside the batch's inputs" in errors[key] and "not opened" in errors[key]
 
 
-def test_batch_replay_reads_the_session_through_the_checked_reader(tmp_path):
+def test_batch_replay_reads_the_session_through_the_checked_reader(tmp_path, monkeypatch):
     d = tmp_path / "sessions"
     d.mkdir()
     save_scan(_scan(0), d / "scan.npz")
-    os.chdir(d)
-    try:
-        _session(d / "a.h5", "scan.npz", 6e-9)
-    finally:
-        os.chdir(tmp_path)
+    monkeypatch.chdir(d)
+    _session(d / "a.h5", "scan.npz", 6e-9)
+    monkeypatch.chdir(tmp_path)
     plant(d / "a.h5", "ticks/probe_position", "external_storage", tmp_path)
     reseal_session(d / "a.h5")
     r = run_batch("replay", [d], tmp_path / "out", workers=0, progress=False)

@@ -108,7 +108,7 @@ def test_a_full_disk_is_flagged_at_the_next_append(tmp_path, caplog):
     with st.lock:  # the writer thread notifies after each write attempt (every flush_interval)
         assert st.lock.wait_for(lambda: st.error is not None, timeout=10.0)
     assert not w.failed  # nothing has looked yet
-    with caplog.at_level(logging.WARNING, logger="arsurf.session"):
+    with caplog.at_level(logging.WARNING, logger="arsurf.sessions.writer"):
         w.append(t=1e-3, probe_position=[0, 0, 1e-8])
         w.append(t=2e-3, probe_position=[0, 0, 1e-8])
     assert w.failed and isinstance(w.write_error, OSError) and w.write_error.errno == errno.ENOSPC

@@ -69,7 +69,7 @@ from arsurf.sessions.schema import (FORMAT, FORMAT_VERSION, TUBE_POSES, _attr, _
 from arsurf.sessions.sealed import SEAL_SIZE, seal_open
 from arsurf.units import UNITS_ATTR
 
-_log = logging.getLogger("arsurf.session")
+_log = logging.getLogger(__name__)
 
 __all__ = ["FLUSH_INTERVAL", "SessionWriter", "record_loop_tick", "write_h5"]
 
@@ -455,7 +455,7 @@ class SessionWriter:
 
         Set by the writer thread at the failed write (it writes at least every
         ``flush_interval``); the next :meth:`append` then flags it (:attr:`failed`, a warning
-        on the ``arsurf.session`` logger) without raising, so a real-time loop keeps running and
+        on the ``arsurf.sessions.writer`` logger) without raising, so a real-time loop keeps running and
         :meth:`close` says it again."""
         return self._stream.error
 
