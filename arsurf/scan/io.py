@@ -149,13 +149,21 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
 
 def _sniff_hdf5(path: Path) -> str | None:
     """``"h5-jpk"``, ``"nhf"`` or ``"topostats"`` when an HDF5 file says so in its content, else
-    None (a damaged file: None, and the extension decides; its reader then names the damage)."""
-    try:
-        from arsurf._h5safe import open_hdf5
-        from arsurf.scan.readers.h5jpk import is_h5jpk
-        from arsurf.scan.readers.nhf import is_nhf
+    None (a damaged file: None, and the extension decides; its reader then names the damage).
+    A file :func:`arsurf._h5safe.open_hdf5` refuses (a feature reaching outside it) is refused here,
+    once, with its message."""
+    from arsurf._h5safe import open_hdf5
+    from arsurf.scan.readers.h5jpk import is_h5jpk
+    from arsurf.scan.readers.nhf import is_nhf
 
-        with open_hdf5(path, "scan file", error=CorruptScan) as f:
+    try:
+        f = open_hdf5(path, "scan file", error=CorruptScan, name=str(path))
+    except CorruptScan:
+        raise
+    except Exception:  # noqa: BLE001 - h5py cannot parse it: the content does not say
+        return None
+    try:
+        with f:
             if is_h5jpk(f):
                 return "h5-jpk"
             if is_nhf(f):
