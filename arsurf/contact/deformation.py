@@ -75,6 +75,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ContactError
 from arsurf.spline.surface import BSplineSurface
 
@@ -84,6 +85,10 @@ DEFORM_NO_PATCH = 1  # the tip is outside the net's footprint: nothing to move
 
 #: radii of the per-tick profile table (uniform in sqrt(rho^2 - a^2)): the scratch array's length
 PROFILE_SIZE = 32
+#: the dented patch of the control net (int64): control-point rows [i0, i1) and columns [j0, j1)
+DENT_PATCH = Layout("dent patch", [("rows", 2), ("columns", 2)])
+_I0, _J0 = DENT_PATCH.offset("rows"), DENT_PATCH.offset("columns")
+_I1, _J1 = _I0 + 1, _J0 + 1
 #: the contact zone is put on the sphere up to a = SPHERE_LIMIT R; a wider contact (far beyond
 #: small strain, where the sphere turns vertical) follows the contact's own paraboloid
 SPHERE_LIMIT = 0.9
@@ -280,7 +285,7 @@ def dent_displacement(rho, a, tip_radius, depth, zone_radius):
 @njit(cache=True)
 def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
                   profile, patch):
-    """Restore ``patch`` (i0, i1, j0, j1) to rest, then dent the new patch; write it to ``patch``.
+    """Restore ``patch`` (:data:`DENT_PATCH`) to rest, then dent the new patch; write it to ``patch``.
 
     ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface outside the contact
     (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a scratch array of
@@ -289,11 +294,11 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     surface); a ``radius`` <= 0 releases.
     """
     # 1. restore the previous patch
-    for i in range(patch[0], patch[1]):
-        for j in range(patch[2], patch[3]):
+    for i in range(patch[_I0], patch[_I1]):
+        for j in range(patch[_J0], patch[_J1]):
             for c in range(3):
                 ctrl[i, j, c] = rest[i, j, c]
-    patch[0] = patch[1] = patch[2] = patch[3] = 0
+    patch[_I0] = patch[_I1] = patch[_J0] = patch[_J1] = 0
     if radius <= 0.0:
         return 0
     a = contact_radius if contact_radius > 0.0 else 0.0
@@ -371,10 +376,10 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             ctrl[i, j, 1] = qy
             ctrl[i, j, 2] = qz
             moved += 1
-    patch[0] = i0
-    patch[1] = i1
-    patch[2] = j0
-    patch[3] = j1
+    patch[_I0] = i0
+    patch[_I1] = i1
+    patch[_J0] = j0
+    patch[_J1] = j1
     return moved
 
 
@@ -415,7 +420,7 @@ class Deformer:
                 "build it with arsurf.fit_surface or BSplineSurface.from_heights"
             )
         self.surface = surface
-        self.patch = np.zeros(4, dtype=np.int64)
+        self.patch = np.zeros(DENT_PATCH.size, dtype=np.int64)
         self.profile = np.zeros(PROFILE_SIZE)
 
     def apply(self, center, radius: float, normal, contact_radius: float, *, depth: float | None = None,

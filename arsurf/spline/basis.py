@@ -17,8 +17,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-# rows of the (6, 3) derivative block written by the kernels
-S, SU, SV, SUU, SUV, SVV = 0, 1, 2, 3, 4, 5
+from arsurf._layout import Layout
+
+#: rows of the derivative block (rows, 3) written by the kernels: S and its derivatives to second order
+DERIVATIVE_ROWS = Layout("surface derivative rows", [("S", 1), ("S_u", 1), ("S_v", 1), ("S_uu", 1), ("S_uv", 1),
+                                                     ("S_vv", 1)])
+S, SU, SV, SUU, SUV, SVV = (DERIVATIVE_ROWS.offset(f) for f in DERIVATIVE_ROWS.fields)
+N_ROWS = DERIVATIVE_ROWS.size
 
 
 @njit(cache=True, inline="always")
@@ -262,7 +267,7 @@ def surface_points(ctrl, ku, kv, us, vs, order, out):
     n = us.size
     chunk = 256
     for b in prange((n + chunk - 1) // chunk):
-        scratch = np.empty((6, 3))
+        scratch = np.empty((N_ROWS, 3))
         for k in range(b * chunk, min(n, (b + 1) * chunk)):
             surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
             for r in range(nrow):
