@@ -176,6 +176,11 @@ class InstrumentLinkLost(InstrumentError):
     link is closed and the tip is left where it was (reopen the instrument to go on)."""
 
 
+class VerifyError(ArsurfError, ValueError):
+    """A scan after cannot be compared with the model (scans of different sizes, spacings or
+    channels, no overlap, no objects found, a session without objects)."""
+
+
 class ViewerError(ArsurfError, ValueError):
     """Invalid input to the viewer (a scene state with a bad shape, an unknown layer or colouring)."""
 

@@ -36,6 +36,7 @@ LAYERS = [
     ("viewer", ["arsurf_viewer.*"]),
     ("sessions", ["arsurf.sessions.*", "arsurf.feel_scenarios"]),  # record and read session files
     ("replay", ["arsurf.replay.*"]),  # re-run the model over a recorded session
+    ("verification", ["arsurf.verify.*"]),  # the model against the scan after a session (arsurf verify)
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo", "arsurf.cli.*", "arsurf.devices"]),

@@ -289,7 +289,7 @@ def _log_flags(parser, default) -> None:
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
-_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices"]
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices", "arsurf.verify.command"]
 
 
 def main(argv=None) -> int:

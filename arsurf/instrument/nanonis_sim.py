@@ -18,6 +18,14 @@ simulator does not implement gets an error reply (chosen); a request whose heade
 the protocol closes the connection (chosen). An instrument's refusal (a target outside its
 limits) becomes the reply's error description.
 
+Scanning: ``Scan.Action`` 0 starts a frame in the background (the instrument's
+:meth:`~arsurf.instrument.interface.Instrument.scan_image`, on the raster ``scan_settings`` in
+the direction asked), ``Scan.StatusGet`` reads 1 and ``Scan.WaitEndOfScan`` waits until it ends;
+``Scan.FrameGet``/``BufferGet``/``SpeedGet`` describe the raster and ``Scan.FrameDataGrab`` sends
+the forward Z data in the order scanned (the top line first for a scan down, as the .sxm file
+stores it; chosen: the document does not say). The buffer records one channel, index 0, ``Z (m)``;
+the backward image and the actions other than start and stop are refused (chosen).
+
 Faults, for the tests and the benchmark (:class:`Faults`, changeable while it runs): a delay
 before replies (slow replies), replies that stop coming (a stalled controller), a connection
 closed after some replies (a dead one), error replies to chosen commands, and corrupt replies.
@@ -39,7 +47,7 @@ from __future__ import annotations
 import math
 import socket
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -108,11 +116,13 @@ class NanonisSimulator:
     volts_per_unit : float
         Input volts per unit of the instrument's signals.
     faults : Faults, optional
+    scan_settings : arsurf.instrument.imaging.ScanSettings, optional
+        The scan frame and buffer (default: the instrument's ``scan_settings``).
     """
 
     def __init__(self, instrument: Instrument, *, host: str = "127.0.0.1", port: int = 0, signal_names=SIGNAL_NAMES,
                  deflection: str = "Input 1 (V)", torsion: str = "Input 2 (V)", volts_per_unit: float = 1.0,
-                 faults: Faults | None = None) -> None:
+                 faults: Faults | None = None, scan_settings=None) -> None:
         if not isinstance(instrument, Instrument):
             raise InstrumentError(f"instrument must be an arsurf Instrument (got {type(instrument).__name__})")
         self.instrument = instrument
@@ -127,6 +137,12 @@ class NanonisSimulator:
         self._lock = threading.Lock()  # one command at a time on the instrument
         self._approaching = threading.Event()
         self.approach_error: str | None = None
+        self.scan_settings = scan_settings
+        self.scan_channels = {0: "Z (m)"}  # the scan buffer: channel index -> name
+        self._scanning = threading.Event()
+        self.frame = None  # the last frame (a Scan) and the raster it ran
+        self.frame_settings = None
+        self.scan_error: str | None = None
         self._sample = InstrumentSample()
         self._stop = threading.Event()
         self._server = socket.create_server((host, port))
@@ -244,6 +260,8 @@ class NanonisSimulator:
         try:
             if name == "AutoApproach.OnOffGet":  # answered while the approach holds the instrument
                 return proto.encode_reply(name, (int(self._approaching.is_set()),))
+            if name in ("Scan.StatusGet", "Scan.WaitEndOfScan"):  # answered while the scan holds it
+                return proto.encode_reply(name, self._scan_status(name, args))
             with self._lock:
                 values = self._execute(name, args)
         except InstrumentError as exc:
@@ -260,6 +278,47 @@ class NanonisSimulator:
             self.approach_error = str(exc)
         finally:
             self._approaching.clear()
+
+    def _scan(self, settings) -> None:
+        """One frame, in the background (the instrument's :meth:`~Instrument.scan_image`)."""
+        try:
+            with self._lock:
+                self.frame = self.instrument.scan_image(settings)
+                self.frame_settings = settings
+        except InstrumentError as exc:
+            self.scan_error = str(exc)
+        finally:
+            self._scanning.clear()
+
+    def _scan_status(self, name: str, args: tuple) -> tuple:
+        if name == "Scan.StatusGet":
+            return (int(self._scanning.is_set()),)
+        (ms,) = args  # Scan.WaitEndOfScan: until the frame ends or the timeout (-1: no timeout)
+        deadline = None if ms < 0 else ms / 1e3
+        t = 0.0
+        while self._scanning.is_set() and not self._stop.is_set() and (deadline is None or t < deadline):
+            step = 0.02 if deadline is None else min(0.02, deadline - t)
+            self._stop.wait(step)
+            t += step
+        return (int(self._scanning.is_set()), "")
+
+    def _settings(self):
+        st = self.scan_settings if self.scan_settings is not None else getattr(self.instrument, "scan_settings", None)
+        if st is None:
+            raise InstrumentError("the simulated controller has no scan frame: give it scan_settings")
+        return st
+
+    def _frame_data(self, args: tuple) -> tuple:
+        channel, forward = args
+        if channel not in self.scan_channels:
+            raise InstrumentError(f"channel {channel} is not acquired (the buffer records {sorted(self.scan_channels)})")
+        if not forward:
+            raise InstrumentError("the simulated controller records the forward (trace) image only")
+        if self.frame is None:
+            raise InstrumentError("no frame has been acquired yet: start a scan (Scan.Action 0) first")
+        up = self.frame_settings.direction == "up"
+        h = self.frame.heights if up else self.frame.heights[::-1]  # in the order scanned
+        return (self.scan_channels[channel], h, int(up))
 
     def _value(self, index: int, s: InstrumentSample) -> float:
         role = self._roles.get(index)
@@ -324,4 +383,26 @@ class NanonisSimulator:
             return ()
         if name == "AutoApproach.OnOffGet":
             return (int(self._approaching.is_set()),)
+        if name == "Scan.Action":
+            action, up = args
+            if action == 0:
+                if not self._scanning.is_set():
+                    settings = replace(self._settings(), direction="up" if up else "down")
+                    self.scan_error = None
+                    self._scanning.set()
+                    threading.Thread(target=self._scan, args=(settings,), name="nanonis-sim-scan", daemon=True).start()
+                return ()
+            if action == 1:
+                return ()  # a frame is computed at once: there is nothing left to stop
+            raise InstrumentError(f"scan action {action} is not simulated (0 start and 1 stop are)")
+        if name in ("Scan.FrameGet", "Scan.BufferGet", "Scan.SpeedGet"):
+            st = self.frame_settings if self.frame is not None else self._settings()
+            (w, h), (dx, dy) = st.size, st.spacing
+            if name == "Scan.FrameGet":
+                return (st.origin[0] - 0.5 * dx + 0.5 * w, st.origin[1] - 0.5 * dy + 0.5 * h, w, h, 0.0)
+            if name == "Scan.BufferGet":
+                return (sorted(self.scan_channels), st.pixels[0], st.pixels[1])
+            return (st.line_speed, st.line_speed, w / st.line_speed, w / st.line_speed, 0, 1.0)
+        if name == "Scan.FrameDataGrab":
+            return self._frame_data(args)
         raise InstrumentError(f"command {name!r} is not implemented by the simulated controller")  # pragma: no cover

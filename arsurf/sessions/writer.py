@@ -89,7 +89,8 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
     damping, signals, probe force, device force, safety flags), the contact of ``loop.model.out``
     (:func:`~arsurf.sessions.schema.contact_fields`) and, with a scene, the tube poses after the tick. ``t`` is the
     loop time the tick was given (s). A button word the loop took as malformed is recorded as
-    the no-press it was given (0).
+    the no-press it was given (0); a sample the loop refused (:mod:`arsurf.haptics.samples`: its
+    flag is in ``safety_flags``) is recorded as the last good sample the tick ran on.
 
     Examples
     --------
@@ -100,7 +101,7 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
     o = loop.out
     get = LOOP_OUT.get
     extra = {} if loop.scene is None else {TUBE_POSES.name: loop.scene.poses}
-    writer.append(t=t, stylus_position=state.position, stylus_velocity=state.velocity,
+    writer.append(t=t, stylus_position=loop.stylus_position, stylus_velocity=loop.stylus_velocity,
                   buttons=_valid_buttons(state.buttons)[0], probe_position=get(o, "probe"),
                   probe_velocity=get(o, "probe_velocity"), tip_position=get(o, "tip"), energy=get(o, "energy"),
                   passivity_damping=get(o, "passivity_damping"), signals=get(o, "signals"),
