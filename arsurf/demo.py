@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
@@ -318,7 +319,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         tube_summary["replay_position_difference_m"] = float(np.abs(diff[..., :2]).max())
         tube_summary["replay_angle_difference_rad"] = float(np.abs(diff[..., 2]).max())
         summary["tube"] = tube_summary
-    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
+    write_text(out / "summary.json", summary_json(summary), what="demo summary")
     return summary
 
 
@@ -659,7 +660,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
         "replay_contact_mismatches": int(result.contact_mismatches),
         "images": [p.name for p in pngs], "wall_time_s": time.perf_counter() - t_start,
     }
-    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
+    write_text(out / "summary.json", summary_json(summary), what="demo summary")
     return summary
 
 

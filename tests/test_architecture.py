@@ -23,7 +23,8 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 #: An entry is one module, or ``pkg.*``: the package ``pkg`` and every module under it.
 LAYERS = [
     ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data.*",
-                    "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout"]),
+                    "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout", "arsurf._files",
+                    "arsurf._h5safe"]),
     ("scan", ["arsurf.scan.*"]),
     ("spline", ["arsurf.spline.*"]),
     ("meshes", ["arsurf.export", "arsurf.meshes"]),

@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import atomic_write
 from arsurf.errors import require
 from arsurf.spline.surface import BSplineSurface
 
@@ -615,9 +616,8 @@ class SurfaceView:
             if p.suffix.lower() != ".png":
                 raise ViewerError(f"screenshots are PNG files (got {p.name!r}); use a .png name")
             image = require("PIL.Image", "viewer", "writing PNG screenshots")
-            tmp = p.with_name(p.name + ".part.png")
-            image.fromarray(np.ascontiguousarray(img)).save(tmp, format="PNG")  # no text chunks: same bytes each run
-            os.replace(tmp, p)
+            with atomic_write(p, what="screenshot", error=ViewerError) as fh:  # no text chunks: same bytes each run
+                image.fromarray(np.ascontiguousarray(img)).save(fh, format="PNG")
         return img
 
     def world_to_pixel(self, points) -> np.ndarray:
