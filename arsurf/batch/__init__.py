@@ -44,8 +44,13 @@ per item           ``process``: ``<item>.surface.npz`` (+ exports), ``replay``: 
 =================  ===============================================================================
 
 ``<item>`` is the input's path relative to the common folder of all inputs, with ``/`` written
-``__``. With ``resume``, the items whose latest row has ``status`` ``ok`` are skipped; the others
-(failed, or never finished) run again. A row is written only after an item's files are complete,
+``__``. Each row lists the files its item wrote with their size and SHA-256 (``output_files``,
+``name|size_bytes|sha256;...``). With ``resume``, an item is skipped only when its latest row says
+``ok``, parses, and every file it lists is there with that size and SHA-256; the others (failed,
+never finished, a row that does not parse, an output deleted or changed) run again. Each item has
+a time limit (``item_timeout``, :data:`ITEM_TIMEOUT`). ``replay`` without a ``scan`` option reads
+each session through the checked, isolated reader first and uses the scan it recorded only when
+that lies under the batch's inputs: a session cannot make the batch open or hash another file. A row is written only after an item's files are complete,
 and a torn last line (the batch killed while writing it) is cut off before appending, so the table
 stays valid whatever moment the batch was stopped.
 

@@ -25,6 +25,7 @@ class Item:
     key: str
     path: str
     params: tuple = ()
+    root: str = ""  #: the folder every input of the batch is under (what a session may name)
 
 
 

@@ -16,10 +16,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from arsurf._files import check_target, write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.batch.executors import connect, execute_dask, execute_local
 from arsurf.batch.inputs import Item, collect_inputs
-from arsurf.batch.pipelines import Pipeline, make_items, get_pipeline, run_item
+from arsurf.batch.pipelines import Pipeline, _row_stands, get_pipeline, make_items, run_item
 from arsurf.batch.table import BASE_COLUMNS, TABLE, ResultTable, cell, read_results, repair_table
 from arsurf.errors import BatchError, require
 from arsurf.units import summary_json, with_unit
@@ -31,8 +32,11 @@ __all__ = ["BatchResult", "run_batch"]
 SUMMARY = "summary.json"
 SETTINGS = "batch.json"
 BATCH_FORMAT = "arsurf-batch"
-#: 2: batch.json's options carry their unit in their names (``sigma_m``), summary.json ``items_per_s``
-BATCH_FORMAT_VERSION = 2
+#: 2: batch.json's options carry their unit in their names (``sigma_m``), summary.json ``items_per_s``;
+#: 3: every row lists its output files with size and SHA-256 (``output_files``), re-checked on resume
+BATCH_FORMAT_VERSION = 3
+#: default time limit of one item, s (``run_batch(item_timeout=...)``, ``--item-timeout``)
+ITEM_TIMEOUT = 3600.0
 #: the SI unit of each option in batch.json (:mod:`arsurf.units`); the others are dimensionless or text
 _OPTION_UNITS = {"sigma": "m", "dx": "m", "dy": "m", "tip_radius": "m", "effective_modulus": "Pa", "depth": "m",
                  "slide": "m", "at": "m"}
@@ -105,6 +109,10 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
         except (OSError, ValueError) as exc:
             raise BatchError(f"{str(path)!r} is not readable JSON ({exc}); it holds the settings of the batch to "
                              "resume") from None
+        if old.get("version") == 2:
+            raise BatchError(f"the batch in {str(out)!r} was written by an older arsurf, whose rows do not record "
+                             "their output files' SHA-256; it cannot be verified, so not resumed: choose another "
+                             "output folder")
         was = old.get("version") if old.get("version") in (1, BATCH_FORMAT_VERSION) else BATCH_FORMAT_VERSION
         if old != _settings(pipeline, options, was):
             mine = _settings(pipeline, options, was)["options"]
@@ -115,9 +123,7 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
             raise BatchError(f"cannot resume the batch in {str(out)!r} with other settings ({what} differ); "
                              "rerun it with the same ones, or choose another output folder")
     out.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.part")
-    tmp.write_text(json.dumps(settings, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(settings, indent=2, sort_keys=True) + "\n", what="batch settings", error=BatchError)
 
 
 def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mapping], ran: int, skipped: int,
@@ -144,7 +150,8 @@ def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mappi
 
 def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
               options: Mapping | None = None, workers: int | None = None, scheduler=None, resume: bool = False,
-              progress: bool = True, connect_timeout: float = 10.0) -> BatchResult:
+              progress: bool = True, connect_timeout: float = 10.0,
+              item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
     """Run a pipeline over many files; write ``results.csv``, ``batch.json``, ``summary.json`` and the item outputs.
 
     Parameters
@@ -174,6 +181,9 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         A counter on stderr.
     connect_timeout : float, s
         How long to wait for the Dask scheduler.
+    item_timeout : float or None, s
+        Time limit of one item (:data:`ITEM_TIMEOUT` by default; None: none): an item past it is an
+        ``error`` row and the batch goes on (local workers; Dask workers keep the cluster's limits).
 
     Returns
     -------
@@ -198,6 +208,9 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         raise BatchError("the Dask scheduler address is empty; give tcp://HOST:PORT")
     if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout) and connect_timeout > 0):
         raise BatchError(f"connect_timeout must be a positive number of seconds (got {connect_timeout!r})")
+    if item_timeout is not None and not (isinstance(item_timeout, (int, float)) and not isinstance(item_timeout, bool)
+                                         and math.isfinite(item_timeout) and item_timeout > 0):
+        raise BatchError(f"item_timeout must be a positive number of seconds or None (got {item_timeout!r})")
     if scheduler is not None:
         require("distributed", "dask", "arsurf batch on a Dask cluster (--scheduler)")
     opts = json.loads(json.dumps(p.check(dict(options or {}))))  # JSON-normal: tuples -> lists
@@ -208,20 +221,20 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         raise BatchError("two inputs give the same item name; rename one of them")
     client, own = connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
     try:
-        return _run(p, items, opts, out, workers, client, resume, progress, t0)
+        return _run(p, items, opts, out, workers, client, resume, progress, t0, item_timeout)
     finally:
         if own:
             client.close()
 
 
 def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client, resume: bool, progress: bool,
-         t0: float) -> BatchResult:
+         t0: float, item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
     """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
-    table_path = out / TABLE
+    table_path = check_target(out / TABLE, "results table", error=BatchError)  # not a planted link
     repair_table(table_path)
     rows = read_results(table_path, p.columns) if resume else {}
-    todo = [it for it in items if rows.get(it.key, {}).get("status") != "ok"]
+    todo = [it for it in items if not _row_stands(rows.get(it.key), p.columns, out)]
     skipped = len(items) - len(todo)
     table = ResultTable(table_path, p.columns)
     bar = _Progress(len(items), skipped, progress)
@@ -237,7 +250,7 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
     def crashed(i: int, reason: str) -> None:
         record(i, {"item": todo[i].key, "status": "error", "error": reason})
 
-    calls = [(p.name, it, opts, str(out.resolve())) for it in todo]
+    calls = [(p.name, it, opts, str(out.resolve()), item_timeout) for it in todo]
     complete = False
     try:
         if not calls:
@@ -253,9 +266,7 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
         bar.close()
         elapsed = time.perf_counter() - t0
         summary = _summary(p, items, rows, ran, skipped, elapsed, complete)
-        tmp = out / (SUMMARY + ".part")
-        tmp.write_text(summary_json(summary), encoding="utf-8")
-        os.replace(tmp, out / SUMMARY)
+        write_text(out / SUMMARY, summary_json(summary), what="batch summary", error=BatchError)
     return BatchResult(out_dir=out, table=table_path, summary=out / SUMMARY, total=len(items), ran=ran,
                        skipped=skipped, ok=summary["ok"], failed=summary["failed"],
                        errors=tuple((e["item"], e["reason"]) for e in summary["errors"]), elapsed=elapsed,

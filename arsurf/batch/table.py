@@ -13,6 +13,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from arsurf._files import check_target
 from arsurf.errors import BatchError
 
 __all__ = ["TABLE", "BASE_COLUMNS", "MAX_REASON", "ResultTable", "cell", "one_line_reason", "read_results",
@@ -48,8 +49,10 @@ class ResultTable:
     def __init__(self, path: Path, columns: tuple[str, ...]):
         self.path = path
         self.columns = columns
-        new = not path.exists() or path.stat().st_size == 0
-        self.fh = open(path, "a", encoding="utf-8", newline="")
+        check_target(path, "results table", error=BatchError)  # a planted link is refused, never appended to
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        new = os.fstat(fd).st_size == 0
+        self.fh = os.fdopen(fd, "a", encoding="utf-8", newline="")
         self.writer = csv.writer(self.fh, lineterminator="\n")
         if new:
             self._write(columns)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, preset_metadata
 from arsurf.demo.scripted import DEMO, RATE, SCALE, TIP_RADIUS, scene_snapshot, session_tick, viewer_or_none
@@ -315,7 +316,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         tube_summary["replay_position_difference_m"] = float(np.abs(diff[..., :2]).max())
         tube_summary["replay_angle_difference_rad"] = float(np.abs(diff[..., 2]).max())
         summary["tube"] = tube_summary
-    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
+    write_text(out / "summary.json", summary_json(summary), what="demo summary")
     return summary
 
 

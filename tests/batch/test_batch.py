@@ -21,32 +21,15 @@ from arsurf.batch import PIPELINES, collect_inputs, read_results, run_batch
 from arsurf.cli import main
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import BatchError, MissingDependency
-from arsurf.scan import synthetic
 from arsurf.scan.io import load_scan, save_scan
 from arsurf.scan.scan import Scan
 from arsurf.spline.storage import load_surface
+from tests.support.batch_inputs import _scan, _session, folder  # noqa: F401 - the fixture
 
 PROCESS_COLUMNS = PIPELINES["process"].columns
 #: dimensionless columns (counts, ratios, names); every other value column carries a unit suffix
-UNITLESS = {"item", "status", "error", "format", "scan", "outputs", "inpainted_pixels", "control_nu", "control_nv",
+UNITLESS = {"item", "status", "error", "format", "scan", "outputs", "output_files", "inpainted_pixels", "control_nu", "control_nv",
             "n_ticks", "contact_mismatches", "collision_failures", "friction", "friction_ratio", "slip_fraction"}
-
-
-def _scan(k: int):
-    return synthetic.sinusoid(shape=(14, 18), pixel=5e-9, amplitude=2e-9, period=50e-9, phase=0.7 * k)
-
-
-@pytest.fixture
-def folder(tmp_path):
-    """Three good scans (.gsf, .npz, .gwy), one truncated .gsf and a text file that is not a scan."""
-    d = tmp_path / "scans"
-    d.mkdir()
-    for k, ext in enumerate(("gsf", "npz", "gwy")):
-        save_scan(_scan(k), d / f"s{k}.{ext}")
-    good = (d / "s0.gsf").read_bytes()
-    (d / "broken.gsf").write_bytes(good[: len(good) // 2])
-    (d / "notes.md").write_text("not a scan\n")
-    return d
 
 
 def _table_lines(out: Path) -> list[list[str]]:
@@ -175,7 +158,7 @@ def test_sweep_agrees_with_the_contact_law_on_a_flat_scan(tmp_path):
     r = run_batch("sweep", [tmp_path / "flat.npz"], out, workers=0, progress=False,
                   options={**grid, "depth": 1.5e-9, "slide": 15e-9, "steps": 60})
     assert (r.total, r.ok) == (8, 8)
-    rows = [{k: (float(v) if k not in ("item", "status", "error", "scan") else v) for k, v in row.items()}
+    rows = [{k: (float(v) if k not in ("item", "status", "error", "scan", "output_files") else v) for k, v in row.items()}
             for row in read_results(out).values()]
     w = 0.1  # the demo preset's work of adhesion
     for row in rows:
@@ -199,20 +182,6 @@ def test_sweep_agrees_with_the_contact_law_on_a_flat_scan(tmp_path):
     assert by[(0.1, 10e-9, 1e9)]["peak_load_N"] == by[(0.3, 10e-9, 1e9)]["peak_load_N"]
     assert sorted(r["item"] for r in read_results(out).values())[0] == \
         "flat.npz;friction=0.1;tip_radius_m=1e-08;effective_modulus_Pa=1000000000.0"
-
-
-def _session(path: Path, scan: str, depth: float):
-    """A short press and release at the middle of ``scan`` (the demo preset), ``scan`` as recorded."""
-    from arsurf.assembly import preset_metadata
-    from arsurf.sessions.writer import SessionWriter
-
-    meta = preset_metadata(scan, "demo")
-    n = 30
-    z = 2e-9 + 20e-9 + 1e-9 - depth * np.sin(np.linspace(0, np.pi, n))  # R = 20 nm; the peaks are ~2 nm high
-    with SessionWriter(path, meta, created="2000-01-01T00:00:00Z") as w:
-        for k in range(n):
-            w.append(t=k * 1e-3, probe_position=(40e-9, 30e-9, z[k]), probe_velocity=(0.0, 0.0, 0.0))
-    return path
 
 
 def test_replay_pipeline_finds_each_sessions_scan(tmp_path, monkeypatch):
@@ -306,7 +275,7 @@ def test_command_line_runs_and_resumes(folder, tmp_path, capsys):
     assert main([*args, "--resume"]) == 0
     assert "3 items: 3 ok, 0 failed, 0 not run; 0 run now, 3 done before" in capsys.readouterr().out
     settings = json.loads((out / "batch.json").read_text())
-    assert settings["options"]["sigma_m"] == 1e-9 and settings["version"] == 2
+    assert settings["options"]["sigma_m"] == 1e-9 and settings["version"] == 3
 
 
 def test_a_batch_started_by_an_older_arsurf_resumes(folder, tmp_path):

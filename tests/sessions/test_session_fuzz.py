@@ -7,31 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arsurf.assembly import session_metadata
-from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import SessionError
-from arsurf.force.cantilever import Cantilever
 from arsurf.sessions.sealed import SEAL_SIZE, seal_bytes
 from arsurf.sessions.journal import journal_path
 from arsurf.sessions.reader import load_session
 from arsurf.sessions.writer import SessionWriter
 
-R = 20e-9
-SCAN = {"path": "scans/sinusoid.npz", "sha256": "ab" * 32, "channel": None,
-        "processing": {"level": "plane", "sigma": 2e-9, "inpaint": True}}
-
-
-def _meta():
-    return session_metadata(scan=SCAN, tip_radius=R, contact=MaugisDugdale(R, 50e9, 0.1),
-                            cantilever=Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27), friction=0.25,
-                            calibration={"gain": 1.5}, haptics={"device": "virtual"}, loop_rate=1000.0)
-
-
-def _record(w, n, rng):
-    for k in range(n):
-        w.append(t=k * 1e-3, probe_position=rng.normal(size=3) * 1e-7, probe_velocity=rng.normal(size=3) * 1e-6,
-                 force=rng.normal(size=3) * 1e-9, signals=rng.normal(size=2) * 1e-3, buttons=k % 3,
-                 depth=float(rng.normal()) * 1e-9, md_status=k % 3 - 1, in_contact=k % 2)
+from tests.support.session_samples import _meta, _record
 
 
 def mutate(data: bytes, rng: np.random.Generator) -> bytes:
@@ -154,3 +136,25 @@ def test_100_mutants_of_a_journal_give_a_prefix_or_are_refused(tmp_path):
             assert got.ticks[k].tobytes() == ref.ticks[k][:n].tobytes(), (i, k)
         counts["prefix"] += 1
     assert counts["prefix"] > 0 and counts["refused"] > 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hdf5_feature_mutants_of_a_resealed_session_are_refused(session, tmp_path, seed):
+    """The ``hdf5_feature`` group of bench/fuzz_sessions.py, a seeded small sample: a feature
+    planted in a random /ticks dataset, checksums and seal redone, is refused in-process."""
+    import shutil
+
+    import h5py
+    from tests.support.hdf5_attacks import KINDS as FEATURES
+    from tests.support.hdf5_attacks import plant, reseal_session
+
+    rng = np.random.default_rng([20261127, seed])
+    path = tmp_path / "f.h5"
+    shutil.copy(session[0], path)
+    with h5py.File(path, "r") as f:
+        names = sorted(f["ticks"])
+    feature = sorted(f for f in FEATURES if f != "external_storage_fifo")[int(rng.integers(len(FEATURES) - 1))]
+    words = plant(path, "ticks/" + names[int(rng.integers(len(names)))], feature, tmp_path)
+    reseal_session(path)
+    with pytest.raises(SessionError, match=words):
+        load_session(path)
