@@ -13,7 +13,9 @@ attached or a session is replayed, the measured bending and torsion angles),
    and load P (> 0 compressive); with a material map (:mod:`arsurf.contact.material_map`) the law
    has the E* and w of the contact point;
 3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`): the contact
-   zone onto the tip, the elastic surface of the same (local) law around it;
+   zone onto the tip, the elastic surface of the same (local) law around it. The tick records
+   the dent (O(1), whatever the pitch); the net is moved to it when it is read
+   (:meth:`~arsurf.spline.surface.BSplineSurface.sync`);
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
    :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
@@ -41,8 +43,8 @@ from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import projection as pj
 from arsurf.contact import friction as fr
-from arsurf.contact.deformation import PROFILE_SIZE, deform_kernel
-from arsurf.contact.material_map import H_FRICTION, H_PROFILE, contact_vector, local_contact_kernel
+from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
+from arsurf.contact.material_map import H_DENT, H_FRICTION, contact_vector, local_contact_kernel
 from arsurf.contact.maugis_dugdale import MaugisDugdale, md_zone_radius
 from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
@@ -229,13 +231,13 @@ def model_tick_kernel(proj,                                              # Proje
     out[M_RADIUS] = a
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if md_st == MD_CONTACT else 0.0
-    # dent the live net (restores the previous patch first)
+    # record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
     if deform:
         r_dent = tip_radius if md_st == MD_CONTACT else 0.0
         zone = md_zone_radius(a, depth, md[0], md[1], md[3])
-        p0 = int(md_args[H_PROFILE])
-        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth, zone,
-                                     md_args[p0:p0 + PROFILE_SIZE], patch)
+        d0 = int(md_args[H_DENT])
+        out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth,
+                                          zone)
     # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     fx = load * nx
     fy = load * ny
@@ -330,7 +332,8 @@ class ModelTick:
     ``point``, ``normal``, ``uv``, ``distance``, ``depth``: the collision on the rest surface;
     ``contact_radius``, ``load`` (N, > 0 compressive), ``in_contact``, ``md_status`` (0 contact,
     1 cohesive, 2 separated); ``simulated_force`` and ``measured_force`` (N, on the tip; the
-    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points;
+    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points under the dent (its index
+    box, the points it may move: the tick records the dent, the net moves to it when read);
     ``tip`` the tip centre behind the virtual coupling (the target without one), ``slipping``
     whether the friction proxy slid this tick, ``coupled`` whether the coupling equation was
     solved (False: the tip is at the target).
@@ -436,7 +439,6 @@ class ARModel:
         # (no copy of the whole net: a 4096^2 net is 400 MB)
         live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
         self.rest_surface = BSplineSurface.construct_fast(live_rest, ku, kv)
-        self._deformer = Deformer(surface)  # validates the height-field rest net
         self.tip_radius = tip_radius
         self.contact = contact
         self.cantilever = cantilever
@@ -453,7 +455,10 @@ class ARModel:
                                    coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
         self.material = material
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
-        self._md_args = contact_vector(material, contact, self._friction.size, PROFILE_SIZE)
+        self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
+        d0 = int(self._md_args[H_DENT])
+        # validates the height-field rest net; the tick records its dent in the contact vector
+        self._deformer = Deformer(surface, dent=self._md_args[d0:d0 + DENT_SIZE])
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.empty(S_SIZE)
         self._clear_state()

@@ -115,11 +115,11 @@ T_FOLD_TABLE_MAX = 9.0
 # the contact vector (one float64 array, so that the compiled tick's callers pass one argument):
 # [0:6] the reference law's kernel args, [6:12] the local law's (scratch), then a header of
 # scalars, then the sections whose offsets the header holds (scratch for the model's friction
-# vector and the dent's profile, the knots, the critical-point table, the two fields' spline)
+# vector, the dent the tick records, the knots, the critical-point table, the two fields' spline)
 C_REF, C_LOCAL = 0, 6
 C_HEAD = 12
 (H_ON, H_X0, H_Y0, H_OFF_E, H_OFF_W, H_LO_E, H_HI_E, H_LO_W, H_HI_W, H_LNLAM0, H_TABLE_STEP, H_NU, H_NV, H_NTABLE,
- H_FRICTION, H_PROFILE, H_KU, H_KV, H_TABLE, H_COEF) = range(C_HEAD, C_HEAD + 20)
+ H_FRICTION, H_DENT, H_KU, H_KV, H_TABLE, H_COEF) = range(C_HEAD, C_HEAD + 20)
 C_BODY = C_HEAD + 20
 # columns of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
 # depth at zero load (all in the law's own units)
@@ -681,14 +681,14 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
     return m
 
 
-def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_profile: int) -> np.ndarray:
+def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_dent: int) -> np.ndarray:
     """The contact vector of the model's tick: the reference law, the map, and scratch space.
 
     ``contact`` is the model's reference Maugis-Dugdale law; without a map the vector says so and
     :func:`local_contact_kernel` returns the reference law's arguments. With a map the law's tip
     radius and Dugdale range must be the conversion's (the same tip and interface law).
-    ``n_friction``, ``n_profile``: the sizes of the scratch sections for the model's local friction
-    vector and the dent's profile (their offsets at ``H_FRICTION`` and ``H_PROFILE``).
+    ``n_friction``, ``n_dent``: the sizes of the sections for the model's local friction vector
+    (scratch) and the dent the tick records (their offsets at ``H_FRICTION`` and ``H_DENT``).
     """
     ref = np.array(contact.kernel_args, dtype=np.float64)
     head = np.zeros(C_BODY - C_HEAD)
@@ -703,8 +703,8 @@ def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_pro
         return at
 
     head[H_FRICTION - C_HEAD] = section(np.zeros(n_friction))
-    head[H_PROFILE - C_HEAD] = section(np.zeros(n_profile))
-    head[H_KU - C_HEAD] = pos     # the end of the profile without a map
+    head[H_DENT - C_HEAD] = section(np.zeros(n_dent))
+    head[H_KU - C_HEAD] = pos     # the end of the dent without a map
     if material is not None:
         if not isinstance(material, MaterialMap):
             raise MaterialMapError(f"material must be an arsurf MaterialMap (got {type(material).__name__})")
