@@ -456,9 +456,8 @@ class ARModel:
         self.material = material
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
         self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
-        d0 = int(self._md_args[H_DENT])
         # validates the height-field rest net; the tick records its dent in the contact vector
-        self._deformer = Deformer(surface, dent=self._md_args[d0:d0 + DENT_SIZE])
+        self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = np.empty(S_SIZE)
         self._clear_state()

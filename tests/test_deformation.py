@@ -338,3 +338,15 @@ def test_incremental_restore_leaves_exactly_the_last_dent(flat):
         assert np.array_equal(flat.control_points, twin.control_points)
     d.release()
     assert np.array_equal(flat.control_points, flat.rest_control_points)
+
+
+def test_a_deep_copied_model_dents_its_own_surface(rng):
+    """HapticLoop.warm_up ticks a deep copy: the copy's dent reaches the copy's net, never the original's."""
+    import copy
+
+    s, model = _rough_fine_model(rng, pitch=1e-9, n=60)
+    twin = copy.deepcopy(model)
+    _slide(twin.surface, twin)
+    assert twin.surface.is_deformed and not s.is_deformed
+    _slide(s, model)
+    assert np.array_equal(s.control_points, twin.surface.control_points)

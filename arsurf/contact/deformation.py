@@ -467,8 +467,12 @@ class Deformer:
     ----------
     surface : BSplineSurface
         Its rest net must be a height-field net (as :func:`arsurf.fit_surface` makes).
-    dent : (DENT_SIZE,) float array, optional
-        Where the tick records its dent (a view into the model's contact vector); default its own.
+    record : float64 array, optional
+        The vector the tick records its dent in (the model's contact vector), its
+        :data:`DENT_SIZE` floats from offset ``at``; default a vector of its own. (Kept as the
+        vector and an offset, not a view, so that a deep copy of a model stays connected.)
+    at : int
+        Offset of the dent in ``record``.
 
     Examples
     --------
@@ -482,7 +486,7 @@ class Deformer:
     False
     """
 
-    def __init__(self, surface: BSplineSurface, dent: np.ndarray | None = None):
+    def __init__(self, surface: BSplineSurface, record: np.ndarray | None = None, at: int = 0):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"Deformer needs a BSplineSurface (got {type(surface).__name__})")
         if not surface.is_height_field_net:
@@ -493,10 +497,12 @@ class Deformer:
         self.surface = surface
         self.patch = np.zeros(4, dtype=np.int64)
         self.profile = np.zeros(PROFILE_SIZE)
-        self.dent = np.zeros(DENT_SIZE) if dent is None else dent
-        if self.dent.shape != (DENT_SIZE,) or self.dent.dtype != np.float64:
-            raise ContactError(f"`dent` must be a float64 array of {DENT_SIZE} (got {self.dent.dtype} {self.dent.shape})")
-        self._applied = float(self.dent[D_SEQ])  # the recorded dent the net shows
+        self._record = np.zeros(DENT_SIZE) if record is None else record
+        self._at = int(at)
+        if self._record.ndim != 1 or self._record.dtype != np.float64 or not 0 <= self._at <= self._record.size - DENT_SIZE:
+            raise ContactError(f"`record` must be a float64 vector holding {DENT_SIZE} floats from offset {at} "
+                               f"(got {self._record.dtype} {self._record.shape})")
+        self._applied = float(self._record[self._at + D_SEQ])  # the recorded dent the net shows
         surface.attach_dent(self)
 
     def apply(self, center, radius: float, normal, contact_radius: float, *, depth: float | None = None,
@@ -547,15 +553,20 @@ class Deformer:
         self.sync()
 
     @property
+    def dent(self) -> np.ndarray:
+        """The recorded dent (:data:`DENT_SIZE`,): a view into the record vector."""
+        return self._record[self._at:self._at + DENT_SIZE]
+
+    @property
     def pending(self) -> bool:
         """True when a dent was recorded that the net does not show yet."""
-        return float(self.dent[D_SEQ]) != self._applied
+        return float(self._record[self._at + D_SEQ]) != self._applied
 
     def sync(self) -> int:
         """Move the net to the last recorded dent (nothing if it shows it already), O(dent box);
         returns the number of control points dented. Tell the projection's hull boxes and the
         surface's watchers which index boxes changed (the old and the new box)."""
-        seq = float(self.dent[D_SEQ])
+        seq = float(self._record[self._at + D_SEQ])
         if seq == self._applied:
             return -1
         before = self.patch.copy()
@@ -568,7 +579,7 @@ class Deformer:
     def forget(self) -> None:
         """The net was put back to rest by someone else (``surface.reset()``): no dent is shown."""
         self.patch[:] = 0
-        self._applied = float(self.dent[D_SEQ])
+        self._applied = float(self._record[self._at + D_SEQ])
 
     def _refresh(self, before: np.ndarray) -> None:
         """Tell the projection's hull boxes which index boxes changed (old and new patch), O(patch)."""
