@@ -49,6 +49,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from arsurf.errors import require
 from arsurf.spline.surface import BSplineSurface
@@ -56,6 +57,28 @@ from arsurf.spline.surface import BSplineSurface
 from .backend import choose_backend
 from .state import SceneState
 from arsurf.errors import ViewerError
+
+
+@njit(cache=True)
+def _changed_box(ctrl, last):
+    """Index box (i0, i1, j0, j1) of the control points where ``ctrl`` differs from ``last``
+    (empty: i1 = i0 = 0), copied into ``last``: one pass, no temporaries."""
+    nu, nv = ctrl.shape[0], ctrl.shape[1]
+    i0, i1, j0, j1 = nu, -1, nv, -1
+    for i in range(nu):
+        for j in range(nv):
+            if ctrl[i, j, 0] != last[i, j, 0] or ctrl[i, j, 1] != last[i, j, 1] or ctrl[i, j, 2] != last[i, j, 2]:
+                i0 = min(i0, i)
+                i1 = max(i1, i)
+                j0 = min(j0, j)
+                j1 = max(j1, j)
+    if i1 < 0:
+        return 0, 0, 0, 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for c in range(3):
+                last[i, j, c] = ctrl[i, j, c]
+    return i0, i1 + 1, j0, j1 + 1
 
 __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 
@@ -281,6 +304,8 @@ class SurfaceView:
         self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
         self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
         self._resample(0, nu, 0, nv)
+        self._dent_box = (0, nu, 0, nv)  # grid box (iu0, iu1, jv0, jv1) holding every deformed sample
+        self._find_dent(self._dent_box)
         self._material_clim = {}
         if self.material is not None:  # the material fields on the rest grid (they move with the surface)
             for mode, (name, units, log) in _MATERIAL_MODES.items():
@@ -324,26 +349,62 @@ class SurfaceView:
         for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
             prop.ShadowOn()
         self.set_color_by(self.color_by)
+        from vtkmodules.vtkFiltersCore import vtkContourFilter
+        from vtkmodules.vtkFiltersExtraction import vtkExtractGrid
+
+        # the dent's lines: a VTK pipeline built once (the deformed part of the grid -> contours),
+        # re-run per frame without pyvista's wrappers; the actor sits 0.1 nm above the surface
+        self._dent_extract = vtkExtractGrid()
+        self._dent_extract.SetInputData(grid)
+        self._dent_contour = vtkContourFilter()
+        self._dent_contour.SetInputConnection(self._dent_extract.GetOutputPort())
+        self._dent_contour.SetInputArrayToProcess(0, 0, 0, 0, "deformation_nm")  # point data
+        self._dent_contour.ComputeScalarsOff()
+        self._dent_contour.ComputeNormalsOff()
         self._dent_lines = pv.PolyData(np.zeros((1, 3)))  # one point, no line: replaced in place
         self.dent_actor = self.plotter.add_mesh(self._dent_lines, color=COLORS["dent"], line_width=2.0, lighting=False,
                                                 reset_camera=False, pickable=False)
+        self.dent_actor.SetPosition(0.0, 0.0, 0.1)
         self.dent_step_nm = 0.0
         self._update_dent()
 
+    def _find_dent(self, box) -> None:
+        """Shrink :attr:`_dent_box` to the deformed samples inside ``box`` (which holds them all)
+        and note their largest deformation: O(box), not O(grid)."""
+        iu0, iu1, jv0, jv1 = box
+        sub = self._deform[jv0:jv1, iu0:iu1]
+        dented = sub > 0.0
+        rows = np.flatnonzero(dented.any(axis=1))
+        if rows.size == 0:
+            self._dent_box, self._dent_top = (0, 0, 0, 0), 0.0
+            return
+        cols = np.flatnonzero(dented.any(axis=0))
+        self._dent_box = (iu0 + int(cols[0]), iu0 + int(cols[-1]) + 1, jv0 + int(rows[0]), jv0 + int(rows[-1]) + 1)
+        self._dent_top = float(sub.max())
+
     def _update_dent(self) -> None:
-        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the surface."""
-        top = float(self._deform.max())
+        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the
+        surface; computed on the part of the grid that is deformed (:attr:`_dent_box`) only."""
+        top = self._dent_top
         if top < 0.02:  # nothing a reader could see: no lines
-            self.dent_step_nm = 0.0
-            self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
+            if self.dent_step_nm != 0.0 or self._dent_lines.n_points != 1:
+                self.dent_step_nm = 0.0
+                self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
             return
         k = math.floor(math.log10(top / 4.0))
         step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
         self.dent_step_nm = step
-        lines = self.grid.contour(isosurfaces=list(np.arange(1, int(top / step) + 1) * step),
-                                  scalars="deformation_nm")
-        lines.points[:, 2] += 0.1
-        self._dent_lines.shallow_copy(lines)
+        iu0, iu1, jv0, jv1 = self._dent_box
+        # one sample of margin each side: the lines close where the deformation falls to 0
+        nu, nv = self.resolution
+        self._dent_extract.SetVOI(max(iu0 - 1, 0), min(iu1, nu - 1), max(jv0 - 1, 0), min(jv1, nv - 1), 0, 0)
+        levels = np.arange(1, int(top / step) + 1) * step
+        contour = self._dent_contour
+        contour.SetNumberOfContours(levels.size)
+        for i, level in enumerate(levels):
+            contour.SetValue(i, float(level))
+        contour.Update()
+        self._dent_lines.ShallowCopy(contour.GetOutput())
 
     def _build_markers(self) -> None:
         pv = self._pv
@@ -471,7 +532,7 @@ class SurfaceView:
         elif self.color_by in _MATERIAL_MODES:
             self._mapper.scalar_range = self._material_clim[self.color_by]
         else:
-            self._mapper.scalar_range = (0.0, max(float(self._deform.max()), 0.5))
+            self._mapper.scalar_range = (0.0, max(self._dent_top, 0.5))
 
     def set_camera(self, mode: str = "oblique") -> None:
         """Frame the surface: ``"oblique"`` (perspective from the front-left, 35° elevation) or
@@ -626,19 +687,20 @@ class SurfaceView:
     # -- per-frame work -----------------------------------------------------------------------
     def _sync_surface(self) -> None:
         """Re-sample the part of the grid whose control points changed since the last frame."""
-        ctrl, _, ku, kv = self.surface.kernel_arrays()
-        changed = np.not_equal(ctrl, self._last_ctrl).any(axis=2)
-        if not changed.any():
+        ctrl, _, ku, kv = self.surface.kernel_arrays()  # (moves the net to the loop's last dent first)
+        i0, i1, j0, j1 = _changed_box(ctrl, self._last_ctrl)
+        if i1 <= i0:
             return
-        ii = np.flatnonzero(changed.any(axis=1))
-        jj = np.flatnonzero(changed.any(axis=0))
         # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
-        iu0 = int(np.searchsorted(self._u, ku[ii[0]], side="left"))
-        iu1 = int(np.searchsorted(self._u, ku[ii[-1] + 4], side="right"))
-        jv0 = int(np.searchsorted(self._v, kv[jj[0]], side="left"))
-        jv1 = int(np.searchsorted(self._v, kv[jj[-1] + 4], side="right"))
-        self._last_ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1] = ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1]
+        iu0 = int(np.searchsorted(self._u, ku[i0], side="left"))
+        iu1 = int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right"))
+        jv0 = int(np.searchsorted(self._v, kv[j0], side="left"))
+        jv1 = int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right"))
         self._resample(iu0, iu1, jv0, jv1)
+        # the deformed samples are in the old dent box or the re-sampled one
+        b = self._dent_box
+        self._find_dent((iu0, iu1, jv0, jv1) if b[1] <= b[0] else
+                        (min(b[0], iu0), max(b[1], iu1), min(b[2], jv0), max(b[3], jv1)))
         self._update_clim()
         self._update_dent()
 
