@@ -138,9 +138,9 @@ _EXPORTS = {
     "surface_mesh": "arsurf.export",
     "export_surface": "arsurf.export",
     # sessions
-    "SessionWriter": "arsurf.replay.session",
-    "load_session": "arsurf.replay.session",
-    "recover_session": "arsurf.replay.session",
+    "SessionWriter": "arsurf.sessions.writer",
+    "load_session": "arsurf.sessions.reader",
+    "recover_session": "arsurf.sessions.recover",
     "replay_session": "arsurf.replay.replay",  # arsurf.replay is the subpackage
     "run_live": "arsurf.live",
     # model assembly

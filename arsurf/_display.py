@@ -2,7 +2,7 @@
 
 IPython asks an object for ``_repr_html_`` (Jupyter, VS Code) or ``_repr_png_`` (qtconsole);
 :class:`~arsurf.scan.scan.Scan`, :class:`~arsurf.spline.surface.BSplineSurface`,
-:class:`~arsurf.replay.session.Session` and :class:`~arsurf.replay.replay.ReplayResult` answer with
+:class:`~arsurf.sessions.reader.Session` and :class:`~arsurf.replay.replay.ReplayResult` answer with
 the helpers here. Values are shown with an SI prefix and their unit (``12.5 nm``, ``3.2 nN``), maps
 with axes and a colour bar in units, colour limits from robust percentiles (1-99 %: one speck
 does not wash out the map), a perceptually uniform colour map (viridis), at most

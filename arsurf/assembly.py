@@ -41,6 +41,7 @@ from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
 
 __all__ = [
+    "BRIDGE_HAPTICS",
     "BUNDLED_SCAN",
     "LEVER",
     "ModelSetup",
@@ -169,6 +170,13 @@ def _presets() -> dict[str, Preset]:
 #: the named presets (read-only); :func:`preset_metadata` turns one into session metadata
 PRESETS: Mapping[str, Preset] = MappingProxyType(_presets())
 
+#: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
+#: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
+#: friction, no synthesised signals), a 200 Hz low-pass, no virtual coupling
+BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
+                                   "source": "simulated", "filter_cutoff": 200.0, "signal_noise": 0.0,
+                                   "passivity": True})
+
 
 def preset(name: str | Preset) -> Preset:
     """The :class:`Preset` called ``name`` (a Preset is returned as is)."""
@@ -257,7 +265,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
         The scan file (its SHA-256 is computed here, and the processing is taken from
         ``channel``, ``level``, ``sigma``, ``inpaint``, ``control_shape``, ``smoothing``: the
         arguments of :func:`arsurf.scan.prepare.prepare_scan` and :func:`arsurf.fit_surface`), or a
-        complete ``scan`` dict as in the schema (:mod:`arsurf.replay.session`).
+        complete ``scan`` dict as in the schema (:mod:`arsurf.sessions.schema`).
     tip_radius : float, metres
     contact : MaugisDugdale or dict
         The contact law (or ``{"effective_modulus", "work_of_adhesion", "dugdale_stress"}``).

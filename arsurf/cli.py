@@ -609,7 +609,7 @@ def _bridge_view(args, bridge, record) -> int:
     the session recorded with ``--record``.
 
     The model is built from session metadata by :func:`arsurf.assembly.build_model` (as replay
-    rebuilds it) and every tick is recorded by :func:`arsurf.replay.session.record_loop_tick`
+    rebuilds it) and every tick is recorded by :func:`arsurf.sessions.writer.record_loop_tick`
     (as in ``arsurf demo``), so ``arsurf replay FILE`` gives back the forces bit for bit. With a
     display the loop runs until the window closes; without one (or with ``--frames 0``) it waits
     for a client, renders the frames while it plays, and serves it until it sends RELEASE (or
@@ -618,12 +618,12 @@ def _bridge_view(args, bridge, record) -> int:
     import contextlib
     from functools import partial
 
-    from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, preset_metadata
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
-    from arsurf.replay.session import SessionWriter, record_loop_tick
+    from arsurf.live import bridge_loop
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
     from arsurf_viewer.backend import has_display
-    from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_loop
 
     show = args.frames > 0
     if show:
@@ -653,8 +653,9 @@ def _bridge_view(args, bridge, record) -> int:
             try:
                 if show and has_display():
                     from arsurf_viewer.interactive import run_interactive
+                    from arsurf_viewer.live import live_scene
 
-                    run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=live.physics,
+                    run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=partial(live_scene, live),
                                     pose_source=live.pose, out_dir=args.out, frames=args.frames)
                 else:
                     _serve_headless(args, live, setup)
@@ -680,9 +681,12 @@ def _serve_headless(args, live, setup) -> None:
     while dev.peer is None and running.is_running:
         time.sleep(0.01)
     if args.frames and running.is_running:
-        from arsurf_viewer.interactive import run_interactive
+        from functools import partial
 
-        run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=live.physics,
+        from arsurf_viewer.interactive import run_interactive
+        from arsurf_viewer.live import live_scene
+
+        run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=partial(live_scene, live),
                         pose_source=live.pose, out_dir=args.out, frames=args.frames)
     while dev.peer is not None and running.is_running:
         time.sleep(0.01)
@@ -830,7 +834,7 @@ def cmd_live(args) -> int:
     setup = build_model(meta)
     instrument = photodiode = frame = None
     if args.instrument is not None:
-        from arsurf_viewer.live import bridge_start
+        from arsurf.haptics.live_loop import bridge_start
 
         sens = args.deflection_sensitivity_nm
         instrument, photodiode, frame = open_instrument(

@@ -41,7 +41,7 @@ from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.feel import score_force
 from arsurf.model import M_IN_CONTACT, MODEL_OUT
-from arsurf.replay.session import record_loop_tick
+from arsurf.sessions.writer import record_loop_tick
 from arsurf.units import summary_json
 
 log = logging.getLogger(__name__)
@@ -169,7 +169,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     from arsurf.errors import ManipulationError
     from arsurf.manipulation.scene import TubeScene
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, journal_path
+    from arsurf.sessions.journal import journal_path
+    from arsurf.sessions.writer import SessionWriter
     from arsurf.scan.prepare import prepare_scan
 
     from arsurf.replay.plots import check_figure_options
@@ -279,7 +280,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
              + (f", tube poses differ by {result.tube_pose_difference:g}" if scene is not None else "")
              + f", files {', '.join(result.files)}")
     pngs = _render(viewer, views, out) if viewer is not None else []
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     ticks = load_session(out / "session.h5").ticks
     force = ticks["force"]
@@ -560,7 +561,9 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     from arsurf.contact.material_map import material_map_from_file
     from arsurf.contact.maugis_dugdale import MaugisDugdale
     from arsurf.replay.replay import replay
-    from arsurf.replay.session import SessionWriter, journal_path, load_session
+    from arsurf.sessions.journal import journal_path
+    from arsurf.sessions.reader import load_session
+    from arsurf.sessions.writer import SessionWriter
     from arsurf.scan.prepare import prepare_scan
 
     progress = progress or log.info

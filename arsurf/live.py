@@ -3,12 +3,12 @@ measured signals, recorded (what ``arsurf live`` runs).
 
 :func:`run_live` builds the AR model from session metadata (:func:`arsurf.assembly.build_model`,
 as replay rebuilds it), maps the stylus origin 2.5 tip radii above the middle of the surface
-(:func:`arsurf_viewer.live.bridge_start`) and runs
+(:func:`arsurf.haptics.live_loop.bridge_start`) and runs
 
-* without an instrument: :class:`arsurf_viewer.live.LiveLoop` on the device, every tick recorded
-  by :func:`arsurf.replay.session.record_loop_tick` (the simulated force, as ``arsurf view
+* without an instrument: :class:`arsurf.haptics.live_loop.LiveLoop` on the device, every tick recorded
+  by :func:`arsurf.sessions.writer.record_loop_tick` (the simulated force, as ``arsurf view
   --bridge-port --record``);
-* with an instrument: :func:`arsurf.replay.instrument_session.record_instrument_session` (the
+* with an instrument: :func:`arsurf.sessions.instrument_session.record_instrument_session` (the
   force the decoupling reads from the instrument's deflection and torsion signals,
   ``source="measured"``; the commanded tip centre sent to the instrument through its
   :class:`~arsurf.instrument.link.InstrumentLink`).
@@ -21,6 +21,9 @@ tick recorded (marked incomplete) and is raised as one line that says so.
 :class:`~arsurf.instrument.instrument.VirtualAFM` whose sample is the scan) or
 ``nanonis://HOST:PORT`` (:class:`~arsurf.instrument.nanonis.NanonisAFM`, the tip commanded
 inside the scanned area and within :data:`Z_MARGIN` of its heights).
+
+:func:`bridge_loop` is the live loop of ``arsurf view --bridge-port``: the UDP bridge device
+(real hardware behind a C++ or Python client) driving the model with :data:`~arsurf.assembly.BRIDGE_HAPTICS`.
 
 Examples
 --------
@@ -41,11 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.assembly import build_loop, build_model, preset_metadata
+from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, preset_metadata
 from arsurf.errors import InstrumentError, LoopError
 
-__all__ = ["Z_MARGIN", "LiveResult", "live_metadata", "open_instrument", "parse_instrument", "press_trajectory",
-           "run_live"]
+__all__ = ["Z_MARGIN", "LiveResult", "bridge_loop", "live_metadata", "open_instrument", "parse_instrument",
+           "press_trajectory", "run_live"]
 
 #: how far (m) above and below the scan's heights the tip may be commanded on a real instrument
 Z_MARGIN = 1e-6
@@ -80,12 +83,34 @@ def parse_instrument(spec: str) -> tuple:
 
 def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool) -> dict:
     """Session metadata of a live session: the viewer preset (Si tip on polystyrene) with the
-    bridge loop's haptic settings (:data:`arsurf_viewer.live.BRIDGE_HAPTICS`) at ``scale`` probe m
+    bridge loop's haptic settings (:data:`arsurf.assembly.BRIDGE_HAPTICS`) at ``scale`` probe m
     per stylus m; ``measured``: the force read from the instrument's signals."""
-    from arsurf_viewer.live import BRIDGE_HAPTICS
-
     haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated")
     return preset_metadata(scan, "viewer", tip_radius=tip_radius, level=level, sigma=sigma, haptics=haptics)
+
+
+def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
+                peer_timeout: float | None = None, start=None, record=None):
+    """A :class:`~arsurf.haptics.live_loop.LiveLoop` for real hardware: the UDP bridge device on
+    ``host``:``port`` with the session ``key`` (a fresh one on loopback if None; see
+    :class:`~arsurf.haptics.udp_bridge.UdpBridgeDevice`) driving the
+    AR ``model`` through :func:`arsurf.assembly.build_loop` with ``haptics`` (default
+    :data:`~arsurf.assembly.BRIDGE_HAPTICS`). The stylus origin maps to ``start`` (default
+    :func:`~arsurf.haptics.live_loop.bridge_start`). ``record(loop, t, state)``: see the
+    LiveLoop. Nothing is opened here:
+    :meth:`LiveLoop.start <arsurf.haptics.live_loop.LiveLoop.start>` (or ``live.device.open()``)
+    binds the port.
+
+    Build the model with :func:`arsurf.assembly.build_model` from session metadata (what
+    ``arsurf view --bridge-port`` does) and a recorded session replays bit for bit."""
+    from arsurf.haptics.live_loop import LiveLoop, bridge_start
+    from arsurf.haptics.udp_bridge import UdpBridgeDevice
+
+    if start is None:
+        start = bridge_start(model.surface, model.tip_radius)
+    device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
+    loop = build_loop(model, BRIDGE_HAPTICS if haptics is None else haptics, device.info, start)
+    return LiveLoop(loop, device, record=record)
 
 
 def press_trajectory(tip_radius: float, scale: float, indent: float = 10e-9):
@@ -192,7 +217,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
         The device's backend name, recorded in the metadata.
     instrument, photodiode, frame : optional
         :func:`open_instrument`'s; ``axes`` and ``max_age`` (s) as in
-        :func:`~arsurf.replay.instrument_session.record_instrument_session`.
+        :func:`~arsurf.sessions.instrument_session.record_instrument_session`.
     record : path-like, optional
         The session file (must not exist); without one nothing is kept (an instrument session
         is written to a temporary file, deleted at the end).
@@ -214,7 +239,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
     InstrumentLinkLost
         The instrument link stalled or died (likewise; the tip was left where it was).
     """
-    from arsurf_viewer.live import bridge_start
+    from arsurf.haptics.live_loop import bridge_start
 
     if setup is None:
         setup = build_model(metadata)
@@ -234,7 +259,7 @@ def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode
 
 def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, axes, max_age, record, seconds,
                     stop, priority, safety_kwargs) -> LiveResult:
-    from arsurf.replay.instrument_session import record_instrument_session
+    from arsurf.sessions.instrument_session import record_instrument_session
 
     with contextlib.ExitStack() as stack:
         path = record
@@ -247,8 +272,8 @@ def _instrument_run(meta, device, setup, origin, instrument, photodiode, frame, 
 
 
 def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwargs, priority) -> LiveResult:
-    from arsurf.replay.session import SessionWriter, record_loop_tick
-    from arsurf_viewer.live import LiveLoop
+    from arsurf.haptics.live_loop import LiveLoop
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
     loop = build_loop(setup.model, meta["haptics"], device.info, origin, scene=setup.scene, **safety_kwargs)
     live = LiveLoop(loop, device, priority=priority)

@@ -8,7 +8,7 @@ Peers timed in the same run:
   force): round-trip time (POSE sent -> its FORCE checked), ticks later than one period, invalid
   replies; rounds alternate between the clients;
 * ``tick``         - one tick of the bridge loop (``HapticLoop.step``) alone (the peer) and followed
-  by :func:`arsurf.replay.session.record_loop_tick` (what ``arsurf view --record`` adds per
+  by :func:`arsurf.sessions.writer.record_loop_tick` (what ``arsurf view --record`` adds per
   tick), interleaved rounds of ticks paced at 1 kHz on the bundled scan, with the GIL switch
   interval the Scheduler sets (a quarter period): the p99 includes the journal writer thread
   taking the GIL between ticks.
@@ -99,8 +99,9 @@ def round_trips(cpp: str | None, seconds: float, rounds: int) -> dict:
 def tick_costs(rounds: int, n: int = 2000) -> dict:
     from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, preset_metadata
     from arsurf.haptics.device import TOUCH_X, DeviceState
-    from arsurf.replay.session import SessionWriter, record_loop_tick
-    from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_start
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
+    from arsurf.assembly import BRIDGE_HAPTICS
+    from arsurf.haptics.live_loop import bridge_start
 
     meta = preset_metadata(BUNDLED_SCAN, "viewer", haptics=dict(BRIDGE_HAPTICS))
     setup = build_model(meta)

@@ -53,13 +53,14 @@ from _timing import emit  # noqa: E402
 from test_session_fuzz import _meta, _record, mutate  # noqa: E402
 from test_session import _write_v1  # noqa: E402
 
-from arsurf.replay.sealed import SEAL_SIZE, seal_bytes  # noqa: E402
-from arsurf.replay.session import SessionWriter, journal_path  # noqa: E402
+from arsurf.sessions.sealed import SEAL_SIZE, seal_bytes  # noqa: E402
+from arsurf.sessions.journal import journal_path  # noqa: E402
+from arsurf.sessions.writer import SessionWriter  # noqa: E402
 
 WORKER = r"""
 import json, resource, sys, numpy as np
 from arsurf.errors import SessionError
-from arsurf.replay.session import load_session
+from arsurf.sessions.reader import load_session
 refs = {}
 def same(a, b, prefix):
     if a.metadata != b.metadata or a.ticks.keys() != b.ticks.keys():

@@ -36,7 +36,8 @@ from _timing import emit  # noqa: E402
 from test_session_recording import RECORDER, meta, position  # noqa: E402
 
 from arsurf.errors import SessionError  # noqa: E402
-from arsurf.replay.session import journal_path, load_session  # noqa: E402
+from arsurf.sessions.journal import journal_path  # noqa: E402
+from arsurf.sessions.reader import load_session  # noqa: E402
 
 
 def trial(d: Path, sig: signal.Signals, delay: float) -> dict:

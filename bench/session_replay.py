@@ -30,7 +30,9 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
 from arsurf.replay.replay import replay  # noqa: E402
 from arsurf.assembly import build_model, session_metadata  # noqa: E402
-from arsurf.replay.session import SessionWriter, contact_fields, load_session  # noqa: E402
+from arsurf.sessions.reader import load_session  # noqa: E402
+from arsurf.sessions.schema import contact_fields  # noqa: E402
+from arsurf.sessions.writer import SessionWriter  # noqa: E402
 from arsurf.scan import synthetic  # noqa: E402
 from arsurf.scan.io import save_scan  # noqa: E402
 

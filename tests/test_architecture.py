@@ -27,7 +27,8 @@ LAYERS = [
     ("devices and objects", ["arsurf.haptics", "arsurf.instrument", "arsurf.manipulation"]),
     ("assembly", ["arsurf.assembly"]),
     ("viewer", ["arsurf_viewer"]),
-    ("sessions", ["arsurf.replay", "arsurf.feel_scenarios"]),
+    ("sessions", ["arsurf.sessions", "arsurf.feel_scenarios"]),  # record and read session files
+    ("replay", ["arsurf.replay"]),  # re-run the model over a recorded session
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo", "arsurf.cli", "arsurf.devices"]),

@@ -204,7 +204,7 @@ def test_sweep_agrees_with_the_contact_law_on_a_flat_scan(tmp_path):
 def _session(path: Path, scan: str, depth: float):
     """A short press and release at the middle of ``scan`` (the demo preset), ``scan`` as recorded."""
     from arsurf.assembly import preset_metadata
-    from arsurf.replay.session import SessionWriter
+    from arsurf.sessions.writer import SessionWriter
 
     meta = preset_metadata(scan, "demo")
     n = 30

@@ -47,7 +47,8 @@ def test_bridge_loop_feels_the_surface_through_udp():
     from arsurf.assembly import PRESETS, make_model
     from arsurf.haptics.client import HapticClient
     from arsurf.spline.surface import BSplineSurface
-    from arsurf_viewer.live import bridge_loop
+    from arsurf.live import bridge_loop
+    from arsurf_viewer.live import live_scene
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
@@ -68,7 +69,7 @@ def test_bridge_loop_feels_the_surface_through_udp():
             if client.poll()[2] > 1e-4 and z <= -3.3e-3:
                 break
         force = client.poll()
-        scene = live.physics(np.zeros(3), 1 / 30)
+        scene = live_scene(live, np.zeros(3), 1 / 30)
     finally:
         client.close()
         stats = live.stop()

@@ -404,8 +404,8 @@ class LockstepServer:
     a clock that advances 1 ms per tick: the forces depend on the poses only."""
 
     def __init__(self, host=LOOPBACK, key=KEY):
-        from arsurf.assembly import build_loop
-        from arsurf_viewer.live import BRIDGE_HAPTICS, bridge_start
+        from arsurf.assembly import BRIDGE_HAPTICS, build_loop
+        from arsurf.haptics.live_loop import bridge_start
 
         self.clock = FakeClock()
         self.dev = UdpBridgeDevice(host, 0, key=key, clock=self.clock).open()
@@ -565,10 +565,9 @@ def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_
     """`arsurf view --bridge-port 0 --record FILE --frames 0` serves the C++ client until its
     RELEASE; the session holds the poses it sent, and `arsurf replay` gives back its forces
     and contacts bit for bit."""
-    from arsurf.assembly import BUNDLED_SCAN
+    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN
     from arsurf.cli import main
-    from arsurf.replay.session import load_session
-    from arsurf_viewer.live import BRIDGE_HAPTICS
+    from arsurf.sessions.reader import load_session
 
     session, kf, log = tmp_path / "run.h5", tmp_path / "bridge.key", tmp_path / "server.err"
     with open(log, "w") as err:

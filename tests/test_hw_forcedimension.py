@@ -225,7 +225,7 @@ def test_arsurf_live_drives_the_device_and_records_a_replayable_session(sim, tmp
     replays exactly, and the device gets zero force when the command ends."""
     from arsurf.assembly import BUNDLED_SCAN
     from arsurf.cli import main
-    from arsurf.replay.session import load_session
+    from arsurf.sessions.reader import load_session
 
     reset(sim, hand=(0.0, 0.0, -0.004))
     path = tmp_path / "fd.h5"

@@ -19,9 +19,9 @@ from arsurf.instrument.interface import InstrumentFrame, InstrumentLimits, Instr
 from arsurf.instrument.link import InstrumentLink
 from arsurf.instrument.nanonis import NanonisAFM
 from arsurf.instrument.nanonis_sim import NanonisSimulator
-from arsurf.replay.instrument_session import record_instrument_session
+from arsurf.sessions.instrument_session import record_instrument_session
 from arsurf.replay.replay import load_replay, replay
-from arsurf.replay.session import load_session
+from arsurf.sessions.reader import load_session
 from arsurf.scan import synthetic
 from arsurf.scan.io import save_scan
 

@@ -21,7 +21,7 @@ from arsurf.errors import HapticsError
 from arsurf.haptics.backends import DEVICES, make_device
 from arsurf.instrument.nanonis_sim import NanonisSimulator
 from arsurf.live import parse_instrument
-from arsurf.replay.session import load_session
+from arsurf.sessions.reader import load_session
 
 pytestmark = pytest.mark.timeout(600)
 ROOT = Path(__file__).resolve().parents[1]

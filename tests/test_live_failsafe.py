@@ -34,7 +34,7 @@ class RecordingDevice(VirtualDevice):
 
 
 def _live(fail_after: int):
-    from arsurf_viewer.live import LiveLoop
+    from arsurf.haptics.live_loop import LiveLoop
 
     s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 37 * 4e-9), (0.0, 37 * 4e-9))
     model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)

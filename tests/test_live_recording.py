@@ -13,7 +13,8 @@ from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
 from arsurf.errors import LoopError, SessionError
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.replay.replay import replay
-from arsurf.replay.session import SessionWriter, load_session, record_loop_tick
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
 
 class ClosingDevice(VirtualDevice):
@@ -30,7 +31,7 @@ class ClosingDevice(VirtualDevice):
 
 @pytest.fixture(scope="module")
 def setup():
-    from arsurf_viewer.live import BRIDGE_HAPTICS
+    from arsurf.assembly import BRIDGE_HAPTICS
 
     meta = preset_metadata(BUNDLED_SCAN, "viewer", haptics=dict(BRIDGE_HAPTICS))
     return meta, build_model(meta)
@@ -38,7 +39,7 @@ def setup():
 
 def _live(setup, record=None):
     from arsurf.assembly import build_loop
-    from arsurf_viewer.live import LiveLoop, bridge_start
+    from arsurf.haptics.live_loop import LiveLoop, bridge_start
 
     meta, s = setup
     s.model.reset()

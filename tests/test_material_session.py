@@ -13,7 +13,8 @@ from arsurf.contact.material_map import material_map_from_file
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.replay.replay import replay
-from arsurf.replay.session import SessionWriter, contact_fields
+from arsurf.sessions.schema import contact_fields
+from arsurf.sessions.writer import SessionWriter
 from arsurf.scan.prepare import prepare_scan
 
 R = 20e-9

@@ -20,7 +20,9 @@ from arsurf.model import ARModel
 from arsurf.replay import plots
 from arsurf.replay.replay import REPLAY_FIELDS, load_replay, replay
 from arsurf.assembly import session_metadata
-from arsurf.replay.session import SessionWriter, contact_fields, load_session
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.schema import contact_fields
+from arsurf.sessions.writer import SessionWriter
 from arsurf.scan import synthetic
 from arsurf.scan.io import save_scan
 from arsurf.spline.fit import fit_surface
@@ -413,7 +415,7 @@ def test_cli_writes_the_figures_as_pdf_or_svg(recording, tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# notebook display (arsurf.replay.display)
+# notebook display (arsurf.sessions.display)
 
 
 def _display_rows(text: str) -> dict[str, str]:

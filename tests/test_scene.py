@@ -319,7 +319,9 @@ def test_loop_refuses_a_scene_without_tick():
 def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     from arsurf.replay.replay import load_replay, replay
     from arsurf.assembly import build_model, session_metadata
-    from arsurf.replay.session import SessionWriter, contact_fields, load_session
+    from arsurf.sessions.reader import load_session
+    from arsurf.sessions.schema import contact_fields
+    from arsurf.sessions.writer import SessionWriter
     from arsurf.scan.io import save_scan
     from arsurf.scan.prepare import prepare_scan
 
@@ -364,7 +366,8 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
     import h5py
 
     from arsurf.assembly import session_metadata
-    from arsurf.replay.session import SessionWriter, load_session
+    from arsurf.sessions.reader import load_session
+    from arsurf.sessions.writer import SessionWriter
 
     scene = TubeScene.from_scan(one_tube_scan(far=True))
     meta = session_metadata(**SESSION_BASE, tubes=scene.to_metadata())
@@ -380,7 +383,7 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
         data = f["ticks/tube_poses"][()]
         del f["ticks/tube_poses"]
         f["ticks"].create_dataset("tube_poses", data=data[:, :1])
-    from arsurf.replay.sealed import seal_file
+    from arsurf.sessions.sealed import seal_file
 
     seal_file(tmp_path / "s.h5")  # sealed again: the schema check behind the seal must catch it
     with pytest.raises(SessionError, match=r"tube_poses has shape \(5, 1, 3\).*number of tubes .* \(2\)"):
@@ -393,7 +396,7 @@ def test_tube_poses_are_an_optional_dataset_checked_against_the_scene(tmp_path):
 
 def test_session_tube_poses_need_a_scene(tmp_path):
     from arsurf.assembly import session_metadata
-    from arsurf.replay.session import SessionWriter
+    from arsurf.sessions.writer import SessionWriter
 
     base = SESSION_BASE
     with pytest.raises(SessionError, match="tube_poses needs a tube scene"):

@@ -17,8 +17,11 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever
 from arsurf.assembly import scan_sha256, session_metadata
-from arsurf.replay.sealed import seal_file
-from arsurf.replay.session import SAFETY_FLAGS, TICK_FIELDS, SessionWriter, journal_path, load_session
+from arsurf.sessions.sealed import seal_file
+from arsurf.sessions.journal import journal_path
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.schema import SAFETY_FLAGS, TICK_FIELDS
+from arsurf.sessions.writer import SessionWriter
 from arsurf.errors import SessionFileNotFound
 
 R = 20e-9
@@ -485,7 +488,7 @@ def test_version_1_files_still_load_unverified_in_an_isolated_reader(tmp_path):
 
 def test_isolation_turns_a_crash_or_a_hang_into_a_session_error():
     from arsurf.errors import IsolatedReadFailure
-    from arsurf.replay.sealed import run_isolated
+    from arsurf.sessions.sealed import run_isolated
 
     with pytest.raises(IsolatedReadFailure, match="crashed the HDF5 library .SIGSEGV."):
         run_isolated("import ctypes; ctypes.string_at(0)", [], timeout=60, memory_limit=None, what="reading x")

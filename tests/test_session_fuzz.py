@@ -11,8 +11,10 @@ from arsurf.assembly import session_metadata
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever
-from arsurf.replay.sealed import SEAL_SIZE, seal_bytes
-from arsurf.replay.session import SessionWriter, journal_path, load_session
+from arsurf.sessions.sealed import SEAL_SIZE, seal_bytes
+from arsurf.sessions.journal import journal_path
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.writer import SessionWriter
 
 R = 20e-9
 SCAN = {"path": "scans/sinusoid.npz", "sha256": "ab" * 32, "channel": None,

@@ -22,8 +22,11 @@ from arsurf.assembly import session_metadata
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import SessionError
 from arsurf.force.cantilever import Cantilever
-from arsurf.replay import journal as journal_mod
-from arsurf.replay.session import SessionWriter, journal_path, load_session, recover_session
+from arsurf.sessions import journal as journal_mod
+from arsurf.sessions.journal import journal_path
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.recover import recover_session
+from arsurf.sessions.writer import SessionWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 20e-9
@@ -45,7 +48,7 @@ def position(k):
 #: position, and logs "k t" after each append (line-buffered file, so a kill loses no line)
 RECORDER = textwrap.dedent("""
     import json, sys, time
-    from arsurf.replay.session import SessionWriter
+    from arsurf.sessions.writer import SessionWriter
     path, log, meta, handle = sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), sys.argv[4] == "1"
     out = open(log, "w", buffering=1)
     w = SessionWriter(path, meta, handle_signals=handle)
@@ -278,7 +281,7 @@ def test_memory_stays_flat_however_long_the_recording(tmp_path):
     run(5000)  # warm: the pool and the writer thread exist
     tracemalloc.start()
     # the recorder's own allocations (threads left by other tests allocate in this process too)
-    mine = [tracemalloc.Filter(True, "*arsurf/replay/*"), tracemalloc.Filter(True, "*h5py*")]
+    mine = [tracemalloc.Filter(True, "*arsurf/sessions/*"), tracemalloc.Filter(True, "*h5py*")]
 
     def traced() -> int:
         return sum(st.size for st in tracemalloc.take_snapshot().filter_traces(mine).statistics("filename"))

@@ -15,7 +15,7 @@ from arsurf.batch import run_batch
 from arsurf.data import bundled_scan
 from arsurf.demo import run_demo
 from arsurf.replay.replay import REPLAY_FIELDS
-from arsurf.replay.session import TICK_FIELDS, SAFETY_FLAGS, TUBE_POSES
+from arsurf.sessions.schema import TICK_FIELDS, SAFETY_FLAGS, TUBE_POSES
 from arsurf.units import SUFFIXES, summary_json, undeclared, unit_of, with_unit
 
 ROOT = Path(__file__).resolve().parents[1]

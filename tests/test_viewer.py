@@ -599,7 +599,8 @@ def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
     from arsurf.haptics.loop import HapticLoop
     from arsurf.haptics.virtual_device import HandModel, VirtualDevice
     from arsurf.model import ARModel
-    from arsurf_viewer.live import LiveLoop
+    from arsurf.haptics.live_loop import LiveLoop
+    from arsurf_viewer.live import live_scene
 
     s = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 57 * 4e-9), (0.0, 57 * 4e-9))  # 4 nm net
     model = ARModel(s, R, MaugisDugdale(R, 10e9, 0.1), Cantilever(**LEVER))
@@ -609,12 +610,12 @@ def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
     dev = VirtualDevice(dt=1e-3, hand=hand)
     live = LiveLoop(HapticLoop.direct(model, dev.info, origin), dev).start()
     try:
-        first = live.physics(np.zeros(3), 1 / 30)
+        first = live_scene(live, np.zeros(3), 1 / 30)
         deadline = _time.monotonic() + 15.0  # 600 ticks (0.6 s of the hand's motion), however busy CI is
         while live.scheduler.ticks < 600 and _time.monotonic() < deadline:
             _time.sleep(0.05)
         _time.sleep(0.05)  # a snapshot after the 600th tick
-        scene = live.physics(np.zeros(3), 1 / 30)
+        scene = live_scene(live, np.zeros(3), 1 / 30)
         assert live.scheduler.ticks >= 600 and scene.loop_rate_hz > 0
         np.testing.assert_allclose(scene.tip_center, live.pose())
         assert scene.depth > 0 and scene.force[2] > 0 and scene.contact_radius > 0   # pressed in by the hand

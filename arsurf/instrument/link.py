@@ -16,7 +16,7 @@ the loop simply gives older samples, which the loop sees in their age.
 
 Any error in the thread (a stalled or dead link, a refused command) ends the thread: the link
 stops sending moves - the tip stays where it is - and :attr:`InstrumentLink.error` holds the one
-line that says why, which the loop turns into zero force (:mod:`arsurf.replay.instrument_session`).
+line that says why, which the loop turns into zero force (:mod:`arsurf.sessions.instrument_session`).
 
 Examples
 --------

@@ -1,7 +1,7 @@
 r"""Offline replay: re-run the model over a recorded session and write what it computes.
 
 :func:`replay` (and ``arsurf replay SESSION --scan SCAN --out DIR``) loads a session
-(:mod:`arsurf.replay.session`), checks that the scan file is the one it was recorded on (SHA-256
+(:mod:`arsurf.sessions`), checks that the scan file is the one it was recorded on (SHA-256
 of the bytes), rebuilds the surface and the :class:`~arsurf.model.ARModel` exactly as recorded
 (:func:`~arsurf.assembly.build_model`), runs the model over every recorded tick - tip
 centre, tip velocity and, where both are finite, the measured (bending, torsion) signals - and
@@ -93,8 +93,9 @@ from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
 from arsurf.units import summary_json, with_unit
-from arsurf.replay.session import (MD_STATUS_NOT_GIVEN, TUBE_POSES, Session, TickField, load_session, read_h5,
-                                   write_h5)
+from arsurf.sessions.reader import Session, load_session, read_h5
+from arsurf.sessions.schema import MD_STATUS_NOT_GIVEN, TUBE_POSES, TickField
+from arsurf.sessions.writer import write_h5
 
 log = logging.getLogger(__name__)
 
@@ -166,13 +167,13 @@ class ReplayResult:
 
     def _repr_html_(self) -> str:
         """Peaks, agreement with the recording, files and a force thumbnail (IPython)."""
-        from arsurf.replay.display import replay_html
+        from arsurf.sessions.display import replay_html
 
         return replay_html(self, self._ticks())
 
     def _repr_png_(self) -> bytes | None:
         """The replayed and recorded |force| against time, from ``replay.h5`` (IPython)."""
-        from arsurf.replay.display import replay_png
+        from arsurf.sessions.display import replay_png
 
         return replay_png(self, self._ticks())
 
@@ -234,7 +235,7 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     Parameters
     ----------
     session_path : path-like
-        A session file (:class:`~arsurf.replay.session.SessionWriter`).
+        A session file (:class:`~arsurf.sessions.writer.SessionWriter`).
     scan_path : path-like
         The scan file the session was recorded on (its SHA-256 must match the session's).
     out_dir : path-like
@@ -256,7 +257,7 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
         from its journal; stopped by a signal or an error): a note says so and how many ticks
         it holds, and ``summary.json`` gets ``session_incomplete`` (the reason).
     isolate : {"auto", True, False}
-        How the session file is parsed (:func:`~arsurf.replay.session.load_session`);
+        How the session file is parsed (:func:`~arsurf.sessions.reader.load_session`);
         ``arsurf replay`` uses True: libhdf5 runs in a child process.
     figure_format : {"png", "pdf", "svg"}
         File format of the figures (:mod:`arsurf.replay.plots`): ``forces``, ``coupled_motion``,
@@ -271,7 +272,7 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     Raises
     ------
     SessionError
-        Unreadable session (see :func:`~arsurf.replay.session.load_session`), scan hash
+        Unreadable session (see :func:`~arsurf.sessions.reader.load_session`), scan hash
         mismatch (both hashes named), non-finite probe position/velocity, no ticks,
         ``out_dir`` exists without ``overwrite``.
     ScanError

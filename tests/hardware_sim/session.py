@@ -22,7 +22,8 @@ from arsurf.assembly import make_model, session_metadata
 from arsurf.errors import LoopError
 from arsurf.haptics.loop import LOOP_OUT, HapticLoop, LoopConfig
 from arsurf.haptics.scheduler import Scheduler
-from arsurf.replay.session import SessionWriter, load_session
+from arsurf.sessions.reader import load_session
+from arsurf.sessions.writer import SessionWriter
 from arsurf.spline.surface import BSplineSurface
 
 R = 20e-9

@@ -4,7 +4,7 @@ libhdf5 (through h5py) trusts the file it parses: a flipped bit in a B-tree addr
 dataspace can make it segfault, loop for minutes or allocate gigabytes. This module keeps
 corrupt bytes away from it in two ways.
 
-**The seal.** Files written by :func:`arsurf.replay.session.write_h5` reserve the 512-byte
+**The seal.** Files written by :func:`arsurf.sessions.writer.write_h5` reserve the 512-byte
 HDF5 *user block* (which libhdf5 skips) and write in it, after the file is complete:
 
 ======  ======  ===========================================================================

@@ -1,6 +1,6 @@
 """Notebook display of sessions and replays (IPython's ``_repr_html_`` / ``_repr_png_``).
 
-A :class:`~arsurf.replay.session.Session` shows what was recorded (ticks, duration, rate, scan,
+A :class:`~arsurf.sessions.reader.Session` shows what was recorded (ticks, duration, rate, scan,
 tip and contact law, whether it is complete and verified) and a thumbnail of the force on the tip
 against time with the contact shaded; a :class:`~arsurf.replay.replay.ReplayResult` shows what the
 replay found (peaks, agreement with the recording, the files written) and the replayed force

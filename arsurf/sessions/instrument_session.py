@@ -53,7 +53,8 @@ from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.scheduler import Scheduler, TimingStats
 from arsurf.instrument.interface import Instrument, InstrumentFrame, InstrumentSample
 from arsurf.instrument.link import InstrumentLink
-from arsurf.replay.session import SessionWriter, contact_fields
+from arsurf.sessions.schema import contact_fields
+from arsurf.sessions.writer import SessionWriter
 
 __all__ = ["InstrumentSessionResult", "record_instrument_session"]
 
@@ -124,7 +125,7 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     Parameters
     ----------
     path : path-like
-        The session file to write (:class:`~arsurf.replay.session.SessionWriter`).
+        The session file to write (:class:`~arsurf.sessions.writer.SessionWriter`).
     metadata : dict
         Session metadata (:func:`arsurf.assembly.session_metadata`) whose ``haptics`` source is
         ``"measured"`` (or ``"blended"``); ``instrument`` and ``calibration`` are added here.

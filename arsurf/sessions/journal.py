@@ -34,7 +34,7 @@ leaves the file marked as open), and segment files need a create + fsync + renam
 fsync per flush and a folder of 72 000 files per hour at 20 flushes/s, where the journal needs
 one ``write`` and one ``fsync``. The payload is raw (uncompressed: ~0.38 kB per tick, 1.4 GB
 per hour at 1 kHz) so the reader never inflates anything and never needs more memory than the
-file holds; :meth:`arsurf.replay.session.SessionWriter.close` merges the journal into the
+file holds; :meth:`arsurf.sessions.writer.SessionWriter.close` merges the journal into the
 compressed, sealed ``.h5`` and deletes it.
 
 :class:`TickStreamer` moves the ticks off the real-time thread: the caller of ``append`` writes
@@ -63,7 +63,7 @@ import numpy as np
 from arsurf.errors import SessionError
 
 __all__ = ["JOURNAL_FORMAT", "JOURNAL_VERSION", "JOURNAL_SUFFIX", "JournalFile", "JournalIndex", "scan_journal",
-           "read_rows", "TickStreamer", "Layout", "HEADER", "TICKS", "END"]
+           "read_rows", "TickStreamer", "Layout", "HEADER", "TICKS", "END", "journal_path"]
 
 JOURNAL_FORMAT = "arsurf-session-journal"
 JOURNAL_VERSION = 1
@@ -77,6 +77,12 @@ _DIGEST = 32
 MAX_RECORD_TICKS = 1 << 16
 MAX_PAYLOAD = 1 << 28
 MAX_JSON = 1 << 24
+
+
+def journal_path(path: str | os.PathLike) -> Path:
+    """The journal a recording to ``path`` streams into: ``<path>.journal``."""
+    p = Path(path)
+    return p.with_name(p.name + JOURNAL_SUFFIX)
 
 
 @dataclass(frozen=True)
@@ -131,7 +137,7 @@ class JournalFile:
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o644)
         except FileExistsError:
             raise SessionError(f"the journal {str(self.path)!r} of an unfinished recording exists; recover it with "
-                               f"arsurf.replay.session.recover_session({str(self.path)!r}) or delete it") from None
+                               f"arsurf.sessions.recover.recover_session({str(self.path)!r}) or delete it") from None
         self.write(HEADER, [json.dumps(header, sort_keys=True, allow_nan=False).encode()])
         self.sync()
         _fsync_dir(self.path.parent)
@@ -189,6 +195,13 @@ class JournalIndex:
     def discarded_bytes(self) -> int:
         """Bytes after the last intact record (a torn record, or damage)."""
         return self.size - self.valid_bytes
+
+    @property
+    def total_dropped(self) -> int:
+        """Ticks dropped while recording: gaps between records, and after the last one (end record)."""
+        told = (self.end or {}).get("dropped_ticks")
+        told = told if isinstance(told, int) and not isinstance(told, bool) and told >= 0 else 0
+        return max(self.dropped_ticks, told)
 
 
 def _json_payload(payload: bytes, what: str) -> dict:
