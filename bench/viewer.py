@@ -12,6 +12,7 @@ Run: .venv/bin/python bench/viewer.py   (prints JSON)
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,18 @@ from _timing import emit, stats, time_calls  # noqa: E402
 from arsurf.contact.deformation import Deformer, record_dent_kernel  # noqa: E402
 from arsurf.spline.surface import BSplineSurface  # noqa: E402
 from arsurf_viewer import SceneState, SurfaceView  # noqa: E402
+
+
+def cpu_calls(fn, repeat: int) -> np.ndarray:
+    """This thread's CPU time of each call, s: what the frame costs on a machine where no other
+    process preempts it (the wall time on a shared machine adds the waits)."""
+    fn()
+    out = np.empty(repeat)
+    for i in range(repeat):
+        t0 = time.thread_time_ns()
+        fn()
+        out[i] = time.thread_time_ns() - t0
+    return out * 1e-9
 
 
 def main() -> None:
@@ -62,6 +75,8 @@ def main() -> None:
         t_move = time_calls(move_only, 30)
         t_dent = time_calls(dent_and_move, 30)
         t_full = time_calls(full_resample, 15)
+        c_dent = cpu_calls(dent_and_move, 30)
+        c_full = cpu_calls(full_resample, 15)
         view.screenshot()  # the first picture compiles the shaders; pyvista renders only after it
         t_render = time_calls(view.render, 10, warmup=2)
         t_shot = time_calls(view.screenshot, 10, warmup=1)
@@ -71,6 +86,8 @@ def main() -> None:
             "update_with_local_dent": stats(t_dent),
             "full_resample_peer": stats(t_full),
             "speedup_patch_vs_full": float(np.median(t_full) / np.median(t_dent)),
+            "update_with_local_dent_cpu": stats(c_dent),
+            "full_resample_peer_cpu": stats(c_full),
             "render_960x720": stats(t_render),
             "screenshot_960x720": stats(t_shot),
             "backend": view.backend.name,
