@@ -284,6 +284,7 @@ class SurfaceView:
         (u0, u1), (v0, v1) = surface.domain
         self._u = np.linspace(u0, u1, nu)
         self._v = np.linspace(v0, v1, nv)
+        self._watch = surface.watch()  # what the deformers move from now on (a new watch: compare all once)
         ctrl, rest, ku, kv = surface.kernel_arrays()
         self._ku, self._kv = ku, kv
         self._last_ctrl = np.array(ctrl, copy=True)
@@ -349,18 +350,16 @@ class SurfaceView:
         for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
             prop.ShadowOn()
         self.set_color_by(self.color_by)
-        from vtkmodules.vtkFiltersCore import vtkContourFilter
-        from vtkmodules.vtkFiltersExtraction import vtkExtractGrid
+        from vtkmodules.vtkCommonDataModel import vtkImageData
+        from vtkmodules.vtkFiltersCore import vtkFlyingEdges2D
 
-        # the dent's lines: a VTK pipeline built once (the deformed part of the grid -> contours),
-        # re-run per frame without pyvista's wrappers; the actor sits 0.1 nm above the surface
-        self._dent_extract = vtkExtractGrid()
-        self._dent_extract.SetInputData(grid)
-        self._dent_contour = vtkContourFilter()
-        self._dent_contour.SetInputConnection(self._dent_extract.GetOutputPort())
-        self._dent_contour.SetInputArrayToProcess(0, 0, 0, 0, "deformation_nm")  # point data
+        # the dent's lines: flying edges on the deformed part of the grid as an image in index
+        # space (built once, re-run per frame without pyvista's wrappers), the line points then
+        # put on the surface by bilinear interpolation; the actor sits 0.1 nm above the surface
+        self._dent_image = vtkImageData()
+        self._dent_contour = vtkFlyingEdges2D()
+        self._dent_contour.SetInputData(self._dent_image)
         self._dent_contour.ComputeScalarsOff()
-        self._dent_contour.ComputeNormalsOff()
         self._dent_lines = pv.PolyData(np.zeros((1, 3)))  # one point, no line: replaced in place
         self.dent_actor = self.plotter.add_mesh(self._dent_lines, color=COLORS["dent"], line_width=2.0, lighting=False,
                                                 reset_camera=False, pickable=False)
@@ -394,17 +393,33 @@ class SurfaceView:
         k = math.floor(math.log10(top / 4.0))
         step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
         self.dent_step_nm = step
+        from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
         iu0, iu1, jv0, jv1 = self._dent_box
         # one sample of margin each side: the lines close where the deformation falls to 0
         nu, nv = self.resolution
-        self._dent_extract.SetVOI(max(iu0 - 1, 0), min(iu1, nu - 1), max(jv0 - 1, 0), min(jv1, nv - 1), 0, 0)
+        a0, a1, b0, b1 = max(iu0 - 1, 0), min(iu1 + 1, nu), max(jv0 - 1, 0), min(jv1 + 1, nv)
+        self._dent_values = numpy_to_vtk(np.ascontiguousarray(self._deform[b0:b1, a0:a1]).ravel(), deep=1)
+        self._dent_image.SetDimensions(a1 - a0, b1 - b0, 1)
+        self._dent_image.GetPointData().SetScalars(self._dent_values)
         levels = np.arange(1, int(top / step) + 1) * step
         contour = self._dent_contour
         contour.SetNumberOfContours(levels.size)
         for i, level in enumerate(levels):
             contour.SetValue(i, float(level))
         contour.Update()
-        self._dent_lines.ShallowCopy(contour.GetOutput())
+        out = contour.GetOutput()
+        if out.GetNumberOfPoints():
+            q = vtk_to_numpy(out.GetPoints().GetData())   # (x, y) = (column, row) inside the box
+            fi, fj = q[:, 0], q[:, 1]
+            i = np.clip(fi.astype(np.int64), 0, a1 - a0 - 2)
+            j = np.clip(fj.astype(np.int64), 0, b1 - b0 - 2)
+            tx, ty = (fi - i)[:, None], (fj - j)[:, None]
+            p = self._pts[b0:b1, a0:a1]
+            on_surface = ((1 - ty) * ((1 - tx) * p[j, i] + tx * p[j, i + 1])
+                          + ty * ((1 - tx) * p[j + 1, i] + tx * p[j + 1, i + 1]))
+            out.GetPoints().SetData(numpy_to_vtk(on_surface, deep=1))
+        self._dent_lines.ShallowCopy(out)
 
     def _build_markers(self) -> None:
         pv = self._pv
@@ -687,8 +702,16 @@ class SurfaceView:
     # -- per-frame work -----------------------------------------------------------------------
     def _sync_surface(self) -> None:
         """Re-sample the part of the grid whose control points changed since the last frame."""
-        ctrl, _, ku, kv = self.surface.kernel_arrays()  # (moves the net to the loop's last dent first)
-        i0, i1, j0, j1 = _changed_box(ctrl, self._last_ctrl)
+        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dent first)
+        anything, box = self._watch.take()
+        if anything:  # written from outside the deformers: compare the whole net
+            i0, i1, j0, j1 = _changed_box(ctrl, self._last_ctrl)
+        elif box is None:
+            return
+        else:  # only the deformers' boxes can differ
+            b0, b1, c0, c1 = box
+            i0, i1, j0, j1 = _changed_box(ctrl[b0:b1, c0:c1], self._last_ctrl[b0:b1, c0:c1])
+            i0, i1, j0, j1 = i0 + b0, i1 + b0, j0 + c0, j1 + c0
         if i1 <= i0:
             return
         # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)

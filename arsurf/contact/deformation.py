@@ -582,9 +582,11 @@ class Deformer:
         self._applied = float(self._record[self._at + D_SEQ])
 
     def _refresh(self, before: np.ndarray) -> None:
-        """Tell the projection's hull boxes which index boxes changed (old and new patch), O(patch)."""
+        """Tell the projection's hull boxes and the surface's watchers which index boxes changed
+        (old and new patch), O(patch)."""
         from arsurf.contact.projection import refresh_region
 
         for box in (before, self.patch):
             if box[1] > box[0] and box[3] > box[2]:
                 refresh_region(self.surface, int(box[0]), int(box[1]), int(box[2]), int(box[3]))
+                self.surface.touched(int(box[0]), int(box[1]), int(box[2]), int(box[3]))

@@ -8,6 +8,7 @@ S is a general parametric surface. :meth:`BSplineSurface.reset` restores the res
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 from numba import njit
@@ -25,6 +26,30 @@ def _fill_height_net(gu, gv, z, ctrl):
             ctrl[i, j, 0] = gu[i]
             ctrl[i, j, 1] = gv[j]
             ctrl[i, j, 2] = z[i, j]
+
+
+class NetWatch:
+    """What changed in a surface's net since its watcher last looked (:meth:`BSplineSurface.watch`).
+
+    ``box`` is the union (i0, i1, j0, j1) of the index boxes the deformers moved (None: none);
+    ``anything`` is True when the net may have changed anywhere (it was handed out writable by
+    :meth:`BSplineSurface.kernel_arrays`, or reset), so the watcher must compare it all.
+    """
+
+    def __init__(self):
+        self.box = None
+        self.anything = True  # a new watcher has seen nothing yet
+
+    def touch(self, i0: int, i1: int, j0: int, j1: int) -> None:
+        """Add the index box [i0, i1) x [j0, j1) to what changed."""
+        b = self.box
+        self.box = (i0, i1, j0, j1) if b is None else (min(b[0], i0), max(b[1], i1), min(b[2], j0), max(b[3], j1))
+
+    def take(self) -> tuple[bool, tuple | None]:
+        """(anything, box) since the last take, and start afresh."""
+        out = (self.anything, self.box)
+        self.anything, self.box = False, None
+        return out
 
 
 class BSplineSurface:
@@ -80,6 +105,7 @@ class BSplineSurface:
         self._derived = []  # structures built from the net (e.g. the projection's boxes)
         self._height_field = None  # unknown until asked (is_height_field_net), True from from_heights
         self._dents = []  # deformers whose recorded dent is moved onto the net when it is read (sync)
+        self._watches = weakref.WeakSet()  # NetWatch of the readers that re-draw what changed (the viewer)
 
     @classmethod
     def construct_fast(cls, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
@@ -139,6 +165,8 @@ class BSplineSurface:
         self._ctrl[...] = self._rest
         for dent in self._dents:
             dent.forget()
+        for watch in self._watches:
+            watch.anything = True
         for derived in self._derived:
             derived.refresh()
 
@@ -154,6 +182,17 @@ class BSplineSurface:
         compiled tick records without touching the net: :meth:`sync` moves the net to it."""
         if deformer not in self._dents:
             self._dents.append(deformer)
+
+    def watch(self) -> NetWatch:
+        """A :class:`NetWatch` told of every change of the net from now on (kept while referenced)."""
+        w = NetWatch()
+        self._watches.add(w)
+        return w
+
+    def touched(self, i0: int, i1: int, j0: int, j1: int) -> None:
+        """Control points [i0, i1) x [j0, j1) moved (the deformer says so): tell the watchers."""
+        for watch in self._watches:
+            watch.touch(i0, i1, j0, j1)
 
     def sync(self) -> None:
         """Move the net to the dents recorded since it was last read (O(dent box) each; nothing
@@ -220,9 +259,12 @@ class BSplineSurface:
         """(ctrl, rest, knots_u, knots_v) as the float64 C arrays the numba kernels take.
 
         ``ctrl`` is the live, writable net: only :mod:`arsurf.contact.deformation` writes to it.
-        Recorded dents are moved onto it first (:meth:`sync`).
+        Recorded dents are moved onto it first (:meth:`sync`). Watchers (:meth:`watch`) are told
+        that the net may change anywhere: to read only, use :meth:`net_arrays`.
         """
         self.sync()
+        for watch in self._watches:
+            watch.anything = True
         return self._ctrl, self._rest, self._ku, self._kv
 
     def raw_arrays(self):
