@@ -41,18 +41,23 @@ from numba import njit
 
 from arsurf import _validation
 from arsurf._layout import Layout
-from arsurf.contact import projection as pj
 from arsurf.contact import friction as fr
+from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import H_DENT, H_FRICTION, contact_vector, local_contact_kernel
-from arsurf.contact.maugis_dugdale import MaugisDugdale, md_zone_radius
+from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
+                                           A_T_FOLD, MaugisDugdale, md_zone_radius)
+from arsurf.contact.newton import EVALUATION_ROWS
 from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
+from arsurf.force import decoupling as dc
 from arsurf.force.cantilever import Cantilever
-from arsurf.force.decoupling import (P_BENDING_COMPLIANCE, P_COUPLING, P_MAX_CONDITION, P_TORSION_COMPLIANCE, DecouplingFlag,
-                                     decouple_kernel, decoupling_parameters, directional_noise_kernel)
+from arsurf.force.decoupling import (MEASURED_SCRATCH, P_BENDING_COMPLIANCE, P_COUPLING,  # noqa: F401 (P_SIGNAL_NOISE:
+                                     P_SIGNAL_NOISE, P_TORSION_COMPLIANCE, bending_only_kernel,  # the model's
+                                     blended_decouple_kernel, decoupling_parameters)  # decoupling vector)
 from arsurf.spline.surface import BSplineSurface
+from arsurf.status import COHESIVE, CONTACT, SEPARATED, TEXT
 
 #: the model output vector (``ARModel.out``): m, N, rad; statuses and counts as floats
 MODEL_OUT = Layout("model output", [
@@ -73,68 +78,50 @@ M_MOVED, M_IN_CONTACT = MODEL_OUT.offset("moved"), MODEL_OUT.offset("in_contact"
 M_BENDING, M_TORSION = MODEL_OUT.offset("bending"), MODEL_OUT.offset("torsion")
 M_TIP, M_SLIPPING, M_COUPLED = MODEL_OUT.offset("tip"), MODEL_OUT.offset("slipping"), MODEL_OUT.offset("coupled")
 M_SIZE = MODEL_OUT.size
+#: the model's arrays and settings in the order of :func:`model_tick_kernel`'s arguments (less the
+#: per-tick target and signals): what :meth:`ARModel.kernel_args` returns, in the loop's struct by
+#: these names (:data:`arsurf.haptics.loop.LOOP_FIELDS`)
+MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params", "tip_radius", "friction",
+              "deform", "model_state", "coll", "dec", "ev", "mout")
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
-# model state vector: warm-start hint, the hysteresis memory, the tip's depth, the friction anchor
-S_HINT_U, S_HINT_V, S_INTERACTING, S_TIP_DEPTH, S_SECOND, S_FRICTION = 0, 1, 2, 3, 4, 6
-S_SIZE = S_FRICTION + fr.STATE_SIZE
+#: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
+#: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the second contact's (u, v)
+#: (:mod:`arsurf.contact.second_contact`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`)
+MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("second_uv", 2),
+                                     ("friction", fr.STATE_SIZE)])
+S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
+S_HINT_V = S_HINT_U + 1
+S_TIP_DEPTH, S_SECOND = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("second_uv")
+S_FRICTION = MODEL_STATE.offset("friction")
+S_SIZE = MODEL_STATE.size
+#: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
+#: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
+#: zero-load depths (m)
+PROXY_PARAMS = Layout("proxy parameters", [
+    ("static_friction", 1), ("kinetic_friction", 1), ("stiffness_per_radius", 1), ("coupling_stiffness", 1),
+    ("jump_out_depth", 1), ("zero_load_depth", 1)])
+F_MU_S, F_MU_K = PROXY_PARAMS.offset("static_friction"), PROXY_PARAMS.offset("kinetic_friction")
+F_KT_PER_A, F_COUPLING = PROXY_PARAMS.offset("stiffness_per_radius"), PROXY_PARAMS.offset("coupling_stiffness")
+F_JUMP_OUT, F_ZERO_LOAD = PROXY_PARAMS.offset("jump_out_depth"), PROXY_PARAMS.offset("zero_load_depth")
+#: the tick's scratch vector: the friction proxy's output (:data:`arsurf.contact.friction.FRICTION_OUT`),
+#: then the measured force's (:data:`arsurf.force.decoupling.MEASURED_SCRATCH`, whose first field is
+#: the blend, a decoupling output)
+SCRATCH_SIZE = max(fr.FRICTION_OUT.size, MEASURED_SCRATCH.size)
+_MEASURED = MEASURED_SCRATCH.offset("blend")
 #: a second contact counts while its depth is within this many Maugis-Dugdale depth scales of the
 #: deepest (:mod:`arsurf.contact.second_contact`)
 SECOND_CONTACT_MARGIN = 0.5
-#: proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
-#: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
-#: zero-load depths (m)
-F_MU_S, F_MU_K, F_KT_PER_A, F_COUPLING, F_JUMP_OUT, F_ZERO_LOAD = range(6)
-
-MD_CONTACT, MD_COHESIVE, MD_SEPARATED = 0, 1, 2
 #: the slip direction is a unit vector: its horizontal part must be at least this long to give the
 #: decoupling a friction direction (a slip straight down a wall gives none)
 MIN_SLIP_HORIZONTAL = 1e-3
-FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
-NO_MOTION = int(DecouplingFlag.NO_MOTION)
-#: the measured force fades from the decoupling's fallback (normal + torsion, plus the proxy's
-#: friction along the beam axis per unit load) to the directional solution as the friction
-#: strength |F_t| / mu_k P grows over this band, and no switch makes the force jump
-FADE_STRENGTH = (0.05, 0.25)
-#: ... and back to the fallback as the condition number of the directional system grows over this
-#: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out.
-#: In the beam's plane (x, z) friction and normal load both bend the lever, so the fallback takes the
-#: friction's share there from the proxy, r = (F_t,x, F_t,z) / P, and solves the one load that
-#: reproduces the bending: F = N (n + r_x e_x + r_z e_z) + T e_y,
-#: N = (theta/g) / (n_z + r_z + kappa (n_x + r_x)). Without friction (r = 0) it is the decoupling's
-#: no-motion answer; with it, a slide whose directional system turns
-#: singular keeps its friction instead of dropping it for a few ticks (a dip the hand felt).
-FADE_CONDITION = (100.0, 1000.0)
-#: ... and, below that edge, by how much each answer can be trusted. The two solutions agree on
-#: F_y = tau and on F_z + kappa F_x = beta (both reproduce the angles); they differ only in how the
-#: beam-plane bending is split, i.e. in F_x. The directional F_x carries the signal noise times
-#: the system's noise gain, sigma_D = sqrt(p_y^2 sigma_tau^2 + p_z^2 sigma_beta^2) / |p_x - kappa p_z|
-#: (:func:`~arsurf.force.decoupling.directional_noise_kernel`; what cond * noise / signal * |F|
-#: bounds), which grows without bound as the friction direction sweeps through the beam axis (a
-#: stuck contact starting to slide along x); the fallback's F_x carries its model error, the
-#: proxy's friction share, which can be wrong by at most the friction the proxy can hold,
-#: sigma_B = mu_s P. Weighing the two by their inverse variances (minimum-variance combination of
-#: two independent estimates of F_x),
-#:
-#:     w_noise = sigma_B^2 / (sigma_B^2 + sigma_D^2),
-#:
-#: keeps the measured friction while the directional error is below the friction scale and lets
-#: the fallback take over where noise would dominate; w_noise is continuous (sigma_D is, away from
-#: the refused band the condition fade covers) and 1 without noise (the fade above is then all).
-#: sigma_D uses the model's ``signal_noise`` (rad rms on each angle): the loop's configured
-#: photodiode noise when it synthesises the signals (metadata ``haptics.signal_noise``; 0 declares
-#: noise-free signals), else DEFAULT_SIGNAL_NOISE. The decoupling status gets the NO_MOTION bit
-#: (fallback mixed in) where one of the two fades is below 1, as before, or where the noise makes
-#: the fallback the better estimate (sigma_D > sigma_B, w_noise < 1/2); a well-conditioned
-#: slide stays flagged 0, its w_noise ~ 1.
-#:
-#: Rms noise (rad) assumed on given signals of unknown noise: 1e-7 rad is ~30 pm of tip deflection
-#: on the demo's 450 um lever (z = 2 l theta / 3), a typical optical-lever detection floor at a
-#: kHz bandwidth; an over-estimate only moves the force towards the fallback, which reproduces
-#: the angles as well.
+#: Rms noise (rad) assumed on given signals of unknown noise (the measured force's ``signal_noise``,
+#: :data:`arsurf.force.decoupling.FADE_CONDITION`): 1e-7 rad is ~30 pm of tip deflection on the
+#: demo's 450 um lever (z = 2 l theta / 3), a typical optical-lever detection floor at a kHz
+#: bandwidth; an over-estimate only moves the force towards the fallback, which reproduces the
+#: angles as well. The loop's configured photodiode noise replaces it when the loop synthesises the
+#: signals (metadata ``haptics.signal_noise``; 0 declares noise-free signals).
 DEFAULT_SIGNAL_NOISE = 1e-7
-#: slot of the model's decoupling vector holding ``signal_noise`` (after the decoupling's own six)
-P_SIGNAL_NOISE = 6
 
 
 @njit(cache=True)
@@ -142,23 +129,71 @@ def model_tick_kernel(proj,                                              # Proje
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, bending, torsion, signal_mode,
-                      state, coll, dec, ev, out):
-    """One model tick for the target tip centre ``(cx, cy, cz)``; writes ``out`` (M_SIZE,) and
-    updates ``state`` (S_SIZE,). Returns the collision status (< 0: no answer; ``out`` then holds
-    zero forces). ``friction`` (6,) is the proxy parameter vector (``F_*`` offsets); ``coll``
-    (OUT_SIZE,), ``dec`` (8,) and ``ev`` (6, 3) are scratch arrays of the collision, the friction,
-    the decoupling and the second contact.
-
-    ``md_args`` is the contact vector of :meth:`ARModel.kernel_args`: the reference law, a
-    material map (:func:`~arsurf.contact.material_map.local_contact_kernel`) and scratch space,
-    one float64 array (:func:`~arsurf.contact.material_map.contact_vector`).
+                      state, coll, scratch, ev, out):
+    """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);
+    writes ``out`` (:data:`MODEL_OUT`) and updates ``state`` (:data:`MODEL_STATE`). Returns the
+    collision status (< 0: no answer; ``out`` then holds zero forces). ``md_args`` is the contact
+    vector (:func:`~arsurf.contact.material_map.contact_vector`: the reference law, a material map,
+    scratch space), ``dec_params`` the measured force's parameters
+    (:data:`~arsurf.force.decoupling.MEASURED_PARAMS`), ``friction`` the proxy's (:data:`PROXY_PARAMS`);
+    ``coll`` (:data:`~arsurf.contact.layout.COLLISION_OUT`), ``scratch`` (:data:`SCRATCH_SIZE`) and
+    ``ev`` (:data:`~arsurf.contact.newton.EVALUATION_ROWS`, 3) are scratch arrays.
 
     ``signal_mode``: SIGNALS_NONE (no measured force), SIGNALS_GIVEN (``bending``, ``torsion``
     are the measured angles, rad), SIGNALS_SYNTHESISED (the angles are made from the simulated
     force through the cantilever model, ``bending``/``torsion`` being the noise added to them).
     Out of contact (MD separated) there is no contact normal to decouple with: the measured force
-    is the classical reading F = (0, θ/c, α/g) (all bending taken as F_z), flagged
-    ``FALLBACK_DEGENERATE``."""
+    is the classical reading F = (0, θ/c, α/g), flagged ``FALLBACK_DEGENERATE``."""
+    _clear_output(out, cx, cy, cz)
+    prev_u, prev_v = state[S_HINT_U], state[S_HINT_V]
+    st = pj.collide_any(proj, cx, cy, cz, tip_radius, prev_u, prev_v, coll)  # 1. collide with the rest surface
+    out[M_COLLIDE_STATUS] = st
+    if st < 0:
+        _forget_contact(state)
+        return st
+    state[S_HINT_U], state[S_HINT_V] = coll[pj.OUT_U], coll[pj.OUT_V]
+    # the contact law where the tip touches: a material map's local E* and w, else the reference
+    md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
+    if local:
+        friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load)
+    # a valley narrower than the tip: blend in the slope it also rests on
+    w2, jumped = second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
+                                       SECOND_CONTACT_MARGIN * md[A_DEPTH_SCALE], state, S_SECOND, coll)
+    _copy_collision(coll, out)
+    nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
+    # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
+    md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
+    if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
+        zone = md_zone_radius(a, depth, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA])
+        d0 = int(md_args[H_DENT])
+        out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, out[M_TIP], out[M_TIP + 1],
+                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, nx, ny, nz, a,
+                                          depth, zone)
+    # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
+    sx, sy, strength, share_x, share_z = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state,
+                                                          scratch, out)
+    if signal_mode != SIGNALS_NONE:  # 4. measured force from the two angles
+        if signal_mode == SIGNALS_SYNTHESISED:  # the simulated force's angles (cantilever model) plus noise
+            bending = dec_params[P_BENDING_COMPLIANCE] * (out[M_SIM_FZ] + dec_params[P_COUPLING] * out[M_SIM_FX]) \
+                + bending
+            torsion = dec_params[P_TORSION_COMPLIANCE] * out[M_SIM_FY] + torsion
+        out[M_BENDING] = bending
+        out[M_TORSION] = torsion
+        if md_st == SEPARATED or md_st < 0:
+            ds = bending_only_kernel(bending, torsion, dec_params, scratch)
+        else:  # decoupled with the contact normal and the proxy's friction direction
+            ds = blended_decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, strength, share_x, share_z,
+                                         friction[F_MU_S] * load, dec_params, scratch)
+        out[M_DECOUPLE_STATUS] = ds
+        for j in range(3):
+            out[M_MEAS_FX + j] = scratch[_MEASURED + dc.O_FORCE + j]
+        out[M_CONDITION] = scratch[_MEASURED + dc.O_CONDITION]
+    return st
+
+
+@njit(cache=True)
+def _clear_output(out, cx, cy, cz):
+    """Zeros; no angles (NaN); the tip at the target."""
     for k in range(M_SIZE):
         out[k] = 0.0
     out[M_BENDING] = math.nan
@@ -166,58 +201,57 @@ def model_tick_kernel(proj,                                              # Proje
     out[M_TIP] = cx
     out[M_TIP + 1] = cy
     out[M_TIP + 2] = cz
-    prev_u = state[S_HINT_U]
-    prev_v = state[S_HINT_V]
-    st = pj.collide_any(proj, cx, cy, cz, tip_radius, prev_u, prev_v, coll)
-    out[M_COLLIDE_STATUS] = st
-    if st < 0:
-        state[S_TIP_DEPTH] = math.nan
-        state[S_SECOND] = math.nan
-        state[S_SECOND + 1] = math.nan
-        fr.release(state, S_FRICTION)
-        return st
-    state[S_HINT_U] = coll[pj.OUT_U]
-    state[S_HINT_V] = coll[pj.OUT_V]
-    # the contact law where the tip touches: a material map's local E* and w, else the reference
-    md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
-    if local:
-        f0 = int(md_args[H_FRICTION])
-        fl = md_args[f0:f0 + friction.size]
-        for k in range(friction.size):
-            fl[k] = friction[k]
-        fl[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
-        fl[F_JUMP_OUT] = jump_out
-        fl[F_ZERO_LOAD] = zero_load
-        friction = fl
-    # a valley narrower than the tip: blend in the slope it also rests on
-    w2, jumped = second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
-                                       SECOND_CONTACT_MARGIN * md[0], state, S_SECOND, coll)
-    nx = coll[pj.OUT_NX]
-    ny = coll[pj.OUT_NY]
-    nz = coll[pj.OUT_NZ]
-    px = coll[pj.OUT_PX]
-    py = coll[pj.OUT_PY]
-    pz = coll[pj.OUT_PZ]
-    out[M_PX] = px
-    out[M_PY] = py
-    out[M_PZ] = pz
-    out[M_NX] = nx
-    out[M_NY] = ny
-    out[M_NZ] = nz
+
+
+@njit(cache=True)
+def _forget_contact(state):
+    """No collision answer: no tip depth, no second contact, no friction anchor."""
+    state[S_TIP_DEPTH] = math.nan
+    state[S_SECOND] = math.nan
+    state[S_SECOND + 1] = math.nan
+    fr.release(state, S_FRICTION)
+
+
+@njit(cache=True)
+def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load):
+    """The proxy parameters under a material map's local law: the model's, with the local
+    tangential stiffness and the local jump-out and zero-load depths, written in the contact
+    vector's scratch section."""
+    f0 = int(md_args[H_FRICTION])
+    local = md_args[f0:f0 + friction.size]
+    for k in range(friction.size):
+        local[k] = friction[k]
+    local[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
+    local[F_JUMP_OUT] = jump_out
+    local[F_ZERO_LOAD] = zero_load
+    return local
+
+
+@njit(cache=True)
+def _copy_collision(coll, out):
+    """The collision's closest point, normal and (u, v) into the model output."""
+    for j in range(3):
+        out[M_PX + j] = coll[pj.OUT_PX + j]
+    for j in range(3):
+        out[M_NX + j] = coll[pj.OUT_NX + j]
     out[M_U] = coll[pj.OUT_U]
     out[M_V] = coll[pj.OUT_V]
-    # contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
-    target_depth = coll[pj.OUT_DEPTH]
+
+
+@njit(cache=True)
+def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state, out):
+    """Step 2: the Maugis-Dugdale contact of the tip behind the coupling, which sits
+    ``target_depth - depth`` out along the normal from the target; updates the hysteresis memory
+    and writes the tip, depth, radius, load and status. Returns ``(status, a, load, depth)``
+    (a = load = 0 for a failed solve)."""
     md_st, a, load, depth, coupled = coupled_depth_kernel(
         target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
-        friction[F_ZERO_LOAD], md[0], md[1], md[2], md[3], md[4], md[5])
-    lift = target_depth - depth  # the tip sits this far out along n from the target
-    tx = cx + lift * nx
-    ty = cy + lift * ny
-    tz = cz + lift * nz
-    out[M_TIP] = tx
-    out[M_TIP + 1] = ty
-    out[M_TIP + 2] = tz
+        friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
+        md[A_DELTA_FOLD])
+    lift = target_depth - depth
+    out[M_TIP] = cx + lift * out[M_NX]
+    out[M_TIP + 1] = cy + lift * out[M_NY]
+    out[M_TIP + 2] = cz + lift * out[M_NZ]
     out[M_COUPLED] = 1.0 if coupled else 0.0
     out[M_DISTANCE] = tip_radius - depth
     out[M_DEPTH] = depth
@@ -225,104 +259,47 @@ def model_tick_kernel(proj,                                              # Proje
     if md_st < 0:
         a = 0.0
         load = 0.0
-    interacting = md_st == MD_CONTACT or md_st == MD_COHESIVE
+    interacting = md_st == CONTACT or md_st == COHESIVE
     state[S_INTERACTING] = 1.0 if interacting else 0.0
     state[S_TIP_DEPTH] = depth if interacting else math.nan
     out[M_RADIUS] = a
     out[M_LOAD] = load
-    out[M_IN_CONTACT] = 1.0 if md_st == MD_CONTACT else 0.0
-    # record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
-    if deform:
-        r_dent = tip_radius if md_st == MD_CONTACT else 0.0
-        zone = md_zone_radius(a, depth, md[0], md[1], md[3])
-        d0 = int(md_args[H_DENT])
-        out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, tx, ty, tz, r_dent, nx, ny, nz, a, depth,
-                                          zone)
-    # simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
-    fx = load * nx
-    fy = load * ny
-    fz = load * nz
-    sx = 0.0
-    sy = 0.0
-    strength = 0.0
-    share_x = 0.0  # the proxy's friction along x and z per unit load (the fallback's beam-plane friction)
-    share_z = 0.0
-    if load > 0.0 and md_st == MD_CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
+    out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
+    return md_st, a, load, depth
+
+
+@njit(cache=True)
+def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratch, out):
+    """Step 4, simulated: F = P n + F_t, the friction of the stick-slip proxy
+    (:func:`~arsurf.contact.friction.stick_slip_kernel`) while in contact with a load and friction.
+    Returns what the measured force needs of the friction: its direction (x, y), strength and
+    components along x and z per unit load (zeros without friction)."""
+    fx = load * out[M_NX]
+    fy = load * out[M_NY]
+    fz = load * out[M_NZ]
+    sx = sy = strength = share_x = share_z = 0.0
+    if load > 0.0 and md_st == CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
         k_t = friction[F_KT_PER_A] * a
         kc = friction[F_COUPLING]
         if kc < math.inf:
             k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
-        slipped = fr.stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, friction[F_MU_S],
-                                       friction[F_MU_K], state, S_FRICTION, dec)
-        out[M_SLIPPING] = slipped
-        fx += dec[0]
-        fy += dec[1]
-        fz += dec[2]
-        sx = dec[3]
-        sy = dec[4]
-        strength = dec[6]
-        share_x = dec[0] / load
-        share_z = dec[2] / load
+        out[M_SLIPPING] = fr.stick_slip_kernel(out[M_PX], out[M_PY], out[M_PZ], out[M_NX], out[M_NY], out[M_NZ],
+                                               cx, cy, cz, jumped, load, k_t, friction[F_MU_S], friction[F_MU_K],
+                                               state, S_FRICTION, scratch)
+        fx += scratch[fr.O_FORCE]
+        fy += scratch[fr.O_FORCE + 1]
+        fz += scratch[fr.O_FORCE + 2]
+        sx = scratch[fr.O_DIRECTION]
+        sy = scratch[fr.O_DIRECTION + 1]
+        strength = scratch[fr.O_STRENGTH]
+        share_x = scratch[fr.O_FORCE] / load
+        share_z = scratch[fr.O_FORCE + 2] / load
     else:
         fr.release(state, S_FRICTION)
     out[M_SIM_FX] = fx
     out[M_SIM_FY] = fy
     out[M_SIM_FZ] = fz
-    # measured force from the two angles, decoupled with the contact normal
-    if signal_mode != SIGNALS_NONE:
-        g = dec_params[P_BENDING_COMPLIANCE]
-        c = dec_params[P_TORSION_COMPLIANCE]
-        if signal_mode == SIGNALS_SYNTHESISED:
-            bending = g * (fz + dec_params[P_COUPLING] * fx) + bending
-            torsion = c * fy + torsion
-        out[M_BENDING] = bending
-        out[M_TORSION] = torsion
-        if md_st == MD_SEPARATED or md_st < 0:
-            out[M_DECOUPLE_STATUS] = FALLBACK_DEGENERATE
-            out[M_MEAS_FX] = 0.0
-            out[M_MEAS_FY] = torsion / c
-            out[M_MEAS_FZ] = bending / g
-            out[M_CONDITION] = 1.0
-        else:
-            # directional solution (friction direction from the proxy) faded into the no-motion
-            # fallback as the friction weakens or the system loses conditioning; both reproduce
-            # the two measured angles exactly, so every blend does too
-            ds = decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, dec_params, dec[0:4])
-            w = 0.0
-            flag = False  # the fallback is reported (NO_MOTION) where a fade applies or it outweighs
-            if ds == 0:
-                w = min(max((strength - FADE_STRENGTH[0]) / (FADE_STRENGTH[1] - FADE_STRENGTH[0]), 0.0), 1.0)
-                w *= min(max(math.log(FADE_CONDITION[1] / dec[3]) / math.log(FADE_CONDITION[1] / FADE_CONDITION[0]),
-                             0.0), 1.0)
-                flag = w < 1.0
-                if w > 0.0:  # inverse-variance weight of the two F_x estimates (FADE_CONDITION comment)
-                    noise = dec_params[P_SIGNAL_NOISE]
-                    var_d = directional_noise_kernel(nx, ny, nz, sx, sy, dec_params, noise, noise) ** 2
-                    if var_d > 0.0:
-                        var_b = (friction[F_MU_S] * load) ** 2
-                        w *= var_b / (var_b + var_d)
-                        flag = flag or var_d > var_b
-            if w < 1.0:
-                d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, dec_params, dec[4:8])
-                den = nz + share_z + dec_params[P_COUPLING] * (nx + share_x)
-                if (share_x != 0.0 or share_z != 0.0) and d0 & FALLBACK_DEGENERATE == 0 \
-                        and abs(den) * dec_params[P_MAX_CONDITION] >= 1.0:
-                    big_n = bending / (dec_params[P_BENDING_COMPLIANCE] * den)
-                    dec[4] = big_n * (nx + share_x)
-                    dec[6] = big_n * (nz + share_z)
-                for j in range(3):
-                    dec[j] = w * dec[j] + (1.0 - w) * dec[4 + j]
-                if w == 0.0:
-                    ds = d0
-                    dec[3] = dec[7]
-                elif flag:
-                    ds |= NO_MOTION
-            out[M_DECOUPLE_STATUS] = ds
-            out[M_MEAS_FX] = dec[0]
-            out[M_MEAS_FY] = dec[1]
-            out[M_MEAS_FZ] = dec[2]
-            out[M_CONDITION] = dec[3]
-    return st
+    return sx, sy, strength, share_x, share_z
 
 
 @dataclass(frozen=True)
@@ -449,21 +426,24 @@ class ARModel:
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
         self._proj_args = proj.kernel_args()
-        # the decoupling's parameters, then the signal noise level (P_SIGNAL_NOISE)
+        # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level
         self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
-        self._friction = np.array([static, friction, fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
-                                   coupling_stiffness, contact.jump_out_depth(), float(contact.depth(0.0))])
+        self._friction = PROXY_PARAMS.pack({
+            "static_friction": static, "kinetic_friction": friction,
+            "stiffness_per_radius": fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
+            "coupling_stiffness": coupling_stiffness, "jump_out_depth": contact.jump_out_depth(),
+            "zero_load_depth": float(contact.depth(0.0))})
         self.material = material
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
         self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
         # validates the height-field rest net; the tick records its dent in the contact vector
         self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
-        self.state = np.empty(S_SIZE)
+        self.state = MODEL_STATE.full(np.nan)
         self._clear_state()
         self._coll = np.empty(pj.OUT_SIZE)
-        self._decout = np.empty(8)
-        self._ev = np.empty((6, 3))
+        self._scratch = np.empty(SCRATCH_SIZE)
+        self._ev = np.empty((EVALUATION_ROWS, 3))
         self.out = np.zeros(M_SIZE)
 
     def adhesion_energy(self) -> float:
@@ -499,8 +479,11 @@ class ARModel:
         the decoupling, tip radius, friction, deform, state and the scratch and output vectors.
         The arrays are the model's own (updated in place by every tick)."""
         live_ctrl, live_rest, ku, kv, patch = self._live
-        return (self._proj_args, live_ctrl, live_rest, ku, kv, patch, self._md_args, self._dec, self.tip_radius,
-                self._friction, self.deform, self.state, self._coll, self._decout, self._ev, self.out)
+        values = {"proj": self._proj_args, "live_ctrl": live_ctrl, "live_rest": live_rest, "ku": ku, "kv": kv,
+                  "patch": patch, "md_args": self._md_args, "dec_params": self._dec, "tip_radius": self.tip_radius,
+                  "friction": self._friction, "deform": self.deform, "model_state": self.state, "coll": self._coll,
+                  "dec": self._scratch, "ev": self._ev, "mout": self.out}
+        return tuple(values[name] for name in MODEL_ARGS)
 
     def tick(self, center, signals=None) -> np.ndarray:
         """Unchecked fast path: run the kernel, return the output vector (M_SIZE,) (reused)."""
@@ -515,7 +498,7 @@ class ARModel:
         model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
                           self._md_args, self._dec, self.tip_radius, self._friction, self.deform,
                           float(cx), float(cy), float(cz), float(b), float(t), mode, self.state, self._coll,
-                          self._decout, self._ev, self.out)
+                          self._scratch, self._ev, self.out)
         return self.out
 
     def step(self, center, signals=None) -> ModelTick:
@@ -532,7 +515,7 @@ class ARModel:
         o = self.tick(c, signals)
         if o[M_COLLIDE_STATUS] < 0:
             raise ContactError(f"collision failed with status {int(o[M_COLLIDE_STATUS])} "
-                               f"({pj.STATUS_TEXT.get(int(o[M_COLLIDE_STATUS]), '?')})")
+                               f"({TEXT.get(int(o[M_COLLIDE_STATUS]), '?')})")
         return self.record(o, have_signals=signals is not None)
 
     @staticmethod

@@ -17,8 +17,23 @@ name                 code   meaning
 ``NOT_CONVERGED``    -3     the solver did not meet its tolerance: no answer
 ===================  =====  =================================================================
 
-Kernels with their own *non-negative* results (Maugis-Dugdale returns the branch: 0 contact,
-1 cohesive, 2 separated) use only the negative codes of this table for their failures.
+Kernels with their own *non-negative* results use only the negative codes of this table for their
+failures. The contact-mechanics kernels (Maugis-Dugdale, and the virtual coupling and the model tick
+that call it) return the **branch** of the equilibrium curve they answered on
+(:class:`arsurf.contact.mechanics.Branch` is its enum):
+
+=============  =====  =========================================================================
+branch         code   meaning
+=============  =====  =========================================================================
+``CONTACT``    0      the surfaces touch over a disk of radius a >= 0
+``COHESIVE``   1      no contact (a = 0), but the adhesive (Dugdale) zone still pulls: tensile load
+``SEPARATED``  2      no interaction: radius 0, load 0
+=============  =====  =========================================================================
+
+A nano-object push (:mod:`arsurf.manipulation.nanotube`) answers with a caveat code of the first
+table's kind: ``PUSH_OK`` (0), ``PUSH_SUBSTEP_CAP`` (1, the displacement needed more sub-steps than
+allowed: coarser but still valid), ``PUSH_FALLBACK`` (2, the model's motion family could not clear
+the tip: cleared by translation); :data:`PUSH_NAMES` names them in results.
 
 The stages of the haptic loop (position scaling, coupling, safety) return **flag bits**; each bit
 means one thing wherever it appears, so the words of several stages can be OR-ed and read with
@@ -50,12 +65,16 @@ Examples
 'non-finite data or input'
 >>> sorted(TEXT) == [-3, -2, -1, 0, 1, 2]
 True
+>>> BRANCH_NAMES[SEPARATED]
+'separated'
 """
 from __future__ import annotations
 
-__all__ = ["BAD_BUTTONS", "BAD_INPUT", "CLAMPED", "CLUTCHED", "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT",
-           "MASTER_OUTSIDE", "NONFINITE", "PASSIVITY", "NON_FINITE", "NOT_CONVERGED", "OK", "RAMPING", "RATE_LIMITED", "SATURATED",
-           "STALE", "TEXT", "WATCHDOG", "flag_names"]
+__all__ = ["BAD_BUTTONS", "BAD_INPUT", "BRANCH_NAMES", "CLAMPED", "CLUTCHED", "COHESIVE", "CONTACT",
+           "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT", "MASTER_OUTSIDE", "NONFINITE",
+           "NON_FINITE", "NOT_CONVERGED", "OK", "PASSIVITY", "PUSH_FALLBACK", "PUSH_NAMES", "PUSH_OK",
+           "PUSH_SUBSTEP_CAP", "RAMPING", "RATE_LIMITED", "SATURATED", "SEPARATED", "STALE", "TEXT",
+           "WATCHDOG", "flag_names"]
 
 OK = 0
 ITERATION_LIMIT = 1
@@ -70,9 +89,23 @@ TEXT = {
     ITERATION_LIMIT: "iteration limit reached (best point returned)",
     DEGENERATE: "degenerate geometry (fallback used)",
     NON_FINITE: "non-finite data or input",
-    BAD_INPUT: "input outside its domain",
+    BAD_INPUT: "input outside its domain (e.g. a non-finite point or a radius <= 0)",
     NOT_CONVERGED: "solver did not converge",
 }
+
+# branches of the contact-mechanics kernels (their non-negative results)
+CONTACT = 0
+COHESIVE = 1
+SEPARATED = 2
+#: the branches' names, by code
+BRANCH_NAMES = ("contact", "cohesive", "separated")
+
+# codes of a nano-object push
+PUSH_OK = OK
+PUSH_SUBSTEP_CAP = 1
+PUSH_FALLBACK = 2
+#: the push codes' names, by code
+PUSH_NAMES = {PUSH_OK: "ok", PUSH_SUBSTEP_CAP: "substep_cap", PUSH_FALLBACK: "fallback"}
 
 # flag bits of the haptic-loop stages
 SATURATED = 1

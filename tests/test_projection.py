@@ -22,6 +22,7 @@ from reference import DenseSampling, brute_force, polish  # noqa: F401 (re-expor
 
 from arsurf.contact import closest_point as cp
 from arsurf.contact import hull_tree as cd
+from arsurf import status
 from arsurf.contact import projection as pj
 from arsurf.contact.newton import newton_box
 from arsurf.contact.projection import collide, collide_many, project, project_many, projector, refresh_region
@@ -125,7 +126,7 @@ def test_tilted_plane_is_exact_inside_and_at_the_boundary(rng):
     interior = ~res.on_boundary
     signed = (pts - [0, 0, c]) @ n - 0.0  # plane through (0, 0, c): n . (C - (0, 0, c))
     np.testing.assert_allclose(res.distance[interior], signed[interior], rtol=0, atol=1e-18)
-    assert np.all(res.converged) and np.all(res.status == pj.STATUS_OK)
+    assert np.all(res.converged) and np.all(res.status == status.OK)
 
 
 K_PARABOLA = 1.0 / (2 * 12e-9)  # apex curvature radius 12 nm
@@ -308,7 +309,7 @@ def test_degenerate_normal_is_flagged():
     c = apex + [-3e-9, 0.0, 0.5e-9]
     p = project(cone, c)
     np.testing.assert_allclose(p.point, apex, atol=1e-18)
-    assert p.status == pj.STATUS_DEGENERATE and p.on_boundary
+    assert p.status == status.DEGENERATE and p.on_boundary
     np.testing.assert_allclose(p.normal, (c - apex) / np.linalg.norm(c - apex), atol=1e-9)
     assert p.distance == pytest.approx(np.linalg.norm(c - apex), rel=1e-12)
 
@@ -516,16 +517,16 @@ def test_nan_control_points_are_reported():
         project(live, (5e-9, 5e-9, 3e-9))
     out = np.empty(pj.OUT_SIZE)
     assert pj.collide_kernel(*projector(live).kernel_args(), 5e-9, 5e-9, 3e-9, 1e-9, np.nan, np.nan,
-                             out) == pj.STATUS_NON_FINITE
+                             out) == status.NON_FINITE
 
 
 def test_kernel_status_for_bad_scalars():
     s = fit_surface(rough_scan(12))
     args = projector(s).kernel_args()
     out = np.empty(pj.OUT_SIZE)
-    assert pj.collide_kernel(*args, np.nan, 0.0, 0.0, 1e-9, np.nan, np.nan, out) == pj.STATUS_BAD_INPUT
-    assert pj.collide_kernel(*args, 0.0, 0.0, 0.0, 0.0, np.nan, np.nan, out) == pj.STATUS_BAD_INPUT
-    assert pj.collide_kernel(*args, 0.0, 0.0, 0.0, np.inf, np.nan, np.nan, out) == pj.STATUS_BAD_INPUT
+    assert pj.collide_kernel(*args, np.nan, 0.0, 0.0, 1e-9, np.nan, np.nan, out) == status.BAD_INPUT
+    assert pj.collide_kernel(*args, 0.0, 0.0, 0.0, 0.0, np.nan, np.nan, out) == status.BAD_INPUT
+    assert pj.collide_kernel(*args, 0.0, 0.0, 0.0, np.inf, np.nan, np.nan, out) == status.BAD_INPUT
 
 
 # --------------------------------------------------------------------------------------------

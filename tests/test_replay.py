@@ -12,7 +12,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from arsurf.cli import main, prepare_scan
+from arsurf.cli import main
+from arsurf.scan.prepare import prepare_scan
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.errors import MissingDependency, RenderingUnavailable, ScanFileNotFound, SessionError
 from arsurf.force.cantilever import Cantilever

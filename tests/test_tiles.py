@@ -9,6 +9,7 @@ from scipy.ndimage import gaussian_filter
 from test_projection import TOL, ridges_scan, steps_scan, trench_scan
 
 from arsurf.assembly import make_model
+from arsurf import status
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import Deformer
 from arsurf.contact.projection import Projector, TiledProjector, collide_many, project_many
@@ -52,7 +53,7 @@ def _same(a, b):
     converged, and the same point wherever the answer is not a tie."""
     da, db = np.abs(a[:, pj.OUT_DISTANCE]), np.abs(b[:, pj.OUT_DISTANCE])
     assert np.all(db <= da + TOL)
-    converged = a[:, pj.OUT_STATUS] == pj.STATUS_OK
+    converged = a[:, pj.OUT_STATUS] == status.OK
     assert np.max(np.abs(da - db)[converged]) <= TOL
     gap = np.linalg.norm(a[:, pj.OUT_PX:pj.OUT_PX + 3] - b[:, pj.OUT_PX:pj.OUT_PX + 3], axis=1)
     ties = (gap > TOL) & converged
@@ -128,7 +129,7 @@ def test_nan_control_points_are_reported_not_searched():
     x, y = bad.evaluate(10e-9, 10e-9)[:2]
     assert pj.collide_any(t.kernel_args(), x, y, 1e-9, 1e-8, np.nan, np.nan, out) == 0  # far from the NaN: fine
     x, y = ctrl[20, 20, :2]
-    assert pj.collide_any(t.kernel_args(), x, y, 1e-9, 1e-8, np.nan, np.nan, out) == pj.STATUS_NON_FINITE
+    assert pj.collide_any(t.kernel_args(), x, y, 1e-9, 1e-8, np.nan, np.nan, out) == status.NON_FINITE
 
 
 def test_large_surfaces_get_a_tiled_projector_and_the_python_api_uses_it(monkeypatch):

@@ -622,7 +622,8 @@ def test_the_cli_refuses_a_bad_recording_setup_before_anything_runs(capsys, tmp_
 
 
 def test_the_cli_makes_an_owner_only_key_file(tmp_path, capsys):
-    from arsurf.cli import _bridge_setup, build_parser
+    from arsurf.cli import build_parser
+    from arsurf.cli.view import _bridge_setup
 
     args = build_parser().parse_args(["view", "--bridge-port", "0"])
     b = _bridge_setup(args)

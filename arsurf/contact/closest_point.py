@@ -71,6 +71,7 @@ import numpy as np
 from numba import njit
 from numba.extending import overload
 
+from arsurf._layout import Layout
 from arsurf.contact.hull_tree import (
     HI_N, LO_N, LO_T, RHO, TREE_ID, VERSION, refresh_region_kernel, box_offsets, cell_certified, cell_net, curvature_radius,
     extents_bounds2, net_curvature, net_extents, net_split, node_bounds2, node_distance2, signed_convex,
@@ -78,11 +79,12 @@ from arsurf.contact.hull_tree import (
 from arsurf.contact.layout import (
     BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
     OUT_CACHED, OUT_CELLS, OUT_CONVERGED, OUT_DEPTH, OUT_DISTANCE, OUT_ITERATIONS, OUT_NX, OUT_NY, OUT_NZ,
-    OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, OUT_WARM_U, OUT_WARM_V, STACK_ROWS, STATUS_BAD_INPUT,
-    STATUS_DEGENERATE, STATUS_NON_FINITE, STATUS_NOT_CONVERGED, STATUS_OK, SUB_BASE, SUB_CAP, SUB_ENTRY,
+    OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, OUT_WARM_U, OUT_WARM_V, STACK_ROWS, SUB_BASE,
+    SUB_CAP, SUB_ENTRY,
 )
 from arsurf.contact.newton import MAX_ITER_CELL, MAX_ITER_DOMAIN, STEP_TOL, _clip, newton_box
 from arsurf.spline.basis import find_span, surface_point
+from arsurf.status import BAD_INPUT, DEGENERATE, ITERATION_LIMIT, NON_FINITE, OK
 
 # A box must beat the best squared distance by this factor to be searched: a cell that could
 # only be closer by a relative 5e-13 (< 1e-20 m at nm distances) is not worth a Newton run, and
@@ -308,14 +310,14 @@ def _finish(ev, cx, cy, cz, u, v, out):
     dist = math.sqrt(wx * wx + wy * wy + wz * wz)
     # degenerate when |S_u x S_v| is rounding noise next to the longer tangent (a collapsed edge)
     scale = max(sux * sux + suy * suy + suz * suz, svx * svx + svy * svy + svz * svz)
-    status = STATUS_OK
+    status = OK
     if nn > 1e-12 * scale and nn > 0.0:
         nx /= nn
         ny /= nn
         nz /= nn
         signed = dist if (wx * nx + wy * ny + wz * nz) >= 0.0 else -dist
     else:
-        status = STATUS_DEGENERATE
+        status = DEGENERATE
         signed = dist
         if dist > 0.0:
             nx, ny, nz = wx / dist, wy / dist, wz / dist
@@ -331,7 +333,7 @@ def _finish(ev, cx, cy, cz, u, v, out):
     out[OUT_NZ] = nz
     out[OUT_DISTANCE] = signed
     if not (signed - signed == 0.0 and nx - nx == 0.0 and ny - ny == 0.0 and nz - nz == 0.0):
-        return STATUS_NON_FINITE
+        return NON_FINITE
     return status
 
 
@@ -433,8 +435,8 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     version and invalidates the list.
     """
     if not (cx - cx == 0.0 and cy - cy == 0.0 and cz - cz == 0.0):
-        out[OUT_STATUS] = STATUS_BAD_INPUT
-        return STATUS_BAD_INPUT
+        out[OUT_STATUS] = BAD_INPUT
+        return BAD_INPUT
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
     lo_u = ku[3]
@@ -597,9 +599,9 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     out[OUT_BOUNDARY] = 1.0 if (bu <= lo_u or bu >= hi_u or bv <= lo_v or bv >= hi_v) else 0.0
     status = _finish(work[BEST_ROW:BEST_ROW + 3], cx, cy, cz, bu, bv, out)
     if nonfinite:
-        status = STATUS_NON_FINITE
-    elif status == STATUS_OK and not bconv:
-        status = STATUS_NOT_CONVERGED
+        status = NON_FINITE
+    elif status == OK and not bconv:
+        status = ITERATION_LIMIT
     out[OUT_STATUS] = status
     return status
 
@@ -609,24 +611,29 @@ def collide_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     """Tip sphere (centre, radius) against the surface: :func:`project_kernel` plus the depth.
 
     Writes ``out[OUT_DEPTH] = radius - out[OUT_DISTANCE]`` (> 0: penetration). Returns the status
-    (``STATUS_BAD_INPUT`` for a non-finite centre or radius <= 0). For the haptic-loop kernel:
+    (``BAD_INPUT`` for a non-finite centre or radius <= 0). For the haptic-loop kernel:
     call it with the arrays of :meth:`Projector.kernel_args` and the last ``out[OUT_U]``,
     ``out[OUT_V]`` as the hint.
     """
     if not (radius > 0.0 and radius - radius == 0.0):
-        out[OUT_STATUS] = STATUS_BAD_INPUT
-        return STATUS_BAD_INPUT
+        out[OUT_STATUS] = BAD_INPUT
+        return BAD_INPUT
     status = project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out)
     out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
     return status
 
 
 # --- tiles: the hull-box pyramid built lazily, tile by tile ------------------------------------
-# grid (int64) fields of a tiled projector
-G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS, G_USED, G_CLOCK, G_BUILDS = range(9)
-G_SIZE = 9
-# slot_info (int64) columns: the tile a slot holds, its pyramid depth, when it was last used
-SI_TI, SI_TJ, SI_LEVELS, SI_USED = range(4)
+#: the grid (int64) of a tiled projector: the tile size (cells), the tiles along u and v, the cells
+#: along u and v, the slots, the slots in use, the use clock, the tile builds so far
+TILE_GRID = Layout("tile grid", [("tile", 1), ("tiles_u", 1), ("tiles_v", 1), ("cells_u", 1), ("cells_v", 1),
+                                 ("slots", 1), ("used", 1), ("clock", 1), ("builds", 1)])
+G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS, G_USED, G_CLOCK, G_BUILDS = (TILE_GRID.offset(f) for f in TILE_GRID.fields)
+G_SIZE = TILE_GRID.size
+#: slot_info (int64) columns: the tile a slot holds (i, j), its pyramid depth, when it was last used
+SLOT_INFO = Layout("tile slot columns", [("tile", 2), ("levels", 1), ("used", 1)])
+SI_TI, SI_LEVELS, SI_USED = SLOT_INFO.offset("tile"), SLOT_INFO.offset("levels"), SLOT_INFO.offset("used")
+SI_TJ = SI_TI + 1
 
 
 @njit(cache=True)
@@ -745,8 +752,8 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
     result is ``out`` as for :func:`project_kernel` (iterations and cells summed over tiles).
     """
     if not (cx - cx == 0.0 and cy - cy == 0.0 and cz - cz == 0.0):
-        out[OUT_STATUS] = STATUS_BAD_INPUT
-        return STATUS_BAD_INPUT
+        out[OUT_STATUS] = BAD_INPUT
+        return BAD_INPUT
     grid[G_CLOCK] += 1
     t = grid[G_TILE]
     nti = grid[G_NTI]
@@ -759,7 +766,7 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
     ti0 = ci // t
     tj0 = cj // t
     best = np.inf
-    status = STATUS_OK
+    status = OK
     iters = 0.0
     cells = 0.0
     r = 0
@@ -777,8 +784,8 @@ def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
                     s = build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid,
                                    tile_slot, slot_info, ti, tj)
                     if s < 0:
-                        out[OUT_STATUS] = STATUS_NON_FINITE
-                        return STATUS_NON_FINITE
+                        out[OUT_STATUS] = NON_FINITE
+                        return NON_FINITE
                 slot_info[s, SI_USED] = grid[G_CLOCK]
                 nlev = slot_info[s, SI_LEVELS]
                 nn = plevels[s, nlev - 1, 0] + 1
@@ -845,8 +852,8 @@ def tiled_collide_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, pr
                          slot_info, tmp, cx, cy, cz, radius, hint_u, hint_v, out):
     """:func:`collide_kernel` on a tiled projector (:func:`tiled_project_kernel`)."""
     if not (radius > 0.0 and radius - radius == 0.0):
-        out[OUT_STATUS] = STATUS_BAD_INPUT
-        return STATUS_BAD_INPUT
+        out[OUT_STATUS] = BAD_INPUT
+        return BAD_INPUT
     status = tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack,
                                   tile_slot, slot_info, tmp, cx, cy, cz, hint_u, hint_v, out)
     out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
@@ -899,7 +906,7 @@ def project_batch_kernel(proj, points, hints, chain, radius, out):
     ``points`` (n, 3); ``hints`` (n, 2) (NaN rows = cold) or (0, 2); ``chain`` warm-starts each
     query from the previous answer (trajectories). ``radius`` > 0 fills the depth column.
     ``out`` (n, OUT_SIZE). Returns the worst (lowest) status."""
-    worst = STATUS_OK
+    worst = OK
     hu = np.nan
     hv = np.nan
     for k in range(points.shape[0]):

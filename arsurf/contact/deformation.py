@@ -85,6 +85,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ContactError
 from arsurf.spline.surface import BSplineSurface
 
@@ -94,6 +95,10 @@ DEFORM_NO_PATCH = 1  # the tip is outside the net's footprint: nothing to move
 
 #: radii of the per-tick profile table (uniform in sqrt(rho^2 - a^2)): the scratch array's length
 PROFILE_SIZE = 32
+#: the dented patch of the control net (int64): control-point rows [i0, i1) and columns [j0, j1)
+DENT_PATCH = Layout("dent patch", [("rows", 2), ("columns", 2)])
+_I0, _J0 = DENT_PATCH.offset("rows"), DENT_PATCH.offset("columns")
+_I1, _J1 = _I0 + 1, _J0 + 1
 #: the contact zone is put on the sphere up to a = SPHERE_LIMIT R; a wider contact (far beyond
 #: small strain, where the sphere turns vertical) follows the contact's own paraboloid
 SPHERE_LIMIT = 0.9
@@ -319,7 +324,7 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     """
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
-    o0, o1, p0, p1 = patch[0], patch[1], patch[2], patch[3]
+    o0, o1, p0, p1 = patch[_I0], patch[_I1], patch[_J0], patch[_J1]
     i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, cx, cy, radius, contact_radius)
     # 1. the previous box outside the new one back to rest
     for i in range(o0, o1):
@@ -329,10 +334,10 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
                 continue
             for c in range(3):
                 ctrl[i, j, c] = rest[i, j, c]
-    patch[0] = i0
-    patch[1] = i1
-    patch[2] = j0
-    patch[3] = j1
+    patch[_I0] = i0
+    patch[_I1] = i1
+    patch[_J0] = j0
+    patch[_J1] = j1
     if i0 >= i1:
         return 0
     a = contact_radius if contact_radius > 0.0 else 0.0
@@ -411,9 +416,13 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
 
 # The dent as the tick records it (DENT vector, float64): the tick writes these numbers, O(1)
 # whatever the pitch, and the net is moved to them when it is read (Deformer.sync)
-D_SEQ, D_CX, D_CY, D_CZ, D_RADIUS, D_NX, D_NY, D_NZ, D_A, D_DEPTH, D_ZONE = range(11)
+DENT = Layout("recorded dent", [("seq", 1), ("center", 3), ("radius", 1), ("normal", 3), ("contact_radius", 1),
+                                 ("depth", 1), ("zone_radius", 1)])
+D_SEQ, D_CX, D_RADIUS, D_NX = DENT.offset("seq"), DENT.offset("center"), DENT.offset("radius"), DENT.offset("normal")
+D_CY, D_CZ, D_NY, D_NZ = D_CX + 1, D_CX + 2, D_NX + 1, D_NX + 2
+D_A, D_DEPTH, D_ZONE = DENT.offset("contact_radius"), DENT.offset("depth"), DENT.offset("zone_radius")
 #: length of the recorded dent (:func:`record_dent_kernel`)
-DENT_SIZE = 11
+DENT_SIZE = DENT.size
 
 
 @njit(cache=True)
@@ -495,7 +504,7 @@ class Deformer:
                 "build it with arsurf.fit_surface or BSplineSurface.from_heights"
             )
         self.surface = surface
-        self.patch = np.zeros(4, dtype=np.int64)
+        self.patch = np.zeros(DENT_PATCH.size, dtype=np.int64)
         self.profile = np.zeros(PROFILE_SIZE)
         self._record = np.zeros(DENT_SIZE) if record is None else record
         self._at = int(at)

@@ -57,9 +57,21 @@ import math
 
 from numba import njit
 
-#: state layout (offsets into the state vector given to :func:`stick_slip_kernel`)
-ANCHOR, SLIPPING, LAST_POINT, LAST_CENTER = 0, 3, 4, 7
-STATE_SIZE = 10
+from arsurf._layout import Layout
+
+#: the proxy's state (m; the slip flag 0 or 1), part of the state vector given to
+#: :func:`stick_slip_kernel` (at an offset)
+FRICTION_STATE = Layout("friction state", [("anchor", 3), ("slipping", 1), ("last_point", 3), ("last_center", 3)])
+#: what :func:`stick_slip_kernel` writes: the friction force on the tip (N), the friction direction
+#: (unit: the tip's motion over the surface; zeros: none), the strength |F_t| / mu_k P
+FRICTION_OUT = Layout("friction output", [("force", 3), ("direction", 3), ("strength", 1)])
+# the offsets as the kernel uses them
+ANCHOR, SLIPPING = FRICTION_STATE.offset("anchor"), FRICTION_STATE.offset("slipping")
+LAST_POINT, LAST_CENTER = FRICTION_STATE.offset("last_point"), FRICTION_STATE.offset("last_center")
+STATE_SIZE = FRICTION_STATE.size
+O_FORCE, O_DIRECTION, O_STRENGTH = (FRICTION_OUT.offset("force"), FRICTION_OUT.offset("direction"),
+                                    FRICTION_OUT.offset("strength"))
+OUT_SIZE = FRICTION_OUT.size
 #: the contact point jumped when it moved more than this many times the tip centre's move ...
 JUMP_RATIO = 10.0
 #: ... plus this (m): far below the moves of a contact point sliding with the tip
@@ -85,11 +97,11 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_
     ``jumped`` True when the closest point is known to have changed basins this tick (a jump
     whatever the two moves), ``load`` P (N, > 0), ``k_t`` tangential stiffness
     (N/m, > 0), friction coefficients ``mu_s >= mu_k >= 0``; ``state[at:at + STATE_SIZE]`` (updated).
-    Writes ``out[0:3]`` the friction force on the tip (N), ``out[3:6]`` the friction direction
-    (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and
-    ``out[6]`` the strength :math:`\lVert F_t\rVert / \mu_k P` (1 when slipping). Returns 1 when
-    the contact slipped this tick, else 0."""
-    for j in range(7):
+    Writes ``out`` (:data:`FRICTION_OUT`): the friction force on the tip (N), the friction direction
+    (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and the
+    strength :math:`\lVert F_t\rVert / \mu_k P` (1 when slipping). Returns 1 when the contact
+    slipped this tick, else 0."""
+    for j in range(OUT_SIZE):
         out[j] = 0.0
     lp = at + LAST_POINT
     lc = at + LAST_CENTER
@@ -125,15 +137,15 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_
     mu = mu_k if state[at + SLIPPING] > 0.5 else mu_s
     limit = mu * load
     if k_t * d <= limit or d == 0.0:
-        out[0] = -k_t * dx
-        out[1] = -k_t * dy
-        out[2] = -k_t * dz
+        out[O_FORCE] = -k_t * dx
+        out[O_FORCE + 1] = -k_t * dy
+        out[O_FORCE + 2] = -k_t * dz
         state[at + SLIPPING] = 0.0
         if d > 0.0:
-            out[3] = dx / d
-            out[4] = dy / d
-            out[5] = dz / d
-            out[6] = k_t * d / (mu_k * load) if mu_k > 0.0 else 0.0
+            out[O_DIRECTION] = dx / d
+            out[O_DIRECTION + 1] = dy / d
+            out[O_DIRECTION + 2] = dz / d
+            out[O_STRENGTH] = k_t * d / (mu_k * load) if mu_k > 0.0 else 0.0
         return 0
     ux = dx / d
     uy = dy / d
@@ -144,11 +156,11 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_
     state[at + ANCHOR + 1] = py - back * uy
     state[at + ANCHOR + 2] = pz - back * uz
     state[at + SLIPPING] = 1.0
-    out[0] = -fk * ux
-    out[1] = -fk * uy
-    out[2] = -fk * uz
-    out[3] = ux
-    out[4] = uy
-    out[5] = uz
-    out[6] = 1.0
+    out[O_FORCE] = -fk * ux
+    out[O_FORCE + 1] = -fk * uy
+    out[O_FORCE + 2] = -fk * uz
+    out[O_DIRECTION] = ux
+    out[O_DIRECTION + 1] = uy
+    out[O_DIRECTION + 2] = uz
+    out[O_STRENGTH] = 1.0
     return 1

@@ -42,16 +42,25 @@ import math
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import SurfaceError
 from arsurf.spline.basis import cubic_basis
 
-# columns of a node row: normal n, tangent t, the intervals along t, s = n x t, n, and the
-# convexity radius (D is convex on the node's patches for every C within RHO of all of it)
-N0, N1, N2, T0, T1, T2, LO_T, HI_T, LO_S, HI_S, LO_N, HI_N, RHO = range(13)
-NODE_SIZE = 13
+#: columns of a node row: normal n, tangent t, the intervals (lo, hi) along t, s = n x t and n,
+#: and the convexity radius (D is convex on the node's patches for every C within it of all of it)
+NODE_COLUMNS = Layout("hull node columns", [("normal", 3), ("tangent", 3), ("t_interval", 2), ("s_interval", 2),
+                                            ("n_interval", 2), ("convexity_radius", 1)])
+N0, T0 = NODE_COLUMNS.offset("normal"), NODE_COLUMNS.offset("tangent")
+N1, N2, T1, T2 = N0 + 1, N0 + 2, T0 + 1, T0 + 2
+LO_T, LO_S = NODE_COLUMNS.offset("t_interval"), NODE_COLUMNS.offset("s_interval")
+LO_N = NODE_COLUMNS.offset("n_interval")
+HI_T, HI_S, HI_N = LO_T + 1, LO_S + 1, LO_N + 1
+RHO = NODE_COLUMNS.offset("convexity_radius")
+NODE_SIZE = NODE_COLUMNS.size
 # the row after the last node holds (version, tree id): every refresh bumps the version, so a
 # query's cached candidate list (arsurf.contact.closest_point) knows when the boxes changed
-VERSION, TREE_ID = 0, 1
+TREE_HEADER = Layout("hull tree header row", [("version", 1), ("tree_id", 1)])
+VERSION, TREE_ID = TREE_HEADER.offset("version"), TREE_HEADER.offset("tree_id")
 _TREE_IDS = iter(range(1, 2**52))
 
 

@@ -1,58 +1,65 @@
-"""Layouts of the closest-point kernels: the output vector, the status codes, the work array.
+"""Layouts of the closest-point kernels: the output vector and the rows of the work array.
 
 Shared by :mod:`arsurf.contact.closest_point` (the kernels that write them) and
-:mod:`arsurf.contact.projection` (the Python API that reads them).
+:mod:`arsurf.contact.projection` (the Python API that reads them). The status a kernel returns
+(and stores at ``OUT_STATUS``) is a code of :mod:`arsurf.status`: ``OK``; ``ITERATION_LIMIT`` (the
+best point found is returned); ``DEGENERATE`` (S_u x S_v vanishes at the answer: the normal is taken
+along C - S, or +z); ``NON_FINITE`` (NaN/inf met in the control net: no answer); ``BAD_INPUT``
+(a non-finite query point or a radius <= 0, checked in the kernel).
 """
 from __future__ import annotations
 
-from arsurf import status
+from arsurf._layout import Layout
+from arsurf.contact.newton import EVALUATION_ROWS
 
-# --- kernel constants ---------------------------------------------------------------------------
-# layout of the output vector written by the kernels (float64, OUT_SIZE)
-OUT_U, OUT_V = 0, 1
-OUT_PX, OUT_PY, OUT_PZ = 2, 3, 4
-OUT_NX, OUT_NY, OUT_NZ = 5, 6, 7
-OUT_DISTANCE = 8      # signed distance of C, metres (> 0 above)
-OUT_DEPTH = 9         # R - distance (collide only), metres
-OUT_ITERATIONS = 10   # Newton iterations summed over all runs of the query
-OUT_CELLS = 11        # knot cells whose hull box survived the bound (Newton-checked or skipped)
-OUT_CONVERGED = 12    # 1.0 if the Newton run that produced the answer converged
-OUT_BOUNDARY = 13     # 1.0 if the closest point lies on the domain boundary
-OUT_STATUS = 14
-OUT_CACHED = 15       # 1.0 if the warm-start candidate list was used instead of the pyramid
-OUT_WARM_U, OUT_WARM_V = 16, 17  # where Newton from the hint converged, over the whole domain (NaN: not known)
-OUT_SIZE = 18
-
-# status codes (returned by the kernels and stored at OUT_STATUS; the table is arsurf.status)
-STATUS_OK = status.OK
-STATUS_NOT_CONVERGED = status.ITERATION_LIMIT  # iteration limit hit: the answer is the best point found
-STATUS_DEGENERATE = status.DEGENERATE  # S_u x S_v vanishes at the answer: normal taken along C - S (or +z)
-STATUS_NON_FINITE = status.NON_FINITE  # NaN/inf met in the control net: no answer
-STATUS_BAD_INPUT = status.BAD_INPUT  # non-finite query point or radius <= 0 (kernel-level check)
-
-STATUS_TEXT = {
-    STATUS_OK: "converged",
-    STATUS_NOT_CONVERGED: "iteration limit reached; best point found returned",
-    STATUS_DEGENERATE: "surface normal undefined (S_u x S_v = 0) at the closest point",
-    STATUS_NON_FINITE: "the control net holds NaN/inf",
-    STATUS_BAD_INPUT: "non-finite query point or non-positive radius",
-}
+#: the output vector the kernels write (float64): parameters (u, v); the closest point and the unit
+#: normal; the signed distance of C (m, > 0 above); R - distance (collide only, m); Newton iterations
+#: summed over all runs of the query; knot cells whose hull box survived the bound (Newton-checked or
+#: skipped); 1.0 if the Newton run that produced the answer converged; 1.0 if the closest point lies
+#: on the domain boundary; the status; 1.0 if the warm-start candidate list was used instead of the
+#: pyramid; where Newton from the hint converged, over the whole domain (NaN: not known)
+COLLISION_OUT = Layout("collision output", [
+    ("uv", 2), ("point", 3), ("normal", 3), ("distance", 1), ("depth", 1), ("iterations", 1), ("cells", 1),
+    ("converged", 1), ("boundary", 1), ("status", 1), ("cached", 1), ("warm_uv", 2)])
+# the offsets as the kernels use them
+OUT_U = COLLISION_OUT.offset("uv")
+OUT_V = OUT_U + 1
+OUT_PX = COLLISION_OUT.offset("point")
+OUT_PY, OUT_PZ = OUT_PX + 1, OUT_PX + 2
+OUT_NX = COLLISION_OUT.offset("normal")
+OUT_NY, OUT_NZ = OUT_NX + 1, OUT_NX + 2
+OUT_DISTANCE = COLLISION_OUT.offset("distance")
+OUT_DEPTH = COLLISION_OUT.offset("depth")
+OUT_ITERATIONS = COLLISION_OUT.offset("iterations")
+OUT_CELLS = COLLISION_OUT.offset("cells")
+OUT_CONVERGED = COLLISION_OUT.offset("converged")
+OUT_BOUNDARY = COLLISION_OUT.offset("boundary")
+OUT_STATUS = COLLISION_OUT.offset("status")
+OUT_CACHED = COLLISION_OUT.offset("cached")
+OUT_WARM_U = COLLISION_OUT.offset("warm_uv")
+OUT_WARM_V = OUT_WARM_U + 1
+OUT_SIZE = COLLISION_OUT.size
 
 # Cells whose convexity certificate fails (C farther from them than their convexity radius) are
 # split into Bézier quarters, each pruned by its own box and certificate, down to this depth.
 MAX_SUBDIVISION = 3
-# work array rows: 0..5 the (6, 3) evaluation block; 6..8 S, S_u, S_v of the best point; 9..11
-# the cache header; 12..27 a Bézier net being split; the subdivision stack (16 net rows + 2 rows
-# (u0, u1, v0), (v1, depth, -) per entry); the cache list; the pyramid search stack.
 # Warm queries keep the cells within d* + CACHE_MARGIN h of the tip centre in a list (at most
 # CACHE_CAP cells) and reuse it while the tip stays inside that margin (project_kernel, Notes).
 CACHE_MARGIN = 0.5
 CACHE_CAP = 512
-BEST_ROW = 6
-CACHE_ROW = 9     # (version, tree id, count), (C0), (R0, -, -)
-NET_TMP = 12
-SUB_BASE = NET_TMP + 16
+#: rows of a subdivision stack entry: the 16 net rows and (u0, u1, v0), (v1, depth, -)
 SUB_ENTRY = 18
 SUB_CAP = 3 * MAX_SUBDIVISION + 1
-CACHE_LIST = SUB_BASE + SUB_ENTRY * SUB_CAP   # rows (cell, distance from C0, -)
-STACK_ROWS = CACHE_LIST + CACHE_CAP           # then the pyramid stack, one (level, i, j) per row
+#: the rows (of 3 floats) of the work array: Newton's evaluation block; S, S_u, S_v of the best
+#: point; the cache header (version, tree id, count), (C0), (R0, -, -); a Bézier net being split;
+#: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; then the pyramid
+#: search stack, one (level, i, j) per row
+COLLISION_WORK = Layout("collision work rows", [
+    ("evaluation", EVALUATION_ROWS), ("best", 3), ("cache_header", 3), ("net", 16),
+    ("subdivision", SUB_ENTRY * SUB_CAP), ("cache_list", CACHE_CAP)])
+BEST_ROW = COLLISION_WORK.offset("best")
+CACHE_ROW = COLLISION_WORK.offset("cache_header")
+NET_TMP = COLLISION_WORK.offset("net")
+SUB_BASE = COLLISION_WORK.offset("subdivision")
+CACHE_LIST = COLLISION_WORK.offset("cache_list")
+STACK_ROWS = COLLISION_WORK.size

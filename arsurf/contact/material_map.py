@@ -73,7 +73,10 @@ from numba import njit
 
 from arsurf.contact.material_conversion import (MaterialConversion, channel_to_si, reduced_modulus,
                                                 work_of_adhesion_from_pull_off)
-from arsurf.contact.maugis_dugdale import LAMBDA_TRANSITION, md_critical_point_kernel, md_zero_radius_limit
+from arsurf._layout import Layout
+from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
+                                           A_T_FOLD, LAMBDA_TRANSITION, MD_ARGS, md_critical_point_kernel,
+                                           md_zero_radius_limit)
 from arsurf.errors import MaterialMapError
 from arsurf.scan.scan import Scan
 from arsurf.spline.basis import basis_at
@@ -112,19 +115,29 @@ ZERO_LOAD_MARGIN = 1e-4
 #: demand instead (md_solve_depth with t_fold = NaN)
 T_FOLD_TABLE_MAX = 9.0
 
-# the contact vector (one float64 array, so that the compiled tick's callers pass one argument):
-# [0:6] the reference law's kernel args, [6:12] the local law's (scratch), then a header of
-# scalars, then the sections whose offsets the header holds (scratch for the model's friction
-# vector, the dent the tick records, the knots, the critical-point table, the two fields' spline)
-C_REF, C_LOCAL = 0, 6
-C_HEAD = 12
+#: the head of the contact vector (one float64 array, so that the compiled tick's callers pass one
+#: argument): the reference law's kernel arguments, the local law's (scratch), then scalars - the
+#: map's on flag, origin (m), log-ratio offsets and clamps of the two fields, the critical-point
+#: table's first ln lambda and step, the spline's and the table's sizes - and the offsets of the
+#: sections that follow the head (scratch for the model's friction vector, the dent the tick records,
+#: the knots, the critical-point table, the two fields' spline coefficients)
+CONTACT_HEAD = Layout("contact vector head", [
+    ("reference", MD_ARGS.size), ("local", MD_ARGS.size), ("on", 1), ("x0", 1), ("y0", 1), ("offset_e", 1),
+    ("offset_w", 1), ("lo_e", 1), ("hi_e", 1), ("lo_w", 1), ("hi_w", 1), ("ln_lambda0", 1), ("table_step", 1),
+    ("nu", 1), ("nv", 1), ("ntable", 1), ("friction", 1), ("dent", 1), ("ku", 1), ("kv", 1), ("table", 1),
+    ("coef", 1)])
+# the offsets as the kernels use them
+C_REF, C_LOCAL, C_HEAD = CONTACT_HEAD.offset("reference"), CONTACT_HEAD.offset("local"), CONTACT_HEAD.offset("on")
 (H_ON, H_X0, H_Y0, H_OFF_E, H_OFF_W, H_LO_E, H_HI_E, H_LO_W, H_HI_W, H_LNLAM0, H_TABLE_STEP, H_NU, H_NV, H_NTABLE,
- H_FRICTION, H_DENT, H_KU, H_KV, H_TABLE, H_COEF) = range(C_HEAD, C_HEAD + 20)
-C_BODY = C_HEAD + 20
-# columns of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
-# depth at zero load (all in the law's own units)
-T_TFOLD, T_DFOLD, T_DZERO = range(3)
-T_COLS = 3
+ H_FRICTION, H_DENT, H_KU, H_KV, H_TABLE, H_COEF) = (CONTACT_HEAD.offset(f) for f in CONTACT_HEAD.fields[2:])
+C_BODY = CONTACT_HEAD.size
+_MD_SIZE = MD_ARGS.size
+#: a row of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
+#: depth at zero load (all in the law's own units)
+TABLE_ROW = Layout("critical-point table row", [("t_fold", 1), ("delta_fold", 1), ("zero_load_depth", 1)])
+T_TFOLD, T_DFOLD = TABLE_ROW.offset("t_fold"), TABLE_ROW.offset("delta_fold")
+T_DZERO = TABLE_ROW.offset("zero_load_depth")
+T_COLS = TABLE_ROW.size
 
 
 @njit(cache=True)
@@ -178,7 +191,7 @@ def local_contact_kernel(cv, u, v):
     to a = 0, the fold is left to :func:`~arsurf.contact.maugis_dugdale.md_solve_depth` (found when
     a depth needs it) and the jump-out depth is bounded by ``FOLD_LOWER_BOUND``.
     """
-    ref = cv[C_REF:C_REF + 6]
+    ref = cv[C_REF:C_REF + _MD_SIZE]
     if cv[H_ON] == 0.0:
         return ref, 1.0, 0.0, 0.0, False
     le, lw = _field_pair(cv, u - cv[H_X0], v - cv[H_Y0])
@@ -186,14 +199,14 @@ def local_contact_kernel(cv, u, v):
     lw = min(max(lw, cv[H_LO_W]), cv[H_HI_W]) + cv[H_OFF_W]
     if le == 0.0 and lw == 0.0:
         return ref, 1.0, 0.0, 0.0, False
-    local = cv[C_LOCAL:C_LOCAL + 6]
+    local = cv[C_LOCAL:C_LOCAL + _MD_SIZE]
     c1 = math.exp((lw - le) / 3.0)   # (r_w / r_E)^(1/3)
     c2 = c1 * c1
-    local[0] = ref[0] * c2           # depth scale
-    local[1] = ref[1] * c1           # radius scale
-    local[2] = ref[2] * math.exp(lw)  # load scale pi w R
-    lam = ref[3] * c2                # 2 (w/h0) (R / pi w K^2)^(1/3) ~ (w / E*)^(2/3)
-    local[3] = lam
+    local[A_DEPTH_SCALE] = ref[A_DEPTH_SCALE] * c2
+    local[A_RADIUS_SCALE] = ref[A_RADIUS_SCALE] * c1
+    local[A_LOAD_SCALE] = ref[A_LOAD_SCALE] * math.exp(lw)  # pi w R
+    lam = ref[A_LAMBDA] * c2  # 2 (w/h0) (R / pi w K^2)^(1/3) ~ (w / E*)^(2/3)
+    local[A_LAMBDA] = lam
     n = int(cv[H_NTABLE])
     t0 = int(cv[H_TABLE])
     pos = (math.log(lam) - cv[H_LNLAM0]) / cv[H_TABLE_STEP]
@@ -204,20 +217,20 @@ def local_contact_kernel(cv, u, v):
     zero = cv[r0 + T_DZERO] + f * (cv[r1 + T_DZERO] - cv[r0 + T_DZERO]) + ZERO_LOAD_MARGIN
     if lam <= LAMBDA_TRANSITION:
         c0, d0, p0 = md_zero_radius_limit(lam)
-        local[4] = math.inf
-        local[5] = d0
+        local[A_T_FOLD] = math.inf
+        local[A_DELTA_FOLD] = d0
         cs = 8.0 * lam / (3.0 * math.pi)
         jump = -2.0 / (lam * math.pi) - 0.5 * cs * cs if cs < c0 else d0
     elif cv[r0 + T_TFOLD] <= T_FOLD_TABLE_MAX and cv[r1 + T_TFOLD] <= T_FOLD_TABLE_MAX:
-        local[4] = cv[r0 + T_TFOLD] + f * (cv[r1 + T_TFOLD] - cv[r0 + T_TFOLD])
+        local[A_T_FOLD] = cv[r0 + T_TFOLD] + f * (cv[r1 + T_TFOLD] - cv[r0 + T_TFOLD])
         jump = cv[r0 + T_DFOLD] + f * (cv[r1 + T_DFOLD] - cv[r0 + T_DFOLD])
-        local[5] = jump
+        local[A_DELTA_FOLD] = jump
     else:
         c0, d0, p0 = md_zero_radius_limit(lam)
-        local[4] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
-        local[5] = d0
+        local[A_T_FOLD] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
+        local[A_DELTA_FOLD] = d0
         jump = FOLD_LOWER_BOUND
-    return local, math.exp(le), jump * local[0], zero * local[0], True
+    return local, math.exp(le), jump * local[A_DEPTH_SCALE], zero * local[A_DEPTH_SCALE], True
 
 
 def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, float, float]:
@@ -230,7 +243,7 @@ def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, floa
     h = 1.0 / TABLE_PER_UNIT
     x0 = math.log(lam_lo) - h
     n = max(int(math.ceil((math.log(lam_hi) + h - x0) / h)) + 1, 2)
-    table = np.empty((n, 3))
+    table = np.empty((n, T_COLS))
     for i in range(n):
         lam = math.exp(x0 + i * h)
         table[i, T_TFOLD], table[i, T_DFOLD] = md_critical_point_kernel(lam, 0)

@@ -92,18 +92,18 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.mechanics import (
-    STATUS_INVALID,
-    STATUS_NOT_CONVERGED,
-    Branch,
     ContactModel,
     ContactState,
     _finite_array,
     _positive,
 )
+from arsurf._layout import Layout
 from arsurf.errors import ContactError
+from arsurf.status import COHESIVE, CONTACT, NON_FINITE, NOT_CONVERGED, SEPARATED
 
 __all__ = [
     "LAMBDA_TRANSITION",
+    "MD_ARGS",
     "MDCriticalPoints",
     "MDState",
     "MaugisDugdale",
@@ -124,9 +124,18 @@ __all__ = [
 #: module docstring; Maugis 1992 quotes 0.938).
 LAMBDA_TRANSITION = (9.0 * math.pi / (16.0 * (math.pi - 1.0))) ** (1.0 / 3.0)
 
-_CONTACT = int(Branch.CONTACT)
-_COHESIVE = int(Branch.COHESIVE)
-_SEPARATED = int(Branch.SEPARATED)
+#: the law's kernel arguments as a vector (:attr:`MaugisDugdale.kernel_args`, in that order; the
+#: contact vector of :mod:`arsurf.contact.material_map` holds it): depth, radius and load scales
+#: (m, m, N), Maugis' lambda, ln s at the fold (inf: none; NaN: not computed), the fold's depth
+#: (in depth scales)
+MD_ARGS = Layout("Maugis-Dugdale kernel arguments", [
+    ("depth_scale", 1), ("radius_scale", 1), ("load_scale", 1), ("maugis_parameter", 1), ("t_fold", 1),
+    ("delta_fold", 1)])
+# the offsets as the kernels use them
+A_DEPTH_SCALE, A_RADIUS_SCALE, A_LOAD_SCALE = (MD_ARGS.offset("depth_scale"), MD_ARGS.offset("radius_scale"),
+                                               MD_ARGS.offset("load_scale"))
+A_LAMBDA, A_T_FOLD, A_DELTA_FOLD = (MD_ARGS.offset("maugis_parameter"), MD_ARGS.offset("t_fold"),
+                                    MD_ARGS.offset("delta_fold"))
 
 _T_MIN = -60.0      # s = e^-60: A ~ 1e39, far beyond any physical query
 _T_MAX = 60.0       # s = e^60:  A ~ 1e-26
@@ -242,7 +251,7 @@ def _branch_solve(target, lam, which, t_end, v_end, fold):
             t_hi = t
             tn = 0.5 * (t_lo + t_hi)
             if t_hi - t_lo < 1e-13:
-                return _CONTACT, A, P, D, t
+                return CONTACT, A, P, D, t
             t = tn
             continue
         if fold:
@@ -253,7 +262,7 @@ def _branch_solve(target, lam, which, t_end, v_end, fold):
             dphi_ddiff = 1.0 / diff
             phi = math.log(diff) - r
         if phi == 0.0:
-            return _CONTACT, A, P, D, t
+            return CONTACT, A, P, D, t
         dphi = dv * dphi_ddiff
         if phi > 0.0:
             t_lo = t
@@ -272,11 +281,11 @@ def _branch_solve(target, lam, which, t_end, v_end, fold):
             noise = 8.0 * _EPS * (abs(v) + abs(v_end)) * dphi_ddiff / abs(dphi)
             if abs(step) <= max(_STEP_TOL, 4.0 * noise):
                 ds = s * math.expm1(step)
-                return _CONTACT, A + dA * ds, P + dP * ds, D + dD * ds, tn
+                return CONTACT, A + dA * ds, P + dP * ds, D + dD * ds, tn
         elif t_hi - t_lo < 1e-13:
-            return _CONTACT, A, P, D, tn
+            return CONTACT, A, P, D, tn
         t = tn
-    return STATUS_NOT_CONVERGED, A, P, D, t
+    return NOT_CONVERGED, A, P, D, t
 
 
 @njit(cache=True)
@@ -301,10 +310,10 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
     -------
     (status, A, P, c) : (int, float, float, float)
         status 0 contact, 1 cohesive (A = 0, adhesive zone of radius c still loaded),
-        2 separated (all 0), -1 NaN/inf input, -2 not converged. c is :math:`\\bar c = mA`.
+        2 separated (all 0), -1 NaN/inf input, -3 not converged (:mod:`arsurf.status`). c is :math:`\\bar c = mA`.
     """
     if not math.isfinite(delta_bar):
-        return STATUS_INVALID, 0.0, 0.0, 0.0
+        return NON_FINITE, 0.0, 0.0, 0.0
     if math.isnan(t_fold):
         # a contact law made on the fly (a material map, lambda > lambda_t): the fold is found only
         # for a depth that needs it. delta_fold then holds Delta0 (the depth at a = 0), above the
@@ -324,8 +333,8 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
         if delta_bar == delta_fold:
             s = math.exp(t_fold)
             A, P, D, dA, dP, dD = md_curve(s, lam)
-            return _CONTACT, A, P, A * math.sqrt(1.0 + s * s)
-        return _SEPARATED, 0.0, 0.0, 0.0
+            return CONTACT, A, P, A * math.sqrt(1.0 + s * s)
+        return SEPARATED, 0.0, 0.0, 0.0
     # no fold: the contact radius has shrunk to 0; the cohesive neck may still hold
     c0, d0, p0 = md_zero_radius_limit(lam)
     cs = 8.0 * lam / (3.0 * math.pi)
@@ -334,8 +343,8 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
         if delta_bar >= d_snap:
             c = cs + math.sqrt(max(cs * cs + 2.0 * (delta_bar + 2.0 / (lam * math.pi)), 0.0))
             c = min(c, c0)
-            return _COHESIVE, 0.0, -0.5 * lam * math.pi * c * c, c
-    return _SEPARATED, 0.0, 0.0, 0.0
+            return COHESIVE, 0.0, -0.5 * lam * math.pi * c * c, c
+    return SEPARATED, 0.0, 0.0, 0.0
 
 
 @njit(cache=True)
@@ -348,16 +357,16 @@ def md_solve_load(p_bar, lam, t_pull, p_pull):
     Returns
     -------
     (status, A, D, c) : status 0 contact, 2 separated (below pull-off: A = 0, D = -inf),
-    -1 invalid input, -2 not converged.
+    -1 invalid input, -3 not converged (:mod:`arsurf.status`).
     """
     if not math.isfinite(p_bar):
-        return STATUS_INVALID, 0.0, 0.0, 0.0
+        return NON_FINITE, 0.0, 0.0, 0.0
     if p_bar < p_pull:
-        return _SEPARATED, 0.0, -math.inf, 0.0
+        return SEPARATED, 0.0, -math.inf, 0.0
     if p_bar == p_pull:
         s = math.exp(t_pull)
         A, P, D, dA, dP, dD = md_curve(s, lam)
-        return _CONTACT, A, D, A * math.sqrt(1.0 + s * s)
+        return CONTACT, A, D, A * math.sqrt(1.0 + s * s)
     st, A, P, D, t = _branch_solve(p_bar, lam, 1, t_pull, p_pull, True)
     s = math.exp(t)
     return st, A, D, A * math.sqrt(1.0 + s * s)
@@ -374,7 +383,7 @@ def md_contact_from_depth_kernel(depth, depth_scale, radius_scale, load_scale, l
     -------
     (status, radius, load) : (int, float, float)
         status 0 contact, 1 cohesive (no contact, adhesive load), 2 separated (radius 0, load 0),
-        -1 invalid input, -2 not converged.
+        -1 invalid input, -3 not converged (:mod:`arsurf.status`).
     """
     st, A, P, c = md_solve_depth(depth / depth_scale, lam, t_fold, delta_fold)
     return st, A * radius_scale, P * load_scale
@@ -403,10 +412,10 @@ def md_contact_hysteresis_kernel(depth, interacting, depth_scale, radius_scale, 
     (2, 0)
     """
     if not math.isfinite(depth):
-        return STATUS_INVALID, 0.0, 0.0
+        return NON_FINITE, 0.0, 0.0
     db = depth / depth_scale
     if not interacting and db < -2.0 / (lam * math.pi):
-        return _SEPARATED, 0.0, 0.0
+        return SEPARATED, 0.0, 0.0
     st, A, P, c = md_solve_depth(db, lam, t_fold, delta_fold)
     return st, A * radius_scale, P * load_scale
 
@@ -467,7 +476,7 @@ def _radius_solve(a_bar, lam):
         phi = math.log(A) - r
         dphi = dA * s / A
         if phi == 0.0:
-            return _CONTACT, t
+            return CONTACT, t
         if phi > 0.0:
             t_lo = t
         else:
@@ -477,9 +486,9 @@ def _radius_solve(a_bar, lam):
         if not newton:
             tn = 0.5 * (t_lo + t_hi)
         if (newton and abs(tn - t) <= 1e-9) or t_hi - t_lo < 1e-13:
-            return _CONTACT, tn
+            return CONTACT, tn
         t = tn
-    return STATUS_NOT_CONVERGED, t
+    return NOT_CONVERGED, t
 
 
 # ---------------------------------------------------------------------------------------------
@@ -874,21 +883,21 @@ class MaugisDugdale(ContactModel):
                 radius = np.where(out, 0.0, radius)
                 ld = np.where(out, 0.0, ld)
                 c = np.where(out, 0.0, c)
-                code = np.where(out, _SEPARATED, code)
+                code = np.where(out, SEPARATED, code)
             dep = flat
         else:
             p, scalar = _finite_array(load, "load", "load is the normal force in newtons (negative = tensile)")
             flat = np.atleast_1d(p).ravel()
             radius, dep, c = self._solve_load_full(flat)
             below = flat < self.pull_off_force()
-            code = np.where(below, _SEPARATED, _CONTACT)
+            code = np.where(below, SEPARATED, CONTACT)
             ld = np.where(below, 0.0, flat)
             d = p
         shape = d.shape
         with np.errstate(divide="ignore", invalid="ignore"):
             m = np.where(radius > 0.0, c / np.where(radius > 0.0, radius, 1.0), math.inf)
         return self._md_record(radius.reshape(shape), ld.reshape(shape), dep.reshape(shape),
-                               (code == _CONTACT).reshape(shape), np.ones(shape, bool),
+                               (code == CONTACT).reshape(shape), np.ones(shape, bool),
                                code.reshape(shape), c.reshape(shape), m.reshape(shape), scalar)
 
     @staticmethod

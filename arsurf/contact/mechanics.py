@@ -63,14 +63,13 @@ __all__ = [
     "DMT",
     "Hertz",
     "JKR",
-    "STATUS_INVALID",
-    "STATUS_NOT_CONVERGED",
     "jkr_radius_from_depth_kernel",
 ]
 
 
 class Branch(IntEnum):
-    """Which part of the equilibrium curve a state lies on (also the kernels' status codes >= 0).
+    """Which part of the equilibrium curve a state lies on: the kernels' status codes >= 0, whose
+    table is :mod:`arsurf.status`.
 
     ``CONTACT``: the surfaces touch over a disk of radius a >= 0.
     ``COHESIVE``: no contact (a = 0) but an adhesive (Dugdale) zone still pulls the surfaces
@@ -78,17 +77,12 @@ class Branch(IntEnum):
     ``SEPARATED``: no interaction: radius 0, load 0.
     """
 
-    CONTACT = 0
-    COHESIVE = 1
-    SEPARATED = 2
+    CONTACT = status.CONTACT
+    COHESIVE = status.COHESIVE
+    SEPARATED = status.SEPARATED
 
 
-#: kernel status (:mod:`arsurf.status`): the input was NaN/inf (the kernels never raise)
-STATUS_INVALID = status.NON_FINITE
-#: kernel status: the iteration did not meet its tolerance (never observed; reported, not hidden)
-STATUS_NOT_CONVERGED = status.NOT_CONVERGED
-
-_BRANCH_NAMES = np.array(["contact", "cohesive", "separated"])
+_BRANCH_NAMES = np.array(status.BRANCH_NAMES)
 
 
 @dataclass(frozen=True)
@@ -510,12 +504,13 @@ def jkr_radius_from_depth_kernel(delta_bar):
     Returns
     -------
     (status, A) : (int, float)
-        status 0 (contact), 2 (separated: below the jump-out depth, A = 0) or -1 (NaN input).
+        status (:mod:`arsurf.status`) CONTACT, SEPARATED (below the jump-out depth, A = 0),
+        NON_FINITE (NaN input) or NOT_CONVERGED (never observed; reported, not hidden).
     """
     if not math.isfinite(delta_bar):
-        return -1, 0.0
+        return status.NON_FINITE, 0.0
     if delta_bar < _JKR_D_FOLD:
-        return 2, 0.0
+        return status.SEPARATED, 0.0
     r = math.sqrt(delta_bar - _JKR_D_FOLD)
     y_lo = _JKR_Y_FOLD
     # two upper bounds: the fold parabola (F'' >= 12 y_fold^2) and y^4 >= 2|Delta| with y^3 >= 2k
@@ -541,14 +536,14 @@ def jkr_radius_from_depth_kernel(delta_bar):
             yn = 0.5 * (y_lo + y_hi)
             newton = False
         if g == 0.0 or y_hi - y_lo <= 4e-16 * y:
-            return 0, yn * yn
+            return status.CONTACT, yn * yn
         if newton:
             # rounding noise of g next to the fold limits the attainable step
             noise = 4.4e-16 * (y ** 4 + _JKR_K * y - _JKR_D_FOLD) / (2.0 * math.sqrt(f) * dg)
             if abs(yn - y) <= max(1e-9 * y, 4.0 * noise):
-                return 0, yn * yn
+                return status.CONTACT, yn * yn
         y = yn
-    return -2, y * y
+    return status.NOT_CONVERGED, y * y
 
 
 @njit(cache=True)
@@ -616,7 +611,7 @@ class JKR(ContactModel):
             raise ContactError(f"JKR solver failed (status {int(status[i])}) for depth {float(depth[i])!r} m; "
                                "this is a bug, please report it with this number")
         P = A ** 3 - np.sqrt(6.0 * A ** 3)
-        contact = status == 0
+        contact = status == Branch.CONTACT
         return A * self.radius_scale, np.where(contact, P * self.load_scale, 0.0), status
 
     def _solve_load(self, load):

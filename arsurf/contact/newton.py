@@ -12,7 +12,7 @@ import math
 
 from numba import njit
 
-from arsurf.spline.basis import surface_point
+from arsurf.spline.basis import DERIVATIVE_ROWS, surface_point
 
 # Tolerances (relative to the knot spacing h). Newton converges quadratically, so stopping on a
 # step below 1e-9 h leaves a parameter error ~1e-18 h: far below the 1e-12 m distance target.
@@ -27,6 +27,9 @@ GRAD_TOL = 1e-13
 MAX_ITER_DOMAIN = 40   # unrestricted Newton (from the seed, and polishing a cell minimum)
 MAX_ITER_CELL = 16     # Newton restricted to one knot cell
 MAX_HALVINGS = 40      # backtracking line search
+#: rows of the evaluation block Newton works in (:func:`~arsurf.spline.basis.surface_point` to
+#: second order, :data:`~arsurf.spline.basis.DERIVATIVE_ROWS`)
+EVALUATION_ROWS = DERIVATIVE_ROWS.size
 ARMIJO = 1e-4
 
 

@@ -30,16 +30,21 @@ from numba.experimental import structref
 from numba.extending import overload
 
 from arsurf.contact.closest_point import (  # noqa: F401 (collide_any, collide_kernel: for numba callers)
-    G_BUILDS, G_CLOCK, G_NCU, G_NCV, G_NTI, G_NTJ, G_SIZE, G_SLOTS, G_TILE, G_USED, SI_TI, SI_TJ, SI_USED,
+    G_BUILDS, G_CLOCK, G_NCU, G_NCV, G_NTI, G_NTJ, G_SIZE, G_SLOTS, G_TILE, G_USED, SI_TI, SI_TJ, SI_USED, SLOT_INFO,
     collide_any, collide_kernel, project_any, project_batch_kernel, project_kernel, tiled_project_kernel,
 )
 from arsurf.contact.hull_tree import CURV_SIZE, NODE_SIZE, HullTree, bezier_matrices, pyramid_levels, refresh_region_kernel
 from arsurf.contact.layout import (  # noqa: F401 (re-exported: callers read results by these names)
     OUT_U, OUT_V, OUT_PX, OUT_PY, OUT_PZ, OUT_NX, OUT_NY, OUT_NZ, OUT_DISTANCE, OUT_DEPTH, OUT_ITERATIONS,
-    OUT_CELLS, OUT_CONVERGED, OUT_BOUNDARY, OUT_STATUS, OUT_CACHED, OUT_SIZE, STATUS_OK, STATUS_NOT_CONVERGED,
-    STATUS_DEGENERATE, STATUS_NON_FINITE, STATUS_BAD_INPUT, STATUS_TEXT, MAX_SUBDIVISION, CACHE_MARGIN,
-    CACHE_CAP, BEST_ROW, CACHE_ROW, NET_TMP, SUB_BASE, SUB_ENTRY, SUB_CAP, CACHE_LIST, STACK_ROWS,
+    COLLISION_OUT, OUT_CELLS, OUT_CONVERGED, OUT_BOUNDARY, OUT_STATUS, OUT_CACHED, OUT_SIZE, MAX_SUBDIVISION,
+    CACHE_MARGIN, CACHE_CAP, BEST_ROW, CACHE_ROW, NET_TMP, SUB_BASE, SUB_ENTRY, SUB_CAP, CACHE_LIST, STACK_ROWS,
 )
+from arsurf.status import BAD_INPUT, NON_FINITE, TEXT
+
+#: the closest point and the normal, as they follow each other in the collision output: what the
+#: single-query entries copy out (``point_normal``)
+PN_SIZE = COLLISION_OUT.width("point") + COLLISION_OUT.width("normal")
+_N = COLLISION_OUT.width("point")
 from arsurf.errors import ContactError, PositionError, SurfaceError
 from arsurf.spline.surface import BSplineSurface
 
@@ -103,15 +108,15 @@ def _project_struct_compiled(a, cx, cy, cz, hint_u, hint_v, out):
 
 @njit(cache=True)
 def _project_packed(a, cx, cy, cz, hint_u, hint_v, warm, point_normal):
-    """:func:`project_kernel` for :func:`project`: ``point_normal`` (6,) gets S* and n*; returns
+    """:func:`project_kernel` for :func:`project`: ``point_normal`` (:data:`PN_SIZE`) gets S* and n*; returns
     ``((u, v), distance, converged, iterations, on_boundary, status, cells)``, the remaining
     fields of :class:`Projection` in order. ``warm``: a hint was given, and it must be finite."""
     out = a.out
     if warm and not (hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0):
-        status = STATUS_BAD_INPUT
+        status = BAD_INPUT
     else:
         status = _project_struct(a, cx, cy, cz, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
-    for k in range(6):
+    for k in range(PN_SIZE):
         point_normal[k] = out[OUT_PX + k]
     return ((out[OUT_U], out[OUT_V]), out[OUT_DISTANCE], out[OUT_CONVERGED] > 0.0, int(out[OUT_ITERATIONS]),
             out[OUT_BOUNDARY] > 0.0, status, int(out[OUT_CELLS]))
@@ -124,14 +129,14 @@ def _collide_packed(a, cx, cy, cz, radius, hint_u, hint_v, warm, point_normal):
     cells)``, the fields of :class:`Contact` after ``point`` and ``normal``."""
     out = a.out
     if warm and not (hint_u - hint_u == 0.0 and hint_v - hint_v == 0.0):
-        status = STATUS_BAD_INPUT
+        status = BAD_INPUT
     else:
         if radius > 0.0 and radius - radius == 0.0:
             status = _project_struct(a, cx, cy, cz, hint_u if warm else np.nan, hint_v if warm else np.nan, out)
             out[OUT_DEPTH] = radius - out[OUT_DISTANCE]
         else:
-            status = STATUS_BAD_INPUT
-    for k in range(6):
+            status = BAD_INPUT
+    for k in range(PN_SIZE):
         point_normal[k] = out[OUT_PX + k]
     depth = out[OUT_DEPTH]
     return ((out[OUT_U], out[OUT_V]), depth, depth > 0.0, out[OUT_DISTANCE], radius, out[OUT_CONVERGED] > 0.0,
@@ -152,7 +157,7 @@ class Projection(NamedTuple):
     converged : bool — the Newton run that produced the answer met the step tolerance.
     iterations : int — Newton iterations over all runs of this query.
     on_boundary : bool — the closest point lies on the edge of the parameter domain.
-    status : int — ``STATUS_*`` code (0 ok, 1 not converged, 2 degenerate normal).
+    status : int — a code of :mod:`arsurf.status` (0 ok, 1 iteration limit, 2 degenerate normal).
     cells : int — knot cells whose hull box survived the distance bound.
     """
 
@@ -355,7 +360,7 @@ class TiledProjector:
         self.grid = np.zeros(G_SIZE, dtype=np.int64)
         self.grid[[G_TILE, G_NTI, G_NTJ, G_NCU, G_NCV, G_SLOTS]] = (tile, nti, ntj, ncu, ncv, slots)
         self.tile_slot = np.full((nti, ntj), -1, dtype=np.int64)
-        self.slot_info = np.zeros((slots, 4), dtype=np.int64)
+        self.slot_info = np.zeros((slots, SLOT_INFO.size), dtype=np.int64)
         self.slot_info[:, SI_USED] = -1
         self.slack = np.zeros(1)
         self._greville = (np.convolve(ku[1:-1], np.ones(3) / 3.0, "valid"), np.convolve(kv[1:-1], np.ones(3) / 3.0, "valid"))
@@ -457,7 +462,7 @@ def _entry_point(kernel, arrays, nscalars):
 
     Calling it skips the dispatcher's per-call type resolution (~0.3-1 us of a few-us call);
     the Python API always passes these same types. Falls back to the dispatcher."""
-    args = (arrays, *(1.0,) * nscalars, False, np.empty(6))
+    args = (arrays, *(1.0,) * nscalars, False, np.empty(PN_SIZE))
     try:
         sig = tuple(numba.typeof(a) for a in args)
         kernel.compile(sig)  # compiles (or loads from the cache) this signature, without running it
@@ -508,7 +513,7 @@ def _single(entry, packed, point_normal, point, hint, radius=None) -> tuple:
     """Run one query through ``entry`` (:func:`_project_packed` or :func:`_collide_packed`).
 
     The fast path hands the caller's numbers straight to the compiled entry (it converts them
-    like ``float()``, and rejects a non-finite point, hint or radius with ``STATUS_BAD_INPUT``).
+    like ``float()``, and rejects a non-finite point, hint or radius with ``BAD_INPUT``).
     Anything unusual takes the slow path: the exact checks, with the precise error."""
     try:
         x, y, z = point
@@ -567,12 +572,12 @@ def _radius(radius) -> float:
 
 
 def _raise_status(status: int, where: str) -> None:
-    if status == STATUS_NON_FINITE:
+    if status == NON_FINITE:
         raise SurfaceError(
             f"{where}: the surface has non-finite (NaN/inf) control points; refit from a scan without "
             "NaN (arsurf.inpaint) or reset() the surface"
         )
-    raise SurfaceError(f"{where}: {STATUS_TEXT.get(status, 'unknown status')} (status {status})")
+    raise SurfaceError(f"{where}: {TEXT.get(status, 'unknown status')} (status {status})")
 
 
 def project(surface, point, hint=None) -> Projection:
@@ -608,9 +613,9 @@ def project(surface, point, hint=None) -> Projection:
     (-3.0, [10.0, 20.0, 0.0])
     """
     proj = getattr(surface, _ATTR, None) or _lookup(surface)
-    pn = np.empty(6)  # S* and n*: two views of one fresh array (slicing a (6,) array is the cheapest)
+    pn = np.empty(PN_SIZE)  # S* and n*: two views of one fresh array (slicing one array is the cheapest)
     res = _single(proj._project, proj._packed, pn, point, hint)
-    return _new_tuple(Projection, (res[0], pn[:3], pn[3:]) + res[1:])
+    return _new_tuple(Projection, (res[0], pn[:_N], pn[_N:]) + res[1:])
 
 
 def collide(surface, center, radius, hint=None) -> Contact:
@@ -644,9 +649,9 @@ def collide(surface, center, radius, hint=None) -> Contact:
     (True, 1.0)
     """
     proj = getattr(surface, _ATTR, None) or _lookup(surface)
-    pn = np.empty(6)  # S* and n*: two views of one fresh array (slicing a (6,) array is the cheapest)
+    pn = np.empty(PN_SIZE)  # S* and n*: two views of one fresh array (slicing one array is the cheapest)
     res = _single(proj._collide, proj._packed, pn, center, hint, radius)
-    return _new_tuple(Contact, (pn[:3], pn[3:]) + res)
+    return _new_tuple(Contact, (pn[:_N], pn[_N:]) + res)
 
 
 def _batch(surface, points, hints, chain, radius, where):

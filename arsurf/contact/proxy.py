@@ -25,8 +25,7 @@ import math
 from numba import njit
 
 from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
-
-_SEPARATED = 2
+from arsurf.status import SEPARATED
 _MAX_ITER = 60
 
 
@@ -51,7 +50,7 @@ def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_
     the target)."""
     st, a, load = md_contact_hysteresis_kernel(target_depth, interacting, depth_scale, radius_scale, load_scale,
                                                lam, t_fold, delta_fold)
-    if not (k_couple < math.inf) or st < 0 or st == _SEPARATED:
+    if not (k_couple < math.inf) or st < 0 or st == SEPARATED:
         return st, a, load, target_depth, False
     if load > 0.0:
         lo, hi = max(jump_out_depth, -math.inf), target_depth
@@ -64,7 +63,7 @@ def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_
     for _ in range(_MAX_ITER):
         s, r, p = md_contact_hysteresis_kernel(depth, True, depth_scale, radius_scale, load_scale,
                                                lam, t_fold, delta_fold)
-        if s == _SEPARATED:  # below the jump-out depth: the bracket's floor
+        if s == SEPARATED:  # below the jump-out depth: the bracket's floor
             lo = depth
             depth = 0.5 * (lo + hi)
             continue
@@ -78,6 +77,6 @@ def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_
         s2, r2, p2 = md_contact_hysteresis_kernel(depth + h, True, depth_scale, radius_scale, load_scale,
                                                   lam, t_fold, delta_fold)
         slope = (p2 - p) / h + k_couple
-        step = depth - g / slope if (s2 != _SEPARATED and slope > 0.0) else math.nan
+        step = depth - g / slope if (s2 != SEPARATED and slope > 0.0) else math.nan
         depth = step if lo < step < hi else 0.5 * (lo + hi)
-    return s, r, p, depth, s != _SEPARATED
+    return s, r, p, depth, s != SEPARATED

@@ -57,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ForceError
 from arsurf.force.cantilever import Cantilever
 
@@ -64,8 +65,16 @@ __all__ = [
     "DEFAULT_MAX_CONDITION",
     "DEFAULT_MIN_NORMAL_Z",
     "DEFAULT_MIN_SPEED",
+    "DECOUPLING_OUT",
+    "DECOUPLING_PARAMS",
+    "FADE_CONDITION",
+    "FADE_STRENGTH",
+    "MEASURED_PARAMS",
+    "MEASURED_SCRATCH",
     "DecouplingFlag",
     "ForceEstimate",
+    "bending_only_kernel",
+    "blended_decouple_kernel",
     "decouple",
     "decouple_by_motion",
     "decouple_kernel",
@@ -104,17 +113,39 @@ class DecouplingFlag(enum.IntFlag):
     INVALID_INPUT = 32
 
 
-_NO_MOTION = 1
-_STEEP_NORMAL = 2
-_SINGULAR = 4
-_ILL_CONDITIONED = 8
-_FALLBACK_DEGENERATE = 16
-_INVALID_INPUT = 32
+# the bits as the kernels use them
+_NO_MOTION = int(DecouplingFlag.NO_MOTION)
+_STEEP_NORMAL = int(DecouplingFlag.STEEP_NORMAL)
+_SINGULAR = int(DecouplingFlag.SINGULAR)
+_ILL_CONDITIONED = int(DecouplingFlag.ILL_CONDITIONED)
+_FALLBACK_DEGENERATE = int(DecouplingFlag.FALLBACK_DEGENERATE)
+_INVALID_INPUT = int(DecouplingFlag.INVALID_INPUT)
 _DEGENERATE = _NO_MOTION | _STEEP_NORMAL | _SINGULAR | _ILL_CONDITIONED
 _FLAGS = [DecouplingFlag(i) for i in range(64)]  # status -> flag, prebuilt (IntFlag() costs ~1 us)
 
-# layout of the kernel parameter vector
-P_BENDING_COMPLIANCE, P_COUPLING, P_TORSION_COMPLIANCE, P_MIN_SPEED, P_MIN_NORMAL_Z, P_MAX_CONDITION = range(6)
+#: the kernel's parameter vector (:func:`decoupling_parameters`): g (rad/N), kappa, c (rad/N), and
+#: the three degeneracy thresholds
+DECOUPLING_PARAMS = Layout("decoupling parameters", [
+    ("bending_compliance", 1), ("coupling", 1), ("torsion_compliance", 1), ("min_speed", 1), ("min_normal_z", 1),
+    ("max_condition", 1)])
+#: what :func:`decouple_kernel` writes: the force (N) and the condition number of the system solved
+DECOUPLING_OUT = Layout("decoupling output", [("force", 3), ("condition", 1)])
+#: the parameters of :func:`blended_decouple_kernel`: the decoupling's, then the rms noise (rad) on
+#: each measured angle
+MEASURED_PARAMS = DECOUPLING_PARAMS.extended("measured-force parameters", [("signal_noise", 1)])
+#: what :func:`blended_decouple_kernel` writes: the blend (a decoupling output), then the fallback's
+MEASURED_SCRATCH = Layout("measured-force output", [("blend", DECOUPLING_OUT.size), ("fallback", DECOUPLING_OUT.size)])
+# the offsets as the kernels use them
+P_BENDING_COMPLIANCE = DECOUPLING_PARAMS.offset("bending_compliance")
+P_COUPLING = DECOUPLING_PARAMS.offset("coupling")
+P_TORSION_COMPLIANCE = DECOUPLING_PARAMS.offset("torsion_compliance")
+P_MIN_SPEED = DECOUPLING_PARAMS.offset("min_speed")
+P_MIN_NORMAL_Z = DECOUPLING_PARAMS.offset("min_normal_z")
+P_MAX_CONDITION = DECOUPLING_PARAMS.offset("max_condition")
+P_SIGNAL_NOISE = MEASURED_PARAMS.offset("signal_noise")
+O_FORCE, O_CONDITION = DECOUPLING_OUT.offset("force"), DECOUPLING_OUT.offset("condition")
+_BLEND, _FALLBACK = MEASURED_SCRATCH.offset("blend"), MEASURED_SCRATCH.offset("fallback")
+_OUT_SIZE = DECOUPLING_OUT.size
 
 
 @njit(cache=True, inline="always")
@@ -153,16 +184,16 @@ def decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, params, out):
     int
         Status bits (:class:`DecouplingFlag`); 0 means the contact-normal solution.
     """
-    g = params[0]
-    kappa = params[1]
-    c = params[2]
-    min_speed = params[3]
-    min_nz = params[4]
-    max_cond = params[5]
-    out[0] = 0.0
-    out[1] = 0.0
-    out[2] = 0.0
-    out[3] = np.inf
+    g = params[P_BENDING_COMPLIANCE]
+    kappa = params[P_COUPLING]
+    c = params[P_TORSION_COMPLIANCE]
+    min_speed = params[P_MIN_SPEED]
+    min_nz = params[P_MIN_NORMAL_Z]
+    max_cond = params[P_MAX_CONDITION]
+    out[O_FORCE] = 0.0
+    out[O_FORCE + 1] = 0.0
+    out[O_FORCE + 2] = 0.0
+    out[O_CONDITION] = np.inf
     if not (
         math.isfinite(bending) and math.isfinite(torsion) and math.isfinite(nx) and math.isfinite(ny)
         and math.isfinite(nz) and math.isfinite(vx) and math.isfinite(vy)
@@ -199,26 +230,26 @@ def decouple_kernel(bending, torsion, nx, ny, nz, vx, vy, params, out):
                 status |= _ILL_CONDITIONED
             else:
                 fxs = -(py * tau + pz * beta) / det
-                out[0] = fxs
-                out[1] = tau
-                out[2] = beta - kappa * fxs
-                out[3] = cond
+                out[O_FORCE] = fxs
+                out[O_FORCE + 1] = tau
+                out[O_FORCE + 2] = beta - kappa * fxs
+                out[O_CONDITION] = cond
                 return 0
     # fallback: F = N n + T e_y  (force along the normal plus the measured torsion)
     den = nz + kappa * nx
     aden = abs(den)
     if aden * max_cond >= 1.0:
         big_n = beta / den
-        out[0] = big_n * nx
-        out[1] = tau
-        out[2] = big_n * nz
+        out[O_FORCE] = big_n * nx
+        out[O_FORCE + 1] = tau
+        out[O_FORCE + 2] = big_n * nz
         # 1-norm condition of [[n_y, 1], [den, 0]]
-        out[3] = max(abs(ny) + aden, 1.0) * max(1.0, (1.0 + abs(ny)) / aden)
+        out[O_CONDITION] = max(abs(ny) + aden, 1.0) * max(1.0, (1.0 + abs(ny)) / aden)
         return status
-    out[0] = 0.0
-    out[1] = tau
-    out[2] = beta
-    out[3] = 1.0
+    out[O_FORCE] = 0.0
+    out[O_FORCE + 1] = tau
+    out[O_FORCE + 2] = beta
+    out[O_CONDITION] = 1.0
     return status | _FALLBACK_DEGENERATE
 
 
@@ -238,9 +269,9 @@ def directional_noise_kernel(nx, ny, nz, vx, vy, params, sigma_bending, sigma_to
     It is the exact noise gain the 1-norm condition number bounds (``cond * |noise| / |signal| *
     |F|``): it grows as 1/|det| towards the singular direction. Same inputs as
     :func:`decouple_kernel` (no validation: call it where that returned 0)."""
-    g = params[0]
-    kappa = params[1]
-    c = params[2]
+    g = params[P_BENDING_COMPLIANCE]
+    kappa = params[P_COUPLING]
+    c = params[P_TORSION_COMPLIANCE]
     px, py, pz, pn = _plane_normal(nx, ny, nz, vx, vy)
     if not pn > 0.0:
         return 0.0
@@ -252,20 +283,114 @@ def directional_noise_kernel(nx, ny, nz, vx, vy, params, sigma_bending, sigma_to
     return math.sqrt(st * st + sb * sb) / ad
 
 
+#: The measured force of a contact (:func:`blended_decouple_kernel`) fades from the no-motion
+#: fallback (normal + torsion, plus the friction model's share along the beam axis per unit load)
+#: to the directional solution as the friction strength |F_t| / mu_k P grows over this band, and no
+#: switch makes the force jump
+FADE_STRENGTH = (0.05, 0.25)
+#: ... and back to the fallback as the condition number of the directional system grows over this
+#: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out.
+#: In the beam's plane (x, z) friction and normal load both bend the lever, so the fallback takes the
+#: friction's share there from the friction model, r = (F_t,x, F_t,z) / P, and solves the one load
+#: that reproduces the bending: F = N (n + r_x e_x + r_z e_z) + T e_y,
+#: N = (theta/g) / (n_z + r_z + kappa (n_x + r_x)). Without friction (r = 0) it is the decoupling's
+#: no-motion answer; with it, a slide whose directional system turns
+#: singular keeps its friction instead of dropping it for a few ticks (a dip the hand felt).
+FADE_CONDITION = (100.0, 1000.0)
+#: ... and, below that edge, by how much each answer can be trusted. The two solutions agree on
+#: F_y = tau and on F_z + kappa F_x = beta (both reproduce the angles); they differ only in how the
+#: beam-plane bending is split, i.e. in F_x. The directional F_x carries the signal noise times
+#: the system's noise gain, sigma_D = sqrt(p_y^2 sigma_tau^2 + p_z^2 sigma_beta^2) / |p_x - kappa p_z|
+#: (:func:`directional_noise_kernel`; what cond * noise / signal * |F| bounds), which grows without
+#: bound as the friction direction sweeps through the beam axis (a stuck contact starting to slide
+#: along x); the fallback's F_x carries its model error, the friction model's share, which can be
+#: wrong by at most the friction the contact can hold, sigma_B = mu_s P. Weighing the two by their
+#: inverse variances (minimum-variance combination of two independent estimates of F_x),
+#:
+#:     w_noise = sigma_B^2 / (sigma_B^2 + sigma_D^2),
+#:
+#: keeps the measured friction while the directional error is below the friction scale and lets
+#: the fallback take over where noise would dominate; w_noise is continuous (sigma_D is, away from
+#: the refused band the condition fade covers) and 1 without noise (the fade above is then all).
+#: sigma_D uses the parameter ``signal_noise`` (rad rms on each angle, :data:`MEASURED_PARAMS`).
+#: The status gets the NO_MOTION bit (fallback mixed in) where one of the two fades is below 1, or
+#: where the noise makes the fallback the better estimate (sigma_D > sigma_B, w_noise < 1/2); a
+#: well-conditioned slide stays flagged 0, its w_noise ~ 1.
+
+
+@njit(cache=True)
+def blended_decouple_kernel(bending, torsion, nx, ny, nz, fx, fy, strength, share_x, share_z, friction_limit,
+                            params, out):
+    """The measured force of a contact: the directional solution (friction direction ``(fx, fy)``)
+    faded into the no-motion fallback as the friction weakens, the system loses conditioning or
+    the noise outweighs the friction (:data:`FADE_STRENGTH`, :data:`FADE_CONDITION`); both
+    reproduce the two measured angles exactly, so every blend does too.
+
+    ``strength`` :math:`\\lVert F_t\\rVert / \\mu_k P` of the friction, ``share_x``, ``share_z`` its
+    components along x and z per unit load (the fallback's beam-plane friction), ``friction_limit``
+    :math:`\\mu_s P` (N, sigma_B); ``params`` (:data:`MEASURED_PARAMS`); writes ``out``
+    (:data:`MEASURED_SCRATCH`): the force and condition of the blend first. Returns the status
+    bits (:class:`DecouplingFlag`)."""
+    ds = decouple_kernel(bending, torsion, nx, ny, nz, fx, fy, params, out[_BLEND:_BLEND + _OUT_SIZE])
+    w = 0.0
+    flag = False  # the fallback is reported (NO_MOTION) where a fade applies or it outweighs
+    if ds == 0:
+        w = min(max((strength - FADE_STRENGTH[0]) / (FADE_STRENGTH[1] - FADE_STRENGTH[0]), 0.0), 1.0)
+        w *= min(max(math.log(FADE_CONDITION[1] / out[_BLEND + O_CONDITION])
+                     / math.log(FADE_CONDITION[1] / FADE_CONDITION[0]), 0.0), 1.0)
+        flag = w < 1.0
+        if w > 0.0:  # inverse-variance weight of the two F_x estimates (FADE_CONDITION comment)
+            noise = params[P_SIGNAL_NOISE]
+            var_d = directional_noise_kernel(nx, ny, nz, fx, fy, params, noise, noise) ** 2
+            if var_d > 0.0:
+                var_b = friction_limit ** 2
+                w *= var_b / (var_b + var_d)
+                flag = flag or var_d > var_b
+    if w < 1.0:
+        fb = out[_FALLBACK:_FALLBACK + _OUT_SIZE]
+        d0 = decouple_kernel(bending, torsion, nx, ny, nz, 0.0, 0.0, params, fb)
+        den = nz + share_z + params[P_COUPLING] * (nx + share_x)
+        if (share_x != 0.0 or share_z != 0.0) and d0 & _FALLBACK_DEGENERATE == 0 \
+                and abs(den) * params[P_MAX_CONDITION] >= 1.0:
+            big_n = bending / (params[P_BENDING_COMPLIANCE] * den)
+            fb[O_FORCE] = big_n * (nx + share_x)
+            fb[O_FORCE + 2] = big_n * (nz + share_z)
+        for j in range(3):
+            out[_BLEND + O_FORCE + j] = w * out[_BLEND + O_FORCE + j] + (1.0 - w) * fb[O_FORCE + j]
+        if w == 0.0:
+            ds = d0
+            out[_BLEND + O_CONDITION] = fb[O_CONDITION]
+        elif flag:
+            ds |= _NO_MOTION
+    return ds
+
+
+@njit(cache=True)
+def bending_only_kernel(bending, torsion, params, out):
+    """The classical AFM reading F = (0, tau, beta) (all bending taken as F_z), where there is no
+    contact normal to decouple with; writes ``out`` (:data:`DECOUPLING_OUT`, condition 1) and
+    returns ``FALLBACK_DEGENERATE``."""
+    out[O_FORCE] = 0.0
+    out[O_FORCE + 1] = torsion / params[P_TORSION_COMPLIANCE]
+    out[O_FORCE + 2] = bending / params[P_BENDING_COMPLIANCE]
+    out[O_CONDITION] = 1.0
+    return _FALLBACK_DEGENERATE
+
+
 @njit(cache=True)
 def decouple_many_kernel(bending, torsion, normals, velocities, params, forces, condition, status):
     """Loop of :func:`decouple_kernel` over n samples (replay); fills ``forces`` (n, 3),
     ``condition`` (n,) and ``status`` (n,) int64 in place."""
-    out = np.empty(4)
+    out = np.empty(_OUT_SIZE)
     for i in range(bending.shape[0]):
         s = decouple_kernel(
             bending[i], torsion[i], normals[i, 0], normals[i, 1], normals[i, 2],
             velocities[i, 0], velocities[i, 1], params, out,
         )
-        forces[i, 0] = out[0]
-        forces[i, 1] = out[1]
-        forces[i, 2] = out[2]
-        condition[i] = out[3]
+        forces[i, 0] = out[O_FORCE]
+        forces[i, 1] = out[O_FORCE + 1]
+        forces[i, 2] = out[O_FORCE + 2]
+        condition[i] = out[O_CONDITION]
         status[i] = s
 
 
@@ -335,7 +460,7 @@ def decoupling_parameters(
     --------
     >>> lever = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
     >>> params = decoupling_parameters(lever)
-    >>> out = np.empty(4)
+    >>> out = np.empty(DECOUPLING_OUT.size)
     >>> decouple_kernel(*lever.angles([1e-9, 2e-9, 5e-9]), 0.0, 0.0, 1.0, 0.0, 1e-6, params, out)
     0
     """
@@ -410,9 +535,9 @@ def _check_velocity(velocity) -> tuple[float, float]:
 
 
 def _estimate(out: np.ndarray, status: int, motion: bool) -> ForceEstimate:
-    force = out[:3].copy()
+    force = out[DECOUPLING_OUT.slice("force")].copy()
     force.setflags(write=False)
-    return ForceEstimate(force, method_from_status(status, motion), _FLAGS[status], float(out[3]))
+    return ForceEstimate(force, method_from_status(status, motion), _FLAGS[status], float(out[O_CONDITION]))
 
 
 def decouple(
@@ -466,7 +591,7 @@ def decouple(
     nx, ny, nz = _check_normal(normal)
     vx, vy = _check_velocity(velocity)
     params = _parameters(cantilever, min_speed, min_normal_z, max_condition, None)
-    out = np.empty(4)
+    out = np.empty(DECOUPLING_OUT.size)
     status = decouple_kernel(b, t, nx, ny, nz, vx, vy, params, out)
     return _estimate(out, status, motion=False)
 
@@ -533,7 +658,7 @@ def decouple_by_motion(
     t = _finite_scalar("torsion", torsion)
     vx, vy = _check_velocity(velocity)
     params = _parameters(cantilever, min_speed, 0.0, max_condition, coupling)
-    out = np.empty(4)
+    out = np.empty(DECOUPLING_OUT.size)
     status = decouple_kernel(b, t, 0.0, 0.0, 1.0, vx, vy, params, out)
     return _estimate(out, status, motion=True)
 

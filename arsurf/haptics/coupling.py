@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit
 
 from arsurf import status
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, _vec3
 from arsurf.haptics.scaling import ForceScaling, PositionScaling
@@ -51,6 +52,8 @@ __all__ = [
     "CLAMPED",
     "CLUTCHED",
     "NONFINITE",
+    "FP_PARAMS",
+    "FP_STATE",
     "DirectCoupling",
     "ForcePositionCoupling",
     "fp_step",
@@ -60,27 +63,31 @@ CLUTCHED = status.CLUTCHED  #: clutch held: slave frozen (no force, or the last 
 CLAMPED = status.CLAMPED  #: slave clamped to the probe range
 NONFINITE = status.NONFINITE  #: non-finite master state (no force, slave frozen) or probe force (slave frozen)
 
-# params layout of ForcePositionCoupling (per axis blocks of 3)
-_P_K, _P_B, _P_G, _P_AF, _P_AD, _P_LO, _P_HI = 0, 3, 6, 9, 12, 15, 18
-_P_DT = 21
-_P_HOLD = 22  # 1: hold the last force while the clutch is held (seed 003), 0: zero force (seed 001)
-_NP = 23
-# state layout: slave states (3 per axis: x, v, a), previous x, offset, flags
-_S_SL = 0  # (3 axes x 3 states) = 9
-_S_XPREV = 9
-_S_OFF = 12
-_S_CLUTCH = 15
-_S_ANCHOR = 16
-_S_FLAST = 17  # last force sent (3)
-_NS = 20
+#: the parameters of :func:`fp_step` (per-axis fields of 3): K_fp (N/m), B_fp (N s/m), G_n
+#: (m/(N s)), A_f, A_d, the probe range (m), the period (s), and 1 to hold the last force while the
+#: clutch is held (seed 003), 0 for no force (seed 001)
+FP_PARAMS = Layout("force-position parameters", [
+    ("stiffness", 3), ("damping", 3), ("slave_gain", 3), ("force_scale", 3), ("position_scale", 3),
+    ("probe_lower", 3), ("probe_upper", 3), ("dt", 1), ("hold_force", 1)])
+#: the state of :func:`fp_step`: the slave's (x, v, a) per axis, its previous x (m), the clutch
+#: offset e_0 (master m), clutch held, anchored (0 or 1), the last force sent (N)
+FP_STATE = Layout("force-position state", [
+    ("slave", 9), ("previous_x", 3), ("offset", 3), ("clutched", 1), ("anchored", 1), ("last_force", 3)])
+# the offsets as the kernel uses them
+_P_K, _P_B, _P_G = FP_PARAMS.offset("stiffness"), FP_PARAMS.offset("damping"), FP_PARAMS.offset("slave_gain")
+_P_AF, _P_AD = FP_PARAMS.offset("force_scale"), FP_PARAMS.offset("position_scale")
+_P_LO, _P_HI = FP_PARAMS.offset("probe_lower"), FP_PARAMS.offset("probe_upper")
+_P_DT, _P_HOLD = FP_PARAMS.offset("dt"), FP_PARAMS.offset("hold_force")
+_S_SL, _S_XPREV, _S_OFF = FP_STATE.offset("slave"), FP_STATE.offset("previous_x"), FP_STATE.offset("offset")
+_S_CLUTCH, _S_ANCHOR, _S_FLAST = FP_STATE.offset("clutched"), FP_STATE.offset("anchored"), FP_STATE.offset("last_force")
 
 
 @njit(cache=True)
 def fp_step(params, phi, gamma, state, x_m, v_m, f_probe, clutched, force_out, probe_out):
     """One tick of the force-position coupling (module docstring); returns flags.
 
-    ``params`` (23,), ``phi`` (3, 3, 3) and ``gamma`` (3, 3) slave ZOH matrices, ``state`` (20,)
-    (updated), ``x_m``, ``v_m`` (3,) master position m and velocity m/s, ``f_probe`` (3,) N,
+    ``params`` (:data:`FP_PARAMS`), ``phi`` (3, 3, 3) and ``gamma`` (3, 3) slave ZOH matrices,
+    ``state`` (:data:`FP_STATE`, updated), ``x_m``, ``v_m`` (3,) master position m and velocity m/s, ``f_probe`` (3,) N,
     ``clutched`` bool, ``force_out`` (3,) N on the handle, ``probe_out`` (3,) next probe position.
     """
     dt = params[_P_DT]
@@ -267,7 +274,7 @@ class ForcePositionCoupling:
         self.slave_tau = (t1, t2)
         self.dt = T
         self.phi, self.gamma = self._slave_matrices(t1, t2, T)
-        p = np.zeros(_NP)
+        p = FP_PARAMS.zeros()
         p[_P_K:_P_K + 3] = K
         p[_P_B:_P_B + 3] = B
         p[_P_G:_P_G + 3] = G
@@ -292,7 +299,7 @@ class ForcePositionCoupling:
         if not isinstance(clutch_mask, (int, np.integer)) or clutch_mask < 0:
             raise HapticsError(f"clutch_mask must be a non-negative button bitmask (got {clutch_mask!r})")
         self.clutch_mask = int(clutch_mask)
-        self.state = np.zeros(_NS)
+        self.state = FP_STATE.zeros()
         self._force = np.zeros(3)
         self._probe = np.zeros(3)
         self.flags = 0

@@ -24,7 +24,8 @@ prewarped at the cutoff, so its frequency response is exactly
 
 .. math:: |H(e^{j\\omega\\Delta T})|^2 = \\frac{1}{1 + \\left(\\tan(\\omega\\Delta T/2)/\\tan(\\omega_c\\Delta T/2)\\right)^{2n}} .
 
-Kernels take plain float64 arrays and return a status: 0 ok, 1 the input had a non-finite value
+Kernels take plain float64 arrays and return the loop stages' flag bits (:mod:`arsurf.status`): 0, or
+``NONFINITE`` when the input had a non-finite value
 (the filter then holds its previous output and keeps its state, so NaN never enters the state).
 
 Examples
@@ -42,7 +43,7 @@ import warnings
 import numpy as np
 from numba import njit
 
-from arsurf import _validation
+from arsurf import _validation, status
 from arsurf.errors import HapticsError
 from arsurf.errors import HapticsWarning
 
@@ -57,7 +58,7 @@ __all__ = [
 ]
 
 _OK = 0
-_NONFINITE = 1
+_NONFINITE = status.NONFINITE
 
 
 def _positive(value, name: str, unit: str, hint: str) -> float:

@@ -44,15 +44,15 @@ from numba.experimental import structref
 from arsurf._layout import Layout
 from arsurf.status import BAD_BUTTONS
 from arsurf.errors import HapticsError
-from arsurf.haptics.coupling import DirectCoupling, ForcePositionCoupling, fp_step
+from arsurf.haptics.coupling import FP_PARAMS, FP_STATE, DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
 from arsurf.haptics.filters import LowPass, lowpass1_step
 from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
-from arsurf.haptics.scaling import force_scale_step, position_map_step
-from arsurf.model import (M_BENDING, M_MEAS_FX, M_NX, M_SIM_FX, M_TIP, M_TORSION, SIGNALS_GIVEN, SIGNALS_NONE,
-                          SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
+from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
+from arsurf.model import (M_BENDING, M_MEAS_FX, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS, SIGNALS_GIVEN,
+                          SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
 _BUTTONS_LIMIT = 1 << 31  # a button word is a small non-negative bit mask
@@ -81,36 +81,75 @@ L_COLLIDE_STATUS = LOOP_OUT.offset("collide_status")
 L_TIP, L_ENERGY, L_PC_DAMPING = LOOP_OUT.offset("tip"), LOOP_OUT.offset("energy"), LOOP_OUT.offset("passivity_damping")
 L_MEAS_PART, L_NORMAL = LOOP_OUT.offset("measured_part"), LOOP_OUT.offset("normal")
 L_SIZE = LOOP_OUT.size
+#: the filter's channels (step 4): the measured part of the probe force and the contact normal
+FILTER_CHANNELS = Layout("loop filter channels", [("measured_part", 3), ("normal", 3)])
+_F_PART, _F_NORMAL = FILTER_CHANNELS.offset("measured_part"), FILTER_CHANNELS.offset("normal")
+#: the measured angles given to a tick or the noise added to synthesised ones (rad)
+SIGNALS = Layout("signals", [("bending", 1), ("torsion", 1)])
+
+#: Everything the compiled tick reads but the per-tick inputs (buttons, clock, sample age), in one
+#: order: the fields of :class:`LoopArrays`, the struct the kernels take, which
+#: :meth:`HapticLoop._pack` fills by these names. The device sample (m, m/s), the period (s), the
+#: given signals (NaN: none) and the noise (:data:`SIGNALS`), the force source, blend weight,
+#: coupling mode (0 direct, 1 force-position) and clutch buttons; the position map
+#: (:mod:`~arsurf.haptics.scaling`), the force-position coupling (:mod:`~arsurf.haptics.coupling`;
+#: placeholders of its layouts when direct), the force scale, the filter's alpha and state
+#: (:data:`FILTER_CHANNELS`), the passivity controller and the safety layer; the model's arrays
+#: (:data:`arsurf.model.MODEL_ARGS`); the previous probe position and the output (:data:`LOOP_OUT`).
+LOOP_FIELDS = ("x", "v", "dt", "ext", "noise", "source", "blend", "coupling_mode", "clutch_mask",
+               "pos_params", "pos_state", "fp_params", "fp_phi", "fp_gamma", "fp_state",
+               "gain", "alpha", "filt_state", "pc_params", "pc_state", "safety_params", "safety_state",
+               *MODEL_ARGS, "prev_probe", "out")
+
+
+@structref.register
+class _LoopArraysType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class LoopArrays(structref.StructRefProxy):
+    """The compiled tick's arrays and settings (:data:`LOOP_FIELDS`) as one numba struct, built
+    once per loop: a tick from Python passes one reference instead of the ~40 arrays and settings
+    (16 of them the projector's arrays; ~2 µs of unboxing per tick)."""
+
+
+structref.define_proxy(LoopArrays, _LoopArraysType, list(LOOP_FIELDS))
 
 
 @njit(cache=True)
-def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
-                      pos_params, pos_state, fp_state,
-                      proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                      model_state, coll, dec, ev, mout, prev_probe, out):
+def loop_model_kernel(a, buttons):
     """Steps 1-3 of a tick (module docstring): probe position, model, force on the probe; the
-    first half of :func:`loop_tick_kernel`, for a loop with a scene.
+    first half of :func:`loop_tick_kernel`, for a loop with a scene. ``a`` is the loop's
+    :class:`LoopArrays`.
 
-    Writes ``out[L_PROBE:L_F_FILT]`` and ``mout``, sets ``prev_probe`` to the new probe position;
-    returns the collision status."""
+    Writes ``a.out[L_PROBE:L_F_FILT]`` and ``a.mout``, sets ``a.prev_probe`` to the new probe
+    position; returns the collision status."""
+    out = a.out
+    prev_probe = a.prev_probe
+    fp_state = a.fp_state
+    source = a.source
     probe = out[L_PROBE:L_PROBE + 3]
-    if coupling_mode == 0:
-        position_map_step(pos_params, pos_state, x_m, buttons, clutch_mask, probe)
+    if a.coupling_mode == 0:
+        position_map_step(a.pos_params, a.pos_state, a.x, buttons, a.clutch_mask, probe)
     else:
         for j in range(3):  # the slave position computed by the previous coupling tick
             probe[j] = fp_state[j] if math.isfinite(fp_state[j]) else prev_probe[j]
     for j in range(3):
-        out[L_PROBE_V + j] = (probe[j] - prev_probe[j]) / dt if math.isfinite(prev_probe[j]) else 0.0
+        out[L_PROBE_V + j] = (probe[j] - prev_probe[j]) / a.dt if math.isfinite(prev_probe[j]) else 0.0
         prev_probe[j] = probe[j]
+    ext_signals = a.ext
     have_ext = math.isfinite(ext_signals[0]) and math.isfinite(ext_signals[1])
     if have_ext:
         mode, b, t = SIGNALS_GIVEN, ext_signals[0], ext_signals[1]
     elif source != 0:
-        mode, b, t = SIGNALS_SYNTHESISED, noise[0], noise[1]
+        mode, b, t = SIGNALS_SYNTHESISED, a.noise[0], a.noise[1]
     else:
         mode, b, t = SIGNALS_NONE, 0.0, 0.0
-    st = model_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                           deform, probe[0], probe[1], probe[2], b, t, mode, model_state, coll, dec, ev, mout)
+    mout = a.mout
+    st = model_tick_kernel(a.proj, a.live_ctrl, a.live_rest, a.ku, a.kv, a.patch, a.md_args, a.dec_params,
+                           a.tip_radius, a.friction, a.deform, probe[0], probe[1], probe[2], b, t, mode,
+                           a.model_state, a.coll, a.dec, a.ev, a.mout)
     out[L_COLLIDE_STATUS] = st
     for j in range(3):
         out[L_TIP + j] = mout[M_TIP + j]
@@ -119,7 +158,7 @@ def loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupl
     out[L_SIGNALS] = mout[M_BENDING]
     out[L_SIGNALS + 1] = mout[M_TORSION]
     f = out[L_F_PROBE:L_F_PROBE + 3]
-    w = 0.0 if source == 0 else (1.0 if source == 1 else blend)
+    w = 0.0 if source == 0 else (1.0 if source == 1 else a.blend)
     for j in range(3):
         if st < 0 or w == 0.0:
             out[L_MEAS_PART + j] = 0.0
@@ -167,35 +206,42 @@ def turn_with_smoothed_normal(alpha, nbar, n, f, part, out) -> None:
 
 
 @njit(cache=True, inline="always")
-def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma, fp_state,
-                       gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state, out):
-    """Steps 4-6 of a tick: filter the probe force ``out[L_F_PROBE:]``, couple, keep the port
+def loop_output_kernel(a, buttons, now, age):
+    """Steps 4-6 of a tick: filter the probe force ``a.out[L_F_PROBE:]``, couple, keep the port
     passive (:mod:`arsurf.haptics.passivity`), saturate; the second half of
-    :func:`loop_tick_kernel`, for a loop with a scene.
+    :func:`loop_tick_kernel`, for a loop with a scene. ``now`` (s) the loop clock, ``age`` (s)
+    the age of the device sample.
 
-    Writes ``out[L_F_FILT:]``; returns the safety flags."""
-    clutched = (buttons & clutch_mask) != 0
+    Writes ``a.out[L_F_FILT:]``; returns the safety flags."""
+    out = a.out
+    x_m = a.x
+    v_m = a.v
+    filt_state = a.filt_state
+    alpha = a.alpha
+    pc_state = a.pc_state
+    clutched = (buttons & a.clutch_mask) != 0
     f = out[L_F_PROBE:L_F_PROBE + 3]
     filt = out[L_F_FILT:L_F_FILT + 3]
     part = out[L_MEAS_PART:L_MEAS_PART + 3]
-    lowpass1_step(alpha, filt_state[0:3], part, filt)  # the measured part (module docstring, step 4)
-    turn_with_smoothed_normal(alpha, filt_state[3:6], out[L_NORMAL:L_NORMAL + 3], f, part, filt)
+    lowpass1_step(alpha, filt_state[_F_PART:_F_PART + 3], part, filt)  # the measured part (module docstring, step 4)
+    turn_with_smoothed_normal(alpha, filt_state[_F_NORMAL:_F_NORMAL + 3], out[L_NORMAL:L_NORMAL + 3], f, part, filt)
     hand = out[L_F_HAND:L_F_HAND + 3]
     cflags = 0
-    if coupling_mode == 0:
-        cflags = force_scale_step(gain, filt, hand)
+    if a.coupling_mode == 0:
+        cflags = force_scale_step(a.gain, filt, hand)
     else:
+        fp_state = a.fp_state
         nxt = out[L_F_DEVICE:L_F_DEVICE + 3]  # scratch for the next slave position
-        cflags = fp_step(fp_params, fp_phi, fp_gamma, fp_state, x_m, v_m, filt, clutched, hand, nxt)
+        cflags = fp_step(a.fp_params, a.fp_phi, a.fp_gamma, fp_state, x_m, v_m, filt, clutched, hand, nxt)
         for j in range(3):
             fp_state[j] = nxt[j]
     out[L_COUPLING_FLAGS] = cflags
     for j in range(3):  # a stylus reading that is not a number is a device fault: zero force now
         if not (math.isfinite(x_m[j]) and math.isfinite(v_m[j])):
             hand[0] = math.nan
-    pflag = passivity_observe_control(pc_params, pc_state, x_m, v_m, hand)
+    pflag = passivity_observe_control(a.pc_params, pc_state, x_m, v_m, hand)
     dev = out[L_F_DEVICE:L_F_DEVICE + 3]
-    flags = safety_step(safety_params, safety_state, hand, now, age, buttons, dev) | pflag
+    flags = safety_step(a.safety_params, a.safety_state, hand, now, age, buttons, dev) | pflag
     passivity_applied(pc_state, dev)
     out[L_ENERGY] = pc_state[S_ENERGY]
     out[L_PC_DAMPING] = pc_state[S_ALPHA]
@@ -204,56 +250,17 @@ def loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, 
 
 
 @njit(cache=True)
-def loop_tick_kernel(x_m, v_m, buttons, now, age, dt, ext_signals, noise,
-                     source, blend, coupling_mode, clutch_mask,
-                     pos_params, pos_state, fp_params, fp_phi, fp_gamma, fp_state,
-                     gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state,
-                     proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                     model_state, coll, dec, ev, mout, prev_probe, out):
-    """One tick (module docstring). Writes ``out`` (L_SIZE,) and ``mout`` (M_SIZE,); returns the
-    safety flags. ``ext_signals`` (2,) measured (bending, torsion), NaN when none; ``noise`` (2,)
-    radians added to synthesised signals.
+def loop_tick_kernel(a, buttons, now, age):
+    """One tick (module docstring) on the loop's :class:`LoopArrays` ``a``. Writes ``a.out``
+    (:data:`LOOP_OUT`) and ``a.mout`` (:data:`~arsurf.model.MODEL_OUT`); returns the safety flags.
+    ``a.ext`` holds measured (bending, torsion), NaN when none; ``a.noise`` the radians added to
+    synthesised signals.
 
     This is :func:`loop_model_kernel` followed by :func:`loop_output_kernel` (inlined): one
     compiled call from Python, while a loop with a scene calls the two halves separately around
-    the scene's step. (Writing the halves out in one body saved ~0.3 µs of argument passing per
-    tick, 3 %; one definition of each half is worth more.)"""
-    loop_model_kernel(x_m, buttons, dt, ext_signals, noise, source, blend, coupling_mode, clutch_mask,
-                      pos_params, pos_state, fp_state, proj, live_ctrl, live_rest, ku, kv, patch, md_args,
-                      dec_params, tip_radius, friction, deform, model_state, coll, dec, ev, mout, prev_probe, out)
-    return loop_output_kernel(x_m, v_m, buttons, now, age, coupling_mode, clutch_mask, fp_params, fp_phi, fp_gamma,
-                              fp_state, gain, alpha, filt_state, pc_params, pc_state, safety_params, safety_state, out)
-
-
-@structref.register
-class _LoopArraysType(types.StructRef):
-    def preprocess_fields(self, fields):
-        return tuple((name, types.unliteral(t)) for name, t in fields)
-
-
-class LoopArrays(structref.StructRefProxy):
-    """Every argument of :func:`loop_tick_kernel` but the per-tick ones (buttons, clock, sample
-    age) as one numba struct, built once per loop: a tick from Python passes one reference
-    instead of 43 arguments (16 of them the projector's arrays; ~2 µs of unboxing per tick)."""
-
-
-_LOOP_FIELDS = ["x", "v", "dt", "ext", "noise", "source", "blend", "coupling_mode", "clutch_mask",
-                "pos_params", "pos_state", "fp_params", "fp_phi", "fp_gamma", "fp_state",
-                "gain", "alpha", "filt_state", "pc_params", "pc_state", "safety_params", "safety_state",
-                "proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params", "tip_radius",
-                "friction", "deform", "model_state", "coll", "dec", "ev", "mout", "prev_probe", "out"]
-structref.define_proxy(LoopArrays, _LoopArraysType, _LOOP_FIELDS)
-
-
-@njit(cache=True)
-def loop_tick_packed(a, buttons, now, age):
-    """:func:`loop_tick_kernel` on a :class:`LoopArrays`; returns the safety flags."""
-    return loop_tick_kernel(a.x, a.v, buttons, now, age, a.dt, a.ext, a.noise, a.source, a.blend, a.coupling_mode,
-                            a.clutch_mask, a.pos_params, a.pos_state, a.fp_params, a.fp_phi, a.fp_gamma, a.fp_state,
-                            a.gain, a.alpha, a.filt_state, a.pc_params, a.pc_state, a.safety_params, a.safety_state,
-                            a.proj, a.live_ctrl, a.live_rest, a.ku, a.kv, a.patch, a.md_args, a.dec_params,
-                            a.tip_radius, a.friction, a.deform, a.model_state, a.coll, a.dec, a.ev, a.mout,
-                            a.prev_probe, a.out)
+    the scene's step."""
+    loop_model_kernel(a, buttons)
+    return loop_output_kernel(a, buttons, now, age)
 
 
 @dataclass
@@ -359,32 +366,33 @@ class HapticLoop:
             pos = coupling.position
             self._pos = (pos.params, pos.state, pos.clutch_mask)
             self._gain = coupling.force.gain
-            self._fp = (np.zeros(23), np.zeros((3, 3, 3)), np.zeros((3, 3)), np.zeros(20))  # unused
+            self._fp = (FP_PARAMS.zeros(), np.zeros((3, 3, 3)), np.zeros((3, 3)), FP_STATE.zeros())  # unused
         elif isinstance(coupling, ForcePositionCoupling):
             self._mode = 1
-            self._pos = (np.zeros(12), np.zeros(10), int(getattr(coupling, "clutch_mask", 1)))
+            self._pos = (POSITION_PARAMS.zeros(), POSITION_STATE.zeros(), int(getattr(coupling, "clutch_mask", 1)))
             self._gain = np.ones(3)
             self._fp = (coupling.params, coupling.phi, coupling.gamma, coupling.state)
         else:
             raise HapticsError(f"coupling must be DirectCoupling or ForcePositionCoupling (got {type(coupling).__name__})")
         self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity,
                                              reserve=model.adhesion_energy() * coupling.energy_gain())
-        # six channels: the measured part (3) and the contact normal (3) (module docstring, step 4)
-        self.filter = LowPass(config.filter_cutoff, self.dt, channels=6) if config.filter_cutoff else None
+        # the measured part and the contact normal (FILTER_CHANNELS; module docstring, step 4)
+        self.filter = (LowPass(config.filter_cutoff, self.dt, channels=FILTER_CHANNELS.size) if config.filter_cutoff
+                       else None)
         self._alpha = self.filter.alpha if self.filter else 1.0
-        self._filt_state = self.filter.state if self.filter else np.zeros(6)
+        self._filt_state = self.filter.state if self.filter else FILTER_CHANNELS.zeros()
         self._rng = np.random.default_rng(config.seed)
-        self._noise = np.zeros(2)
+        self._noise = SIGNALS.zeros()
         # 64 ticks at a time: one draw costs ~1.7 µs (1024 at once cost 22 µs in one tick, a
         # missed deadline at 10 kHz); the sequence is the same whatever the block size
-        self._noise_block = np.empty((64, 2))
+        self._noise_block = np.empty((64, SIGNALS.size))
         self._noise_i = self._noise_block.shape[0]  # empty: filled at the first tick
-        self._ext = np.full(2, np.nan)
+        self._ext = SIGNALS.full(np.nan)
         self._ext_given = False  # the last tick was given signals: clear them when the next is not
         self._x = np.zeros(3)
         self._v = np.zeros(3)
         self.prev_probe = np.full(3, np.nan)
-        self.out = np.zeros(L_SIZE)
+        self.out = LOOP_OUT.zeros()
         self._device_force = self.out[L_F_DEVICE:L_F_DEVICE + 3]
         self._source = SOURCES[config.source]
         if scene is not None and not callable(getattr(scene, "tick", None)):
@@ -396,11 +404,20 @@ class HapticLoop:
         self._packed = self._pack()
 
     def _pack(self) -> LoopArrays:
-        """The tick's arguments as one struct (:class:`LoopArrays`), sharing this loop's arrays."""
-        return LoopArrays(self._x, self._v, self.dt, self._ext, self._noise, self._source, float(self.config.blend),
-                          self._mode, int(self._pos[2]), self._pos[0], self._pos[1], *self._fp, self._gain,
-                          float(self._alpha), self._filt_state, self.passivity.params, self.passivity.state,
-                          self.safety.params, self.safety.state, *self._model_args, self.prev_probe, self.out)
+        """The tick's arrays and settings as one struct (:class:`LoopArrays`, :data:`LOOP_FIELDS`),
+        sharing this loop's arrays."""
+        fp_params, fp_phi, fp_gamma, fp_state = self._fp
+        values = {"x": self._x, "v": self._v, "dt": self.dt, "ext": self._ext, "noise": self._noise,
+                  "source": self._source, "blend": float(self.config.blend), "coupling_mode": self._mode,
+                  "clutch_mask": int(self._pos[2]), "pos_params": self._pos[0], "pos_state": self._pos[1],
+                  "fp_params": fp_params, "fp_phi": fp_phi, "fp_gamma": fp_gamma, "fp_state": fp_state,
+                  "gain": self._gain, "alpha": float(self._alpha), "filt_state": self._filt_state,
+                  "pc_params": self.passivity.params, "pc_state": self.passivity.state,
+                  "safety_params": self.safety.params, "safety_state": self.safety.state,
+                  **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out}
+        if set(values) != set(LOOP_FIELDS):
+            raise HapticsError(f"the loop's arrays {sorted(set(values) ^ set(LOOP_FIELDS))} do not match LOOP_FIELDS")
+        return LoopArrays(*(values[name] for name in LOOP_FIELDS))
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
@@ -471,20 +488,16 @@ class HapticLoop:
             buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
 
         if self.scene is None:
-            loop_tick_packed(self._packed, buttons, float(now), float(now - inputs.timestamp))
+            loop_tick_kernel(self._packed, buttons, float(now), float(now - inputs.timestamp))
             if bad_buttons:
                 self.out[L_SAFETY_FLAGS] = int(self.out[L_SAFETY_FLAGS]) | BAD_BUTTONS
             return self._device_force
         out = self.out
-        fp_params, fp_phi, fp_gamma, fp_state = self._fp
-        loop_model_kernel(x, buttons, self.dt, self._ext, self._noise, self._source, self.config.blend, self._mode,
-                          self._pos[2], self._pos[0], self._pos[1], fp_state, *self._model_args, self.prev_probe, out)
+        loop_model_kernel(self._packed, buttons)
         self.scene.tick(self._scene_prev, out[L_TIP:L_TIP + 3], self.model.tip_radius,
                         out[L_F_PROBE:L_F_PROBE + 3])
         self._scene_prev[:] = out[L_TIP:L_TIP + 3]
-        loop_output_kernel(x, v, buttons, float(now), float(now - inputs.timestamp), self._mode, self._pos[2],
-                           fp_params, fp_phi, fp_gamma, fp_state, self._gain, self._alpha, self._filt_state,
-                           self.passivity.params, self.passivity.state, self.safety.params, self.safety.state, out)
+        loop_output_kernel(self._packed, buttons, float(now), float(now - inputs.timestamp))
         if bad_buttons:
             out[L_SAFETY_FLAGS] = int(out[L_SAFETY_FLAGS]) | BAD_BUTTONS
         return self._device_force

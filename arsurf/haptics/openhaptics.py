@@ -46,9 +46,14 @@ import time
 
 import numpy as np
 
+from arsurf._layout import Layout
 from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
 from arsurf.haptics.device import DeviceInfo
 from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
+
+#: the sample the servo callback leaves for the poll (vendor units: mm, mm/s, the button word)
+SERVO_SAMPLE = Layout("OpenHaptics servo sample", [("position", 3), ("velocity", 3), ("buttons", 1)])
+_POSITION, _VELOCITY, _BUTTONS = (SERVO_SAMPLE.offset(f) for f in SERVO_SAMPLE.fields)
 
 __all__ = ["OpenHapticsDevice", "probe"]
 
@@ -124,7 +129,7 @@ class OpenHapticsDevice(HardwareDevice):
         self._hd = None
         self._id = HD_INVALID_HANDLE
         self._lock = threading.Lock()
-        self._sample = np.zeros(7)  # position (3) mm, velocity (3) mm/s, buttons
+        self._sample = SERVO_SAMPLE.zeros()
         self._sample_t = -math.inf
         self._poll_t = -math.inf
         self._cmd = np.zeros(3)
@@ -154,9 +159,10 @@ class OpenHapticsDevice(HardwareDevice):
                 return HD_CALLBACK_CONTINUE
             with self._lock:
                 s = self._sample
-                s[0], s[1], s[2] = m[3][0], m[3][1], m[3][2]  # column-major: the translation column
-                s[3], s[4], s[5] = vel[0], vel[1], vel[2]
-                s[6] = buttons
+                p, v = _POSITION, _VELOCITY
+                s[p], s[p + 1], s[p + 2] = m[3][0], m[3][1], m[3][2]  # column-major: the translation column
+                s[v], s[v + 1], s[v + 2] = vel[0], vel[1], vel[2]
+                s[_BUTTONS] = buttons
                 self._sample_t = now
         except Exception:  # noqa: BLE001 - never let an exception unwind into the HD scheduler
             self.servo_errors += 1
@@ -250,9 +256,9 @@ class OpenHapticsDevice(HardwareDevice):
             if not (now - t <= self.sample_timeout):  # no servo sample for that long
                 return None
             s = self._sample
-            vpos[:] = s[:3]
-            vvel[:] = s[3:6]
-            buttons = int(s[6])
+            vpos[:] = s[SERVO_SAMPLE.slice("position")]
+            vvel[:] = s[SERVO_SAMPLE.slice("velocity")]
+            buttons = int(s[_BUTTONS])
         self._poll_t = t
         return buttons
 

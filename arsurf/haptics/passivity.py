@@ -31,8 +31,8 @@ the controller costs transparency only while energy is being created, i.e. at hi
 Each tick reports the observed energy and the damping injected; a tick where the controller acted
 carries the flag :data:`arsurf.status.PASSIVITY`.
 
-State (8 floats): E (J), the previous handle position (3, m; NaN: none), the force applied over
-the last tick (3, N), the damping injected this tick (N s/m).
+State (:data:`PASSIVITY_STATE`): E (J), the previous handle position (m; NaN: none), the force
+applied over the last tick (N), the damping injected this tick (N s/m).
 """
 from __future__ import annotations
 
@@ -42,12 +42,22 @@ import numpy as np
 from numba import njit
 
 from arsurf import status
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 
-S_ENERGY, S_X, S_F, S_ALPHA = 0, 1, 4, 7
-STATE_SIZE = 8
-P_DT, P_MAX_DAMPING, P_ON, P_RESERVE = 0, 1, 2, 3
-PARAMS_SIZE = 4
+#: the observer's state (module docstring): E (J), the previous handle position (m; NaN: none), the
+#: force applied over the last tick (N), the damping injected this tick (N s/m)
+PASSIVITY_STATE = Layout("passivity state", [("energy", 1), ("position", 3), ("force", 3), ("damping", 1)])
+#: its parameters: the loop period (s), the damping limit (N s/m), 1 when the controller may damp,
+#: the environment's energy reserve E_0 (J)
+PASSIVITY_PARAMS = Layout("passivity parameters", [("dt", 1), ("max_damping", 1), ("on", 1), ("reserve", 1)])
+# the offsets as the kernels use them
+S_ENERGY, S_X = PASSIVITY_STATE.offset("energy"), PASSIVITY_STATE.offset("position")
+S_F, S_ALPHA = PASSIVITY_STATE.offset("force"), PASSIVITY_STATE.offset("damping")
+STATE_SIZE = PASSIVITY_STATE.size
+P_DT, P_MAX_DAMPING = PASSIVITY_PARAMS.offset("dt"), PASSIVITY_PARAMS.offset("max_damping")
+P_ON, P_RESERVE = PASSIVITY_PARAMS.offset("on"), PASSIVITY_PARAMS.offset("reserve")
+PARAMS_SIZE = PASSIVITY_PARAMS.size
 #: the controller's damping stays below this fraction of the device's ``max_damping``
 DAMPING_FRACTION = 0.5
 
@@ -129,8 +139,9 @@ class PassivityController:
             raise HapticsError(f"dt must be positive (got {dt!r} s); it is the loop period")
         if not max_damping > 0.0:
             raise HapticsError(f"max_damping must be > 0 N s/m or inf (got {max_damping!r})")
-        self.params = np.array([dt, DAMPING_FRACTION * max_damping, 1.0 if enabled else 0.0, reserve])
-        self.state = np.zeros(STATE_SIZE)
+        self.params = PASSIVITY_PARAMS.pack({"dt": dt, "max_damping": DAMPING_FRACTION * max_damping,
+                                              "on": 1.0 if enabled else 0.0, "reserve": reserve})
+        self.state = PASSIVITY_STATE.zeros()
         self.reset()
 
     def reset(self) -> None:

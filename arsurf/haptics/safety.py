@@ -53,6 +53,7 @@ import numpy as np
 from numba import njit
 
 from arsurf import status
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, DeviceInfo
 
@@ -62,6 +63,8 @@ __all__ = [
     "NONFINITE",
     "RAMPING",
     "RATE_LIMITED",
+    "SAFETY_PARAMS",
+    "SAFETY_STATE",
     "SATURATED",
     "STALE",
     "WATCHDOG",
@@ -79,14 +82,26 @@ DISENGAGED = status.DISENGAGED  #: disengage button held
 NONFINITE = status.NONFINITE  #: NaN/inf in the input force: zero output
 FLAG_NAMES = status.FLAG_NAMES[:7]  # the safety layer's flags: the seven lowest bits
 
-# params layout
-_P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK, _P_FREE = range(11)
-_NP = 11
-# state layout
-_S_F, _S_HOLD = 0, 3
-_S_GAIN, _S_LAST_NOW, _S_MISS, _S_ONTIME, _S_WD, _S_FAULT = 6, 7, 8, 9, 10, 11
-_S_COUNT = 12  # 7 counters, one per flag bit
-_NS = _S_COUNT + 7
+#: the parameters of :func:`safety_step` (:class:`SafetyLayer` arguments): max_force (N), max_rate
+#: (N/s), ramp_time, stop_time, stale_after, dt (s), miss_factor, max_misses, recover_ticks,
+#: disengage_mask (a button bitmask as a float), free_force (N)
+SAFETY_PARAMS = Layout("safety parameters", [
+    ("max_force", 1), ("max_rate", 1), ("ramp_time", 1), ("stop_time", 1), ("stale_after", 1), ("dt", 1),
+    ("miss_factor", 1), ("max_misses", 1), ("recover_ticks", 1), ("disengage_mask", 1), ("free_force", 1)])
+#: its state: the last output and the output frozen at a fault (N), the engagement gain, the last
+#: clock reading (s; NaN: none), missed deadlines, on-time ticks, watchdog tripped, in a fault (0
+#: or 1), then one counter per flag bit (:data:`FLAG_NAMES`)
+SAFETY_STATE = Layout("safety state", [
+    ("force", 3), ("held", 3), ("gain", 1), ("last_now", 1), ("misses", 1), ("on_time", 1), ("tripped", 1),
+    ("fault", 1), ("counts", len(FLAG_NAMES))])
+# the offsets as the kernel uses them
+_P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK, _P_FREE = (
+    SAFETY_PARAMS.offset(f) for f in SAFETY_PARAMS.fields)
+_S_F, _S_HOLD, _S_GAIN = SAFETY_STATE.offset("force"), SAFETY_STATE.offset("held"), SAFETY_STATE.offset("gain")
+_S_LAST_NOW, _S_MISS = SAFETY_STATE.offset("last_now"), SAFETY_STATE.offset("misses")
+_S_ONTIME = SAFETY_STATE.offset("on_time")
+_S_WD, _S_FAULT, _S_COUNT = SAFETY_STATE.offset("tripped"), SAFETY_STATE.offset("fault"), SAFETY_STATE.offset("counts")
+_N_COUNTS = SAFETY_STATE.width("counts")
 _FAULTS = STALE | WATCHDOG | DISENGAGED
 
 
@@ -94,8 +109,9 @@ _FAULTS = STALE | WATCHDOG | DISENGAGED
 def safety_step(params, state, force, now, age, buttons, out):
     """One tick of the safety layer (see the module docstring); returns the flags.
 
-    Parameters: ``params`` (11,) settings, ``state`` (19,) memory (updated), ``force`` (3,) N wanted,
-    ``now`` s loop clock, ``age`` s age of the device sample, ``buttons`` int, ``out`` (3,) N to send.
+    Parameters: ``params`` (:data:`SAFETY_PARAMS`) settings, ``state`` (:data:`SAFETY_STATE`) memory
+    (updated), ``force`` (3,) N wanted, ``now`` s loop clock, ``age`` s age of the device sample,
+    ``buttons`` int, ``out`` (3,) N to send.
     """
     fmax = params[_P_FMAX]
     dt = params[_P_DT]
@@ -208,7 +224,7 @@ def safety_step(params, state, force, now, age, buttons, out):
             out[j] *= s
     for j in range(3):
         state[_S_F + j] = out[j]
-    for b in range(7):
+    for b in range(_N_COUNTS):
         if (flags >> b) & 1:
             state[_S_COUNT + b] += 1.0
     return flags
@@ -280,7 +296,7 @@ class SafetyLayer:
     def __init__(self, max_force: float, dt: float, *, max_rate: float = 1000.0, ramp_time: float = 0.5,
                  free_force: float | None = None, stop_time: float = 0.0, stale_after: float = 0.02, miss_factor: float = 1.5,
                  max_misses: int = 10, recover_ticks: int = 100, disengage_mask: int = BUTTON_1) -> None:
-        p = np.zeros(_NP)
+        p = SAFETY_PARAMS.zeros()
         p[_P_FMAX] = _num(max_force, "max_force", positive=True, unit="N")
         p[_P_DT] = _num(dt, "dt", positive=True, unit="s")
         p[_P_RATE] = _num(max_rate, "max_rate", positive=True, finite=False, unit="N/s")
@@ -303,7 +319,7 @@ class SafetyLayer:
             free_force = p[_P_RATE] * p[_P_DT] if math.isfinite(p[_P_RATE]) else 0.0
         p[_P_FREE] = _num(free_force, "free_force", nonneg=True, unit="N")
         self.params = p
-        self.state = np.zeros(_NS)
+        self.state = SAFETY_STATE.zeros()
         self._out = np.zeros(3)
         self._in = np.zeros(3)
         self.flags = 0

@@ -38,6 +38,7 @@ import numpy as np
 from numba import njit
 
 from arsurf import status
+from arsurf._layout import Layout
 from arsurf.errors import HapticsError
 from arsurf.haptics.device import BUTTON_1, _vec3
 
@@ -47,6 +48,8 @@ __all__ = [
     "HAND_RESOLUTION",
     "MASTER_OUTSIDE",
     "NONFINITE",
+    "POSITION_PARAMS",
+    "POSITION_STATE",
     "SEED001_K_F",
     "ForceScaling",
     "PositionScaling",
@@ -66,18 +69,27 @@ CLAMPED = status.CLAMPED  #: probe clamped to its range
 MASTER_OUTSIDE = status.MASTER_OUTSIDE  #: master outside its workspace box (re-centre with the clutch)
 NONFINITE = status.NONFINITE  #: non-finite input, previous output kept
 
-# layout of PositionScaling.params and .state
-_P_SCALE, _P_LO, _P_HI, _P_WS = 0, 3, 6, 9
-_S_X0, _S_P0, _S_LAST, _S_CLUTCH = 0, 3, 6, 9
+#: the parameters of :func:`position_map_step` (``PositionScaling.params``): scale (probe m per
+#: master m), the probe range (m), the master workspace half-extent (m)
+POSITION_PARAMS = Layout("position-map parameters", [
+    ("scale", 3), ("probe_lower", 3), ("probe_upper", 3), ("workspace_half_extent", 3)])
+#: its state (``PositionScaling.state``): the master and probe anchors (m), the last probe (m),
+#: the clutch held (0 or 1)
+POSITION_STATE = Layout("position-map state", [
+    ("master_anchor", 3), ("probe_anchor", 3), ("last_probe", 3), ("clutched", 1)])
+# the offsets as the kernel uses them
+_P_SCALE, _P_LO = POSITION_PARAMS.offset("scale"), POSITION_PARAMS.offset("probe_lower")
+_P_HI, _P_WS = POSITION_PARAMS.offset("probe_upper"), POSITION_PARAMS.offset("workspace_half_extent")
+_S_X0, _S_P0 = POSITION_STATE.offset("master_anchor"), POSITION_STATE.offset("probe_anchor")
+_S_LAST, _S_CLUTCH = POSITION_STATE.offset("last_probe"), POSITION_STATE.offset("clutched")
 
 
 @njit(cache=True)
 def position_map_step(params, state, x, buttons, clutch_mask, out):
     """Map a master position ``x`` (3,) to the probe position ``out`` (3,) with clutch and limits.
 
-    ``params`` (12,): scale (3), probe lower limit (3), upper limit (3), master workspace
-    half-extent (3). ``state`` (10,): master anchor (3), probe anchor (3), last probe (3),
-    clutch held (1). Returns bit flags.
+    ``params`` (:data:`POSITION_PARAMS`), ``state`` (:data:`POSITION_STATE`, updated). Returns bit
+    flags.
     """
     flags = 0
     for i in range(3):
@@ -165,7 +177,7 @@ class PositionScaling:
             raise HapticsError(
                 f"scale must be non-zero on every axis (got {sc.tolist()}); it is probe metres per master metre"
             )
-        self.params = np.empty(12)
+        self.params = POSITION_PARAMS.zeros()
         self.params[_P_SCALE:_P_SCALE + 3] = sc
         if probe_limits is None:
             lo = np.full(3, -np.inf)
@@ -191,7 +203,7 @@ class PositionScaling:
         if not isinstance(clutch_mask, (int, np.integer)) or clutch_mask < 0:
             raise HapticsError(f"clutch_mask must be a non-negative button bitmask (got {clutch_mask!r})")
         self.clutch_mask = int(clutch_mask)
-        self.state = np.zeros(10)
+        self.state = POSITION_STATE.zeros()
         self._out = np.zeros(3)
         self.flags = 0
         self.recentre(master_origin, probe_origin)

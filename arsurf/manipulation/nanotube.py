@@ -78,14 +78,13 @@ from numba import njit
 from arsurf import _validation
 from arsurf.errors import ManipulationError
 from arsurf.scan.scan import Scan
+from arsurf.status import PUSH_FALLBACK, PUSH_NAMES, PUSH_OK, PUSH_SUBSTEP_CAP  # noqa: F401 (re-exported)
 
 # ------------------------------------------------------------------------------------------------
 # kernels (plain floats, no allocation, status codes)
 # ------------------------------------------------------------------------------------------------
 
-PUSH_OK = 0
-PUSH_SUBSTEP_CAP = 1  # the displacement needed more sub-steps than allowed: coarser but still valid
-PUSH_FALLBACK = 2  # the model's motion family could not clear the tip: cleared by translation
+# the push's status codes: PUSH_OK, PUSH_SUBSTEP_CAP, PUSH_FALLBACK (arsurf.status)
 
 
 @njit(cache=True)
@@ -690,7 +689,6 @@ class PushResult:
         return self.tube.pose
 
 
-_STATUS = {PUSH_OK: "ok", PUSH_SUBSTEP_CAP: "substep_cap", PUSH_FALLBACK: "fallback"}
 
 
 def _vec3(name: str, value, pad_z: float | None) -> tuple[float, float, float]:
@@ -771,7 +769,7 @@ def push(tube: Nanotube, tip_center, tip_displacement, tip_radius: float = 0.0, 
         tube.x, tube.y, tube.angle, tube.length, tube.radius, tube.axis_height,
         px, py, pz, ex, ey, ez, R, step, band, int(max_substeps))
     new = tube.with_pose(cx, cy, th) if contacts else tube
-    return PushResult(new, bool(contacts), int(contacts), float(last_l), float(last_s), int(n), _STATUS[int(status)])
+    return PushResult(new, bool(contacts), int(contacts), float(last_l), float(last_s), int(n), PUSH_NAMES[int(status)])
 
 
 #: Alias of :func:`push` for the top-level API, where a bare ``push`` would be ambiguous.

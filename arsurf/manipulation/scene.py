@@ -90,10 +90,11 @@ from typing import Mapping, Sequence
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ManipulationError
-from arsurf.manipulation.nanotube import (PUSH_FALLBACK, PUSH_OK, PUSH_SUBSTEP_CAP, Nanotube, _centre, _seg_dist,
-                                          push_kernel)
+from arsurf.manipulation.nanotube import Nanotube, _centre, _seg_dist, push_kernel
 from arsurf.scan.scan import Scan
+from arsurf.status import PUSH_NAMES
 
 __all__ = ["TubeScene", "SceneStep", "TubeMotion", "FRICTION_PER_LENGTH", "tube_mask", "rigid_motion",
            "scene_step_kernel"]
@@ -108,13 +109,17 @@ _MIN_HORIZONTAL = 0.1
 #: grows over that depth (contact compliance) instead of appearing only in the ticks it slides
 CONTACT_ALLOWANCE = 0.02
 
-# columns of the per-tube geometry array
-G_LENGTH, G_RADIUS, G_AXIS_Z, G_FRICTION, G_SUBSTEP = range(5)
-G_SIZE = 5
-# columns of the per-tube info array (last tick)
-I_CONTACTS, I_STATUS, I_CONTACT, I_PIVOT = range(4)
-I_SIZE = 4
-_STATUS = {PUSH_OK: "ok", PUSH_SUBSTEP_CAP: "substep_cap", PUSH_FALLBACK: "fallback"}
+#: columns of the per-tube geometry array: length, radius (m), height of the axis (m), friction per
+#: length (N/m), the sub-step (m)
+TUBE_GEOMETRY = Layout("tube geometry columns", [("length", 1), ("radius", 1), ("axis_z", 1),
+                                                  ("friction_per_length", 1), ("substep", 1)])
+#: columns of the per-tube info array (last tick): contacts, push status (:data:`arsurf.status.PUSH_NAMES`),
+#: the last contact and pivot positions along the tube
+TUBE_INFO = Layout("tube info columns", [("contacts", 1), ("status", 1), ("contact", 1), ("pivot", 1)])
+G_LENGTH, G_RADIUS, G_AXIS_Z, G_FRICTION, G_SUBSTEP = (TUBE_GEOMETRY.offset(f) for f in TUBE_GEOMETRY.fields)
+G_SIZE = TUBE_GEOMETRY.size
+I_CONTACTS, I_STATUS, I_CONTACT, I_PIVOT = (TUBE_INFO.offset(f) for f in TUBE_INFO.fields)
+I_SIZE = TUBE_INFO.size
 
 
 @njit(cache=True)
@@ -617,4 +622,4 @@ class TubeScene:
         contacts = info[:, I_CONTACTS].astype(np.int64)
         return SceneStep(force=self.force.copy(), poses=self.poses.copy(), touched=contacts > 0, contacts=contacts,
                          contact=info[:, I_CONTACT].copy(), pivot=info[:, I_PIVOT].copy(),
-                         status=tuple(_STATUS[int(s)] for s in info[:, I_STATUS]))
+                         status=tuple(PUSH_NAMES[int(s)] for s in info[:, I_STATUS]))

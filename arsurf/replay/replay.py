@@ -89,6 +89,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf import status
 from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
@@ -511,7 +512,7 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
                               data["depth"], data["contact_radius"], data["load"], data["in_contact"]])
 
     recorded_given = ticks["md_status"] != MD_STATUS_NOT_GIVEN
-    recorded_contact = ticks["md_status"] == 0
+    recorded_contact = ticks["md_status"] == status.CONTACT
     stats = {
         "peak_force": _max_abs(np.linalg.norm(data["simulated_force"], axis=1)),
         "peak_measured_force": _max_abs(np.linalg.norm(measured, axis=1)),

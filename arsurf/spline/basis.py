@@ -17,8 +17,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-# rows of the (6, 3) derivative block written by the kernels
-S, SU, SV, SUU, SUV, SVV = 0, 1, 2, 3, 4, 5
+from arsurf._layout import Layout
+
+#: rows of the derivative block (rows, 3) written by the kernels: S and its derivatives to second order
+DERIVATIVE_ROWS = Layout("surface derivative rows", [("S", 1), ("S_u", 1), ("S_v", 1), ("S_uu", 1), ("S_uv", 1),
+                                                     ("S_vv", 1)])
+S, SU, SV, SUU, SUV, SVV = (DERIVATIVE_ROWS.offset(f) for f in DERIVATIVE_ROWS.fields)
+N_ROWS = DERIVATIVE_ROWS.size
 
 
 @njit(cache=True, inline="always")
@@ -277,13 +282,14 @@ def surface_points(ctrl, ku, kv, us, vs, order, out):
     n = us.size
     chunk = 256
     for b in prange((n + chunk - 1) // chunk):
-        _points_range(ctrl, ku, kv, us, vs, order, out, b * chunk, min(n, (b + 1) * chunk), np.empty((6, 3)))
+        _points_range(ctrl, ku, kv, us, vs, order, out, b * chunk, min(n, (b + 1) * chunk),
+                      np.empty((N_ROWS, 3)))
 
 
 @njit(cache=True)
 def surface_points_serial(ctrl, ku, kv, us, vs, order, out):
     """:func:`surface_points` in the calling thread (batches below :data:`PARALLEL_MIN`)."""
-    _points_range(ctrl, ku, kv, us, vs, order, out, 0, us.size, np.empty((6, 3)))
+    _points_range(ctrl, ku, kv, us, vs, order, out, 0, us.size, np.empty((N_ROWS, 3)))
 
 
 @njit(cache=True)

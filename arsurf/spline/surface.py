@@ -297,7 +297,7 @@ class BSplineSurface:
         if isinstance(u, (float, int)) and isinstance(v, (float, int)):  # the lean single-point path
             if not (math.isfinite(u) and math.isfinite(v)):
                 raise SurfaceError(f"u and v must be finite (got u={u!r}, v={v!r})")
-            out = np.empty((6, 3))
+            out = np.empty((basis.N_ROWS, 3))
             basis.surface_point(self._ctrl, self._ku, self._kv, float(u), float(v), derivatives, out)
             return out[0] if derivatives == 0 else out[: (1, 3, 6)[derivatives]]
         uu, vv = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))

@@ -1,0 +1,149 @@
+"""The command line's shared argument types and flags (lengths in nm at this edge, SI inside).
+
+argparse ``type=`` parsers (:func:`_nm`, :func:`_count`, :func:`_positive`...), the flag groups
+several commands share (processing, calibration, frame), the scan preparation behind them and the
+``--record`` target check of ``arsurf view`` and ``arsurf live``.
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from arsurf.scan.level import METHODS as _LEVEL_METHODS
+from arsurf.scan.prepare import prepare_scan
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``arsurf fit: error: argument --sigma-nm: ...`` (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+#: what --level accepts: every arsurf.level method, and none
+LEVEL_CHOICES = (*_LEVEL_METHODS, "none")
+
+
+def _nm(minimum: float = 0.0, strict: bool = False):
+    """An argparse type: a finite length in nanometres, >= (or >) ``minimum``."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number of nanometres (got {text!r})") from None
+        if not np.isfinite(value) or value < minimum or (strict and value == minimum):
+            rule = f"> {minimum:g}" if strict else f">= {minimum:g}"
+            raise argparse.ArgumentTypeError(f"must be a finite length {rule} nm (got {text})")
+        return value
+    return parse
+
+
+def _penalty(text: str) -> float:
+    """An argparse type: a finite number >= 0 (the dimensionless P-spline penalty weight)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number (got {text!r})") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (got {text})")
+    return value
+
+
+def _count(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0 (got {text!r})") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0 (got {text})")
+    return value
+
+
+def _values(unit: str, scale: float, strict: bool):
+    """An argparse type: comma-separated finite numbers in ``unit`` (>= 0, or > 0 if ``strict``), as SI."""
+    def parse(text: str) -> list[float]:
+        out = []
+        for part in text.split(","):
+            try:
+                value = float(part)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"must be comma-separated numbers{' in ' + unit if unit else ''} "
+                                                 f"(got {text!r})") from None
+            if not np.isfinite(value) or value < 0 or (strict and value == 0):
+                rule = "> 0" if strict else ">= 0"
+                raise argparse.ArgumentTypeError(f"every value must be finite and {rule}{' ' + unit if unit else ''} "
+                                                 f"(got {part.strip()!r} in {text!r})")
+            out.append(value * scale)
+        return out
+    return parse
+
+
+def _positive(unit: str):
+    """An argparse type: a positive finite number in ``unit``."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number in {unit} (got {text!r})") from None
+        if not (np.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be a positive finite number in {unit} (got {text})")
+        return value
+    return parse
+
+
+def _calibration(args) -> dict:
+    """``dx``, ``dy`` (m) and ``z_unit`` of a file that does not state them (flags in nm)."""
+    return {"dx": None if args.dx_nm is None else args.dx_nm * 1e-9,
+            "dy": None if args.dy_nm is None else args.dy_nm * 1e-9, "z_unit": args.z_unit}
+
+
+def _processing_flags(s, level: str = "plane") -> None:
+    """--level and --sigma-nm: the preprocessing of arsurf.scan.prepare.prepare_scan."""
+    s.add_argument("--level", default=level, choices=LEVEL_CHOICES, metavar="METHOD",
+                   help=f"levelling: {' | '.join(LEVEL_CHOICES)} (default: {level})")
+    s.add_argument("--sigma-nm", type=_nm(), default=0.0, help="Gaussian smoothing width in nm (default 0: none)")
+
+
+def _frame_flag(s) -> None:
+    s.add_argument("--frame", type=_count, help="frame of a movie (high-speed AFM .asd, JPK .h5-jpk), from 0 (default 0)")
+
+
+def _calibration_flags(s) -> None:
+    s.add_argument("--dx-nm", type=_nm(strict=True), help="pixel spacing along x in nm, for a file that does "
+                   "not state it (a bare .txt/.npy matrix)")
+    s.add_argument("--dy-nm", type=_nm(strict=True), help="pixel spacing along y in nm (as --dx-nm)")
+    s.add_argument("--z-unit", help="unit of the values of such a file (nm, um, m, V...)")
+
+
+def _prepare(args, path, channel=None, inpaint: bool = True, **options):
+    """:func:`prepare_scan` with the CLI's flags: a smoothing width wider than the scan is
+    reported in nanometres and names ``--sigma-nm`` (the library speaks metres)."""
+    from arsurf.errors import SigmaTooWide, SmoothingError
+
+    try:
+        return prepare_scan(path, channel, args.level, args.sigma_nm * 1e-9, inpaint, **options)
+    except SigmaTooWide as exc:
+        nm = exc.spacing * 1e9
+        raise SmoothingError(
+            f"--sigma-nm {args.sigma_nm:g} is {exc.pixels:.4g} pixels of {nm:.4g} nm along {exc.axis}, wider than "
+            f"the scan ({exc.widest} pixels, {exc.widest * nm:.4g} nm); give a width of a few pixels in nm, e.g. "
+            f"--sigma-nm {2 * nm:.3g}"
+        ) from None
+
+
+def _record_target(args):
+    """The session file of ``--record`` (None without it), refused before anything slow runs:
+    it must not exist (a recording never replaces another) and its folder must."""
+    import os
+
+    from arsurf.errors import SessionError
+
+    if args.record is None:
+        return None
+    path = os.path.abspath(args.record)
+    if os.path.lexists(path):
+        raise SessionError(f"--record {args.record!r} exists; a recording never replaces another: pick a new file")
+    if not os.path.isdir(os.path.dirname(path)):
+        raise SessionError(f"--record {args.record!r}: its folder does not exist; create it first")
+    return path
