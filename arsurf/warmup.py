@@ -5,7 +5,7 @@ arsurf's hot code is numba kernels compiled on first use and cached on disk
 On an empty cache the first ``arsurf demo`` spent most of its time in the compiler. This
 module compiles what a session uses before anyone waits for it: the demo pipeline itself
 (scan preparation, fit, engage, the haptic loop with the nanotube scene, the session writer,
-the replay and the feel scores) on a fraction of a second of simulated stylus, and the loop
+the replay and the feel scores) on 1.5 s of simulated stylus, and the loop
 without a scene on a surface above :data:`~arsurf.contact.projection.TILED_ABOVE` control
 cells (a large scan's tiled projector specialises every kernel that collides).
 
@@ -38,7 +38,7 @@ def warm_up(progress=None) -> dict:
     times = {}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="arsurf-warmup-") as out:
-        run_demo(out, seconds=0.3, images=False, progress=say)
+        run_demo(out, seconds=1.5, images=False, progress=say)  # the demo settles 1.2 s before it scores
     times["demo_s"] = time.perf_counter() - t0
     say(f"demo pipeline compiled in {times['demo_s']:.1f} s")
     t1 = time.perf_counter()
