@@ -44,8 +44,13 @@ per item           ``process``: ``<item>.surface.npz`` (+ exports), ``replay``: 
 =================  ===============================================================================
 
 ``<item>`` is the input's path relative to the common folder of all inputs, with ``/`` written
-``__``. With ``resume``, the items whose latest row has ``status`` ``ok`` are skipped; the others
-(failed, or never finished) run again. A row is written only after an item's files are complete,
+``__``. Each row lists the files its item wrote with their size and SHA-256 (``output_files``,
+``name|size_bytes|sha256;...``). With ``resume``, an item is skipped only when its latest row says
+``ok``, parses, and every file it lists is there with that size and SHA-256; the others (failed,
+never finished, a row that does not parse, an output deleted or changed) run again. Each item has
+a time limit (``item_timeout``, :data:`ITEM_TIMEOUT`). ``replay`` without a ``scan`` option reads
+each session through the checked, isolated reader first and uses the scan it recorded only when
+that lies under the batch's inputs: a session cannot make the batch open or hash another file. A row is written only after an item's files are complete,
 and a torn last line (the batch killed while writing it) is cut off before appending, so the table
 stays valid whatever moment the batch was stopped.
 
@@ -78,14 +83,20 @@ Examples
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import glob
+import hashlib
 import itertools
 import json
 import math
 import logging
+import multiprocessing
 import os
+import re
+import signal
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -94,6 +105,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from arsurf._files import check_target, write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, BatchError, SessionError, require
 from arsurf.units import summary_json, with_unit
@@ -107,8 +119,11 @@ TABLE = "results.csv"
 SUMMARY = "summary.json"
 SETTINGS = "batch.json"
 BATCH_FORMAT = "arsurf-batch"
-#: 2: batch.json's options carry their unit in their names (``sigma_m``), summary.json ``items_per_s``
-BATCH_FORMAT_VERSION = 2
+#: 2: batch.json's options carry their unit in their names (``sigma_m``), summary.json ``items_per_s``;
+#: 3: every row lists its output files with size and SHA-256 (``output_files``), re-checked on resume
+BATCH_FORMAT_VERSION = 3
+#: default time limit of one item, s (``run_batch(item_timeout=...)``, ``--item-timeout``)
+ITEM_TIMEOUT = 3600.0
 #: the SI unit of each option in batch.json (:mod:`arsurf.units`); the others are dimensionless or text
 _OPTION_UNITS = {"sigma": "m", "dx": "m", "dy": "m", "tip_radius": "m", "effective_modulus": "Pa", "depth": "m",
                  "slide": "m", "at": "m"}
@@ -128,6 +143,7 @@ class Item:
     key: str
     path: str
     params: tuple = ()
+    root: str = ""  #: the folder every input of the batch is under (what a session may name)
 
 
 @dataclass(frozen=True)
@@ -252,7 +268,7 @@ def make_items(pipeline: str | Pipeline, files: Sequence[Path], root: Path, opti
     effective_modulus_Pa=...`` with the values as Python writes them (exact).
     """
     p = _pipeline(pipeline)
-    items = [Item(_key(f, root), str(f)) for f in files]
+    items = [Item(_key(f, root), str(f), (), str(root)) for f in files]
     if p.name != "sweep":
         return items
     axes = [(name, unit, options[name]) for name, unit in _SWEEP_AXES]
@@ -264,7 +280,7 @@ def make_items(pipeline: str | Pipeline, files: Sequence[Path], root: Path, opti
     for item in items:
         for point in itertools.product(*(values for _, _, values in axes)):
             key = ";".join([item.key] + [f"{name}{unit}={v!r}" for (name, unit, _), v in zip(axes, point)])
-            out.append(Item(key, item.path, tuple((name, v) for (name, _, _), v in zip(axes, point))))
+            out.append(Item(key, item.path, tuple((name, v) for (name, _, _), v in zip(axes, point)), item.root))
     return out
 
 
@@ -452,21 +468,20 @@ def _process(item: Item, o: Mapping, out_dir: Path) -> dict:
     rms_resid, max_resid, rq = _residual_and_roughness(scan, surface)
     stem = _safe(item.key)
     outputs = [f"{stem}.surface.npz"]
-    _atomic(out_dir / outputs[0], lambda tmp: save_surface(
-        surface, tmp, metadata={"scan": item.path, "history": scan.history}))
+    save_surface(surface, out_dir / outputs[0], metadata={"scan": item.path, "history": scan.history})
     res = tuple(o["resolution"]) if o["resolution"] else None
     for ext in o["export"]:
         name = f"{stem}{ext}"
         if ext in _MESH_EXPORTS:
             from arsurf.export import export_surface
 
-            export_surface(surface, out_dir / name, res, solid=o["solid"])  # writes to a temporary name itself
+            export_surface(surface, out_dir / name, res, solid=o["solid"])
         else:
             from arsurf.scan.io import save_scan
             from arsurf.spline.sampling import surface_to_scan
 
             sampled = surface_to_scan(surface, res, source=item.path)
-            _atomic(out_dir / name, lambda tmp: save_scan(sampled, tmp))
+            save_scan(sampled, out_dir / name)  # through arsurf._files.atomic_write, as every writer
         outputs.append(name)
     ny, nx = scan.shape
     filled = sum(int(s.get("nan_filled", 0)) for s in scan.history if s.get("step") == "inpaint")
@@ -476,44 +491,28 @@ def _process(item: Item, o: Mapping, out_dir: Path) -> dict:
             "max_residual_m": max_resid, "fit_time_s": fit_time, "outputs": ";".join(outputs)}
 
 
-def _atomic(path: Path, write: Callable[[Path], Any]) -> None:
-    """``write(tmp)`` to a temporary name beside ``path`` (same extension), then rename it to ``path``."""
-    tmp = path.with_name(f".{path.stem}.part-{os.getpid()}-{id(write)}{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-        sidecar = Path(str(tmp) + ".json")  # .npy height maps: the spacing in a sidecar
-        if sidecar.exists():
-            os.replace(sidecar, Path(str(path) + ".json"))
-    finally:
-        for p in (tmp, Path(str(tmp) + ".json")):
-            if p.exists():
-                p.unlink()
+def _recorded_scan(session_path: str, root: str) -> str:
+    """The scan a session recorded, read through the checked, isolated session reader; it must lie
+    under ``root`` (the folder of the batch's inputs): a session cannot make the batch open or
+    hash a file elsewhere. A relative path is taken from the session's folder."""
+    from arsurf.sessions.reader import load_session
 
-
-def _recorded_scan(session_path: str) -> str:
-    """The scan path a session recorded (relative paths: to the session's folder when the recorded
-    one does not exist from here)."""
-    import h5py
-
-    try:
-        with h5py.File(session_path, "r") as f:
-            text = f["metadata"].attrs["scan"]
-        text = text.decode() if isinstance(text, bytes) else str(text)
-        path = json.loads(text)["path"]
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise SessionError(f"{session_path!r}: cannot read the scan path the session recorded "
-                           f"({type(exc).__name__}: {exc}); is it an arsurf session? Give the scan with --scan") from exc
-    if not isinstance(path, str):
-        raise SessionError(f"{session_path!r}: the recorded scan path is not a string ({path!r}); give --scan")
-    beside = Path(session_path).parent / path
-    return path if (os.path.isabs(path) or os.path.exists(path) or not beside.exists()) else str(beside)
+    s = load_session(session_path, isolate=True, allow_incomplete=True)  # every check, libhdf5 in a child
+    path = (s.metadata.get("scan") or {}).get("path")
+    if not isinstance(path, str) or not path:
+        raise SessionError(f"{session_path!r}: the session records no scan path ({path!r}); give the scan with --scan")
+    full = Path(path) if os.path.isabs(path) else Path(session_path).parent / path
+    resolved, base = full.resolve(), Path(root).resolve()
+    if not root or (resolved != base and base not in resolved.parents):
+        raise SessionError(f"{session_path!r} names the scan {path!r}, outside the batch's inputs ({str(base)!r}); "
+                           "it is not opened: give the scan with --scan")
+    return str(resolved)
 
 
 def _replay(item: Item, o: Mapping, out_dir: Path) -> dict:
     from arsurf.replay.replay import replay
 
-    scan = o["scan"] or _recorded_scan(item.path)
+    scan = o["scan"] or _recorded_scan(item.path, item.root)
     name = _safe(item.key)
     r = replay(item.path, scan, out_dir / name, progress=False, overwrite=True)
     return {"scan": scan, "n_ticks": r.n_ticks, "peak_force_N": r.peak_force,
@@ -583,19 +582,19 @@ PIPELINES: Mapping[str, Pipeline] = {
     "process": Pipeline(
         "process",
         (*BASE_COLUMNS, "format", "nx_px", "ny_px", "dx_m", "dy_m", "z_range_m", "rms_roughness_m", "inpainted_pixels",
-         "control_nu", "control_nv", "rms_residual_m", "max_residual_m", "fit_time_s", "item_time_s", "outputs"),
+         "control_nu", "control_nv", "rms_residual_m", "max_residual_m", "fit_time_s", "item_time_s", "outputs", "output_files"),
         _check_process, _process, None, "level, smooth, fit and export scans"),
     "replay": Pipeline(
         "replay",
         (*BASE_COLUMNS, "scan", "n_ticks", "peak_force_N", "peak_measured_force_N", "max_depth_m",
          "max_contact_radius_m", "depth_difference_m", "load_difference_N", "contact_mismatches",
-         "collision_failures", "replay_time_s", "item_time_s", "outputs"),
+         "collision_failures", "replay_time_s", "item_time_s", "outputs", "output_files"),
         _check_replay, _replay, (".h5",), "replay recorded sessions"),
     "sweep": Pipeline(
         "sweep",
         (*BASE_COLUMNS, "scan", "friction", "tip_radius_m", "effective_modulus_Pa", "work_of_adhesion_J_per_m2",
          "max_depth_m", "peak_load_N", "contact_radius_m", "pull_off_force_N", "mean_friction_force_N",
-         "friction_ratio", "slip_fraction", "item_time_s"),
+         "friction_ratio", "slip_fraction", "item_time_s", "output_files"),
         _check_sweep, _sweep, None, "press-slide-retract over a friction x tip radius x modulus grid"),
 }
 
@@ -615,18 +614,105 @@ def _reason(exc: BaseException) -> str:
     return line if len(line) <= MAX_REASON else line[:MAX_REASON - 3] + "..."
 
 
-def run_item(pipeline: str, item: Item, options: Mapping, out_dir: str) -> dict:
+class ItemTimeout(Exception):
+    """An item ran past the batch's per-item time limit."""
+
+
+@contextlib.contextmanager
+def _time_limit(seconds: float | None, key: str):
+    """Raise :class:`ItemTimeout` in the item after ``seconds`` (SIGALRM, in a process's main thread:
+    the local workers and ``workers=0``). A worker process whose item does not give control back
+    (stuck in a C library) is ended by a watchdog ``seconds`` later: the pool then reports the item
+    as a crashed worker. Dask workers run items in threads: no limit there (the cluster's own)."""
+    if not seconds or threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def expired(signum, frame):
+        raise ItemTimeout(f"the item ran longer than its time limit ({seconds:g} s); raise it with --item-timeout")
+
+    watchdog = None
+    if multiprocessing.parent_process() is not None:  # a worker process: it may end itself
+        watchdog = threading.Timer(2 * seconds + 5.0, os._exit, args=(70,))
+        watchdog.daemon = True
+        watchdog.start()
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        if watchdog is not None:
+            watchdog.cancel()
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _output_files(out_dir: Path, outputs: str) -> str:
+    """``rel|size_bytes|sha256`` of every file an item wrote (``outputs``: names in ``out_dir``, a
+    folder standing for the files in it), ``;``-separated, sorted."""
+    files = []
+    for name in filter(None, (outputs or "").split(";")):
+        p = out_dir / name
+        if p.is_dir() and not p.is_symlink():
+            files += [f for f in p.rglob("*") if f.is_file() and not f.is_symlink()]
+        elif p.is_file():
+            files.append(p)
+    return ";".join(f"{f.relative_to(out_dir).as_posix()}|{f.stat().st_size}|{_sha256_file(f)}" for f in sorted(files))
+
+
+_SHA = re.compile(r"^[0-9a-f]{64}$")
+
+
+def _row_stands(row: Mapping | None, columns: Sequence[str], out_dir: Path) -> bool:
+    """Whether a table row may be kept on resume: ``ok``, every column present, its time a finite
+    number, and every output file it lists there, of its size and SHA-256. Anything else
+    (a row that does not parse, a deleted or changed output) is run again."""
+    if not row or row.get("status") != "ok" or any(c not in row for c in columns):
+        return False
+    try:
+        if not 0.0 <= float(row["item_time_s"]) < math.inf:
+            return False
+        listed = [e.split("|")[0] for e in filter(None, row["output_files"].split(";"))]
+        for name in filter(None, row.get("outputs", "").split(";")):  # every output the row names is hashed
+            if not any(rel == name or rel.startswith(name + "/") for rel in listed):
+                return False
+        for entry in filter(None, row["output_files"].split(";")):
+            rel, size, digest = entry.split("|")
+            p = out_dir / rel
+            if (not rel or rel.startswith("/") or ".." in rel.split("/") or not _SHA.match(digest)
+                    or p.is_symlink() or not p.is_file() or p.stat().st_size != int(size)
+                    or _sha256_file(p) != digest):
+                return False
+    except (ValueError, KeyError, OSError):
+        return False
+    return True
+
+
+def run_item(pipeline: str, item: Item, options: Mapping, out_dir: str, time_limit: float | None = None) -> dict:
     """Run one item and return its table row; any exception becomes an ``error`` row (one line).
 
+    The row lists every file the item wrote with its size and SHA-256 (``output_files``), which a
+    resumed batch re-checks; ``time_limit`` (s) bounds the item (:func:`_time_limit`).
     This is what the workers run (local processes or Dask): a module-level function, so it is
     pickled by reference.
     """
     t0 = time.perf_counter()
     try:
-        values = PIPELINES[pipeline].task(item, options, Path(out_dir))
+        with _time_limit(time_limit, item.key):
+            values = PIPELINES[pipeline].task(item, options, Path(out_dir))
+        files = _output_files(Path(out_dir), values.get("outputs", ""))
     except Exception as exc:  # noqa: BLE001 - one bad item must not stop the batch; the reason is kept
         return {"item": item.key, "status": "error", "error": _reason(exc)}
-    return {"item": item.key, "status": "ok", "error": "", **values, "item_time_s": time.perf_counter() - t0}
+    return {"item": item.key, "status": "ok", "error": "", **values, "item_time_s": time.perf_counter() - t0,
+            "output_files": files}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -649,8 +735,10 @@ class _Table:
     def __init__(self, path: Path, columns: tuple[str, ...]):
         self.path = path
         self.columns = columns
-        new = not path.exists() or path.stat().st_size == 0
-        self.fh = open(path, "a", encoding="utf-8", newline="")
+        check_target(path, "results table", error=BatchError)  # a planted link is refused, never appended to
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        new = os.fstat(fd).st_size == 0
+        self.fh = os.fdopen(fd, "a", encoding="utf-8", newline="")
         self.writer = csv.writer(self.fh, lineterminator="\n")
         if new:
             self._write(columns)
@@ -862,6 +950,10 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
         except (OSError, ValueError) as exc:
             raise BatchError(f"{str(path)!r} is not readable JSON ({exc}); it holds the settings of the batch to "
                              "resume") from None
+        if old.get("version") == 2:
+            raise BatchError(f"the batch in {str(out)!r} was written by an older arsurf, whose rows do not record "
+                             "their output files' SHA-256; it cannot be verified, so not resumed: choose another "
+                             "output folder")
         was = old.get("version") if old.get("version") in (1, BATCH_FORMAT_VERSION) else BATCH_FORMAT_VERSION
         if old != _settings(pipeline, options, was):
             mine = _settings(pipeline, options, was)["options"]
@@ -872,9 +964,7 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
             raise BatchError(f"cannot resume the batch in {str(out)!r} with other settings ({what} differ); "
                              "rerun it with the same ones, or choose another output folder")
     out.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.part")
-    tmp.write_text(json.dumps(settings, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(settings, indent=2, sort_keys=True) + "\n", what="batch settings", error=BatchError)
 
 
 def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mapping], ran: int, skipped: int,
@@ -901,7 +991,8 @@ def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mappi
 
 def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
               options: Mapping | None = None, workers: int | None = None, scheduler=None, resume: bool = False,
-              progress: bool = True, connect_timeout: float = 10.0) -> BatchResult:
+              progress: bool = True, connect_timeout: float = 10.0,
+              item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
     """Run a pipeline over many files; write ``results.csv``, ``batch.json``, ``summary.json`` and the item outputs.
 
     Parameters
@@ -931,6 +1022,9 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         A counter on stderr.
     connect_timeout : float, s
         How long to wait for the Dask scheduler.
+    item_timeout : float or None, s
+        Time limit of one item (:data:`ITEM_TIMEOUT` by default; None: none): an item past it is an
+        ``error`` row and the batch goes on (local workers; Dask workers keep the cluster's limits).
 
     Returns
     -------
@@ -955,6 +1049,9 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         raise BatchError("the Dask scheduler address is empty; give tcp://HOST:PORT")
     if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout) and connect_timeout > 0):
         raise BatchError(f"connect_timeout must be a positive number of seconds (got {connect_timeout!r})")
+    if item_timeout is not None and not (isinstance(item_timeout, (int, float)) and not isinstance(item_timeout, bool)
+                                         and math.isfinite(item_timeout) and item_timeout > 0):
+        raise BatchError(f"item_timeout must be a positive number of seconds or None (got {item_timeout!r})")
     if scheduler is not None:
         require("distributed", "dask", "arsurf batch on a Dask cluster (--scheduler)")
     opts = json.loads(json.dumps(p.check(dict(options or {}))))  # JSON-normal: tuples -> lists
@@ -965,20 +1062,20 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         raise BatchError("two inputs give the same item name; rename one of them")
     client, own = _connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
     try:
-        return _run(p, items, opts, out, workers, client, resume, progress, t0)
+        return _run(p, items, opts, out, workers, client, resume, progress, t0, item_timeout)
     finally:
         if own:
             client.close()
 
 
 def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client, resume: bool, progress: bool,
-         t0: float) -> BatchResult:
+         t0: float, item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
     """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
-    table_path = out / TABLE
+    table_path = check_target(out / TABLE, "results table", error=BatchError)  # not a planted link
     _repair(table_path)
     rows = read_results(table_path, p.columns) if resume else {}
-    todo = [it for it in items if rows.get(it.key, {}).get("status") != "ok"]
+    todo = [it for it in items if not _row_stands(rows.get(it.key), p.columns, out)]
     skipped = len(items) - len(todo)
     table = _Table(table_path, p.columns)
     bar = _Progress(len(items), skipped, progress)
@@ -994,7 +1091,7 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
     def crashed(i: int, reason: str) -> None:
         record(i, {"item": todo[i].key, "status": "error", "error": reason})
 
-    calls = [(p.name, it, opts, str(out.resolve())) for it in todo]
+    calls = [(p.name, it, opts, str(out.resolve()), item_timeout) for it in todo]
     complete = False
     try:
         if not calls:
@@ -1010,9 +1107,7 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
         bar.close()
         elapsed = time.perf_counter() - t0
         summary = _summary(p, items, rows, ran, skipped, elapsed, complete)
-        tmp = out / (SUMMARY + ".part")
-        tmp.write_text(summary_json(summary), encoding="utf-8")
-        os.replace(tmp, out / SUMMARY)
+        write_text(out / SUMMARY, summary_json(summary), what="batch summary", error=BatchError)
     return BatchResult(out_dir=out, table=table_path, summary=out / SUMMARY, total=len(items), ran=ran,
                        skipped=skipped, ok=summary["ok"], failed=summary["failed"],
                        errors=tuple((e["item"], e["reason"]) for e in summary["errors"]), elapsed=elapsed,

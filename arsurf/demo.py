@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, PRESETS, build_loop, build_model, preset_metadata
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
@@ -318,7 +319,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         tube_summary["replay_position_difference_m"] = float(np.abs(diff[..., :2]).max())
         tube_summary["replay_angle_difference_rad"] = float(np.abs(diff[..., 2]).max())
         summary["tube"] = tube_summary
-    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
+    write_text(out / "summary.json", summary_json(summary), what="demo summary")
     return summary
 
 
@@ -625,39 +626,41 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     for k, (x, y) in spots.items():
         e, w, md = local[k]
         sel = (ticks["t"] >= windows[k][0]) & (ticks["t"] <= windows[k][1])
-        spots_out[k] = {
-            "x_nm": x * 1e9, "y_nm": y * 1e9, "E*_GPa": e / 1e9, "w_mJ_per_m2": w * 1e3,
-            "maugis_lambda": md.maugis_parameter, "peak_load_nN": meas[k]["peak_load"] * 1e9,
+        spots_out[k] = {  # SI, the unit in every key
+            "x_m": x, "y_m": y, "E_star_Pa": e, "w_J_per_m2": w,
+            "maugis_lambda": md.maugis_parameter, "peak_load_N": meas[k]["peak_load"],
             "peak_hand_force_N": float(hand[sel[:n]].max()),
-            "indentation_at_reference_load_nm": meas[k]["indentation_at_reference_load"] * 1e9,
-            "md_indentation_at_reference_load_nm": float(md.depth(ref)) * 1e9 if math.isfinite(ref) else math.nan,
-            "pull_off_nN": meas[k]["pull_off"] * 1e9,
-            "md_pull_off_load_control_nN": md.pull_off_force() * 1e9,
-            "md_jump_out_load_displacement_control_nN": md.critical_points().jump_out_load * 1e9,
+            "indentation_at_reference_load_m": meas[k]["indentation_at_reference_load"],
+            "md_indentation_at_reference_load_m": float(md.depth(ref)) if math.isfinite(ref) else math.nan,
+            "pull_off_N": meas[k]["pull_off"],
+            "md_pull_off_load_control_N": md.pull_off_force(),
+            "md_jump_out_load_displacement_control_N": md.critical_points().jump_out_load,
         }
     for k, v in spots_out.items():
-        progress(f"{k:6s}: peak load {v['peak_load_nN']:8.2f} nN (hand {v['peak_hand_force_N']:.3g} N), indentation at "
-                 f"{ref * 1e9:.2f} nN {v['indentation_at_reference_load_nm']:.3f} nm (MD "
-                 f"{v['md_indentation_at_reference_load_nm']:.3f}), pull-off {v['pull_off_nN']:.2f} nN (MD "
-                 f"{v['md_jump_out_load_displacement_control_nN']:.2f} at jump-out, {v['md_pull_off_load_control_nN']:.2f}"
-                 " under load control)")
+        progress(f"{k:6s}: peak load {v['peak_load_N'] * 1e9:8.2f} nN (hand {v['peak_hand_force_N']:.3g} N), "
+                 f"indentation at {ref * 1e9:.2f} nN {v['indentation_at_reference_load_m'] * 1e9:.3f} nm (MD "
+                 f"{v['md_indentation_at_reference_load_m'] * 1e9:.3f}), pull-off {v['pull_off_N'] * 1e9:.2f} nN (MD "
+                 f"{v['md_jump_out_load_displacement_control_N'] * 1e9:.2f} at jump-out, "
+                 f"{v['md_pull_off_load_control_N'] * 1e9:.2f} under load control)")
     result = replay(out / "session.h5", scan_path, out / "replay", overwrite=True)
     progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches (the map rebuilt, "
              f"hash {model.material.sha256[:12]}...)")
     pngs = _render_material(viewer, views, model.material, out) if viewer is not None else []
     s_, h_ = spots_out["soft"], spots_out["stiff"]
-    summary = {
-        "scan": str(scan_path), "ticks": n, "rate_hz": RATE, "tip_radius_nm": R * 1e9,
-        "material": material.summary(), "reference_load_nN": ref * 1e9, "spots": spots_out,
-        "soft_over_stiff_indentation": s_["indentation_at_reference_load_nm"] / h_["indentation_at_reference_load_nm"],
-        "stiff_over_soft_peak_load": h_["peak_load_nN"] / s_["peak_load_nN"] if s_["peak_load_nN"] > 0 else math.inf,
-        "sticky_over_soft_pull_off": spots_out["sticky"]["pull_off_nN"] / s_["pull_off_nN"],
-        "tick_compute_median_us": float(np.median(compute) / 1e3),
-        "tick_compute_p99_us": float(np.percentile(compute, 99) / 1e3),
+    summary = {  # SI, the unit in every key (arsurf.units)
+        "scan": str(scan_path), "n_ticks": n, "rate_Hz": RATE, "tip_radius_m": R,
+        "material": material.summary(), "reference_load_N": ref, "spots": spots_out,
+        "passivity_reserve_probe_J": model.adhesion_energy(),   # the map's deepest well (at the probe)
+        "reference_law_adhesion_energy_J": model.adhesion_energy(with_map=False),   # the median law's alone
+        "soft_over_stiff_indentation": s_["indentation_at_reference_load_m"] / h_["indentation_at_reference_load_m"],
+        "stiff_over_soft_peak_load": h_["peak_load_N"] / s_["peak_load_N"] if s_["peak_load_N"] > 0 else math.inf,
+        "sticky_over_soft_pull_off": spots_out["sticky"]["pull_off_N"] / s_["pull_off_N"],
+        "tick_compute_median_s": float(np.median(compute) / 1e9),
+        "tick_compute_p99_s": float(np.percentile(compute, 99) / 1e9),
         "replay_contact_mismatches": int(result.contact_mismatches),
         "images": [p.name for p in pngs], "wall_time_s": time.perf_counter() - t_start,
     }
-    (out / "summary.json").write_text(summary_json(summary), encoding="utf-8")
+    write_text(out / "summary.json", summary_json(summary), what="demo summary")
     return summary
 
 

@@ -68,6 +68,13 @@ class SyntheticError(ScanError, ValueError):
     """A synthetic surface cannot be built from the parameters given."""
 
 
+class UnsafeFile(ArsurfError):
+    """A file arsurf was asked to read or write is not one it may use as asked: an output that is a
+    symbolic link, an input that is a FIFO or a device, an HDF5 file reaching outside its own bytes
+    (external storage, an external link, a virtual dataset) or declaring more data than it holds.
+    Readers raise it as their own family (``CorruptScan``, ``SessionError``) when they have one."""
+
+
 class MissingDependency(ArsurfError, ImportError):
     """An optional extra is needed for this feature (the message names the pip extra)."""
 
@@ -167,6 +174,11 @@ class ControllerError(InstrumentError):
 class InstrumentLinkLost(InstrumentError):
     """The link to the AFM controller stalled, closed or sent bytes that are not its protocol; the
     link is closed and the tip is left where it was (reopen the instrument to go on)."""
+
+
+class VerifyError(ArsurfError, ValueError):
+    """A scan after cannot be compared with the model (scans of different sizes, spacings or
+    channels, no overlap, no objects found, a session without objects)."""
 
 
 class ViewerError(ArsurfError, ValueError):

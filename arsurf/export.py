@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_bytes
 from arsurf.errors import ExportError, require
 from arsurf.spline.surface import BSplineSurface
 
@@ -226,12 +227,6 @@ def export_surface(surface: BSplineSurface, path: str | os.PathLike, resolution=
     if colors and ext != ".stl":
         span = float(np.ptp(z))
         mesh.visual.vertex_colors = _afmhot((z - z.min()) / span if span > 0 else np.zeros_like(z))
-    tmp = p.with_name(p.name + ".part")
-    try:
-        data = mesh.export(file_type=EXPORT_FORMATS[ext])
-        tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
-        os.replace(tmp, p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    data = mesh.export(file_type=EXPORT_FORMATS[ext])
+    write_bytes(p, data if isinstance(data, bytes) else data.encode(), what="mesh file", error=ExportError)
     return p

@@ -128,7 +128,7 @@ def press_trajectory(tip_radius: float, scale: float, indent: float = 10e-9):
 
 
 def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: float | None = None,
-                    max_speed: float = 10e-6, origin=(0.0, 0.0, 0.0)):
+                    max_speed: float = 10e-6, origin=(0.0, 0.0, 0.0), **nanonis_options):
     """The instrument of ``spec`` (:func:`parse_instrument`), its photodiode and its frame.
 
     Parameters
@@ -138,6 +138,9 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
         The model the session runs (its scan, lever and tip radius).
     probe_origin : (3,) float, m
         Tip-sphere centre (scan frame) at the stylus origin: where the virtual AFM's tip starts.
+    nanonis_options
+        :class:`~arsurf.instrument.nanonis.NanonisAFM` keywords (``acquisition_period``,
+        ``on_link_loss``); a virtual instrument has no link and ignores them.
     deflection_sensitivity : float, m per signal unit
         Of the lever on the instrument (required for Nanonis: from its calibration); the virtual
         AFM's default is seed 001's 1117 nm per unit.
@@ -191,18 +194,20 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
                                              finite.max() + R + Z_MARGIN]]))
     limits = InstrumentLimits(corners.min(0), corners.max(0), max_speed,
                               f"the scanned area, within {Z_MARGIN * 1e6:g} um of its heights")
-    afm = NanonisAFM(kind[1], kind[2], limits=limits)
+    afm = NanonisAFM(kind[1], kind[2], limits=limits, **nanonis_options)
     return afm, Photodiode.from_deflection_sensitivity(deflection_sensitivity, lever.length), frame
 
 
 def _device_metadata(device, backend: str) -> dict:
     info = device.info
+    record = getattr(device, "safety_record", None)  # a hardware adapter: its watchdog, limits' sources
     return {"interface": backend, "name": info.name, "max_force": float(info.max_force),
-            "workspace": np.asarray(info.workspace, dtype=np.float64).tolist()}
+            "workspace": np.asarray(info.workspace, dtype=np.float64).tolist(),
+            **(record() if callable(record) else {})}
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,
-             axes: str = "xyz", max_age: float = 0.02, record=None, seconds: float | None = None, stop=None,
+             axes: str = "xyz", max_age: float | None = None, record=None, seconds: float | None = None, stop=None,
              setup=None, priority: int = 0, **safety_kwargs) -> LiveResult:
     """Run the live loop on ``device`` until ``seconds`` pass, ``stop`` is set or a fault stops it.
 

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf import _validation
+from arsurf._files import write_bytes
 from arsurf.errors import MeshError, require
 
 __all__ = [
@@ -309,9 +310,7 @@ def write_meshes(folder: str | os.PathLike) -> list[Path]:
     paths = []
     for name, mesh in _default_meshes().items():
         path = out / MESH_FILES[name]
-        tmp = path.with_name(path.name + ".part")
-        tmp.write_bytes(mesh.export(file_type="stl"))
-        os.replace(tmp, path)
+        write_bytes(path, mesh.export(file_type="stl"), what="mesh file", error=MeshError)
         paths.append(path)
     return paths
 

@@ -44,7 +44,8 @@ from arsurf._layout import Layout
 from arsurf.contact import friction as fr
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
-from arsurf.contact.material_map import H_DENT, H_FRICTION, contact_vector, local_contact_kernel
+from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
+                                         local_contact_kernel)
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
@@ -434,6 +435,7 @@ class ARModel:
             "coupling_stiffness": coupling_stiffness, "jump_out_depth": contact.jump_out_depth(),
             "zero_load_depth": float(contact.depth(0.0))})
         self.material = material
+        self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
         self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
         # validates the height-field rest net; the tick records its dent in the contact vector
@@ -446,7 +448,7 @@ class ARModel:
         self._ev = np.empty((EVALUATION_ROWS, 3))
         self.out = np.zeros(M_SIZE)
 
-    def adhesion_energy(self) -> float:
+    def adhesion_energy(self, with_map: bool = True) -> float:
         """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.
 
         Over the adhesive part of the contact curve the pull towards the surface is at most the
@@ -454,13 +456,27 @@ class ARModel:
         deepest depth where the tip can still be held, :math:`\\min(\\delta_{out}, -h_0)`, and the
         zero-load depth :math:`\\delta_0`; the virtual coupling stretches by at most
         :math:`|P_c|/k_c` more: :math:`E_0 = |P_c|\\,(\\delta_0 - \\min(\\delta_{out}, -h_0) + |P_c|/k_c)`.
-        It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`)."""
+        It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`).
+
+        With a material map the well is the deepest of the local laws the tick can meet: the
+        bound is taken over the map's pixels and the points half-way between them
+        (:func:`~arsurf.contact.material_map.deepest_well_kernel`), computed once (~3 s for a
+        1024² map) and kept; ``with_map=False`` gives the reference law's alone."""
         c = self.contact
         pc = abs(c.pull_off_force())
         if pc == 0.0:
             return 0.0
         reach = float(c.depth(0.0)) - min(c.jump_out_depth(), c.jump_in_depth())
-        return pc * (reach + pc / self.coupling_stiffness)
+        e0 = pc * (reach + pc / self.coupling_stiffness)
+        if self.material is None or not with_map:
+            return e0
+        if self._deepest_well is None:
+            m = self.material
+            ny, nx = m.fields["reduced_modulus"].pixels.shape
+            self._deepest_well = deepest_well_kernel(
+                self._md_args.copy(), m.offset[0], m.offset[1], 0.5 * m.spacing[0], 0.5 * m.spacing[1], 2 * nx - 1,
+                2 * ny - 1, self.coupling_stiffness, c.interaction_range)
+        return max(e0, self._deepest_well)
 
     def reset(self) -> None:
         """Forget the contact history and restore the surface to rest."""

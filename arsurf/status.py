@@ -39,22 +39,26 @@ The stages of the haptic loop (position scaling, coupling, safety) return **flag
 means one thing wherever it appears, so the words of several stages can be OR-ed and read with
 one table:
 
-==================  =====  ===================================================================
-flag                bit    meaning
-==================  =====  ===================================================================
-``SATURATED``       1      force norm clamped to the device's maximum
-``RATE_LIMITED``    2      force change limited to the rate limit
-``RAMPING``         4      engagement gain between 0 and 1 (start-up ramp or fault fade-out)
-``STALE``           8      device sample older than the staleness limit
-``WATCHDOG``        16     the loop missed its deadlines repeatedly
-``DISENGAGED``      32     disengage button held
-``NONFINITE``       64     NaN/inf met in an input: the stage's safe output instead
-``CLUTCHED``        128    clutch held: the probe (or slave) frozen
-``CLAMPED``         256    probe (or slave) clamped to its range
-``MASTER_OUTSIDE``  512    master outside its workspace box
-``BAD_BUTTONS``     1024   the device reported a malformed button word: taken as no press
-``PASSIVITY``       2048   the passivity controller added damping (the loop had generated energy)
-==================  =====  ===================================================================
+======================  ======  =====================================================================
+flag                    bit     meaning
+======================  ======  =====================================================================
+``SATURATED``           1       force norm clamped to the device's maximum
+``RATE_LIMITED``        2       force change limited to the rate limit
+``RAMPING``             4       engagement gain between 0 and 1 (start-up ramp or fault fade-out)
+``STALE``               8       device sample older than the staleness limit
+``WATCHDOG``            16      the loop missed its deadlines repeatedly
+``DISENGAGED``          32      disengage button held
+``NONFINITE``           64      NaN/inf met in an input: the stage's safe output instead
+``CLUTCHED``            128     clutch held: the probe (or slave) frozen
+``CLAMPED``             256     probe (or slave) clamped to its range
+``MASTER_OUTSIDE``      512     master outside its workspace box
+``BAD_BUTTONS``         1024    the device reported a malformed button word: taken as no press
+``PASSIVITY``           2048    the passivity controller added damping (the loop had generated energy)
+``SAMPLE_MALFORMED``    4096    device sample wrongly shaped, typed or not finite: zero force (fault)
+``SAMPLE_OUTSIDE``      8192    device sample outside the device workspace plus margin: zero force (fault)
+``SAMPLE_TOO_FAST``     16384   device sample moved faster than a stylus can: zero force (fault)
+``TIME_BACKWARDS``      32768   the sample's stamp or the loop clock went backwards: zero force (fault)
+======================  ======  =====================================================================
 
 The decoupling's bits (:class:`arsurf.force.decoupling.DecouplingFlag`) are a word of their own,
 recorded as such in session files.
@@ -73,8 +77,8 @@ from __future__ import annotations
 __all__ = ["BAD_BUTTONS", "BAD_INPUT", "BRANCH_NAMES", "CLAMPED", "CLUTCHED", "COHESIVE", "CONTACT",
            "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT", "MASTER_OUTSIDE", "NONFINITE",
            "NON_FINITE", "NOT_CONVERGED", "OK", "PASSIVITY", "PUSH_FALLBACK", "PUSH_NAMES", "PUSH_OK",
-           "PUSH_SUBSTEP_CAP", "RAMPING", "RATE_LIMITED", "SATURATED", "SEPARATED", "STALE", "TEXT",
-           "WATCHDOG", "flag_names"]
+           "PUSH_SUBSTEP_CAP", "RAMPING", "RATE_LIMITED", "SAMPLE_MALFORMED", "SAMPLE_OUTSIDE", "SAMPLE_TOO_FAST",
+           "SATURATED", "SEPARATED", "STALE", "TEXT", "TIME_BACKWARDS", "WATCHDOG", "flag_names"]
 
 OK = 0
 ITERATION_LIMIT = 1
@@ -120,9 +124,14 @@ CLAMPED = 256
 MASTER_OUTSIDE = 512
 BAD_BUTTONS = 1024
 PASSIVITY = 2048
+SAMPLE_MALFORMED = 4096
+SAMPLE_OUTSIDE = 8192
+SAMPLE_TOO_FAST = 16384
+TIME_BACKWARDS = 32768
 #: names of the flag bits, lowest bit first
 FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE", "CLUTCHED",
-              "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS", "PASSIVITY")
+              "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS", "PASSIVITY", "SAMPLE_MALFORMED", "SAMPLE_OUTSIDE",
+              "SAMPLE_TOO_FAST", "TIME_BACKWARDS")
 
 
 def flag_names(flags: int) -> list[str]:

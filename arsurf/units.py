@@ -55,6 +55,7 @@ SUFFIXES: dict[str, str] = {
     "N_s_per_m": "N s/m",
     "N_per_m": "N/m",
     "m_per_s": "m/s",
+    "m_per_V": "m/V",
     "per_s": "1/s",
     "rad": "rad",
     "Pa": "Pa",
@@ -71,6 +72,8 @@ SUFFIXES: dict[str, str] = {
 DIMENSIONLESS = frozenset({
     "friction",  # kinetic friction coefficient mu
     "maugis_lambda",  # Maugis' elasticity parameter lambda
+    "sample_poisson", "tip_poisson",  # Poisson ratios
+    "outlier_mads",  # robust standard deviations (a multiple of a scale)
     "smoothing",  # P-spline penalty weight (scaled to the data, no unit)
     "control_nu", "control_nv", "control_shape", "resolution",  # numbers of control points / samples
     "steps", "frames", "items", "ok", "failed", "not_run", "reversals",  # counts

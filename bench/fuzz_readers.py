@@ -6,7 +6,10 @@ Mutations and classification are those of tests/test_readers_fuzz.py (``mutate``
 fixed seed), cycled per mutant: truncation, bit flips in the header (first 4 KiB) and anywhere, a
 run of random bytes, a number of a text header made huge/negative/zero/NaN, one digit of such a
 number changed, and for HDF5 files one numeric attribute (grid, lengths, calibration) set to a
-hostile value. Outcomes of arsurf's ``load_scan``:
+hostile value, and an HDF5 feature reaching outside the file planted in a random dataset
+(tests/hdf5_attacks.py; ``hdf5_features`` reports per feature the outcomes - ``followed`` when it
+was not refused, which must never happen - the refusals whose message names it, and the slowest
+read). Outcomes of arsurf's ``load_scan``:
 
 - ``refused``: an :class:`arsurf.errors.ScanError` (``multi_line_message`` counts those not on one line);
 - ``equal``, ``damaged_pixels``, ``rescaled``, ``plausible``: accepted, and right or within the
@@ -50,6 +53,8 @@ from tqdm import tqdm
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / "tests"))
+from hdf5_attacks import KINDS as FEATURES  # noqa: E402
+from hdf5_attacks import plant  # noqa: E402
 from test_readers_fuzz import KINDS, MEMORY_FACTOR, MEMORY_SLACK, OUTCOMES, mutate  # noqa: E402
 
 REAL = Path(os.environ.get("ARSURF_REAL_SCANS", ROOT.parent / "shared" / "scans-real"))
@@ -81,19 +86,23 @@ for line in sys.stdin:
     req = json.loads(line)
     reader, path = req["reader"], req["path"]
     key = (reader, req["original"])
-    seconds = peak = None
+    seconds = peak = refused_s = refused_peak = None
     try:
         if key not in intact:
             intact[key] = load_scan(req["original"]) if reader == "arsurf" else peer_read(reader, req["original"])
         tracemalloc.start()  # both readers traced: the same overhead on both times
+        t0 = time.perf_counter()
         try:
-            t0 = time.perf_counter()
             got = load_scan(path) if reader == "arsurf" else peer_read(reader, path)
             seconds = time.perf_counter() - t0
             peak = tracemalloc.get_traced_memory()[1]
         finally:
+            if seconds is None:  # refused: its time and memory, apart (the HDF5 features are timed so)
+                refused_s, refused_peak = time.perf_counter() - t0, tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
-        if reader == "arsurf":
+        if req["kind"] == "hdf5-feature":  # a feature reaching outside the file must be refused, never read
+            out = {"outcome": "followed"}
+        elif reader == "arsurf":
             outcome, reason = classify(intact[key], got, req["kind"], req["changed"])
             out = {"outcome": outcome, "reason": reason}
         else:
@@ -103,11 +112,11 @@ for line in sys.stdin:
             else:
                 out = dict(zip(("outcome", "reason"), classify_values(b, got, req["kind"], req["changed"])))
     except ScanError as exc:
-        out = {"outcome": "refused", "one_line": "\n" not in str(exc)}
+        out = {"outcome": "refused", "one_line": "\n" not in str(exc), "message": str(exc)[-160:]}
     except BaseException as exc:
         out = {"outcome": "other" if reader == "arsurf" else "refused", "type": type(exc).__name__,
                "message": str(exc)[:200]}
-    out.update(seconds=seconds, peak=peak)
+    out.update(seconds=seconds, peak=peak, refused_s=refused_s, refused_peak=refused_peak)
     sys.stdout.write(json.dumps(out) + "\n")
     sys.stdout.flush()
 """
@@ -183,6 +192,21 @@ def mutate_hdf5(src: Path, dst: Path, rng: np.random.Generator) -> str:
         return f"{name}@{key}={value}"
 
 
+def mutate_hdf5_feature(src: Path, dst: Path, rng: np.random.Generator, feature: str, workdir: Path) -> str:
+    """Copy ``src`` and plant the HDF5 feature ``feature`` (tests/hdf5_attacks.py: external storage on
+    /etc/passwd or on a FIFO, external link, virtual dataset, huge unwritten size, dangling soft
+    link, unexpected filter) in one of its datasets, chosen at random."""
+    import h5py
+
+    shutil.copy(src, dst)
+    names: list[str] = []
+    with h5py.File(dst, "r") as f:
+        f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+    target = names[int(rng.integers(len(names)))]
+    plant(dst, target, feature, workdir)
+    return f"{feature}@{target}"
+
+
 def _median(values) -> float | None:
     values = [v for v in values if v is not None]
     return float(np.median(values)) if values else None
@@ -208,7 +232,7 @@ def main(argv=None) -> int:
         print(json.dumps({"error": f"not in {REAL} or {DATA}: {unknown}"}))
         return 2
     ours, peer = Worker(args.mem_limit_mb), Worker(args.mem_limit_mb)
-    counted = (*OUTCOMES, "other", "crash", "hang", "multi_line_message", "over_memory_bound")
+    counted = (*OUTCOMES, "followed", "other", "crash", "hang", "multi_line_message", "over_memory_bound")
     report: dict = {"seed": args.seed, "mutants_per_file": args.mutants, "timeout_s": args.timeout,
                     "mem_limit_mb": args.mem_limit_mb, "memory_bound": f"{MEMORY_FACTOR} x file size + "
                     f"{MEMORY_SLACK >> 20} MiB", "files": {}}
@@ -230,12 +254,17 @@ def main(argv=None) -> int:
             others: Counter = Counter()
             examples: dict = {}
             times, peer_times, ratios, peer_ratios = [], [], [], []
-            kinds = (*KINDS, "hdf5-attr") if is_h5 else KINDS
+            kinds = (*KINDS, "hdf5-attr", "hdf5-feature") if is_h5 else KINDS
+            features: dict = {}
             for k in range(args.mutants):
                 kind = kinds[k % len(kinds)]
                 dst = Path(tmp) / f"m{k}{src.suffix}"
+                feature = None
                 if kind == "hdf5-attr":
                     label, changed = "hdf5-attr:" + mutate_hdf5(src, dst, rng), 0
+                elif kind == "hdf5-feature":
+                    feature = sorted(FEATURES)[(k // len(kinds)) % len(FEATURES)]
+                    label, changed = "hdf5-feature:" + mutate_hdf5_feature(src, dst, rng, feature, Path(tmp)), 0
                 else:
                     mutant, changed = mutate(data, rng, kind)
                     dst.write_bytes(mutant)
@@ -246,6 +275,13 @@ def main(argv=None) -> int:
                 counts[outcome] += 1
                 by_kind.setdefault(kind, Counter())[outcome] += 1
                 times.append(res.get("seconds"))
+                if feature is not None:
+                    fe = features.setdefault(feature, {"outcomes": Counter(), "named": 0, "max_s": 0.0, "alloc": 0.0})
+                    fe["outcomes"][outcome] += 1
+                    fe["named"] += int(outcome == "refused" and FEATURES[feature] in res.get("message", ""))
+                    fe["max_s"] = max(fe["max_s"], res.get("seconds") or res.get("refused_s") or 0.0)
+                    fe["alloc"] = max(fe["alloc"], (res.get("peak") or res.get("refused_peak") or 0)
+                                      / max(dst.stat().st_size, 1))
                 if res.get("peak") is not None:
                     ratio = res["peak"] / max(dst.stat().st_size, 1)
                     ratios.append(ratio)
@@ -275,6 +311,10 @@ def main(argv=None) -> int:
                 "max_alloc_per_file_byte": float(max(ratios)) if ratios else None,
                 "median_s_per_read": _median(times),
             }
+            if features:  # per HDF5 feature: outcomes, refusals naming it, slowest read (s)
+                entry["hdf5_features"] = {f: {"outcomes": dict(v["outcomes"]), "refusals_naming_it": v["named"],
+                                              "max_s_per_read": v["max_s"], "max_alloc_per_file_byte": v["alloc"]}
+                                          for f, v in sorted(features.items())}
             if peer_name is not None:
                 entry["peer"] = {"reader": peer_name, **dict(peer_counts), "median_s_per_read": _median(peer_times),
                                  "max_alloc_per_file_byte": float(max(peer_ratios)) if peer_ratios else None}
@@ -283,7 +323,7 @@ def main(argv=None) -> int:
     ours.stop()
     peer.stop()
     report["total"] = {o: totals.get(o, 0) for o in counted}
-    report["total"]["mutants"] = sum(totals[o] for o in (*OUTCOMES, "other", "crash", "hang"))
+    report["total"]["mutants"] = sum(totals[o] for o in (*OUTCOMES, "followed", "other", "crash", "hang"))
     report["seconds"] = time.perf_counter() - t_all
     report["python"] = sys.version.split()[0]
     print(json.dumps(report, indent=2))

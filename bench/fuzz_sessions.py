@@ -12,7 +12,11 @@ truncations, extensions, zeroed / copied / inserted blocks) of
 * ``version1``  - a session in the old format (no seal, no checksums), ``isolate="auto"``
   (which isolates it);
 * ``journal``   - a killed recording's journal, ``allow_incomplete=True`` (a prefix of the
-  ticks is the right answer there).
+  ticks is the right answer there);
+* ``hdf5_feature`` - the sealed file with an HDF5 feature reaching outside it planted in a
+  random ``/ticks`` dataset (tests/hdf5_attacks.py: external storage on /etc/passwd or on a
+  FIFO, external link, virtual dataset, huge unwritten size, dangling soft link, unexpected
+  filter), checksums and seal redone: must be ``refused`` (in-process, ``isolate="auto"``).
 
 Each mutant is read in a worker process that the driver watches with a per-file time limit:
 outcomes ``identical`` (or ``prefix`` for journals), ``refused`` (SessionError), ``crash`` (the
@@ -25,7 +29,7 @@ worker died from a signal), ``hang`` (time limit), ``other`` (another exception 
 peak resident memory caused by one mutant, against the file size.
 
 Usage: ``python bench/fuzz_sessions.py [--sealed 10000] [--resealed 300] [--version1 200]
-[--journal 2000] [--timeout 20] [--workers 2]``. Prints one JSON document.
+[--journal 2000] [--hdf5-features 140] [--timeout 20] [--workers 2]``. Prints one JSON document.
 """
 from __future__ import annotations
 
@@ -52,6 +56,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 from _timing import emit  # noqa: E402
 from test_session_fuzz import _meta, _record, mutate  # noqa: E402
 from test_session import _write_v1  # noqa: E402
+from hdf5_attacks import KINDS as FEATURES  # noqa: E402
+from hdf5_attacks import plant, reseal_session  # noqa: E402
 
 from arsurf.sessions.sealed import SEAL_SIZE, seal_bytes  # noqa: E402
 from arsurf.sessions.journal import journal_path  # noqa: E402
@@ -146,12 +152,27 @@ def _resealed(data: bytes, rng) -> bytes:
     return bytes(b)
 
 
+def _featured(data: bytes, rng, i: int, path: Path, workdir: Path) -> bytes:
+    """The session with the HDF5 feature ``FEATURES[i % 7]`` planted in a random /ticks dataset,
+    checksums and seal redone (tests/hdf5_attacks.py): only the content rules can refuse it."""
+    import h5py
+
+    path.write_bytes(data)
+    with h5py.File(path, "r") as f:
+        names = sorted(f["ticks"])
+    feature = sorted(FEATURES)[i % len(FEATURES)]
+    plant(path, "ticks/" + names[int(rng.integers(len(names)))], feature, workdir)
+    reseal_session(path)
+    return path.read_bytes()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sealed", type=int, default=10000)
     ap.add_argument("--resealed", type=int, default=300)
     ap.add_argument("--version1", type=int, default=200)
     ap.add_argument("--journal", type=int, default=2000)
+    ap.add_argument("--hdf5-features", type=int, default=140, help="sessions with a planted HDF5 feature")
     ap.add_argument("--timeout", type=float, default=20.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=20261121)
@@ -179,6 +200,8 @@ def main() -> None:
         jobs.append(("version1", "auto", v1, "h5", i))
     for i in range(args.journal):
         jobs.append(("journal", "auto", journal, "journal", i))
+    for i in range(args.hdf5_features):
+        jobs.append(("hdf5_feature", "auto", sealed, "h5", i))
     originals = {p: p.read_bytes() for p in (sealed, v1, journal)}
     # the mutant of each job, from a per-job generator: the same mutants whatever the worker count
     work: queue.Queue = queue.Queue()
@@ -197,7 +220,10 @@ def main() -> None:
             gkey = "resealed" if group.startswith("resealed") else group  # both readers get the same mutants
             r = np.random.default_rng([args.seed, zlib.crc32(gkey.encode()), i])
             data = originals[base]
-            mutant = seal_bytes(_resealed(data, r)) if group.startswith("resealed") else mutate(data, r)
+            if group == "hdf5_feature":
+                mutant = _featured(data, r, i, d / f"f{k}.h5", d)
+            else:
+                mutant = seal_bytes(_resealed(data, r)) if group.startswith("resealed") else mutate(data, r)
             target = d / f"w{k}.{'h5.journal' if kind == 'journal' else 'h5'}"
             target.write_bytes(mutant)
             res = wk.run({"path": str(target), "ref": str(base), "mode": mode, "kind": kind}, args.timeout)

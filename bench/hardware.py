@@ -6,7 +6,13 @@ source and ``command_force`` as sink (a constant 0.1 N, so every tick talks to t
 ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library or
 serial exchange), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
 servo thread samples on its own clock); then the scheduler's period jitter (|period - 1 ms|),
-overruns and achieved rate. The simulated devices are not the real ones: a real USB device adds
+overruns and achieved rate. Every device runs with its shipped defaults (no max_force: the
+first-connection 1 N; the Haply read timeout of one period; OpenHaptics' 5 ms sample timeout). A
+lost reply is injected halfway where the simulator models one (Haply: ``lose``): ``lost_reply``
+is the longest tick spent in the adapter after it, against the 1 ms period (Force Dimension: its
+SDK's calls are synchronous USB transfers whose timeout the vendor does not document and the
+simulator does not model; OpenHaptics: arsurf reads shared memory, the servo thread's misses never
+block the loop). The simulated devices are not the real ones: a real USB device adds
 its bus latency (~0.1-1 ms) to ``io``; what this measures is arsurf's side of the round trip.
 
 BENCHMARKS maps a section name to a function returning its JSON dict; the ``nanonis`` section is
@@ -18,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import os
 import sys
 import tempfile
@@ -40,8 +47,9 @@ FORCE = np.array([0.0, 0.0, 0.1])
 WORK = Path(tempfile.mkdtemp(prefix="arsurf-bench-hw-"))
 
 
-def loop_through(dev, seconds: float) -> dict:
-    """The 1 kHz Scheduler through ``dev`` (open): io and sample-age statistics, and the timing."""
+def loop_through(dev, seconds: float, halfway=None) -> dict:
+    """The 1 kHz Scheduler through ``dev`` (open): io and sample-age statistics, and the timing;
+    ``halfway()`` is called once in the tick at half the run (e.g. to lose a reply)."""
     n = int(seconds * 1000 * 1.2) + 100
     io = np.zeros(n)
     age = np.zeros(n)
@@ -49,7 +57,11 @@ def loop_through(dev, seconds: float) -> dict:
     clock = time.perf_counter_ns
     t_read = [0]
 
+    half = [int(seconds * 500)]
+
     def source():
+        if halfway is not None and k[0] == half[0]:
+            halfway()
         t0 = clock()
         s = dev.read_state()
         t_read[0] = clock() - t0
@@ -73,7 +85,13 @@ def loop_through(dev, seconds: float) -> dict:
     st = sched.run_for(seconds)
     m = min(k[0], n)
     ok = np.isfinite(age[:m])
+    lost = {}
+    if halfway is not None:
+        after = io[half[0]:min(m, half[0] + 50)]
+        lost = {"lost_reply": {"worst_tick_in_adapter_ms": float(after.max() * 1e3) if after.size else None,
+                               "read_timeout_ms": getattr(dev, "read_timeout", math.nan) * 1e3}}
     return {
+        **lost,
         "io": stats(io[:m]),
         "sample_age": stats(age[:m][ok]),
         "missed_samples": int(getattr(dev, "missed_samples", 0)),
@@ -111,8 +129,8 @@ def bench_forcedimension(seconds: float) -> dict:
     from arsurf.haptics.forcedimension import ForceDimensionDevice
 
     sim = hardware_sim.load(str(lib))
-    sim.sim_reset(33, 1, 1)
-    with ForceDimensionDevice(max_force=1.0) as dev:
+    sim.sim_reset(33, 1, 1, 1)
+    with ForceDimensionDevice() as dev:
         return {"device": dev.info.name, **loop_through(dev, seconds)}
 
 
@@ -122,31 +140,67 @@ def bench_openhaptics(seconds: float) -> dict:
     if why:
         return {"skipped": why}
     sim = hardware_sim.load(hardware_sim.build_libhd(WORK / "hd"))
-    sim.sim_reset(0x5000)
+    sim.sim_reset(0x5000, 4)
     from arsurf.haptics.openhaptics import OpenHapticsDevice
 
     try:
-        with OpenHapticsDevice(max_force=1.0, sample_timeout=0.04) as dev:
+        with OpenHapticsDevice() as dev:
             return {"device": dev.info.name, "servo_errors": dev.servo_errors, **loop_through(dev, seconds)}
     finally:
-        sim.sim_reset(0x5000)
+        sim.sim_reset(0x5000, 4)
+
+
+def _inverse3_child(conn) -> None:
+    """Child process: the simulated Inverse3 on a pty (its own interpreter: the binding holds the
+    GIL while it waits for a reply, so an in-process simulator could not answer within 1 ms)."""
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from hardware_sim.haply_pty import Inverse3Pty
+
+    pty = None
+    while True:
+        msg = conn.recv()
+        if msg == "new":  # a fresh device per case (closing the port ends the pty's server)
+            if pty is not None:
+                pty.close()
+            pty = Inverse3Pty().start()
+            conn.send(pty.path)
+        elif msg == "lose":
+            pty.lose(1)
+        else:
+            break
+    if pty is not None:
+        pty.close()
 
 
 def bench_haply(seconds: float) -> dict:
-    """Through haplyhardwareapi over a pseudo-terminal to the simulated Inverse3 (a Python thread)."""
+    """Through haplyhardwareapi over a pseudo-terminal to the simulated Inverse3 (a child process)."""
     why = _needs("HaplyHardwareAPI", compiler=False)
     if why:
         return {"skipped": why}
-    from hardware_sim.haply_pty import Inverse3Pty
+    import multiprocessing as mp
 
     from arsurf.haptics.haply import HaplyDevice
 
-    pty = Inverse3Pty().start()
+    here, there = mp.get_context("spawn").Pipe()
+    child = mp.get_context("spawn").Process(target=_inverse3_child, args=(there,), daemon=True)
+    child.start()
     try:
-        with HaplyDevice(pty.path, max_force=1.0, workspace=(0.2, 0.12, 0.15), read_timeout=0.1) as dev:
-            return {"device": dev.info.name, **loop_through(dev, seconds)}
+        out = {}
+        # shipped defaults, then a 20 ms read timeout: a Python simulator on a loaded machine may
+        # not answer within the shipped 1 ms (a real Inverse3 answers from its firmware)
+        for name, kw in (("shipped defaults", {}), ("read_timeout 20 ms", {"read_timeout": 0.02, "disconnect_after": 0.2})):
+            here.send("new")
+            path = here.recv()
+            try:
+                with HaplyDevice(path, workspace=(0.2, 0.12, 0.15), **kw) as dev:
+                    out[name] = {"device": dev.info.name, "read_timeout_ms": dev.read_timeout * 1e3,
+                                 **loop_through(dev, seconds, halfway=lambda: here.send("lose"))}
+            except Exception as exc:  # noqa: BLE001 - reported in the JSON, the other cases still run
+                out[name] = {"error": f"{type(exc).__name__}: {exc}"}
+        return out
     finally:
-        pty.close()
+        here.send("stop")
+        child.join(5.0)
 
 
 #: section name -> benchmark(seconds) -> dict (add a section for another simulated link here)

@@ -10,6 +10,11 @@ measures, on loopback:
 * ``move_and_read``: the live link's round, ``FolMe.XYPosSet`` then the read, every 1 ms;
 * ``link``: the :class:`InstrumentLink` thread against the controller while a 1 kHz reader takes
   its newest sample: samples per second and the sample age the reader sees (median, p99);
+* ``live_link``: the live loop's link with the shipped defaults (xyz, the controller's Tap, the
+  sample-age limit derived from it) read by a 1 kHz loop: loop rate, p99 period, sample age
+  (p99) against the limit, and the worst time a loop tick spent in the link (``latest`` +
+  ``command``) over a run in which the link's replies are lost halfway (the link thread then waits
+  its timeout; the loop never does: it sees the age grow and would stop at the limit);
 * peers timed in the same run: ``tcp_echo`` - a bare request/reply of the same sizes to an echo
   server in the same child (the loopback floor) - and ``vendor_read`` - the same read with the
   vendor package's client ``nanonis_spm.Nanonis.Signals_ValsGet`` (when installed).
@@ -76,7 +81,14 @@ def _serve(conn) -> None:
     threading.Thread(target=echo_loop, daemon=True).start()
     with NanonisSimulator(afm) as sim:
         conn.send((sim.address[1], echo.getsockname()[1]))
-        conn.recv()  # stop
+        while True:
+            msg = conn.recv()
+            if msg == "lose":  # the replies stop coming (the second connection's withdraw stalls too)
+                sim.faults.stall_after = 0
+            elif msg == "heal":
+                sim.faults.stall_after = None
+            else:
+                return
 
 
 def _paced(fn, seconds: float) -> dict:
@@ -130,6 +142,42 @@ def _link(port: int, seconds: float) -> dict:
             "age_p99_us": float(np.percentile(a, 99)), "age_max_us": float(a.max()), "error": link.error}
 
 
+def _live_link(port: int, seconds: float, pipe) -> dict:
+    afm = NanonisAFM("127.0.0.1", port, limits=LIMITS)
+    s = InstrumentSample()
+    ages, block, starts = [], [], []
+    clock = time.perf_counter
+    with InstrumentLink(afm, rate=RATE, axes="xyz") as link:
+        link.wait_first()
+        limit = afm.sample_age_limit("xyz")
+        tap, rtt = afm.acquisition_period, afm.round_trip
+        t0 = nxt = clock()
+        lost_at = None
+        while clock() - t0 < seconds:
+            while clock() < nxt:
+                pass
+            t = clock()
+            starts.append(t)
+            if lost_at is None and t - t0 > seconds / 2:
+                pipe.send("lose")
+                lost_at = len(starts) - 1
+            link.command(np.array([5e-6, 5e-6, 0.1e-6]))
+            ages.append(link.latest(s))
+            block.append(clock() - t)
+            nxt += 1.0 / RATE
+        pipe.send("heal")
+        error = link.error
+    a, b = np.array(ages) * 1e3, np.array(block) * 1e6
+    period = np.diff(starts) * 1e3
+    good = a[:lost_at]
+    return {"tap_ms": tap * 1e3, "round_trip_ms": rtt * 1e3, "max_age_limit_ms": limit * 1e3,
+            "loop_rate_hz": float(len(starts) / (starts[-1] - starts[0])), "period_p99_ms": float(np.percentile(period, 99)),
+            "sample_age_median_ms": float(np.median(good)), "sample_age_p99_ms": float(np.percentile(good, 99)),
+            "sample_age_over_limit_before_loss": int((good > limit * 1e3).sum()),
+            "tick_in_link_max_us": float(b.max()), "tick_in_link_max_after_loss_us": float(b[lost_at:].max()),
+            "sample_age_at_end_ms": float(a[-1]), "link_error": error}
+
+
 def bench_nanonis(seconds: float = 3.0) -> dict:
     """The Nanonis section of bench/hardware.py (see the module docstring)."""
     ctx = mp.get_context("spawn")
@@ -152,6 +200,7 @@ def bench_nanonis(seconds: float = 3.0) -> dict:
 
             out["move_and_read"] = _paced(move_read, seconds)
         out["link"] = _link(port, seconds)
+        out["live_link"] = _live_link(port, seconds, here)
         e = socket.create_connection(("127.0.0.1", echo_port))
         e.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         req, buf = bytes(REQUEST), bytearray(REPLY)

@@ -10,7 +10,13 @@ socket: per kind, FORCE packets tried, accepted, dropped, and whether any reache
 client's :meth:`poll` returned anything but the last valid force). Then the cost of the tag:
 median and p99 of one POSE check (HMAC-SHA256) in microseconds.
 
-Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0]``
+:func:`flood` is the bridge under load: a 1 kHz servo loop (read the pose, command a spring force)
+serves the reference client run as its own process at 1 kHz, while a keyless local process floods
+the bridge port from 4 sockets with POSE-sized datagrams under a wrong key (bounded: at most
+``--flood-packets`` datagrams in ``--flood-seconds``). It reports the operator's poses accepted
+over poses sent and the loop's ticks per second, with the same run without the flood beside it.
+
+Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0] [--flood-seconds 3]``
 """
 from __future__ import annotations
 
@@ -34,11 +40,13 @@ sys.path.insert(0, ROOT)
 
 from arsurf.haptics.udp_bridge import (  # noqa: E402
     POSE_SIZE,
+    encode_challenge,
     UdpBridgeDevice,
     encode_force,
     encode_pose,
     encode_release,
     generate_key,
+    save_key,
 )
 
 import arsurf.haptics.client as client_mod  # noqa: E402
@@ -73,9 +81,11 @@ def _drain(sock) -> int:
 
 
 def _deliver(dev, sock, data) -> None:
+    """Send ``data`` and poll until the bridge received it; 5 ms at most for a datagram the kernel
+    filters (a sender other than the pinned peer never reaches the socket)."""
     before = dev.stats.received
     sock.sendto(data, dev.address)
-    deadline = time.monotonic() + 1.0
+    deadline = time.monotonic() + (1.0 if dev.peer is None or sock.getsockname() == dev.peer else 0.005)
     while dev.stats.received == before and time.monotonic() < deadline:
         dev.poll()
 
@@ -92,20 +102,21 @@ def server_attacks(n: int, rng: np.random.Generator) -> dict:
     clock = _Clock()
     out = {}
     with UdpBridgeDevice(LOOPBACK, 0, key=key, clock=clock, stale_after=0.05, ramp_down=0.05) as dev:
+        sid = dev.session
         op, attacker = _udp(), _udp()
         seq = [1]
 
         def op_pose(x=OPERATOR_X):
             seq[0] += 1
             clock.t += 0.001
-            p = encode_pose(key, seq[0], clock.t, (x, 0.0, 0.0))
+            p = encode_pose(key, seq[0], clock.t, (x, 0.0, 0.0), session=sid)
             _deliver(dev, op, p)
             return p
 
         recorded = [op_pose() for _ in range(n)]  # the operator's traffic, as an eavesdropper saw it
         dev.command_force([0.0, 0.0, 1.0])
         _drain(op)
-        release = encode_release(key, 10**15, 0.0)  # a release the attacker forged... with the key
+        release = encode_release(key, 10**15, 0.0, session=sid)  # a release the attacker forged... with the key
 
         def fresh_seq():
             return seq[0] + 1 + int(rng.integers(0, 10**6))
@@ -114,33 +125,35 @@ def server_attacks(n: int, rng: np.random.Generator) -> dict:
             return rng.integers(0, 256, int(rng.integers(lo, hi + 1)), dtype=np.uint8).tobytes()
 
         def flipped():
-            p = bytearray(encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.5, 0.5)))
+            p = bytearray(encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.5, 0.5), session=sid))
             p[int(rng.integers(0, len(p)))] ^= 1 << int(rng.integers(0, 8))
             return bytes(p)
 
         kinds = {
             # (sender, packet factory, advance the clock past stale_after first)
             "hijack_with_key_after_operator_silent": ("attacker", lambda: encode_pose(
-                key, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3))), True),
+                key, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3)), session=sid), True),
             "hijack_without_key_after_operator_silent": ("attacker", lambda: encode_pose(
-                wrong, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3))), True),
+                wrong, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3)), session=sid), True),
             "forged_wrong_key_from_operator_address": ("operator", lambda: encode_pose(
-                wrong, fresh_seq(), clock.t + 1.0, tuple(rng.uniform(-1, 1, 3))), False),
+                wrong, fresh_seq(), clock.t + 1.0, tuple(rng.uniform(-1, 1, 3)), session=sid), False),
             "bit_flipped_from_operator_address": ("operator", flipped, False),
             "replayed_operator_packets": ("operator", lambda: recorded[int(rng.integers(0, len(recorded)))], False),
             "replayed_from_attacker_address": ("attacker", lambda: recorded[int(rng.integers(0, len(recorded)))],
                                                False),
             "reordered_older_sequence": ("operator", lambda: encode_pose(
-                key, int(rng.integers(0, 2)), clock.t + 1.0, (0.7, 0.0, 0.0)), False),
-            "oversized": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0))
+                key, int(rng.integers(0, 2)), clock.t + 1.0, (0.7, 0.0, 0.0), session=sid), False),
+            "oversized": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0), session=sid)
                           + junk(1, 4000), False),
-            "truncated": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0))[
+            "truncated": ("operator", lambda: encode_pose(key, fresh_seq(), clock.t + 1.0, (0.5, 0.0, 0.0), session=sid)[
                 :int(rng.integers(0, POSE_SIZE))], False),
             "random_junk_pose_sized": ("operator", lambda: junk(POSE_SIZE, POSE_SIZE), False),
             "protocol_v1_packets": ("operator", lambda: _v1_pose(fresh_seq(), clock.t + 1.0, 0.9), False),
             "release_from_attacker": ("attacker", lambda: release, False),
+            "recorded_in_an_earlier_session": ("attacker", lambda: encode_pose(
+                key, fresh_seq(), clock.t, tuple(rng.uniform(-1, 1, 3)), session=bytes(16)), True),
             "nonfinite_pose_with_key": ("operator", lambda: encode_pose(
-                key, fresh_seq(), clock.t + 1.0, (math.nan, math.inf, 0.0)), False),
+                key, fresh_seq(), clock.t + 1.0, (math.nan, math.inf, 0.0), session=sid), False),
         }
         for kind, (who, make, silent) in kinds.items():
             sock = attacker if who == "attacker" else op
@@ -167,7 +180,7 @@ def server_attacks(n: int, rng: np.random.Generator) -> dict:
         dropped0, accepted0 = dev.stats.dropped, dev.stats.accepted
         for _ in range(n):
             clock.t += 0.01
-            _deliver(dev, attacker, encode_pose(key, fresh_seq(), clock.t, (0.3, 0.3, 0.3)))
+            _deliver(dev, attacker, encode_pose(key, fresh_seq(), clock.t, (0.3, 0.3, 0.3), session=sid))
             dev.read_state()
             dev.command_force([0.0, 0.0, 1.0])
             forces.append(dev.force_gain)
@@ -189,6 +202,14 @@ def client_attacks(n: int, rng: np.random.Generator) -> dict:
     srv, attacker = _udp(), _udp()
     clock = _Clock()
     c = client_mod.HapticClient(LOOPBACK, srv.getsockname()[1], key, max_force=7.9, timeout=0.1, clock=clock)
+    c.send_pose((0.0, 0.0, 0.0))  # no session yet: a HELLO
+    sid = bytes(range(16))
+    hello_seq = c.seq
+    deadline = time.monotonic() + 1.0
+    while c.session is None and time.monotonic() < deadline:
+        srv.sendto(encode_challenge(key, 99, hello_seq, sid), c.sock.getsockname())
+        time.sleep(1e-3)
+        c.poll()
     c.send_pose((0.0, 0.0, 0.0))
     ack = c.seq
     good = (0.0, 0.0, 1.0)
@@ -208,7 +229,7 @@ def client_attacks(n: int, rng: np.random.Generator) -> dict:
         return seq[0]
 
     def force(f, k=key, a=None, s=None, t=0.0):
-        return encode_force(k, nxt() if s is None else s, ack if a is None else a, t, 0.0, f)
+        return encode_force(k, nxt() if s is None else s, ack if a is None else a, t, 0.0, f, session=sid)
 
     recorded = [force(good) for _ in range(4)]
     for p in recorded:
@@ -237,7 +258,9 @@ def client_attacks(n: int, rng: np.random.Generator) -> dict:
         "ack_of_an_earlier_run": ("server", lambda: force((0.0, 0.0, 5.0), a=c.first_seq - 1 - int(
             rng.integers(0, 10**6)))),
         "protocol_v1_packets": ("server", v1),
-        "truncated": ("server", lambda: force(good)[:int(rng.integers(0, 96))]),
+        "force_of_another_session": ("server", lambda: encode_force(key, nxt(), ack, 0.0, 0.0, (0.0, 0.0, 5.0),
+                                                                   session=bytes(16))),
+        "truncated": ("server", lambda: force(good)[:int(rng.integers(0, 112))]),
         "oversized": ("server", lambda: force(good) + bytes(int(rng.integers(1, 3000)))),
     }
     out = {}
@@ -266,29 +289,149 @@ def client_attacks(n: int, rng: np.random.Generator) -> dict:
 def tag_cost(n: int = 20000) -> dict:
     """Median and p99 time of one HMAC-SHA256 check of a POSE, microseconds."""
     key = generate_key()
-    pkt = encode_pose(key, 1, 0.0, (0.0, 0.0, 0.0))
+    pkt = encode_pose(key, 1, 0.0, (0.0, 0.0, 0.0), session=bytes(16))
     mv = memoryview(pkt)
     ts = np.empty(n)
     for i in range(n):
         t0 = time.perf_counter_ns()
-        hmac.compare_digest(hmac.new(key, mv[:108], hashlib.sha256).digest(), mv[108:])
+        hmac.compare_digest(hmac.new(key, mv[:124], hashlib.sha256).digest(), mv[124:])
         ts[i] = time.perf_counter_ns() - t0
     crc = np.empty(n)
     for i in range(n):
         t0 = time.perf_counter_ns()
-        zlib.crc32(mv[:108])
+        zlib.crc32(mv[:124])
         crc[i] = time.perf_counter_ns() - t0
     return {"hmac_check_median_us": float(np.median(ts)) / 1e3, "hmac_check_p99_us": float(np.percentile(ts, 99)) / 1e3,
             "crc32_v1_median_us": float(np.median(crc)) / 1e3,
             "ratio_hmac_over_crc32": float(np.median(ts) / max(np.median(crc), 1.0))}
 
 
-def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True) -> dict:
-    """Run every attack ``n`` times on the bridge and on the reference client; print and return JSON."""
+_FLOODER = r"""
+import socket, sys, time
+port, seconds, limit, pkt = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), bytes.fromhex(sys.argv[4])
+socks = []
+for _ in range(4):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.setblocking(False)
+    socks.append(s)
+addr, sent, tried, t0 = ("127.0.0.1", port), 0, 0, time.perf_counter()
+while tried < limit and time.perf_counter() - t0 < seconds:
+    for s in socks:
+        for _ in range(64):
+            tried += 1
+            try:
+                s.sendto(pkt, addr)
+                sent += 1
+            except OSError:  # buffer full, or an ICMP error reported on the socket
+                pass
+print(sent, tried, time.perf_counter() - t0)
+"""
+
+
+def _serve(dev, stop, ticks, rate, reads):
+    """A 1 kHz servo loop on absolute deadlines (missed ones skipped): read the pose, command a spring force."""
+    period = 1.0 / rate
+    k, t0 = 0, time.perf_counter()
+    while not stop.is_set():
+        t_read = time.perf_counter()
+        s = dev.read_state()  # the bridge's own work: drain the socket, parse, check
+        reads.append(time.perf_counter() - t_read)
+        dev.command_force(-100.0 * s.position)
+        ticks.append(time.perf_counter())
+        k += 1
+        deadline = t0 + k * period
+        if time.perf_counter() > deadline + period:  # late: skip the missed ticks, never burst to catch up
+            t0 = time.perf_counter() - (k - 1) * period
+            deadline = t0 + k * period
+        while True:
+            left = deadline - time.perf_counter()
+            if left <= 0:
+                break
+            time.sleep(min(left, 5e-4) if left > 2e-4 else 0)
+
+
+def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000, rate: float = 1000.0,
+              kernel_filter: bool = True) -> dict:
+    """One served session of ``seconds`` with the reference client at ``rate``, flooded or not.
+
+    ``kernel_filter=False`` is the ablation: the pinned peer is not connected and 256
+    datagrams are drained per tick, as protocol version 2 did (everything else as shipped)."""
+    import subprocess
+    import tempfile
+    import threading
+
+    key = generate_key()
+    with tempfile.TemporaryDirectory() as d, UdpBridgeDevice(
+            LOOPBACK, 0, key=key, max_packets_per_read=64 if kernel_filter else 256) as dev:
+        if not kernel_filter:
+            dev._pin = lambda addr: setattr(dev, "peer", addr)  # no connect(): every sender queues
+        kf = save_key(os.path.join(d, "k"), key)
+        port = dev.address[1]
+        stop, ticks, reads = threading.Event(), [], []
+        th = threading.Thread(target=_serve, args=(dev, stop, ticks, rate, reads), daemon=True)
+        th.start()
+        client = subprocess.Popen([sys.executable, "-m", "arsurf.haptics.client", "--port", str(port), "--key-file",
+                                   kf, "--rate", str(rate), "--duration", str(seconds), "--radius", "0.01"],
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        deadline = time.monotonic() + 10.0
+        while dev.peer is None and time.monotonic() < deadline:
+            time.sleep(0.001)
+        t_pin = time.perf_counter()
+        accepted0 = dev.stats.accepted
+        flooded = {"packets": 0, "seconds": 0.0}
+        if flood:
+            junk = encode_pose(generate_key(), 1, 0.0, (0.3, 0.3, 0.3), session=bytes(16))  # keyless: a wrong key
+            out = subprocess.run([sys.executable, "-c", _FLOODER, str(port), str(seconds - 0.5), str(flood_packets),
+                                  junk.hex()], capture_output=True, text=True, timeout=seconds + 30)
+            n, tried, dt = out.stdout.split()
+            flooded = {"packets": int(n), "tried": int(tried), "seconds": float(dt), "packets_per_s": int(n) / float(dt)}
+        out, err = client.communicate(timeout=seconds + 30)
+        t_end = time.perf_counter()
+        stop.set()
+        th.join(2.0)
+        summary = json.loads(out)
+        window = [t for t in ticks if t_pin <= t <= t_end]
+        in_window = [r for t, r in zip(ticks, reads) if t_pin <= t <= t_end] or [0.0]
+        gaps = np.diff(window) if len(window) > 1 else np.array([0.0])
+        return {
+            "flood": flooded,
+            "operator_poses_sent": summary["poses_sent"],
+            "operator_poses_accepted": dev.stats.accepted - accepted0 + 1,  # + the pose that pinned it
+            "operator_accepted_fraction": (dev.stats.accepted - accepted0 + 1) / max(1, summary["poses_sent"]),
+            "operator_replies_accepted_with_rtt": summary["replies_with_rtt"],
+            "loop_ticks_per_s": (len(window) - 1) / (window[-1] - window[0]) if len(window) > 1 else 0.0,
+            "loop_rate_fraction": ((len(window) - 1) / (window[-1] - window[0]) / rate) if len(window) > 1 else 0.0,
+            "loop_tick_gap_p99_ms": float(np.percentile(gaps, 99)) * 1e3,
+            "loop_tick_gap_max_ms": float(gaps.max()) * 1e3,
+            "bridge_read_state_median_us": float(np.median(in_window)) * 1e6,
+            "bridge_read_state_p99_us": float(np.percentile(in_window, 99)) * 1e6,
+            "machine_load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+            "bridge_stats": dev.stats.as_dict(),
+        }
+
+
+def flood(seconds: float = 3.0, flood_packets: int = 3_000_000) -> dict:
+    """The bridge with and without a keyless local flood, side by side."""
+    quiet = flood_run(False, seconds, flood_packets)
+    loud = flood_run(True, seconds, flood_packets)
+    ablation = flood_run(True, seconds, flood_packets, kernel_filter=False)
+    return {"no_flood": quiet, "flood": loud, "flood_without_kernel_filter_v2_behaviour": ablation,
+            "operator_poses_kept_under_flood": loud["operator_accepted_fraction"] / max(
+                1e-12, quiet["operator_accepted_fraction"]),
+            "loop_rate_kept_under_flood": loud["loop_ticks_per_s"] / max(1e-12, quiet["loop_ticks_per_s"]),
+            "bridge_read_state_p99_ratio_under_flood": loud["bridge_read_state_p99_us"] / max(
+                1e-12, quiet["bridge_read_state_p99_us"])}
+
+
+def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True, flood_seconds: float = 3.0) -> dict:
+    """Run every attack ``n`` times on the bridge and on the reference client, and the flood
+    (:func:`flood`, skipped with ``flood_seconds=0``); print and return JSON."""
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     server = server_attacks(n, rng)
     client = client_attacks(n, rng)
+    flooded = flood(flood_seconds) if flood_seconds > 0 else None
     report = {
         "benchmark": "robustness_bridge",
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
@@ -306,6 +449,7 @@ def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True) -> dict:
                                                if isinstance(v, dict)),
         },
         "tag_cost": tag_cost(),
+        "flood": flooded,
     }
     report["wall_s"] = time.perf_counter() - t0
     if echo:
@@ -317,8 +461,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=200, help="attempts per attack kind")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--flood-seconds", type=float, default=3.0, help="length of each flood run, s (0: no flood)")
     args = ap.parse_args(argv)
-    bridge_attacks(args.n, args.seed)
+    bridge_attacks(args.n, args.seed, flood_seconds=args.flood_seconds)
     return 0
 
 

@@ -1,5 +1,5 @@
 /*
- * arsurf_bridge.h - the arsurf haptic UDP bridge, protocol version 2, for C and C++ clients.
+ * arsurf_bridge.h - the arsurf haptic UDP bridge, protocol version 3, for C and C++ clients.
  *
  * One self-contained header (C99 or C++11, no dependency beyond the C library; no OpenSSL):
  * packet layouts and constants, little-endian encoders and decoders that do not depend on the
@@ -13,12 +13,15 @@
  * Every field is little-endian, f64 is IEEE-754 binary64, there is no padding: the offsets
  * below are the byte offsets in the datagram. SI units: m, m/s, N, s.
  *
- *   POSE    client -> server, 140 bytes: header, t, position[3], velocity[3], quaternion[4] (w,x,y,z),
- *           buttons u32, tag
- *   FORCE   server -> client,  96 bytes: header (flags), ack u64, server t, echo, force[3], tag
- *   RELEASE client -> server,  56 bytes: header, t, tag
- *   header  16 bytes: magic "ARSH", version u8 = 2, type u8, flags u16, sequence number u64
- *   tag     HMAC-SHA256(key, every byte before the tag), 32 bytes
+ *   HELLO     client -> server,  72 bytes: header (session zero), t, tag
+ *   CHALLENGE server -> client,  72 bytes: header (the session id), ack u64 (the HELLO's number), tag
+ *   POSE      client -> server, 156 bytes: header, t, position[3], velocity[3], quaternion[4] (w,x,y,z),
+ *             buttons u32, tag
+ *   FORCE     server -> client, 112 bytes: header (flags), ack u64, server t, echo, force[3], tag
+ *   RELEASE   client -> server,  72 bytes: header, t, tag
+ *   header    32 bytes: magic "ARSH", version u8 = 3, type u8, flags u16, sequence number u64,
+ *             session id u8[16] (drawn by the server at each open; a client learns it from CHALLENGE)
+ *   tag       HMAC-SHA256(key, every byte before the tag), 32 bytes
  *
  * Define ARSURF_BRIDGE_NO_FILES before including it to leave out the key file reader (stdio and,
  * on POSIX, sys/stat.h), e.g. on a microcontroller.
@@ -32,10 +35,12 @@
  *     uint64_t now_us = ...;   // wall clock, microseconds since 1970 (std::chrono::system_clock)
  *     arsurf_client_init(&c, key, keylen, now_us, 7.9);         // 7.9 N: the device's limit
  *     uint8_t pkt[ARSURF_POSE_SIZE];
+ *     if (!c.have_session) arsurf_client_hello(&c, t, pkt);    // sendto 72 bytes until a CHALLENGE
  *     arsurf_pose p = arsurf_pose_at(t, position, velocity);   // or fill the struct
- *     arsurf_client_pose(&c, &p, pkt);                          // sendto(sock, pkt, sizeof pkt, ...)
+ *     arsurf_client_pose(&c, &p, pkt);                          // with a session: sendto(sock, pkt, 156, ...)
  *     arsurf_force f;                                           // for each datagram received:
  *     if (arsurf_client_check(&c, data, n, from_server, &f) == ARSURF_OK) apply(f.force);
+ *     // ARSURF_CHALLENGE: the session id was taken (c.have_session), nothing to apply
  *
  * MIT licence, like arsurf.
  */
@@ -55,10 +60,12 @@ extern "C" {
  * constants
  * ------------------------------------------------------------------------------------------- */
 #define ARSURF_MAGIC "ARSH"            /* bytes 41 52 53 48 */
-#define ARSURF_VERSION 2
+#define ARSURF_VERSION 3
 #define ARSURF_TYPE_POSE 1
 #define ARSURF_TYPE_FORCE 2
 #define ARSURF_TYPE_RELEASE 3
+#define ARSURF_TYPE_HELLO 4
+#define ARSURF_TYPE_CHALLENGE 5
 #define ARSURF_FLAG_STALE_INPUT 1u     /* FORCE flags */
 #define ARSURF_FLAG_RAMPING 2u
 #define ARSURF_FLAG_CLAMPED 4u
@@ -67,32 +74,42 @@ extern "C" {
 #define ARSURF_KEY_MIN 16               /* bytes */
 #define ARSURF_KEY_MAX 64
 #define ARSURF_WINDOW 64                /* accepted sequence numbers remembered below the newest */
+#define ARSURF_SESSION_SIZE 16          /* bytes of the session id */
 
-#define ARSURF_HEADER_SIZE 16
+#define ARSURF_HEADER_SIZE 16           /* magic .. sequence number: enough to tell the type */
 #define ARSURF_OFF_MAGIC 0
 #define ARSURF_OFF_VERSION 4
 #define ARSURF_OFF_TYPE 5
 #define ARSURF_OFF_FLAGS 6
 #define ARSURF_OFF_SEQ 8
+#define ARSURF_OFF_SESSION 16           /* every packet; HELLO: 16 zero bytes */
 
-#define ARSURF_POSE_SIZE 140
-#define ARSURF_POSE_OFF_T 16
-#define ARSURF_POSE_OFF_POSITION 24
-#define ARSURF_POSE_OFF_VELOCITY 48
-#define ARSURF_POSE_OFF_QUATERNION 72
-#define ARSURF_POSE_OFF_BUTTONS 104
-#define ARSURF_POSE_OFF_TAG 108
+#define ARSURF_POSE_SIZE 156
+#define ARSURF_POSE_OFF_T 32
+#define ARSURF_POSE_OFF_POSITION 40
+#define ARSURF_POSE_OFF_VELOCITY 64
+#define ARSURF_POSE_OFF_QUATERNION 88
+#define ARSURF_POSE_OFF_BUTTONS 120
+#define ARSURF_POSE_OFF_TAG 124
 
-#define ARSURF_FORCE_SIZE 96
-#define ARSURF_FORCE_OFF_ACK 16
-#define ARSURF_FORCE_OFF_T 24
-#define ARSURF_FORCE_OFF_ECHO 32
-#define ARSURF_FORCE_OFF_FORCE 40
-#define ARSURF_FORCE_OFF_TAG 64
+#define ARSURF_FORCE_SIZE 112
+#define ARSURF_FORCE_OFF_ACK 32
+#define ARSURF_FORCE_OFF_T 40
+#define ARSURF_FORCE_OFF_ECHO 48
+#define ARSURF_FORCE_OFF_FORCE 56
+#define ARSURF_FORCE_OFF_TAG 80
 
-#define ARSURF_RELEASE_SIZE 56
-#define ARSURF_RELEASE_OFF_T 16
-#define ARSURF_RELEASE_OFF_TAG 24
+#define ARSURF_RELEASE_SIZE 72
+#define ARSURF_RELEASE_OFF_T 32
+#define ARSURF_RELEASE_OFF_TAG 40
+
+#define ARSURF_HELLO_SIZE 72            /* the RELEASE layout, session field zero */
+#define ARSURF_HELLO_OFF_T 32
+#define ARSURF_HELLO_OFF_TAG 40
+
+#define ARSURF_CHALLENGE_SIZE 72        /* never larger than the HELLO it answers */
+#define ARSURF_CHALLENGE_OFF_ACK 32
+#define ARSURF_CHALLENGE_OFF_TAG 40
 
 #if defined(__cplusplus)
 #define ARSURF_INLINE static inline
@@ -116,6 +133,7 @@ typedef struct arsurf_pose {
 typedef struct arsurf_force {
     uint16_t flags;        /* ARSURF_FLAG_* */
     uint64_t seq;          /* the server's sequence number */
+    uint8_t session[ARSURF_SESSION_SIZE];  /* the session id */
     uint64_t ack;          /* sequence number of the last POSE the server accepted */
     double t;              /* server timestamp, s */
     double echo;           /* client timestamp of that POSE (NaN if none): round trip = now - echo */
@@ -138,13 +156,15 @@ typedef enum arsurf_status {
     ARSURF_BAD_ACK,
     ARSURF_NONFINITE,
     ARSURF_OVER_LIMIT,
+    ARSURF_BAD_SESSION,    /* a FORCE of another session */
+    ARSURF_CHALLENGE,      /* not a drop: a CHALLENGE was accepted, the client took its session id */
     ARSURF_N_STATUS
 } arsurf_status;
 
 ARSURF_INLINE const char *arsurf_status_name(arsurf_status s) {
     static const char *const names[ARSURF_N_STATUS] = {
         "accepted", "oversized", "truncated", "foreign", "bad_magic", "bad_version", "bad_type", "bad_mac",
-        "replayed", "out_of_order", "bad_ack", "nonfinite", "over_limit"};
+        "replayed", "out_of_order", "bad_ack", "nonfinite", "over_limit", "bad_session", "challenges"};
     return ((unsigned)s < (unsigned)ARSURF_N_STATUS) ? names[s] : "unknown";
 }
 
@@ -320,12 +340,17 @@ ARSURF_INLINE int arsurf_equal_ct(const uint8_t *a, const uint8_t *b, size_t n) 
 /* ---------------------------------------------------------------------------------------------
  * packets
  * ------------------------------------------------------------------------------------------- */
-ARSURF_INLINE void arsurf_put_header(uint8_t *p, int type, uint16_t flags, uint64_t seq) {
+/* The 32-byte header; `session` NULL: 16 zero bytes (a HELLO). */
+ARSURF_INLINE void arsurf_put_header(uint8_t *p, int type, uint16_t flags, uint64_t seq, const uint8_t *session) {
     memcpy(p + ARSURF_OFF_MAGIC, ARSURF_MAGIC, 4);
     p[ARSURF_OFF_VERSION] = ARSURF_VERSION;
     p[ARSURF_OFF_TYPE] = (uint8_t)type;
     arsurf_put_u16(p + ARSURF_OFF_FLAGS, flags);
     arsurf_put_u64(p + ARSURF_OFF_SEQ, seq);
+    if (session)
+        memcpy(p + ARSURF_OFF_SESSION, session, ARSURF_SESSION_SIZE);
+    else
+        memset(p + ARSURF_OFF_SESSION, 0, ARSURF_SESSION_SIZE);
 }
 
 /* Append the tag of the first `body` bytes of `p` at p + body. */
@@ -355,10 +380,10 @@ ARSURF_INLINE arsurf_pose arsurf_pose_at(double t, const double position[3], con
     return p;
 }
 
-ARSURF_INLINE void arsurf_encode_pose(const uint8_t *key, size_t keylen, uint64_t seq, const arsurf_pose *pose,
-                                      uint8_t out[ARSURF_POSE_SIZE]) {
+ARSURF_INLINE void arsurf_encode_pose(const uint8_t *key, size_t keylen, uint64_t seq, const uint8_t *session,
+                                      const arsurf_pose *pose, uint8_t out[ARSURF_POSE_SIZE]) {
     int i;
-    arsurf_put_header(out, ARSURF_TYPE_POSE, 0, seq);
+    arsurf_put_header(out, ARSURF_TYPE_POSE, 0, seq, session);
     arsurf_put_f64(out + ARSURF_POSE_OFF_T, pose->t);
     for (i = 0; i < 3; ++i) {
         arsurf_put_f64(out + ARSURF_POSE_OFF_POSITION + 8 * i, pose->position[i]);
@@ -369,18 +394,34 @@ ARSURF_INLINE void arsurf_encode_pose(const uint8_t *key, size_t keylen, uint64_
     arsurf_tag(key, keylen, out, ARSURF_POSE_OFF_TAG);
 }
 
-ARSURF_INLINE void arsurf_encode_release(const uint8_t *key, size_t keylen, uint64_t seq, double t,
-                                         uint8_t out[ARSURF_RELEASE_SIZE]) {
-    arsurf_put_header(out, ARSURF_TYPE_RELEASE, 0, seq);
+ARSURF_INLINE void arsurf_encode_release(const uint8_t *key, size_t keylen, uint64_t seq, const uint8_t *session,
+                                         double t, uint8_t out[ARSURF_RELEASE_SIZE]) {
+    arsurf_put_header(out, ARSURF_TYPE_RELEASE, 0, seq, session);
     arsurf_put_f64(out + ARSURF_RELEASE_OFF_T, t);
     arsurf_tag(key, keylen, out, ARSURF_RELEASE_OFF_TAG);
+}
+
+/* A HELLO: the client asks for the session id. */
+ARSURF_INLINE void arsurf_encode_hello(const uint8_t *key, size_t keylen, uint64_t seq, double t,
+                                       uint8_t out[ARSURF_HELLO_SIZE]) {
+    arsurf_put_header(out, ARSURF_TYPE_HELLO, 0, seq, NULL);
+    arsurf_put_f64(out + ARSURF_HELLO_OFF_T, t);
+    arsurf_tag(key, keylen, out, ARSURF_HELLO_OFF_TAG);
+}
+
+/* The server's answer to the HELLO numbered `ack` (for simulators and tests). */
+ARSURF_INLINE void arsurf_encode_challenge(const uint8_t *key, size_t keylen, uint64_t seq, uint64_t ack,
+                                           const uint8_t *session, uint8_t out[ARSURF_CHALLENGE_SIZE]) {
+    arsurf_put_header(out, ARSURF_TYPE_CHALLENGE, 0, seq, session);
+    arsurf_put_u64(out + ARSURF_CHALLENGE_OFF_ACK, ack);
+    arsurf_tag(key, keylen, out, ARSURF_CHALLENGE_OFF_TAG);
 }
 
 /* The server's packet (for simulators and tests; a client never sends it). */
 ARSURF_INLINE void arsurf_encode_force(const uint8_t *key, size_t keylen, const arsurf_force *f,
                                        uint8_t out[ARSURF_FORCE_SIZE]) {
     int i;
-    arsurf_put_header(out, ARSURF_TYPE_FORCE, f->flags, f->seq);
+    arsurf_put_header(out, ARSURF_TYPE_FORCE, f->flags, f->seq, f->session);
     arsurf_put_u64(out + ARSURF_FORCE_OFF_ACK, f->ack);
     arsurf_put_f64(out + ARSURF_FORCE_OFF_T, f->t);
     arsurf_put_f64(out + ARSURF_FORCE_OFF_ECHO, f->echo);
@@ -411,6 +452,7 @@ ARSURF_INLINE arsurf_status arsurf_decode_force(const uint8_t *key, size_t keyle
     if (st != ARSURF_OK) return st;
     out->flags = arsurf_get_u16(data + ARSURF_OFF_FLAGS);
     out->seq = arsurf_get_u64(data + ARSURF_OFF_SEQ);
+    memcpy(out->session, data + ARSURF_OFF_SESSION, ARSURF_SESSION_SIZE);
     out->ack = arsurf_get_u64(data + ARSURF_FORCE_OFF_ACK);
     out->t = arsurf_get_f64(data + ARSURF_FORCE_OFF_T);
     out->echo = arsurf_get_f64(data + ARSURF_FORCE_OFF_ECHO);
@@ -418,13 +460,15 @@ ARSURF_INLINE arsurf_status arsurf_decode_force(const uint8_t *key, size_t keyle
     return ARSURF_OK;
 }
 
-/* Format and tag of a POSE (for simulators of the server and tests); `*seq` receives its number. */
+/* Format and tag of a POSE (for simulators of the server and tests); `*seq` receives its number,
+ * `session` (ARSURF_SESSION_SIZE bytes, or NULL) its session id. */
 ARSURF_INLINE arsurf_status arsurf_decode_pose(const uint8_t *key, size_t keylen, const uint8_t *data, size_t len,
-                                               uint64_t *seq, arsurf_pose *out) {
+                                               uint64_t *seq, uint8_t *session, arsurf_pose *out) {
     int i;
     arsurf_status st = arsurf_check_packet(key, keylen, data, len, ARSURF_TYPE_POSE, ARSURF_POSE_SIZE);
     if (st != ARSURF_OK) return st;
     *seq = arsurf_get_u64(data + ARSURF_OFF_SEQ);
+    if (session) memcpy(session, data + ARSURF_OFF_SESSION, ARSURF_SESSION_SIZE);
     out->t = arsurf_get_f64(data + ARSURF_POSE_OFF_T);
     for (i = 0; i < 3; ++i) {
         out->position[i] = arsurf_get_f64(data + ARSURF_POSE_OFF_POSITION + 8 * i);
@@ -447,6 +491,8 @@ typedef struct arsurf_client {
     int have_rx;           /* a FORCE was accepted */
     uint64_t rx_seq;       /* the newest accepted FORCE sequence number */
     uint64_t rx_seen;      /* bit k: rx_seq - k was accepted */
+    int have_session;      /* a CHALLENGE was accepted: `session` holds the server's session id */
+    uint8_t session[ARSURF_SESSION_SIZE];
     unsigned long counts[ARSURF_N_STATUS];  /* datagrams by verdict; counts[ARSURF_OK] = accepted */
 } arsurf_client;
 
@@ -466,44 +512,75 @@ ARSURF_INLINE int arsurf_client_init(arsurf_client *c, const uint8_t *key, size_
     return 0;
 }
 
-/* Encode the next POSE (its sequence number is returned). */
-ARSURF_INLINE uint64_t arsurf_client_pose(arsurf_client *c, const arsurf_pose *pose, uint8_t out[ARSURF_POSE_SIZE]) {
+/* Encode a HELLO (72 bytes; its sequence number is returned): ask the server for its session id.
+ * Send it until arsurf_client_check reports ARSURF_CHALLENGE (then c->have_session is set), and
+ * again (once per timeout) when no valid FORCE arrives for a while: the server may have restarted. */
+ARSURF_INLINE uint64_t arsurf_client_hello(arsurf_client *c, double t, uint8_t out[ARSURF_HELLO_SIZE]) {
     c->seq += 1;
-    arsurf_encode_pose(c->key, c->keylen, c->seq, pose, out);
+    arsurf_encode_hello(c->key, c->keylen, c->seq, t, out);
     return c->seq;
 }
 
-/* Encode a RELEASE: this client is done, the server unpins it. */
-ARSURF_INLINE uint64_t arsurf_client_release(arsurf_client *c, double t, uint8_t out[ARSURF_RELEASE_SIZE]) {
+/* Encode the next POSE of the session (its sequence number is returned); 0 and nothing encoded
+ * while the client has no session (send arsurf_client_hello first). */
+ARSURF_INLINE uint64_t arsurf_client_pose(arsurf_client *c, const arsurf_pose *pose, uint8_t out[ARSURF_POSE_SIZE]) {
+    if (!c->have_session) return 0;
     c->seq += 1;
-    arsurf_encode_release(c->key, c->keylen, c->seq, t, out);
+    arsurf_encode_pose(c->key, c->keylen, c->seq, c->session, pose, out);
+    return c->seq;
+}
+
+/* Encode a RELEASE (72 bytes): this client is done, the server unpins it; 0 without a session. */
+ARSURF_INLINE uint64_t arsurf_client_release(arsurf_client *c, double t, uint8_t out[ARSURF_RELEASE_SIZE]) {
+    if (!c->have_session) return 0;
+    c->seq += 1;
+    arsurf_encode_release(c->key, c->keylen, c->seq, c->session, t, out);
     return c->seq;
 }
 
 /* Every check of docs/bridge-protocol.md "What the client must do with a datagram", in its order:
- * size, sender (`from_server`: the datagram came from the server's address and port), format,
- * tag, sequence number (replay window of 64), ack among this client's poses, finite values, the
- * force limit. ARSURF_OK: `out` holds a force that may be applied until the next accepted one
- * (apply zero when none was accepted for a while: the Python client waits 0.1 s). The verdict is
- * counted in c->counts. */
+ * size, sender (`from_server`: the datagram came from the server's address and port), format
+ * (FORCE or CHALLENGE), tag, sequence number (replay window of 64, shared by both types), ack
+ * among this client's packets; then a CHALLENGE gives the session id (ARSURF_CHALLENGE, nothing
+ * to apply) and a FORCE is checked for the session, finite values and the force limit.
+ * ARSURF_OK: `out` holds a force that may be applied until the next accepted one (apply zero
+ * when none was accepted for a while: the Python client waits 0.1 s). The verdict is counted in
+ * c->counts. */
 ARSURF_INLINE arsurf_status arsurf_client_check(arsurf_client *c, const uint8_t *data, size_t len, int from_server,
                                                 arsurf_force *out) {
     arsurf_status st;
     arsurf_force f;
-    uint64_t seq, d;
+    uint64_t seq, ack, d;
     double norm2, limit;
-    int i;
+    int i, type = 0;
+    size_t size = 0;
     if (len > ARSURF_FORCE_SIZE) {
         st = ARSURF_OVERSIZED;
     } else if (!from_server) {
         st = ARSURF_FOREIGN;
-    } else if ((st = arsurf_decode_force(c->key, c->keylen, data, len, &f)) != ARSURF_OK) {
-        /* format or tag */
-    } else if (c->have_rx && f.seq <= c->rx_seq) {
-        d = c->rx_seq - f.seq;
+    } else if (len < ARSURF_HEADER_SIZE) {
+        st = ARSURF_TRUNCATED;
+    } else if (memcmp(data, ARSURF_MAGIC, 4) != 0) {
+        st = ARSURF_BAD_MAGIC;
+    } else if (data[ARSURF_OFF_VERSION] != ARSURF_VERSION) {
+        st = ARSURF_BAD_VERSION;
+    } else if ((type = data[ARSURF_OFF_TYPE]) != ARSURF_TYPE_FORCE && type != ARSURF_TYPE_CHALLENGE) {
+        st = ARSURF_BAD_TYPE;
+    } else if (len != (size = (type == ARSURF_TYPE_FORCE) ? ARSURF_FORCE_SIZE : ARSURF_CHALLENGE_SIZE)) {
+        st = len < size ? ARSURF_TRUNCATED : ARSURF_OVERSIZED;
+    } else if (!arsurf_tag_ok(c->key, c->keylen, data, size - ARSURF_MAC_SIZE)) {
+        st = ARSURF_BAD_MAC;
+    } else if (c->have_rx && (seq = arsurf_get_u64(data + ARSURF_OFF_SEQ)) <= c->rx_seq) {
+        d = c->rx_seq - seq;
         st = (d < ARSURF_WINDOW && ((c->rx_seen >> d) & 1u)) ? ARSURF_REPLAYED : ARSURF_OUT_OF_ORDER;
-    } else if (f.ack < c->first_seq || f.ack > c->seq) {
-        st = ARSURF_BAD_ACK;
+    } else if ((ack = arsurf_get_u64(data + ARSURF_FORCE_OFF_ACK)) < c->first_seq || ack > c->seq) {
+        st = ARSURF_BAD_ACK;  /* (the ack is at offset 32 in both types) */
+    } else if (type == ARSURF_TYPE_CHALLENGE) {
+        st = ARSURF_CHALLENGE;
+    } else if (arsurf_decode_force(c->key, c->keylen, data, len, &f) != ARSURF_OK) {
+        st = ARSURF_BAD_MAC;  /* cannot happen: format and tag were checked above */
+    } else if (c->have_session == 0 || memcmp(f.session, c->session, ARSURF_SESSION_SIZE) != 0) {
+        st = ARSURF_BAD_SESSION;
     } else if (!arsurf_finite(f.force[0]) || !arsurf_finite(f.force[1]) || !arsurf_finite(f.force[2]) ||
                !arsurf_finite(f.t)) {
         st = ARSURF_NONFINITE;
@@ -511,16 +588,19 @@ ARSURF_INLINE arsurf_status arsurf_client_check(arsurf_client *c, const uint8_t 
         norm2 = 0.0;  /* the sum in the Python client's order: ((0 + x^2) + y^2) + z^2 */
         for (i = 0; i < 3; ++i) norm2 += f.force[i] * f.force[i];
         limit = c->max_force * (1.0 + 1e-9);
-        if (sqrt(norm2) > limit) {
-            st = ARSURF_OVER_LIMIT;
+        st = (sqrt(norm2) > limit) ? ARSURF_OVER_LIMIT : ARSURF_OK;
+    }
+    if (st == ARSURF_OK || st == ARSURF_CHALLENGE) {
+        seq = arsurf_get_u64(data + ARSURF_OFF_SEQ);
+        d = c->have_rx ? seq - c->rx_seq : ARSURF_WINDOW;
+        c->rx_seen = (d < ARSURF_WINDOW) ? ((c->rx_seen << d) | 1u) : 1u;
+        c->rx_seq = seq;
+        c->have_rx = 1;
+        if (st == ARSURF_CHALLENGE) {
+            memcpy(c->session, data + ARSURF_OFF_SESSION, ARSURF_SESSION_SIZE);
+            c->have_session = 1;
         } else {
-            seq = f.seq;
-            d = c->have_rx ? seq - c->rx_seq : ARSURF_WINDOW;
-            c->rx_seen = (d < ARSURF_WINDOW) ? ((c->rx_seen << d) | 1u) : 1u;
-            c->rx_seq = seq;
-            c->have_rx = 1;
             *out = f;
-            st = ARSURF_OK;
         }
     }
     c->counts[st] += 1;
@@ -531,7 +611,7 @@ ARSURF_INLINE arsurf_status arsurf_client_check(arsurf_client *c, const uint8_t 
 ARSURF_INLINE unsigned long arsurf_client_dropped(const arsurf_client *c) {
     unsigned long n = 0;
     int i;
-    for (i = 1; i < ARSURF_N_STATUS; ++i) n += c->counts[i];
+    for (i = 1; i < ARSURF_CHALLENGE; ++i) n += c->counts[i];
     return n;
 }
 
@@ -565,39 +645,101 @@ ARSURF_INLINE int arsurf_key_from_hex(const char *text, size_t len, uint8_t *key
 #ifndef ARSURF_BRIDGE_NO_FILES
 #include <stdio.h>
 #if defined(__unix__) || defined(__APPLE__)
+#include <fcntl.h>
 #include <sys/stat.h>
-#define ARSURF_HAVE_POSIX_STAT 1
+#include <unistd.h>
+#define ARSURF_HAVE_POSIX_FILES 1
+#ifdef O_NOFOLLOW
+#define ARSURF_O_NOFOLLOW O_NOFOLLOW
+#else
+#define ARSURF_O_NOFOLLOW 0
+#endif
+#endif
+
+#ifdef ARSURF_HAVE_POSIX_FILES
+/* 0 if the folder holding `path` may hold a key file (as ssh judges it): owned by this user or
+ * root and writable by its owner only; else -1 with a one-line reason in `err`. */
+ARSURF_INLINE int arsurf_check_key_folder(const char *path, char *err, size_t errlen) {
+    char folder[4096];
+    size_t n = strlen(path), cut;
+    struct stat st;
+    if (n >= sizeof folder) {
+        snprintf(err, errlen, "the key file path is longer than %u bytes", (unsigned)(sizeof folder - 1));
+        return -1;
+    }
+    memcpy(folder, path, n + 1);
+    cut = n;
+    while (cut > 0 && folder[cut - 1] != '/') --cut;  /* the folder: up to the last '/' */
+    if (cut == 0) {
+        folder[0] = '.';
+        folder[1] = '\0';
+    } else {
+        folder[cut > 1 ? cut - 1 : 1] = '\0';  /* "/k" -> "/" */
+    }
+    if (stat(folder, &st) != 0) {
+        snprintf(err, errlen, "cannot read the folder %s of the key file %s", folder, path);
+        return -1;
+    }
+    if ((st.st_uid != geteuid() && st.st_uid != 0) || (st.st_mode & 022)) {
+        snprintf(err, errlen, "the key file %s is in a folder other users own or can write to (%s, uid %lu, mode "
+                 "%03o): someone else could have planted it; keep key files in a folder of your own",
+                 path, folder, (unsigned long)st.st_uid, (unsigned)(st.st_mode & 0777));
+        return -1;
+    }
+    return 0;
+}
 #endif
 
 /* Read the session key file arsurf wrote (one line of hex). Refused, with a one-line message in
- * `err`, if it cannot be read, is not a regular file, is longer than 4096 bytes, is not a key,
- * or (POSIX) other users may read or write it, as arsurf refuses it. Returns 0 or -1. */
+ * `err`, if it cannot be read, is not a regular file, is longer than 4096 bytes or is not a key,
+ * and (POSIX, as arsurf and ssh refuse it) if it is a symbolic link, is owned by another user, other
+ * users may read or write it, or its folder is owned by another user or writable by others
+ * (someone else could have planted it). The checks are made on the opened file, which is opened
+ * without blocking (a FIFO cannot hang the client). A link is refused where O_NOFOLLOW is
+ * visible (C++, gnu99, or -std=c99 with _POSIX_C_SOURCE 200809L defined before any include);
+ * elsewhere it is followed and its target judged by the same rules. Returns 0 or -1. */
 ARSURF_INLINE int arsurf_read_key_file(const char *path, uint8_t *key, size_t *keylen, char *err, size_t errlen) {
     char text[4097];
-    size_t n;
-    FILE *fh;
-#ifdef ARSURF_HAVE_POSIX_STAT
+    size_t n = 0;
+#ifdef ARSURF_HAVE_POSIX_FILES
     struct stat st;
-    if (stat(path, &st) != 0) {
-        snprintf(err, errlen, "cannot read the key file %s", path);
+    ssize_t got;
+    int fd = open(path, O_RDONLY | O_NONBLOCK | ARSURF_O_NOFOLLOW);
+    if (fd < 0) {
+        snprintf(err, errlen, "cannot read the key file %s (missing, unreadable or a symbolic link)", path);
         return -1;
     }
-    if (!S_ISREG(st.st_mode)) {
+    if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        close(fd);
         snprintf(err, errlen, "the key file %s is not a regular file", path);
         return -1;
     }
+    if (st.st_uid != geteuid()) {
+        close(fd);
+        snprintf(err, errlen, "the key file %s is owned by uid %lu, not by you (uid %lu): someone else may have "
+                 "planted it", path, (unsigned long)st.st_uid, (unsigned long)geteuid());
+        return -1;
+    }
     if (st.st_mode & 077) {
+        close(fd);
         snprintf(err, errlen, "the key file %s is accessible to other users; make it owner-only: chmod 600 %s", path, path);
         return -1;
     }
-#endif
-    fh = fopen(path, "rb");
+    if (arsurf_check_key_folder(path, err, errlen) != 0) {
+        close(fd);
+        return -1;
+    }
+    while (n < sizeof text && (got = read(fd, text + n, sizeof text - n)) > 0) n += (size_t)got;
+    close(fd);
+#else
+    FILE *fh = fopen(path, "rb");
     if (!fh) {
         snprintf(err, errlen, "cannot read the key file %s", path);
         return -1;
     }
     n = fread(text, 1, sizeof text, fh);
     fclose(fh);
+#endif
     if (n > 4096) {
         snprintf(err, errlen, "the key file %s is longer than 4096 bytes; a key file is one line of hex", path);
         return -1;
@@ -620,16 +762,17 @@ ARSURF_INLINE int arsurf_hex_equal(const uint8_t *bytes, const char *hex, size_t
     return 1;
 }
 
-/* 0 if SHA-256, HMAC-SHA256 and the three packets of the documented test vector come out right on
+/* 0 if SHA-256, HMAC-SHA256 and the five packets of the documented test vector come out right on
  * this compiler and platform, else the number of the first failing check. */
 ARSURF_INLINE int arsurf_self_test(void) {
-    uint8_t key[32], out[ARSURF_POSE_SIZE], digest[32];
+    uint8_t key[32], session[ARSURF_SESSION_SIZE], out[ARSURF_POSE_SIZE], digest[32];
     arsurf_sha256 s;
     arsurf_pose p;
     arsurf_force f, g;
     int i;
     static const double pos[3] = {0.001, -0.002, 0.003}, vel[3] = {0.0, 0.0, 0.0};
     for (i = 0; i < 32; ++i) key[i] = (uint8_t)i;
+    for (i = 0; i < ARSURF_SESSION_SIZE; ++i) session[i] = (uint8_t)(0xF0 + i);
     arsurf_sha256_init(&s);  /* FIPS 180-4 example: SHA-256("abc") */
     arsurf_sha256_update(&s, "abc", 3);
     arsurf_sha256_final(&s, digest);
@@ -639,22 +782,30 @@ ARSURF_INLINE int arsurf_self_test(void) {
     if (!arsurf_hex_equal(digest, "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843", 32)) return 2;
     p = arsurf_pose_at(0.5, pos, vel);
     p.buttons = 1;
-    arsurf_encode_pose(key, 32, 1, &p, out);
-    if (!arsurf_hex_equal(out, "41525348020100000100000000000000000000000000e03f", 24)) return 3;
+    arsurf_encode_pose(key, 32, 2, session, &p, out);
+    if (!arsurf_hex_equal(out, "41525348030100000200000000000000f0f1f2f3f4f5f6f7", 24)) return 3;
     if (!arsurf_hex_equal(out + ARSURF_POSE_OFF_TAG,
-                          "ae5648b3adc6a6417e711a42b5ddf867a140d2b8395c60e980708b4b0dcb7381", 32)) return 4;
-    f.flags = 0; f.seq = 2; f.ack = 1; f.t = 1.25; f.echo = 0.5;
+                          "e827ffe0a28c45df992408ed75caa7d4a0af4d67a8924db5b4c11c07dd3bbbe7", 32)) return 4;
+    f.flags = 0; f.seq = 3; f.ack = 2; f.t = 1.25; f.echo = 0.5;
+    memcpy(f.session, session, ARSURF_SESSION_SIZE);
     f.force[0] = 0.0; f.force[1] = 0.0; f.force[2] = 1.5;
     arsurf_encode_force(key, 32, &f, out);
     if (!arsurf_hex_equal(out + ARSURF_FORCE_OFF_TAG,
-                          "33d325e5762e79ac7062cd9f24376ccf62d8334ff14a354e0d7a16fc8328e486", 32)) return 5;
-    if (arsurf_decode_force(key, 32, out, ARSURF_FORCE_SIZE, &g) != ARSURF_OK || g.force[2] != 1.5 || g.ack != 1)
+                          "c1c10812f20635fa1868cc48f8b8080d92e30a7b360781d424d24d649b78dbe6", 32)) return 5;
+    if (arsurf_decode_force(key, 32, out, ARSURF_FORCE_SIZE, &g) != ARSURF_OK || g.force[2] != 1.5 || g.ack != 2 ||
+        memcmp(g.session, session, ARSURF_SESSION_SIZE) != 0)
         return 6;
-    out[40] ^= 1u;  /* one flipped bit */
+    out[56] ^= 1u;  /* one flipped bit */
     if (arsurf_decode_force(key, 32, out, ARSURF_FORCE_SIZE, &g) != ARSURF_BAD_MAC) return 7;
-    arsurf_encode_release(key, 32, 3, 0.75, out);
+    arsurf_encode_release(key, 32, 3, session, 0.75, out);
     if (!arsurf_hex_equal(out + ARSURF_RELEASE_OFF_TAG,
-                          "6665f4c062bf1fe36ed89ef84162e50cdab236c21427dbc02dca1d5b51e8b8c1", 32)) return 8;
+                          "737c550339b040b0c80177af8fe6411cd78739810a1acb38612346e2b162d766", 32)) return 8;
+    arsurf_encode_hello(key, 32, 1, 0.25, out);
+    if (!arsurf_hex_equal(out + ARSURF_HELLO_OFF_TAG,
+                          "ef2e42d4f2175fe0f46a6bb9106e4b8a616dda33e9d7e6839070881505b7f6be", 32)) return 9;
+    arsurf_encode_challenge(key, 32, 2, 1, session, out);
+    if (!arsurf_hex_equal(out + ARSURF_CHALLENGE_OFF_TAG,
+                          "a80dcfc2f79f932cc80827bb4cf992cf68eeaa1ee00a54c6fc147ea8ef7de41b", 32)) return 10;
     return 0;
 }
 

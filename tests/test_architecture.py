@@ -23,7 +23,8 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 #: An entry is one module, or ``pkg.*``: the package ``pkg`` and every module under it.
 LAYERS = [
     ("foundation", ["arsurf", "arsurf.errors", "arsurf._validation", "arsurf.status", "arsurf.data.*",
-                    "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout"]),
+                    "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout", "arsurf._files",
+                    "arsurf._h5safe"]),
     ("scan", ["arsurf.scan.*"]),
     ("spline", ["arsurf.spline.*"]),
     ("meshes", ["arsurf.export", "arsurf.meshes"]),
@@ -35,6 +36,7 @@ LAYERS = [
     ("viewer", ["arsurf_viewer.*"]),
     ("sessions", ["arsurf.sessions.*", "arsurf.feel_scenarios"]),  # record and read session files
     ("replay", ["arsurf.replay.*"]),  # re-run the model over a recorded session
+    ("verification", ["arsurf.verify.*"]),  # the model against the scan after a session (arsurf verify)
     ("batch runs", ["arsurf.batch"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo", "arsurf.cli.*", "arsurf.devices"]),

@@ -28,7 +28,7 @@ from arsurf.spline.storage import load_surface
 
 PROCESS_COLUMNS = PIPELINES["process"].columns
 #: dimensionless columns (counts, ratios, names); every other value column carries a unit suffix
-UNITLESS = {"item", "status", "error", "format", "scan", "outputs", "inpainted_pixels", "control_nu", "control_nv",
+UNITLESS = {"item", "status", "error", "format", "scan", "outputs", "output_files", "inpainted_pixels", "control_nu", "control_nv",
             "n_ticks", "contact_mismatches", "collision_failures", "friction", "friction_ratio", "slip_fraction"}
 
 
@@ -175,7 +175,7 @@ def test_sweep_agrees_with_the_contact_law_on_a_flat_scan(tmp_path):
     r = run_batch("sweep", [tmp_path / "flat.npz"], out, workers=0, progress=False,
                   options={**grid, "depth": 1.5e-9, "slide": 15e-9, "steps": 60})
     assert (r.total, r.ok) == (8, 8)
-    rows = [{k: (float(v) if k not in ("item", "status", "error", "scan") else v) for k, v in row.items()}
+    rows = [{k: (float(v) if k not in ("item", "status", "error", "scan", "output_files") else v) for k, v in row.items()}
             for row in read_results(out).values()]
     w = 0.1  # the demo preset's work of adhesion
     for row in rows:
@@ -306,7 +306,7 @@ def test_command_line_runs_and_resumes(folder, tmp_path, capsys):
     assert main([*args, "--resume"]) == 0
     assert "3 items: 3 ok, 0 failed, 0 not run; 0 run now, 3 done before" in capsys.readouterr().out
     settings = json.loads((out / "batch.json").read_text())
-    assert settings["options"]["sigma_m"] == 1e-9 and settings["version"] == 2
+    assert settings["options"]["sigma_m"] == 1e-9 and settings["version"] == 3
 
 
 def test_a_batch_started_by_an_older_arsurf_resumes(folder, tmp_path):

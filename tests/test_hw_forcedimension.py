@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib.util
+import itertools
 import os
 import subprocess
 import sys
@@ -59,15 +60,16 @@ def state(sim):
 
 
 def counters(sim):
-    out = (ctypes.c_double * 11)()
+    out = (ctypes.c_double * 15)()
     sim.sim_counters(out)
     keys = ["set_force", "get_position", "autoinit", "watchdog_trips", "saturated", "max_commanded", "max_applied",
-            "sdk_cap", "watchdog", "force_on", "opened"]
+            "sdk_cap", "watchdog", "force_on", "opened", "expert", "expert_refused", "drd_refused", "drd_opened"]
     return dict(zip(keys, np.array(out)))
 
 
-def reset(sim, kind=OMEGA3, calibrated=1, kinematics=1, hand=(0.0, 0.0, 0.0), amp=(0.0, 0.0, 0.0), freq=0.0):
-    sim.sim_reset(kind, calibrated, kinematics)
+def reset(sim, kind=OMEGA3, calibrated=1, kinematics=1, hand=(0.0, 0.0, 0.0), amp=(0.0, 0.0, 0.0), freq=0.0,
+          watchdog=1):
+    sim.sim_reset(kind, calibrated, kinematics, watchdog)
     sim.sim_set_hand(_vec(*hand), _vec(*amp), freq, 200.0, 5.0)
     sim.sim_place(_vec(*hand))
 
@@ -78,24 +80,108 @@ def device(**kw):
     return ForceDimensionDevice(**kw)
 
 
+#: the simulated kinematics reach a cylinder of radius 70 mm and height 120 mm (fdsdk_sim.c): the largest
+#: box inside it is 70 sqrt(2) mm square by 120 mm; its bounding box (140 x 140 x 120 mm) is not reachable
+INSCRIBED = [0.070 * 2**0.5, 0.070 * 2**0.5, 0.120]
+
+
 def test_limits_come_from_the_device(sim):
     reset(sim)
     with device(max_force=5.0) as dev:
-        # the simulated kinematics reach +-55, +-70, +-60 mm along the SDK's x, y, z (x towards the operator):
-        # arsurf x is the SDK's y, arsurf y its x
         assert dev.workspace_source == "kinematics"
-        np.testing.assert_allclose(dev.info.workspace, [0.14, 0.11, 0.12], atol=1e-9)
+        np.testing.assert_allclose(dev.info.workspace, INSCRIBED, atol=2e-4)
         assert dev.info.max_force == 5.0
         assert counters(sim)["sdk_cap"] == 5.0  # the SDK enforces the same cap
         assert counters(sim)["watchdog"] == pytest.approx(0.02)
+        assert dev.watchdog_set and dev.safety_record()["watchdog_set"] is True
     reset(sim, kinematics=0)
-    with device() as dev:  # no kinematics: the omega's nominal figures (12 N, 160 mm circle x 110 mm)
+    with device(max_force=12.0) as dev:  # no kinematics: the omega's nominal figures (12 N, 160 mm circle x 110 mm)
         assert dev.workspace_source == "nominal"
         assert dev.info.max_force == 12.0
         np.testing.assert_allclose(dev.info.workspace, [0.160 / 2**0.5, 0.160 / 2**0.5, 0.110])
     with pytest.raises(HapticsError, match="above what"):
         device(max_force=50.0).open()
     assert counters(sim)["opened"] == 0  # a refused open leaves nothing open
+
+
+def test_the_workspace_is_reachable_everywhere(sim):
+    """Every corner of the measured box maps through the SDK's inverse kinematics to encoders in
+    its range; the box grown by 1 % along x is not (it is the largest), nor is the bounding box."""
+    from forcedimension_core import dhd, drd
+
+    from arsurf.haptics.forcedimension import reachable_box
+
+    reset(sim)
+    i = drd.open()
+    try:
+        assert dhd.expert.enableExpertMode() == 0
+        half = reachable_box(dhd, i)
+        emin, emax, enc = [0] * 8, [0] * 8, [0, 0, 0]
+        dhd.expert.getEncRange(emin, emax, i)
+
+        def inside(p):
+            dhd.expert.deltaPositionToEncoder(tuple(p), enc, i)
+            return all(emin[a] <= enc[a] <= emax[a] for a in range(3))
+
+        corners = np.array(list(itertools.product((-1, 1), repeat=3)), dtype=float)
+        assert all(inside(c * half) for c in corners)
+        assert not inside(corners[-1] * half * [1.01, 1.0, 1.0])
+        assert not inside([0.07, 0.07, 0.0])  # the bounding box's corner
+    finally:
+        dhd.expert.disableExpertMode()
+        drd.close(i)
+
+
+def test_expert_calls_need_expert_mode_and_it_is_left_after(sim):
+    """The simulated SDK refuses the watchdog and the kinematics without dhdEnableExpertMode, as the
+    SDK does; the adapter turns it on for them and off before the loop runs."""
+    from forcedimension_core import dhd, drd
+
+    reset(sim)
+    i = drd.open()
+    assert dhd.expert.setWatchdog(160, i) == -1 and dhd.errorGetLast() == 9  # DHD_ERROR_EXPERT_MODE_DISABLED
+    drd.close(i)
+    reset(sim)
+    with device(max_force=2.0) as dev:
+        c = counters(sim)
+        assert c["expert_refused"] == 0 and c["expert"] == 0  # every expert call in expert mode, and left after
+        assert c["watchdog"] == pytest.approx(0.02) and dev.watchdog_set
+        assert c["drd_opened"] == 1 and c["drd_refused"] == 0  # opened by the DRD, as its calls need
+
+
+def test_a_device_without_watchdog_needs_an_explicit_flag(sim, tmp_path, capsys):
+    reset(sim, watchdog=0)
+    with pytest.raises(HapticsError, match="watchdog could not be set.*allow_no_watchdog"):
+        device(max_force=2.0).open()
+    assert counters(sim)["opened"] == 0 and counters(sim)["force_on"] == 0
+    with pytest.raises(HapticsError, match="watchdog=0 turns"):
+        device(watchdog=0.0)
+    with device(max_force=2.0, allow_no_watchdog=True) as dev:
+        rec = dev.safety_record()
+        assert rec["watchdog_set"] is False and rec["allow_no_watchdog"] is True
+    from arsurf.cli import main
+
+    assert main(["live", "--device", "forcedimension", "--seconds", "0.2"]) != 0
+    assert "--allow-no-watchdog" in capsys.readouterr().err
+    path = tmp_path / "nowd.h5"
+    assert main(["live", "--device", "forcedimension", "--seconds", "0.2", "--allow-no-watchdog",
+                 "--record", str(path)]) == 0
+    from arsurf.sessions.reader import load_session
+
+    meta = load_session(path).metadata["device"]
+    assert meta["watchdog_set"] is False and meta["allow_no_watchdog"] is True
+    assert meta["workspace_source"] == "kinematics"
+
+
+def test_first_connection_is_at_one_newton(sim):
+    """Without max_force the omega.3 (12 N nominal) runs at 1 N; the SDK holds the same cap."""
+    reset(sim)
+    with device() as dev:
+        assert dev.info.max_force == 1.0 and counters(sim)["sdk_cap"] == 1.0
+        assert dev.safety_record()["force_limit_source"] == "first connection"
+        assert "first-connection limit 1 N of 12 N" in dev.info.name
+        dev.command_force([0.0, 0.0, 5.0])
+        assert np.linalg.norm(state(sim)["applied"]) == pytest.approx(1.0)
 
 
 def test_axes_and_force_sign_at_rest(sim):
@@ -171,7 +257,7 @@ def test_the_device_disappearing_mid_session(sim, tmp_path):
 
 def test_watchdog_zeroes_a_stalled_loop(sim):
     reset(sim)
-    with device(watchdog=0.01) as dev:
+    with device(watchdog=0.01, max_force=3.0) as dev:
         dev.command_force([0.0, 0.0, 2.0])
         assert state(sim)["applied"][2] == pytest.approx(2.0)
         time.sleep(0.05)  # the loop stalls: no force command for 50 ms
@@ -184,7 +270,7 @@ def test_calibration_is_asked_for_and_done(sim):
     with pytest.raises(HapticsError, match="not calibrated.*calibrate=True"):
         device().open()
     assert counters(sim)["opened"] == 0
-    with device(calibrate=True) as dev:
+    with device(calibrate=True, max_force=12.0) as dev:
         assert counters(sim)["autoinit"] == 1
         assert counters(sim)["force_on"] == 1
         assert dev.info.max_force == 12.0
@@ -192,8 +278,10 @@ def test_calibration_is_asked_for_and_done(sim):
 
 def test_falcon_and_no_device(sim):
     reset(sim, kind=FALCON, kinematics=0)
-    with device() as dev:  # no DRD on a Falcon: no calibration step; nominal 9 N
+    with device(max_force=9.0) as dev:  # no DRD on a Falcon: no calibration step; nominal 9 N
         assert dev.info.max_force == 9.0 and dev.workspace_source == "nominal"
+    with pytest.raises(HapticsError, match="above what"):
+        device(max_force=9.5).open()
     sim.sim_unplug()
     with pytest.raises(DeviceNotFound, match="no device connected"):
         device().open()
@@ -204,7 +292,12 @@ def test_probe_lists_the_device(sim):
 
     reset(sim)
     rep = probe()
-    assert rep.installed and "SDK 3.17.0" in rep.detail and rep.devices == ["#0 omega.3 s/n 4242"]
+    assert rep.installed and "SDK 3.17.0" in rep.detail
+    assert rep.devices == ["#0 omega.3 s/n 4242, watchdog_set yes, workspace_source kinematics (99 x 99 x 120 mm, SDK "
+                           "axes)"], rep.devices
+    reset(sim, watchdog=0, kinematics=0)
+    assert probe().devices == ["#0 omega.3 s/n 4242, watchdog_set no (needs --allow-no-watchdog), workspace_source "
+                               "nominal"]
     assert counters(sim)["opened"] == 0
 
 
@@ -237,7 +330,9 @@ def test_arsurf_live_drives_the_device_and_records_a_replayable_session(sim, tmp
     assert s.complete and s.n_ticks > 300
     dev = s.metadata["device"]
     assert dev["interface"] == "forcedimension" and dev["name"].startswith("omega.3") and dev["max_force"] == 4.0
-    np.testing.assert_allclose(dev["workspace"], [0.14, 0.11, 0.12], atol=1e-9)  # measured on its kinematics
+    np.testing.assert_allclose(dev["workspace"], INSCRIBED, atol=2e-4)  # measured on its kinematics
+    assert dev["watchdog_set"] is True and dev["workspace_source"] == "kinematics"
+    assert dev["force_limit_source"] == "given" and dev["allow_no_watchdog"] is False
     z = t["stylus_position"][:, 2]
     assert -0.0045 < z.min() and z.max() < -0.0035  # where the hand holds it (SDK z is arsurf z)
     np.testing.assert_allclose(t["probe_position"][:, 2] - t["probe_position"][0, 2], (z - z[0]) * 1e-5, atol=1e-15)

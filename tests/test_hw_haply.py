@@ -46,12 +46,14 @@ def device(port, **kw):
 
 
 def test_limits_are_required_and_given(inv):
-    from arsurf.haptics.haply import HaplyDevice
+    from arsurf.haptics.haply import MAX_FORCE_N, HaplyDevice
 
     with pytest.raises(HapticsError, match="reports no workspace"):
         HaplyDevice(inv.path, max_force=3.0)
-    with pytest.raises(HapticsError, match="reports no force limit"):
-        HaplyDevice(inv.path, workspace=WS)
+    with device(inv.path, max_force=None) as dev:  # first connection: 1 N
+        assert dev.info.max_force == 1.0 and dev.safety_record()["force_limit_source"] == "first connection"
+    with pytest.raises(HapticsError, match="above what"):  # the published peak force bounds it
+        device(inv.path, max_force=MAX_FORCE_N * 1.2).open()
     with device(inv.path) as dev:
         assert dev.info.max_force == 4.0 and dev.info.workspace.tolist() == list(WS)
         assert dev.device_id == UUID_HEX
@@ -140,3 +142,21 @@ def test_the_device_disappearing_mid_session(inv, tmp_path):
     # the first tick after the unplugging may still use the state its last exchange brought back
     # (a good sample, from before); its command fails, and from the next read on the force is zero
     assert f[~after].max() > 0.1 and after.sum() >= 2 and np.all(f[after][1:] == 0.0), f[after]
+
+
+def test_a_lost_reply_is_one_miss_and_the_retry_carries_zero(inv, tmp_path):
+    """The Inverse3 applies a force but its reply is lost: the adapter waits once (read_timeout),
+    makes no second exchange in the next tick, and the next command it sends - the retry - is zero
+    (the safety layer's answer to the missed sample), never the held force again."""
+    inv.hand = REST + [0.0, 0.0, -0.003]
+    with device(inv.path, read_timeout=0.05, disconnect_after=0.5) as dev:  # 0.5 s: a loaded machine's slow replies
+        inv.hand = dev.home + [0.0, 0.0, -0.003]  # pressed: the loop pushes up
+        r = run(dev, tmp_path / "s.h5", 1.2, events=[(0.4, lambda: inv.lose(1, above=0.05)),
+                                                          (0.8, lambda: inv.lose(1, above=0.05))])
+    assert r.error is None
+    log = list(inv.commands_log)
+    assert len(inv.lost_at) == 2
+    for k in inv.lost_at:
+        assert np.linalg.norm(log[k][1]) > 0.05, log[k]  # it was pushing
+        np.testing.assert_array_equal(log[k + 1][1], 0.0)  # the retry: zero
+    assert dev.missed_samples >= 2  # one missed sample per lost reply (and any reply slower than 50 ms)

@@ -73,7 +73,7 @@ def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path
     with NanonisSimulator(afm) as sim:
         host, port = sim.address
         rc, out, err = _live(capsys, "--instrument", f"nanonis://{host}:{port}", "--deflection-sensitivity-nm", "1117",
-                             "--instrument-origin-nm", "4490", "4490", "0", "--max-age-ms", "500", "--seconds", "1.2",
+                             "--instrument-origin-nm", "4490", "4490", "0", "--seconds", "1.2",
                              "--record", str(path))
     assert rc == 0, err
     assert "instrument samples" in err and f"session recorded: {path}" in out
@@ -104,13 +104,15 @@ def test_a_nanonis_link_that_dies_leaves_zero_force_and_keeps_the_recording(caps
         sim.faults.close_after = 600  # replies: the connection closes mid-session
         host, port = sim.address
         rc, out, err = _live(capsys, "--instrument", f"nanonis://{host}:{port}", "--deflection-sensitivity-nm", "1117",
-                             "--instrument-origin-nm", "4490", "4490", "0", "--max-age-ms", "500", "--seconds", "60",
+                             "--instrument-origin-nm", "4490", "4490", "0", "--seconds", "60",
                              "--record", str(path))
     assert rc == 2
     lines = err.strip().splitlines()
     msg = lines[-1]
     assert msg.startswith("arsurf live: error: instrument link lost: ") and "closed the connection" in msg
-    assert "the hand got zero force and the tip was left at (" in msg and "marked incomplete" in msg
+    # the controller answers a second connection: the tip is withdrawn (the default --on-link-loss)
+    assert "the tip was withdrawn over a second connection" in msg and sim.requests["ZCtrl.Withdraw"] == 1
+    assert "the hand got zero force and the tip was last measured at (" in msg and "marked incomplete" in msg
     assert str(path) in msg and out == ""
     s = load_session(path, allow_incomplete=True)
     assert not s.complete and s.n_ticks > 10 and "the hand got zero force" in s.attrs["aborted"]

@@ -2,6 +2,7 @@
 stopping closes the device whatever happened (issue #15 §4, the server side)."""
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -123,13 +124,110 @@ def test_malformed_buttons_are_a_flagged_no_press(buttons):
     np.testing.assert_allclose(force, good, atol=1e-12)  # no press: the same force as before
 
 
+# --- device samples that cannot be real (issue 25 §4) ---------------------------------------------
+def _pressed_loop():
+    s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 37 * 4e-9), (0.0, 37 * 4e-9))
+    model = make_model(s, tip_radius=R, effective_modulus=10e9, work_of_adhesion=0.1)
+    info = VirtualDevice(dt=1e-3).info
+    return HapticLoop.direct(model, info, (70e-9, 70e-9, R - 2e-9), ramp_time=0.05, force_gain=1e8)
+
+
+def _wild(kind, k, dt=1e-3):
+    """The sample of tick ``k`` (a good one, or the wild ``kind``) and the loop clock."""
+    from arsurf.haptics.device import DeviceState
+
+    now = k * dt
+    pos, vel, stamp = np.array([1e-4 * math.sin(k * 0.05), 0.0, 0.0]), np.zeros(3), now
+    if kind == "1_m_away":
+        pos = np.array([1.0, 0.0, 0.0])
+    elif kind == "1_km_away":
+        pos = np.array([0.0, -1e3, 0.0])
+    elif kind == "jump_faster_than_a_hand":  # 5 cm in one 1 ms tick, inside the workspace: 50 m/s
+        pos = pos + np.array([0.0, 0.05, 0.0])
+    elif kind == "velocity_faster_than_a_hand":
+        vel = np.array([0.0, 0.0, -200.0])
+    elif kind == "shape_1":
+        pos = np.array([1e-4])
+    elif kind == "scalar":
+        pos = 1e-4
+    elif kind == "integer_dtype":
+        pos = np.zeros(3, dtype=np.int64)
+    elif kind == "float32_dtype":
+        pos = pos.astype(np.float32)
+    elif kind == "nan":
+        pos = np.array([np.nan, 0.0, 0.0])
+    elif kind == "text_timestamp":
+        stamp = "0.1"
+    elif kind == "clock_and_stamp_back_10_s":
+        now, stamp = now - 10.0, now - 10.0
+    elif kind == "stamp_back_10_s":
+        stamp = now - 10.0
+    return DeviceState(pos, vel, 0, stamp), now
+
+
+_WILD = ("1_m_away", "1_km_away", "jump_faster_than_a_hand", "velocity_faster_than_a_hand", "shape_1", "scalar",
+         "integer_dtype", "float32_dtype", "nan", "text_timestamp", "clock_and_stamp_back_10_s", "stamp_back_10_s")
+_FLAG = {"1_m_away": "SAMPLE_OUTSIDE", "1_km_away": "SAMPLE_OUTSIDE", "jump_faster_than_a_hand": "SAMPLE_TOO_FAST",
+         "velocity_faster_than_a_hand": "SAMPLE_TOO_FAST", "shape_1": "SAMPLE_MALFORMED", "scalar": "SAMPLE_MALFORMED",
+         "integer_dtype": "SAMPLE_MALFORMED", "float32_dtype": "SAMPLE_MALFORMED", "nan": "SAMPLE_MALFORMED",
+         "text_timestamp": "SAMPLE_MALFORMED", "clock_and_stamp_back_10_s": "TIME_BACKWARDS",
+         "stamp_back_10_s": "TIME_BACKWARDS"}
+
+
+@pytest.mark.parametrize("kind", _WILD)
+def test_a_sample_that_cannot_be_real_is_a_fault_with_zero_force_in_its_tick(kind):
+    """Pressed into the surface and rendering a force, one wild sample: zero force in that very
+    tick, its named flag, the probe (and the dent) where the last good sample put it, and no kick
+    after (the force comes back through the ramp, never above what it was)."""
+    from arsurf import status
+
+    loop = _pressed_loop()
+    for k in range(100):
+        f = loop.step(*_wild("ok", k)).copy()
+    assert np.linalg.norm(f) > 0.1  # rendering a contact force
+    probe = loop.output().probe.copy()
+    sample, now = _wild(kind, 100)
+    forced = loop.step(sample, now).copy()
+    out = loop.output()
+    assert not forced.any(), (kind, forced)
+    assert _FLAG[kind] in status.flag_names(out.safety_flags), (kind, status.flag_names(out.safety_flags))
+    np.testing.assert_allclose(out.probe, probe, atol=1e-12)  # the model ran on the last good sample
+    after = [np.linalg.norm(loop.step(*_wild("ok", k))) for k in range(101, 111)]
+    assert max(after) <= np.linalg.norm(f) * 1.01 and after[0] < 0.5 * np.linalg.norm(f), (kind, after)
+
+
+def test_a_refused_sample_is_recorded_as_the_sample_the_tick_ran_on_with_its_flag(tmp_path):
+    from arsurf import status
+    from arsurf.sessions.reader import load_session
+    from arsurf.sessions.writer import SessionWriter, record_loop_tick
+
+    from arsurf.assembly import BUNDLED_SCAN, preset_metadata
+
+    loop = _pressed_loop()
+    path = tmp_path / "wild.h5"
+    meta = preset_metadata(BUNDLED_SCAN, "demo")
+    with SessionWriter(path, meta) as w:
+        for k in range(30):
+            state, now = _wild("1_km_away" if k == 20 else ("shape_1" if k == 25 else "ok"), k)
+            loop.step(state, now)
+            record_loop_tick(w, loop, now, state)
+    s = load_session(path)
+    flags = s.ticks["safety_flags"]
+    assert flags[20] & status.SAMPLE_OUTSIDE and flags[25] & status.SAMPLE_MALFORMED
+    assert not (flags[:20] & (status.SAMPLE_OUTSIDE | status.SAMPLE_MALFORMED)).any()
+    pos = s.ticks["stylus_position"]
+    np.testing.assert_array_equal(pos[20], pos[19])  # the last good sample, not 1 km away
+    assert np.abs(pos).max() < 0.01 and not s.ticks["device_force"][[20, 25]].any()
+
+
 # --- property: random fault sequences through the compiled tick ---------------------------------
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from arsurf.haptics.device import DeviceState  # noqa: E402
 
-_FAULTS = ("ok", "nan_position", "huge_position", "stale", "future", "bad_buttons", "clock_stall", "huge_velocity")
+_FAULTS = ("ok", "nan_position", "huge_position", "stale", "future", "bad_buttons", "clock_stall", "huge_velocity",
+           *_WILD)
 _LOOP = {}
 
 
@@ -148,12 +246,18 @@ def _property_loop():
 def test_property_random_faults_never_let_a_bad_force_through(sequence):
     """Whatever the fault sequence, the force commanded is finite, within the device limit, within
     the rate limit from the previous tick (or zero), and zero within one tick of a fault (a stylus
-    reading that is not a number, a sample stale or stamped ahead of the clock)."""
+    reading that is not a number, a sample stale or stamped ahead of the clock), and zero in the
+    very tick of a sample that cannot be real (outside the workspace, too fast, malformed, time
+    going backwards), which is flagged by name."""
+    from arsurf import status
+    from arsurf.haptics.samples import SAMPLE_FAULTS
+
     loop = _property_loop()
     limit = loop.safety.max_force
     step_limit = 50.0 * 1e-3 * (1 + 1e-9)
     prev = np.zeros(3)
     now = 0.0
+    prev_kind = None
     for kind, x in sequence:
         if kind != "clock_stall":
             now += 1e-3
@@ -172,10 +276,31 @@ def test_property_random_faults_never_let_a_bad_force_through(sequence):
             stamp = now + 1.0
         elif kind == "bad_buttons":
             buttons = float("nan")
-        f = np.array(loop.step(DeviceState(pos, vel, buttons, stamp), now), dtype=float)
+        sample = DeviceState(pos, vel, buttons, stamp)
+        if kind in _WILD:
+            sample, _ = _wild(kind, 0)
+            if kind == "clock_and_stamp_back_10_s":
+                sample.timestamp, now_k = now - 10.0, now - 10.0
+            else:
+                now_k = now
+                if kind == "stamp_back_10_s":
+                    sample.timestamp = now - 10.0
+                elif kind != "text_timestamp":
+                    sample.timestamp = now
+                if kind == "jump_faster_than_a_hand":
+                    sample.position = pos + np.array([0.0, 0.05, 0.0])
+        else:
+            now_k = now
+        f = np.array(loop.step(sample, now_k), dtype=float)
         assert np.isfinite(f).all()
         assert np.linalg.norm(f) <= limit * (1 + 1e-12)
         assert not f.any() or np.linalg.norm(f - prev) <= step_limit
         if kind in ("nan_position", "stale", "future"):
             assert not f.any(), kind  # zero within the tick (stop_time = one tick)
+        # a move or a step back in time is judged against the tick before: only after a good sample
+        relative = kind in ("jump_faster_than_a_hand", "clock_and_stamp_back_10_s", "stamp_back_10_s")
+        if (kind in _WILD or kind == "huge_position") and (not relative or prev_kind in ("ok", "bad_buttons")):
+            assert not f.any(), kind  # zero in this very tick
+            assert loop.output().safety_flags & SAMPLE_FAULTS, (kind, status.flag_names(loop.output().safety_flags))
         prev = f
+        prev_kind = kind

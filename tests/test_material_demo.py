@@ -37,21 +37,35 @@ def summary(qnm, tmp_path_factory):
 
 def test_the_spots_are_where_the_map_says(summary):
     s = summary["spots"]
-    assert s["soft"]["x_nm"] < 60 - 2 and s["stiff"]["x_nm"] > 60 + 2
-    assert math.hypot(s["sticky"]["x_nm"] - 30, s["sticky"]["y_nm"] - 85) < 12
-    assert s["sticky"]["w_mJ_per_m2"] > 2 * s["soft"]["w_mJ_per_m2"]
+    assert s["soft"]["x_m"] < 58e-9 and s["stiff"]["x_m"] > 62e-9
+    assert math.hypot(s["sticky"]["x_m"] - 30e-9, s["sticky"]["y_m"] - 85e-9) < 12e-9
+    assert s["sticky"]["w_J_per_m2"] > 2 * s["soft"]["w_J_per_m2"]
+
+
+def test_the_summary_names_the_si_unit_of_every_number(summary, tmp_path):
+    """summary.json: every number's key ends with its SI unit (or says it is a count or ratio);
+    the map says what it means, and the passivity reserve covers the sticky spot's well."""
+    import json
+
+    from arsurf.units import summary_json, undeclared
+
+    written = json.loads(summary_json(summary))
+    assert undeclared(written) == []
+    assert written["tip_radius_m"] == R and written["rate_Hz"] > 0 and "tip_radius_nm" not in written
+    assert written["material"]["convention"].startswith("rigid-tip DMT fit, same probe")
+    assert written["passivity_reserve_probe_J"] >= written["reference_law_adhesion_energy_J"] > 0
 
 
 def test_the_hand_feels_harder_and_stickier_regions(summary):
     s = summary["spots"]
     assert summary["stiff_over_soft_peak_load"] > 3.0                     # the same stroke pushes back harder
     assert summary["soft_over_stiff_indentation"] > 3.0                   # at one load the soft spot sinks in
-    assert s["sticky"]["pull_off_nN"] < 2.0 * s["soft"]["pull_off_nN"] < 0  # and the sticky one holds on
+    assert s["sticky"]["pull_off_N"] < 2.0 * s["soft"]["pull_off_N"] < 0  # and the sticky one holds on
     for k, v in s.items():                                                # each as its local MD law says
         if k != "sticky":   # soft and sticky: the stroke may never make it compressive (no indentation)
-            assert v["indentation_at_reference_load_nm"] == pytest.approx(v["md_indentation_at_reference_load_nm"],
-                                                                          rel=0.05), k
-        assert v["pull_off_nN"] == pytest.approx(v["md_pull_off_load_control_nN"], rel=0.05), k
+            assert v["indentation_at_reference_load_m"] == pytest.approx(v["md_indentation_at_reference_load_m"],
+                                                                         rel=0.05), k
+        assert v["pull_off_N"] == pytest.approx(v["md_pull_off_load_control_N"], rel=0.05), k
     assert summary["replay_contact_mismatches"] == 0
 
 

@@ -49,6 +49,11 @@ def test_the_surface_shows_stiff_and_soft_halves_with_a_colour_bar_in_the_unit(g
     try:
         img = view.screenshot()
         assert view.scalar_bar.GetTitle() == "E* (GPa)" and view._mapper.lookup_table.log_scale
+        # the legend says what the map means: convention, Poisson ratio and source, cross-check, masks
+        legend = view.legend_actor.GetInput()
+        assert view.legend_actor.GetVisibility() and legend == "\n".join(m.describe())
+        assert legend.startswith("rigid-tip DMT fit, same probe: E* = E_s/(1 - nu_s^2)\nnu_s 0.3 (default")
+        assert "no log channel to compare" in legend and "modulus masked 0.00%" in legend
         lo, hi = view._mapper.scalar_range
         assert lo == pytest.approx(float(m.reduced_modulus(0.0, 0.0)) * 1e-9, rel=1e-9)
         assert hi == pytest.approx(float(m.reduced_modulus((N - 1) * H, 0.0)) * 1e-9, rel=1e-9)
@@ -66,6 +71,8 @@ def test_the_surface_shows_stiff_and_soft_halves_with_a_colour_bar_in_the_unit(g
         assert np.abs(colour(img2, q1, q1) - colour(img2, q1, q3)).sum() > 150  # sticky | not sticky
         view.set_color_by("sample_deformation")
         assert view.scalar_bar.GetTitle() == "sample deformation (V)"   # uncalibrated: the channel's unit
+        view.set_color_by("height")
+        assert not view.legend_actor.GetVisibility()                    # the legend belongs to the map
     finally:
         view.close()
 

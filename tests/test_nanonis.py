@@ -135,13 +135,13 @@ def test_fuzzed_bytes_raise_only_the_link_errors(rng):
             pass
 
 
+_SAMPLE_VALUES = {"*+c": ["X (m)", "Input 1 (V)"], "*f": [1.0, 2.0, 3.0], "*i": [0, 3, 7], "*-c": "Z (m)",
+                  "2f": np.arange(12.0).reshape(3, 4) * 1e-9}
+
+
 def _reply_values(command: str) -> tuple:
-    types = proto.COMMANDS[command][1]
-    if "*+c" in types:
-        return (["X (m)", "Input 1 (V)"],)
-    if "*f" in types:
-        return ([1.0, 2.0, 3.0],)
-    return tuple(1 if c in "HIi" else 1.5e-9 for c in types)
+    """One value per return value as the caller gives it (an array stands for its counts)."""
+    return tuple(_SAMPLE_VALUES.get(c, 1 if c in "HIi" else 1.5e-9) for c in proto._logical(proto.COMMANDS[command][1]))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -173,11 +173,11 @@ class _Capture:
 _VENDOR_ARGS = {
     "FolMe.XYPosGet": (1,), "FolMe.XYPosSet": (1.25e-6, -2.5e-6, 0), "FolMe.SpeedSet": (2e-6, 1),
     "ZCtrl.ZPosSet": (3e-9,), "ZCtrl.OnOffSet": (1,), "ZCtrl.Withdraw": (1, 5000), "Signals.ValsGet": ([3, 20, 21], 0),
-    "AutoApproach.OnOffSet": (1,),
+    "AutoApproach.OnOffSet": (1,), "Util.AcqPeriodSet": (0.005,),
 }
 
 
-@pytest.mark.parametrize("command", sorted(proto.COMMANDS))
+@pytest.mark.parametrize("command", sorted(c for c in proto.COMMANDS if not c.startswith("Scan.")))
 def test_requests_and_replies_match_the_vendor_package_byte_for_byte(command):
     nanonis_spm = _vendor()
     args = _VENDOR_ARGS.get(command, ())
@@ -319,9 +319,10 @@ def test_slow_replies_within_the_timeout_are_fine(nanonis, sim):
 
 
 def test_a_stalled_link_raises_after_the_timeout_and_stays_closed(nanonis, sim):
-    sim.faults.stall_after = 0
+    sim.faults.stall_after = 0  # the controller itself: the withdraw over a second connection stalls too
     with pytest.raises(InstrumentLinkLost, match=r"did not answer Signals.ValsGet within 500 ms: the link stalled; "
-                                                 "it is closed and the tip was left where it was"):
+                                                 r"it is closed; securing the tip \(withdraw\) failed too: .* did not "
+                                                 "answer ZCtrl.Withdraw .* the tip was left where it was"):
         nanonis.read()
     with pytest.raises(InstrumentLinkLost, match="reopen the instrument"):
         nanonis.move_to((6e-6, 6e-6, math.nan))
@@ -360,3 +361,182 @@ def test_a_request_that_is_not_the_protocol_closes_the_connection(sim):
         body = link.request("Bogus.Cmd", b"Bogus.Cmd".ljust(32, b"\0") + struct.pack(">iHH", 0, 1, 0))
         proto.decode_reply("FolMe.Stop", body)
     link.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# the vendor's timing (Tap), the names list, the tip after a lost link
+
+
+def test_tap_is_read_at_open_and_sets_the_sample_age_limit(sim):
+    """Util.AcqPeriodGet at open; Util.AcqPeriodSet when asked; the sample-age limit covers Tap/2
+    (the middle of the oversampled window) + the ValsGet wait (up to Tap) + three round trips."""
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        assert n.acquisition_period == pytest.approx(0.02, rel=1e-6) and sim.requests["Util.AcqPeriodGet"] == 1
+        assert n.round_trip >= sim.latency
+        assert n.sample_age_limit("xyz") >= 3.0 * (1.5 * 0.02 + 3 * sim.latency)
+        assert n.sample_age_limit("xy") < n.sample_age_limit("xyz")
+    with NanonisAFM(*sim.address, limits=LIMITS, acquisition_period=0.004) as n:
+        assert sim.tap == pytest.approx(0.004, rel=1e-6) and n.acquisition_period == pytest.approx(0.004, rel=1e-6)
+    with pytest.raises(InstrumentError, match="acquisition_period must be"):
+        NanonisAFM(*sim.address, limits=LIMITS, acquisition_period=0.0)
+
+
+def test_signals_valsget_waits_for_the_acquisition_period(sim):
+    """The simulated controller answers ValsGet at the end of the current period of Tap: replies
+    arrive on the period's grid, never faster than one per period."""
+    import time
+
+    sim.tap = 0.01
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        t = []
+        for _ in range(6):
+            n.read()
+            t.append(time.perf_counter())
+    gaps = np.diff(t)
+    assert gaps.min() > 0.5 * sim.tap  # one reply per period at most
+
+
+def test_names_size_is_tolerated_where_controllers_differ(sim):
+    """A names array whose declared byte size counts only the strings (not their length prefixes)
+    opens; a body with bytes left after the last name is still refused (strict where the protocol is)."""
+    sim.names_size = "strings"
+    with NanonisAFM(*sim.address, limits=LIMITS) as n:
+        assert n.signal_names[0] == "X (m)"
+    body = proto.encode_reply_body("Signals.NamesGet", (["a", "b"],)) + b"\0\0\0\0"
+    with pytest.raises(InstrumentLinkLost, match="unexpected bytes"):
+        proto.decode_reply("Signals.NamesGet", body)
+
+
+def test_a_lost_link_withdraws_the_tip_over_a_second_connection(sim):
+    """The first connection's network dies (the controller is fine): the read raises, and the tip
+    is withdrawn over a new connection; with on_link_loss='hold' it is left where it was."""
+    sim.faults.first_connection_only = True
+    with NanonisAFM(*sim.address, limits=LIMITS, timeout=0.3) as n:
+        sim.faults.stall_after = 0
+        with pytest.raises(InstrumentLinkLost, match="the tip was withdrawn over a second connection"):
+            n.read()
+    assert sim.requests.get("ZCtrl.Withdraw") == 1
+    with NanonisSimulator(_afm(), faults=Faults(first_connection_only=True)) as other:
+        with NanonisAFM(*other.address, limits=LIMITS, timeout=0.3, on_link_loss="hold") as n:
+            other.faults.stall_after = 0
+            with pytest.raises(InstrumentLinkLost, match="the tip was left where it was"):
+                n.read()
+        assert "ZCtrl.Withdraw" not in other.requests
+# scanning: Scan.Action, Scan.StatusGet / WaitEndOfScan, Scan.FrameGet / BufferGet / SpeedGet,
+# Scan.FrameDataGrab
+
+
+_SCAN_CASES = {
+    "Scan.Action": ((0, 1), ()),
+    "Scan.StatusGet": ((), (1,)),
+    "Scan.WaitEndOfScan": ((5000,), (0, "C:/data/img001.sxm")),
+    "Scan.FrameGet": ((), (1.5e-6, -2.5e-7, 1e-6, 5e-7, 0.0)),
+    "Scan.BufferGet": ((), ([0, 14, 3], 256, 128)),
+    "Scan.SpeedGet": ((), (2e-6, 4e-6, 0.5, 0.25, 0, 2.0)),
+    "Scan.FrameDataGrab": ((0, 1), ("Z (m)", (np.arange(12.0).reshape(3, 4) - 5.0) * 1e-9, 1)),
+}
+
+
+@pytest.mark.parametrize("command", sorted(_SCAN_CASES))
+def test_scan_commands_match_the_vendor_package_byte_for_byte(command):
+    """Each request is the vendor's byte for byte, and the vendor's parser reads our reply as the
+    values we encoded (its arrays as tuples, its 2-D frame as an array, its counts kept)."""
+    nanonis_spm = _vendor()
+    args, values = _SCAN_CASES[command]
+    conn = _Capture(proto.encode_reply(command, values))
+    error, _, parsed = getattr(nanonis_spm.Nanonis(conn), command.replace(".", "_"))(*args)
+    assert conn.sent == proto.encode_request(command, args)
+    assert error == ""
+    ours = proto.decode_reply(command, proto.encode_reply_body(command, values))
+    if command == "Scan.FrameDataGrab":
+        size, name, rows, cols, data, up = parsed
+        assert (size, name, rows, cols, up) == (5, "Z (m)", 3, 4, 1)
+        assert np.asarray(data, dtype=np.float64) == pytest.approx(ours[1], rel=1e-7)
+        assert ours[1] == pytest.approx(values[1], rel=1e-7)
+    elif command == "Scan.WaitEndOfScan":
+        assert parsed == [0, len(values[1]), values[1]] and ours == values
+    elif command == "Scan.BufferGet":
+        assert parsed[0] == 3 and [e[0] for e in parsed[1]] == values[0] and parsed[2:] == [256, 128]
+        assert ours == (tuple(values[0]), 256, 128)
+    else:
+        assert tuple(parsed) == pytest.approx(values, rel=1e-7) and ours == pytest.approx(values, rel=1e-7)
+
+
+def test_a_frame_reply_larger_than_other_replies_is_bounded():
+    big = proto.encode_reply("Scan.FrameDataGrab", ("Z (m)", np.zeros((600, 600)), 1))
+    assert len(big) - 40 > proto.MAX_BODY  # a 600 x 600 frame passes ...
+    assert proto.parse_header(big[:40])[1] == len(big) - 40
+    with pytest.raises(InstrumentLinkLost, match="outside"):  # ... a size beyond a 4096^2 frame does not
+        proto.parse_header(big[:32] + struct.pack(">i", proto.MAX_FRAME_BODY + 1) + bytes(4))
+    with pytest.raises(InstrumentLinkLost, match="outside"):  # nor a frame-sized body for another command
+        proto.parse_header(proto.encode_reply("Scan.StatusGet", (0,))[:32] + struct.pack(">i", 2 * proto.MAX_BODY)
+                           + bytes(4))
+    body = proto.encode_reply_body("Scan.FrameDataGrab", ("Z", np.zeros((2, 2)), 1))
+    lying = body[:5] + struct.pack(">ii", 1000, 1000) + body[13:]  # rows x cols beyond the bytes there
+    with pytest.raises(InstrumentLinkLost, match="1000 x 1000"):
+        proto.decode_reply("Scan.FrameDataGrab", lying)
+
+
+def _scanning_afm():
+    from arsurf.instrument.imaging import Sample, ScanSettings, ThermalDrift
+    from arsurf.manipulation.nanotube import Nanotube
+    from arsurf.scan.scan import Scan
+
+    flat = Scan(np.zeros((100, 100)), dx=10e-9, dy=10e-9)
+    tube = Nanotube(400e-9, 12e-9, x=500e-9, y=450e-9, angle=0.5)
+    return _afm(sample=Sample(flat, objects=[tube]), drift=ThermalDrift(rate_xy=0.05e-9, seed=1),
+                scan_settings=ScanSettings((64, 48), (640e-9, 480e-9), origin=(150e-9, 200e-9)))
+
+
+@pytest.mark.parametrize("direction", ["up", "down"])
+def test_a_scan_through_the_simulated_controller_is_the_virtual_afms_image(direction):
+    """End to end: NanonisAFM.scan_image starts the scan over TCP, waits for its end and grabs the
+    frame; the Scan is the virtual AFM's image (to float32), row 0 at the bottom either way, with
+    the frame's geometry."""
+    afm = _scanning_afm()
+    with NanonisSimulator(afm) as sim, NanonisAFM(*sim.address, limits=LIMITS, timeout=0.5,
+                                                  scan_direction=direction) as n:
+        scan = n.scan_image()
+        truth = sim.frame
+        assert sim.requests["Scan.Action"] == 1 and sim.requests["Scan.FrameDataGrab"] == 1
+        assert sim.frame_settings.direction == direction
+    assert scan.shape == (48, 64) and scan.dx == pytest.approx(10e-9) and scan.dy == pytest.approx(10e-9)
+    assert scan.heights == pytest.approx(truth.heights, abs=1e-15, rel=1e-6)
+    assert scan.metadata["format"] == "nanonis-tcp" and scan.metadata["z_unit"] == "m"
+    assert scan.metadata["instrument"]["origin_m"] == pytest.approx([150e-9, 200e-9], rel=1e-6)  # float32 frame
+    assert scan.metadata["rows_flipped"] == (direction == "down")
+    assert scan.heights.max() == pytest.approx(12e-9, abs=1.5e-9)  # the tube is there
+
+
+def test_the_vendor_client_scans_through_the_simulator(sim):
+    nanonis_spm = _vendor()
+    sim.instrument._imaging = _scanning_afm()._imaging
+    s = socket.create_connection(sim.address, timeout=5.0)
+    try:
+        client = nanonis_spm.Nanonis(s)
+        client.Scan_Action(0, 1)
+        err, _, (timed_out, _, _) = client.Scan_WaitEndOfScan(10000)
+        assert err == "" and timed_out == 0
+        err, _, (_, name, rows, cols, data, up) = client.Scan_FrameDataGrab(0, 1)
+        assert (name, rows, cols, up) == ("Z (m)", 48, 64, 1)
+        assert np.asarray(data, dtype=float) == pytest.approx(sim.frame.heights, abs=1e-15, rel=1e-6)
+        err, _, _ = client.Scan_FrameDataGrab(0, 0)
+        assert "forward" in err
+    finally:
+        s.close()
+
+
+def test_scan_faults_are_one_line(sim):
+    with NanonisAFM(*sim.address, limits=LIMITS, timeout=0.5) as n:
+        with pytest.raises(ControllerError, match="no sample"):  # the flat number surface cannot be imaged
+            n.scan_image()
+        with pytest.raises(InstrumentError, match="without settings"):
+            n.scan_image(object())
+    with NanonisSimulator(_scanning_afm()) as s2:
+        s2.scan_channels = {0: "Current (A)"}
+        with NanonisAFM(*s2.address, limits=LIMITS, timeout=0.5) as n:
+            with pytest.raises(InstrumentError, match="not the height"):
+                n.scan_image()
+        with NanonisAFM(*s2.address, limits=LIMITS, timeout=0.5, scan_channel=3) as n:
+            with pytest.raises(InstrumentError, match="channel 3 is not one the scan records"):
+                n.scan_image()

@@ -269,3 +269,32 @@ def test_the_classification_catches_the_misreads_it_claims_to():
     assert classify(base, variant(h * 1e7), "header-number", 3)[0] == "misread"  # |z| ~ 0.03 m
     assert classify(base, variant(h, z_unit="V"), "bits", 1)[0] == "misread"  # volts flagged as a height
     assert classify(base, Scan(h, dx=2e-9, dy=1e-9, metadata={"z_unit": "m"}), "bits", 1)[0] == "plausible"
+
+
+HDF5_FILES = ["sample_0_1.topostats", "sample_0.h5-jpk"]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hdf5_feature_mutants_are_refused_naming_the_feature(tmp_path, seed):
+    """The HDF5-feature mutations of bench/fuzz_readers.py, a seeded small sample: a feature that
+    reaches outside the file, planted in a random dataset of a random HDF5 scan, is refused."""
+    import shutil
+
+    import h5py
+    from hdf5_attacks import KINDS as FEATURES
+    from hdf5_attacks import plant
+
+    rng = np.random.default_rng([20261127, seed])
+    files = [real_scan_path(n) for n in HDF5_FILES] + [Path(__file__).parent / "data" / "nanosurf_wavemode_excerpt.nhf"]
+    src = files[int(rng.integers(len(files)))]
+    dst = tmp_path / src.name
+    shutil.copy(src, dst)
+    with h5py.File(dst, "r") as f:
+        names: list[str] = []
+        f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+    feature = sorted(FEATURES)[int(rng.integers(len(FEATURES)))]
+    if feature == "external_storage_fifo":
+        feature = "external_storage"  # the FIFO case needs a guard process: tests/test_hdf5_safety.py has it
+    words = plant(dst, names[int(rng.integers(len(names)))], feature, tmp_path)
+    with pytest.raises(ScanError, match=words):
+        load_scan(dst)

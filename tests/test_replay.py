@@ -3,6 +3,7 @@ is replayed and must give back the recorded contact states exactly, byte-identic
 nothing at all when interrupted."""
 from __future__ import annotations
 
+import hashlib
 import json
 import struct
 import sys
@@ -200,7 +201,8 @@ def test_same_input_gives_bit_identical_output(recording, replayed, tmp_path):
     out2 = tmp_path / "replay-2"
     replay(recording.session, recording.scan, out2, progress=False)
     first, second = _files(replayed.out), _files(out2)
-    assert sorted(first) == sorted(second) == ["coupled_motion.png", "dent.png", "forces.csv", "forces.png",
+    assert sorted(first) == sorted(second) == ["arsurf-manifest.json", "coupled_motion.png", "dent.png",
+                                               "forces.csv", "forces.png",
                                                "path.png", "replay.h5", "summary.json"]
     for name in first:
         assert first[name] == second[name], name
@@ -264,7 +266,39 @@ def test_existing_output_needs_overwrite(recording, replayed, tmp_path):
         replay(recording.session, recording.scan, out, progress=False)
     assert _files(out) == {"stale.txt": b"x"}
     replay(recording.session, recording.scan, out, progress=False, overwrite=True)
-    assert _files(out) == _files(replayed.out)  # replaced as a whole: the stale file is gone
+    # the outputs are written; the file arsurf did not write is kept
+    assert _files(out) == {**_files(replayed.out), "stale.txt": b"x"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_overwrite_deletes_only_what_its_manifest_lists(recording, replayed, tmp_path):
+    """replay --overwrite keeps a user's files: a foreign file, one in a subfolder, one that has
+    the name of an output the new run does not write, and refuses to replace a foreign file that
+    holds an output's name (before anything changed)."""
+    out = tmp_path / "out"
+    replay(recording.session, recording.scan, out, progress=False)
+    manifest = json.loads((out / "arsurf-manifest.json").read_text())
+    assert {e["path"] for e in manifest["files"]} == set(_files(replayed.out)) - {"arsurf-manifest.json"}
+    for e in manifest["files"]:
+        assert hashlib.sha256((out / e["path"]).read_bytes()).hexdigest() == e["sha256"]
+    (out / "notes.txt").write_text("my notes")
+    (out / "mine").mkdir()
+    (out / "mine" / "data.csv").write_text("1,2")
+    (out / "frames").mkdir()
+    (out / "frames" / "frame_00000.png").write_bytes(b"my own picture")  # not listed: not arsurf's
+    replay(recording.session, recording.scan, out, progress=False, overwrite=True)
+    assert (out / "notes.txt").read_text() == "my notes"
+    assert (out / "mine" / "data.csv").read_text() == "1,2"
+    assert (out / "frames" / "frame_00000.png").read_bytes() == b"my own picture"
+    (out / "forces.csv").unlink()
+    (out / "forces.csv").write_text("a user's table under an output's name")
+    manifest = json.loads((out / "arsurf-manifest.json").read_text())
+    manifest["files"] = [e for e in manifest["files"] if e["path"] != "forces.csv"]
+    (out / "arsurf-manifest.json").write_text(json.dumps(manifest))
+    before = _files(out)
+    with pytest.raises(SessionError, match="'forces.csv', which arsurf did not write there"):
+        replay(recording.session, recording.scan, out, progress=False, overwrite=True)
+    assert _files(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 

@@ -154,3 +154,25 @@ def test_100_mutants_of_a_journal_give_a_prefix_or_are_refused(tmp_path):
             assert got.ticks[k].tobytes() == ref.ticks[k][:n].tobytes(), (i, k)
         counts["prefix"] += 1
     assert counts["prefix"] > 0 and counts["refused"] > 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hdf5_feature_mutants_of_a_resealed_session_are_refused(session, tmp_path, seed):
+    """The ``hdf5_feature`` group of bench/fuzz_sessions.py, a seeded small sample: a feature
+    planted in a random /ticks dataset, checksums and seal redone, is refused in-process."""
+    import shutil
+
+    import h5py
+    from hdf5_attacks import KINDS as FEATURES
+    from hdf5_attacks import plant, reseal_session
+
+    rng = np.random.default_rng([20261127, seed])
+    path = tmp_path / "f.h5"
+    shutil.copy(session[0], path)
+    with h5py.File(path, "r") as f:
+        names = sorted(f["ticks"])
+    feature = sorted(f for f in FEATURES if f != "external_storage_fifo")[int(rng.integers(len(FEATURES) - 1))]
+    words = plant(path, "ticks/" + names[int(rng.integers(len(names)))], feature, tmp_path)
+    reseal_session(path)
+    with pytest.raises(SessionError, match=words):
+        load_session(path)

@@ -19,6 +19,7 @@ Examples
 """
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import logging
 import os
@@ -28,6 +29,7 @@ from typing import Iterable
 
 import numpy as np
 
+from arsurf._files import atomic_write, check_target
 from arsurf.errors import require
 
 from .state import SceneState
@@ -101,48 +103,50 @@ def render_frames(states: Iterable[SceneState], out_dir: str | os.PathLike, *, f
     note = ""
     writer = None
     movie_path = movie_tmp = None
+    stack = contextlib.ExitStack()
     if movie is not None:
         if not str(movie).lower().endswith(".mp4"):
             raise ViewerError(f"`movie` must be an .mp4 file name (got {movie!r})")
         reason = movie_support()
         if reason is None:
             movie_path = out / movie
-            movie_tmp = movie_path.with_name(movie_path.stem + ".part.mp4")
+            check_target(movie_path, "movie", error=ViewerError)
         else:
             note = f"no movie: {reason}; wrote PNG frames only"
             log.warning("arsurf_viewer: %s", note)
     own_view = view is None
     paths: list[Path] = []
-    try:
-        for k, state in enumerate(states):
-            if not isinstance(state, SceneState):
-                raise ViewerError(f"state {k} is a {type(state).__name__}, not a SceneState")
-            if view is None:
-                view_kwargs.setdefault("off_screen", True)
-                view = SurfaceView(state.surface, **view_kwargs)
-            view.update(state, render=False)
-            path = out / f"{prefix}_{k:05d}.png"
-            img = view.screenshot(path)
-            paths.append(path)
-            if movie_tmp is not None:
-                if writer is None:
-                    imageio = require("imageio.v2", "movie", "writing movies")
-                    writer = imageio.get_writer(movie_tmp, fps=float(fps), codec="libx264", quality=8,
-                                                macro_block_size=1, pixelformat="yuv420p")
-                writer.append_data(_even(img))
-        if not paths:
-            raise ViewerError("render_frames() got no states; pass at least one SceneState")
-        if writer is not None:
-            writer.close()
-            writer = None
-            os.replace(movie_tmp, movie_path)
-        else:
-            movie_path = None
-    finally:
-        if writer is not None:
-            writer.close()
-        if movie_tmp is not None and movie_tmp.exists():
-            movie_tmp.unlink()
-        if own_view and view is not None:
-            view.close()
+    with stack:  # on an error the movie's temporary is removed and an old movie kept
+        try:
+            for k, state in enumerate(states):
+                if not isinstance(state, SceneState):
+                    raise ViewerError(f"state {k} is a {type(state).__name__}, not a SceneState")
+                if view is None:
+                    view_kwargs.setdefault("off_screen", True)
+                    view = SurfaceView(state.surface, **view_kwargs)
+                view.update(state, render=False)
+                path = out / f"{prefix}_{k:05d}.png"
+                img = view.screenshot(path)
+                paths.append(path)
+                if movie_path is not None:
+                    if writer is None:
+                        imageio = require("imageio.v2", "movie", "writing movies")
+                        # ffmpeg writes by name: into the exclusive temporary atomic_write created
+                        movie_tmp = stack.enter_context(atomic_write(movie_path, what="movie", error=ViewerError)).temp
+                        writer = imageio.get_writer(movie_tmp, fps=float(fps), codec="libx264", quality=8,
+                                                    macro_block_size=1, pixelformat="yuv420p")
+                    writer.append_data(_even(img))
+            if not paths:
+                raise ViewerError("render_frames() got no states; pass at least one SceneState")
+            if writer is not None:
+                writer.close()
+                writer = None
+                stack.close()  # fsynced and renamed over the movie
+            else:
+                movie_path = None
+        finally:
+            if writer is not None:
+                writer.close()
+            if own_view and view is not None:
+                view.close()
     return Frames(paths, movie_path, note)

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_bytes
 from arsurf.errors import MissingDependency, ViewerError, require
 from arsurf.spline.surface import BSplineSurface
 
@@ -78,7 +79,7 @@ class Picture:
         p = Path(path)
         if p.suffix.lower() != ".png":
             raise ViewerError(f"pictures are PNG files (got {p.name!r}); use a .png name")
-        p.write_bytes(self.png)
+        write_bytes(p, self.png, what="picture", error=ViewerError)
         return p
 
     def __repr__(self) -> str:

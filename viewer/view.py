@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from arsurf._files import atomic_write
 from arsurf.errors import require
 from arsurf.spline.surface import BSplineSurface
 
@@ -349,6 +350,7 @@ class SurfaceView:
         self.scalar_bar.SetBarRatio(0.4)
         for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
             prop.ShadowOn()
+        self._build_legend()
         self.set_color_by(self.color_by)
         from vtkmodules.vtkCommonDataModel import vtkImageData
         from vtkmodules.vtkFiltersCore import vtkFlyingEdges2D
@@ -437,6 +439,28 @@ class SurfaceView:
         for a in (self.tip_actor, self.contact_actor, *self.normal_arrow.actors, *self.force_arrow.actors):
             a.SetVisibility(False)
         self._tip_on = self._contact_on = self._force_on = False
+
+    def _build_legend(self) -> None:
+        """The colour legend's text under the bar: what a material map means (its convention, the
+        Poisson ratio and its source, the channel cross-check, the masked fractions by reason;
+        :meth:`arsurf.contact.material_map.MaterialMap.describe`), shown with a material colouring."""
+        from vtkmodules.vtkRenderingCore import vtkTextActor
+
+        actor = vtkTextActor()
+        prop = actor.GetTextProperty()
+        prop.SetFontFamilyToCourier()
+        prop.SetFontSize(max(10, int(self.plotter.window_size[1] / 56)))
+        prop.SetColor(*self._pv.Color(COLORS["hud"]).float_rgb)
+        prop.SetBackgroundColor(0.0, 0.0, 0.0)
+        prop.SetBackgroundOpacity(0.45)
+        prop.SetJustificationToRight()
+        prop.SetVerticalJustificationToBottom()
+        actor.GetPositionCoordinate().SetCoordinateSystemToNormalizedViewport()
+        actor.GetPositionCoordinate().SetValue(0.985, 0.015)
+        actor.SetInput("\n".join(self.material.describe()) if self.material is not None else "")
+        actor.SetVisibility(False)
+        self.plotter.add_actor(actor, reset_camera=False, pickable=False)
+        self.legend_actor = actor
 
     def _build_hud(self) -> None:
         import vtkmodules.vtkRenderingFreeType  # noqa: F401  (registers the FreeType text renderer)
@@ -540,6 +564,8 @@ class SurfaceView:
             title = "z (nm)" if mode == "height" else "dent (nm)"
         self.scalar_bar.SetTitle(title)
         self.scalar_bar.SetLabelFormat("%.3g" if mode in _MATERIAL_MODES else "%.1f")
+        self.legend_actor.SetVisibility(self._layers["colorbar"] and self._layers["surface"]
+                                        and mode in _MATERIAL_MODES)
 
     def _update_clim(self) -> None:
         if self.color_by == "height":
@@ -666,9 +692,8 @@ class SurfaceView:
             if p.suffix.lower() != ".png":
                 raise ViewerError(f"screenshots are PNG files (got {p.name!r}); use a .png name")
             image = require("PIL.Image", "viewer", "writing PNG screenshots")
-            tmp = p.with_name(p.name + ".part.png")
-            image.fromarray(np.ascontiguousarray(img)).save(tmp, format="PNG")  # no text chunks: same bytes each run
-            os.replace(tmp, p)
+            with atomic_write(p, what="screenshot", error=ViewerError) as fh:  # no text chunks: same bytes each run
+                image.fromarray(np.ascontiguousarray(img)).save(fh, format="PNG")
         return img
 
     def world_to_pixel(self, points) -> np.ndarray:
@@ -799,6 +824,7 @@ class SurfaceView:
         L = self._layers
         self.surface_actor.SetVisibility(L["surface"])
         self.scalar_bar.SetVisibility(L["colorbar"] and L["surface"])
+        self.legend_actor.SetVisibility(L["colorbar"] and L["surface"] and self.color_by in _MATERIAL_MODES)
         self.dent_actor.SetVisibility(L["dent"] and L["surface"] and self.dent_step_nm > 0.0)
         self.tip_actor.SetVisibility(L["tip"] and self._tip_on)
         self.contact_actor.SetVisibility(L["contact"] and self._contact_on)

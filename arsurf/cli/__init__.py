@@ -118,6 +118,9 @@ def _material_info(args, scan) -> int:
         "channels_used": ", ".join(f"{k}: {v}" for k, v in m.channels.items()),
         "tip_radius_nm": conv.tip_radius * 1e9,
         "regime": conv.regime,
+        # what the map means: convention, Poisson ratio and its source, cross-check, masks by reason
+        **dict(zip(("convention", "sample_poisson", "channel_cross_check", "masked_modulus", "masked_adhesion"),
+                   m.describe())),
         "E*_GPa": pct(st["reduced_modulus"], 1e-9),
         "w_mJ_per_m2": pct(st["work_of_adhesion"], 1e3),
         "sample_modulus_GPa": pct(st["sample_modulus"], 1e-9),
@@ -126,7 +129,7 @@ def _material_info(args, scan) -> int:
         "masked_adhesion_percent": 100.0 * m.masked["adhesion"]["masked"],
         "adhesion_floor_nN": m.masked["adhesion"]["floor_N"] * 1e9,
         "below_floor_percent": 100.0 * m.masked["adhesion"]["floored"],
-        "conversion": ", ".join(f"{k}={v}" for k, v in conv.to_metadata().items() if v is not None),
+        "conversion": ", ".join(f"{k}={v}" for k, v in m.conversion.to_metadata().items() if v is not None),
         "registration": m.registration,
         "map_sha256": m.sha256,
     })
@@ -289,7 +292,7 @@ def _log_flags(parser, default) -> None:
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
-_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices"]
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices", "arsurf.verify.command"]
 
 
 def main(argv=None) -> int:

@@ -25,7 +25,10 @@ def register(sub) -> None:
         where.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster of this scheduler "
                            "(tcp://HOST:8786; needs pip install 'arsurf[dask]'; workers must see the files and --out)")
         b.add_argument("--resume", action="store_true", help="continue the batch in --out: skip the items already "
-                       "done (status ok), rerun the others")
+                       "done (status ok, their output files there with the size and SHA-256 of their row), rerun "
+                       "the others")
+        b.add_argument("--item-timeout", type=float, default=3600.0, metavar="S",
+                       help="time limit of one item, s (default 3600); an item past it is an error row")
         b.set_defaults(func=cmd_batch)
 
     b = bsub.add_parser("process", help="level, smooth, fit (and export) every scan: <item>.surface.npz")
@@ -87,7 +90,7 @@ def cmd_batch(args) -> int:
     from arsurf.batch import run_batch
 
     r = run_batch(args.pipeline, args.inputs, args.out, options=_batch_options(args), workers=args.workers,
-                  scheduler=args.scheduler, resume=args.resume,
+                  scheduler=args.scheduler, resume=args.resume, item_timeout=args.item_timeout,
                   progress=not getattr(args, "log_quiet", False))  # -q: no progress counter
     shown = 20
     for item, reason in r.errors[:shown]:

@@ -15,6 +15,7 @@ _DEVICE_FLAGS = (
     ("device_index", "--device-index", "index", None),
     ("device_name", "--device-name", "name", None),
     ("calibrate", "--calibrate", "calibrate", None),
+    ("allow_no_watchdog", "--allow-no-watchdog", "allow_no_watchdog", None),
 )
 
 
@@ -39,8 +40,8 @@ def register(sub) -> None:
                    help=f"haptic device: {' | '.join(DEVICES)} (default virtual: a scripted hand presses the "
                         "stylus into the surface every 2 s; `arsurf devices` lists what is connected)")
     g = s.add_argument_group("device options (each adapter takes some; see README, Haptic devices)")
-    g.add_argument("--max-force-n", type=_positive("N"), help="force limit in N, at most the device's own (required "
-                   "for haply)")
+    g.add_argument("--max-force-n", type=_positive("N"), help="force limit in N, at most the device's own (default 1 N, "
+                   "the first-connection limit, or the device's if lower)")
     g.add_argument("--workspace-mm", type=_positive("mm"), nargs=3, metavar=("X", "Y", "Z"),
                    help="workspace extents in mm (required for haply; forcedimension: a model the SDK does not "
                         "describe)")
@@ -51,6 +52,8 @@ def register(sub) -> None:
     g.add_argument("--device-name", help="openhaptics: the device's configured name (default 'Default Device')")
     g.add_argument("--calibrate", action="store_true", help="forcedimension: let an uncalibrated device calibrate "
                    "itself (it moves by itself: hands off, workspace clear)")
+    g.add_argument("--allow-no-watchdog", action="store_true", help="forcedimension: run even if the device's "
+                   "firmware watchdog cannot be set (a stalled loop then keeps its last force; recorded in the session)")
     s.add_argument("--tip-radius-nm", type=_nm(strict=True), default=20.0, help="tip radius in nm (default 20)")
     _processing_flags(s)
     s.add_argument("--scale", type=_positive("probe m per stylus m"), default=1e-5,
@@ -74,8 +77,15 @@ def register(sub) -> None:
                    help="nanonis: largest speed of a commanded tip move in um/s (default 10)")
     g.add_argument("--instrument-axes", choices=("xyz", "xy"), default="xyz",
                    help="xyz: the stylus commands X, Y and Z (the Z feedback must be off); xy: the feedback holds Z")
-    g.add_argument("--max-age-ms", type=_positive("ms"), default=20.0,
-                   help="oldest instrument sample a force is rendered from, ms (default 20); older: zero force, stop")
+    g.add_argument("--max-age-ms", type=_positive("ms"), default=None,
+                   help="oldest instrument sample a force is rendered from, ms (default: nanonis derives it from "
+                        "its acquisition period Tap and round trip; virtual 20); older: zero force, stop")
+    g.add_argument("--acq-period-ms", type=_positive("ms"), default=None,
+                   help="nanonis: set the TCP receiver's acquisition period Tap at open (default: keep the "
+                        "controller's; it is read and recorded either way)")
+    g.add_argument("--on-link-loss", choices=("withdraw", "feedback", "hold"), default="withdraw",
+                   help="nanonis: what to do to the tip when the link is lost (default withdraw, over a second "
+                        "connection; feedback: Z controller on; hold: leave it)")
     s.set_defaults(func=cmd_live)
 
 
@@ -141,7 +151,9 @@ def cmd_live(args) -> int:
         instrument, photodiode, frame = open_instrument(
             args.instrument, setup, bridge_start(setup.surface, setup.model.tip_radius),
             deflection_sensitivity=None if sens is None else sens * 1e-9, max_speed=args.max_speed_um_s * 1e-6,
-            origin=[v * 1e-9 for v in (args.instrument_origin_nm or (0.0, 0.0, 0.0))])
+            origin=[v * 1e-9 for v in (args.instrument_origin_nm or (0.0, 0.0, 0.0))],
+            acquisition_period=None if args.acq_period_ms is None else args.acq_period_ms * 1e-3,
+            on_link_loss=args.on_link_loss)
     stop = threading.Event()
 
     def on_signal(signum, frame_):
@@ -159,7 +171,7 @@ def cmd_live(args) -> int:
               + (f" for {args.seconds:g} s" if args.seconds else " until Ctrl-C")
               + (f"; recording to {record}" if record else ""), file=sys.stderr)
         result = run_live(meta, device, backend=args.device, instrument=instrument, photodiode=photodiode,
-                          frame=frame, axes=args.instrument_axes, max_age=args.max_age_ms * 1e-3, record=record,
+                          frame=frame, axes=args.instrument_axes, max_age=None if args.max_age_ms is None else args.max_age_ms * 1e-3, record=record,
                           seconds=args.seconds, stop=stop, setup=setup, priority=args.realtime_priority)
     finally:
         for sig, handler in old.items():

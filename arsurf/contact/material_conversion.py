@@ -14,15 +14,32 @@ in metres of deflection needs the spring constant. Anything else is refused with
 that is missing (:func:`channel_to_si`).
 
 **Modulus.** NanoScope's ``DMTModulus`` is the sample's Young modulus :math:`E_s` from a DMT fit
-with the user's sample Poisson ratio and a rigid tip (Bruker's *PeakForce QNM User Guide*;
-JPK and Asylum report the same quantity). The contact modulus of a tip of modulus
-:math:`E_t`, ratio :math:`\nu_t` on it is (Johnson 1985, Eq. 4.22; :mod:`arsurf.contact.materials`)
+of the retract curve that assumes a rigid tip, with the sample Poisson ratio the file's header
+states (Bruker's *PeakForce QNM User Guide*; JPK and Asylum report the same quantity): the fit
+measures the reduced modulus :math:`E^*` of that probe on that sample and writes
+:math:`E_s = E^*(1-\nu_s^2)`. The real tip's compliance is therefore already inside the
+measured :math:`E^*`; for the probe that measured the map (``probe="same"``, the default: the AR
+tip is the instrument's)
 
-.. math:: \frac{1}{E^*} = \frac{1-\nu_s^2}{E_s} + \frac{1-\nu_t^2}{E_t}.
+.. math:: E^* = \frac{E_s}{1-\nu_s^2}.
 
-Defaults: :math:`\nu_s` = 0.3 (NanoScope's default *Sample Poisson's Ratio*; pass the file's
-value when it states another), the tip of :data:`arsurf.contact.materials.MATERIALS` ``"Si"``
-(:math:`E_t` = 130 GPa, :math:`\nu_t` = 0.28: QNM probes are silicon).
+Combining with a tip's compliance again (Johnson 1985, Eq. 4.22; :mod:`arsurf.contact.materials`)
+
+.. math:: \frac{1}{E^*} = \frac{1-\nu_s^2}{E_s} + \frac{1-\nu_t^2}{E_t}
+
+is the explicit option ``probe="other"``, for a map measured with another probe: :math:`E_s` is
+then taken as the sample's own modulus (the fit's rigid-tip assumption) under a tip of modulus
+:math:`E_t`, ratio :math:`\nu_t` (default :data:`arsurf.contact.materials.MATERIALS` ``"Si"``:
+130 GPa, 0.28). Counting the silicon tip twice lowered :math:`E^*` by 0.8 % at
+:math:`E_s` = 1 GPa, 6.6 % at 9 GPa, 23 % at 39 GPa. :math:`\nu_s`: ``sample_poisson`` when
+stated, else the file's *Sample Poisson's Ratio* (NanoScope header), else 0.3 (NanoScope's
+default); the map says which (:mod:`arsurf.contact.material_map`).
+
+**Two modulus channels.** A QNM file holds the modulus twice, linear (``DMTModulus``) and as its
+base-10 logarithm (``LogDMTModulus``). Where both exist the map compares them pixel by pixel
+(``cross_check``): ``"mask"`` (default) masks the pixels where they disagree, ``"log"`` reads
+the logarithmic channel everywhere (it keeps the dynamic range), ``"off"`` does not compare
+(:func:`arsurf.contact.material_map.channel_disagreement`).
 
 **Adhesion.** The pull-off force :math:`F` (> 0, the most tensile load of the retract curve)
 gives *w* through the pull-off load of the contact regime at the tip radius *R*:
@@ -69,9 +86,11 @@ from arsurf.contact.materials import DEFAULT_EQUILIBRIUM_SPACING, MATERIALS
 from arsurf.errors import MaterialMapError
 
 __all__ = [
+    "CROSS_CHECKS",
     "DEFAULT_DUGDALE_RANGE",
     "DEFAULT_SAMPLE_POISSON",
     "MaterialConversion",
+    "PROBES",
     "REGIMES",
     "channel_to_si",
     "pull_off_bar",
@@ -85,7 +104,21 @@ DEFAULT_SAMPLE_POISSON = 0.3
 DEFAULT_DUGDALE_RANGE = 9.0 * math.sqrt(3.0) * DEFAULT_EQUILIBRIUM_SPACING / 16.0
 #: contact regimes for the adhesion -> w conversion
 REGIMES = ("md", "dmt", "jkr")
+#: whose modulus E* is: the probe that measured the map (the fit's own E*) or another tip combined with E_s
+PROBES = ("same", "other")
+#: what to do where the linear and the logarithmic modulus channels disagree
+CROSS_CHECKS = ("mask", "log", "off")
+#: the values a recording made before ``probe`` and ``cross_check`` existed was converted with
+#: (the silicon tip combined, no cross-check): :meth:`MaterialConversion.from_metadata` fills them in
+LEGACY = {"probe": "other", "cross_check": "off"}
+#: the unit of each parameter, for the summaries (JSON keys with their unit)
+#: (a scale is SI per unit of a channel the file leaves uncalibrated: Pa per Arb is named ``_Pa``)
+_UNITS = {"tip_radius": "m", "tip_modulus": "Pa", "dugdale_range": "m", "modulus_scale": "Pa",
+          "adhesion_scale": "N", "deflection_sensitivity": "m_per_V", "spring_constant": "N_per_m",
+          "adhesion_floor": "N", "deformation_scale": "m", "dissipation_scale": "J"}
 _TIP = MATERIALS["Si"]
+#: the channel roles of a map (``--<role>-channel`` flags): log_modulus is the cross-check's
+ROLES = ("modulus", "log_modulus", "adhesion", "deformation", "dissipation")
 #: the MD pull-off table: ln(lambda) from -ln(1e6) to ln(1e6), 50 nodes per unit
 _LAM_LIMITS = (1e-6, 1e6)
 _TABLE_PER_UNIT = 50
@@ -100,10 +133,19 @@ class MaterialConversion:
     ----------
     tip_radius : float, m
         Tip radius R of the adhesion conversion (the AR model's tip: the same probe).
-    sample_poisson : float
-        Sample Poisson ratio of the instrument's DMT fit (default 0.3, NanoScope's default).
+    sample_poisson : float, optional
+        Sample Poisson ratio of the instrument's DMT fit. None (default): the file's header
+        (NanoScope *Sample Poisson's Ratio*), else 0.3 (NanoScope's default).
+    probe : {"same", "other"}
+        ``"same"`` (default): the map was measured with the AR model's tip, E* = E_s/(1 - nu_s^2)
+        (the rigid-tip fit's own E*). ``"other"``: another probe measured it; E_s is combined
+        with the tip of ``tip_modulus``, ``tip_poisson`` (Johnson Eq. 4.22).
     tip_modulus, tip_poisson : float, Pa and -
-        The tip's elastic constants (default silicon, ``MATERIALS["Si"]``: 130 GPa, 0.28).
+        The tip's elastic constants for ``probe="other"`` (default silicon, ``MATERIALS["Si"]``:
+        130 GPa, 0.28).
+    cross_check : {"mask", "log", "off"}
+        Where the file has the modulus twice (``DMTModulus``, ``LogDMTModulus``): mask the pixels
+        where they disagree (default), read the log channel everywhere, or do not compare.
     regime : {"md", "dmt", "jkr"}
         Pull-off law of the adhesion conversion (default Maugis-Dugdale at the local E*).
     dugdale_range : float, m
@@ -126,7 +168,8 @@ class MaterialConversion:
     """
 
     tip_radius: float
-    sample_poisson: float = DEFAULT_SAMPLE_POISSON
+    sample_poisson: float | None = None
+    probe: str = "same"
     tip_modulus: float = _TIP.youngs_modulus
     tip_poisson: float = _TIP.poisson_ratio
     regime: str = "md"
@@ -139,6 +182,7 @@ class MaterialConversion:
     outlier_mads: float = 6.0
     deformation_scale: float | None = None
     dissipation_scale: float | None = None
+    cross_check: str = "mask"
 
     def __post_init__(self) -> None:
         def pos(name, unit, hint):
@@ -150,10 +194,15 @@ class MaterialConversion:
         pos("dugdale_range", "m", "the Dugdale range h0 = w / sigma0, ~0.3 nm")
         pos("outlier_mads", "", "robust standard deviations of log E beyond which a pixel is an outlier")
         for name in ("sample_poisson", "tip_poisson"):
-            v = _validation.finite(getattr(self, name), name, MaterialMapError)
-            if not -1.0 < v <= 0.5:
-                raise MaterialMapError(f"{name} must be in (-1, 0.5] (got {v!r}); it is a Poisson ratio")
-            object.__setattr__(self, name, v)
+            if getattr(self, name) is None and name == "sample_poisson":
+                continue
+            object.__setattr__(self, name, check_poisson(getattr(self, name), name))
+        for name, choices, what in (("probe", PROBES, "whose E* the map gives: the probe that measured it "
+                                                      "(same) or another tip (other)"),
+                                    ("cross_check", CROSS_CHECKS, "what to do where the linear and the log "
+                                                                  "modulus channels disagree")):
+            if getattr(self, name) not in choices:
+                raise MaterialMapError(f"{name} must be one of {choices} (got {getattr(self, name)!r}); it is {what}")
         if self.regime not in REGIMES:
             raise MaterialMapError(f"regime must be one of {REGIMES} (got {self.regime!r}); it is the pull-off law "
                                    "of the adhesion conversion")
@@ -171,6 +220,28 @@ class MaterialConversion:
         """The parameters as a JSON object (SI units)."""
         return dataclasses.asdict(self)
 
+    def summary(self) -> dict:
+        """The parameters as a JSON object whose keys name their SI unit (``tip_radius_m``...)."""
+        return {(f"{k}_{_UNITS[k]}" if k in _UNITS else k): v for k, v in dataclasses.asdict(self).items()}
+
+    def with_sample_poisson(self, header) -> tuple["MaterialConversion", str]:
+        """``(conversion, source)``: this conversion with its sample Poisson ratio resolved.
+
+        Stated (``sample_poisson`` not None) wins; else the file's header value ``header``
+        (refused when it is not a Poisson ratio); else :data:`DEFAULT_SAMPLE_POISSON`. ``source``
+        says which, for the map's legend and summary."""
+        if self.sample_poisson is not None:
+            return self, "stated"
+        if header is None:
+            return dataclasses.replace(self, sample_poisson=DEFAULT_SAMPLE_POISSON), \
+                "default (NanoScope's; the file states none)"
+        try:
+            nu = check_poisson(header, "the file's Sample Poisson's Ratio")
+        except MaterialMapError as exc:
+            raise MaterialMapError(f"{exc}; state the ratio the fit used with sample_poisson (CLI --sample-poisson)") \
+                from None
+        return dataclasses.replace(self, sample_poisson=nu), "file header (Sample Poisson's Ratio)"
+
     @classmethod
     def from_metadata(cls, meta: Mapping[str, Any]) -> "MaterialConversion":
         """Rebuild from :meth:`to_metadata` (unknown keys are refused)."""
@@ -182,7 +253,7 @@ class MaterialConversion:
             raise MaterialMapError(f"unknown material conversion parameters {unknown}; known: {sorted(names)}")
         if "tip_radius" not in meta:
             raise MaterialMapError("the material conversion lacks tip_radius (m)")
-        return cls(**dict(meta))
+        return cls(**{**LEGACY, **dict(meta)})  # a recording older than probe/cross_check: converted as it was
 
     # -- the command line (units at this edge: nm, GPa, nN, N/m) ------------------------------
     @staticmethod
@@ -202,19 +273,26 @@ class MaterialConversion:
                  ("--deflection-sensitivity-nm-per-v", "NM_PER_V", "deflection sensitivity, for an adhesion "
                                                                     "channel in volts of deflection (F = V S k)"),
                  ("--spring-constant", "N_PER_M", "cantilever spring constant, for an adhesion channel in V or m"),
-                 ("--tip-modulus-gpa", "GPA", "tip Young modulus (default silicon, 130 GPa)"),
+                 ("--tip-modulus-gpa", "GPA", "tip Young modulus, with --probe other (default silicon, 130 GPa)"),
                  ("--adhesion-floor-nn", "NN", "pull-offs below it are raised to it (default: rms of the negative "
                                                "ones)"))
         for flag, metavar, text in flags:
             g.add_argument(flag, type=_number_type("", 0.0), metavar=metavar, help=text)
-        for flag, text in (("--sample-poisson", "sample Poisson ratio of the instrument's DMT fit (default 0.3)"),
-                           ("--tip-poisson", "tip Poisson ratio (default 0.28)")):
+        for flag, text in (("--sample-poisson", "sample Poisson ratio of the instrument's DMT fit (default: the "
+                                                "file's header, else 0.3)"),
+                           ("--tip-poisson", "tip Poisson ratio, with --probe other (default 0.28)")):
             g.add_argument(flag, type=_number_type("", -1.0, 0.5), metavar="NU", help=text)
+        g.add_argument("--probe", default="same", choices=PROBES, help="same (default): the AR tip is the probe "
+                       "that measured the map, E* = E_s/(1-nu_s^2) (the rigid-tip DMT fit's own E*); other: combine "
+                       "E_s with the tip of --tip-modulus-gpa/--tip-poisson")
+        g.add_argument("--cross-check", default="mask", choices=CROSS_CHECKS, help="where the linear and the log "
+                       "modulus channels disagree: mask those pixels (default), read the log channel everywhere, or "
+                       "off (do not compare)")
         g.add_argument("--regime", default="md", choices=REGIMES, help="pull-off law of the adhesion -> w "
                        "conversion (default md: Maugis-Dugdale at the local E*)")
-        for role in ("modulus", "adhesion", "deformation", "dissipation"):
-            g.add_argument(f"--{role}-channel", metavar="NAME", help=f"the {role} channel (default: the "
-                           "PeakForce QNM name)")
+        for role in ROLES:
+            g.add_argument(f"--{role.replace('_', '-')}-channel", metavar="NAME", help=f"the {role.replace('_', ' ')} "
+                           "channel (default: the PeakForce QNM name)")
 
     @classmethod
     def from_cli(cls, args) -> "MaterialConversion":
@@ -223,9 +301,19 @@ class MaterialConversion:
             v = getattr(args, name, None)
             return None if v is None else v * scale
 
-        kw = {k: v for k, v in (("sample_poisson", opt("sample_poisson")), ("tip_poisson", opt("tip_poisson")),
-                                ("tip_modulus", opt("tip_modulus_gpa", 1e9))) if v is not None}
+        probe = getattr(args, "probe", "same")
+        if probe != "other":
+            given = [f for f, n in (("--tip-modulus-gpa", "tip_modulus_gpa"), ("--tip-poisson", "tip_poisson"))
+                     if opt(n) is not None]
+            if given:
+                raise MaterialMapError(f"{' and '.join(given)} {'describe' if len(given) > 1 else 'describes'} another tip, but the map's E* is the measuring "
+                                       "probe's own (--probe same, the default); add --probe other to combine the "
+                                       "sample modulus with that tip, or leave them out")
+        kw = {k: v for k, v in (("tip_poisson", opt("tip_poisson")), ("tip_modulus", opt("tip_modulus_gpa", 1e9)))
+              if v is not None}
         return cls(tip_radius=args.tip_radius_nm * 1e-9, regime=args.regime, modulus_scale=opt("modulus_scale"),
+                   sample_poisson=opt("sample_poisson"), probe=probe,
+                   cross_check=getattr(args, "cross_check", "mask"),
                    adhesion_scale=opt("adhesion_scale"),
                    deflection_sensitivity=opt("deflection_sensitivity_nm_per_v", 1e-9),
                    spring_constant=opt("spring_constant"), adhesion_floor=opt("adhesion_floor_nn", 1e-9), **kw)
@@ -233,14 +321,24 @@ class MaterialConversion:
     @staticmethod
     def cli_channels(args) -> dict:
         """Role -> channel name of the ``--<role>-channel`` flags (None: the default name)."""
-        return {role: getattr(args, f"{role}_channel", None)
-                for role in ("modulus", "adhesion", "deformation", "dissipation")
+        return {role: getattr(args, f"{role}_channel", None) for role in ROLES
                 if getattr(args, f"{role}_channel", None) is not None}
 
     @property
     def tip_plane_strain_compliance(self) -> float:
         """:math:`(1-\\nu_t^2)/E_t` in 1/Pa."""
         return (1.0 - self.tip_poisson ** 2) / self.tip_modulus
+
+
+def check_poisson(value, name: str) -> float:
+    """A Poisson ratio: a finite number in (-1, 0.5] (raises :class:`MaterialMapError`)."""
+    try:
+        v = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not -1.0 < v <= 0.5:  # NaN fails too
+        raise MaterialMapError(f"{name} must be in (-1, 0.5] (got {value!r}); it is a Poisson ratio")
+    return v
 
 
 def _number_type(unit: str, minimum: float, maximum: float | None = None):
@@ -319,16 +417,27 @@ def channel_to_si(values: np.ndarray, unit: str, quantity: str, conv: MaterialCo
 def reduced_modulus(sample_modulus, conv: MaterialConversion):
     r"""Contact modulus :math:`E^*` (Pa) of the tip on a sample of Young modulus :math:`E_s` (Pa).
 
-    .. math:: E^* = \left(\frac{1-\nu_s^2}{E_s} + \frac{1-\nu_t^2}{E_t}\right)^{-1}
+    ``probe="same"`` (the rigid-tip DMT fit's own E*, for the probe that measured it) and
+    ``probe="other"`` (the sample under another tip, Johnson Eq. 4.22):
+
+    .. math:: E^* = \frac{E_s}{1-\nu_s^2}, \qquad
+              E^* = \left(\frac{1-\nu_s^2}{E_s} + \frac{1-\nu_t^2}{E_t}\right)^{-1}
+
+    ``sample_poisson`` None is read as :data:`DEFAULT_SAMPLE_POISSON` (a map resolves it from the
+    file's header first: :meth:`MaterialConversion.with_sample_poisson`).
 
     Examples
     --------
-    >>> conv = MaterialConversion(10e-9)
-    >>> round(float(reduced_modulus(3.4e9, conv)) / 1e9, 4)    # a 3.4 GPa sample (nu 0.3) under a Si tip
+    >>> round(float(reduced_modulus(3.4e9, MaterialConversion(10e-9))) / 1e9, 4)    # nu 0.3: 3.4 / 0.91
+    3.7363
+    >>> round(float(reduced_modulus(3.4e9, MaterialConversion(10e-9, probe="other"))) / 1e9, 4)  # + a Si tip
     3.6399
     """
     e = np.asarray(sample_modulus, dtype=np.float64)
-    return 1.0 / ((1.0 - conv.sample_poisson ** 2) / e + conv.tip_plane_strain_compliance)
+    nu = DEFAULT_SAMPLE_POISSON if conv.sample_poisson is None else conv.sample_poisson
+    if conv.probe == "same":
+        return e / (1.0 - nu ** 2)
+    return 1.0 / ((1.0 - nu ** 2) / e + conv.tip_plane_strain_compliance)
 
 
 _TABLE: tuple | None = None

@@ -11,9 +11,13 @@ How a map is built (:func:`build_material_map`), per channel
        channel needs its stated conversion, never a guess.
     2. **Mask** the pixels the instrument's fit failed on: not finite, exactly zero, saturated
        (at the channel's full scale, from the file's Z scale: NanoScope writes the clipped fits
-       there), a modulus <= 0, and outliers (beyond ``outlier_mads`` robust standard deviations
-       of the median, in log E for the modulus, linearly for the pull-off). The masked fraction
-       of each reason is reported (``masked``).
+       there), a modulus <= 0, the pixels where the linear and the log modulus channels disagree
+       (:func:`channel_disagreement`; the conversion's ``cross_check``), and outliers (beyond
+       ``outlier_mads`` robust scales of the median, in log E for the modulus, linearly for the
+       pull-off; the scale is 1.4826 MAD but never below :data:`OUTLIER_SCALE_FLOOR` or the
+       channel's quantum, so a uniform map still masks an absurd pixel). The masked fraction of
+       each reason is reported (``masked``). The sample Poisson ratio is resolved here (stated,
+       else the file's header, else 0.3; ``processing["sample_poisson_source"]``).
     3. **Fill** the masked pixels by Laplace inpainting (:func:`arsurf.inpaint`), in log E for
        the modulus; optional Gaussian **smoothing** (``sigma``, :func:`arsurf.smooth`), like the
        height. Pull-offs below the adhesion floor are then raised to it (counted): by default the
@@ -71,7 +75,7 @@ from typing import Mapping
 import numpy as np
 from numba import njit
 
-from arsurf.contact.material_conversion import (MaterialConversion, channel_to_si, reduced_modulus,
+from arsurf.contact.material_conversion import (LEGACY, MaterialConversion, channel_to_si, reduced_modulus,
                                                 work_of_adhesion_from_pull_off)
 from arsurf._layout import Layout
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
@@ -95,8 +99,18 @@ __all__ = [
 ]
 
 #: default channel of each quantity (the PeakForce QNM names; case-insensitive, direction optional)
-CHANNEL_NAMES = MappingProxyType({"modulus": "DMTModulus", "adhesion": "Adhesion", "deformation": "Deformation",
-                                  "dissipation": "Dissipation"})
+CHANNEL_NAMES = MappingProxyType({"modulus": "DMTModulus", "log_modulus": "LogDMTModulus", "adhesion": "Adhesion",
+                                  "deformation": "Deformation", "dissipation": "Dissipation"})
+#: the cross-check's tolerance: the linear and the log modulus channels agree where they differ by
+#: at most one LSB of the linear channel plus this fraction of the value (measured on sample_0.spm:
+#: 0.5 %...3 % and 1...2 LSB flag the same pixels to 0.005 % of the image)
+CROSS_CHECK_RELATIVE = 0.01
+#: the robust scale of the outlier test never drops below this: one e-fold of E for the modulus (in
+#: ln E), the median magnitude for the pull-off. A map whose MAD vanishes (more than half its pixels
+#: equal) still masks a pixel e^6 = 403x (6 scales) away from the median, and a second phase nearer
+#: than that is never called an outlier; real maps are wider (sample_0.spm: 1.38 in ln E, 1.3
+#: median magnitudes of the pull-off), so there the MAD rules as before
+OUTLIER_SCALE_FLOOR = 1.0
 #: words that mark a channel as mechanical (``arsurf info --material``)
 _MECHANICAL = ("modulus", "adhesion", "deformation", "dissipation", "stiffness", "pull", "elastic", "young")
 #: the fields a map holds, their unit and whether the spline is fitted to the log of the value
@@ -133,10 +147,11 @@ C_REF, C_LOCAL, C_HEAD = CONTACT_HEAD.offset("reference"), CONTACT_HEAD.offset("
 C_BODY = CONTACT_HEAD.size
 _MD_SIZE = MD_ARGS.size
 #: a row of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
-#: depth at zero load (all in the law's own units)
-TABLE_ROW = Layout("critical-point table row", [("t_fold", 1), ("delta_fold", 1), ("zero_load_depth", 1)])
+#: depth at zero load, pull-off load under load control (all in the law's own units)
+TABLE_ROW = Layout("critical-point table row", [("t_fold", 1), ("delta_fold", 1), ("zero_load_depth", 1),
+                                                ("pull_off", 1)])
 T_TFOLD, T_DFOLD = TABLE_ROW.offset("t_fold"), TABLE_ROW.offset("delta_fold")
-T_DZERO = TABLE_ROW.offset("zero_load_depth")
+T_DZERO, T_PULL = TABLE_ROW.offset("zero_load_depth"), TABLE_ROW.offset("pull_off")
 T_COLS = TABLE_ROW.size
 
 
@@ -176,6 +191,42 @@ def field_values(coef, ku, kv, xs, ys, lo, hi, out):
 
 
 @njit(cache=True)
+def _table_rows(cv, lam):
+    """(offset of the row below lambda, of the row above, fraction between) in the contact vector's
+    critical-point table."""
+    n = int(cv[H_NTABLE])
+    pos = (math.log(lam) - cv[H_LNLAM0]) / cv[H_TABLE_STEP]
+    k = min(max(int(pos), 0), n - 2)
+    r0 = int(cv[H_TABLE]) + T_COLS * k
+    return r0, r0 + T_COLS, min(max(pos - k, 0.0), 1.0)
+
+
+@njit(cache=True)
+def deepest_well_kernel(cv, x0, y0, hx, hy, nx, ny, coupling_stiffness, dugdale_range):
+    r"""Largest adhesive energy bound :math:`E_0` (J) of the local laws at the grid points
+    (x0 + i hx, y0 + j hy), i < nx, j < ny (m, the height's frame); 0 where the law is the
+    reference's (``here`` False: that law's own bound is the caller's).
+
+    Per point, as :meth:`arsurf.model.ARModel.adhesion_energy` for one law:
+    :math:`E_0 = |P_c|\,(\delta_0 - \min(\delta_{out}, -h_0) + |P_c|/k_c)`, from the tick's own
+    local law (:func:`local_contact_kernel`: the zero-load depth with its upper margin, the fold
+    or its lower bound) and the larger :math:`|\bar P_c|` of the two table rows around
+    :math:`\lambda` (:math:`\bar P_c` is monotone in :math:`\lambda`): an upper bound of the exact law's."""
+    best = 0.0
+    for j in range(ny):
+        for i in range(nx):
+            md, ratio, jump, zero, here = local_contact_kernel(cv, x0 + i * hx, y0 + j * hy)
+            if not here:
+                continue
+            r0, r1, f = _table_rows(cv, md[A_LAMBDA])
+            pc = max(abs(cv[r0 + T_PULL]), abs(cv[r1 + T_PULL])) * md[A_LOAD_SCALE]
+            e0 = pc * (zero - min(jump, -dugdale_range) + pc / coupling_stiffness)
+            if e0 > best:
+                best = e0
+    return best
+
+
+@njit(cache=True)
 def local_contact_kernel(cv, u, v):
     """The Maugis-Dugdale kernel arguments at the contact point (u, v) (m, the height's frame).
 
@@ -207,13 +258,7 @@ def local_contact_kernel(cv, u, v):
     local[A_LOAD_SCALE] = ref[A_LOAD_SCALE] * math.exp(lw)  # pi w R
     lam = ref[A_LAMBDA] * c2  # 2 (w/h0) (R / pi w K^2)^(1/3) ~ (w / E*)^(2/3)
     local[A_LAMBDA] = lam
-    n = int(cv[H_NTABLE])
-    t0 = int(cv[H_TABLE])
-    pos = (math.log(lam) - cv[H_LNLAM0]) / cv[H_TABLE_STEP]
-    k = min(max(int(pos), 0), n - 2)
-    f = min(max(pos - k, 0.0), 1.0)
-    r0 = t0 + T_COLS * k
-    r1 = r0 + T_COLS
+    r0, r1, f = _table_rows(cv, lam)
     zero = cv[r0 + T_DZERO] + f * (cv[r1 + T_DZERO] - cv[r0 + T_DZERO]) + ZERO_LOAD_MARGIN
     if lam <= LAMBDA_TRANSITION:
         c0, d0, p0 = md_zero_radius_limit(lam)
@@ -234,7 +279,7 @@ def local_contact_kernel(cv, u, v):
 
 
 def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, float, float]:
-    """``(table, ln lambda of row 0, row step)``: fold (ln s, depth) and zero-load depth at
+    """``(table, ln lambda of row 0, row step)``: fold (ln s, depth), zero-load depth and pull-off at
     :data:`TABLE_PER_UNIT` rows per unit of ln lambda over [lam_lo, lam_hi] (one row of margin
     each side), exact (:func:`~arsurf.contact.maugis_dugdale.md_critical_point_kernel`,
     :func:`~arsurf.contact.maugis_dugdale.md_solve_load`)."""
@@ -249,6 +294,7 @@ def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, floa
         table[i, T_TFOLD], table[i, T_DFOLD] = md_critical_point_kernel(lam, 0)
         tp, pp = md_critical_point_kernel(lam, 1)
         table[i, T_DZERO] = md_solve_load(0.0, lam, tp, pp)[2]
+        table[i, T_PULL] = pp
     return table, x0, h
 
 
@@ -365,18 +411,64 @@ class MaterialMap:
         """What a session records to rebuild the map: channel names (and units given for a file
         that does not state them), the conversion, the offset, the processing and the hash."""
         p = self.processing
+        conv = self.conversion.to_metadata()
+        if p.get("sample_poisson_source", "stated") != "stated":
+            conv["sample_poisson"] = None  # from the file (or its default): a rebuild reads it there again
         return {"channels": dict(self.channels), "units": dict(p.get("units") or {}),
-                "conversion": self.conversion.to_metadata(), "offset": list(self.offset),
+                "conversion": conv, "offset": list(self.offset),
                 "processing": {"sigma": p["sigma"], "smoothing": p["smoothing"], "control_shape": p["control_shape"]},
                 "sha256": self.sha256}
 
+    @property
+    def convention(self) -> str:
+        """What E* means: the fit's own (the probe that measured the map) or another tip's."""
+        c = self.conversion
+        if c.probe == "same":
+            return "rigid-tip DMT fit, same probe: E* = E_s/(1 - nu_s^2)"
+        return (f"rigid-tip DMT fit, other probe: 1/E* = (1 - nu_s^2)/E_s + (1 - nu_t^2)/E_t "
+                f"(E_t {c.tip_modulus / 1e9:.4g} GPa, nu_t {c.tip_poisson:.3g})")
+
+    def describe(self) -> list[str]:
+        """What the map means, one short line each (``arsurf info --material``, the view's legend):
+        the convention, the sample Poisson ratio and its source, the channel cross-check, the
+        masked fractions by reason."""
+        p = self.processing
+        cross = p.get("cross_check") or {}
+        if cross.get("channel") is None:
+            check = ("channel cross-check off" if cross.get("policy") == "off"
+                     else "channel cross-check: no log channel to compare")
+        else:
+            what = {"mask": "masked", "log": "log channel used"}[cross["policy"]]
+            check = (f"{self.channels['modulus']} vs {cross['channel']}: {cross['disagreeing_fraction']:.2%} "
+                     f"disagree ({what})")
+        lines = [self.convention,
+                 f"nu_s {self.conversion.sample_poisson:g} ({p.get('sample_poisson_source', 'stated')})", check]
+        for role in ("modulus", "adhesion"):
+            m = self.masked.get(role, {})
+            parts = ", ".join(f"{k.replace('_', ' ')} {v:.2%}" for k, v in m.items()
+                              if k not in ("masked", "floored", "floor_N") and v > 0.0)
+            lines.append(f"{role} masked {m.get('masked', 0.0):.2%}" + (f" ({parts})" if parts else ""))
+        return lines
+
     def summary(self) -> dict:
-        """Statistics, masked fractions and the conversion, JSON-ready (SI units)."""
-        return {"channels": dict(self.channels), "statistics": {k: dict(v) for k, v in self.statistics.items()},
-                "masked": {k: dict(v) for k, v in self.masked.items()}, "registration": self.registration,
+        """Statistics, masked fractions, the convention and the conversion, JSON-ready: every key
+        that holds a dimensional value names its SI unit."""
+        units = {"reduced_modulus": "Pa", "sample_modulus": "Pa", "work_of_adhesion": "J_per_m2",
+                 "pull_off_force": "N"}
+        stats = {k: {(f"{q}_{units[k]}" if q != "pixels" else "n_pixels"): v for q, v in st.items()}
+                 for k, st in self.statistics.items()}
+        masked = {role: {(k if k.endswith("_N") else f"{k}_fraction"): v for k, v in m.items()}
+                  for role, m in self.masked.items()}
+        p = self.processing
+        cross = dict(p.get("cross_check") or {})
+        return {"channels": dict(self.channels), "convention": self.convention,
+                "sample_poisson": self.conversion.sample_poisson,
+                "sample_poisson_source": p.get("sample_poisson_source", "stated"), "cross_check": cross,
+                "statistics": stats, "masked": masked,
+                "registration": self.registration,
                 "reference": {"reduced_modulus_Pa": self.reference_modulus,
                               "work_of_adhesion_J_per_m2": self.reference_work},
-                "conversion": self.conversion.to_metadata(), "sha256": self.sha256}
+                "conversion": self.conversion.summary(), "sha256": self.sha256}
 
     def __repr__(self) -> str:
         s = self.statistics
@@ -388,8 +480,11 @@ class MaterialMap:
 
 def _digest(m: MaterialMap) -> str:
     h = hashlib.sha256()
-    head = {"conversion": m.conversion.to_metadata(), "channels": dict(m.channels), "offset": list(m.offset),
-            "spacing": list(m.spacing)}
+    conv = m.conversion.to_metadata()
+    for key, old in LEGACY.items():  # a map converted as before these parameters existed keeps its hash
+        if conv[key] == old:
+            del conv[key]
+    head = {"conversion": conv, "channels": dict(m.channels), "offset": list(m.offset), "spacing": list(m.spacing)}
     h.update(json.dumps(head, sort_keys=True).encode())
     for name in sorted(m.fields):
         f = m.fields[name]
@@ -418,17 +513,55 @@ def _saturation(scan: Scan) -> float | None:
     return abs(float(per)) * (2.0 ** (8 * int(width) - 1) - 1.0)
 
 
-def _robust_outliers(x: np.ndarray, valid: np.ndarray, k: float) -> np.ndarray:
-    """Pixels farther than k robust standard deviations (1.4826 MAD) from the median of x[valid]."""
+def _robust_outliers(x: np.ndarray, valid: np.ndarray, k: float, log: bool, quantum: float) -> np.ndarray:
+    """Pixels farther than k robust scales from the median of x[valid].
+
+    The scale is 1.4826 MAD, never below a floor that cannot vanish: for ``log`` (x = ln E)
+    :data:`OUTLIER_SCALE_FLOOR` or the channel's quantum relative to the median value, else
+    :data:`OUTLIER_SCALE_FLOOR` times the median magnitude or the quantum (x's unit; 0: unknown).
+    A map whose MAD is 0 (a uniform map) thus still masks an absurd pixel."""
     if valid.sum() < 8:
         return np.zeros_like(valid)
     v = x[valid]
     med = float(np.median(v))
     mad = 1.4826 * float(np.median(np.abs(v - med)))
-    if not mad > 0.0:
-        return np.zeros_like(valid)
+    if log:
+        floor = max(OUTLIER_SCALE_FLOOR, quantum / math.exp(med))
+    else:
+        floor = max(OUTLIER_SCALE_FLOOR * float(np.median(np.abs(v))), quantum)
     with np.errstate(invalid="ignore"):
-        return valid & (np.abs(x - med) > k * mad)
+        return valid & (np.abs(x - med) > k * max(mad, floor))
+
+
+def _quantum(scan: Scan, factor: float) -> float:
+    """One LSB of a channel in SI (its ``z_per_lsb`` times the SI ``factor``; 0 when unknown)."""
+    per = scan.metadata.get("z_per_lsb")
+    return 0.0 if per is None else abs(float(per)) * float(factor)
+
+
+def channel_disagreement(linear: Scan, log: Scan, usable: np.ndarray) -> np.ndarray:
+    r"""Pixels where a linear modulus channel and its logarithmic twin disagree (bool (ny, nx)).
+
+    ``log`` is the decoded ``LogDMTModulus`` (:func:`arsurf.load_scan` returns 10**value), in the
+    linear channel's unit; ``usable`` the pixels both can be compared at (the linear value is a
+    fit: finite, not zero, not saturated). They agree where
+    :math:`|E_{lin} - E_{log}| \le q + \epsilon E_{log}`, with *q* one LSB of the linear channel
+    (its rounding; 0 when the file does not state it) and :math:`\epsilon` =
+    :data:`CROSS_CHECK_RELATIVE`. A pixel whose log value is not a positive number disagrees.
+
+    On sample_0.spm 17.2 % of the pixels disagree, almost all by a factor :math:`16^k`,
+    k = 1...5 (pySPM reads the same values: it is in the file).
+    """
+    if _unit(linear) != _unit(log):
+        raise MaterialMapError(f"the log modulus channel {log.channel!r} is in {_unit(log)!r}, the modulus channel "
+                               f"{linear.channel!r} in {_unit(linear)!r}: they cannot be compared; give both in one "
+                               "unit, or cross_check='off' (CLI --cross-check off)")
+    a = np.asarray(linear.heights, dtype=np.float64)
+    b = np.asarray(log.heights, dtype=np.float64)
+    q = _quantum(linear, 1.0)
+    with np.errstate(invalid="ignore"):
+        agree = np.isfinite(b) & (b > 0.0) & (np.abs(a - b) <= q + CROSS_CHECK_RELATIVE * b)
+    return usable & ~agree
 
 
 def _check_grid(height: Scan, chan: Scan, offset, what: str) -> str:
@@ -542,6 +675,8 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
         raise MaterialMapError(f"sigma must be >= 0 m (got {sigma!r}); it is the Gaussian smoothing width")
     ref = channels["modulus"]
     present = {k: v for k, v in channels.items() if v is not None}
+    if conversion.cross_check == "off":
+        present.pop("log_modulus", None)   # not compared, not used: not part of the map
     for role, chan in present.items():
         if not isinstance(chan, Scan):
             raise MaterialMapError(f"the {role} channel must be an arsurf Scan (got {type(chan).__name__})")
@@ -574,17 +709,32 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
                                    f"({', '.join(f'{k} {v:.1%}' for k, v in masked[role].items())})")
         return total
 
-    conv = conversion
-    # modulus: log E_s, masked, filled, smoothed
     mod = present["modulus"]
+    conv, poisson_source = conversion.with_sample_poisson(mod.metadata.get("sample_poisson_ratio"))
+    # modulus: the cross-check of the two channels, then log E_s, masked, filled, smoothed
     raw = np.asarray(mod.heights, dtype=np.float64)
-    es, _, how_e = channel_to_si(raw, _unit(mod), "modulus", conv, mod.channel)
     reasons = base_mask("modulus", raw, mod)
+    twin = present.get("log_modulus")
+    cross: dict = {"policy": conv.cross_check, "channel": None, "compared_fraction": 0.0,
+                   "disagreeing_fraction": None, "tolerance": f"1 LSB + {CROSS_CHECK_RELATIVE:.0%}"}
+    if twin is not None:
+        usable = ~(reasons["not_finite"] | reasons["zero"] | reasons["saturated"])
+        disagree = channel_disagreement(mod, twin, usable)
+        cross.update(channel=twin.channel, compared_fraction=float(usable.sum()) / n,
+                     disagreeing_fraction=float(disagree.sum()) / n)
+        if conv.cross_check == "mask":
+            reasons["channels_disagree"] = disagree
+        else:  # "log": the log channel's values; a failed fit (a linear zero) stays masked
+            log_raw = np.asarray(twin.heights, dtype=np.float64)
+            reasons = {"not_finite": ~np.isfinite(log_raw), "zero": reasons["zero"] | (log_raw == 0.0),
+                       "saturated": np.zeros(raw.shape, bool)}
+            raw, mod = log_raw, twin
+    es, _, how_e = channel_to_si(raw, _unit(mod), "modulus", conv, mod.channel)
     with np.errstate(invalid="ignore", divide="ignore"):
         reasons["nonpositive"] = np.isfinite(es) & (es < 0.0)
         log_es = np.log(np.where(es > 0.0, es, np.nan))
-    ok = ~(reasons["not_finite"] | reasons["zero"] | reasons["saturated"] | reasons["nonpositive"])
-    reasons["outlier"] = _robust_outliers(log_es, ok, conv.outlier_mads)
+    ok = ~np.logical_or.reduce(list(reasons.values()))
+    reasons["outlier"] = _robust_outliers(log_es, ok, conv.outlier_mads, True, _quantum(mod, how_e["factor"]))
     m_mod = record("modulus", reasons)
     log_es = _fill(log_es, m_mod, mod)
     e_star_pixels = reduced_modulus(np.exp(log_es), conv)  # filled, not smoothed: the statistics' E*
@@ -595,7 +745,7 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
     fo, _, how_f = channel_to_si(raw, _unit(adh), "adhesion", conv, adh.channel)
     reasons = base_mask("adhesion", raw, adh)
     ok = ~(reasons["not_finite"] | reasons["zero"] | reasons["saturated"])
-    reasons["outlier"] = _robust_outliers(fo, ok, conv.outlier_mads)
+    reasons["outlier"] = _robust_outliers(fo, ok, conv.outlier_mads, False, _quantum(adh, how_f["factor"]))
     m_adh = record("adhesion", reasons)
     f_fill = _smooth(_fill(fo, m_adh, adh), adh, sigma)
     floor = conv.adhesion_floor
@@ -640,7 +790,8 @@ def build_material_map(height: Scan, channels: Mapping[str, Scan], conversion: M
              "pull_off_force": _stats(fo[~m_adh]), "sample_modulus": _stats(es[~m_mod])}
     processing = {"sigma": sigma, "smoothing": float(smoothing),
                   "control_shape": None if control_shape is None else [int(c) for c in control_shape],
-                  "modulus_conversion": how_e, "adhesion_conversion": how_f}
+                  "modulus_conversion": how_e, "adhesion_conversion": how_f, "cross_check": cross,
+                  "sample_poisson_source": poisson_source}
     return MaterialMap(MappingProxyType(fields), offset, (ref.dx, ref.dy), conv,
                        MappingProxyType({k: v.channel for k, v in present.items()}),
                        MappingProxyType(masked), MappingProxyType(stats), registration, processing,
@@ -659,9 +810,9 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
                            control_shape=None) -> MaterialMap:
     """A :class:`MaterialMap` from the mechanical channels of a scan file.
 
-    ``channels`` maps a role to a channel name (default :data:`CHANNEL_NAMES`; ``deformation``
-    and ``dissipation`` are optional and skipped when the file lacks them, a name given as None
-    is skipped too). ``units`` gives the unit of a role's channel in a file that does not state
+    ``channels`` maps a role to a channel name (default :data:`CHANNEL_NAMES`; ``log_modulus``
+    (the cross-check's), ``deformation`` and ``dissipation`` are optional and skipped when the
+    file lacks them, a name given as None is skipped too). ``units`` gives the unit of a role's channel in a file that does not state
     it (a bare ``.npz``: ``{"modulus": "Pa", "adhesion": "N"}``, as ``z_unit`` of
     :func:`arsurf.load_scan`). ``height`` is the image the map registers to (default: the file's
     height channel as read, which has the grid of the model's fit). Other arguments as
@@ -672,6 +823,8 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
 
     names = dict(CHANNEL_NAMES)
     names.update(channels or {})
+    if conversion.cross_check == "off":
+        names["log_modulus"] = None
     units = dict(units or {})
     bad = sorted(set(units) - set(CHANNEL_NAMES))
     if bad:

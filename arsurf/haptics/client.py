@@ -4,7 +4,7 @@
 Standard library only, so this one file can be copied to the haptic PC as it is and run there
 (``python client.py ...``); with arsurf installed it is ``python -m arsurf.haptics.client``. The packet layout is the one
 documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.md`` (protocol version
-2, little-endian, HMAC-SHA256 tag last); ``tests/test_udp_bridge.py`` checks that this file and
+3, little-endian, HMAC-SHA256 tag last, a per-session id from the server's CHALLENGE); ``tests/test_udp_bridge.py`` checks that this file and
 the bridge agree byte for byte and that this client drops every bad FORCE packet.
 
 Run it against a bridge with the session key the bridge wrote (``arsurf view --bridge-port``
@@ -13,20 +13,21 @@ prints the key file's path)::
     python -m arsurf.haptics.client --port 47474 --key-file /tmp/arsurf-bridge-xyz/bridge.key \
         --rate 1000 --duration 5 --radius 0.02
 
-It moves a virtual stylus on a circle of ``--radius`` metres at ``--frequency`` Hz, sends one POSE
-per tick, reads the FORCE replies, and prints a JSON summary (packets, round-trip times, largest
+It first says HELLO and takes the session id from the bridge's CHALLENGE (a packet recorded in an
+earlier session never belongs to this one), then moves a virtual stylus on a circle of ``--radius``
+metres at ``--frequency`` Hz, sends one POSE per tick, reads the FORCE replies, and prints a JSON summary (packets, round-trip times, largest
 force, dropped replies by reason). A real haptic PC replaces the circle with its device position
 and applies :meth:`HapticClient.poll`'s force to the device: that force comes only from a FORCE
-packet that passed every check (sender address, tag, sequence number, ``ack`` of one of this
-client's poses, finite values, ``--max-force``) and is zero when no such packet arrived for
+packet that passed every check (sender address, tag, sequence number, session, ``ack`` of one of
+this client's poses, finite values, ``--max-force``) and is zero when no such packet arrived for
 ``--timeout`` seconds. On exit the client sends RELEASE so that another client may connect.
 ``examples/cpp/arsurf_client.cpp`` is the same client in C++ (on ``include/arsurf_bridge.h``).
 
 Examples
 --------
 >>> c = HapticClient("127.0.0.1", 9, key=bytes(32))   # nothing needs to listen to build packets
->>> len(encode_pose(bytes(32), 1, 0.0, (0.0, 0.0, 0.0)))
-140
+>>> len(encode_pose(bytes(32), 1, 0.0, (0.0, 0.0, 0.0), session=bytes(16)))
+156
 >>> c.poll()
 (0.0, 0.0, 0.0)
 >>> c.close()
@@ -40,26 +41,33 @@ import json
 import math
 import os
 import socket
+import stat
 import struct
 import sys
 import time
 
 MAGIC = b"ARSH"
-VERSION = 2
+VERSION = 3
 TYPE_POSE = 1
 TYPE_FORCE = 2
 TYPE_RELEASE = 3
+TYPE_HELLO = 4
+TYPE_CHALLENGE = 5
 MAC_SIZE = 32
+SESSION_SIZE = 16
+NO_SESSION = bytes(SESSION_SIZE)
 HEADER = struct.Struct("<4sBBHQ")  # magic, version, type, flags, sequence number: 16 bytes
-POSE = struct.Struct("<4sBBHQd3d3d4dI")  # + 32-byte tag = 140 bytes
-FORCE = struct.Struct("<4sBBHQQdd3d")  # + 32-byte tag = 96 bytes
-RELEASE = struct.Struct("<4sBBHQd")  # + 32-byte tag = 56 bytes
+POSE = struct.Struct("<4sBBHQ16sd3d3d4dI")  # + 32-byte tag = 156 bytes
+FORCE = struct.Struct("<4sBBHQ16sQdd3d")  # + 32-byte tag = 112 bytes
+RELEASE = struct.Struct("<4sBBHQ16sd")  # + 32-byte tag = 72 bytes; HELLO: the same, session field zero
+CHALLENGE = struct.Struct("<4sBBHQ16sQ")  # + 32-byte tag = 72 bytes
 FORCE_SIZE = FORCE.size + MAC_SIZE
+CHALLENGE_SIZE = CHALLENGE.size + MAC_SIZE
 NAN3 = (math.nan, math.nan, math.nan)
 WINDOW = 64
-#: Reasons a FORCE packet is dropped (the keys of :attr:`HapticClient.stats`, with the totals).
+#: Reasons a datagram from the server is dropped (the keys of :attr:`HapticClient.stats`, with the totals).
 DROP_REASONS = ("oversized", "truncated", "foreign", "bad_magic", "bad_version", "bad_type", "bad_mac",
-                "replayed", "out_of_order", "bad_ack", "nonfinite", "over_limit")
+                "replayed", "out_of_order", "bad_ack", "bad_session", "nonfinite", "over_limit")
 
 
 def mac(key, body):
@@ -67,16 +75,22 @@ def mac(key, body):
     return hmac.new(key, body, hashlib.sha256).digest()
 
 
-def encode_pose(key, seq, t, position, velocity=NAN3, quaternion=(1.0, 0.0, 0.0, 0.0), buttons=0):
-    """POSE packet bytes (see the module docstring of arsurf.haptics.udp_bridge)."""
-    body = POSE.pack(MAGIC, VERSION, TYPE_POSE, 0, seq, float(t), *map(float, position), *map(float, velocity),
-                     *map(float, quaternion), buttons & 0xFFFFFFFF)
+def encode_pose(key, seq, t, position, velocity=NAN3, quaternion=(1.0, 0.0, 0.0, 0.0), buttons=0, *, session):
+    """POSE packet bytes of the session ``session`` (see the module docstring of arsurf.haptics.udp_bridge)."""
+    body = POSE.pack(MAGIC, VERSION, TYPE_POSE, 0, seq, session, float(t), *map(float, position),
+                     *map(float, velocity), *map(float, quaternion), buttons & 0xFFFFFFFF)
     return body + mac(key, body)
 
 
-def encode_release(key, seq, t):
+def encode_release(key, seq, t, *, session):
     """RELEASE packet bytes: this client is done, the server may accept another."""
-    body = RELEASE.pack(MAGIC, VERSION, TYPE_RELEASE, 0, seq, float(t))
+    body = RELEASE.pack(MAGIC, VERSION, TYPE_RELEASE, 0, seq, session, float(t))
+    return body + mac(key, body)
+
+
+def encode_hello(key, seq, t):
+    """HELLO packet bytes: ask the server for its session id (it answers with a CHALLENGE)."""
+    body = RELEASE.pack(MAGIC, VERSION, TYPE_HELLO, 0, seq, NO_SESSION, float(t))
     return body + mac(key, body)
 
 
@@ -92,22 +106,53 @@ def decode_force(key, data):
         return None
     if not hmac.compare_digest(mac(key, data[:FORCE.size]), data[FORCE.size:FORCE_SIZE]):
         return None
-    return {"flags": f[3], "seq": f[4], "ack": f[5], "t": f[6], "echo": f[7], "force": f[8:11]}
+    return {"flags": f[3], "seq": f[4], "session": f[5], "ack": f[6], "t": f[7], "echo": f[8], "force": f[9:12]}
+
+
+def _key_file_problem(path, fd):
+    """Why the open key file ``fd`` may not be trusted (as ssh judges a private key), or None."""
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    if os.name != "posix":
+        return None
+    if st.st_uid != os.geteuid():
+        return f"is owned by uid {st.st_uid}, not by you (uid {os.geteuid()}): someone else may have planted it"
+    if st.st_mode & 0o077:
+        return f"is accessible to other users (mode {oct(st.st_mode & 0o777)}); chmod 600 it"
+    folder = os.path.dirname(os.path.abspath(path))
+    fst = os.stat(folder)
+    if fst.st_uid not in (os.geteuid(), 0) or fst.st_mode & 0o022:
+        return (f"is in a folder other users can write to or own ({folder}, uid {fst.st_uid}, mode "
+                f"{oct(fst.st_mode & 0o777)}): someone else could have planted it; use a folder of your own")
+    if st.st_size > 4096:
+        return f"is {st.st_size} bytes; a key file is one line of hex"
+    return None
 
 
 def read_key(key=None, key_file=None):
-    """The session key from hex text or from a key file (refused if other users may read it)."""
+    """The session key from hex text or from a key file.
+
+    The file is opened without following a link or blocking, and refused (one line, exit status
+    2) unless it is a regular file owned by this user, readable by its owner only, in a folder
+    no one else can write to: the rules of the bridge's ``load_key`` (and of ssh).
+    """
     if (key is None) == (key_file is None):
         raise SystemExit("haptic_client: give the session key with exactly one of --key HEX or --key-file PATH")
     if key_file is not None:
+        flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
         try:
-            st = os.stat(key_file)
+            fd = os.open(key_file, flags)
+            try:
+                why = _key_file_problem(key_file, fd)
+                if why is None:
+                    key = os.read(fd, 4097).decode("ascii", errors="replace")
+            finally:
+                os.close(fd)
         except OSError as exc:
             raise SystemExit(f"haptic_client: cannot read key file {key_file} ({exc.strerror})") from None
-        if os.name == "posix" and st.st_mode & 0o077:
-            raise SystemExit(f"haptic_client: key file {key_file} is accessible to other users; chmod 600 it")
-        with open(key_file, encoding="ascii", errors="replace") as fh:
-            key = fh.read(4096)
+        if why is not None:
+            raise SystemExit(f"haptic_client: key file {key_file} {why}")
     try:
         k = bytes.fromhex(key.strip())
     except ValueError:
@@ -160,8 +205,10 @@ class HapticClient:
         self._rseq = None
         self._seen = 0
         self.rtts = []
-        self.stats = dict.fromkeys(("received", "accepted") + DROP_REASONS, 0)
+        self.stats = dict.fromkeys(("received", "accepted", "challenges", "hellos") + DROP_REASONS, 0)
         self.released = False
+        self.session = None  # the server's session id, from its CHALLENGE (None: say HELLO first)
+        self._last_hello = -math.inf
 
     @property
     def invalid(self):
@@ -175,22 +222,46 @@ class HapticClient:
         self.seq += 1
         return self.seq
 
+    def hello(self):
+        """Ask the bridge for its session id (HELLO; :meth:`poll` takes the CHALLENGE that answers)."""
+        self._last_hello = self._clock()
+        self.stats["hellos"] += 1
+        try:
+            self.sock.sendto(encode_hello(self.key, self._next_seq(), self.clock()), self.server)
+        except OSError:  # the bridge not there yet (ICMP unreachable)
+            pass
+
     def send_pose(self, position, velocity=NAN3, buttons=0, quaternion=(1.0, 0.0, 0.0, 0.0)):
-        """Send one pose; returns its sequence number."""
+        """Send one pose of this session; returns its sequence number.
+
+        Without a session id yet it sends a HELLO instead and returns None; with one but no valid
+        FORCE for ``timeout`` (the bridge may have restarted: a new session) it also says HELLO again,
+        once per ``timeout``.
+        """
+        now = self._clock()
+        if self.session is None or (now - self._last_rx > self.timeout and now - self._last_hello > self.timeout):
+            self.hello()
+            if self.session is None:
+                return None
         seq = self._next_seq()
-        self.sock.sendto(encode_pose(self.key, seq, self.clock(), position, velocity, quaternion, buttons), self.server)
+        self.sock.sendto(encode_pose(self.key, seq, self.clock(), position, velocity, quaternion, buttons,
+                                     session=self.session), self.server)
         return seq
 
     def release(self):
         """Tell the bridge this client is done (it unpins the client; another may connect)."""
+        if self.session is None:
+            return
         try:
-            self.sock.sendto(encode_release(self.key, self._next_seq(), self.clock()), self.server)
+            self.sock.sendto(encode_release(self.key, self._next_seq(), self.clock(), session=self.session),
+                             self.server)
             self.released = True
         except OSError:
             pass
 
     def _check(self, data, addr):
-        """The FORCE fields if the datagram passes every check, else None (reason counted)."""
+        """The FORCE fields if the datagram passes every check, else None (reason counted; an
+        accepted CHALLENGE sets :attr:`session` and is counted in ``challenges``)."""
         st = self.stats
         n = len(data)
         if n > FORCE_SIZE:
@@ -209,13 +280,14 @@ class HapticClient:
         if version != VERSION:
             st["bad_version"] += 1
             return None
-        if kind != TYPE_FORCE:
+        if kind not in (TYPE_FORCE, TYPE_CHALLENGE):
             st["bad_type"] += 1
             return None
-        if n != FORCE_SIZE:
-            st["truncated"] += 1
+        body = FORCE.size if kind == TYPE_FORCE else CHALLENGE.size
+        if n != body + MAC_SIZE:
+            st["truncated" if n < body + MAC_SIZE else "oversized"] += 1
             return None
-        if not hmac.compare_digest(mac(self.key, data[:FORCE.size]), data[FORCE.size:]):
+        if not hmac.compare_digest(mac(self.key, data[:body]), data[body:]):
             st["bad_mac"] += 1
             return None
         last = self._rseq
@@ -223,21 +295,30 @@ class HapticClient:
             k = last - seq
             st["replayed" if k < WINDOW and (self._seen >> k) & 1 else "out_of_order"] += 1
             return None
-        f = FORCE.unpack_from(data)
-        if not self.first_seq <= f[5] <= self.seq:  # must acknowledge one of this client's poses
+        f = (FORCE if kind == TYPE_FORCE else CHALLENGE).unpack_from(data)
+        ack = f[6]
+        if not self.first_seq <= ack <= self.seq:  # must acknowledge one of this client's packets
             st["bad_ack"] += 1
             return None
-        force = f[8:11]
-        if not all(math.isfinite(v) for v in force) or not math.isfinite(f[6]):
-            st["nonfinite"] += 1
-            return None
-        if math.sqrt(sum(v * v for v in force)) > self.max_force * (1.0 + 1e-9):
-            st["over_limit"] += 1
-            return None
+        if kind == TYPE_FORCE:
+            if f[5] != self.session:  # another session's FORCE (this client's HELLO was not answered by it)
+                st["bad_session"] += 1
+                return None
+            force = f[9:12]
+            if not all(math.isfinite(v) for v in force) or not math.isfinite(f[7]):
+                st["nonfinite"] += 1
+                return None
+            if math.sqrt(sum(v * v for v in force)) > self.max_force * (1.0 + 1e-9):
+                st["over_limit"] += 1
+                return None
         d = WINDOW if last is None else seq - last
         self._seen = ((self._seen << d) | 1) & ((1 << WINDOW) - 1) if d < WINDOW else 1
         self._rseq = seq
-        return {"flags": f[3], "seq": seq, "ack": f[5], "t": f[6], "echo": f[7], "force": force}
+        if kind == TYPE_CHALLENGE:
+            self.session = f[5]
+            st["challenges"] += 1
+            return None
+        return {"flags": f[3], "seq": seq, "ack": ack, "t": f[7], "echo": f[8], "force": force}
 
     def poll(self):
         """Read every pending datagram; returns the force (N) to apply now.
@@ -266,8 +347,8 @@ class HapticClient:
         return self.force
 
     def close(self):
-        """Send RELEASE (if any pose was sent) and close the socket."""
-        if self.seq >= self.first_seq and not self.released:
+        """Send RELEASE (if a session was started) and close the socket."""
+        if self.session is not None and not self.released:
             self.release()
         self.sock.close()
 
@@ -293,7 +374,7 @@ def main(argv=None):
     period = 1.0 / args.rate
     n = int(args.duration * args.rate)
     fmax = 0.0
-    zeroed = 0
+    zeroed = poses = 0
     start = time.perf_counter()
     try:
         for k in range(n):
@@ -301,7 +382,7 @@ def main(argv=None):
             w = 2.0 * math.pi * args.frequency
             pos = (args.radius * math.cos(w * t), args.radius * math.sin(w * t), 0.0)
             vel = (-args.radius * w * math.sin(w * t), args.radius * w * math.cos(w * t), 0.0)
-            client.send_pose(pos, vel)
+            poses += client.send_pose(pos, vel) is not None
             f = client.poll()
             if client.last_reply is None or time.perf_counter() - client.last_reply[0] > args.timeout:
                 zeroed += 1
@@ -316,6 +397,8 @@ def main(argv=None):
     rtts = sorted(client.rtts)
     summary = {
         "sent": n,
+        "poses_sent": poses,
+        "hellos_sent": client.stats["hellos"],
         "replies_with_rtt": len(rtts),
         "invalid_replies": client.invalid,
         "dropped_replies": {r: client.stats[r] for r in DROP_REASONS if client.stats[r]},

@@ -9,15 +9,27 @@ and needs SDK 3.16 or later.
 the operator, :math:`y` to the operator's right, :math:`z` up. In the arsurf frame
 (:mod:`arsurf.haptics.hardware`) that is ``AxisMap("y,-x,z")``.
 
-**Limits, from the device.** The workspace is measured on the device's own kinematics: the SDK's
-encoder range (``dhdGetEncRange``) is sampled on a 5x5x5 grid through its forward kinematics
-(``dhdDeltaEncoderToPosition``) and the largest box centred on the origin inside the positions
-reached is the workspace. The force limit is the lowest of the SDK's own cap
-(``dhdGetMaxForce``, when one is set), the model's nominal continuous force (below; the SDK does not
-report it) and ``max_force``; the result is written back with ``dhdSetMaxForce`` so the SDK
-enforces it too. When the kinematics are not available (older firmware answers
-``DHD_ERROR_EXPERT_MODE_DISABLED``), the workspace is the nominal one of the model. A model not in
-the table needs ``max_force`` and ``workspace`` from its datasheet.
+**The vendor's sequence.** As the SDK's own examples do: the device is opened with ``drdOpen`` /
+``drdOpenID`` (the robotic SDK's calls - ``drdIsSupported``, ``drdIsInitialized``,
+``drdAutoInit``, ``drdStop`` - act only on a device the DRD opened) and closed with ``drdClose``.
+The watchdog and the kinematics are *expert* SDK functions (``dhdc.h``, "expert API"): they fail
+with ``DHD_ERROR_EXPERT_MODE_DISABLED`` unless ``dhdEnableExpertMode`` was called; the adapter
+enables expert mode for them only and disables it right after (the servo loop runs without it).
+
+**Limits, from the device.** The workspace is the largest box centred on the origin inside the
+positions the handle can *reach*, not the bounding box of them (a delta's corners are out of reach):
+the encoder range (``dhdGetEncRange``) through the forward kinematics
+(``dhdDeltaEncoderToPosition``, on a 9x9x9 grid) bounds it; then a box is reachable when every
+point of a 7x7 grid on each of its faces maps, through the inverse kinematics
+(``dhdDeltaPositionToEncoder``), to encoders inside that range. The box is the bounding box scaled
+down uniformly (bisection) until reachable, then grown one axis at a time while it stays so.
+``workspace_source`` says where it came from: ``"kinematics"``, ``"given"`` or ``"nominal"`` (the
+model's datasheet figures, when the SDK has no kinematics for it). The force limit is the lowest of
+the SDK's own cap (``dhdGetMaxForce``, when one is set), the model's nominal continuous force (below;
+the SDK does not report it) and ``max_force``; without ``max_force`` it is the first-connection
+limit, 1 N (:data:`~arsurf.haptics.hardware.FIRST_FORCE_N`). The result is written back with
+``dhdSetMaxForce`` so the SDK enforces it too. A model not in the table needs ``max_force`` and
+``workspace`` from its datasheet.
 
 Nominal figures (vendor datasheets; translation workspace as the largest box in the published
 cylinder, continuous force, closed-loop stiffness): omega.3/6/7 12 N, Ø 160 x 110 mm, 14.5 N/mm;
@@ -30,9 +42,13 @@ delta.3 20 N, Ø 400 x 260 mm, 14.5 N/mm; sigma.7 20 N, Ø 190 x 130 mm, 14.5 N/
 ``drdStop(True)`` hands it back with forces on. The Falcon homes itself in its firmware (pull the
 grip out and push it in after power-up).
 
-**Fail-safe on the device.** The firmware watchdog (``dhdSetWatchdog``) is set to ``watchdog``
-seconds (default 0.02, at most 31.9 ms): if arsurf's loop stops commanding forces for that long,
-the device turns its forces off by itself. A firmware without it is logged.
+**Fail-safe on the device.** The firmware watchdog (``dhdSetWatchdog``, read back with
+``dhdGetWatchdog``) is set to ``watchdog`` seconds (default 0.02, at most 31.9 ms): if arsurf's loop
+stops commanding forces for that long, the device turns its forces off by itself. A device whose
+watchdog cannot be set (a firmware without it) is refused, as is ``watchdog=0``, unless
+``allow_no_watchdog=True`` (``arsurf live --allow-no-watchdog``): a stalled loop would then keep its
+last force until the device is closed. ``watchdog_set`` and ``workspace_source`` are in
+:meth:`safety_record` (the session metadata) and in ``arsurf devices``.
 
 Examples
 --------
@@ -43,6 +59,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 import logging
 import math
 from dataclasses import dataclass
@@ -53,7 +70,7 @@ from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
 from arsurf.haptics.device import DeviceInfo, _vec3
 from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
 
-__all__ = ["NOMINAL", "ForceDimensionDevice", "Nominal", "probe"]
+__all__ = ["NOMINAL", "ForceDimensionDevice", "Nominal", "probe", "reachable_box"]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +119,84 @@ def _sdk():
     return dhd, drd
 
 
+@contextlib.contextmanager
+def _expert_mode(dhd):
+    """Expert mode on for the block, off after it (the SDK's expert calls need it; the loop does not)."""
+    dhd.expert.enableExpertMode()
+    try:
+        yield
+    finally:
+        dhd.expert.disableExpertMode()
+
+
+def _set_watchdog(dhd, i: int, seconds: float) -> bool:
+    """Set the firmware watchdog (expert mode) and read it back; True when the device holds it."""
+    units = max(1, min(255, round(seconds / 125e-6)))
+    if dhd.expert.setWatchdog(units, i) < 0:
+        return False
+    return dhd.expert.getWatchdog(i) == units
+
+
+def _type(dhd, i: int) -> int:
+    try:
+        return int(dhd.getSystemType(i))
+    except ValueError:  # a type this binding does not know
+        return -1
+
+
+def reachable_box(dhd, i: int, grid: int = 9, face: int = 7, steps: int = 16):
+    """Half extents (m, SDK axes) of the largest box centred on the origin inside the positions
+    the handle reaches (module docstring), or None without kinematics. Expert mode must be on."""
+    emin, emax = [0] * 8, [0] * 8
+    if dhd.expert.getEncRange(emin, emax, i) < 0:
+        return None
+    lo, hi = np.array(emin[:3]), np.array(emax[:3])
+    if not (hi > lo).all():
+        return None
+    out, enc = [0.0, 0.0, 0.0], [0, 0, 0]
+    pts = []
+    for e in itertools.product(*(np.linspace(lo[a], hi[a], grid).round().astype(int) for a in range(3))):
+        if dhd.expert.deltaEncoderToPosition(tuple(int(x) for x in e), out, i) < 0:
+            return None
+        pts.append(tuple(out))
+    p = np.array(pts)
+    bound = np.minimum(-p.min(0), p.max(0))
+    if not (np.isfinite(bound).all() and (bound > 0).all()):
+        return None
+    u = np.linspace(-1.0, 1.0, face)
+    cube = np.array([c for c in itertools.product(u, u, u) if np.abs(c).max() == 1.0])  # the unit cube's faces
+
+    def reachable(half) -> bool:
+        for q in cube * half:
+            if dhd.expert.deltaPositionToEncoder(tuple(float(x) for x in q), enc, i) < 0:
+                return False
+            if not all(lo[a] <= enc[a] <= hi[a] for a in range(3)):
+                return False
+        return True
+
+    def grow(half, axis=None) -> np.ndarray:
+        """The largest reachable box between ``half`` and the bound, scaling all axes (None) or one."""
+        a, b = 0.0, 1.0
+        for _ in range(steps):
+            m = 0.5 * (a + b)
+            if axis is None:
+                trial = m * bound
+            else:
+                trial = half.copy()
+                trial[axis] += m * (bound[axis] - half[axis])
+            a, b = (m, b) if reachable(trial) else (a, m)
+        if axis is None:
+            return a * bound
+        half = half.copy()
+        half[axis] += a * (bound[axis] - half[axis])
+        return half
+
+    half = grow(bound)
+    for axis in range(3):
+        half = grow(half, axis)
+    return half if (half > 0).all() else None
+
+
 class ForceDimensionDevice(HardwareDevice):
     """A Force Dimension device (or a Falcon) through the vendor SDK.
 
@@ -117,7 +212,9 @@ class ForceDimensionDevice(HardwareDevice):
     calibrate : bool
         Let ``drdAutoInit`` calibrate an uncalibrated device (it moves by itself).
     watchdog : float, s
-        Firmware watchdog (0: leave it off).
+        Firmware watchdog (0: leave it off; needs ``allow_no_watchdog``).
+    allow_no_watchdog : bool
+        Run even when the firmware watchdog is not set (recorded in :meth:`safety_record`).
     disconnect_after : float, s
         See :class:`~arsurf.haptics.hardware.HardwareDevice`.
 
@@ -130,12 +227,17 @@ class ForceDimensionDevice(HardwareDevice):
     """
 
     def __init__(self, index: int | None = None, *, max_force: float | None = None, workspace=None,
-                 calibrate: bool = False, watchdog: float = 0.02, disconnect_after: float = 0.05) -> None:
+                 calibrate: bool = False, watchdog: float = 0.02, allow_no_watchdog: bool = False,
+                 disconnect_after: float = 0.05) -> None:
         super().__init__(AxisMap(FD_AXES), max_force=max_force, disconnect_after=disconnect_after)
         if index is not None and not (isinstance(index, int) and 0 <= index < 128):
             raise HapticsError(f"index must be a device number 0..127 or None (got {index!r})")
         if not (isinstance(watchdog, (int, float)) and 0.0 <= watchdog <= 255 * 125e-6):
             raise HapticsError(f"watchdog must be 0 (off) to {255 * 125e-6:.4f} s (got {watchdog!r})")
+        if watchdog == 0 and not allow_no_watchdog:
+            raise HapticsError("watchdog=0 turns the device's firmware watchdog off: a stalled loop would keep its "
+                               "last force; pass allow_no_watchdog=True (--allow-no-watchdog) to mean it")
+        self.allow_no_watchdog = bool(allow_no_watchdog)
         self.index = index
         self.given_workspace = None if workspace is None else _vec3(workspace, "workspace")
         self.calibrate = bool(calibrate)
@@ -158,15 +260,11 @@ class ForceDimensionDevice(HardwareDevice):
         dhd, drd = self._dhd, self._drd = _sdk()
         if dhd.getDeviceCount() < 1:
             raise DeviceNotFound("Force Dimension: no device connected (dhdGetDeviceCount = 0); check USB and power")
-        self._id = dhd.open() if self.index is None else dhd.openID(self.index)
+        self._id = drd.open() if self.index is None else drd.openID(self.index)
         if self._id < 0:
             self._fail("cannot open the device" + ("" if self.index is None else f" #{self.index}"), DeviceNotFound)
         i = self._id
-        try:
-            raw_type = int(dhd.getSystemType(i))
-        except ValueError:  # a type this binding does not know
-            raw_type = -1
-        self.device_type = raw_type
+        raw_type = self.device_type = _type(dhd, i)
         name = dhd.getSystemName(i) or f"Force Dimension type {raw_type}"
         if drd.isSupported(i) and not drd.isInitialized(i):
             if not self.calibrate:
@@ -182,9 +280,12 @@ class ForceDimensionDevice(HardwareDevice):
         sdk_cap = float(dhd.getMaxForce(i))
         limits = [x for x in (nominal.force if nominal else None, sdk_cap if sdk_cap > 0 else None) if x is not None]
         source = "SDK kinematics" if nominal is None else f"SDK kinematics, {nominal.name} nominal force"
-        workspace = self._measured_workspace()
-        if workspace is not None:
-            self.workspace_source = "kinematics"
+        with _expert_mode(dhd):
+            half = reachable_box(dhd, i)
+            self.watchdog_set = self.watchdog > 0 and _set_watchdog(dhd, i, self.watchdog)
+            why = dhd.errorGetLastStr()
+        if half is not None:
+            workspace, self.workspace_source = self.axes.extents(2.0 * half), "kinematics"
         elif self.given_workspace is not None:
             workspace, self.workspace_source = self.given_workspace, "given"
         elif nominal is not None:
@@ -194,6 +295,13 @@ class ForceDimensionDevice(HardwareDevice):
             self._release()
             raise HapticsError(f"{name} (type {raw_type}) reports no workspace and is not in the nominal table; give "
                                "workspace=(x, y, z) in metres from its datasheet")
+        if not self.watchdog_set and self.watchdog > 0:
+            if not self.allow_no_watchdog:
+                self._release()
+                raise HapticsError(f"{name}: its firmware watchdog could not be set ({why}): a stalled loop would keep "
+                                   "its last force; update the firmware, or pass allow_no_watchdog=True "
+                                   "(--allow-no-watchdog) to run without it")
+            log.warning("%s: running without the firmware watchdog (%s), as allowed", name, why)
         stiffness = nominal.stiffness if nominal else 1.0e3
         try:
             info = device_limits(name, min(limits) if limits else None, self.user_max_force, workspace, stiffness,
@@ -203,36 +311,16 @@ class ForceDimensionDevice(HardwareDevice):
             raise
         if dhd.setMaxForce(info.max_force, i) < 0:
             self._fail(f"{name}: could not set the SDK force limit (dhdSetMaxForce)")
-        if self.watchdog > 0:
-            self.watchdog_set = dhd.expert.setWatchdog(max(1, round(self.watchdog / 125e-6)), i) >= 0
-            if not self.watchdog_set:
-                log.warning("%s: the firmware watchdog is not available (%s); a stalled loop keeps its last force "
-                            "until the device is closed", name, dhd.errorGetLastStr())
         if dhd.enableForce(True, i) < 0:
             self._fail(f"{name}: could not enable forces")
         self._prev_t = math.nan
         return info
 
-    def _measured_workspace(self):
-        """Workspace extents (arsurf axes, m) from the SDK's encoder range and kinematics, or None."""
-        dhd, i = self._dhd, self._id
-        emin, emax = [0] * 8, [0] * 8
-        if dhd.expert.getEncRange(emin, emax, i) < 0:
-            return None
-        out = [0.0, 0.0, 0.0]
-        grid = [np.linspace(emin[a], emax[a], 5).round().astype(int) for a in range(3)]
-        pts = []
-        for e0 in grid[0]:
-            for e1 in grid[1]:
-                for e2 in grid[2]:
-                    if dhd.expert.deltaEncoderToPosition((int(e0), int(e1), int(e2)), out, i) < 0:
-                        return None
-                    pts.append(tuple(out))
-        p = np.array(pts)
-        half = np.minimum(-p.min(0), p.max(0))
-        if not (np.isfinite(half).all() and (half > 0).all()):
-            return None
-        return self.axes.extents(2.0 * half)
+    def safety_record(self) -> dict:
+        """The base record plus the firmware watchdog (``watchdog_set``, ``watchdog_s``,
+        ``allow_no_watchdog``) and ``workspace_source``."""
+        return {**super().safety_record(), "watchdog_set": bool(self.watchdog_set), "watchdog_s": self.watchdog,
+                "allow_no_watchdog": self.allow_no_watchdog, "workspace_source": self.workspace_source}
 
     # -- the servo tick -------------------------------------------------------------------------
     def _poll(self, vpos, vvel):
@@ -257,16 +345,18 @@ class ForceDimensionDevice(HardwareDevice):
         if self._id >= 0 and self._dhd is not None:
             try:
                 self._dhd.enableForce(False, self._id)
-                self._dhd.close(self._id)
+                self._drd.close(self._id)
             except Exception:  # noqa: BLE001 - releasing must not raise
                 pass
         self._id = -1
 
 
 def probe() -> BackendReport:
-    """Is the SDK there, and which devices answer (each opened and closed at once)."""
+    """Is the SDK there, and which devices answer (each opened and closed at once): its name and
+    serial number, whether its firmware watchdog can be set (``watchdog_set``, tried at the
+    default 20 ms) and where its workspace would come from (``workspace_source``)."""
     try:
-        dhd, _ = _sdk()
+        dhd, drd = _sdk()
     except MissingDependency as exc:
         return BackendReport("forcedimension", False, str(exc))
     import importlib.metadata as md
@@ -274,10 +364,18 @@ def probe() -> BackendReport:
     detail = f"forcedimension-core {md.version('forcedimension-core')}, SDK {dhd.getSDKVersion()}"
     devices = []
     for k in range(max(0, dhd.getDeviceCount())):
-        i = dhd.openID(k)
+        i = drd.openID(k)
         if i < 0:
             devices.append(f"#{k} busy or not answering ({dhd.errorGetLastStr()})")
             continue
-        devices.append(f"#{k} {dhd.getSystemName(i)} s/n {dhd.getSerialNumber(i)}")
-        dhd.close(i)
+        try:
+            with _expert_mode(dhd):
+                wd = _set_watchdog(dhd, i, 0.02)
+                half = reachable_box(dhd, i)
+            source = (f"kinematics ({' x '.join(f'{2e3 * h:.0f}' for h in half)} mm, SDK axes)" if half is not None
+                      else "nominal" if _type(dhd, i) in NOMINAL else "none (needs workspace=)")
+            devices.append(f"#{k} {dhd.getSystemName(i)} s/n {dhd.getSerialNumber(i)}, watchdog_set "
+                           f"{'yes' if wd else 'no (needs --allow-no-watchdog)'}, workspace_source {source}")
+        finally:
+            drd.close(i)
     return BackendReport("forcedimension", True, detail, devices)

@@ -18,19 +18,30 @@ main button).
 
 **The package never raises on a dead link.** A read that times out prints a line on stderr and
 returns zeros (a wake-up even returns uninitialised memory as the device id). The adapter
-therefore uses a short read timeout (``read_timeout``, default 10 ms; 1 s for the wake-up),
 treats an all-zero state (a position at the base's origin, where the handle cannot be, and a
 velocity of exactly zero) as a missed sample, drains the input after a miss so a late reply
-cannot shift every later one, and checks that the wake-up answered with a non-zero UUID.
+cannot shift every later one, and checks that the wake-up answered with a non-zero UUID (1 s).
 
-**Frame.** The Inverse3's own (right-handed, metres, origin on the mounting plate; axes on the
-plaque: :math:`x` right, :math:`y` away from the operator, :math:`z` up): ``AxisMap("x,y,z")``
-(``axes=`` changes it). Home is where the handle is when the device is opened (hold it where you
-want the middle of the workspace), or ``home=(x, y, z)`` in the device's frame.
+**A lost reply costs one period, and the retry carries zero.** Each tick makes one exchange (the
+force out, the state back: ``end_effector_force``), waiting at most ``read_timeout`` (default
+1 ms, one period of the 1 kHz loop). When the reply is lost, the next read is a missed sample
+*without* another exchange (no second wait in the tick, no re-sending of the held force): the
+safety layer then commands zero, and that zero is the retry's force.
 
-**Limits.** The device reports none: ``max_force`` (N) and ``workspace`` ((3,) m, centred on
-home) are required, from its datasheet or your bring-up sweep; ``stiffness`` defaults to a
-conservative 1 kN/m. A silent handle (no status for ``handle_timeout``) reads as its main button
+**Frame.** The Inverse3's own, as Haply documents it ("Developing with Inverse3" and the Inverse
+Service's "Basis Permutation" page, docs.haply.co): right-handed, metres, origin on the flat face
+of the mounting plate near its centre, axes on the device's plaque: :math:`x` right, :math:`y`
+forward (away from the operator), :math:`z` up - arsurf's own axes, ``AxisMap("x,y,z")``
+(``axes=`` changes it, e.g. for a device mounted turned). ``HaplyHardwareAPI`` 0.1.x passes the
+firmware's frame through unchanged (no basis permutation, unlike the Inverse Service); check the
+axes and the force sign at bring-up (docs/bringup.rst). Home is where the handle is when the
+device is opened (hold it where you want the middle of the workspace), or ``home=(x, y, z)`` in
+the device's frame.
+
+**Limits.** The device reports none over this protocol. The force limit is ``max_force`` (N) up
+to :data:`MAX_FORCE_N`, the Inverse3's published peak force; without it, the first-connection
+limit of 1 N (:data:`~arsurf.haptics.hardware.FIRST_FORCE_N`). ``workspace`` ((3,) m, centred on
+home) is required, from your bring-up sweep; ``stiffness`` defaults to a conservative 1 kN/m. A silent handle (no status for ``handle_timeout``) reads as its main button
 held: the disengage button, so the force is zero until the handle answers again.
 
 Examples
@@ -56,6 +67,9 @@ __all__ = ["HaplyDevice", "probe"]
 
 log = logging.getLogger(__name__)
 EXTRA = "haply"
+_ZERO = np.zeros(3)
+#: N: the Inverse3's published peak force, the most ``max_force`` may ask for (module docstring)
+MAX_FORCE_N = 10.0
 
 
 _HANDLE_CLASS = []
@@ -94,8 +108,8 @@ class HaplyDevice(HardwareDevice):
     ----------
     port : str, optional
         Serial port of the Inverse3 (None: the first ``detect_inverse3s()`` finds).
-    max_force : float, N
-        Force limit (required: the device reports none).
+    max_force : float, N, optional
+        Force limit, at most :data:`MAX_FORCE_N` (None: the first-connection 1 N).
     workspace : (3,) float, m
         Workspace extents along arsurf x, y, z, centred on home (required).
     stiffness : float, N/m
@@ -107,22 +121,22 @@ class HaplyDevice(HardwareDevice):
         Home in the Inverse3 frame (None: where the handle is at opening).
     axes : str
         Vendor axes behind arsurf x, y, z (:class:`~arsurf.haptics.hardware.AxisMap`).
-    read_timeout, handle_timeout : float, s
-        Serial read timeout in the servo loop; silence of the handle that reads as disengaged.
+    read_timeout : float, s
+        Longest wait for the device's reply in a tick (default 1 ms: one period at 1 kHz; a lost
+        reply blocks the loop this long, once).
+    handle_timeout : float, s
+        Silence of the handle that reads as disengaged.
     disconnect_after : float, s
         See :class:`~arsurf.haptics.hardware.HardwareDevice`.
     """
 
     def __init__(self, port: str | None = None, *, max_force: float | None = None, workspace=None,
                  stiffness: float = 1000.0, handle_port: str | None = None, home=None, axes: str = "x,y,z",
-                 read_timeout: float = 0.01, handle_timeout: float = 0.1, disconnect_after: float = 0.05) -> None:
+                 read_timeout: float = 0.001, handle_timeout: float = 0.1, disconnect_after: float = 0.05) -> None:
         super().__init__(AxisMap(axes), max_force=max_force, disconnect_after=disconnect_after)
         for name, v in (("port", port), ("handle_port", handle_port)):
             if v is not None and not (isinstance(v, str) and v):
                 raise HapticsError(f"{name} must be a serial port path or None (got {v!r})")
-        if max_force is None:
-            raise HapticsError("the Inverse3 reports no force limit: give max_force in newtons (at most its "
-                               "datasheet's continuous force; see the README's bring-up checklist)")
         if workspace is None:
             raise HapticsError("the Inverse3 reports no workspace: give workspace=(x, y, z) in metres (the box, "
                                "centred on home, the handle may use; see the README's bring-up checklist)")
@@ -153,6 +167,7 @@ class HaplyDevice(HardwareDevice):
         self._xvel = np.zeros(3)
         self._xt = -np.inf
         self._fresh = False
+        self._lost = False  # the last exchange's reply was lost: the next read is a miss, without I/O
 
     # -- connection -------------------------------------------------------------------------------
     def _connect(self) -> DeviceInfo:
@@ -181,10 +196,12 @@ class HaplyDevice(HardwareDevice):
             if not any(pos) and not any(vel):
                 raise DeviceNotFound(f"Haply: the Inverse3 on {port} woke up but sends no state")
             self.home = np.array(pos, dtype=np.float64) if self.given_home is None else self.given_home
+            self._xpos[:], self._xvel[:], self._xt = pos, vel, self.now()
+            self._fresh, self._lost = True, False
             if self.handle_port is not None:
                 self._start_handle(api)
-            return device_limits(f"Haply Inverse3 {self.device_id[:8]}", None, self.user_max_force, self.workspace,
-                                 self.stiffness, source="given limits")
+            return device_limits(f"Haply Inverse3 {self.device_id[:8]}", MAX_FORCE_N, self.user_max_force,
+                                 self.workspace, self.stiffness, source="published peak force, given workspace")
         except BaseException:
             self._release()
             raise
@@ -228,18 +245,23 @@ class HaplyDevice(HardwareDevice):
         pos, vel = self._inv.end_effector_force([float(vforce[0]), float(vforce[1]), float(vforce[2])])
         if not any(pos) and not any(vel):
             self._inv.flush_input()
-            self._fresh = False
+            self._fresh, self._lost, self._xt = False, True, -np.inf  # until a reply: any retry carries zero
             return False
         self._xpos[:] = pos
         self._xvel[:] = vel
         self._xt = self.now()
-        self._fresh = True
+        self._fresh, self._lost = True, False
         return True
 
     def _poll(self, vpos, vvel):
         # the Inverse3 answers each force with its state: the state the last command brought back
-        # is this tick's sample; without one (first tick, or a miss) exchange the held force now
-        if not self._fresh and not self._exchange(self._vforce):
+        # is this tick's sample. After a lost reply: a missed sample now, no second wait in this
+        # tick; the next command (zero, from the safety layer) is the retry. Read twice without a
+        # command in between: exchange the held force for a fresh state.
+        if self._lost:
+            self._lost = False
+            return None
+        if not self._fresh and not self._exchange(self._vforce if self._xt > -np.inf else _ZERO):
             return None
         self._fresh = False
         vpos[:] = self._xpos

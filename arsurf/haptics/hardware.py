@@ -27,6 +27,13 @@ been missed in a row for ``disconnect_after`` seconds the read raises
 the recording is closed by its owner. :meth:`Device.close` sends zero force (best effort: a
 device that is gone cannot hear it) and releases the vendor handle whatever happened.
 
+**First connection.** Without ``max_force`` a device runs at :data:`FIRST_FORCE_N` (1 N) or its
+own limit if lower, never at its full nominal force: a wrong axis or force sign found at bring-up
+then pushes the hand with 1 N, not 12 or 20 (``max_force`` / ``--max-force-n`` raises it, up to the
+device's limit; docs/bringup.rst). What each open decided (force limit and its source, and the
+adapter's own protections, e.g. the firmware watchdog) is :meth:`HardwareDevice.safety_record`,
+kept in the session metadata.
+
 The clock is the host's :func:`time.perf_counter` (``now`` and every timestamp), as for the
 network bridge.
 
@@ -54,7 +61,10 @@ from arsurf.errors import DeviceDisconnected, HapticsError
 from arsurf.haptics.device import Device, DeviceInfo, DeviceState, _vec3
 from arsurf.haptics.safety import _num
 
-__all__ = ["AxisMap", "BackendReport", "HardwareDevice", "device_limits"]
+__all__ = ["FIRST_FORCE_N", "AxisMap", "BackendReport", "HardwareDevice", "device_limits"]
+
+#: N: the force limit of a device opened without ``max_force`` (module docstring)
+FIRST_FORCE_N = 1.0
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -168,7 +178,8 @@ def device_limits(name: str, reported_force: float | None, user_force: float | N
     """The :class:`DeviceInfo` of a connected device: its reported limits, capped by the user's.
 
     ``reported_force`` N is the most the device may be asked for (None: the device reports
-    nothing and ``user_force`` is required); ``user_force`` N may only lower it. ``workspace`` m
+    nothing and ``user_force`` is required); ``user_force`` N may only lower it; without it the
+    limit is :data:`FIRST_FORCE_N` (or ``reported_force`` if lower). ``workspace`` m
     (arsurf axes), ``stiffness`` N/m, ``damping`` N s/m or None. ``source`` names where the
     figures came from (kept in the name for the logs and the session metadata).
 
@@ -176,6 +187,8 @@ def device_limits(name: str, reported_force: float | None, user_force: float | N
     --------
     >>> device_limits("omega.3", 12.0, 5.0, (0.16, 0.16, 0.11), 14500.0, source="sdk").max_force
     5.0
+    >>> device_limits("omega.3", 12.0, None, (0.16, 0.16, 0.11), 14500.0, source="sdk").max_force
+    1.0
     """
     if user_force is not None:
         uf = _num(user_force, "max_force", positive=True, unit="N")
@@ -187,7 +200,8 @@ def device_limits(name: str, reported_force: float | None, user_force: float | N
         raise HapticsError(f"{name} reports no force limit; give max_force= in newtons (its datasheet's continuous "
                            "force, or less)")
     else:
-        fmax = float(reported_force)
+        fmax = min(float(reported_force), FIRST_FORCE_N)
+        source = f"{source}; first-connection limit {fmax:g} N of {float(reported_force):g} N, max_force raises it"
     return DeviceInfo(name=f"{name} ({source})", max_force=fmax, workspace=workspace, max_stiffness=stiffness,
                       max_damping=damping)
 
@@ -276,6 +290,13 @@ class HardwareDevice(Device):
     @abc.abstractmethod
     def _release(self) -> None:
         """Release the vendor handle (never raises)."""
+
+    def safety_record(self) -> dict:
+        """What the last open decided for safety, for the session metadata (JSON types, SI
+        suffixes): the force limit and whether it was given or the first-connection default;
+        adapters add their own protections (e.g. ``watchdog_set``)."""
+        return {"max_force_N": float(self.info.max_force),
+                "force_limit_source": "given" if self.user_max_force is not None else "first connection"}
 
     def _sample_time(self) -> float:
         """When the sample ``_poll`` just gave was taken (:meth:`now` clock): now, unless the

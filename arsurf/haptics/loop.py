@@ -50,6 +50,7 @@ from arsurf.haptics.filters import LowPass, lowpass1_step
 from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
+from arsurf.haptics.samples import SAMPLE_FAULTS, SampleCheck
 from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
 from arsurf.model import (M_BENDING, M_MEAS_FX, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS, SIGNALS_GIVEN,
                           SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
@@ -338,6 +339,9 @@ class HapticLoop:
         scene the tick is the single compiled call it always was (bit-identical outputs).
     max_damping : float, N s/m
         Largest damping the passivity controller may add (the device's ``max_damping``).
+    device_info : DeviceInfo, optional
+        The device whose samples the loop takes: its workspace bounds a credible stylus position
+        (:mod:`arsurf.haptics.samples`; None: every other sample check still applies).
 
     Examples
     --------
@@ -345,7 +349,7 @@ class HapticLoop:
     """
 
     def __init__(self, model: ARModel, coupling, safety: SafetyLayer, config: LoopConfig | None = None,
-                 scene=None, max_damping: float = math.inf):
+                 scene=None, max_damping: float = math.inf, device_info=None):
         config = config or LoopConfig()
         config.validate()
         if not isinstance(model, ARModel):
@@ -361,6 +365,7 @@ class HapticLoop:
         self.coupling = coupling
         self.safety = safety
         self.config = config
+        self.sample_check = SampleCheck(device_info, self.dt)  # samples that cannot be real: a fault
         if isinstance(coupling, DirectCoupling):
             self._mode = 0
             pos = coupling.position
@@ -456,17 +461,26 @@ class HapticLoop:
         # the passivity controller's damping limit: the device's, else its stiffness limit over one tick
         max_damping = (float(np.min(device_info.max_stiffness)) / config.rate if device_info.max_damping is None
                        else float(np.min(device_info.max_damping)))
-        return cls(model, coupling, safety, config, scene=scene, max_damping=max_damping)
+        return cls(model, coupling, safety, config, scene=scene, max_damping=max_damping, device_info=device_info)
 
     def step(self, inputs: DeviceState, now: float, signals=None) -> np.ndarray:
         """One tick from a device sample; returns the device force (3,) N (a reused array).
 
         ``now`` is the loop clock (s; the safety watchdog's time base), ``signals`` optional
-        measured (bending, torsion) in rad. Unchecked and allocation-free: the hot path.
+        measured (bending, torsion) in rad. Allocation-free: the hot path. The sample is checked
+        once here (:mod:`arsurf.haptics.samples`): one that cannot be real gives zero force in
+        this tick, its flag, and the model runs on the last good sample.
         """
         x, v = self._x, self._v
-        x[:] = inputs.position
-        v[:] = inputs.velocity
+        bad = self.sample_check.step(inputs, now)
+        if bad:
+            x[:] = self.sample_check.last_good
+            v[:] = 0.0
+            age = 0.0
+        else:
+            x[:] = inputs.position
+            v[:] = inputs.velocity
+            age = float(now - inputs.timestamp)
         if signals is not None:
             self._ext[0], self._ext[1] = signals
             self._ext_given = True
@@ -488,19 +502,40 @@ class HapticLoop:
             buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
 
         if self.scene is None:
-            loop_tick_kernel(self._packed, buttons, float(now), float(now - inputs.timestamp))
-            if bad_buttons:
-                self.out[L_SAFETY_FLAGS] = int(self.out[L_SAFETY_FLAGS]) | BAD_BUTTONS
+            loop_tick_kernel(self._packed, buttons, float(now), age)
+            if bad_buttons or bad:
+                self._flag_input(BAD_BUTTONS * bad_buttons | bad)
             return self._device_force
         out = self.out
         loop_model_kernel(self._packed, buttons)
         self.scene.tick(self._scene_prev, out[L_TIP:L_TIP + 3], self.model.tip_radius,
                         out[L_F_PROBE:L_F_PROBE + 3])
         self._scene_prev[:] = out[L_TIP:L_TIP + 3]
-        loop_output_kernel(self._packed, buttons, float(now), float(now - inputs.timestamp))
-        if bad_buttons:
-            out[L_SAFETY_FLAGS] = int(out[L_SAFETY_FLAGS]) | BAD_BUTTONS
+        loop_output_kernel(self._packed, buttons, float(now), age)
+        if bad_buttons or bad:
+            self._flag_input(BAD_BUTTONS * bad_buttons | bad)
         return self._device_force
+
+    def _flag_input(self, flags: int) -> None:
+        """Add the input's flags to the tick; a sample fault (:data:`~arsurf.haptics.samples.SAMPLE_FAULTS`)
+        also zeroes the device force of this tick and restarts the ramp."""
+        out = self.out
+        out[L_SAFETY_FLAGS] = int(out[L_SAFETY_FLAGS]) | flags
+        if flags & SAMPLE_FAULTS:
+            self._device_force[:] = 0.0
+            self.safety.zero_now()
+            passivity_applied(self.passivity.state, self._device_force)
+
+    @property
+    def stylus_position(self) -> np.ndarray:
+        """The stylus position (3,) m the last tick ran on: the device's sample, or the last good
+        one when that sample could not be real (a view; copy to keep it)."""
+        return self._x
+
+    @property
+    def stylus_velocity(self) -> np.ndarray:
+        """The stylus velocity (3,) m/s the last tick ran on (zero on a refused sample; a view)."""
+        return self._v
 
     def warm_up(self) -> "HapticLoop":
         """Compile (or load from the cache) the tick's kernels on a throw-away copy of this loop.

@@ -5,15 +5,19 @@ ctypes binding that loads ``libHD.so`` (``HD.dll``) by name at import: the OpenH
 (and the device driver) must be installed and on the library path.
 
 **Servo thread.** The HD API reads and commands the device only inside *frames* run by its own
-servo scheduler (1 kHz). The adapter schedules one asynchronous callback that, every servo tick,
-opens a frame, reads the transform, velocity and buttons, applies the force arsurf's loop last
-commanded and closes the frame; arsurf's loop (:class:`~arsurf.haptics.scheduler.Scheduler`) reads
-the latest sample and writes the next force under a lock. Two safeguards live on the servo side:
-a force older than ``command_timeout`` (default 10 ms: arsurf's loop stalled) is replaced by zero,
-and a frame that ends in an HD error publishes no sample (arsurf then sees a missed sample and
-commands zero; see :mod:`arsurf.haptics.hardware`). ``pyOpenHaptics.get_error`` raises
-``KeyError`` on error codes its table lacks (``HD_COMM_ERROR`` among them, the unplugged-cable
-error), so the adapter reads ``hdGetError`` itself.
+servo scheduler (1 kHz, a C thread). The adapter schedules one asynchronous callback that, every
+servo tick, opens a frame, reads the transform, velocity and buttons, applies the force arsurf's
+loop last commanded and closes the frame. That callback is compiled
+(:mod:`arsurf.haptics.hd_servo`: a numba ``cfunc``, no Python, no GIL) and exchanges samples and
+forces with arsurf's loop through shared memory under sequence counters, so the device's servo
+never waits on a Python thread (on the simulated ``libHD``, with a Python thread holding the GIL,
+the servo callback's p99 duration went from 16-22 ms with a Python callback to about 10 us:
+``tests/test_hw_openhaptics.py``). Two safeguards live on the servo
+side: a force not renewed for ``command_timeout`` (default 10 ms: arsurf's loop stalled) is
+replaced by zero, and a frame that ends in an HD error publishes no sample (arsurf then sees a
+missed sample and commands zero; see :mod:`arsurf.haptics.hardware`). ``pyOpenHaptics.get_error``
+raises ``KeyError`` on error codes its table lacks (``HD_COMM_ERROR`` among them, the
+unplugged-cable error), so the adapter reads ``hdGetError`` itself.
 
 **Frame.** HD: millimetres, mm/s, newtons; :math:`x` right, :math:`y` up, :math:`z` towards the
 operator; arsurf's is ``AxisMap("x,-z,y", length_scale=1e-3)``. Home is the centre of the usable
@@ -24,10 +28,15 @@ workspace the device reports.
 overheating; ``max_force`` may raise it up to ``HD_NOMINAL_MAX_FORCE``), ``HD_NOMINAL_MAX_STIFFNESS``
 and ``HD_NOMINAL_MAX_DAMPING``. ``HD_MAX_FORCE_CLAMPING`` is enabled so the driver clamps too.
 
-**Calibration.** ``hdCheckCalibration`` (in a synchronous servo callback, as the API wants it): a
-device that needs an update is updated with ``hdUpdateCalibration`` in the style it supports; one
-that needs manual input (the Touch: put the stylus in its inkwell) is refused with that
-instruction.
+**Calibration.** As the vendor's Calibration example does: the status (``hdCheckCalibration``)
+and the update (``hdUpdateCalibration``) are called inside synchronous scheduled callbacks, never
+from the application thread while the servo runs, and the style is asked of the device
+(``HD_CALIBRATION_STYLE``), not assumed: ``HD_CALIBRATION_AUTO`` or ``HD_CALIBRATION_INKWELL`` are
+updated when the device says it needs an update; ``HD_CALIBRATION_ENCODER_RESET`` (a Phantom
+Premium) zeroes the encoders where the arm *is*, so it is done only with ``calibrate=True``, meaning
+"the arm is held in its reset position now" (``arsurf live --calibrate``); otherwise the open is
+refused with that instruction. A device that needs manual input (the Touch: put the stylus in its
+inkwell) is refused with that instruction.
 
 Examples
 --------
@@ -41,19 +50,14 @@ import ctypes
 import io
 import logging
 import math
-import threading
 import time
 
 import numpy as np
 
-from arsurf._layout import Layout
 from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
 from arsurf.haptics.device import DeviceInfo
 from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
-
-#: the sample the servo callback leaves for the poll (vendor units: mm, mm/s, the button word)
-SERVO_SAMPLE = Layout("OpenHaptics servo sample", [("position", 3), ("velocity", 3), ("buttons", 1)])
-_POSITION, _VELOCITY, _BUTTONS = (SERVO_SAMPLE.offset(f) for f in SERVO_SAMPLE.fields)
+from arsurf.haptics.hd_servo import ServoBlock, compile_servo
 
 __all__ = ["OpenHapticsDevice", "probe"]
 
@@ -63,7 +67,7 @@ HD_AXES = "x,-z,y"
 # HD API constants (OpenHaptics hdDefines.h)
 HD_INVALID_HANDLE = 0xFFFFFFFF
 HD_CALLBACK_DONE, HD_CALLBACK_CONTINUE = 0, 1
-HD_CURRENT_BUTTONS, HD_CURRENT_VELOCITY, HD_CURRENT_TRANSFORM = 0x2000, 0x2051, 0x2052
+HD_CURRENT_BUTTONS, HD_CURRENT_VELOCITY, HD_CURRENT_TRANSFORM, HD_UPDATE_RATE = 0x2000, 0x2051, 0x2052, 0x2600
 HD_USABLE_WORKSPACE_DIMENSIONS, HD_CALIBRATION_STYLE = 0x2551, 0x2555
 HD_NOMINAL_MAX_STIFFNESS, HD_NOMINAL_MAX_FORCE, HD_NOMINAL_MAX_CONTINUOUS_FORCE = 0x2602, 0x2603, 0x2604
 HD_NOMINAL_MAX_DAMPING, HD_CURRENT_FORCE = 0x2609, 0x2700
@@ -102,17 +106,14 @@ class OpenHapticsDevice(HardwareDevice):
     sample_timeout : float, s
         A servo sample older than this is a missed sample for arsurf's loop (default 5 ms: five
         servo ticks).
+    calibrate : bool
+        An encoder-reset device is in its reset position: update its calibration there.
     disconnect_after : float, s
         See :class:`~arsurf.haptics.hardware.HardwareDevice`.
-
-    Attributes
-    ----------
-    servo_errors : int
-        Servo frames that ended in an HD error (``last_servo_error`` holds the last code).
     """
 
     def __init__(self, name: str = "Default Device", *, max_force: float | None = None,
-                 command_timeout: float = 0.01, sample_timeout: float = 0.005,
+                 command_timeout: float = 0.01, sample_timeout: float = 0.005, calibrate: bool = False,
                  disconnect_after: float = 0.05) -> None:
         super().__init__(AxisMap(HD_AXES, length_scale=1e-3), max_force=max_force, disconnect_after=disconnect_after)
         if not isinstance(name, str) or not name:
@@ -124,49 +125,25 @@ class OpenHapticsDevice(HardwareDevice):
         self.name = name
         self.command_timeout = float(command_timeout)
         self.sample_timeout = float(sample_timeout)
-        self.servo_errors = 0
-        self.last_servo_error = 0
+        self.calibrate = bool(calibrate)
+        self.calibration = ""  # what the open found and did (safety_record)
         self._hd = None
         self._id = HD_INVALID_HANDLE
-        self._lock = threading.Lock()
-        self._sample = SERVO_SAMPLE.zeros()
-        self._sample_t = -math.inf
+        self._block = None  # the shared block with the compiled servo callback
         self._poll_t = -math.inf
-        self._cmd = np.zeros(3)
-        self._cmd_t = -math.inf
         self._callback = None
         self._handle = 0
         self._scheduled = False
 
-    # -- the servo callback (runs in the HD scheduler's thread) -------------------------------------
-    def _servo(self, _data) -> int:
-        hd = self._hd
-        try:
-            hd.begin_frame(self._id)
-            m = hd.get_transform()
-            vel = hd._get_doublev(HD_CURRENT_VELOCITY, hd.hduVector3Dd)
-            buttons = hd.get_buttons()
-            now = time.perf_counter()
-            with self._lock:
-                f = self._cmd if now - self._cmd_t <= self.command_timeout else (0.0, 0.0, 0.0)
-                force = [float(f[0]), float(f[1]), float(f[2])]
-            hd.set_force(force)
-            hd.end_frame(self._id)
-            err = hd._get_error().errorCode
-            if err:
-                self.servo_errors += 1
-                self.last_servo_error = int(err)
-                return HD_CALLBACK_CONTINUE
-            with self._lock:
-                s = self._sample
-                p, v = _POSITION, _VELOCITY
-                s[p], s[p + 1], s[p + 2] = m[3][0], m[3][1], m[3][2]  # column-major: the translation column
-                s[v], s[v + 1], s[v + 2] = vel[0], vel[1], vel[2]
-                s[_BUTTONS] = buttons
-                self._sample_t = now
-        except Exception:  # noqa: BLE001 - never let an exception unwind into the HD scheduler
-            self.servo_errors += 1
-        return HD_CALLBACK_CONTINUE
+    @property
+    def servo_errors(self) -> int:
+        """Servo frames that ended in an HD error."""
+        return 0 if self._block is None else self._block.errors[0]
+
+    @property
+    def last_servo_error(self) -> int:
+        """The HD error code of the last of them."""
+        return 0 if self._block is None else self._block.errors[1]
 
     # -- connection -------------------------------------------------------------------------------
     def _connect(self) -> DeviceInfo:
@@ -200,16 +177,18 @@ class OpenHapticsDevice(HardwareDevice):
             lib.hdEnable(HD_MAX_FORCE_CLAMPING)
             with contextlib.redirect_stdout(io.StringIO()):
                 hd.enable_force()
-            cb_type = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
-            self._callback = cb_type(self._servo)
-            lib.hdScheduleAsynchronous.argtypes = [cb_type, ctypes.c_void_p, ctypes.c_ushort]
-            lib.hdScheduleAsynchronous.restype = ctypes.c_ulong
-            self._handle = lib.hdScheduleAsynchronous(self._callback, None, HD_MAX_SCHEDULER_PRIORITY)
+            rate = int(hd._get_integerv(HD_UPDATE_RATE, ctypes.c_int).value) or 1000
+            self._block = ServoBlock(self._id, round(self.command_timeout * rate))
+            self._callback = compile_servo(lib)
+            sched = ctypes.CDLL(lib._name, handle=lib._handle).hdScheduleAsynchronous
+            sched.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_ushort]
+            sched.restype = ctypes.c_ulong
+            self._handle = sched(self._callback.address, self._block.address, HD_MAX_SCHEDULER_PRIORITY)
             self._scheduled = True
             hd.start_scheduler()
             self._calibrate(model)
             deadline = time.perf_counter() + 1.0
-            while self._sample_t == -math.inf:
+            while self._block.sample(np.empty(3), np.empty(3)) is None:
                 if time.perf_counter() > deadline:
                     raise DeviceNotFound(f"OpenHaptics: {model} gave no sample within 1 s of starting the servo "
                                          f"scheduler (last HD error 0x{self.last_servo_error:x})")
@@ -219,65 +198,88 @@ class OpenHapticsDevice(HardwareDevice):
             raise
         return info
 
-    def _calibrate(self, model: str) -> None:
+    def _in_servo(self, work) -> None:
+        """Run ``work()`` inside a synchronous scheduled callback (on the servo thread, in a frame)."""
         hd, lib = self._hd, self._hd._lib_hd
-        status = []
         cb_type = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
 
-        def check(_data):
+        def call(_data):
             hd.begin_frame(self._id)
-            status.append(int(lib.hdCheckCalibration()))
-            hd.end_frame(self._id)
+            try:
+                work()
+            finally:
+                hd.end_frame(self._id)
             return HD_CALLBACK_DONE
 
-        cb = cb_type(check)
-        lib.hdCheckCalibration.restype = ctypes.c_uint
+        cb = cb_type(call)
         lib.hdScheduleSynchronous.argtypes = [cb_type, ctypes.c_void_p, ctypes.c_ushort]
         lib.hdScheduleSynchronous(cb, None, HD_MAX_SCHEDULER_PRIORITY)
-        if not status or status[0] == HD_CALIBRATION_OK:
+
+    def _calibration_status(self) -> int:
+        lib = self._hd._lib_hd
+        lib.hdCheckCalibration.restype = ctypes.c_uint
+        status = []
+        self._in_servo(lambda: status.append(int(lib.hdCheckCalibration())))
+        return status[0] if status else HD_CALIBRATION_OK
+
+    def _calibrate(self, model: str) -> None:
+        """The vendor's calibration sequence (module docstring): ask the status and the styles,
+        update inside a scheduled callback, check again."""
+        hd, lib = self._hd, self._hd._lib_hd
+        status = self._calibration_status()
+        if status == HD_CALIBRATION_OK:
+            self.calibration = "ok"
             return
-        if status[0] == HD_CALIBRATION_NEEDS_MANUAL_INPUT:
+        styles = int(hd._get_integerv(HD_CALIBRATION_STYLE, ctypes.c_int).value)
+        if status == HD_CALIBRATION_NEEDS_MANUAL_INPUT:
             raise HapticsError(f"OpenHaptics: {model} needs calibrating by hand: put the stylus in its inkwell (or "
                                "follow Touch Diagnostic's calibration) and open it again")
-        style = int(hd._get_integerv(HD_CALIBRATION_STYLE, ctypes.c_int).value)
-        for s in (HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL, HD_CALIBRATION_ENCODER_RESET):
-            if style & s:
-                log.warning("%s: updating its calibration (style %d)", model, s)
-                lib.hdUpdateCalibration.argtypes = [ctypes.c_uint]
-                lib.hdUpdateCalibration(s)
-                return
-        raise HapticsError(f"OpenHaptics: {model} needs a calibration update but supports no style (0x{style:x})")
+        style = next((s for s in (HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL, HD_CALIBRATION_ENCODER_RESET)
+                      if styles & s), None)
+        if style is None:
+            raise HapticsError(f"OpenHaptics: {model} needs a calibration update but supports no style (0x{styles:x})")
+        if style == HD_CALIBRATION_ENCODER_RESET and not self.calibrate:
+            raise HapticsError(f"OpenHaptics: {model} needs an encoder-reset calibration: hold its arm in the reset "
+                               "position, then open it with calibrate=True (arsurf live --calibrate)")
+        log.warning("%s: updating its calibration (style %d) in a scheduled callback", model, style)
+        lib.hdUpdateCalibration.argtypes = [ctypes.c_uint]
+
+        def update():
+            if int(lib.hdCheckCalibration()) == HD_CALIBRATION_NEEDS_UPDATE:
+                lib.hdUpdateCalibration(style)
+
+        self._in_servo(update)
+        err = hd._get_error().errorCode
+        if err or self._calibration_status() != HD_CALIBRATION_OK:
+            raise HapticsError(f"OpenHaptics: {model}: the calibration update (style {style}) did not take (HD error "
+                               f"0x{err:x}); calibrate it in Touch Diagnostic and open it again")
+        self.calibration = f"updated (style {style})"
+
+    def safety_record(self) -> dict:
+        """The base record plus the calibration the open found or did."""
+        return {**super().safety_record(), "calibration": self.calibration}
 
     # -- the arsurf tick ----------------------------------------------------------------------------
     def _poll(self, vpos, vvel):
-        now = time.perf_counter()
-        with self._lock:
-            t = self._sample_t
-            if not (now - t <= self.sample_timeout):  # no servo sample for that long
-                return None
-            s = self._sample
-            vpos[:] = s[SERVO_SAMPLE.slice("position")]
-            vvel[:] = s[SERVO_SAMPLE.slice("velocity")]
-            buttons = int(s[_BUTTONS])
-        self._poll_t = t
-        return buttons
+        got = self._block.sample(vpos, vvel)
+        if got is None or not (time.perf_counter() - got[1] <= self.sample_timeout):  # none that recent
+            return None
+        self._poll_t = got[1]
+        return got[0]
 
     def _sample_time(self) -> float:
         return self._poll_t
 
     def _send(self, vforce) -> bool:
-        with self._lock:
-            self._cmd[:] = vforce
-            self._cmd_t = time.perf_counter()
+        self._block.command(vforce)
         return True
 
     def _release(self) -> None:
         hd = self._hd
         if hd is None:
             return
-        with self._lock:
-            self._cmd[:] = 0.0
-            self._cmd_t = -math.inf
+        if self._block is not None:
+            self._block.stop_forces()
         try:
             with contextlib.redirect_stdout(io.StringIO()):
                 if self._scheduled:
@@ -290,7 +292,6 @@ class OpenHapticsDevice(HardwareDevice):
         except Exception:  # noqa: BLE001 - releasing must not raise
             pass
         self._id = HD_INVALID_HANDLE
-        self._sample_t = -math.inf
 
 
 def probe() -> BackendReport:

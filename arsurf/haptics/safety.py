@@ -363,6 +363,16 @@ class SafetyLayer:
         self.state[_S_LAST_NOW] = math.nan
         self.flags = 0
 
+    def zero_now(self) -> None:
+        """A fault found outside this layer (e.g. a device sample that cannot be real): the force
+        held is zero from this tick and the engagement gain restarts from zero, so the force
+        comes back through the start-up ramp."""
+        st = self.state
+        st[_S_F:_S_F + 3] = 0.0
+        st[_S_HOLD:_S_HOLD + 3] = 0.0
+        st[_S_GAIN] = 0.0
+        st[_S_FAULT] = 1.0
+
     def step(self, force, now: float, age: float = 0.0, buttons: int = 0,
              out: np.ndarray | None = None) -> np.ndarray:
         """The force to send to the device, (3,) N.

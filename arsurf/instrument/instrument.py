@@ -58,6 +58,7 @@ from scipy.signal import lfilter
 from scipy.special import ndtr
 
 from arsurf.errors import InstrumentError
+from arsurf.instrument import imaging
 from arsurf.instrument.engage import engage
 from arsurf.instrument.interface import Instrument, InstrumentLimits, InstrumentSample
 from arsurf.instrument.lspb import LSPB
@@ -243,6 +244,15 @@ class VirtualAFM(Instrument):
         Force limit of the engage procedure.
     keep_history : bool
         Record every sample (:meth:`history`); off for a long-running server.
+    sample : imaging.Sample, optional
+        What :meth:`scan_image` images (substrate, dent, objects); default: ``surface`` when it
+        is a Scan.
+    imaging_tip : imaging.TipShape, optional
+        The tip that images (default: a 10 nm sphere on a 20 deg cone).
+    drift : imaging.ThermalDrift, optional
+        The stage's thermal drift (default none); a new velocity every scan.
+    scan_settings : imaging.ScanSettings, optional
+        The raster :meth:`scan_image` runs by default (default: the whole sample).
     """
 
     signal_units = ("normalised", "normalised")
@@ -253,7 +263,8 @@ class VirtualAFM(Instrument):
                  micro: Stage = MICRO_STAGE, nano: Stage = NANO_STAGE, pico: Stage = PICOCUBE,
                  xy: Stage = NANO_STAGE_XY, seed: int = 0, friction: float = 0.0,
                  lateral_sensitivity: float = 100e-9, lateral_offset: float = 0.0, setpoint: float = 0.05,
-                 engage_force_limit: float | None = 25e-9, keep_history: bool = True) -> None:
+                 engage_force_limit: float | None = 25e-9, keep_history: bool = True, sample=None,
+                 imaging_tip=None, drift=None, scan_settings=None) -> None:
         super().__init__()
         xy_ = np.asarray(tip_xy, dtype=np.float64)
         if xy_.shape != (2,) or not np.all(np.isfinite(xy_)):
@@ -299,6 +310,8 @@ class VirtualAFM(Instrument):
         self._noise_state = 0.0
         self._noise_state_lateral = 0.0
         self._chunks: list[tuple[np.ndarray, ...]] = []
+        self._imaging = imaging.Imaging(sample if sample is not None else surface, imaging_tip, drift, scan_settings,
+                                        seed)
 
     # -- construction helpers -------------------------------------------------------------------
     @staticmethod
@@ -512,6 +525,18 @@ class VirtualAFM(Instrument):
             self.move("nano", self.position["nano"] - trade)
             self.move("pico", self.position["pico"] + trade)
         self._set_feedback(True)
+
+    @property
+    def scan_settings(self):
+        """The raster :meth:`scan_image` runs without settings (:class:`~arsurf.instrument.imaging.ScanSettings`)."""
+        return self._imaging.settings or self._imaging.default_settings()
+
+    def _scan_image(self, settings) -> Scan:
+        """One frame of :mod:`arsurf.instrument.imaging` (the instrument's clock moves on by its
+        duration); the photodiode noise read as height through the deflection sensitivity."""
+        scan = self._imaging.acquire(settings, self.time, self.noise, abs(self.deflection_sensitivity))
+        self.time += float(scan.metadata["virtual_afm"]["duration_s"])
+        return scan
 
     def _withdraw(self) -> None:
         """Feedback off; the PicoCube and the nano stage fully retracted and the micro stage backed

@@ -322,3 +322,13 @@ class Instrument(abc.ABC):
         self._require_open()
         self._withdraw()
         self._feedback = False
+
+    def scan_image(self, settings=None):
+        """Acquire an image of the sample (a :class:`~arsurf.scan.scan.Scan` of the Z channel,
+        the metadata a file gives); ``settings`` are the instrument's own (None: its current
+        ones). An instrument that cannot image raises :class:`InstrumentError`."""
+        self._require_open()
+        return self._scan_image(settings)
+
+    def _scan_image(self, settings):
+        raise InstrumentError(f"{self.name} cannot acquire images")

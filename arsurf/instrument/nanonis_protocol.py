@@ -22,8 +22,11 @@ of strings by its size in bytes and its number of elements, each string prepende
 
 Type codes (those of the vendor's ``quickSend``): ``H`` uint16, ``I`` uint32, ``i`` int32,
 ``f`` float32, ``d`` float64; ``+*i`` an int32 array prepended by its length (request);
-``*f`` a float32 array whose length is the value before it, ``*+c`` an array of strings whose
-byte size and count are the two values before it (replies).
+``*f`` / ``*i`` a float32 / int32 array whose length is the value before it, ``*-c`` a string
+whose byte size is the value before it, ``*+c`` an array of strings whose byte size and count
+are the two values before it, ``2f`` a 2-D float32 array (row-major) whose rows and columns are
+the two values before it (replies). A frame (``Scan.FrameDataGrab``) may be larger than other
+replies: up to :data:`MAX_FRAME_BODY`.
 
 :data:`COMMANDS` lists every command arsurf sends with its argument and return types, checked
 against the protocol document and ``nanonis_spm.Nanonis`` (``tests/test_nanonis.py`` compares
@@ -48,9 +51,11 @@ from __future__ import annotations
 
 import struct
 
+import numpy as np
+
 from arsurf.errors import ControllerError, InstrumentLinkLost
 
-__all__ = ["COMMANDS", "HEADER_SIZE", "MAX_BODY", "decode_reply", "decode_request", "encode_error_reply", "encode_reply",
+__all__ = ["COMMANDS", "HEADER_SIZE", "MAX_BODY", "MAX_FRAME_BODY", "body_limit", "decode_reply", "decode_request", "encode_error_reply", "encode_reply",
            "encode_reply_body", "encode_request", "parse_header"]
 
 HEADER_SIZE = 40
@@ -94,12 +99,45 @@ COMMANDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "Signals.ValsGet": (("+*i", "I"), ("i", "*f")),
     # range X, Y, Z (m, float32)
     "Piezo.RangeGet": ((), ("f", "f", "f")),
+    # the TCP receiver's acquisition period Tap (s, float32): Signals.ValsGet returns 0..Tap after the
+    # call (Tap..2 Tap waiting for newest data), its values oversampled over Tap
+    "Util.AcqPeriodGet": ((), ("f",)),
+    "Util.AcqPeriodSet": (("f",), ()),
     "AutoApproach.Open": ((), ()),
     # on/off (uint16): starts (1) or stops (0) the auto-approach
     "AutoApproach.OnOffSet": (("H",), ()),
     # status (uint16): 0 off, 1 running
     "AutoApproach.OnOffGet": ((), ("H",)),
+    # action (uint16: 0 start, 1 stop, 2 pause, 3 resume, 4 freeze, 5 unfreeze, 6 go to centre),
+    # direction (uint32: 1 up, 0 down)
+    "Scan.Action": (("H", "I"), ()),
+    # scan status (uint32: 1 running, 0 not)
+    "Scan.StatusGet": ((), ("I",)),
+    # timeout (ms, int32; -1 forever) -> timed out (uint32: 1 yes), file path size (uint32), file path
+    "Scan.WaitEndOfScan": (("i",), ("I", "I", "*-c")),
+    # centre X, Y, width, height (m, float32), angle (deg, float32, clockwise)
+    "Scan.FrameGet": ((), ("f", "f", "f", "f", "f")),
+    # channel count (int32), channel indexes (int32 array), pixels per line, lines (int32)
+    "Scan.BufferGet": ((), ("i", "*i", "i", "i")),
+    # forward, backward speed (m/s), forward, backward time per line (s) (float32), kept constant
+    # (uint16), speed ratio (float32)
+    "Scan.SpeedGet": ((), ("f", "f", "f", "f", "H", "f")),
+    # channel index (uint32), data direction (uint32: 1 forward, 0 backward) -> channel name size
+    # (int32), channel name, rows, columns (int32), data (2D float32, rows x columns), scan
+    # direction (uint32: 1 up, 0 down)
+    "Scan.FrameDataGrab": (("I", "I"), ("i", "*-c", "i", "i", "2f", "I")),
 }
+
+#: a reply's array or string and the number of counts before it that it fills (byte sizes and
+#: element counts: the caller gives the array, the encoder writes its counts)
+_DEPENDENT = {"*f": 1, "*i": 1, "*-c": 1, "*+c": 2, "2f": 2}
+#: the largest frame accepted from Scan.FrameDataGrab: 4096 x 4096 float32 and its fields
+MAX_FRAME_BODY = 4096 * 4096 * 4 + 4096
+
+
+def body_limit(command: str) -> int:
+    """The largest body accepted in a reply to ``command`` (:data:`MAX_BODY`; a frame's is larger)."""
+    return MAX_FRAME_BODY if command == "Scan.FrameDataGrab" else MAX_BODY
 
 
 def _name_bytes(command: str) -> bytes:
@@ -120,6 +158,12 @@ def _pack(types, values, what: str) -> bytes:
             out += struct.pack(f">i{len(v)}i", len(v), *v)
         elif code == "*f":
             out += struct.pack(f">{len(v)}f", *v)
+        elif code == "*i":
+            out += struct.pack(f">{len(v)}i", *v)
+        elif code == "*-c":
+            out += v.encode("utf-8")
+        elif code == "2f":
+            out += np.ascontiguousarray(v, dtype=">f4").tobytes()
         elif code == "*+c":
             for s in v:
                 b = s.encode("utf-8")
@@ -141,17 +185,41 @@ def encode_reply_body(command: str, values=(), error: str = "") -> bytes:
     status 1 and this description; empty: status 0). For an error reply ``values`` may be
     empty (the return values are then zeros, as a server that failed has none to give)."""
     types = COMMANDS[command][1]
+    logical = _logical(types)
     if error and not values:
-        values = tuple(0 if c in _SCALARS else [] for c in types)
-    if "*+c" in types:  # byte size and count of the string array precede it
-        names = list(values[-1])
-        size = sum(4 + len(s.encode("utf-8")) for s in names)
-        values = (size, len(names), names)
-    elif "*f" in types:
-        arr = list(values[-1])
-        values = (len(arr), arr)
+        values = tuple(0 if c in _SCALARS else _EMPTY[c] for c in logical)
+    if len(values) != len(logical):
+        raise ValueError(f"{command} returns {len(logical)} values ({', '.join(logical)}), got {len(values)}")
+    physical: list = []
+    for code, v in zip(logical, values):
+        if code == "*+c":  # byte size and count of the string array precede it
+            names = list(v)
+            physical += [sum(4 + len(s.encode("utf-8")) for s in names), len(names), names]
+        elif code in ("*f", "*i"):
+            physical += [len(v), list(v)]
+        elif code == "*-c":
+            physical += [len(v.encode("utf-8")), v]
+        elif code == "2f":
+            a = np.asarray(v, dtype=np.float64).reshape(np.shape(v) if np.ndim(v) == 2 else (0, 0))
+            physical += [a.shape[0], a.shape[1], a]
+        else:
+            physical.append(v)
     desc = error.encode("utf-8")
-    return _pack(types, tuple(values), command) + _ERROR.pack(1 if error else 0, len(desc)) + desc
+    return _pack(types, tuple(physical), command) + _ERROR.pack(1 if error else 0, len(desc)) + desc
+
+
+_EMPTY = {"*f": [], "*i": [], "*+c": [], "*-c": "", "2f": np.zeros((0, 0))}
+
+
+def _logical(types) -> tuple[str, ...]:
+    """The codes of a reply's values as the caller sees them: the counts an array fills dropped."""
+    out: list[str] = []
+    for code in types:
+        k = _DEPENDENT.get(code, 0)
+        if k:
+            del out[-k:]
+        out.append(code)
+    return tuple(out)
 
 
 def encode_reply(command: str, values=(), error: str = "") -> bytes:
@@ -178,7 +246,7 @@ def parse_header(header: bytes, *, request: bool = False) -> tuple[str, int, int
     """(command, body size, send-response flag) of a 40-byte header (the flag is 1 for a reply).
 
     Raises :class:`InstrumentLinkLost` for a header that is not 40 bytes, a negative body size or
-    one above :data:`MAX_BODY`."""
+    one above :func:`body_limit` of the command (:data:`MAX_BODY`; a frame's reply may be larger)."""
     what = "Nanonis request" if request else "Nanonis reply"
     if len(header) != HEADER_SIZE:
         raise InstrumentLinkLost(f"{what}: the header has {len(header)} bytes, not {HEADER_SIZE}")
@@ -187,8 +255,9 @@ def parse_header(header: bytes, *, request: bool = False) -> tuple[str, int, int
     else:
         (raw, size), flag = _REPLY_HEADER.unpack(header), 1
     name = _command_name(raw, what)
-    if not 0 <= size <= MAX_BODY:
-        raise InstrumentLinkLost(f"{what} {name or '(no name)'}: body size {size} bytes is outside [0, {MAX_BODY}]; "
+    limit = MAX_BODY if request else body_limit(name)
+    if not 0 <= size <= limit:
+        raise InstrumentLinkLost(f"{what} {name or '(no name)'}: body size {size} bytes is outside [0, {limit}]; "
                                  "the stream is not the Nanonis protocol")
     return name, size, flag
 
@@ -229,6 +298,24 @@ class _Reader:
         self.pos += 4 * n
         return out
 
+    def chars(self, n: int) -> str:
+        """A string of ``n`` bytes whose size came before it."""
+        if not isinstance(n, int) or not 0 <= n <= MAX_STRING:
+            raise InstrumentLinkLost(f"{self.what}: a string of {n!r} bytes (allowed 0 to {MAX_STRING})")
+        self.need(n, "a string")
+        s = bytes(self.body[self.pos:self.pos + n]).split(b"\0", 1)[0].decode("utf-8", "replace")
+        self.pos += n
+        return s
+
+    def matrix(self, rows: int, cols: int) -> np.ndarray:
+        """A (rows, cols) float32 array (row-major), as float64."""
+        if not (isinstance(rows, int) and isinstance(cols, int)) or rows < 0 or cols < 0:
+            raise InstrumentLinkLost(f"{self.what}: a 2-D array of {rows!r} x {cols!r} elements")
+        self.need(4 * rows * cols, f"a {rows} x {cols} float32 array")
+        a = np.frombuffer(self.body, dtype=">f4", count=rows * cols, offset=self.pos).astype(np.float64)
+        self.pos += 4 * rows * cols
+        return a.reshape(rows, cols)
+
     def string(self) -> str:
         n = self.scalar("i")
         if not 0 <= n <= MAX_STRING:
@@ -239,13 +326,15 @@ class _Reader:
         return s
 
     def strings(self, size: int, n: int) -> list:
+        """A string array. Strict where the protocol is: the count and every string's length are
+        bounded by the bytes left and the body must be consumed exactly (:meth:`done`). Tolerant
+        of the array's declared byte size, which clients used on real controllers ignore (the
+        document does not say whether it counts the strings' 4-byte length prefixes): it must
+        only be a size this body could hold."""
         n = self.count(n, 4, "a string array")
-        start = self.pos
-        out = [self.string() for _ in range(n)]
-        if self.pos - start != size:
-            raise InstrumentLinkLost(f"{self.what}: the string array is {self.pos - start} bytes but its size says "
-                                     f"{size}")
-        return out
+        if not 0 <= size <= len(self.body):
+            raise InstrumentLinkLost(f"{self.what}: a string array of {size} bytes in a body of {len(self.body)}")
+        return [self.string() for _ in range(n)]
 
     def done(self) -> None:
         if self.pos != len(self.body):
@@ -272,6 +361,12 @@ def decode_reply(command: str, body: bytes):
             values.append(r.scalar(code))
         elif code == "*f":
             values[-1:] = [r.floats(values[-1])]
+        elif code == "*i":
+            values[-1:] = [r.ints(values[-1])]
+        elif code == "*-c":
+            values[-1:] = [r.chars(values[-1])]
+        elif code == "2f":
+            values[-2:] = [r.matrix(values[-2], values[-1])]
         elif code == "*+c":
             size, n = values[-2], values[-1]
             values[-2:] = [r.strings(size, n)]

@@ -18,6 +18,23 @@ simulator does not implement gets an error reply (chosen); a request whose heade
 the protocol closes the connection (chosen). An instrument's refusal (a target outside its
 limits) becomes the reply's error description.
 
+Timing, from the vendor's documentation of ``Signals.ValsGet`` (nanonis-spm 1.0.9's docstring,
+the TCP protocol document): the TCP receiver acquires in periods of Tap (``Util.AcqPeriodGet/Set``,
+default ``tap`` 20 ms here: chosen, the real one is read at open) and ``Signals.ValsGet`` answers
+at the end of the current period, 0 to Tap after the call (waiting for newest data: the end of
+the next one, Tap to 2 Tap); every reply also takes ``latency`` (default 1 ms: chosen, a
+LabVIEW TCP server's command handling on a lab PC; the document gives no figure). The
+``Signals.NamesGet`` array's declared byte size counts the strings' length prefixes unless
+``names_size="strings"``: the document does not say which, and a controller may count only the
+strings.
+Scanning: ``Scan.Action`` 0 starts a frame in the background (the instrument's
+:meth:`~arsurf.instrument.interface.Instrument.scan_image`, on the raster ``scan_settings`` in
+the direction asked), ``Scan.StatusGet`` reads 1 and ``Scan.WaitEndOfScan`` waits until it ends;
+``Scan.FrameGet``/``BufferGet``/``SpeedGet`` describe the raster and ``Scan.FrameDataGrab`` sends
+the forward Z data in the order scanned (the top line first for a scan down, as the .sxm file
+stores it; chosen: the document does not say). The buffer records one channel, index 0, ``Z (m)``;
+the backward image and the actions other than start and stop are refused (chosen).
+
 Faults, for the tests and the benchmark (:class:`Faults`, changeable while it runs): a delay
 before replies (slow replies), replies that stop coming (a stalled controller), a connection
 closed after some replies (a dead one), error replies to chosen commands, and corrupt replies.
@@ -38,8 +55,10 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import threading
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -90,6 +109,7 @@ class Faults:
     close_after: int | None = None
     errors: dict = field(default_factory=dict)
     corrupt: str | None = None
+    first_connection_only: bool = False  # stall/close faults hit the first connection only (its network died)
 
 
 class NanonisSimulator:
@@ -108,11 +128,20 @@ class NanonisSimulator:
     volts_per_unit : float
         Input volts per unit of the instrument's signals.
     faults : Faults, optional
+    tap : float, s
+        The acquisition period Tap (module docstring).
+    latency : float, s
+        Time every reply takes.
+    names_size : {"prefixed", "strings"}
+        What the declared byte size of the signal names counts (module docstring).
+    scan_settings : arsurf.instrument.imaging.ScanSettings, optional
+        The scan frame and buffer (default: the instrument's ``scan_settings``).
     """
 
     def __init__(self, instrument: Instrument, *, host: str = "127.0.0.1", port: int = 0, signal_names=SIGNAL_NAMES,
                  deflection: str = "Input 1 (V)", torsion: str = "Input 2 (V)", volts_per_unit: float = 1.0,
-                 faults: Faults | None = None) -> None:
+                 faults: Faults | None = None, tap: float = 0.02, latency: float = 1e-3,
+                 names_size: str = "prefixed", scan_settings=None) -> None:
         if not isinstance(instrument, Instrument):
             raise InstrumentError(f"instrument must be an arsurf Instrument (got {type(instrument).__name__})")
         self.instrument = instrument
@@ -122,11 +151,22 @@ class NanonisSimulator:
         self._roles = {self.names.index(n): r for n, r in role.items() if n in self.names}
         self.volts_per_unit = float(volts_per_unit)
         self.faults = faults or Faults()
+        if names_size not in ("prefixed", "strings"):
+            raise InstrumentError(f"names_size must be 'prefixed' or 'strings' (got {names_size!r})")
+        self.tap, self.latency, self.names_size = float(tap), float(latency), names_size
+        self._t0 = time.perf_counter()  # the acquisition clock: periods of Tap from here
+        self._accepted = 0
         self.speed, self.custom_speed = 1e-6, 1
         self.requests: dict[str, int] = {}
         self._lock = threading.Lock()  # one command at a time on the instrument
         self._approaching = threading.Event()
         self.approach_error: str | None = None
+        self.scan_settings = scan_settings
+        self.scan_channels = {0: "Z (m)"}  # the scan buffer: channel index -> name
+        self._scanning = threading.Event()
+        self.frame = None  # the last frame (a Scan) and the raster it ran
+        self.frame_settings = None
+        self.scan_error: str | None = None
         self._sample = InstrumentSample()
         self._stop = threading.Event()
         self._server = socket.create_server((host, port))
@@ -173,7 +213,9 @@ class NanonisSimulator:
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._conns.append(conn)
-            t = threading.Thread(target=self._connection, args=(conn,), name="nanonis-sim-conn", daemon=True)
+            self._accepted += 1
+            t = threading.Thread(target=self._connection, args=(conn, self._accepted == 1), name="nanonis-sim-conn",
+                                 daemon=True)
             self._threads.append(t)
             t.start()
 
@@ -189,7 +231,7 @@ class NanonisSimulator:
             got += k
         return bytes(buf)
 
-    def _connection(self, conn: socket.socket) -> None:
+    def _connection(self, conn: socket.socket, first: bool = True) -> None:
         replies = 0
         f = self.faults
         try:
@@ -205,9 +247,10 @@ class NanonisSimulator:
                 reply = self._answer(name, body)
                 if not respond:
                     continue
-                if f.close_after is not None and replies >= f.close_after:
+                hit = first or not f.first_connection_only
+                if hit and f.close_after is not None and replies >= f.close_after:
                     return
-                if f.stall_after is not None and replies >= f.stall_after:
+                if hit and f.stall_after is not None and replies >= f.stall_after:
                     continue  # read, never answered: the link stalls
                 if f.delay > 0.0 and replies % max(1, f.delay_every) == 0 and self._stop.wait(f.delay):
                     return
@@ -234,7 +277,16 @@ class NanonisSimulator:
             return reply[:proto.HEADER_SIZE + max(0, (len(reply) - proto.HEADER_SIZE) // 2)]
         raise InstrumentError(f"unknown corruption {kind!r}; use 'name', 'size' or 'truncated'")
 
+    def _wait_for_data(self, newest: bool) -> None:
+        """Signals.ValsGet's wait: to the end of the current acquisition period (and one more when
+        waiting for newest data)."""
+        now = time.perf_counter() - self._t0
+        end = (math.floor(now / self.tap) + 1 + int(bool(newest))) * self.tap
+        self._stop.wait(end - now)
+
     def _answer(self, name: str, body: bytes) -> bytes:
+        if self.latency > 0.0:
+            self._stop.wait(self.latency)
         if name not in proto.COMMANDS:  # answered under its own name, with an error and no values
             return proto.encode_error_reply(name, f"command {name!r} is not implemented by the simulated controller")
         args = proto.decode_request(name, body)
@@ -244,11 +296,18 @@ class NanonisSimulator:
         try:
             if name == "AutoApproach.OnOffGet":  # answered while the approach holds the instrument
                 return proto.encode_reply(name, (int(self._approaching.is_set()),))
+            if name in ("Scan.StatusGet", "Scan.WaitEndOfScan"):  # answered while the scan holds it
+                return proto.encode_reply(name, self._scan_status(name, args))
             with self._lock:
                 values = self._execute(name, args)
         except InstrumentError as exc:
             return proto.encode_reply(name, (), str(exc))
-        return proto.encode_reply(name, values)
+        reply = proto.encode_reply(name, values)
+        if name == "Signals.NamesGet" and self.names_size == "strings":  # the size without the length prefixes
+            at = proto.HEADER_SIZE
+            size = sum(len(n.encode()) for n in self.names)
+            reply = reply[:at] + struct.pack(">i", size) + reply[at + 4:]
+        return reply
 
     # -- the commands ----------------------------------------------------------------------------------
     def _approach(self) -> None:
@@ -260,6 +319,47 @@ class NanonisSimulator:
             self.approach_error = str(exc)
         finally:
             self._approaching.clear()
+
+    def _scan(self, settings) -> None:
+        """One frame, in the background (the instrument's :meth:`~Instrument.scan_image`)."""
+        try:
+            with self._lock:
+                self.frame = self.instrument.scan_image(settings)
+                self.frame_settings = settings
+        except InstrumentError as exc:
+            self.scan_error = str(exc)
+        finally:
+            self._scanning.clear()
+
+    def _scan_status(self, name: str, args: tuple) -> tuple:
+        if name == "Scan.StatusGet":
+            return (int(self._scanning.is_set()),)
+        (ms,) = args  # Scan.WaitEndOfScan: until the frame ends or the timeout (-1: no timeout)
+        deadline = None if ms < 0 else ms / 1e3
+        t = 0.0
+        while self._scanning.is_set() and not self._stop.is_set() and (deadline is None or t < deadline):
+            step = 0.02 if deadline is None else min(0.02, deadline - t)
+            self._stop.wait(step)
+            t += step
+        return (int(self._scanning.is_set()), "")
+
+    def _settings(self):
+        st = self.scan_settings if self.scan_settings is not None else getattr(self.instrument, "scan_settings", None)
+        if st is None:
+            raise InstrumentError("the simulated controller has no scan frame: give it scan_settings")
+        return st
+
+    def _frame_data(self, args: tuple) -> tuple:
+        channel, forward = args
+        if channel not in self.scan_channels:
+            raise InstrumentError(f"channel {channel} is not acquired (the buffer records {sorted(self.scan_channels)})")
+        if not forward:
+            raise InstrumentError("the simulated controller records the forward (trace) image only")
+        if self.frame is None:
+            raise InstrumentError("no frame has been acquired yet: start a scan (Scan.Action 0) first")
+        up = self.frame_settings.direction == "up"
+        h = self.frame.heights if up else self.frame.heights[::-1]  # in the order scanned
+        return (self.scan_channels[channel], h, int(up))
 
     def _value(self, index: int, s: InstrumentSample) -> float:
         role = self._roles.get(index)
@@ -273,11 +373,23 @@ class NanonisSimulator:
         nan = math.nan
         if name == "Signals.NamesGet":
             return (list(self.names),)
+        if name == "Util.AcqPeriodGet":
+            return (self.tap,)
+        if name == "Util.AcqPeriodSet":
+            if not (math.isfinite(args[0]) and args[0] > 0.0):
+                raise InstrumentError(f"the acquisition period must be positive (got {args[0]!r} s)")
+            self.tap = float(args[0])
+            return ()
         if name == "Signals.ValsGet":
-            indexes, _wait = args
+            indexes, wait = args
             bad = [i for i in indexes if not 0 <= i < len(self.names)]
             if bad:
                 raise InstrumentError(f"signal indexes {bad} are outside 0..{len(self.names) - 1}")
+            self._lock.release()  # the acquisition runs on: other commands are not held by the wait
+            try:
+                self._wait_for_data(wait)
+            finally:
+                self._lock.acquire()
             s = afm.read(self._sample)
             return ([self._value(i, s) for i in indexes],)
         if name in ("FolMe.XYPosGet", "ZCtrl.ZPosGet"):
@@ -324,4 +436,26 @@ class NanonisSimulator:
             return ()
         if name == "AutoApproach.OnOffGet":
             return (int(self._approaching.is_set()),)
+        if name == "Scan.Action":
+            action, up = args
+            if action == 0:
+                if not self._scanning.is_set():
+                    settings = replace(self._settings(), direction="up" if up else "down")
+                    self.scan_error = None
+                    self._scanning.set()
+                    threading.Thread(target=self._scan, args=(settings,), name="nanonis-sim-scan", daemon=True).start()
+                return ()
+            if action == 1:
+                return ()  # a frame is computed at once: there is nothing left to stop
+            raise InstrumentError(f"scan action {action} is not simulated (0 start and 1 stop are)")
+        if name in ("Scan.FrameGet", "Scan.BufferGet", "Scan.SpeedGet"):
+            st = self.frame_settings if self.frame is not None else self._settings()
+            (w, h), (dx, dy) = st.size, st.spacing
+            if name == "Scan.FrameGet":
+                return (st.origin[0] - 0.5 * dx + 0.5 * w, st.origin[1] - 0.5 * dy + 0.5 * h, w, h, 0.0)
+            if name == "Scan.BufferGet":
+                return (sorted(self.scan_channels), st.pixels[0], st.pixels[1])
+            return (st.line_speed, st.line_speed, w / st.line_speed, w / st.line_speed, 0, 1.0)
+        if name == "Scan.FrameDataGrab":
+            return self._frame_data(args)
         raise InstrumentError(f"command {name!r} is not implemented by the simulated controller")  # pragma: no cover

@@ -443,7 +443,8 @@ class TubeScene:
         """The tubes of a synthetic nanotubes scan (:func:`arsurf.scan.synthetic.nanotubes`).
 
         Poses come from ``scan.metadata["synthetic"]["tubes"]`` (end points and diameter, in the
-        scan frame); each tube rests on the highest point of the :meth:`substrate` under its axis
+        scan frame), or ``scan.metadata["measured_tubes"]["tubes"]`` (the same, measured on a scan
+        by ``arsurf verify --reseed``); each tube rests on the highest point of the :meth:`substrate` under its axis
         (:meth:`Nanotube.resting_on`), so pass the scan as it will be fitted (levelled and
         smoothed, e.g. :func:`arsurf.scan.prepare.prepare_scan`).
 
@@ -465,6 +466,9 @@ class TubeScene:
         if not isinstance(scan, Scan):
             raise ManipulationError(f"from_scan needs an arsurf Scan (got {type(scan).__name__})")
         rec = scan.metadata.get("synthetic")
+        measured = scan.metadata.get("measured_tubes")  # a scan after, tubes at their measured poses (arsurf verify)
+        if isinstance(measured, Mapping) and measured.get("tubes"):
+            rec = {"generator": "nanotubes", "tubes": measured["tubes"]}
         if not isinstance(rec, Mapping) or rec.get("generator") != "nanotubes" or not rec.get("tubes"):
             raise ManipulationError(
                 f"scan {scan.source or ''!r} has no synthetic nanotube record (metadata['synthetic']['tubes']); "

@@ -37,6 +37,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from arsurf import status
+from arsurf._files import atomic_write
 from arsurf.errors import FigureError, require
 
 __all__ = ["FORMATS", "DEFAULT_DPI", "HEIGHT_CMAP", "FLAG_ROWS", "robust_limits", "scale_bar_length",
@@ -166,7 +167,8 @@ def save_figure(fig, path: str | os.PathLike, format: str | None = None, dpi: in
     dpi = check_figure_options(fmt, dpi)
     path = path.with_suffix("." + fmt)
     with matplotlib.rc_context({"svg.hashsalt": "arsurf", "svg.fonttype": "path", "pdf.fonttype": 42}):
-        fig.savefig(path, format=fmt, dpi=dpi, metadata=_METADATA[fmt])
+        with atomic_write(path, what="figure", error=FigureError) as fh:
+            fig.savefig(fh, format=fmt, dpi=dpi, metadata=_METADATA[fmt])
     return path
 
 

@@ -82,7 +82,9 @@ import importlib
 import logging
 import math
 import os
+import json
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,6 +92,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf import status
+from arsurf._files import read_regular, write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.errors import ArsurfError, MissingDependency, SessionError, rendering_failed, require
 from arsurf.assembly import build_model, scan_sha256
@@ -189,6 +192,44 @@ class ReplayResult:
             return None
 
 
+#: the list of files arsurf wrote in an output folder (relative path, size, SHA-256): what
+#: ``overwrite`` may delete there, and nothing else
+MANIFEST = "arsurf-manifest.json"
+
+
+#: how far beyond the scan a recorded probe may be, in scan extents (the larger side) on each side
+PROBE_MARGIN = 2.0
+
+
+def check_probe_extent(positions: np.ndarray, surface, name: str) -> None:
+    """Refuse a probe position outside the scan's extent plus :data:`PROBE_MARGIN` extents (x, y
+    within the surface's domain, z within its heights, each widened by the margin), naming the
+    tick: a session recorded on this scan never put the tip there.
+
+    Examples
+    --------
+    >>> from arsurf.spline.surface import BSplineSurface
+    >>> s = BSplineSurface.from_heights(np.zeros((4, 4)), (0, 1e-6), (0, 1e-6))
+    >>> check_probe_extent(np.array([[5e-7, 5e-7, 1e-7]]), s, "session")
+    >>> check_probe_extent(np.array([[5e-7, 5e-7, 1e-7], [1.0, 0, 0]]), s, "session")
+    Traceback (most recent call last):
+    ...
+    arsurf.errors.SessionError: session: tick 1: probe_position = [1.0, 0.0, 0.0] m is outside the scan ...
+    """
+    (u0, u1), (v0, v1) = surface.domain
+    z = np.asarray(surface.control_points)[..., 2]
+    margin = PROBE_MARGIN * max(u1 - u0, v1 - v0)
+    lo = np.array([u0, v0, float(z.min())]) - margin
+    hi = np.array([u1, v1, float(z.max())]) + margin
+    bad = ((positions < lo) | (positions > hi)).any(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise SessionError(f"{name}: tick {k}: probe_position = {positions[k].tolist()} m is outside the scan "
+                           f"(x {lo[0]:.3g}..{hi[0]:.3g}, y {lo[1]:.3g}..{hi[1]:.3g}, z {lo[2]:.3g}..{hi[2]:.3g} m: "
+                           f"its extent plus {PROBE_MARGIN:g} extents); the session was not recorded on this scan "
+                           "or is damaged")
+
+
 def _finite_rows(name: str, a: np.ndarray, session_path) -> None:
     bad = ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
     if bad.any():
@@ -240,7 +281,8 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     scan_path : path-like
         The scan file the session was recorded on (its SHA-256 must match the session's).
     out_dir : path-like
-        Output folder; must not exist unless ``overwrite`` (it is then replaced, only at the end).
+        Output folder; must not exist unless ``overwrite`` (its files are replaced only at the
+        end). It gets :data:`MANIFEST`, the list of the files written (size, SHA-256).
     frames : int
         Number of offscreen PNG frames, evenly spread over the ticks (0: none). Needs the
         viewer (:mod:`arsurf_viewer`, pyvista) and an OpenGL context: without the viewer
@@ -251,7 +293,9 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
         Show a progress bar (tqdm on stderr, when it is a terminal and the ``arsurf`` logger
         passes INFO). Notes (what was skipped) are logged as warnings to ``arsurf.replay``.
     overwrite : bool
-        Replace an existing ``out_dir``.
+        Write into an existing ``out_dir``: only the files arsurf wrote there (listed in its
+        :data:`MANIFEST`) are replaced or deleted, every other file is kept (one whose name an
+        output needs stops the replay before anything is changed).
     frame_size : (width, height) int, pixels
     allow_incomplete : bool
         Replay a session whose recording did not end normally (killed: the ticks recovered
@@ -321,16 +365,15 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
         _finite_rows(name, ticks[name], session_path)
     session_hash = scan_sha256(session.path)  # the file read (a journal, for a recovered recording)
     setup = build_model(session.metadata, scan_path)
+    check_probe_extent(ticks["probe_position"], setup.surface, f"session {str(session_path)!r}")
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.replay-{os.getpid()}.part"
-    _rmtree(tmp)
-    tmp.mkdir()
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.replay-", dir=out.parent))  # private (0700), exclusive
     try:
         rec = _run(session, setup, tmp, frames, frame_size, progress, notes)
         stats = _write_outputs(tmp, session, setup, rec, session_hash, actual, figure_format, dpi)
         files = tuple(sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file()))
-        _install(tmp, out, overwrite)
+        _install(tmp, out, overwrite, files)
     except BaseException:
         _rmtree(tmp)
         raise
@@ -343,22 +386,91 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
 #: the public name (``arsurf.replay_session``): ``arsurf.replay`` is the subpackage
 replay_session = replay
 
-def _install(tmp: Path, out: Path, overwrite: bool) -> None:
-    """Rename the finished temporary folder to ``out`` (the old one aside first, deleted after)."""
-    if not out.exists():
+def _manifest(root: Path, files) -> str:
+    """The manifest of the files arsurf wrote in ``root``: relative path, size and SHA-256 each."""
+    import hashlib
+
+    entries = [{"path": f, "size_bytes": (root / f).stat().st_size,
+                "sha256": hashlib.sha256((root / f).read_bytes()).hexdigest()} for f in sorted(files)]
+    return json.dumps({"format": "arsurf-manifest", "written_by": "arsurf replay", "files": entries},
+                      indent=1, sort_keys=True) + "\n"
+
+
+def _ours(out: Path) -> list[str]:
+    """The files the manifest of ``out`` says arsurf wrote there (relative, inside ``out``); [] without one."""
+    m = out / MANIFEST
+    if not m.is_file() or m.is_symlink():
+        return []
+    try:
+        entries = json.loads(read_regular(m, "manifest", error=SessionError, limit=1 << 24))["files"]
+        names = [e["path"] for e in entries]
+    except (ValueError, TypeError, KeyError, OSError):
+        return []  # not a manifest we can trust: nothing there is taken as ours
+    good = []
+    for n in names:
+        if isinstance(n, str) and n and not n.startswith("/") and ".." not in n.split("/") and n != MANIFEST:
+            good.append(n)
+    return good
+
+
+def _inside(out: Path, rel: str) -> bool:
+    """True when no folder between ``out`` and ``out/rel`` is a symbolic link (nothing leads outside)."""
+    p = out
+    for part in rel.split("/")[:-1]:
+        p = p / part
+        if p.is_symlink() or (p.exists() and not p.is_dir()):
+            return False
+    return True
+
+
+def _install(tmp: Path, out: Path, overwrite: bool, files) -> None:
+    """Move the finished temporary folder's files to ``out``, with a manifest of them.
+
+    A new ``out`` is the temporary folder renamed. An existing one (``overwrite``) keeps every
+    file arsurf did not write there: only the files its manifest lists are deleted, and a file
+    of the new output whose name a foreign file holds stops the install before anything changed.
+    """
+    mode = 0o777 & ~_umask()
+    manifest = _manifest(tmp, files)
+    if not out.exists() and not out.is_symlink():
+        (tmp / MANIFEST).write_text(manifest, encoding="utf-8")
+        os.chmod(tmp, mode)
         os.rename(tmp, out)
         return
     if not overwrite:
         raise SessionError(f"output folder {str(out)!r} appeared during the replay; nothing was written to it")
-    old = out.parent / f".{out.name}.replay-{os.getpid()}.old"
-    _rmtree(old)
-    os.rename(out, old)
-    try:
-        os.rename(tmp, out)
-    except BaseException:
-        os.rename(old, out)
-        raise
-    _rmtree(old)
+    if out.is_symlink() or not out.is_dir():
+        raise SessionError(f"output path {str(out)!r} is not a folder (a link or a file); nothing was written to it")
+    ours = set(_ours(out))
+    for rel in files:
+        dest = out / rel
+        if not _inside(out, rel) or ((dest.exists() or dest.is_symlink()) and rel not in ours):
+            raise SessionError(f"output folder {str(out)!r} holds {rel!r}, which arsurf did not write there (it is "
+                               "not in its manifest); it is kept: move it away or choose another folder")
+    for rel in sorted(ours):
+        dest = out / rel
+        if _inside(out, rel) and (dest.is_symlink() or dest.is_file()):
+            dest.unlink()
+    for rel in sorted(ours, reverse=True):  # folders arsurf made that are now empty (frames/)
+        parent = (out / rel).parent
+        while parent != out and _inside(out, str(parent.relative_to(out)) + "/x"):
+            try:
+                parent.rmdir()
+            except OSError:
+                break
+            parent = parent.parent
+    for rel in files:
+        dest = out / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / rel, dest)
+    write_text(out / MANIFEST, manifest, what="replay manifest", error=SessionError)
+    _rmtree(tmp)
+
+
+def _umask() -> int:
+    m = os.umask(0o022)
+    os.umask(m)
+    return m
 
 
 def _viewer():

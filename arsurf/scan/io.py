@@ -149,21 +149,28 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
 
 def _sniff_hdf5(path: Path) -> str | None:
     """``"h5-jpk"``, ``"nhf"`` or ``"topostats"`` when an HDF5 file says so in its content, else
-    None (a damaged file: None, and the extension decides; its reader then names the damage)."""
+    None (a damaged file: None, and the extension decides; its reader then names the damage).
+    A file :func:`arsurf._h5safe.open_hdf5` refuses (a feature reaching outside it) is refused here,
+    once, with its message."""
+    from arsurf._h5safe import open_hdf5
+    from arsurf.scan.readers.h5jpk import is_h5jpk
+    from arsurf.scan.readers.nhf import is_nhf
+
     try:
-        import h5py
-
-        from arsurf.scan.readers.h5jpk import is_h5jpk
-        from arsurf.scan.readers.nhf import is_nhf
-
-        with h5py.File(path, "r") as f:
+        f = open_hdf5(path, "scan file", error=CorruptScan, name=str(path))
+    except CorruptScan:
+        raise
+    except Exception:  # noqa: BLE001 - h5py cannot parse it: the content does not say
+        return None
+    try:
+        with f:
             if is_h5jpk(f):
                 return "h5-jpk"
             if is_nhf(f):
                 return "nhf"
             if "image" in f and "pixel_to_nm_scaling" in f:
                 return "topostats"
-    except Exception:  # noqa: BLE001 - any failure to open means "the content does not say"
+    except Exception:  # noqa: BLE001 - any failure or refusal: "the content does not say" (the reader names it)
         return None
     return None
 

@@ -113,11 +113,15 @@ def _baseline(link: InstrumentLink, n: int, timeout: float) -> np.ndarray:
     return acc / n
 
 
+#: s: the sample-age limit of an instrument that states none of its own
+DEFAULT_MAX_AGE = 0.02
+
+
 def record_instrument_session(path: str | os.PathLike, metadata, device, instrument: Instrument, *,
                               photodiode: Photodiode, seconds: float | None = None, probe_origin,
                               ticks: int | None = None,
                               frame: InstrumentFrame | None = None, baseline=None, baseline_samples: int = 50,
-                              max_age: float = 0.02, axes: str = "xyz", scan_path=None, first_sample_timeout=2.0,
+                              max_age: float | None = None, axes: str = "xyz", scan_path=None, first_sample_timeout=2.0,
                               handle_signals: bool = False, setup=None, stop=None, priority: int = 0,
                               **safety_kwargs) -> InstrumentSessionResult:
     """Run and record ``seconds`` of the haptic loop on ``instrument``'s measured signals.
@@ -152,8 +156,10 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         instrument's z being the apex one tip radius below the centre.
     baseline : (2,) float, optional
         Free-lever signals; default: the mean of ``baseline_samples`` samples at the start.
-    max_age : float, s
-        Oldest instrument sample the loop renders a force from (default 20 ms).
+    max_age : float, s, optional
+        Oldest instrument sample the loop renders a force from; None (default): the instrument's
+        own limit (``sample_age_limit``: a Nanonis derives it from its acquisition period Tap and
+        round trip), else 20 ms. Recorded with its source.
     axes : {"xyz", "xy"}
         What the stylus commands (see :class:`~arsurf.instrument.link.InstrumentLink`).
     scan_path : path-like, optional
@@ -187,8 +193,8 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         raise SessionError(f"seconds must be a positive duration (got {seconds!r})")
     if ticks is not None and not (isinstance(ticks, int) and ticks > 0):
         raise SessionError(f"ticks must be a positive number of servo ticks (got {ticks!r})")
-    if not (isinstance(max_age, (int, float)) and math.isfinite(max_age) and max_age > 0.0):
-        raise SessionError(f"max_age must be a positive time in seconds (got {max_age!r})")
+    if max_age is not None and not (isinstance(max_age, (int, float)) and math.isfinite(max_age) and max_age > 0.0):
+        raise SessionError(f"max_age must be a positive time in seconds or None (got {max_age!r})")
     if not isinstance(photodiode, Photodiode):
         raise SessionError(f"photodiode must be an arsurf Photodiode (got {type(photodiode).__name__})")
     source = dict(metadata.get("haptics") or {}).get("source")
@@ -205,12 +211,16 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
     link = InstrumentLink(instrument, rate=loop.config.rate, axes=axes)
     try:
         link.start()
+        max_age, age_source = _max_age(instrument, axes, max_age)
         base = (np.asarray(baseline, dtype=np.float64).reshape(2) if baseline is not None
                 else _baseline(link, int(baseline_samples), first_sample_timeout))
         meta = dict(metadata)
         meta["instrument"] = {
             "name": instrument.name, "signal_units": list(instrument.signal_units), "axes": axes,
-            "frame": frame.to_metadata(), "max_age": max_age,
+            "frame": frame.to_metadata(), "max_age": max_age, "max_age_source": age_source,
+            **{k: v for k, v in (("acquisition_period_s", getattr(instrument, "acquisition_period", None)),
+                                 ("round_trip_s", getattr(instrument, "round_trip", None)),
+                                 ("on_link_loss", getattr(instrument, "on_link_loss", None))) if v is not None},
             "limits": {"low": instrument.limits.low.tolist(), "high": instrument.limits.high.tolist(),
                        "max_speed": instrument.limits.max_speed, "source": instrument.limits.source},
             "signals": list(getattr(instrument, "signal_names", ("deflection", "torsion")))}
@@ -227,6 +237,17 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         if device.is_open:
             device.command_force(np.zeros(3))
             device.close()
+
+
+def _max_age(instrument, axes: str, max_age):
+    """``(max_age s, where it came from)``: the given one, else the instrument's own limit (a
+    Nanonis: from its acquisition period Tap and round trip), else 20 ms."""
+    if max_age is not None:
+        return float(max_age), "given"
+    limit = getattr(instrument, "sample_age_limit", None)
+    if callable(limit):
+        return float(limit(axes)), "instrument (acquisition period and round trip)"
+    return DEFAULT_MAX_AGE, "default"
 
 
 def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks, max_age, handle_signals, stop,
@@ -293,8 +314,11 @@ def _run(path, meta, device, link, loop, model, frame, pd, base, seconds, ticks,
                 stats = sched.stop()
         except LoopError as exc:
             cause = exc.__cause__
+            secured = getattr(link.instrument, "loss_action", "")  # a Nanonis withdrew it over a second link
+            tip = (f"the tip was last measured {where()}" if secured and "failed" not in secured
+                   else f"the tip was left {where()}")
             failure = (str(cause) if isinstance(cause, InstrumentError) else str(exc)) + \
-                f"; the hand got zero force and the tip was left {where()}"
+                f"; the hand got zero force and {tip}"
             writer.close(complete=False, reason=failure)
     if failure is not None:
         raise InstrumentLinkLost(f"{failure}; the session {str(path)!r} keeps the {writer.n_ticks} ticks recorded "

@@ -29,16 +29,19 @@ files load with ``Session.verified`` False: they carry no checksums.
 """
 from __future__ import annotations
 
-import io
 import json
+import math
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from arsurf._files import check_regular, read_regular
+from arsurf._h5safe import GZIP_LIMIT, open_hdf5
 from arsurf.assembly import check_metadata, tube_count
 from arsurf.errors import SessionError, SessionFileNotFound
 from arsurf.sessions import journal as _journal
@@ -288,19 +291,17 @@ def _read_file(p: Path, spec: dict, allow_incomplete: bool, isolate) -> Session:
         data = read_sealed(p, what)
     except OSError as exc:
         raise SessionError(f"{name} cannot be read: {exc}") from exc
+    sealed = data is not None
     if data is None:
         if isolate == "auto":
             return _read_isolated(p, spec, allow_incomplete)
-        with open(p, "rb") as fh:
-            head = fh.read(4096)
-        size = p.stat().st_size
-        check_superblock(head, 0, name, size)
-        source = p
-    else:
-        source, size = io.BytesIO(data), len(data)
-    h5py = _h5py()
-    try:
-        f = h5py.File(source, "r")
+        data = read_regular(p, what, error=SessionError)
+        check_superblock(data[:4096], 0, name, len(data))
+    size = len(data)
+    try:  # the bytes in memory, nothing outside them followed (arsurf._h5safe)
+        f = open_hdf5(data, what, error=SessionError, soft_links=False, max_expansion=GZIP_LIMIT, name=name)
+    except SessionError:
+        raise
     except Exception as exc:
         raise SessionError(f"{str(p)!r} is not a readable HDF5 {what} file (truncated, corrupt or another "
                            f"format): {exc}") from None
@@ -312,7 +313,7 @@ def _read_file(p: Path, spec: dict, allow_incomplete: bool, isolate) -> Session:
         raise
     except (Exception, MemoryError) as exc:  # h5py's errors on damaged files, whatever their class
         raise SessionError(f"{str(p)!r} is damaged (truncated or corrupt HDF5): {type(exc).__name__}: {exc}") from None
-    s.notes = (*s.notes, *(() if data is not None else ("read without a seal",)))
+    s.notes = (*s.notes, *(() if sealed else ("read without a seal",)))
     return s
 
 
@@ -356,7 +357,7 @@ def _read_isolated(p: Path, spec: dict, allow_incomplete: bool, session: bool = 
     """Read (and fully check) the file in a child process; build the Session from its answer."""
     import tempfile
 
-    size = p.stat().st_size
+    size = check_regular(p, spec["what"], error=SessionError)  # a FIFO never reaches the child
     name = f"reading {spec['what']} {str(p)!r}"
     spec = {**spec, "allow_incomplete": bool(allow_incomplete), "session": session}
     limit = (2 << 30) + 3 * _MAX_INFLATION * size
@@ -403,12 +404,92 @@ def _existing(path, what: str) -> Path:
     return p
 
 
+#: no desk haptic device reaches farther than this from its home position, m (the largest,
+#: Haption's Virtuose 6D, spans about 1.1 m); a session may record a smaller ``workspace``
+DEVICE_REACH = 1.0
+#: no desk haptic device pushes harder than this, N (the strongest give ~35-40 N peak); a session
+#: may record its device's ``max_force``
+DEVICE_FORCE_LIMIT = 100.0
+#: no tip position in a scan frame lies farther than this from its origin, m (AFM scanners travel
+#: at most ~0.1 mm); the replay checks the scan's own extent once the scan is read
+PROBE_REACH = 1e-2
+
+
+def _first(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad)[0])
+
+
+def check_ticks(s: Session, name: str) -> None:
+    """Refuse ticks that cannot be real, naming the tick and the field (:class:`SessionError`).
+
+    - ``t``: finite and strictly increasing;
+    - ``probe_position`` (and ``tip_position``, ``contact_point``, ``instrument_position`` where
+      given): finite, within :data:`PROBE_REACH` of the scan frame's origin (the replay then checks
+      the scan's extent, :func:`arsurf.replay.replay.check_probe_extent`);
+    - ``stylus_position`` where given: within the device's reach (its recorded
+      ``haptics.workspace`` half-extents plus half again, else :data:`DEVICE_REACH`);
+    - ``device_force`` where given: finite, norm within the device's limit (recorded
+      ``haptics.max_force`` plus 1 %, else :data:`DEVICE_FORCE_LIMIT`); ``force`` finite where given.
+
+    NaN is the fill of an optional field (not given) and is allowed there; an infinity never is.
+    """
+    t = s.ticks["t"]
+    if t.size:
+        bad = ~np.isfinite(t)
+        if bad.any():
+            k = _first(bad)
+            raise SessionError(f"{name}: tick {k}: t = {float(t[k])!r} s is not finite; time must be finite")
+        steps = np.diff(t)
+        if (steps <= 0).any():
+            k = _first(steps <= 0) + 1
+            raise SessionError(f"{name}: tick {k}: t = {float(t[k])!r} s is not after tick {k - 1} "
+                               f"(t = {float(t[k - 1])!r} s); time must increase strictly")
+    haptics = s.metadata.get("haptics") if isinstance(s.metadata.get("haptics"), dict) else {}
+    reach, where = DEVICE_REACH, "no desk haptic device reaches farther"
+    ws = haptics.get("workspace")
+    if isinstance(ws, list) and len(ws) == 3 and all(isinstance(x, (int, float)) and x > 0 for x in ws):
+        reach, where = 0.75 * max(ws), "outside the recorded device workspace (half-extents plus half again)"
+    limit, what = DEVICE_FORCE_LIMIT, "no desk haptic device pushes harder"
+    mf = haptics.get("max_force")
+    if isinstance(mf, (int, float)) and not isinstance(mf, bool) and 0 < mf < DEVICE_FORCE_LIMIT:
+        limit, what = 1.01 * mf, "above the recorded device's max_force"
+    checks = [("probe_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("tip_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("contact_point", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("instrument_position", PROBE_REACH, "m", "outside any scanner's travel", False),
+              ("stylus_position", reach, "m", where, False),
+              ("device_force", limit, "N", what, False),
+              ("force", math.inf, "N", "", False)]
+    for field_name, bound, unit, why, required in checks:
+        a = s.ticks.get(field_name)
+        if a is None or not a.size:
+            continue
+        a = a.reshape(a.shape[0], -1)
+        given = ~np.isnan(a).any(axis=1)
+        if required and not given.all():
+            k = _first(~given)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is not finite; it is "
+                               "required at every tick")
+        inf = np.isinf(a).any(axis=1)
+        if inf.any():
+            k = _first(inf)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is infinite")
+        size = np.linalg.norm(np.where(given[:, None], a, 0.0), axis=1)
+        far = size > bound
+        if far.any():
+            k = _first(far)
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} (norm {size[k]:.3g} {unit}) "
+                               f"is {why} ({bound:g} {unit}); the file is damaged or crafted")
+
+
 def _check_session(s: Session, path) -> None:
-    """The checks a session adds to the schema: metadata that rebuilds a model, tube poses."""
+    """The checks a session adds to the schema: metadata that rebuilds a model, tube poses, ticks
+    that make sense (:func:`check_ticks`)."""
     try:
         check_metadata(s.metadata)
     except SessionError as exc:
         raise SessionError(f"session {str(path)!r}: {exc}") from exc
+    check_ticks(s, f"session {str(path)!r}")
     flags = s.ticks.get(SAFETY_FLAGS.name)
     if flags is not None and (flags.dtype.kind not in "iu" or flags.shape != (s.n_ticks,)):
         raise SessionError(f"session {str(path)!r}: /ticks/safety_flags has shape {flags.shape} and dtype "
@@ -481,9 +562,11 @@ def _journal_session(jpath: Path, allow_incomplete: bool, shown: Path) -> Sessio
     notes = [summary + ("" if complete else " (the recording is incomplete)")]
     if end is not None and complete:
         notes.append("the recording was closed but its .h5 was never written")
-    return Session(metadata=meta, ticks=dict(zip(lay.names, arrays)), n_ticks=n, attrs=attrs, path=jpath,
-                   verified=True, recovered=True, notes=tuple(notes),
-                   units={name: f.unit for name, (f, _) in fields.items()})
+    s = Session(metadata=meta, ticks=dict(zip(lay.names, arrays)), n_ticks=n, attrs=attrs, path=jpath,
+                verified=True, recovered=True, notes=tuple(notes),
+                units={name: f.unit for name, (f, _) in fields.items()})
+    check_ticks(s, name)
+    return s
 
 
 def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False, isolate="auto") -> Session:
@@ -545,8 +628,15 @@ def load_session(path: str | os.PathLike, *, allow_incomplete: bool = False, iso
 
 
 def _unsealed(p: Path) -> bool:
+    """True for a regular file starting with the HDF5 signature (no seal); a FIFO is opened
+    without blocking and is not one (the reader then refuses it)."""
     try:
-        with open(p, "rb") as fh:
-            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_BINARY", 0))
     except OSError:
         return False
+    try:
+        return stat.S_ISREG(os.fstat(fd).st_mode) and os.read(fd, 8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+    finally:
+        os.close(fd)

@@ -20,6 +20,9 @@ offset  bytes   content
 :func:`read_sealed` reads the file into memory, checks the length and the SHA-256 and the
 HDF5 superblock (signature at 512, end-of-file address = file size), and only then hands the
 *in-memory* bytes to h5py, so the bytes libhdf5 parses are exactly the ones that were checked.
+The seal says the bytes are intact, not that their content is harmless: a sealed file is opened
+through :func:`arsurf._h5safe.open_hdf5` like any other (no external storage, links or virtual
+datasets, every value stored) and its ticks are checked for plausibility.
 Any bit flip, truncation, overwrite or extension of a sealed file is refused before libhdf5
 sees it (SHA-256: a random change passes with probability :math:`2^{-256}`).
 
@@ -51,9 +54,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from arsurf._files import read_regular
 from arsurf.errors import IsolatedReadFailure, SessionError
 
-__all__ = ["SEAL_SIZE", "seal_file", "seal_bytes", "read_sealed", "is_sealed_header", "check_superblock", "run_isolated"]
+__all__ = ["SEAL_SIZE", "seal_file", "seal_open", "seal_bytes", "read_sealed", "is_sealed_header", "check_superblock", "run_isolated"]
 
 #: size of the HDF5 user block that holds the seal (HDF5 needs a power of two >= 512)
 SEAL_SIZE = 512
@@ -82,28 +86,34 @@ def seal_file(path: str | os.PathLike) -> None:
     The file must have been created with ``userblock_size=SEAL_SIZE`` (h5py), so its first 512
     bytes are free.
     """
-    path = Path(path)
-    with open(path, "r+b") as fh:
-        head = fh.read(SEAL_SIZE)
-        if len(head) != SEAL_SIZE or fh.read(8) != HDF5_SIGNATURE:
-            raise SessionError(f"{str(path)!r} has no {SEAL_SIZE}-byte user block before its HDF5 superblock; "
-                               "create it with userblock_size=SEAL_SIZE")
-        size = os.fstat(fh.fileno()).st_size
-        head = _SEAL.pack(SEAL_MAGIC, SEAL_VERSION, size - SEAL_SIZE, bytes(32)) + bytes(SEAL_SIZE - _SEAL.size)
-        fh.seek(SEAL_SIZE)
+    with open(Path(path), "r+b") as fh:
+        seal_open(fh, str(path))
 
-        def blocks():
-            while True:
-                b = fh.read(_BLOCK)
-                if not b:
-                    return
-                yield b
 
-        digest = _digest(head, blocks())
-        fh.seek(0)
-        fh.write(head[:_DIGEST_AT] + digest + head[_DIGEST_AT + 32:])
-        fh.flush()
-        os.fsync(fh.fileno())
+def seal_open(fh, name: str = "the file") -> None:
+    """:func:`seal_file` on a binary file object open for reading and writing (flushed, fsynced)."""
+    fh.flush()
+    fh.seek(0)
+    head = fh.read(SEAL_SIZE)
+    if len(head) != SEAL_SIZE or fh.read(8) != HDF5_SIGNATURE:
+        raise SessionError(f"{name!r} has no {SEAL_SIZE}-byte user block before its HDF5 superblock; "
+                           "create it with userblock_size=SEAL_SIZE")
+    size = os.fstat(fh.fileno()).st_size
+    head = _SEAL.pack(SEAL_MAGIC, SEAL_VERSION, size - SEAL_SIZE, bytes(32)) + bytes(SEAL_SIZE - _SEAL.size)
+    fh.seek(SEAL_SIZE)
+
+    def blocks():
+        while True:
+            b = fh.read(_BLOCK)
+            if not b:
+                return
+            yield b
+
+    digest = _digest(head, blocks())
+    fh.seek(0)
+    fh.write(head[:_DIGEST_AT] + digest + head[_DIGEST_AT + 32:])
+    fh.flush()
+    os.fsync(fh.fileno())
 
 
 def seal_bytes(data: bytes) -> bytes:
@@ -184,26 +194,23 @@ def read_sealed(path: str | os.PathLike, what: str = "file") -> bytes | None:
     """
     p = Path(path)
     name = f"{what} {str(p)!r}"
-    size = p.stat().st_size
-    with open(p, "rb") as fh:
-        head = fh.read(SEAL_SIZE)
-        if head[:8] == HDF5_SIGNATURE:
-            return None
-        if not is_sealed_header(head):
-            raise SessionError(f"{name} is not a readable HDF5 {what} file (truncated, corrupt or another format): "
-                               f"it starts with neither the arsurf seal nor the HDF5 signature")
-        if len(head) < SEAL_SIZE:
-            raise SessionError(f"{name} is truncated ({size} bytes, less than its {SEAL_SIZE}-byte seal)")
-        _, version, length, digest = _SEAL.unpack_from(head)
-        if version != SEAL_VERSION:
-            raise SessionError(f"{name} has seal version {version}, which this arsurf cannot check "
-                               f"(it knows {SEAL_VERSION}); the file is damaged or from a newer arsurf")
-        if size != SEAL_SIZE + length:
-            raise SessionError(f"{name} is damaged: its seal says {SEAL_SIZE + length} bytes but the file has {size} "
-                               f"({'truncated' if size < SEAL_SIZE + length else 'extended, or the seal is corrupt'})")
-        data = head + fh.read(length + 1)
-    if len(data) != size:
-        raise SessionError(f"{name} changed while it was being read ({len(data)} bytes read, {size} expected)")
+    data = read_regular(p, what, error=SessionError)  # a FIFO or a device is refused, never waited on
+    size = len(data)
+    head = data[:SEAL_SIZE]
+    if head[:8] == HDF5_SIGNATURE:
+        return None
+    if not is_sealed_header(head):
+        raise SessionError(f"{name} is not a readable HDF5 {what} file (truncated, corrupt or another format): "
+                           f"it starts with neither the arsurf seal nor the HDF5 signature")
+    if len(head) < SEAL_SIZE:
+        raise SessionError(f"{name} is truncated ({size} bytes, less than its {SEAL_SIZE}-byte seal)")
+    _, version, length, digest = _SEAL.unpack_from(head)
+    if version != SEAL_VERSION:
+        raise SessionError(f"{name} has seal version {version}, which this arsurf cannot check "
+                           f"(it knows {SEAL_VERSION}); the file is damaged or from a newer arsurf")
+    if size != SEAL_SIZE + length:
+        raise SessionError(f"{name} is damaged: its seal says {SEAL_SIZE + length} bytes but the file has {size} "
+                           f"({'truncated' if size < SEAL_SIZE + length else 'extended, or the seal is corrupt'})")
     if _digest(head, [memoryview(data)[SEAL_SIZE:]]) != digest:
         raise SessionError(f"{name} is damaged: its SHA-256 does not match its seal (a bit flip, an overwrite or an "
                            "edit after writing); the file is refused rather than read with altered values")

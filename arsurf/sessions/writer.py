@@ -14,8 +14,9 @@ rather than HDF5 SWMR or segment files is argued there). :meth:`SessionWriter.ap
 one row into a preallocated chunk and returns: O(1), no allocation, never blocks (when the disk
 falls behind by more than the chunk pool, ticks are dropped, counted in ``dropped_ticks``).
 Memory stays flat for any session length. :meth:`SessionWriter.close` merges the journal into
-``<path>.part`` (gzip, checksums, seal), fsyncs it, renames it over ``<path>`` and deletes the
-journal. If the process is killed (SIGKILL, crash, power cut) the journal remains:
+an exclusive temporary beside ``<path>`` (:func:`arsurf._files.atomic_write`: created
+``O_EXCL | O_NOFOLLOW`` under an unpredictable name; gzip, checksums, seal), fsyncs it, renames it
+over ``<path>`` (a symbolic link there is refused) and deletes the journal. If the process is killed (SIGKILL, crash, power cut) the journal remains:
 :func:`~arsurf.sessions.reader.load_session` with ``allow_incomplete=True`` (``arsurf replay
 --allow-incomplete``) reads every tick of its intact records - everything appended more than
 ~50 ms (plus one write) before the kill - and :func:`~arsurf.sessions.recover.recover_session`
@@ -48,6 +49,7 @@ from __future__ import annotations
 import atexit
 import datetime
 import json
+import logging
 import os
 import signal
 import threading
@@ -57,14 +59,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from arsurf._files import atomic_write, check_target
 from arsurf.assembly import _jsonable, check_metadata
 from arsurf.errors import RecordingInterrupted, SessionError
 from arsurf.sessions import journal as _journal
 from arsurf.sessions.journal import journal_path
 from arsurf.sessions.schema import (FORMAT, FORMAT_VERSION, TUBE_POSES, _attr, _canonical, _dataset_hasher, _h5py,
                                     _layout, _session_fields, _sha, contact_fields)
-from arsurf.sessions.sealed import SEAL_SIZE, seal_file
+from arsurf.sessions.sealed import SEAL_SIZE, seal_open
 from arsurf.units import UNITS_ATTR
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["FLUSH_INTERVAL", "SessionWriter", "record_loop_tick", "write_h5"]
 
@@ -84,7 +89,8 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
     damping, signals, probe force, device force, safety flags), the contact of ``loop.model.out``
     (:func:`~arsurf.sessions.schema.contact_fields`) and, with a scene, the tube poses after the tick. ``t`` is the
     loop time the tick was given (s). A button word the loop took as malformed is recorded as
-    the no-press it was given (0).
+    the no-press it was given (0); a sample the loop refused (:mod:`arsurf.haptics.samples`: its
+    flag is in ``safety_flags``) is recorded as the last good sample the tick ran on.
 
     Examples
     --------
@@ -95,7 +101,7 @@ def record_loop_tick(writer: "SessionWriter", loop, t: float, state) -> None:
     o = loop.out
     get = LOOP_OUT.get
     extra = {} if loop.scene is None else {TUBE_POSES.name: loop.scene.poses}
-    writer.append(t=t, stylus_position=state.position, stylus_velocity=state.velocity,
+    writer.append(t=t, stylus_position=loop.stylus_position, stylus_velocity=loop.stylus_velocity,
                   buttons=_valid_buttons(state.buttons)[0], probe_position=get(o, "probe"),
                   probe_velocity=get(o, "probe_velocity"), tip_position=get(o, "tip"), energy=get(o, "energy"),
                   passivity_damping=get(o, "passivity_damping"), signals=get(o, "signals"),
@@ -129,9 +135,13 @@ class _H5Out:
                  dtypes: Mapping[str, np.dtype], units: Mapping[str, str]):
         h5py = _h5py()
         self.path = Path(path)
-        self.part = self.path.with_name(self.path.name + ".part")
-        self._f = h5py.File(self.part, "w", userblock_size=SEAL_SIZE)
+        self._f = None
+        # an exclusive temporary in the target's folder (arsurf._files): a planted link is never written
+        self._cm = atomic_write(self.path, "wb", what="session file", error=SessionError)
+        self._fh = self._cm.__enter__()
+        self.part = self._fh.temp
         try:
+            self._f = h5py.File(self._fh, "w", userblock_size=SEAL_SIZE)
             f = self._f
             self._attrs = {}
             for key, value in attrs.items():
@@ -181,29 +191,32 @@ class _H5Out:
             self._sums["attrs"] = _sha(_canonical(self._attrs))
             self._f.attrs["checksums"] = json.dumps(self._sums, sort_keys=True)
             self._f.close()
-            seal_file(self.part)
-            os.replace(self.part, self.path)
+            seal_open(self._fh)
+            cm, self._cm = self._cm, None
+            cm.__exit__(None, None, None)  # fsynced, renamed over the path, folder fsynced
         except BaseException:
             self.abort()
             raise
-        _fsync_dir(self.path.parent)
         return self.path
 
     def abort(self) -> None:
         try:
-            self._f.close()
+            if self._f is not None:
+                self._f.close()
         except Exception:  # pragma: no cover - already closed or never opened
             pass
-        if self.part.exists():
-            self.part.unlink()
+        if self._cm is not None:  # the temporary is removed, the target left as it was
+            cm, self._cm = self._cm, None
+            cm.__exit__(SessionError, SessionError("aborted"), None)
 
 
 def write_h5(path: str | os.PathLike, attrs: Mapping[str, Any], metadata: Mapping[str, Any],
              datasets: Mapping[str, np.ndarray], units: Mapping[str, str]) -> Path:
     """Write root ``attrs``, ``/metadata`` (JSON per key) and ``/ticks/<name>`` datasets atomically.
 
-    The file goes to ``<path>.part`` with ``checksums`` and a seal
-    (:func:`arsurf.sessions.sealed.seal_file`), is fsynced and renamed over ``path``; each dataset
+    The file goes to an exclusive temporary beside ``path`` (:func:`arsurf._files.atomic_write`)
+    with ``checksums`` and a seal (:func:`arsurf.sessions.sealed.seal_open`), is fsynced and renamed
+    over ``path`` (a symbolic link there is refused); each dataset
     gets the ``units`` attribute ``units[name]`` (:mod:`arsurf.units`); datasets carry no
     timestamps, so equal inputs give equal bytes. Used for sessions and replay outputs.
     """
@@ -305,7 +318,8 @@ class SessionWriter:
     Parameters
     ----------
     path : path-like
-        The session file (``.h5``); written at :meth:`close` via ``<path>.part``. While
+        The session file (``.h5``; not a symbolic link); written at :meth:`close` through an
+        exclusive temporary (:func:`arsurf._files.atomic_write`). While
         recording, ticks stream into ``<path>.journal`` (:func:`~arsurf.sessions.journal.journal_path`), which must not
         exist.
     metadata : dict
@@ -367,6 +381,7 @@ class SessionWriter:
             raise SessionError(f"session path {str(self.path)!r} is a directory; pass a file name such as run.h5")
         if not self.path.parent.is_dir():
             raise SessionError(f"the folder of the session file {str(self.path)!r} does not exist; create it first")
+        check_target(self.path, "session file", error=SessionError)  # a planted link: refused before recording
         self.metadata = _jsonable(metadata, "metadata")
         check_metadata(self.metadata)
         capacity = int(capacity)
@@ -394,6 +409,8 @@ class SessionWriter:
         self._stream = _journal.TickStreamer(layout, self._file, chunk_ticks=capacity, queue_chunks=queue_chunks,
                                              interval=flush_interval, when_full=when_full)
         self._closed = False
+        #: True once an append saw that the journal could not be written (full disk, I/O error)
+        self.failed = False
         self._written: Path | None = None
         self._end: dict | None = None
         self._signal: str | None = None
@@ -432,6 +449,28 @@ class SessionWriter:
     def dropped_ticks(self) -> int:
         """Ticks dropped because the disk fell behind (``when_full="drop"``)."""
         return self._stream.dropped
+
+    @property
+    def write_error(self) -> BaseException | None:
+        """The error that stopped the journal (a full disk: ``OSError`` ENOSPC), or None.
+
+        Set by the writer thread at the failed write (it writes at least every
+        ``flush_interval``); the next :meth:`append` then flags it (:attr:`failed`, a warning
+        on the ``arsurf.sessions.writer`` logger) without raising, so a real-time loop keeps running and
+        :meth:`close` says it again."""
+        return self._stream.error
+
+    @property
+    def unrecorded_ticks(self) -> int:
+        """Ticks appended but not in the journal because writing failed (0 while it works)."""
+        st = self._stream
+        return 0 if st.error is None else max(0, st.appended - st.dropped - st.written)
+
+    def _flag_failure(self) -> None:
+        self.failed = True
+        _log.warning("recording to %r failed: %s; from tick %d on nothing more is recorded (the journal %r "
+                     "keeps the %d ticks before; free disk space and recover_session it)", str(self.path),
+                     self._stream.error, self._stream.written, str(self.journal), self._stream.written)
 
     def _clear_row(self, arrays, i: int) -> None:
         for a, fill in zip(arrays, self._fills):
@@ -496,6 +535,8 @@ class SessionWriter:
                 self._clear_row(arrays, i)
                 raise SessionError(f"every tick needs `t` (s) and `probe_position` ((3,) m); got only {sorted(fields)}")
             st.commit_locked()
+            if st.error is not None and not self.failed:  # one attribute read per tick while the disk works
+                self._flag_failure()
 
     def close(self, complete: bool = True, reason: str = "") -> Path:
         """Stop recording, merge the journal into the sealed session file and return its path.

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import atomic_write
 from arsurf.errors import SurfaceError
 from arsurf.spline.surface import BSplineSurface
 
@@ -30,8 +31,9 @@ def save_surface(surface: BSplineSurface, path: str | os.PathLike, metadata: dic
         raise SurfaceError(f"surfaces are saved as .npz (got {str(path)!r}); use a name ending in .npz")
     ctrl, rest, ku, kv = surface.kernel_arrays()
     meta = {"format": "arsurf-surface", "version": FORMAT_VERSION, **(metadata or {})}
-    np.savez(path, control_points=ctrl, rest_control_points=rest, knots_u=ku, knots_v=kv,
-             metadata_json=np.str_(json.dumps(meta, default=str)))
+    with atomic_write(path, what="surface file", error=SurfaceError) as fh:
+        np.savez(fh, control_points=ctrl, rest_control_points=rest, knots_u=ku, knots_v=kv,
+                 metadata_json=np.str_(json.dumps(meta, default=str)))
     return path
 
 

@@ -1,15 +1,21 @@
-// arsurf_client.cpp - a C++ client of the arsurf haptic UDP bridge (protocol version 2).
+// arsurf_client.cpp - a C++ client of the arsurf haptic UDP bridge (protocol version 3).
 //
 // The same job as the Python reference client (python -m arsurf.haptics.client): read the
-// session key file arsurf wrote, send one authenticated POSE per servo tick (1 kHz by default),
+// session key file arsurf wrote, say HELLO and take the session id from the bridge's CHALLENGE
+// (again when no valid FORCE came for --timeout: the bridge may have restarted), send one
+// authenticated POSE of that session per servo tick (1 kHz by default),
 // check every FORCE reply (sender, tag, sequence number, ack, finite values, force limit) and
 // apply only those, zero force when none arrived for --timeout, RELEASE at the end, and a JSON
 // summary on stdout. All protocol code is include/arsurf_bridge.h.
 //
 // It moves a simulated stylus; a CHAI3D or OpenHaptics program replaces the two functions marked
-// DEVICE below (read_stylus, apply_force) with its device's calls, e.g. for OpenHaptics in the
-// servo callback: hdGetDoublev(HD_CURRENT_POSITION, p) (millimetres: multiply by 1e-3) and
-// hdSetDoublev(HD_CURRENT_FORCE, f); for CHAI3D: device->getPosition(p), device->setForce(f).
+// DEVICE below (read_stylus, apply_force) with its device's calls. The bridge's frame is arsurf's
+// (docs/bridge-protocol.md: x right, y away from the operator, z up, metres, newtons; the force
+// is the one to apply to the stylus), not the device's: for OpenHaptics (x right, y up, z towards
+// the operator, millimetres), in the servo callback,
+//   hdGetDoublev(HD_CURRENT_POSITION, p_mm); from_openhaptics(p_mm, pos);   // and the velocity alike
+//   to_openhaptics(f, f_hd); hdSetDoublev(HD_CURRENT_FORCE, f_hd);
+// for CHAI3D (x towards the operator, y right, z up, metres): pos = (y, -x, z), force (-Fy, Fx, Fz).
 //
 // Build (POSIX: Linux, macOS):
 //   g++ -std=c++11 -O2 -ffp-contract=off -I../../include arsurf_client.cpp -o arsurf_client
@@ -68,7 +74,7 @@ const char *HELP =
     "usage: arsurf_client --key-file PATH [--host A] [--port P] [--rate HZ] [--duration S]\n"
     "                     [--radius M] [--frequency HZ] [--press M] [--max-force N] [--timeout S]\n"
     "                     [--wait S] [--local-port P] [--lockstep] [--log FILE] | --self-test\n"
-    "Drive an arsurf UDP bridge (protocol 2) with a simulated stylus: a circle of --radius metres\n"
+    "Drive an arsurf UDP bridge (protocol 3) with a simulated stylus: a circle of --radius metres\n"
     "at --frequency Hz, pressed --press metres down in the middle of --duration seconds.\n"
     "--wait S: first wait up to S s for the bridge's first reply. --lockstep: wait for the\n"
     "reply to each pose before sending the next. --log FILE: CSV, one row per tick.\n"
@@ -125,6 +131,27 @@ double seconds_since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+// ---- frames: OpenHaptics' HD frame (x right, y up, z towards the operator; mm) <-> the bridge's ----
+// (x right, y away from the operator, z up; m). A rotation, so the power F.v is the same in both.
+inline void from_openhaptics(const double hd_mm[3], double out_m[3]) {
+    out_m[0] = 1e-3 * hd_mm[0];
+    out_m[1] = -1e-3 * hd_mm[2];
+    out_m[2] = 1e-3 * hd_mm[1];
+}
+inline void to_openhaptics(const double f[3], double hd[3]) {
+    hd[0] = f[0];
+    hd[1] = f[2];
+    hd[2] = -f[1];
+}
+// the two conversions: a press down (bridge -z) is HD -y, and a force back up (bridge +z) is HD +y
+inline bool frames_ok() {
+    const double down_hd[3] = {0.0, -2.0, 0.0}, up[3] = {0.0, 0.0, 1.5};
+    double p[3], f[3];
+    from_openhaptics(down_hd, p);
+    to_openhaptics(up, f);
+    return p[0] == 0.0 && p[1] == 0.0 && p[2] == -2e-3 && f[0] == 0.0 && f[1] == 1.5 && f[2] == 0.0;
+}
+
 // ---- DEVICE: the simulated stylus (replace with the device's position and velocity, in m, m/s) ----
 void read_stylus(const Options &o, long k, double pos[3], double vel[3]) {
     const double pi = 3.14159265358979323846;
@@ -166,7 +193,9 @@ struct Bridge {
     Clock::time_point last_rx;  // when it arrived
     Clock::time_point t0;       // the client clock's origin (timestamps in POSE packets)
     double last_t = -1.0;       // the last POSE timestamp (strictly increasing)
-    unsigned long sent = 0, send_errors = 0, receive_errors = 0;
+    unsigned long sent = 0, hellos = 0, send_errors = 0, receive_errors = 0;
+    Clock::time_point last_hello;
+    bool hello_sent = false;
     std::vector<double> rtts;
 
     double stamp() {  // a strictly increasing client time, s
@@ -176,7 +205,24 @@ struct Bridge {
         return t;
     }
 
-    uint64_t send_pose(const double pos[3], const double vel[3]) {
+    void send_hello() {
+        uint8_t pkt[ARSURF_HELLO_SIZE];
+        arsurf_client_hello(&c, stamp(), pkt);
+        last_hello = Clock::now();
+        hello_sent = true;
+        ++hellos;
+        if (sendto(sock, pkt, sizeof pkt, 0, (const sockaddr *)&server, sizeof server) != (ssize_t)sizeof pkt)
+            ++send_errors;
+    }
+
+    // One POSE of the session (its sequence number), or 0: no session yet, a HELLO was sent instead.
+    // With a session but no valid FORCE for `timeout`, also a HELLO, once per `timeout`.
+    uint64_t send_pose(const double pos[3], const double vel[3], double timeout) {
+        if (!c.have_session ||
+            (!fresh(timeout) && (!hello_sent || std::chrono::duration<double>(Clock::now() - last_hello).count() > timeout))) {
+            send_hello();
+            if (!c.have_session) return 0;
+        }
         arsurf_pose p = arsurf_pose_at(stamp(), pos, vel);
         uint8_t pkt[ARSURF_POSE_SIZE];
         uint64_t seq = arsurf_client_pose(&c, &p, pkt);
@@ -189,7 +235,7 @@ struct Bridge {
 
     void release() {
         uint8_t pkt[ARSURF_RELEASE_SIZE];
-        arsurf_client_release(&c, stamp(), pkt);
+        if (arsurf_client_release(&c, stamp(), pkt) == 0) return;  // no session: nothing to release
         if (sendto(sock, pkt, sizeof pkt, 0, (const sockaddr *)&server, sizeof server) != (ssize_t)sizeof pkt)
             ++send_errors;
     }
@@ -264,6 +310,10 @@ void json_number(FILE *out, double x) {
 
 int main(int argc, char **argv) {
     Options o = parse(argc, argv);
+    if (!frames_ok()) {  // the frame conversions a device client needs (docs/bridge-protocol.md)
+        std::fprintf(stderr, "arsurf_client: the OpenHaptics frame conversion is wrong\n");
+        return 1;
+    }
     if (arsurf_self_test() != 0) {  // a compiler or platform that gets the bytes wrong never talks to a device
         std::fprintf(stderr, "arsurf_client: error: the protocol self-test failed (check %d) on this platform\n",
                      arsurf_self_test());
@@ -303,7 +353,7 @@ int main(int argc, char **argv) {
                 close(b.sock);
                 return 3;
             }
-            b.send_pose(pos, vel);
+            b.send_pose(pos, vel, o.timeout);
             b.drain(10);
         }
     }
@@ -315,11 +365,12 @@ int main(int argc, char **argv) {
     auto start = Clock::now();
     for (long k = 0; k < n; ++k) {
         read_stylus(o, k, pos, vel);
-        uint64_t seq = b.send_pose(pos, vel);
-        if (o.lockstep) {
+        uint64_t seq = b.send_pose(pos, vel, o.timeout);
+        if (o.lockstep) {  // the reply to this pose (or, for a HELLO, the CHALLENGE)
             auto deadline = Clock::now() + std::chrono::seconds(2);
-            while (!(b.have_force && b.last.ack >= seq) && Clock::now() < deadline) b.drain(5);
-            if (!(b.have_force && b.last.ack >= seq)) ++lockstep_timeouts;
+            auto answered = [&]() { return seq == 0 ? b.c.have_session != 0 : (b.have_force && b.last.ack >= seq); };
+            while (!answered() && Clock::now() < deadline) b.drain(5);
+            if (!answered()) ++lockstep_timeouts;
         } else {
             b.drain(0);
         }
@@ -345,12 +396,12 @@ int main(int argc, char **argv) {
     if (log) std::fclose(log);
     close(b.sock);
 
-    std::printf("{\n  \"sent\": %lu,\n  \"ticks\": %ld,\n  \"send_errors\": %lu,\n  \"accepted_replies\": %lu,\n",
-                b.sent, n, b.send_errors, b.c.counts[ARSURF_OK]);
+    std::printf("{\n  \"sent\": %lu,\n  \"hellos\": %lu,\n  \"ticks\": %ld,\n  \"send_errors\": %lu,\n"
+                "  \"accepted_replies\": %lu,\n", b.sent, b.hellos, n, b.send_errors, b.c.counts[ARSURF_OK]);
     std::printf("  \"replies_with_rtt\": %zu,\n  \"invalid_replies\": %lu,\n  \"dropped_replies\": {", b.rtts.size(),
                 arsurf_client_dropped(&b.c));
     bool first = true;
-    for (int s = 1; s < ARSURF_N_STATUS; ++s)
+    for (int s = 1; s < ARSURF_CHALLENGE; ++s)
         if (b.c.counts[s]) {
             std::printf("%s\"%s\": %lu", first ? "" : ", ", arsurf_status_name((arsurf_status)s), b.c.counts[s]);
             first = false;

@@ -10,7 +10,11 @@ a hand spring to a set point), advanced on the wall clock (5 kHz steps) by a thr
 frame (metres; the handle rests around (0.04, -0.15, 0.15) m, in front of the base).
 
 ``unplug()`` closes the pty's master side: the package's writes then fail and its reads time out,
-as when the USB cable is pulled.
+as when the USB cable is pulled. ``lose(n, late)`` loses the replies to the next ``n`` force
+commands (``late`` s: they arrive that late instead, as a reply stuck behind a USB hiccup does;
+None: never), the way a serial link does: the device applied the force, the host never heard back.
+Every force command is logged (``commands_log``: host time s, force N) so a test can see what was
+sent after a lost reply.
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import os
 import pty
 import select
 import struct
+import collections
 import threading
 import time
 import tty
@@ -87,6 +92,11 @@ class Inverse3Pty(_Pty):
         self.v = np.zeros(3)
         self.force = np.zeros(3)
         self.max_force_seen = 0.0
+        self.commands_log = collections.deque(maxlen=200_000)
+        self._lose = 0
+        self._lose_above = 0.0
+        self._late = None
+        self.lost_at = []  # indexes in commands_log of the commands whose reply was lost
         self.t = time.perf_counter()
         self.lock = threading.Lock()
         self._physics = threading.Thread(target=self._run_physics, daemon=True)
@@ -101,6 +111,12 @@ class Inverse3Pty(_Pty):
             with self.lock:
                 self._advance()
             time.sleep(0.001)
+
+    def lose(self, n: int = 1, late: float | None = None, above: float = 0.0) -> None:
+        """Lose the replies to the next ``n`` force commands larger than ``above`` N (``late`` s:
+        send them that late)."""
+        with self.lock:
+            self._lose, self._late, self._lose_above = int(n), late, float(above)
 
     def _advance(self) -> None:
         now = time.perf_counter()
@@ -129,8 +145,16 @@ class Inverse3Pty(_Pty):
                     self.max_force_seen = max(self.max_force_seen, n)
                     self.force = f * (min(1.0, self.fmax_hw / n) if n > 0 else 1.0)
                     state = struct.pack("<6f", *self.x, *self.v)
+                    self.commands_log.append((time.perf_counter(), f))
+                    lost, late = self._lose > 0 and n > self._lose_above, self._late
+                    self._lose -= lost
+                    if lost:
+                        self.lost_at.append(len(self.commands_log) - 1)
                 self.commands += 1
-                self._reply(b"\x2b" + state)
+                if not lost:
+                    self._reply(b"\x2b" + state)
+                elif late is not None:
+                    threading.Timer(late, self._reply, (b"\x2b" + state,)).start()
             else:  # a byte this device does not know: dropped, as the firmware does
                 buf = buf[1:]
         return buf

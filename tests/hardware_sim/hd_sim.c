@@ -8,7 +8,19 @@
  * (HD_CURRENT_FORCE) inside a frame are applied at hdEndFrame when HD_FORCE_OUTPUT is enabled,
  * clamped to the nominal maximum when HD_MAX_FORCE_CLAMPING is. Errors go on a stack that
  * hdGetError pops. sim_unplug makes every later frame fail with HD_COMM_ERROR and freezes the
- * readings, as a device whose cable was pulled. Functions named sim_* are the test's hooks. */
+ * readings, as a device whose cable was pulled. Functions named sim_* are the test's hooks.
+ *
+ * Held to the vendor's rules (OpenHaptics Programmer's Guide and its Calibration example):
+ * - hdUpdateCalibration is called from a scheduled callback (the example's
+ *   UpdateCalibrationCallback, run by hdScheduleSynchronous); called from any other thread while
+ *   the servo runs, it fails with HD_INVALID_OPERATION and does nothing. The styles the device
+ *   supports are HD_CALIBRATION_STYLE (sim_reset's style); a style it does not support fails with
+ *   HD_INVALID_VALUE.
+ * - HD_CALIBRATION_ENCODER_RESET zeroes the encoders where the arm is: an arm not held in its
+ *   reset position reads offset by that much from then on (sim_reset puts the reset position at
+ *   the origin).
+ * - The servo thread is a C thread calling the callbacks; it records how long each asynchronous
+ *   callback took (sim_callback_times), so a test sees a callback that waits, e.g. for Python's GIL. */
 #include <stdbool.h>
 #include <string.h>
 #include <unistd.h>
@@ -23,6 +35,7 @@ typedef struct { unsigned int errorCode; int internalErrorCode; HHD hHD; } HDErr
 
 #define HD_SUCCESS 0x000
 #define HD_INVALID_ENUM 0x0100
+#define HD_INVALID_VALUE 0x0102
 #define HD_INVALID_OPERATION 0x0103
 #define HD_EXCEEDED_MAX_FORCE 0x0201
 #define HD_DEVICE_FAULT 0x0300
@@ -61,7 +74,12 @@ static sim_handle H;
 static const double usable[6] = {-80, -60, -35, 80, 60, 35}; /* mm: min x, y, z, max x, y, z */
 static const double nominal_force = 3.3, continuous_force = 0.88, stiffness = 1.26, damping = 0.002;
 static int initialized = 0, plugged = 1, force_output = 0, clamping = 0, running = 0, in_frame = 0;
-static int calibration = HD_CALIBRATION_OK;
+static int calibration = HD_CALIBRATION_OK, calibration_style = HD_CALIBRATION_INKWELL;
+static double cal_offset[3]; /* m: where the encoders were zeroed (encoder reset), HD frame */
+static long n_update_refused = 0;
+#define N_TIMES 8192
+static double cb_times[N_TIMES]; /* s: duration of the last asynchronous callbacks */
+static long n_times = 0;
 static double t_origin = 0, frame_x[3], frame_v[3], pending[3];
 static int pending_set = 0;
 static unsigned int errors[16];
@@ -148,12 +166,12 @@ void hdEndFrame(HHD h) {
 void hdGetDoublev(HDenum what, double *v) {
     pthread_mutex_lock(&lock);
     switch (what) {
-    case HD_CURRENT_POSITION: for (int a = 0; a < 3; a++) v[a] = 1e3 * frame_x[a]; break;
+    case HD_CURRENT_POSITION: for (int a = 0; a < 3; a++) v[a] = 1e3 * (frame_x[a] - cal_offset[a]); break;
     case HD_CURRENT_VELOCITY: for (int a = 0; a < 3; a++) v[a] = 1e3 * frame_v[a]; break;
     case HD_CURRENT_TRANSFORM:
         memset(v, 0, 16 * sizeof(double));
         v[0] = v[5] = v[10] = v[15] = 1.0;
-        for (int a = 0; a < 3; a++) v[12 + a] = 1e3 * frame_x[a];
+        for (int a = 0; a < 3; a++) v[12 + a] = 1e3 * (frame_x[a] - cal_offset[a]);
         break;
     case HD_CURRENT_FORCE: for (int a = 0; a < 3; a++) v[a] = H.f[a]; break;
     case HD_USABLE_WORKSPACE_DIMENSIONS: for (int k = 0; k < 6; k++) v[k] = usable[k]; break;
@@ -170,7 +188,7 @@ void hdGetDoublev(HDenum what, double *v) {
 void hdGetIntegerv(HDenum what, int *v) {
     switch (what) {
     case HD_CURRENT_BUTTONS: v[0] = 0; break;
-    case HD_CALIBRATION_STYLE: v[0] = HD_CALIBRATION_INKWELL; break;
+    case HD_CALIBRATION_STYLE: v[0] = calibration_style; break;
     case HD_UPDATE_RATE: v[0] = 1000; break;
     default: push_error(HD_INVALID_ENUM);
     }
@@ -188,7 +206,14 @@ void hdSetDoublev(HDenum what, const double *v) {
 HDenum hdCheckCalibration(void) { return calibration; }
 void hdUpdateCalibration(HDenum style) {
     pthread_mutex_lock(&lock);
-    if (calibration == HD_CALIBRATION_NEEDS_UPDATE) { calibration = HD_CALIBRATION_OK; n_calibrations++; }
+    if (running && !pthread_equal(pthread_self(), servo)) {
+        push_error(HD_INVALID_OPERATION); n_update_refused++;  /* not from a scheduled callback */
+    } else if (!(style & calibration_style) || (style & (style - 1))) {
+        push_error(HD_INVALID_VALUE); n_update_refused++;
+    } else if (calibration == HD_CALIBRATION_NEEDS_UPDATE) {
+        if (style == HD_CALIBRATION_ENCODER_RESET) for (int a = 0; a < 3; a++) cal_offset[a] = H.x[a];
+        calibration = HD_CALIBRATION_OK; n_calibrations++;
+    }
     pthread_mutex_unlock(&lock);
 }
 
@@ -201,8 +226,11 @@ static void run_callbacks(void) {
         void *data = cbs[k].data;
         pthread_mutex_unlock(&lock);
         if (!used) continue;
+        double t0 = sim_clock();
         HDCallbackCode code = cb(data);
+        double dt = sim_clock() - t0;
         pthread_mutex_lock(&lock);
+        if (!cbs[k].sync) cb_times[n_times++ % N_TIMES] = dt;
         if (cbs[k].sync || code == HD_CALLBACK_DONE) {
             cbs[k].used = 0; cbs[k].done = 1;
             pthread_cond_broadcast(&done_cv);
@@ -270,9 +298,11 @@ void hdUnschedule(HDSchedulerHandle h) {
 void hdWaitForCompletion(HDSchedulerHandle h, unsigned int param) {}
 
 /* ---- test hooks (SI units, HD axes) ------------------------------------------------------------- */
-void sim_reset(int calibration_status) {
+void sim_reset(int calibration_status, int style) {
     hdStopScheduler();
     pthread_mutex_lock(&lock);
+    calibration_style = style; n_update_refused = 0; n_times = 0;
+    for (int a = 0; a < 3; a++) cal_offset[a] = 0;
     sim_handle_init(&H, 10.0);
     t_origin = sim_clock();
     plugged = 1; initialized = 0; force_output = 0; clamping = 0; n_errors = 0; calibration = calibration_status;
@@ -301,13 +331,25 @@ void sim_state(double *out) {
     for (int a = 0; a < 3; a++) { out[a] = H.x[a]; out[3 + a] = H.v[a]; out[6 + a] = H.f[a]; }
     pthread_mutex_unlock(&lock);
 }
+/* how many asynchronous callbacks ran since sim_reset */
+long sim_callback_count(void) { pthread_mutex_lock(&lock); long n = n_times; pthread_mutex_unlock(&lock); return n; }
+/* the durations (s) of the last n asynchronous callbacks, oldest first; returns how many */
+int sim_callback_times(double *out, int n) {
+    pthread_mutex_lock(&lock);
+    long have = n_times < N_TIMES ? n_times : N_TIMES;
+    if (n > have) n = (int)have;
+    for (int k = 0; k < n; k++) out[k] = cb_times[(n_times - n + k) % N_TIMES];
+    pthread_mutex_unlock(&lock);
+    return n;
+}
 /* frames, calibrations, largest commanded and applied force norms, force output, clamping,
- * scheduler running, callbacks scheduled, device initialized */
+ * scheduler running, callbacks scheduled, device initialized, calibration updates refused */
 void sim_counters(double *out) {
     pthread_mutex_lock(&lock);
     int n = 0;
     for (int k = 0; k < MAX_CB; k++) n += cbs[k].used;
     out[0] = n_frames; out[1] = n_calibrations; out[2] = max_commanded; out[3] = max_applied;
     out[4] = force_output; out[5] = clamping; out[6] = running; out[7] = n; out[8] = initialized;
+    out[9] = n_update_refused;
     pthread_mutex_unlock(&lock);
 }

@@ -137,12 +137,20 @@ def h5_text(value) -> str:
     return str(value)
 
 
-def require_hdf5(path: Path | str, what: str) -> None:
-    """Raise :class:`CorruptScan` unless ``path`` starts with the HDF5 signature (checked before
-    h5py sees the file); ``what`` names the expected format in the message."""
-    with open(path, "rb") as fh:
-        if fh.read(8) != HDF5_SIGNATURE:
-            raise CorruptScan(f"{path}: not an HDF5 file (no HDF5 signature), so not {what}")
+def open_scan_hdf5(path: Path | str, what: str):
+    """Open an HDF5 scan file through :func:`arsurf._h5safe.open_hdf5` (its bytes in memory, nothing
+    outside them followed, declared sizes bounded by the file), after checking the HDF5 signature;
+    ``what`` names the expected format in the message. Every refusal is a :class:`CorruptScan`."""
+    from arsurf._files import read_regular
+    from arsurf._h5safe import open_hdf5
+
+    data = read_regular(path, "scan file", error=CorruptScan)
+    if data[:8] != HDF5_SIGNATURE:
+        raise CorruptScan(f"{path}: not an HDF5 file (no HDF5 signature), so not {what}")
+    try:
+        return open_hdf5(data, error=CorruptScan, name=str(path))
+    except OSError as exc:  # h5py's errors for a damaged file
+        raise CorruptScan(f"{path}: the HDF5 structure is damaged ({str(exc).splitlines()[0]})") from None
 
 
 def looks_like_height(name: str) -> bool:

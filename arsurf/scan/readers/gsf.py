@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan, MissingCalibration
+from arsurf._files import atomic_write
+from arsurf.errors import CorruptScan, MissingCalibration, ScanError
 from arsurf.scan.readers._common import (
     Channel,
     check_data_size,
@@ -156,5 +157,5 @@ def write(scan, path: Path | str) -> None:
     head = ("\n".join(lines) + "\n").encode("utf-8")
     pad = b"\x00" * (4 - len(head) % 4)
     data = np.ascontiguousarray(scan.heights[::-1, :], dtype="<f4")
-    with open(path, "wb") as fh:
+    with atomic_write(path, what="scan file", error=ScanError) as fh:
         fh.write(head + pad + data.tobytes())

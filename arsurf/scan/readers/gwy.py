@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf._files import atomic_write
+from arsurf.errors import CorruptScan, ScanError
 from arsurf.scan.readers._common import (
     Channel,
     check_shape,
@@ -274,5 +275,5 @@ def write(scan, path: Path | str) -> None:
         meta[_MISSING_KEY] = "/0/mask"
     components.append(_component("/0/meta", "o", _object(
         "GwyContainer", [_component(k, "s", _string(v)) for k, v in meta.items()])))
-    with open(path, "wb") as fh:
+    with atomic_write(path, what="scan file", error=ScanError) as fh:
         fh.write(MAGIC + _object("GwyContainer", components))

@@ -42,7 +42,7 @@ from arsurf.scan.readers._common import (
     check_shape,
     make_scan,
     parse_unit,
-    require_hdf5,
+    open_scan_hdf5,
     select_channel,
 )
 
@@ -121,10 +121,9 @@ def read(path: Path | str, channel: str | None = None, frame: int | None = None)
 
     path = Path(path)
     size = path.stat().st_size
-    require_hdf5(path, "a JPK .h5-jpk file")
     try:
         with contextlib.ExitStack() as stack:
-            f = stack.enter_context(h5py.File(path, "r"))
+            f = stack.enter_context(open_scan_hdf5(path, "a JPK .h5-jpk file"))
             if not is_h5jpk(f):
                 raise CorruptScan(f"{path}: the root attribute 'file-format-info' is not 'JPK SCAN' "
                                   f"(got {h5_text(f.attrs.get('file-format-info', b''))!r}); not a JPK scan file")

@@ -357,5 +357,19 @@ def read(path: Path | str, channel: str | None = None):
                "hard_value": {"value": sc["hard_value"], "unit": sc["hard_unit"]},
                "calibrated": sc["calibrated"], "unit_resolved": sc["resolved"], "log10_decoded": sc["log10"],
                "bytes_per_pixel": bpp, "stored_bytes_per_pixel": width,
-               "line_direction": d.get("line direction"), "frame_direction": d.get("frame direction")},
+               "line_direction": d.get("line direction"), "frame_direction": d.get("frame direction"),
+               "sample_poisson_ratio": sample_poisson_ratio(sections)},
     )
+
+
+def sample_poisson_ratio(sections) -> float | str | None:
+    """The ``Sample Poisson's Ratio`` of the header (the ratio the instrument's DMT fit used to turn
+    the reduced modulus into ``DMTModulus``): a float, the text as written when it is not a number
+    (refused where it is used, :mod:`arsurf.contact.material_map`), or None without one."""
+    text = _lookup(sections, "Sample Poisson's Ratio")
+    if text is None:
+        return None
+    try:
+        return float(text.split()[0])
+    except (ValueError, IndexError):
+        return text.strip()

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import (Channel, check_shape, h5_text, make_scan, parse_unit, require_hdf5,
+from arsurf.scan.readers._common import (Channel, check_shape, h5_text, make_scan, parse_unit, open_scan_hdf5,
                                          select_channel)
 
 EXTENSIONS = (".nhf",)
@@ -205,10 +205,9 @@ def read(path: Path | str, channel: str | None = None):
 
     path = Path(path)
     size = path.stat().st_size
-    require_hdf5(path, "a Nanosurf .nhf file")
     try:
         with contextlib.ExitStack() as stack:
-            f = stack.enter_context(h5py.File(path, "r"))
+            f = stack.enter_context(open_scan_hdf5(path, "a Nanosurf .nhf file"))
             if not is_nhf(f):
                 raise CorruptScan(f"{path}: no root attribute 'nsf_file_version_major'; not a Nanosurf .nhf file")
             major, minor = _version(path, f)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import atomic_write, write_text
 from arsurf.errors import CorruptScan, ScanError
 from arsurf.scan.readers._common import Channel, check_shape, jsonable, make_scan, select_channel
 from arsurf.errors import MissingCalibration
@@ -110,5 +111,6 @@ def header_info(scan) -> dict:
 
 def write(scan, path: Path | str) -> None:
     """Write ``scan.heights`` (float64, bit-exact) and the ``.npy.json`` sidecar."""
-    np.save(str(path), np.asarray(scan.heights, dtype=np.float64), allow_pickle=False)
-    sidecar(path).write_text(json.dumps(header_info(scan), allow_nan=True), encoding="utf-8")
+    with atomic_write(path, what="scan file", error=ScanError) as fh:
+        np.save(fh, np.asarray(scan.heights, dtype=np.float64), allow_pickle=False)
+    write_text(sidecar(path), json.dumps(header_info(scan), allow_nan=True), what="scan sidecar", error=ScanError)

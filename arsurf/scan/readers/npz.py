@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf._files import atomic_write
+from arsurf.errors import CorruptScan, ScanError
 from arsurf.scan.readers._common import Channel, select_channel
 from arsurf.scan.readers.npy import finish, header_info
 
@@ -76,5 +77,5 @@ def read(path: Path | str, channel: str | None = None, *, dx: float | None = Non
 def write(scan, path: Path | str) -> None:
     """Write ``heights`` and the ``arsurf_meta`` JSON (bit-exact round trip)."""
     meta = json.dumps(header_info(scan), allow_nan=True)
-    with open(path, "wb") as fh:
+    with atomic_write(path, what="scan file", error=ScanError) as fh:
         np.savez(fh, heights=np.asarray(scan.heights, dtype=np.float64), arsurf_meta=np.array(meta))

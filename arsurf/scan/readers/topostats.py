@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.errors import CorruptScan
-from arsurf.scan.readers._common import Channel, check_shape, make_scan, require_hdf5, select_channel
+from arsurf.scan.readers._common import Channel, check_shape, make_scan, open_scan_hdf5, select_channel
 
 EXTENSIONS = (".topostats",)
 FORMAT = "topostats"
@@ -36,10 +36,9 @@ def read(path: Path | str, channel: str | None = None):
 
     path = Path(path)
     size = path.stat().st_size
-    require_hdf5(path, "a TopoStats file")
     try:
         with contextlib.ExitStack() as stack:
-            f = stack.enter_context(h5py.File(path, "r"))
+            f = stack.enter_context(open_scan_hdf5(path, "a TopoStats file"))
             if "image" not in f or not isinstance(f["image"], h5py.Dataset):
                 raise CorruptScan(f"{path}: no 'image' dataset (keys: {sorted(f.keys())[:10]})")
             ds = f["image"]
