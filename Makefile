@@ -21,6 +21,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[all,test,docs]"
+	$(PY) -m arsurf.warmup --quiet  # numba's cache, built once here: the first demo does not wait on the compiler
 	touch $(STAMP)
 
 demo: setup

@@ -13,7 +13,9 @@ attached or a session is replayed, the measured bending and torsion angles),
    and load P (> 0 compressive); with a material map (:mod:`arsurf.contact.material_map`) the law
    has the E* and w of the contact point;
 3. **deform** the live surface's control net (:mod:`arsurf.contact.deformation`): the contact
-   zone onto the tip, the elastic surface of the same (local) law around it;
+   zone onto the tip, the elastic surface of the same (local) law around it. The tick records
+   the dent (O(1), whatever the pitch); the net is moved to it when it is read
+   (:meth:`~arsurf.spline.surface.BSplineSurface.sync`);
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
    :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
@@ -42,8 +44,8 @@ from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import friction as fr
 from arsurf.contact import projection as pj
-from arsurf.contact.deformation import PROFILE_SIZE, deform_kernel
-from arsurf.contact.material_map import (H_FRICTION, H_PROFILE, contact_vector, deepest_well_kernel,
+from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
+from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
                                          local_contact_kernel)
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_radius)
@@ -163,12 +165,12 @@ def model_tick_kernel(proj,                                              # Proje
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
     md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
-    if deform:  # 3. dent the live net (restores the previous patch first)
+    if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
         zone = md_zone_radius(a, depth, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA])
-        p0 = int(md_args[H_PROFILE])
-        out[M_MOVED] = deform_kernel(live_ctrl, live_rest, ku, kv, out[M_TIP], out[M_TIP + 1], out[M_TIP + 2],
-                                     tip_radius if md_st == CONTACT else 0.0, nx, ny, nz, a, depth, zone,
-                                     md_args[p0:p0 + PROFILE_SIZE], patch)
+        d0 = int(md_args[H_DENT])
+        out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, out[M_TIP], out[M_TIP + 1],
+                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, nx, ny, nz, a,
+                                          depth, zone)
     # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     sx, sy, strength, share_x, share_z = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state,
                                                           scratch, out)
@@ -309,7 +311,8 @@ class ModelTick:
     ``point``, ``normal``, ``uv``, ``distance``, ``depth``: the collision on the rest surface;
     ``contact_radius``, ``load`` (N, > 0 compressive), ``in_contact``, ``md_status`` (0 contact,
     1 cohesive, 2 separated); ``simulated_force`` and ``measured_force`` (N, on the tip; the
-    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points;
+    latter NaN without signals), ``decoupling_flags``, ``condition``; ``moved`` control points under the dent (its index
+    box, the points it may move: the tick records the dent, the net moves to it when read);
     ``tip`` the tip centre behind the virtual coupling (the target without one), ``slipping``
     whether the friction proxy slid this tick, ``coupled`` whether the coupling equation was
     solved (False: the tip is at the target).
@@ -415,7 +418,6 @@ class ARModel:
         # (no copy of the whole net: a 4096^2 net is 400 MB)
         live_ctrl, live_rest, ku, kv = surface.kernel_arrays()
         self.rest_surface = BSplineSurface.construct_fast(live_rest, ku, kv)
-        self._deformer = Deformer(surface)  # validates the height-field rest net
         self.tip_radius = tip_radius
         self.contact = contact
         self.cantilever = cantilever
@@ -436,7 +438,9 @@ class ARModel:
         self.material = material
         self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
-        self._md_args = contact_vector(material, contact, self._friction.size, PROFILE_SIZE)
+        self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
+        # validates the height-field rest net; the tick records its dent in the contact vector
+        self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
         self.state = MODEL_STATE.full(np.nan)
         self._clear_state()

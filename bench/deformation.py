@@ -1,74 +1,88 @@
-"""Benchmark: control-net dent update per tick (O(patch) kernel) vs a numpy pass over the net.
+"""Benchmark: the model tick with the dent on over pitch x tip radius x depth (issue 28).
 
-Tip radii 5, 20, 50 nm on a 4 nm grid (512 x 512 net), the tip sliding 0.1 nm per tick.
-Run: .venv/bin/python bench/deformation.py   (prints JSON)
+Table: for every pixel pitch (0.1-8 nm) x tip radius (2-50 nm) x depth, the compiled model
+tick (``ARModel.tick``, collision + Maugis-Dugdale + dent + force) sliding 0.01 nm per tick on
+a rough 256 x 256 surface (bench/_tick_table.py): median and p99. The tick records its dent
+(O(1)); the net is moved to it when read (``surface.sync()``). Peers, same run, same cell:
+the tick without the dent, today's eager dent (the net moved every tick: tick + sync), and
+the cost of one read of the net after ticks (what a 60 Hz view pays per frame).
+
+Run: .venv/bin/python bench/deformation.py [--full]   (prints JSON; default a coarse grid, ~1 min)
 """
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _tick_table as tt  # noqa: E402
 from _timing import emit, stats, time_calls  # noqa: E402
 
-from arsurf.contact.deformation import Deformer, deform_kernel  # noqa: E402
-from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
-from arsurf.spline.surface import BSplineSurface  # noqa: E402
-
-H = 4e-9
+from arsurf.model import M_IN_CONTACT, M_MOVED  # noqa: E402
 
 
-def numpy_full_net(ctrl, rest, c, R, n, a):
-    """The same rule written the obvious way: every control point, every tick."""
-    ctrl[...] = rest
-    rel = rest - c
-    s = rel @ n
-    r = rel - s[..., None] * n
-    rho2 = np.einsum("ijk,ijk->ij", r, r)
-    inside = np.einsum("ijk,ijk->ij", rel, rel) < R * R
-    m = (rho2 < R * R) & ((rho2 < a * a) | inside)
-    cap = -np.sqrt(R * R - rho2[m])
-    ctrl[m] = c + r[m] + cap[:, None] * n
+def cell(surface, tip: float, depth: float, ticks: int) -> dict:
+    """One cell of the table: the tick with the dent, without it, eager, and a read of the net."""
+    row = {}
+    for name, deform, eager in (("tick", True, False), ("tick_no_dent", False, False),
+                                ("tick_eager_dent", True, True)):
+        model = tt.model_on(surface, tip, deform)
+        c = tt.start(surface, tip, depth)
+        k = [0]
+        tick, sync = model.tick, surface.sync
+
+        def one():
+            k[0] += 1
+            tick((c[0] + tt.STEP * (k[0] % 80), c[1], c[2]))
+            if eager:
+                sync()
+
+        n = ticks if not eager else max(ticks // 10, 50)
+        row[name] = stats(time_calls(one, n, warmup=20))
+        if name == "tick":
+            row["in_contact"] = bool(model.out[M_IN_CONTACT])
+            row["dent_box_points"] = int(model.out[M_MOVED])
+
+            def read():  # a frame's read of the net after 160 ticks (the view at 60 Hz, the loop at 10 kHz)
+                one()
+                sync()
+
+            row["read_after_ticks"] = stats(time_calls(read, 30, warmup=2))
+        model.reset()
+    return row
 
 
 def main() -> None:
-    n_net = 512
-    s = BSplineSurface.from_heights(np.zeros((n_net, n_net)), (0.0, (n_net - 3) * H), (0.0, (n_net - 3) * H))
-    normal = np.array([0.0, 0.0, 1.0])
-    results = {}
-    for R in (5e-9, 20e-9, 50e-9):
-        d = Deformer(s)
-        ctrl, rest, ku, kv = s.kernel_arrays()
-        # a Maugis-Dugdale contact 0.1 R deep (lambda ~ 1): contact zone and elastic surface around it
-        md = MaugisDugdale(R, 10e9, 0.1)
-        depth = 0.1 * R
-        st = md.contact_state(depth=depth)
-        a, zone = st.radius, st.cohesive_radius
-        state = {"x": 400e-9}
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--full", action="store_true", help="the whole table (several minutes)")
+    ap.add_argument("--ticks", type=int, default=3000)
+    args = ap.parse_args()
+    pitches = tt.FULL_PITCHES_NM if args.full else tt.PITCHES_NM
+    tips = tt.FULL_TIPS_NM if args.full else tt.TIPS_NM
+    depths = tt.FULL_DEPTHS_NM if args.full else tt.DEPTHS_NM
+    rows = []
+    for p in pitches:
+        s = tt.rough_surface(p * 1e-9)
+        for r in tips:
+            for d in depths:
+                rows.append({"pitch_nm": p, "tip_radius_nm": r, "depth_nm": d,
+                             **cell(s, r * 1e-9, d * 1e-9, args.ticks)})
+                print(f"pitch {p} nm, R {r} nm, depth {d} nm: tick {rows[-1]['tick']['median_us']:.1f} us "
+                      f"(eager {rows[-1]['tick_eager_dent']['median_us']:.1f} us)", file=sys.stderr)
+    med = [r["tick"]["median_us"] for r in rows]
+    p99 = [r["tick"]["p99_us"] for r in rows]
 
-        def tick_kernel():
-            state["x"] += 0.1e-9
-            deform_kernel(ctrl, rest, ku, kv, state["x"], 500e-9, 0.9 * R, R, 0.0, 0.0, 1.0, a, depth, zone, d.profile,
-                          d.patch)
+    def at(p, r):
+        return float(np.median([x["tick"]["median_us"] for x in rows if x["pitch_nm"] == p and x["tip_radius_nm"] == r]))
 
-        def tick_numpy():
-            state["x"] += 0.1e-9
-            numpy_full_net(ctrl, rest, np.array([state["x"], 500e-9, 0.9 * R]), R, normal, a)
-
-        k = stats(time_calls(tick_kernel, 20000))
-        p = stats(time_calls(tick_numpy, 20))
-        d.release()
-        s.reset()
-        results[f"R={R * 1e9:.0f}nm"] = {
-            "kernel_tick": k,
-            "numpy_full_net_tick": p,
-            "ratio_numpy_over_kernel": p["median_us"] / k["median_us"],
-            "patch_points": int((2 * R / H + 5) ** 2),
-        }
-    results["net"] = f"{n_net}x{n_net} control points, spacing {H * 1e9:.0f} nm"
-    emit("deformation", results)
+    summary = {"cells": len(rows), "max_median_us": max(med), "max_p99_us": max(p99),
+               "cells_over_40us_median": sum(m > 40 for m in med), "cells_over_100us_p99": sum(m > 100 for m in p99)}
+    if 20.0 in tips and 0.25 in pitches and 2.0 in pitches:
+        summary["R20_median_0.25nm_over_2nm"] = at(0.25, 20.0) / at(2.0, 20.0)
+    emit("deformation", {"summary": summary, "surface": f"{tt.SIZE}x{tt.SIZE} px, 0.5 nm rms, correlated over max(6 nm, 3 px)", "rows": rows})
 
 
 if __name__ == "__main__":

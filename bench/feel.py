@@ -103,6 +103,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=3.0)
     ap.add_argument("--quick", action="store_true", help="1 kHz only, three motions (a smoke run)")
     ap.add_argument("--no-vtk", action="store_true")
+    ap.add_argument("--vtk-only", action="store_true", help="only the tick vs VTK closest point on the real scans")
     ap.add_argument("--motions", nargs="+", choices=MOTIONS, help="only these motions")
     ap.add_argument("--sources", nargs="+", choices=SOURCES, help="only these sources")
     ap.add_argument("--rates", nargs="+", type=float, help="only these loop rates, Hz")
@@ -119,6 +120,18 @@ def main() -> None:
                 for source in (args.sources or ("simulated", "measured"))]
         bode_figure(rows, args.bode)
         print(json.dumps({"transparency": rows, "figure": args.bode}, indent=1))
+        return
+    if args.vtk_only:  # every real scan of the folder, not only the feel table's three
+        rows = {}
+        for path in sorted(p for p in SCANS.iterdir() if p.suffix != ".md"):
+            try:
+                s = surfaces.get(path.name) or prepared_surface(path)[1]
+            except Exception as exc:  # noqa: BLE001 - a file the demo cannot prepare: said, not fatal
+                rows[path.name] = {"error": f"{type(exc).__name__}: {exc}"[:200]}
+                continue
+            rows[path.name] = {"control_points": list(s.shape), **vtk_ratio(s)}
+            print(f"{path.name}: tick/VTK {rows[path.name]['tick_over_vtk_median']:.2f}", file=sys.stderr)
+        print(json.dumps({"vtk": rows}, indent=1))
         return
     for kind in ("step", "ridge"):
         surfaces[f"synthetic-{kind}"] = synthetic_surface(kind)

@@ -49,6 +49,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from arsurf._files import atomic_write
 from arsurf.errors import require
@@ -57,6 +58,28 @@ from arsurf.spline.surface import BSplineSurface
 from .backend import choose_backend
 from .state import SceneState
 from arsurf.errors import ViewerError
+
+
+@njit(cache=True)
+def _changed_box(ctrl, last):
+    """Index box (i0, i1, j0, j1) of the control points where ``ctrl`` differs from ``last``
+    (empty: i1 = i0 = 0), copied into ``last``: one pass, no temporaries."""
+    nu, nv = ctrl.shape[0], ctrl.shape[1]
+    i0, i1, j0, j1 = nu, -1, nv, -1
+    for i in range(nu):
+        for j in range(nv):
+            if ctrl[i, j, 0] != last[i, j, 0] or ctrl[i, j, 1] != last[i, j, 1] or ctrl[i, j, 2] != last[i, j, 2]:
+                i0 = min(i0, i)
+                i1 = max(i1, i)
+                j0 = min(j0, j)
+                j1 = max(j1, j)
+    if i1 < 0:
+        return 0, 0, 0, 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for c in range(3):
+                last[i, j, c] = ctrl[i, j, c]
+    return i0, i1 + 1, j0, j1 + 1
 
 __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 
@@ -262,6 +285,7 @@ class SurfaceView:
         (u0, u1), (v0, v1) = surface.domain
         self._u = np.linspace(u0, u1, nu)
         self._v = np.linspace(v0, v1, nv)
+        self._watch = surface.watch()  # what the deformers move from now on (a new watch: compare all once)
         ctrl, rest, ku, kv = surface.kernel_arrays()
         self._ku, self._kv = ku, kv
         self._last_ctrl = np.array(ctrl, copy=True)
@@ -282,6 +306,8 @@ class SurfaceView:
         self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
         self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
         self._resample(0, nu, 0, nv)
+        self._dent_box = (0, nu, 0, nv)  # grid box (iu0, iu1, jv0, jv1) holding every deformed sample
+        self._find_dent(self._dent_box)
         self._material_clim = {}
         if self.material is not None:  # the material fields on the rest grid (they move with the surface)
             for mode, (name, units, log) in _MATERIAL_MODES.items():
@@ -326,26 +352,76 @@ class SurfaceView:
             prop.ShadowOn()
         self._build_legend()
         self.set_color_by(self.color_by)
+        from vtkmodules.vtkCommonDataModel import vtkImageData
+        from vtkmodules.vtkFiltersCore import vtkFlyingEdges2D
+
+        # the dent's lines: flying edges on the deformed part of the grid as an image in index
+        # space (built once, re-run per frame without pyvista's wrappers), the line points then
+        # put on the surface by bilinear interpolation; the actor sits 0.1 nm above the surface
+        self._dent_image = vtkImageData()
+        self._dent_contour = vtkFlyingEdges2D()
+        self._dent_contour.SetInputData(self._dent_image)
+        self._dent_contour.ComputeScalarsOff()
         self._dent_lines = pv.PolyData(np.zeros((1, 3)))  # one point, no line: replaced in place
         self.dent_actor = self.plotter.add_mesh(self._dent_lines, color=COLORS["dent"], line_width=2.0, lighting=False,
                                                 reset_camera=False, pickable=False)
+        self.dent_actor.SetPosition(0.0, 0.0, 0.1)
         self.dent_step_nm = 0.0
         self._update_dent()
 
+    def _find_dent(self, box) -> None:
+        """Shrink :attr:`_dent_box` to the deformed samples inside ``box`` (which holds them all)
+        and note their largest deformation: O(box), not O(grid)."""
+        iu0, iu1, jv0, jv1 = box
+        sub = self._deform[jv0:jv1, iu0:iu1]
+        dented = sub > 0.0
+        rows = np.flatnonzero(dented.any(axis=1))
+        if rows.size == 0:
+            self._dent_box, self._dent_top = (0, 0, 0, 0), 0.0
+            return
+        cols = np.flatnonzero(dented.any(axis=0))
+        self._dent_box = (iu0 + int(cols[0]), iu0 + int(cols[-1]) + 1, jv0 + int(rows[0]), jv0 + int(rows[-1]) + 1)
+        self._dent_top = float(sub.max())
+
     def _update_dent(self) -> None:
-        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the surface."""
-        top = float(self._deform.max())
+        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the
+        surface; computed on the part of the grid that is deformed (:attr:`_dent_box`) only."""
+        top = self._dent_top
         if top < 0.02:  # nothing a reader could see: no lines
-            self.dent_step_nm = 0.0
-            self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
+            if self.dent_step_nm != 0.0 or self._dent_lines.n_points != 1:
+                self.dent_step_nm = 0.0
+                self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
             return
         k = math.floor(math.log10(top / 4.0))
         step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
         self.dent_step_nm = step
-        lines = self.grid.contour(isosurfaces=list(np.arange(1, int(top / step) + 1) * step),
-                                  scalars="deformation_nm")
-        lines.points[:, 2] += 0.1
-        self._dent_lines.shallow_copy(lines)
+        from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+        iu0, iu1, jv0, jv1 = self._dent_box
+        # one sample of margin each side: the lines close where the deformation falls to 0
+        nu, nv = self.resolution
+        a0, a1, b0, b1 = max(iu0 - 1, 0), min(iu1 + 1, nu), max(jv0 - 1, 0), min(jv1 + 1, nv)
+        self._dent_values = numpy_to_vtk(np.ascontiguousarray(self._deform[b0:b1, a0:a1]).ravel(), deep=1)
+        self._dent_image.SetDimensions(a1 - a0, b1 - b0, 1)
+        self._dent_image.GetPointData().SetScalars(self._dent_values)
+        levels = np.arange(1, int(top / step) + 1) * step
+        contour = self._dent_contour
+        contour.SetNumberOfContours(levels.size)
+        for i, level in enumerate(levels):
+            contour.SetValue(i, float(level))
+        contour.Update()
+        out = contour.GetOutput()
+        if out.GetNumberOfPoints():
+            q = vtk_to_numpy(out.GetPoints().GetData())   # (x, y) = (column, row) inside the box
+            fi, fj = q[:, 0], q[:, 1]
+            i = np.clip(fi.astype(np.int64), 0, a1 - a0 - 2)
+            j = np.clip(fj.astype(np.int64), 0, b1 - b0 - 2)
+            tx, ty = (fi - i)[:, None], (fj - j)[:, None]
+            p = self._pts[b0:b1, a0:a1]
+            on_surface = ((1 - ty) * ((1 - tx) * p[j, i] + tx * p[j, i + 1])
+                          + ty * ((1 - tx) * p[j + 1, i] + tx * p[j + 1, i + 1]))
+            out.GetPoints().SetData(numpy_to_vtk(on_surface, deep=1))
+        self._dent_lines.ShallowCopy(out)
 
     def _build_markers(self) -> None:
         pv = self._pv
@@ -497,7 +573,7 @@ class SurfaceView:
         elif self.color_by in _MATERIAL_MODES:
             self._mapper.scalar_range = self._material_clim[self.color_by]
         else:
-            self._mapper.scalar_range = (0.0, max(float(self._deform.max()), 0.5))
+            self._mapper.scalar_range = (0.0, max(self._dent_top, 0.5))
 
     def set_camera(self, mode: str = "oblique") -> None:
         """Frame the surface: ``"oblique"`` (perspective from the front-left, 35° elevation) or
@@ -651,19 +727,28 @@ class SurfaceView:
     # -- per-frame work -----------------------------------------------------------------------
     def _sync_surface(self) -> None:
         """Re-sample the part of the grid whose control points changed since the last frame."""
-        ctrl, _, ku, kv = self.surface.kernel_arrays()
-        changed = np.not_equal(ctrl, self._last_ctrl).any(axis=2)
-        if not changed.any():
+        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dent first)
+        anything, box = self._watch.take()
+        if anything:  # written from outside the deformers: compare the whole net
+            i0, i1, j0, j1 = _changed_box(ctrl, self._last_ctrl)
+        elif box is None:
             return
-        ii = np.flatnonzero(changed.any(axis=1))
-        jj = np.flatnonzero(changed.any(axis=0))
+        else:  # only the deformers' boxes can differ
+            b0, b1, c0, c1 = box
+            i0, i1, j0, j1 = _changed_box(ctrl[b0:b1, c0:c1], self._last_ctrl[b0:b1, c0:c1])
+            i0, i1, j0, j1 = i0 + b0, i1 + b0, j0 + c0, j1 + c0
+        if i1 <= i0:
+            return
         # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
-        iu0 = int(np.searchsorted(self._u, ku[ii[0]], side="left"))
-        iu1 = int(np.searchsorted(self._u, ku[ii[-1] + 4], side="right"))
-        jv0 = int(np.searchsorted(self._v, kv[jj[0]], side="left"))
-        jv1 = int(np.searchsorted(self._v, kv[jj[-1] + 4], side="right"))
-        self._last_ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1] = ctrl[ii[0]:ii[-1] + 1, jj[0]:jj[-1] + 1]
+        iu0 = int(np.searchsorted(self._u, ku[i0], side="left"))
+        iu1 = int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right"))
+        jv0 = int(np.searchsorted(self._v, kv[j0], side="left"))
+        jv1 = int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right"))
         self._resample(iu0, iu1, jv0, jv1)
+        # the deformed samples are in the old dent box or the re-sampled one
+        b = self._dent_box
+        self._find_dent((iu0, iu1, jv0, jv1) if b[1] <= b[0] else
+                        (min(b[0], iu0), max(b[1], iu1), min(b[2], jv0), max(b[3], jv1)))
         self._update_clim()
         self._update_dent()
 

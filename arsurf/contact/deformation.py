@@ -56,8 +56,18 @@ point still inside the sphere (a rough patch under the tip, which the half-space
 not know) is put on the sphere. Every other control point keeps its rest position **bitwise**.
 
 Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
-(+ one knot spacing) of the tip axis' foot can move: the kernel restores the previous box from
-the rest net and writes the new one, so a tick costs O((2 r_b/h)²) whatever the scan size.
+(+ one knot spacing) of the tip axis' foot can move: the kernel puts the previous box back to
+rest where the new one does not cover it and writes the new one, each point once, so a dent
+costs O((2 r_b/h)²) whatever the scan size (:func:`deform_kernel`). That is
+:math:`(2r_b/h)^2`: 27,000 points for a 20 nm tip on a 0.25 nm net, 250,000 at 0.1 nm and
+50 nm. So the haptic tick does not dent: it *records* the dent (centre, normal, R, a, δ, c:
+:func:`record_dent_kernel`, O(1) whatever the pitch), and the net is moved to the recorded dent
+when it is next read (:meth:`Deformer.sync`, called by
+:meth:`~arsurf.spline.surface.BSplineSurface.sync` before every read of the net: evaluation,
+the control points, the kernel arrays). A reader therefore sees exactly, bitwise, the full dent
+of the last tick - there is no approximation to state - and the work is done at the reader's
+rate (a 60 Hz view) instead of the tick's (10 kHz), once per read. (The compiled tick holds
+the GIL, so a reader in another thread never sees a half-recorded dent.)
 :meth:`Deformer.release` puts the box back to rest; ``surface.reset()`` restores everything.
 
 The rest net must be a height-field net on the Greville abscissae (what
@@ -282,36 +292,57 @@ def dent_displacement(rho, a, tip_radius, depth, zone_radius):
     return u if np.ndim(u) else float(u)
 
 
-@njit(cache=True)
-def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
-                  profile, patch):
-    """Restore ``patch`` (:data:`DENT_PATCH`) to rest, then dent the new patch; write it to ``patch``.
-
-    ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface outside the contact
-    (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a scratch array of
-    :data:`PROFILE_SIZE` floats. Returns the number of control points moved (>= 0).
-    ``contact_radius`` <= 0 only pushes points out of the sphere (no contact zone, no elastic
-    surface); a ``radius`` <= 0 releases.
-    """
-    # 1. restore the previous patch
-    for i in range(patch[_I0], patch[_I1]):
-        for j in range(patch[_J0], patch[_J1]):
-            for c in range(3):
-                ctrl[i, j, c] = rest[i, j, c]
-    patch[_I0] = patch[_I1] = patch[_J0] = patch[_J1] = 0
+@njit(cache=True, inline="always")
+def _dent_box(nu, nv, ku, kv, cx, cy, radius, contact_radius):
+    """Index box (i0, i1, j0, j1) of the control points a dent may move: rest (x, y) within
+    max(R, 3a) (+ one knot spacing) of the tip axis' foot; empty for a release (R <= 0)."""
     if radius <= 0.0:
-        return 0
-    a = contact_radius if contact_radius > 0.0 else 0.0
-    r_elastic = PATCH_PER_CONTACT * a          # the elastic surface, faded over its outer half
-    r_box = max(radius, r_elastic)             # ... and the no-interpenetration guard out to R
-    nu = ctrl.shape[0]
-    nv = ctrl.shape[1]
+        return 0, 0, 0, 0
+    r_box = max(radius, PATCH_PER_CONTACT * max(contact_radius, 0.0))
     hu = (ku[nu] - ku[3]) / (nu - 3)
     hv = (kv[nv] - kv[3]) / (nv - 3)
     i0, i1 = _index_range(cx - r_box, cx + r_box, ku[3], hu, nu)
     j0, j1 = _index_range(cy - r_box, cy + r_box, kv[3], hv, nv)
     if i0 >= i1 or j0 >= j1:
+        return 0, 0, 0, 0
+    return i0, i1, j0, j1
+
+
+@njit(cache=True)
+def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
+                  profile, patch):
+    """Move the net from the dent in ``patch`` (i0, i1, j0, j1) to the dent of this tip; write
+    its index box to ``patch``. The full dent (the module docstring's rule), exact.
+
+    Incremental: the points of the previous box outside the new one go back to rest; inside the
+    new box every point is written (dented, or back to rest if the previous box held it), so
+    each point is touched once. ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface
+    outside the contact (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a
+    scratch array of :data:`PROFILE_SIZE` floats. Returns the number of control points dented
+    (>= 0). ``contact_radius`` <= 0 only pushes points out of the sphere (no contact zone, no
+    elastic surface); a ``radius`` <= 0 releases.
+    """
+    nu = ctrl.shape[0]
+    nv = ctrl.shape[1]
+    o0, o1, p0, p1 = patch[_I0], patch[_I1], patch[_J0], patch[_J1]
+    i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, cx, cy, radius, contact_radius)
+    # 1. the previous box outside the new one back to rest
+    for i in range(o0, o1):
+        inside_i = i0 <= i < i1
+        for j in range(p0, p1):
+            if inside_i and j0 <= j < j1:
+                continue
+            for c in range(3):
+                ctrl[i, j, c] = rest[i, j, c]
+    patch[_I0] = i0
+    patch[_I1] = i1
+    patch[_J0] = j0
+    patch[_J1] = j1
+    if i0 >= i1:
         return 0
+    a = contact_radius if contact_radius > 0.0 else 0.0
+    r_elastic = PATCH_PER_CONTACT * a          # the elastic surface, faded over its outer half
+    r_box = max(radius, r_elastic)             # ... and the no-interpenetration guard out to R
     n_prof = profile.size
     scale = 0.0
     if a > 0.0:
@@ -324,7 +355,9 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
     sphere = a <= SPHERE_LIMIT * radius
     moved = 0
     for i in range(i0, i1):
+        old_i = o0 <= i < o1
         for j in range(j0, j1):
+            old = old_i and p0 <= j < p1   # the previous dent may have moved this point
             px = rest[i, j, 0] - cx
             py = rest[i, j, 1] - cy
             pz = rest[i, j, 2] - cz
@@ -333,8 +366,6 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             ry = py - s * ny
             rz = pz - s * nz
             rho2 = rx * rx + ry * ry + rz * rz
-            if rho2 >= rb2:
-                continue
             if rho2 < a2:
                 if sphere:
                     cap = -math.sqrt(r2 - rho2)
@@ -347,6 +378,12 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
                     ctrl[i, j, 1] = rest[i, j, 1] - u * ny
                     ctrl[i, j, 2] = rest[i, j, 2] - u * nz
                 moved += 1
+                continue
+            if rho2 >= rb2 or (rho2 >= re2 and px * px + py * py + pz * pz >= r2):
+                # beyond the elastic surface and outside the tip: at rest, bitwise
+                if old:
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
                 continue
             qx = rest[i, j, 0]
             qy = rest[i, j, 1]
@@ -361,8 +398,6 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
                 qx -= u * nx
                 qy -= u * ny
                 qz -= u * nz
-            elif px * px + py * py + pz * pz >= r2:
-                continue   # beyond the elastic surface and outside the tip: at rest, bitwise
             if rho2 < r2:
                 dx = qx - cx
                 dy = qy - cy
@@ -376,11 +411,47 @@ def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_ra
             ctrl[i, j, 1] = qy
             ctrl[i, j, 2] = qz
             moved += 1
-    patch[_I0] = i0
-    patch[_I1] = i1
-    patch[_J0] = j0
-    patch[_J1] = j1
     return moved
+
+
+# The dent as the tick records it (DENT vector, float64): the tick writes these numbers, O(1)
+# whatever the pitch, and the net is moved to them when it is read (Deformer.sync)
+DENT = Layout("recorded dent", [("seq", 1), ("center", 3), ("radius", 1), ("normal", 3), ("contact_radius", 1),
+                                 ("depth", 1), ("zone_radius", 1)])
+D_SEQ, D_CX, D_RADIUS, D_NX = DENT.offset("seq"), DENT.offset("center"), DENT.offset("radius"), DENT.offset("normal")
+D_CY, D_CZ, D_NY, D_NZ = D_CX + 1, D_CX + 2, D_NX + 1, D_NX + 2
+D_A, D_DEPTH, D_ZONE = DENT.offset("contact_radius"), DENT.offset("depth"), DENT.offset("zone_radius")
+#: length of the recorded dent (:func:`record_dent_kernel`)
+DENT_SIZE = DENT.size
+
+
+@njit(cache=True)
+def record_dent_kernel(dent, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius):
+    """Record the dent of this tip in ``dent`` (:data:`DENT_SIZE`,) for :meth:`Deformer.sync`, O(1).
+
+    The arguments are those of :func:`deform_kernel` (``radius`` <= 0: no dent). The sequence
+    number ``dent[D_SEQ]`` grows by one per record. Returns the number of control points in
+    the dent's index box (those the dent may move; 0 without a dent): the tick's ``moved``."""
+    dent[D_CX] = cx
+    dent[D_CY] = cy
+    dent[D_CZ] = cz
+    dent[D_RADIUS] = radius
+    dent[D_NX] = nx
+    dent[D_NY] = ny
+    dent[D_NZ] = nz
+    dent[D_A] = contact_radius
+    dent[D_DEPTH] = depth
+    dent[D_ZONE] = zone_radius
+    dent[D_SEQ] += 1.0
+    i0, i1, j0, j1 = _dent_box(ku.size - 4, kv.size - 4, ku, kv, cx, cy, radius, contact_radius)
+    return (i1 - i0) * (j1 - j0)
+
+
+@njit(cache=True)
+def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
+    """Move the net to the dent recorded in ``dent`` (:func:`deform_kernel`); returns the points dented."""
+    return deform_kernel(ctrl, rest, ku, kv, dent[D_CX], dent[D_CY], dent[D_CZ], dent[D_RADIUS], dent[D_NX],
+                         dent[D_NY], dent[D_NZ], dent[D_A], dent[D_DEPTH], dent[D_ZONE], profile, patch)
 
 
 @dataclass(frozen=True)
@@ -394,10 +465,23 @@ class DeformationResult:
 class Deformer:
     """Dents a surface's control net around the tip, one contact at a time, reversibly.
 
+    :meth:`apply` dents the net at once. The compiled tick only *records* its dent in
+    :attr:`dent` (:func:`record_dent_kernel`, O(1) whatever the pitch); the net is moved to the
+    recorded dent when it is next read (:meth:`sync`, which the surface calls from
+    :meth:`~arsurf.spline.surface.BSplineSurface.sync` before anything reads it), so a reader
+    always sees exactly the full dent of the last tick (:func:`deform_kernel`), and the tick
+    does not pay for control points nobody looks at.
+
     Parameters
     ----------
     surface : BSplineSurface
         Its rest net must be a height-field net (as :func:`arsurf.fit_surface` makes).
+    record : float64 array, optional
+        The vector the tick records its dent in (the model's contact vector), its
+        :data:`DENT_SIZE` floats from offset ``at``; default a vector of its own. (Kept as the
+        vector and an offset, not a view, so that a deep copy of a model stays connected.)
+    at : int
+        Offset of the dent in ``record``.
 
     Examples
     --------
@@ -411,7 +495,7 @@ class Deformer:
     False
     """
 
-    def __init__(self, surface: BSplineSurface):
+    def __init__(self, surface: BSplineSurface, record: np.ndarray | None = None, at: int = 0):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"Deformer needs a BSplineSurface (got {type(surface).__name__})")
         if not surface.is_height_field_net:
@@ -422,6 +506,13 @@ class Deformer:
         self.surface = surface
         self.patch = np.zeros(DENT_PATCH.size, dtype=np.int64)
         self.profile = np.zeros(PROFILE_SIZE)
+        self._record = np.zeros(DENT_SIZE) if record is None else record
+        self._at = int(at)
+        if self._record.ndim != 1 or self._record.dtype != np.float64 or not 0 <= self._at <= self._record.size - DENT_SIZE:
+            raise ContactError(f"`record` must be a float64 vector holding {DENT_SIZE} floats from offset {at} "
+                               f"(got {self._record.dtype} {self._record.shape})")
+        self._applied = float(self._record[self._at + D_SEQ])  # the recorded dent the net shows
+        surface.attach_dent(self)
 
     def apply(self, center, radius: float, normal, contact_radius: float, *, depth: float | None = None,
               zone_radius: float | None = None) -> DeformationResult:
@@ -458,24 +549,53 @@ class Deformer:
         norm = float(np.linalg.norm(n))
         if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-6):
             raise ContactError(f"`normal` must be a unit vector (got {n}, |n| = {norm:.6g})")
-        before = self.patch.copy()
-        ctrl, rest, ku, kv = self.surface.kernel_arrays()
-        moved = deform_kernel(ctrl, rest, ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2],
-                              contact_radius, depth, zone_radius, self.profile, self.patch)
-        self._refresh(before)
+        _, _, ku, kv = self.surface.raw_arrays()
+        record_dent_kernel(self.dent, ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2], contact_radius, depth,
+                           zone_radius)
+        moved = self.sync()
         return DeformationResult(int(moved), tuple(int(p) for p in self.patch))
 
     def release(self) -> None:
         """Put the last dented patch back to its rest positions (bitwise)."""
+        _, _, ku, kv = self.surface.raw_arrays()
+        record_dent_kernel(self.dent, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+        self.sync()
+
+    @property
+    def dent(self) -> np.ndarray:
+        """The recorded dent (:data:`DENT_SIZE`,): a view into the record vector."""
+        return self._record[self._at:self._at + DENT_SIZE]
+
+    @property
+    def pending(self) -> bool:
+        """True when a dent was recorded that the net does not show yet."""
+        return float(self._record[self._at + D_SEQ]) != self._applied
+
+    def sync(self) -> int:
+        """Move the net to the last recorded dent (nothing if it shows it already), O(dent box);
+        returns the number of control points dented. Tell the projection's hull boxes and the
+        surface's watchers which index boxes changed (the old and the new box)."""
+        seq = float(self._record[self._at + D_SEQ])
+        if seq == self._applied:
+            return -1
         before = self.patch.copy()
-        ctrl, rest, ku, kv = self.surface.kernel_arrays()
-        deform_kernel(ctrl, rest, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, self.profile, self.patch)
+        ctrl, rest, ku, kv = self.surface.raw_arrays()
+        moved = sync_dent_kernel(ctrl, rest, ku, kv, self.dent, self.profile, self.patch)
+        self._applied = seq
         self._refresh(before)
+        return moved
+
+    def forget(self) -> None:
+        """The net was put back to rest by someone else (``surface.reset()``): no dent is shown."""
+        self.patch[:] = 0
+        self._applied = float(self._record[self._at + D_SEQ])
 
     def _refresh(self, before: np.ndarray) -> None:
-        """Tell the projection's hull boxes which index boxes changed (old and new patch), O(patch)."""
+        """Tell the projection's hull boxes and the surface's watchers which index boxes changed
+        (old and new patch), O(patch)."""
         from arsurf.contact.projection import refresh_region
 
         for box in (before, self.patch):
             if box[1] > box[0] and box[3] > box[2]:
                 refresh_region(self.surface, int(box[0]), int(box[1]), int(box[2]), int(box[3]))
+                self.surface.touched(int(box[0]), int(box[1]), int(box[2]), int(box[3]))

@@ -133,17 +133,17 @@ T_FOLD_TABLE_MAX = 9.0
 #: argument): the reference law's kernel arguments, the local law's (scratch), then scalars - the
 #: map's on flag, origin (m), log-ratio offsets and clamps of the two fields, the critical-point
 #: table's first ln lambda and step, the spline's and the table's sizes - and the offsets of the
-#: sections that follow the head (scratch for the model's friction vector and the dent's profile,
+#: sections that follow the head (scratch for the model's friction vector, the dent the tick records,
 #: the knots, the critical-point table, the two fields' spline coefficients)
 CONTACT_HEAD = Layout("contact vector head", [
     ("reference", MD_ARGS.size), ("local", MD_ARGS.size), ("on", 1), ("x0", 1), ("y0", 1), ("offset_e", 1),
     ("offset_w", 1), ("lo_e", 1), ("hi_e", 1), ("lo_w", 1), ("hi_w", 1), ("ln_lambda0", 1), ("table_step", 1),
-    ("nu", 1), ("nv", 1), ("ntable", 1), ("friction", 1), ("profile", 1), ("ku", 1), ("kv", 1), ("table", 1),
+    ("nu", 1), ("nv", 1), ("ntable", 1), ("friction", 1), ("dent", 1), ("ku", 1), ("kv", 1), ("table", 1),
     ("coef", 1)])
 # the offsets as the kernels use them
 C_REF, C_LOCAL, C_HEAD = CONTACT_HEAD.offset("reference"), CONTACT_HEAD.offset("local"), CONTACT_HEAD.offset("on")
 (H_ON, H_X0, H_Y0, H_OFF_E, H_OFF_W, H_LO_E, H_HI_E, H_LO_W, H_HI_W, H_LNLAM0, H_TABLE_STEP, H_NU, H_NV, H_NTABLE,
- H_FRICTION, H_PROFILE, H_KU, H_KV, H_TABLE, H_COEF) = (CONTACT_HEAD.offset(f) for f in CONTACT_HEAD.fields[2:])
+ H_FRICTION, H_DENT, H_KU, H_KV, H_TABLE, H_COEF) = (CONTACT_HEAD.offset(f) for f in CONTACT_HEAD.fields[2:])
 C_BODY = CONTACT_HEAD.size
 _MD_SIZE = MD_ARGS.size
 #: a row of the critical-point table: ln s and depth of the fold (inf and Delta0 without one),
@@ -847,14 +847,14 @@ def material_map_from_file(path, conversion: MaterialConversion, *, height: Scan
     return m
 
 
-def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_profile: int) -> np.ndarray:
+def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_dent: int) -> np.ndarray:
     """The contact vector of the model's tick: the reference law, the map, and scratch space.
 
     ``contact`` is the model's reference Maugis-Dugdale law; without a map the vector says so and
     :func:`local_contact_kernel` returns the reference law's arguments. With a map the law's tip
     radius and Dugdale range must be the conversion's (the same tip and interface law).
-    ``n_friction``, ``n_profile``: the sizes of the scratch sections for the model's local friction
-    vector and the dent's profile (their offsets at ``H_FRICTION`` and ``H_PROFILE``).
+    ``n_friction``, ``n_dent``: the sizes of the sections for the model's local friction vector
+    (scratch) and the dent the tick records (their offsets at ``H_FRICTION`` and ``H_DENT``).
     """
     ref = np.array(contact.kernel_args, dtype=np.float64)
     head = np.zeros(C_BODY - C_HEAD)
@@ -869,8 +869,8 @@ def contact_vector(material: MaterialMap | None, contact, n_friction: int, n_pro
         return at
 
     head[H_FRICTION - C_HEAD] = section(np.zeros(n_friction))
-    head[H_PROFILE - C_HEAD] = section(np.zeros(n_profile))
-    head[H_KU - C_HEAD] = pos     # the end of the profile without a map
+    head[H_DENT - C_HEAD] = section(np.zeros(n_dent))
+    head[H_KU - C_HEAD] = pos     # the end of the dent without a map
     if material is not None:
         if not isinstance(material, MaterialMap):
             raise MaterialMapError(f"material must be an arsurf MaterialMap (got {type(material).__name__})")

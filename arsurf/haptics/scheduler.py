@@ -60,6 +60,12 @@ from arsurf.errors import HapticsError, LoopError
 
 __all__ = ["LoopError", "Scheduler", "Snapshot", "TimingStats"]
 
+#: busy-wait margin (s) before each deadline when the loop thread runs under SCHED_FIFO: a
+#: real-time thread's sleep ends within tens of microseconds, and the short spin keeps the thread
+#: idle most of each period, below Linux's real-time throttling (sched_rt_runtime_us 950000 of
+#: every 1000000: a thread spinning ~all of each period was stopped ~50 ms each second)
+FIFO_SPIN = 3e-5
+
 
 @dataclass(frozen=True)
 class Snapshot:
@@ -85,7 +91,9 @@ class TimingStats:
     """Timing of a scheduler run (over the last ``history`` ticks for the distributions).
 
     Times in seconds. ``rate`` is the achieved tick rate over the whole run;
-    ``realtime_priority`` the ``SCHED_FIFO`` priority the loop thread got (0: none).
+    ``realtime_priority`` the ``SCHED_FIFO`` priority the loop thread got (0: none);
+    ``longest_gap`` the longest time between two tick starts over the whole run (the hand's
+    longest wait for a new force; the period distributions cover the last ``history`` ticks).
     """
 
     ticks: int
@@ -103,6 +111,7 @@ class TimingStats:
     snapshots_published: int
     snapshots_skipped: int
     realtime_priority: int = 0
+    longest_gap: float = 0.0
 
     def as_dict(self) -> dict[str, float | int]:
         return dict(self.__dict__)
@@ -166,7 +175,10 @@ class Scheduler:
         e.g. to command zero force.
     spin : float, s, optional
         Busy-wait margin before each deadline (default: 2e-4 s, at most three quarters of a
-        period). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
+        period, under the ordinary policy; :data:`FIFO_SPIN`, at most a quarter of a period,
+        when the thread got ``SCHED_FIFO``: a real-time sleeper is woken on time, and a thread
+        that spins most of each period meets Linux's real-time throttling - 950 ms of every
+        second by default - and stops for ~50 ms each second). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
         missed 0.17-0.35 % of the deadlines and a three-quarter one 0.03-0.09 % (``bench/haptic_loop.py``).
         Spinning a whole period is counter-productive on a shared machine: the OS scheduler then
         preempts the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
@@ -215,6 +227,7 @@ class Scheduler:
         snapshot_rate = float(snapshot_rate)
         if not (snapshot_rate > 0.0 and math.isfinite(snapshot_rate)):
             raise HapticsError(f"snapshot_rate must be a positive rate in Hz (got {snapshot_rate!r})")
+        self._spin_given = spin is not None
         if spin is None:
             spin = min(2e-4, 0.75 / rate)
         try:
@@ -251,6 +264,7 @@ class Scheduler:
 
     def _reset_counters(self) -> None:
         self.ticks = 0
+        self.longest_gap_ns = 0
         self.overruns = 0
         self.skipped = 0
         self.snapshots_published = 0
@@ -379,6 +393,9 @@ class Scheduler:
         sleep = time.sleep
         period = self._period_ns
         spin = self._spin_ns
+        if self.realtime_priority and not self._spin_given:
+            spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)  # sleep most of the period (no RT throttling)
+        longest = 0
         step, dt, source, sink = self.step, self.dt, self.source, self.sink
         publish = self.snapshot_fn is not None
         hist = self._history
@@ -392,8 +409,12 @@ class Scheduler:
             while not self._stop.is_set():
                 start = clock()
                 if last_start is not None:
-                    periods[self._n_period % hist] = start - last_start
+                    gap = start - last_start
+                    periods[self._n_period % hist] = gap
                     self._n_period += 1
+                    if gap > longest:
+                        longest = gap
+                        self.longest_gap_ns = gap
                 last_start = start
                 inputs = source() if source is not None else None
                 out = step(self.state, inputs, dt)
@@ -463,4 +484,5 @@ class Scheduler:
             snapshots_published=self.snapshots_published,
             snapshots_skipped=self.snapshots_skipped,
             realtime_priority=self.realtime_priority,
+            longest_gap=self.longest_gap_ns * 1e-9,
         )

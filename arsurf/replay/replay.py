@@ -57,7 +57,7 @@ dataset                shape     dtype  meaning
 ``md_status``          (n,)      i4     0 contact, 1 cohesive, 2 separated, < 0 error
 ``decoupling_flags``   (n,)      i4     DecouplingFlag bits
 ``collide_status``     (n,)      i4     collision status (< 0: failed, contact fields NaN)
-``moved``              (n,)      i4     control points moved by the dent
+``moved``              (n,)      i4     control points under the dent (its index box)
 ``tube_poses``         (n,k,3)   f8     only with a tube scene: the poses the replayed scene
                                         computed (x, y m, angle rad) after each tick
 =====================  ========  =====  =====================================================
@@ -129,7 +129,7 @@ REPLAY_FIELDS: tuple[TickField, ...] = (
     TickField("md_status", 0, "i4", 0, "MD status"),
     TickField("decoupling_flags", 0, "i4", 0, "DecouplingFlag bits"),
     TickField("collide_status", 0, "i4", 0, "collision status"),
-    TickField("moved", 0, "i4", 0, "control points moved"),
+    TickField("moved", 0, "i4", 0, "control points under the dent (its index box)"),
 )
 #: forces.csv columns, each with its SI unit (:mod:`arsurf.units`)
 _CSV_COLUMNS = ("t_s", "F_recorded_x_N", "F_recorded_y_N", "F_recorded_z_N", "F_simulated_x_N", "F_simulated_y_N",
@@ -526,7 +526,7 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
                     outs[k] = tick(pos[k], (sig[k, 0], sig[k, 1]) if have[k] else None)
                     if outs[k, M_DEPTH] > deepest["depth"] and outs[k, M_COLLIDE_STATUS] >= 0:
                         deepest["depth"], deepest["tick"] = outs[k, M_DEPTH], k
-                        np.copyto(deepest["net"], net)
+                        np.copyto(deepest["net"], model.surface.control_points)  # (the dent moved onto the net)
                     if scene is not None:
                         here[:] = outs[k, M_TIP:M_TIP + 3]  # the tip behind the coupling pushes
                         scene.tick(prev, here, radius)

@@ -257,22 +257,39 @@ def surface_point(ctrl, ku, kv, u, v, order, out):
             out[5, 2] = zvv
 
 
+#: batches smaller than this are evaluated in the calling thread: waking the thread pool costs
+#: more than a few thousand points (and, on a loaded machine, milliseconds)
+PARALLEL_MIN = 4096
+
+
+@njit(cache=True)
+def _points_range(ctrl, ku, kv, us, vs, order, out, k0, k1, scratch):
+    """:func:`surface_point` for points k0..k1-1 of a batch into ``out``."""
+    nrow = out.shape[0]
+    for k in range(k0, k1):
+        surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
+        for r in range(nrow):
+            for c in range(3):
+                out[r, k, c] = scratch[r, c]
+
+
 @njit(cache=True, parallel=True)
 def surface_points(ctrl, ku, kv, us, vs, order, out):
     """Batch of :func:`surface_point`: ``out`` (1, 3 or 6 rows, n, 3) for ``us``, ``vs`` (n,).
 
     Chunks of 256 points run in parallel threads (batches serve the viewer and replay, not the
-    haptic tick, which calls :func:`surface_point`)."""
-    nrow = out.shape[0]
+    haptic tick, which calls :func:`surface_point`); :func:`surface_points_serial` for small ones."""
     n = us.size
     chunk = 256
     for b in prange((n + chunk - 1) // chunk):
-        scratch = np.empty((N_ROWS, 3))
-        for k in range(b * chunk, min(n, (b + 1) * chunk)):
-            surface_point(ctrl, ku, kv, us[k], vs[k], order, scratch)
-            for r in range(nrow):
-                for c in range(3):
-                    out[r, k, c] = scratch[r, c]
+        _points_range(ctrl, ku, kv, us, vs, order, out, b * chunk, min(n, (b + 1) * chunk),
+                      np.empty((N_ROWS, 3)))
+
+
+@njit(cache=True)
+def surface_points_serial(ctrl, ku, kv, us, vs, order, out):
+    """:func:`surface_points` in the calling thread (batches below :data:`PARALLEL_MIN`)."""
+    _points_range(ctrl, ku, kv, us, vs, order, out, 0, us.size, np.empty((N_ROWS, 3)))
 
 
 @njit(cache=True)

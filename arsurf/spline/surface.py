@@ -8,6 +8,7 @@ S is a general parametric surface. :meth:`BSplineSurface.reset` restores the res
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 from numba import njit
@@ -25,6 +26,30 @@ def _fill_height_net(gu, gv, z, ctrl):
             ctrl[i, j, 0] = gu[i]
             ctrl[i, j, 1] = gv[j]
             ctrl[i, j, 2] = z[i, j]
+
+
+class NetWatch:
+    """What changed in a surface's net since its watcher last looked (:meth:`BSplineSurface.watch`).
+
+    ``box`` is the union (i0, i1, j0, j1) of the index boxes the deformers moved (None: none);
+    ``anything`` is True when the net may have changed anywhere (it was handed out writable by
+    :meth:`BSplineSurface.kernel_arrays`, or reset), so the watcher must compare it all.
+    """
+
+    def __init__(self):
+        self.box = None
+        self.anything = True  # a new watcher has seen nothing yet
+
+    def touch(self, i0: int, i1: int, j0: int, j1: int) -> None:
+        """Add the index box [i0, i1) x [j0, j1) to what changed."""
+        b = self.box
+        self.box = (i0, i1, j0, j1) if b is None else (min(b[0], i0), max(b[1], i1), min(b[2], j0), max(b[3], j1))
+
+    def take(self) -> tuple[bool, tuple | None]:
+        """(anything, box) since the last take, and start afresh."""
+        out = (self.anything, self.box)
+        self.anything, self.box = False, None
+        return out
 
 
 class BSplineSurface:
@@ -79,6 +104,8 @@ class BSplineSurface:
         self._kv = kv
         self._derived = []  # structures built from the net (e.g. the projection's boxes)
         self._height_field = None  # unknown until asked (is_height_field_net), True from from_heights
+        self._dents = []  # deformers whose recorded dent is moved onto the net when it is read (sync)
+        self._watches = weakref.WeakSet()  # NetWatch of the readers that re-draw what changed (the viewer)
 
     @classmethod
     def construct_fast(cls, ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
@@ -108,6 +135,7 @@ class BSplineSurface:
 
     def copy(self) -> "BSplineSurface":
         """An independent copy with the same current and rest nets."""
+        self.sync()
         twin = BSplineSurface.construct_fast(self._ctrl.copy(), self._ku, self._kv, self._rest.copy())
         twin._height_field = self._height_field
         return twin
@@ -132,9 +160,13 @@ class BSplineSurface:
         return self._rest_net
 
     def reset(self) -> None:
-        """Restore the rest shape exactly (undo every deformation) and refresh what was derived
-        from the net (:meth:`attach`)."""
+        """Restore the rest shape exactly (undo every deformation, recorded dents included) and
+        refresh what was derived from the net (:meth:`attach`)."""
         self._ctrl[...] = self._rest
+        for dent in self._dents:
+            dent.forget()
+        for watch in self._watches:
+            watch.anything = True
         for derived in self._derived:
             derived.refresh()
 
@@ -145,9 +177,34 @@ class BSplineSurface:
         if derived not in self._derived:
             self._derived.append(derived)
 
+    def attach_dent(self, deformer) -> None:
+        """Register a deformer (:class:`arsurf.contact.deformation.Deformer`) whose dent the
+        compiled tick records without touching the net: :meth:`sync` moves the net to it."""
+        if deformer not in self._dents:
+            self._dents.append(deformer)
+
+    def watch(self) -> NetWatch:
+        """A :class:`NetWatch` told of every change of the net from now on (kept while referenced)."""
+        w = NetWatch()
+        self._watches.add(w)
+        return w
+
+    def touched(self, i0: int, i1: int, j0: int, j1: int) -> None:
+        """Control points [i0, i1) x [j0, j1) moved (the deformer says so): tell the watchers."""
+        for watch in self._watches:
+            watch.touch(i0, i1, j0, j1)
+
+    def sync(self) -> None:
+        """Move the net to the dents recorded since it was last read (O(dent box) each; nothing
+        when none is pending). Every reader of the net below calls it first, so the net a
+        reader sees is the full dent of the last tick."""
+        for dent in self._dents:
+            dent.sync()
+
     # -- properties ---------------------------------------------------------------------------
     @property
     def control_points(self) -> np.ndarray:
+        self.sync()
         view = self._ctrl.view()
         view.flags.writeable = False
         return view
@@ -183,11 +240,13 @@ class BSplineSurface:
 
     @property
     def is_deformed(self) -> bool:
+        self.sync()
         return not np.array_equal(self._ctrl, self._rest)
 
     def net_arrays(self):
         """(ctrl, knots_u, knots_v): the live net and knots, without taking the rest snapshot
         (for structures that only read the current net)."""
+        self.sync()
         return self._ctrl, self._ku, self._kv
 
     @property
@@ -200,7 +259,16 @@ class BSplineSurface:
         """(ctrl, rest, knots_u, knots_v) as the float64 C arrays the numba kernels take.
 
         ``ctrl`` is the live, writable net: only :mod:`arsurf.contact.deformation` writes to it.
+        Recorded dents are moved onto it first (:meth:`sync`). Watchers (:meth:`watch`) are told
+        that the net may change anywhere: to read only, use :meth:`net_arrays`.
         """
+        self.sync()
+        for watch in self._watches:
+            watch.anything = True
+        return self._ctrl, self._rest, self._ku, self._kv
+
+    def raw_arrays(self):
+        """:meth:`kernel_arrays` without :meth:`sync` (for the deformer that does the syncing)."""
         return self._ctrl, self._rest, self._ku, self._kv
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -224,6 +292,8 @@ class BSplineSurface:
         """
         if derivatives not in (0, 1, 2):
             raise SurfaceError(f"derivatives must be 0, 1 or 2 (got {derivatives!r})")
+        if self._dents:
+            self.sync()
         if isinstance(u, (float, int)) and isinstance(v, (float, int)):  # the lean single-point path
             if not (math.isfinite(u) and math.isfinite(v)):
                 raise SurfaceError(f"u and v must be finite (got u={u!r}, v={v!r})")
@@ -238,7 +308,8 @@ class BSplineSurface:
         vs = np.ascontiguousarray(vv.ravel())
         nout = (1, 3, 6)[derivatives]
         out = np.empty((nout, us.size, 3))
-        basis.surface_points(self._ctrl, self._ku, self._kv, us, vs, derivatives, out)
+        batch = basis.surface_points if us.size >= basis.PARALLEL_MIN else basis.surface_points_serial
+        batch(self._ctrl, self._ku, self._kv, us, vs, derivatives, out)
         res = out.reshape((nout,) + shape + (3,))
         return res[0] if derivatives == 0 else res
 

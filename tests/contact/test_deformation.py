@@ -257,3 +257,96 @@ def test_the_dent_is_continuous_where_it_leaves_the_tip(a_over_r):
     assert abs(step) <= 4 * h * max(slope, 0.05) + 0.02 * a * a / R_TIP
     on_sphere = depth - (R_TIP - np.sqrt(R_TIP ** 2 - a ** 2))       # the sphere at the rim, within the margin
     assert 0.0 <= dent_displacement(a, a, R_TIP, depth, a) - on_sphere <= RIM_MARGIN * a * a / R_TIP * (1 + 1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# the dent the tick records (O(1)) and the net moved to it when read (issue 28)
+
+def _rough_fine_model(rng, pitch=0.25e-9, n=160, tip=20e-9):
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.force.cantilever import Cantilever
+    from arsurf.model import ARModel
+
+    z = 0.4e-9 * rng.normal(size=(n, n))
+    k = np.exp(-0.5 * (np.arange(-8, 9) / 3.0) ** 2)
+    k /= k.sum()
+    for axis in (0, 1):   # a rough surface correlated over ~1 nm
+        z = np.apply_along_axis(lambda r: np.convolve(r, k, mode="same"), axis, z)
+    s = fit_surface(Scan(z, dx=pitch, dy=pitch))
+    model = ARModel(s, tip, MaugisDugdale(tip, 5e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    return s, model
+
+
+def _slide(s, model, ticks=40, read_every=0):
+    (u0, u1), (v0, v1) = s.domain
+    x0, y0 = 0.4 * (u0 + u1), 0.5 * (v0 + v1)
+    z0 = float(s.rest_control_points[..., 2].max()) + model.tip_radius - 1.0e-9   # ~1 nm deep
+    for k in range(ticks):
+        model.tick((x0 + 0.05e-9 * k, y0 + 0.02e-9 * k, z0))
+        if read_every and k % read_every == 0:
+            s.sync()
+    return model.out.copy()
+
+
+def test_tick_records_the_dent_without_writing_the_net(rng):
+    """The tick is O(1) in the net: it writes no control point (it records the dent); the first
+    read moves the net to it."""
+    s, model = _rough_fine_model(rng)
+    o = _slide(s, model)
+    ctrl, rest, _, _ = s.raw_arrays()
+    from arsurf.model import M_IN_CONTACT, M_MOVED
+
+    assert o[M_IN_CONTACT] == 1.0 and o[M_MOVED] > 1000            # in contact, a large dent box
+    assert np.array_equal(ctrl, rest)                               # nothing written by the ticks
+    assert s.is_deformed                                            # ... the read shows the dent
+
+
+def test_dent_read_late_is_bitwise_the_full_dent_of_the_last_tick(rng):
+    """Read once after many ticks, read after every third tick, or the full dent pressed from
+    rest with today's rule (a fresh net, Deformer.apply): the same net, bit for bit. The moved
+    points are the full dent's, and a release gives the rest net back exactly."""
+    from arsurf.contact.deformation import D_A, D_CX, D_CZ, D_DEPTH, D_NX, D_NZ, D_RADIUS, D_ZONE
+
+    s_late, m_late = _rough_fine_model(np.random.default_rng(7))
+    s_often, m_often = _rough_fine_model(np.random.default_rng(7))
+    _slide(s_late, m_late, read_every=0)
+    _slide(s_often, m_often, read_every=3)
+    late = s_late.control_points.copy()
+    assert np.array_equal(late, s_often.control_points)
+    d = m_late._deformer.dent
+    assert d[D_RADIUS] > 0 and d[D_A] > 0
+    twin = BSplineSurface.construct_fast(s_late.rest_control_points.copy(), s_late.knots_u, s_late.knots_v)
+    twin._height_field = True
+    full = Deformer(twin).apply(d[D_CX:D_CZ + 1], d[D_RADIUS], d[D_NX:D_NZ + 1], d[D_A], depth=d[D_DEPTH],
+                                zone_radius=d[D_ZONE])
+    assert full.moved > 1000                                        # a fine net: a large dent
+    assert np.array_equal(twin.control_points, late)
+    m_late.reset()
+    ctrl, rest, _, _ = s_late.raw_arrays()
+    assert np.array_equal(ctrl, rest) and not s_late.is_deformed
+
+
+def test_incremental_restore_leaves_exactly_the_last_dent(flat):
+    """Dents far apart, overlapping, and a release: each point written once per dent, and the
+    net is always the last dent pressed from rest (today's rule: restore all, then dent)."""
+    d = Deformer(flat)
+    twin = flat.copy()
+    for c in [(150e-9, 150e-9, 18e-9), (152e-9, 149e-9, 17.5e-9), (300e-9, 100e-9, 18e-9), (301e-9, 101e-9, 19e-9)]:
+        d.apply(c, 20e-9, (0, 0, 1), 9e-9, depth=2e-9, zone_radius=12e-9)
+        twin.reset()
+        Deformer(twin).apply(c, 20e-9, (0, 0, 1), 9e-9, depth=2e-9, zone_radius=12e-9)
+        assert np.array_equal(flat.control_points, twin.control_points)
+    d.release()
+    assert np.array_equal(flat.control_points, flat.rest_control_points)
+
+
+def test_a_deep_copied_model_dents_its_own_surface(rng):
+    """HapticLoop.warm_up ticks a deep copy: the copy's dent reaches the copy's net, never the original's."""
+    import copy
+
+    s, model = _rough_fine_model(rng, pitch=1e-9, n=60)
+    twin = copy.deepcopy(model)
+    _slide(twin.surface, twin)
+    assert twin.surface.is_deformed and not s.is_deformed
+    _slide(s, model)
+    assert np.array_equal(s.control_points, twin.surface.control_points)

@@ -40,6 +40,7 @@ LAYERS = [
     ("batch runs", ["arsurf.batch.*"]),  # runs the session pipelines (replay) over many files
     ("live sessions", ["arsurf.live"]),  # the loop on a device and an instrument, recorded (arsurf live)
     ("applications", ["arsurf.demo.*", "arsurf.cli.*", "arsurf.devices"]),
+    ("install-time warm-up", ["arsurf.warmup"]),  # runs the demo once to build numba's cache
     ("entry point", ["arsurf.__main__"]),
 ]
 

@@ -1,0 +1,81 @@
+"""Build numba's cache once, at install: ``python -m arsurf.warmup`` (``make setup`` runs it).
+
+arsurf's hot code is numba kernels compiled on first use and cached on disk
+(``cache=True``, in a folder keyed on the sources: :func:`arsurf._configure_numba_cache`).
+On an empty cache the first ``arsurf demo`` spent most of its time in the compiler. This
+module compiles what a session uses before anyone waits for it: the demo pipeline itself
+(scan preparation, fit, engage, the haptic loop with the nanotube scene, the session writer,
+the replay and the feel scores) on 1.5 s of simulated stylus, and the loop
+without a scene on a surface above :data:`~arsurf.contact.projection.TILED_ABOVE` control
+cells (a large scan's tiled projector specialises every kernel that collides).
+
+Run it again after an upgrade (the cache folder changes with the sources); a warm cache
+makes it a few seconds. ``--quiet`` prints only the summary line.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+
+
+def warm_up(progress=None) -> dict:
+    """Compile (or load) the kernels of the demo, the live loop and the replay; returns the wall
+    time of each part in seconds (keys ``demo_s``, ``tiled_loop_s``, ``total_s``)."""
+    from arsurf.assembly import PRESETS, build_loop
+    from arsurf.demo import run_demo
+    from arsurf.haptics.virtual_device import VirtualDevice
+    from arsurf.model import ARModel
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.contact.projection import TILED_ABOVE
+    from arsurf.force.cantilever import Cantilever
+    from arsurf.haptics.device import DeviceState
+    from arsurf.scan.synthetic import rough
+    from arsurf.spline.fit import fit_surface
+
+    say = progress or (lambda line: None)
+    times = {}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="arsurf-warmup-") as out:
+        run_demo(out, seconds=1.5, images=False, progress=say)  # the demo settles 1.2 s before it scores
+    times["demo_s"] = time.perf_counter() - t0
+    say(f"demo pipeline compiled in {times['demo_s']:.1f} s")
+    t1 = time.perf_counter()
+    n = int(TILED_ABOVE ** 0.5) + 8  # just above the tiling threshold: the tiled projector's kernels
+    surface = fit_surface(rough((n, n), 4e-9, rms=1e-9, correlation_length=20e-9, seed=0))
+    tip = 20e-9
+    model = ARModel(surface, tip, MaugisDugdale(tip, 5e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    (u0, u1), (v0, v1) = surface.domain
+    x, y = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+    origin = (x, y, float(surface.evaluate(x, y)[2]) + tip - 1e-9)
+    haptics = PRESETS["demo"].haptics
+    dev = VirtualDevice(dt=1.0 / haptics["rate"]).open()
+    try:
+        loop = build_loop(model, haptics, dev.info, origin)
+        state = DeviceState()
+        for k in range(20):
+            state.timestamp = k / haptics["rate"]
+            loop.step(state, state.timestamp)
+    finally:
+        dev.close()
+    surface.sync()
+    times["tiled_loop_s"] = time.perf_counter() - t1
+    times["total_s"] = time.perf_counter() - t0
+    say(f"tiled loop compiled in {times['tiled_loop_s']:.1f} s")
+    return times
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m arsurf.warmup", description=__doc__.splitlines()[0])
+    ap.add_argument("--quiet", action="store_true", help="print only the summary line")
+    args = ap.parse_args(argv)
+    import os
+
+    times = warm_up(None if args.quiet else print)
+    print(f"arsurf warm-up: numba cache built in {times['total_s']:.1f} s ({os.environ.get('NUMBA_CACHE_DIR', '')})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""Benchmark: the first run on a fresh machine - where numba's compile time goes (issue 28).
+
+Each figure is a fresh process with ``NUMBA_CACHE_DIR`` set to a new, empty folder:
+
+* ``demo_empty_cache``: ``arsurf demo --no-images`` wall time on an empty cache, and the
+  compile time per kernel (numba's ``numba:compile`` events, inclusive of the kernels each one
+  compiles for its callees; the top ones and the count);
+* ``warmup``: ``python -m arsurf.warmup`` on an empty cache (what ``make setup`` runs once);
+* ``demo_after_warmup``: the demo again on that cache (what a user waits for after install);
+* ``model_and_1000_ticks``: a 256 x 256 and a 4096 x 4096 scan's fit + model + first 1000 loop
+  ticks, each on a cache built by the warm-up (the ratio is the issue's goal, <= 2), and the
+  256 x 256 one on an empty cache (the compile time it carries).
+
+Run: .venv/bin/python bench/first_run.py [--skip-4096] [--quick]   (prints JSON; several
+minutes: every figure compiles from nothing)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import emit  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+_PROFILE = r"""
+import json, sys, time
+from numba.core import event
+totals = {}
+class Timer(event.Listener):
+    def __init__(self):
+        self.stack = []
+    def on_start(self, ev):
+        self.stack.append(time.process_time())
+    def on_end(self, ev):
+        t = time.process_time() - self.stack.pop()
+        d = ev.data["dispatcher"]
+        name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+        n, s = totals.get(name, (0, 0.0))
+        totals[name] = (n + 1, s + t)
+event.install_listener("numba:compile", Timer())
+from arsurf.cli import main
+t0 = time.perf_counter()
+main(["demo", *sys.argv[1:]])
+print("##" + json.dumps({"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time(), "compiles": totals}),
+      file=sys.stderr)
+"""
+
+_TICKS = r"""
+import sys, time
+t0 = time.perf_counter()
+import numpy as np
+from arsurf.assembly import PRESETS, build_loop
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.force.cantilever import Cantilever
+from arsurf.haptics.device import DeviceState
+from arsurf.haptics.virtual_device import VirtualDevice
+from arsurf.model import ARModel
+from arsurf.scan.synthetic import rough
+from arsurf.spline.fit import fit_surface
+n = int(sys.argv[1])
+scan = rough((n, n), 4e-9, rms=1e-9, correlation_length=20e-9, seed=1)
+t_scan = time.perf_counter()
+surface = fit_surface(scan)
+t_fit = time.perf_counter()
+tip = 20e-9
+model = ARModel(surface, tip, MaugisDugdale(tip, 5e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+(u0, u1), (v0, v1) = surface.domain
+x, y = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+haptics = PRESETS["demo"].haptics
+dev = VirtualDevice(dt=1.0 / haptics["rate"]).open()
+loop = build_loop(model, haptics, dev.info, (x, y, float(surface.evaluate(x, y)[2]) + tip - 1e-9))
+state = DeviceState()
+for k in range(1000):
+    state.timestamp = k / haptics["rate"]
+    state.position[0] = 1e-4 * (k % 100)
+    loop.step(state, state.timestamp)
+t_end = time.perf_counter()
+dev.close()
+print("##" + __import__("json").dumps({"total_s": t_end - t0, "scan_s": t_scan - t0, "fit_s": t_fit - t_scan,
+                                       "model_and_ticks_s": t_end - t_fit}), file=sys.stderr)
+"""
+
+
+def _run(args, cache: str, timeout: float = 3600.0) -> tuple[dict, dict | None]:
+    """Wall and CPU time (user + system, s) of ``args`` in a fresh process on ``cache``, and its
+    ``##`` JSON line if any. On a shared machine the CPU time is the figure that repeats: the
+    wall time adds the waits for a core."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    r = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall = {"wall_s": round(time.perf_counter() - t0, 2),
+            "cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 2)}
+    if r.returncode != 0:
+        raise RuntimeError(f"{args} failed ({r.returncode}): {r.stderr[-2000:]}")
+    line = next((x for x in r.stderr.splitlines() if x.startswith("##")), None)
+    return wall, json.loads(line[2:]) if line else None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--skip-4096", action="store_true", help="no 4096 x 4096 figure")
+    ap.add_argument("--quick", action="store_true", help="only the demo on an empty cache and after the warm-up")
+    args = ap.parse_args()
+    results = {}
+    with tempfile.TemporaryDirectory(prefix="arsurf-first-run-") as tmp:
+        empty = str(Path(tmp) / "empty")
+        wall, prof = _run([PY, "-c", _PROFILE, "--no-images", "--out", str(Path(tmp) / "demo1")], empty)
+        compiles = sorted(prof["compiles"].items(), key=lambda kv: -kv[1][1])
+        results["demo_empty_cache"] = {
+            **wall, "kernels_compiled": len(compiles), "specialisations": sum(v[0] for _, v in compiles),
+            "top_compiles_cpu_inclusive_s": {k: [v[0], round(v[1], 2)] for k, v in compiles[:20]}}
+        warm = str(Path(tmp) / "warm")
+        results["warmup_empty_cache"] = _run([PY, "-m", "arsurf.warmup", "--quiet"], warm)[0]
+        results["demo_after_warmup"] = _run([PY, "-m", "arsurf", "demo", "--no-images", "--out",
+                                               str(Path(tmp) / "demo2")], warm)[0]
+        if not args.quick:
+            sizes = (256,) if args.skip_4096 else (256, 4096)
+            for n in sizes:
+                wall, parts = _run([PY, "-c", _TICKS, str(n)], warm)
+                results[f"model_and_1000_ticks_{n}_after_warmup"] = {**wall, **parts}
+            wall, parts = _run([PY, "-c", _TICKS, "256"], str(Path(tmp) / "empty256"))
+            results["model_and_1000_ticks_256_empty_cache"] = {**wall, **parts}
+            if not args.skip_4096:
+                results["cpu_ratio_4096_over_256_after_warmup"] = (
+                    results["model_and_1000_ticks_4096_after_warmup"]["cpu_s"]
+                    / results["model_and_1000_ticks_256_after_warmup"]["cpu_s"])
+    emit("first_run", results)
+
+
+if __name__ == "__main__":
+    main()
