@@ -323,3 +323,28 @@ def test_the_seed003_gains_are_099_of_the_bound_applied_with_Te(A_f, B_fp, G_n):
     assert not check_gains(100.0, B_fp, between, **kw).ok
     assert check_gains(100.0, B_fp, between, slave_bound="printed", **kw).ok
     assert "G_n_max_applied (x)" in check_gains(100.0, B_fp, between, **kw).failed
+
+
+def test_the_coupling_balances_the_contact_and_caps_the_stiffness():
+    """Behind a coupling k the tip sits where P(delta) = k (delta_t - delta), on the target's normal
+    line, and the load grows with the target depth at the series stiffness, never more than k."""
+    from arsurf.assembly import LEVER, make_model
+    from arsurf.spline.surface import BSplineSurface
+
+    flat = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 39 * 4e-9), (0.0, 39 * 4e-9))
+    k = 50.0
+    m = make_model(flat, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER,
+                   coupling_stiffness=k, deform=False)
+    bare = make_model(flat.copy(), tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1,
+                      cantilever=LEVER, deform=False)
+    loads = []
+    for target in np.linspace(1e-9, 6e-9, 11):
+        c = (78e-9, 78e-9, 20e-9 - target)
+        t = m.step(c)
+        assert t.coupled and t.load > 0
+        assert t.load == pytest.approx(k * (target - t.depth), rel=1e-6)
+        np.testing.assert_allclose(t.tip, [78e-9, 78e-9, 20e-9 - t.depth], rtol=0, atol=1e-18)
+        assert t.load < bare.step(c).load
+        loads.append(t.load)
+    slope = np.diff(loads) / 0.5e-9
+    assert (slope > 0).all() and (slope <= k).all()

@@ -212,3 +212,14 @@ def test_property_output_never_exceeds_the_limit_and_is_always_finite(ticks, max
         assert dev.rejected_forces == 0 and dev.clamped_forces == 0  # the device backstop never had to act
         if not math.isfinite(now):
             now = 0.0
+
+
+def test_the_start_ramp_engages_in_free_space_at_once_and_ramps_a_loaded_start():
+    from arsurf.haptics.safety import SafetyLayer
+
+    s = SafetyLayer(max_force=7.9, dt=DT, ramp_time=0.1, max_rate=1000.0)
+    s.step([0.0, 0.0, 0.0], now=0.0)
+    assert s.gain == 1.0  # nothing to jolt: engaged
+    s.reset()
+    out = [float(s.step([0.0, 0.0, 5.0], now=k * DT)[2]) for k in range(3)]
+    assert out == pytest.approx([0.05, 0.1, 0.15]) and s.gain < 1.0  # a loaded start still ramps
