@@ -3,7 +3,6 @@ stopping closes the device whatever happened (issue #15 §4, the server side).""
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from arsurf.errors import LoopError
 from arsurf.haptics.loop import HapticLoop
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.spline.surface import BSplineSurface
+from tests.support.waiting import wait_until
 
 R = 20e-9
 
@@ -59,10 +59,8 @@ def _live(fail_after: int):
 def test_a_fault_in_the_tick_leaves_zero_force_and_the_device_closed():
     live, dev, calls = _live(fail_after=50)
     live.start()
-    deadline = time.monotonic() + 15.0
-    while calls[0] <= 50 and time.monotonic() < deadline:
-        time.sleep(0.02)
-    time.sleep(0.05)
+    wait_until(lambda: calls[0] > 50 and not live.scheduler.is_running, 15.0,
+               what="the injected fault stopping the loop")
     assert calls[0] > 50
     assert max(np.linalg.norm(f) for f in dev.forces) > 0.0  # it was rendering a force
     assert np.all(dev.forces[-1] == 0.0), f"last force commanded after the fault: {dev.forces[-1]}"

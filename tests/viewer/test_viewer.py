@@ -612,9 +612,8 @@ def test_live_loop_runs_in_its_thread_and_the_view_reads_its_snapshots():
     try:
         first = live_scene(live, np.zeros(3), 1 / 30)
         deadline = _time.monotonic() + 15.0  # 600 ticks (0.6 s of the hand's motion), however busy CI is
-        while live.scheduler.ticks < 600 and _time.monotonic() < deadline:
-            _time.sleep(0.05)
-        _time.sleep(0.05)  # a snapshot after the 600th tick
+        while live.scheduler.ticks < 601 and _time.monotonic() < deadline:  # a snapshot after the 600th tick
+            _time.sleep(0.01)
         scene = live_scene(live, np.zeros(3), 1 / 30)
         assert live.scheduler.ticks >= 600 and scene.loop_rate_hz > 0
         np.testing.assert_allclose(scene.tip_center, live.pose())
