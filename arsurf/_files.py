@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import io
 import os
 import secrets
@@ -51,7 +52,8 @@ from typing import Iterator
 
 from arsurf.errors import ArsurfError, UnsafeFile
 
-__all__ = ["read_regular", "check_regular", "atomic_write", "write_bytes", "write_text", "check_target", "fsync_dir"]
+__all__ = ["read_regular", "check_regular", "atomic_write", "write_bytes", "write_text", "check_target", "fsync_dir",
+           "sha256_file"]
 
 _KINDS = {stat.S_IFIFO: "a FIFO (named pipe)", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
           stat.S_IFSOCK: "a socket", stat.S_IFDIR: "a directory", stat.S_IFLNK: "a symbolic link"}
@@ -237,3 +239,12 @@ def write_text(path: str | os.PathLike, text: str, *, what: str = "output", enco
                error: type[ArsurfError] = UnsafeFile) -> Path:
     """Write ``text`` to ``path`` atomically (:func:`atomic_write`); return the path."""
     return write_bytes(path, text.encode(encoding), what=what, error=error)
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """The SHA-256 hex digest of a file's bytes, read in 1 MiB blocks (the caller checks it exists)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -27,7 +27,6 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from arsurf._files import sha256_file
 from arsurf.config import UNSET, CantileverConfig, ContactConfig, HapticsConfig, SessionConfig
 from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
@@ -212,11 +212,7 @@ def scan_sha256(path: str | os.PathLike) -> str:
     if not p.is_file():
         raise ScanFileNotFound(f"scan file {str(p)!r} does not exist (or is not a file); pass the scan the "
                                "session was recorded on")
-    h = hashlib.sha256()
-    with open(p, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    return sha256_file(p)
 
 
 def _jsonable(obj: Any, where: str) -> Any:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
 import itertools
 import math
 import multiprocessing
@@ -22,6 +21,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from arsurf._files import sha256_file
 from arsurf.batch.inputs import Item, item_file_name, item_key
 from arsurf.batch.options import axis, int_pair, number, refuse_unknown
 from arsurf.batch.table import BASE_COLUMNS, one_line_reason
@@ -345,14 +345,6 @@ def _time_limit(seconds: float | None, key: str):
             watchdog.cancel()
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _output_files(out_dir: Path, outputs: str) -> str:
     """``rel|size_bytes|sha256`` of every file an item wrote (``outputs``: names in ``out_dir``, a
     folder standing for the files in it), ``;``-separated, sorted."""
@@ -363,7 +355,7 @@ def _output_files(out_dir: Path, outputs: str) -> str:
             files += [f for f in p.rglob("*") if f.is_file() and not f.is_symlink()]
         elif p.is_file():
             files.append(p)
-    return ";".join(f"{f.relative_to(out_dir).as_posix()}|{f.stat().st_size}|{_sha256_file(f)}" for f in sorted(files))
+    return ";".join(f"{f.relative_to(out_dir).as_posix()}|{f.stat().st_size}|{sha256_file(f)}" for f in sorted(files))
 
 
 _SHA = re.compile(r"^[0-9a-f]{64}$")
@@ -387,7 +379,7 @@ def _row_stands(row: Mapping | None, columns: Sequence[str], out_dir: Path) -> b
             p = out_dir / rel
             if (not rel or rel.startswith("/") or ".." in rel.split("/") or not _SHA.match(digest)
                     or p.is_symlink() or not p.is_file() or p.stat().st_size != int(size)
-                    or _sha256_file(p) != digest):
+                    or sha256_file(p) != digest):
                 return False
     except (ValueError, KeyError, OSError):
         return False
