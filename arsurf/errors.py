@@ -158,6 +158,11 @@ class BatchError(ArsurfError, ValueError):
     raised: they are written to the results table."""
 
 
+class ItemTimeout(ArsurfError):
+    """One batch item ran past the batch's per-item time limit (``--item-timeout``); the batch
+    records it in that item's row and goes on with the next item."""
+
+
 class ManipulationError(ArsurfError, ValueError):
     """Invalid nano-object model input (non-positive tube length, load point off the beam...)."""
 

@@ -57,6 +57,7 @@ SUFFIXES: dict[str, str] = {
     "m_per_s": "m/s",
     "m_per_V": "m/V",
     "per_s": "1/s",
+    "bytes": "B",  # file sizes (the replay's manifest, the batch's output check)
     "rad": "rad",
     "Pa": "Pa",
     "Hz": "Hz",

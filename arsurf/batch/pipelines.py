@@ -25,7 +25,7 @@ from arsurf._files import sha256_file
 from arsurf.batch.inputs import Item, item_file_name, item_key
 from arsurf.batch.options import axis, int_pair, number, refuse_unknown
 from arsurf.batch.table import BASE_COLUMNS, one_line_reason
-from arsurf.errors import BatchError, SessionError, require
+from arsurf.errors import BatchError, ItemTimeout, SessionError, require
 
 __all__ = ["PIPELINES", "Pipeline", "get_pipeline", "make_items", "run_item"]
 
@@ -310,10 +310,6 @@ def get_pipeline(name: str | Pipeline) -> Pipeline:
     if name not in PIPELINES:
         raise BatchError(f"unknown pipeline {name!r}; choose one of {', '.join(PIPELINES)}")
     return PIPELINES[name]
-
-
-class ItemTimeout(Exception):
-    """An item ran past the batch's per-item time limit."""
 
 
 @contextlib.contextmanager

@@ -133,6 +133,18 @@ class BSplineSurface:
         surface._height_field = True  # x on the Greville abscissae of u, y of v: by construction
         return surface
 
+    def __getstate__(self) -> dict:
+        """Pickle the net as it reads now (any recorded dent applied), without the live links to
+        deformers and watching readers (like :meth:`copy`: the twin is a surface of its own)."""
+        self.sync()
+        state = self.__dict__.copy()
+        state["_dents"], state["_watches"] = [], None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._watches = weakref.WeakSet()
+
     def copy(self) -> "BSplineSurface":
         """An independent copy with the same current and rest nets."""
         self.sync()

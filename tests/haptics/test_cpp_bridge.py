@@ -44,7 +44,7 @@ from arsurf.haptics.udp_bridge import (
 ROOT = Path(__file__).resolve().parents[2]
 HEADER = ROOT / "include" / "arsurf_bridge.h"
 EXAMPLE = ROOT / "examples" / "cpp"
-TOOL = ROOT / "tests" / "cpp" / "bridge_tool.c"
+TOOL = ROOT / "tests" / "support" / "cpp" / "bridge_tool.c"
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(100, 132))
 SID = bytes(range(0xF0, 0x100))  # a session id
