@@ -60,8 +60,8 @@ Examples
 ...          {"z_unit": "Pa"})
 >>> F = Scan(np.full((16, 16), 2e-9), 2e-9, 2e-9, "Adhesion", {"z_unit": "N"})
 >>> m = build_material_map(h, {"modulus": E, "adhesion": F}, MaterialConversion(10e-9, regime="dmt"))
->>> [round(float(m.reduced_modulus(x, 15e-9)) / 1e9, 3) for x in (2e-9, 28e-9)]   # GPa, either side
-[1.09, 4.263]
+>>> [round(float(m.reduced_modulus(x, 15e-9)) / 1e9, 3) for x in (2e-9, 28e-9)]   # GPa: E_s / (1 - 0.3^2)
+[1.099, 4.396]
 """
 from __future__ import annotations
 

@@ -249,7 +249,7 @@ def test_the_docs_page_runs_as_printed(default_map, capsys, monkeypatch):
     import re
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     text = (root / "docs" / "materials.rst").read_text(encoding="utf-8")
     block = re.search(r"\.\. code-block:: python\n\n((?:   .*\n|\n)+)", text).group(1)
     code = "\n".join(line[3:] for line in block.splitlines())

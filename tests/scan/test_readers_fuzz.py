@@ -285,7 +285,7 @@ def test_hdf5_feature_mutants_are_refused_naming_the_feature(tmp_path, seed):
     from tests.support.hdf5_attacks import plant
 
     rng = np.random.default_rng([20261127, seed])
-    files = [real_scan_path(n) for n in HDF5_FILES] + [Path(__file__).parent / "data" / "nanosurf_wavemode_excerpt.nhf"]
+    files = [real_scan_path(n) for n in HDF5_FILES] + [DATA / "nanosurf_wavemode_excerpt.nhf"]
     src = files[int(rng.integers(len(files)))]
     dst = tmp_path / src.name
     shutil.copy(src, dst)
