@@ -134,11 +134,12 @@ class BSplineSurface:
         return surface
 
     def __getstate__(self) -> dict:
-        """Pickle the net as it reads now (any recorded dent applied), without the live links to
-        deformers and watching readers (like :meth:`copy`: the twin is a surface of its own)."""
+        """Pickle or deep-copy the net as it reads now (any recorded dent applied), with its
+        deformers (a deep-copied model keeps denting its own copy) but not the watching readers
+        (a view watches the surface it draws, not a copy)."""
         self.sync()
         state = self.__dict__.copy()
-        state["_dents"], state["_watches"] = [], None
+        state["_watches"] = None
         return state
 
     def __setstate__(self, state: dict) -> None:
