@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["finite", "non_negative", "positive"]
+__all__ = ["finite", "non_negative", "positive", "positive_arg"]
 
 
 def _number(value, name: str, error: type[Exception], unit: str, hint: str) -> float:
@@ -89,3 +89,22 @@ def check_memory(nbytes: float, what: str, error: type[Exception], hint: str = "
     if free is not None and nbytes > free:
         raise error(f"{what} needs about {nbytes / 1e9:.1f} GB but this machine has {free / 1e9:.1f} GB available"
                     + (f"; {hint}" if hint else ""))
+
+
+def positive_arg(unit: str, scale: float = 1.0):
+    """An argparse type: a positive finite number given in ``unit``, returned times ``scale`` (SI).
+
+    >>> positive_arg("nm", 1e-9)("20")
+    2e-08
+    """
+    import argparse
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number in {unit} (got {text!r})") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be a positive finite number in {unit} (got {text})")
+        return value * scale
+    return parse

@@ -10,6 +10,7 @@ import argparse
 
 import numpy as np
 
+from arsurf._validation import positive_arg
 from arsurf.scan.level import METHODS as _LEVEL_METHODS
 from arsurf.scan.prepare import prepare_scan
 
@@ -79,17 +80,7 @@ def _values(unit: str, scale: float, strict: bool):
     return parse
 
 
-def _positive(unit: str):
-    """An argparse type: a positive finite number in ``unit``."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number in {unit} (got {text!r})") from None
-        if not (np.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"must be a positive finite number in {unit} (got {text})")
-        return value
-    return parse
+_positive = positive_arg  # an argparse type: a positive finite number in a unit
 
 
 def _calibration(args) -> dict:

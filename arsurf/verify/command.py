@@ -6,24 +6,15 @@ when it is flagged wrong, 2 on an input it cannot use (one line, :mod:`arsurf.cl
 """
 from __future__ import annotations
 
-import argparse
 import math
 
+from arsurf._validation import positive_arg
 from arsurf.errors import VerifyError
 
 __all__ = ["register", "cmd_verify"]
 
 
-def _positive(unit: str, scale: float):
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number of {unit} (got {text!r})") from None
-        if not (math.isfinite(v) and v > 0.0):
-            raise argparse.ArgumentTypeError(f"must be positive and finite, {unit} (got {text!r})")
-        return v * scale
-    return parse
+_positive = positive_arg  # an argparse type: a positive finite number in a unit, to SI
 
 
 def cmd_verify(args) -> int:
