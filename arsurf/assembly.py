@@ -140,29 +140,29 @@ def _presets() -> dict[str, Preset]:
             effective_modulus=e_si_ps, work_of_adhesion=w_si_ps, sigma=0.0,
             sources="E* and w from the Si and polystyrene presets of arsurf.contact.materials; the rest is the demo's"),
         "seed000": dataclasses.replace(
-            demo, name="seed000", description="MWCNT pushing with a calibrated contact lever (seed 000)",
+            demo, name="seed000", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=38.6, torsional_stiffness=8.56e-7)),
-            sources="seed 000 Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
+            sources="[MWCNT] Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
                     "are not given there: the demo's"),
         "seed001": dataclasses.replace(
-            demo, name="seed001", description="force-feedback haptic interface (seed 001 thesis)",
+            demo, name="seed001", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=0.3)), sigma=0.0,
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, force_gain=15e6, source="measured", filter_cutoff=None)),
-            sources="seed 001 Tables 4.2-4.6: k = 0.3 N/m, K_f = 15e6; scale, tip and sample: the demo's"),
+            sources="[Alabdulmuhsin] Tables 4.2-4.6: k = 0.3 N/m, K_f = 15e6; scale, tip and sample: the demo's"),
         "seed002": dataclasses.replace(
-            demo, name="seed002", description="the spline AR interface (seed 002): smoothing, B-spline, MD, dent, "
+            demo, name="seed002", description="the spline AR interface ([SplineAR]): smoothing, B-spline, MD, dent, "
                                               "decoupling with the contact normal",
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, source="measured")),
-            sources="seed 002 gives the method, not the numbers: the demo's values with measured signals"),
+            sources="[SplineAR] gives the method, not the numbers: the demo's values with measured signals"),
         "seed003": dataclasses.replace(
-            demo, name="seed003", description="2D rolling telemanipulation with a tipless beam (seed 003)",
+            demo, name="seed003", description="2D rolling telemanipulation with a tipless beam ([Bolopion])",
             tip_radius=25e-6, sigma=0.0,
             cantilever=MappingProxyType(dict(length=220e-6, width=27e-6, thickness=2.9e-6, tip_height=0.0,
                                              youngs_modulus=150e9, poisson_ratio=0.17)),
             haptics=MappingProxyType({"coupling": "force_position", "scale": 1.0 / 50e3, "force_gain": 25e6,
                                       "rate": 1000.0, "source": "measured", "filter_cutoff": None,
                                       "signal_noise": 0.0, "K_fp": 100.0, "B_fp": 0.1, "G_n": 825.0}),
-            sources="seed 003 Table I (beam 220 x 27 x 2.9 um, E = 150 GPa, nu = 0.17), 25 um spheres, Fig. 5 gains "
+            sources="[Bolopion] Table I (beam 220 x 27 x 2.9 um, E = 150 GPa, nu = 0.17), 25 um spheres, Fig. 5 gains "
                     "(A_f = 25e6, A_d = 50e3, K_fp = 100 N/m, B_fp = 0.1 N s/m, G_n = 825); contact law: the demo's"),
     }
 

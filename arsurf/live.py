@@ -143,7 +143,7 @@ def open_instrument(spec: str, setup, probe_origin, *, deflection_sensitivity: f
         ``on_link_loss``); a virtual instrument has no link and ignores them.
     deflection_sensitivity : float, m per signal unit
         Of the lever on the instrument (required for Nanonis: from its calibration); the virtual
-        AFM's default is seed 001's 1117 nm per unit.
+        AFM's default is [Alabdulmuhsin]'s 1117 nm per unit.
     max_speed : float, m/s
         Largest speed a commanded move may have (Nanonis; the virtual AFM has its stages').
     origin : (3,) float, m

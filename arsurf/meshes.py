@@ -28,7 +28,7 @@ sphere; the sharp apex of those planes would sit at :math:`z = -R/\sin θ`, the 
 :math:`z = -R`. The half-width of the top polygon (apothem) at height H is
 :math:`(H \sin θ + R)/\cos θ`.
 
-Sources: default dimensions of the cantilever from seed 003 (L = 220 µm, w = 27 µm,
+Sources: default dimensions of the cantilever from [Bolopion] (L = 220 µm, w = 27 µm,
 t = 2.9 µm); tip height and side angle from the datasheet of a common silicon tapping-mode
 probe (Bruker RTESPA-300: tip height 10-15 µm, side angle 20°, tip radius 8-12 nm).
 
@@ -69,11 +69,11 @@ __all__ = [
 TIP_RADIUS = 20e-9  #: apex radius, m (a worn Si tip; new ones are 8-12 nm, Bruker RTESPA datasheet)
 TIP_HEIGHT = 12e-6  #: tip height, m (Bruker RTESPA-300: 10-15 µm)
 TIP_HALF_ANGLE = math.radians(20.0)  #: face-to-axis angle, rad (RTESPA-300 side angle 20°)
-CANTILEVER_LENGTH = 220e-6  #: m, seed 003
-CANTILEVER_WIDTH = 27e-6  #: m, seed 003
-CANTILEVER_THICKNESS = 2.9e-6  #: m, seed 003
+CANTILEVER_LENGTH = 220e-6  #: m, [Bolopion]
+CANTILEVER_WIDTH = 27e-6  #: m, [Bolopion]
+CANTILEVER_THICKNESS = 2.9e-6  #: m, [Bolopion]
 TIP_SETBACK = 15e-6  #: distance of the tip axis from the free end, m (RTESPA-300: 15 ± 5 µm)
-TUBE_RADIUS = 7.5e-9  #: m, a 15 nm MWCNT (seed 000 manipulates 10-20 nm tubes)
+TUBE_RADIUS = 7.5e-9  #: m, a 15 nm MWCNT ([MWCNT] manipulates 10-20 nm tubes)
 TUBE_LENGTH = 500e-9  #: m, axis end to end, caps excluded
 
 #: Coordinates of the trimesh objects and files per metre (nanometres).
@@ -205,7 +205,7 @@ def cantilever(length: float = CANTILEVER_LENGTH, width: float = CANTILEVER_WIDT
     Parameters
     ----------
     length, width, thickness : float, metres
-        Beam dimensions (defaults from seed 003).
+        Beam dimensions (defaults from [Bolopion]).
     tip_height : float, metres
         Height of the underside of the beam above the apex-sphere centre (the tip height).
     tip_setback : float, metres

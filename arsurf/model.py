@@ -19,7 +19,7 @@ attached or a session is replayed, the measured bending and torsion angles),
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
    :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
-   *measured* F from the two angles by the contact-normal decoupling (seed 002;
+   *measured* F from the two angles by the contact-normal decoupling ([SplineAR];
    docs/design.rst, "Force from the two angles",
    :mod:`arsurf.force.decoupling`) with the proxy's slip direction as the friction direction; a
    stuck tip has none, and the decoupling takes its ``NO_MOTION`` fallback (force along n plus

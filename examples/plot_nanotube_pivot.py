@@ -3,7 +3,7 @@ Where a pushed nanotube turns
 =============================
 
 A rod of length L lying on a substrate with uniform friction, pushed sideways at arc length l,
-turns about the point s = l - sqrt(l² - lL + L²/2) (seed 000 Eq. 9, solved correctly; its Eq. 10
+turns about the point s = l - sqrt(l² - lL + L²/2) ([MWCNT] Eq. 9, solved correctly; its Eq. 10
 is wrong). Pushed at its end it pivots at L(1 - 1/√2) from the other end, the classical result;
 pushed at its middle it translates.
 """

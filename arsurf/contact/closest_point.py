@@ -8,7 +8,7 @@ The tip is a sphere (centre C, radius R). The closest surface point minimises
           H = \begin{pmatrix} S_u\cdot S_u + S_{uu}\cdot r & S_u\cdot S_v + S_{uv}\cdot r \\
                               S_u\cdot S_v + S_{uv}\cdot r & S_v\cdot S_v + S_{vv}\cdot r \end{pmatrix}
 
-(docs/design.rst, "Closest point (Newton)"; seed 002). At the minimum :math:`r \parallel n`, the
+(docs/design.rst, "Closest point (Newton)"; [SplineAR]). At the minimum :math:`r \parallel n`, the
 signed distance is :math:`d = (C - S)\cdot n` with the unit normal
 :math:`n = S_u \times S_v / |S_u \times S_v|` (out of the sample: +z on a height field) and the
 indentation depth is :math:`\delta = R - d` (> 0: the sphere penetrates).

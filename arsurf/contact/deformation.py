@@ -1,6 +1,6 @@
-r"""Local deformation of the control net by the tip (seed 002), reversible and O(patch).
+r"""Local deformation of the control net by the tip ([SplineAR]), reversible and O(patch).
 
-Seed 002: "all control points in the area of contact, i.e. which lie within the contact radius
+[SplineAR]: "all control points in the area of contact, i.e. which lie within the contact radius
 around the central line of contact, are projected onto the sphere representing the tip". With C
 the tip centre, R its radius, n the unit contact normal (out of the sample) and a the contact
 radius (Maugis-Dugdale), a control point P at rest position P₀ has the axial and radial parts
@@ -73,7 +73,7 @@ the GIL, so a reader in another thread never sees a half-recorded dent.)
 The rest net must be a height-field net on the Greville abscissae (what
 :func:`arsurf.fit_surface` builds), so the index box is found in O(1) from the knot spacing.
 
-Sources: seed 002 (the dent); K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.42 (Hertz
+Sources: [SplineAR] (the dent); K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.42 (Hertz
 displacement outside the contact) and §3.8 (flat punch); D. Maugis, J. Colloid Interface Sci.
 150, 243 (1992) (the Dugdale zone).
 """

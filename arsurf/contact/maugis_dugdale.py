@@ -81,7 +81,7 @@ where :math:`dA/d\\bar\\Delta \\sim 1/A` amplifies the rounding of :math:`\\bar\
 
 Sources: D. Maugis, J. Colloid Interface Sci. 150, 243 (1992); K. L. Johnson & J. A. Greenwood,
 J. Colloid Interface Sci. 192, 326 (1997) (adhesion map, the notation above);
-K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.29; seed 002 (MD drives the contact radius).
+K. L. Johnson, *Contact Mechanics* (1985) Eq. 3.29; [SplineAR] (MD drives the contact radius).
 """
 from __future__ import annotations
 

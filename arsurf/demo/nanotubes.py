@@ -1,6 +1,6 @@
 """``arsurf demo``: the whole system on a bundled scan, headless, in well under a minute.
 
-1. **engage** (seed 001, Fig. 3.10) on the virtual AFM (:mod:`arsurf.instrument.engage`):
+1. **engage** ([Alabdulmuhsin], Fig. 3.10) on the virtual AFM (:mod:`arsurf.instrument.engage`):
    the tip starts 5 um above the sample beside a nanotube of the bundled synthetic scan
    ``nanotubes.npz`` (package data, :mod:`arsurf.data`) and is brought into contact by nano/micro stage steps under a force
    limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
@@ -54,7 +54,7 @@ PUSH = 50e-9
 #: the tip starts this far (centre to tube axis) beside the tube, and pushes this far from its end
 PUSH_START_OFFSET = 60e-9
 PUSH_END_MARGIN = 20e-9
-#: engage (seed 001 Fig. 3.10): start height above the sample, set point (normalised signal
+#: engage ([Alabdulmuhsin] Fig. 3.10): start height above the sample, set point (normalised signal
 #: change: 0.05 x 1117 nm/V = 56 nm of lever deflection, 17 nN on the 0.3 N/m lever), force limit
 ENGAGE_FROM = 5e-6
 ENGAGE_SETPOINT = 0.05
@@ -133,7 +133,7 @@ def plan_end_push(scene, scan, tip_radius: float):
 
 
 def engage_at(scan, x: float, y: float, seed: int = 5):
-    r"""Engage the virtual AFM (seed 001 Fig. 3.10) from :data:`ENGAGE_FROM` above ``scan`` at (x, y).
+    r"""Engage the virtual AFM ([Alabdulmuhsin] Fig. 3.10) from :data:`ENGAGE_FROM` above ``scan`` at (x, y).
 
     Returns ``(EngageResult, surface_found)``: the surface height the engage found (metres, scan
     frame) from the stage positions and the deflection read on the photodiode,

@@ -3,12 +3,12 @@
 Each function returns a :class:`CalibrationResult` (value, one-sigma uncertainty, fit residuals,
 95 % confidence interval, and the fit details):
 
-* :func:`vertical_sensitivity_from_steps` - k_v from calibration-grating steps (seed 000, 2.3.1).
-* :func:`lateral_sensitivity_from_vertical` - k_h from k_v and the lever length (seed 000, 2.3.2).
+* :func:`vertical_sensitivity_from_steps` - k_v from calibration-grating steps ([MWCNT], 2.3.1).
+* :func:`lateral_sensitivity_from_vertical` - k_h from k_v and the lever length ([MWCNT], 2.3.2).
 * :func:`normal_sensitivity_from_curve` - S_n from an approach(-retract) curve with automatic
-  contact-point detection (seed 001, 4.1.1).
+  contact-point detection ([Alabdulmuhsin], 4.1.1).
 * :func:`wedge_calibration` / :func:`wedge_from_slopes` - lateral gain G_l and friction mu from
-  sliding up and down a tilted surface (seed 001, 4.1.2; derived from the force balance Eq. 15-18,
+  sliding up and down a tilted surface ([Alabdulmuhsin], 4.1.2; derived from the force balance Eq. 15-18,
   not from the thesis' Eq. 23-24, which invert the signal ratio - docs/design.rst, "Known errors in the sources").
 * :func:`thermal_spring_constant` - k from the thermal noise spectrum (Hutter & Bechhoefer 1993,
   with the Butt & Jaschke 1995 correction).
@@ -111,9 +111,9 @@ def _line_fit(x: np.ndarray, y: np.ndarray):
     return a, b, math.sqrt(s2 / sxx), res
 
 
-# ---- k_v and k_h from grating steps (seed 000) ---------------------------------------------------
+# ---- k_v and k_h from grating steps ([MWCNT]) ---------------------------------------------------
 def vertical_sensitivity_from_steps(step_heights, signal_changes, *, through_origin: bool = True) -> CalibrationResult:
-    """Deflection sensitivity k_v (m per signal unit) from calibration-grating steps (seed 000).
+    """Deflection sensitivity k_v (m per signal unit) from calibration-grating steps ([MWCNT]).
 
     Crossing a step of height h with the feedback off deflects the lever by h; the signal jumps by
     dS. k_v is the slope of h against dS, by least squares through the origin (a zero step gives
@@ -137,7 +137,7 @@ def vertical_sensitivity_from_steps(step_heights, signal_changes, *, through_ori
     Examples
     --------
     >>> r = vertical_sensitivity_from_steps([20e-9, 101.8e-9, 500e-9], [0.032, 0.156, 0.710])
-    >>> round(r.value * 1e9)  # seed 000 quotes 706 nm/V
+    >>> round(r.value * 1e9)  # [MWCNT] quotes 706 nm/V
     702
     """
     h = _vector("step_heights", step_heights, 2)
@@ -166,23 +166,23 @@ def vertical_sensitivity_from_steps(step_heights, signal_changes, *, through_ori
 
 
 def lateral_sensitivity_from_vertical(vertical_sensitivity: float, length: float, *, model: str = "end_load") -> float:
-    """Torsion sensitivity k_h (rad per signal unit) from the deflection sensitivity (seed 000).
+    """Torsion sensitivity k_h (rad per signal unit) from the deflection sensitivity ([MWCNT]).
 
     The quadrant cell has one angular sensitivity in both directions, so k_h equals the bending
     angle per unit vertical signal:
 
     .. math:: k_h = \\frac{3}{2}\\frac{k_v}{l_c} \\;(\\text{end load}), \\qquad
-              k_h = \\frac{k_v}{l_c} \\;(\\text{chord, seed 000 Eq. 7})
+              k_h = \\frac{k_v}{l_c} \\;(\\text{chord, [MWCNT] Eq. 7})
 
     ``"end_load"`` uses the end slope 3 delta / (2 l) of a beam deflected by a force at its tip
-    (how k_v is calibrated); ``"chord"`` is seed 000's small-angle chord delta / l, which gives its
+    (how k_v is calibrated); ``"chord"`` is [MWCNT]'s small-angle chord delta / l, which gives its
     0.00565 rad/V from 706 nm/V (l_c = 125 um) and underestimates the slope by a third.
 
     **Why the default is not the seed's figure.** ``model="end_load"`` gives 0.00848 rad/V for
-    seed 000's 706 nm/V and 125 um, 1.5x its printed 0.00565 rad/V. The default is kept on purpose:
+    [MWCNT]'s 706 nm/V and 125 um, 1.5x its printed 0.00565 rad/V. The default is kept on purpose:
     the bending angle that the rest of arsurf reads from the same deflection sensitivity
     (:meth:`arsurf.force.photodiode.Photodiode.from_deflection_sensitivity`, the cantilever model)
-    is the end slope of the end-loaded lever, and seed 000's own premise is that torsion and
+    is the end slope of the end-loaded lever, and [MWCNT]'s own premise is that torsion and
     bending share one angular sensitivity; with the chord here and the end slope there they would
     differ by 1.5 and every decoupled lateral force would be off by that factor. To reproduce the
     seed's number, pass ``model="chord"`` (tested).
@@ -192,7 +192,7 @@ def lateral_sensitivity_from_vertical(vertical_sensitivity: float, length: float
     vertical_sensitivity : float, m per signal unit
     length : float, metres
     model : {"end_load", "chord"}
-        Default ``"end_load"`` (see above); ``"chord"`` is seed 000's definition.
+        Default ``"end_load"`` (see above); ``"chord"`` is [MWCNT]'s definition.
 
     Examples
     --------
@@ -211,7 +211,7 @@ def lateral_sensitivity_from_vertical(vertical_sensitivity: float, length: float
     raise ForceError(f"model must be 'end_load' or 'chord' (got {model!r})")
 
 
-# ---- normal sensitivity from an approach-retract curve (seed 001) --------------------------------
+# ---- normal sensitivity from an approach-retract curve ([Alabdulmuhsin]) --------------------------------
 def _hinge_sse(z: np.ndarray, s: np.ndarray, zc: float) -> float:
     h = np.maximum(z - zc, 0.0)
     a = np.column_stack([np.ones_like(z), h])
@@ -267,7 +267,7 @@ def _detect_contact(z: np.ndarray, s: np.ndarray, min_points: int):
 def normal_sensitivity_from_curve(
     z, signal, *, branch: str = "approach", exclude: float = 0.05, min_points: int = 5,
 ) -> CalibrationResult:
-    """Normal (deflection) sensitivity S_n from a force curve on a hard sample (seed 001, Eq. 11).
+    """Normal (deflection) sensitivity S_n from a force curve on a hard sample ([Alabdulmuhsin], Eq. 11).
 
     1. Branch: z is the piezo position, increasing towards the sample. If z turns back, the part
        up to the turning point is the approach, the rest the retract (``branch``). The approach
@@ -360,7 +360,7 @@ def normal_sensitivity_from_curve(
     )
 
 
-# ---- wedge (tilted surface) calibration of G_l and mu (seed 001) ----------------------------------
+# ---- wedge (tilted surface) calibration of G_l and mu ([Alabdulmuhsin]) ----------------------------------
 def _wedge_roots(slope_up: float, slope_down: float, tilt: float):
     """Both (mu, g) solutions of g s_up = -tan(theta + phi), g s_down = -tan(theta - phi), mu = tan(phi)."""
     tt = math.tan(tilt)
@@ -401,7 +401,7 @@ def wedge_from_slopes(
 ):
     """Lateral gain G_l and friction mu from the two sliding slopes, in closed form.
 
-    Derivation (seed 001 Eq. 15-18, lab frame of :func:`arsurf.force.simulate.wedge_forces`):
+    Derivation ([Alabdulmuhsin] Eq. 15-18, lab frame of :func:`arsurf.force.simulate.wedge_forces`):
     with f = mu N + A and mu = tan(phi), varying the load N at fixed mu, A, theta gives
 
     .. math::
@@ -422,7 +422,7 @@ def wedge_from_slopes(
 
     Both roots fit the two slopes exactly; a root is admissible if sliding up still presses the
     tip (1 - T mu > 0). If both are admissible the data cannot tell them apart: pass
-    ``friction_branch="low"`` (mu <= 1, usual for AFM tips) or ``"high"`` (mu >= 1; seed 001's
+    ``friction_branch="low"`` (mu <= 1, usual for AFM tips) or ``"high"`` (mu >= 1; [Alabdulmuhsin]'s
     mu = 1.861 is a high root, whose partner is 1/1.861 = 0.537).
 
     Parameters
@@ -510,7 +510,7 @@ def wedge_calibration(
     vertical_up, lateral_up, vertical_down, lateral_down, tilt: float, normal_gain: float, *,
     friction_branch: str | None = None, tilt_uncertainty: float = 0.0, normal_gain_uncertainty: float = 0.0,
 ) -> WedgeCalibration:
-    """G_l and mu from sliding data on a tilted surface (seed 001 sec. 4.1.2, corrected).
+    """G_l and mu from sliding data on a tilted surface ([Alabdulmuhsin] sec. 4.1.2, corrected).
 
     Each direction's lateral signal is fitted against its vertical signal by ordinary least
     squares, V_h = c + s V_v (s is the load-sweep slope; the intercept absorbs adhesion and the

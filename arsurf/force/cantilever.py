@@ -1,8 +1,8 @@
 """Rectangular AFM cantilever: stiffnesses, load-point formulas and the forward force -> angles model.
 
-Frame (docs/design.rst, "Units and conventions"; seed 001 Fig. 2.1): x runs along the beam from the clamp to the free
+Frame (docs/design.rst, "Units and conventions"; [Alabdulmuhsin] Fig. 2.1): x runs along the beam from the clamp to the free
 end, y is lateral, z points out of the sample (up). The tip hangs below the free end; its apex is at a
-distance ``lever_arm = tip_height + thickness/2`` below the beam's neutral axis (seed 000 uses
+distance ``lever_arm = tip_height + thickness/2`` below the beam's neutral axis ([MWCNT] uses
 the same lever arm, ``h_t + b/2``). A force ``F = (F_x, F_y, F_z)`` is the force *of the sample on
 the tip apex*, in newtons.
 
@@ -15,9 +15,9 @@ The optical lever measures two angles at the free end:
 
 the bending (end slope of an Euler-Bernoulli beam loaded by the end force F_z and the end moment
 a F_x, positive when the end tilts towards +z) and the torsion (twist about x, positive for a
-positive moment a F_y). Seed 002 Eq. 1-2, completed in docs/design.rst, "Force from the two angles".
+positive moment a F_y). [SplineAR] Eq. 1-2, completed in docs/design.rst, "Force from the two angles".
 
-Stiffness at a load point x_p (seed 003, Eq. 4-11): ``k_z(x_p) = (L/x_p)^3 k_z(L)`` and
+Stiffness at a load point x_p ([Bolopion], Eq. 4-11): ``k_z(x_p) = (L/x_p)^3 k_z(L)`` and
 ``k_tphi(x_p) = G beta w t^3 / x_p``.
 """
 from __future__ import annotations
@@ -114,7 +114,7 @@ def torsional_stiffness_from_geometry(
 
     .. math:: k_{t\\phi} = \\frac{G\\,\\beta\\,w\\,t^3}{l}
 
-    (seed 000 Eq. 8 after Case et al.; seed 003 Eq. 10 with beta = 1/3).
+    ([MWCNT] Eq. 8 after Case et al.; [Bolopion] Eq. 10 with beta = 1/3).
 
     Parameters
     ----------
@@ -124,7 +124,7 @@ def torsional_stiffness_from_geometry(
         G = E / (2 (1 + nu)) for an isotropic beam.
     beta : float, optional
         Torsion coefficient; by default :func:`torsion_coefficient` of t/w (series). Pass 1/3 for
-        the thin-plate value used by seed 003.
+        the thin-plate value used by [Bolopion].
 
     Returns
     -------
@@ -158,9 +158,9 @@ class Cantilever:
     length, width, thickness : float, metres
         Beam length l (clamp to tip), width w and thickness t; all > 0.
     tip_height : float, metres
-        Height of the tip below the beam's lower face (>= 0; 0 is a tipless lever, seed 003).
+        Height of the tip below the beam's lower face (>= 0; 0 is a tipless lever, [Bolopion]).
     youngs_modulus : float, pascals
-        E (169 GPa for silicon along <110>; seed 003 uses 150 GPa).
+        E (169 GPa for silicon along <110>; [Bolopion] uses 150 GPa).
     poisson_ratio : float
         nu in (-1, 0.5); G = E / (2 (1 + nu)).
     normal_stiffness : float, optional, N/m
@@ -169,7 +169,7 @@ class Cantilever:
     torsional_stiffness : float, optional, N m / rad
         A calibrated torsional constant overriding G beta w t^3 / l.
     beta : float, optional
-        Torsion coefficient; default :func:`torsion_coefficient` (t / w). Seed 003 uses 1/3.
+        Torsion coefficient; default :func:`torsion_coefficient` (t / w). [Bolopion] uses 1/3.
 
     Examples
     --------
@@ -236,7 +236,7 @@ class Cantilever:
 
     @property
     def second_moment(self) -> float:
-        """Second moment of area for bending out of plane, I = w t^3 / 12 (m^4; seed 003's I_y)."""
+        """Second moment of area for bending out of plane, I = w t^3 / 12 (m^4; [Bolopion]'s I_y)."""
         return self.width * self.thickness**3 / 12.0
 
     @property
@@ -249,7 +249,7 @@ class Cantilever:
         """Distance a from the tip apex to the beam's neutral axis, tip_height + thickness / 2 (m)."""
         return self.tip_height + 0.5 * self.thickness
 
-    # ---- load point along the beam (seed 003) ---------------------------------------------
+    # ---- load point along the beam ([Bolopion]) ---------------------------------------------
     def _check_load_point(self, x_p) -> np.ndarray:
         x = np.asarray(x_p, dtype=np.float64)
         if not np.all(np.isfinite(x)) or np.any(x <= 0.0) or np.any(x > self.length * (1 + 1e-12)):
@@ -260,7 +260,7 @@ class Cantilever:
         return x
 
     def normal_stiffness_at(self, x_p):
-        """Normal stiffness for a load at x_p, measured at x_p (seed 003 Eq. 6).
+        """Normal stiffness for a load at x_p, measured at x_p ([Bolopion] Eq. 6).
 
         .. math:: k_z(x_p) = \\frac{E w t^3}{4 x_p^3} = \\Big(\\frac{L}{x_p}\\Big)^3 k_z(L)
 
@@ -277,13 +277,13 @@ class Cantilever:
         return float(out) if out.ndim == 0 else out
 
     def torsional_stiffness_at(self, x_p):
-        """Torsional spring for a moment applied at x_p (seed 003 Eq. 10): k_tphi(L) L / x_p (N m/rad)."""
+        """Torsional spring for a moment applied at x_p ([Bolopion] Eq. 10): k_tphi(L) L / x_p (N m/rad)."""
         x = self._check_load_point(x_p)
         out = self.torsional_stiffness * self.length / x
         return float(out) if out.ndim == 0 else out
 
     def deflection(self, x, x_p, force):
-        """Deflection delta(x) of the beam under a normal force at x_p (seed 003 Eq. 4).
+        """Deflection delta(x) of the beam under a normal force at x_p ([Bolopion] Eq. 4).
 
         .. math::
 
@@ -314,7 +314,7 @@ class Cantilever:
         return float(out) if out.ndim == 0 else out
 
     def force_from_end_deflection(self, x_p, end_deflection):
-        """Normal force at x_p from the deflection measured at the free end (seed 003 Eq. 8, 13).
+        """Normal force at x_p from the deflection measured at the free end ([Bolopion] Eq. 8, 13).
 
         .. math:: F_z(x_p) = \\frac{2L^3}{x_p^2 (3L - x_p)}\\, k_z(L)\\, \\delta(L)
 
@@ -332,7 +332,7 @@ class Cantilever:
         out = 2.0 * L**3 / (x**2 * (3.0 * L - x)) * self.normal_stiffness * d
         return float(out) if out.ndim == 0 else out
 
-    # ---- forward model (seed 002, docs/design.rst, "Force from the two angles") -----------------------
+    # ---- forward model ([SplineAR], docs/design.rst, "Force from the two angles") -----------------------
     @property
     def bending_compliance(self) -> float:
         """g = l^2 / (2 EI): end slope per newton of end force (rad/N)."""

@@ -1,6 +1,6 @@
 """3D tip force from the two measured angles (bending, torsion): contact-normal and motion methods.
 
-The optical lever measures only (docs/design.rst, "Force from the two angles"; seed 002 Eq. 1-2;
+The optical lever measures only (docs/design.rst, "Force from the two angles"; [SplineAR] Eq. 1-2;
 frame of :mod:`arsurf.force.cantilever`)
 
 .. math::
@@ -8,7 +8,7 @@ frame of :mod:`arsurf.force.cantilever`)
     \\Delta\\theta = c F_y, \\qquad \\Delta\\alpha = g\\,(F_z + \\kappa F_x), \\qquad
     g = \\frac{l^2}{2EI},\\; \\kappa = \\frac{2a}{l},\\; c = \\frac{a}{k_{t\\phi}}.
 
-A third equation comes from the contact geometry (seed 002 Eq. 3, completed in docs/design.rst, "Force from the two
+A third equation comes from the contact geometry ([SplineAR] Eq. 3, completed in docs/design.rst, "Force from the two
 angles"): the force lies in the plane of the contact normal n and the friction direction f, which is tangent to
 the surface and opposite to the horizontal tip motion v:
 
@@ -552,7 +552,7 @@ def decouple(
     min_normal_z: float = DEFAULT_MIN_NORMAL_Z,
     max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> ForceEstimate:
-    """3D tip force from bending and torsion using the contact normal (seed 002; docs/design.rst,
+    """3D tip force from bending and torsion using the contact normal ([SplineAR]; docs/design.rst,
     "Force from the two angles").
 
     Solves {torsion, bending, F . p = 0} with p = n x f (module docstring); degenerate cases
@@ -608,7 +608,7 @@ def decouple_by_motion(
     min_speed: float = DEFAULT_MIN_SPEED,
     max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> ForceEstimate:
-    """3D tip force from the motion direction instead of the surface normal (seeds 000 and 001).
+    """3D tip force from the motion direction instead of the surface normal ([MWCNT] and [Alabdulmuhsin]).
 
     The in-plane force is assumed antiparallel to the horizontal motion at angle phi to the beam
     axis x, so
@@ -618,19 +618,19 @@ def decouple_by_motion(
         F_y = \\frac{\\Delta\\theta}{c}, \\qquad F_x = \\frac{F_y}{\\tan\\varphi} = F_y \\frac{v_x}{v_y},
         \\qquad F_z = \\frac{\\Delta\\alpha}{g} - \\kappa F_x .
 
-    Sign conventions and the seeds: seed 000 names the lateral axis x and the beam axis y, so its
+    Sign conventions and the seeds: [MWCNT] names the lateral axis x and the beam axis y, so its
     Eq. 1 (F_x (h_t + b/2) = k_ct theta_x) is our torsion row with lever arm a = h_t + b/2 = this
     cantilever's ``lever_arm``; its Eq. 3 "F_y = F_x c tan alpha" reads F_y = F_x cot(alpha)
     (alpha measured from its y = our x), i.e. our F_y = F_x tan(phi); friction is antiparallel
-    to v, so F_x and F_y share the sign factor :math:`-|f|` and no extra minus appears (seed 001 Eq. 18's
+    to v, so F_x and F_y share the sign factor :math:`-|f|` and no extra minus appears ([Alabdulmuhsin] Eq. 18's
     minus contradicts its own Eq. 16 and is not used). Its Eq. 6, F_z = k k_v S_v - F_y(h_t+b/2)/l_c,
     has our beta = k delta for k k_v S_v but coupling a/l, from a moment balance on the end
     deflection; the optical lever measures the end slope, whose coupling is 2a/l (docs/design.rst, "Force from the two
     angles"), used here by default. Pass ``coupling=cantilever.lever_arm / cantilever.length`` to
-    reproduce seed 000 literally.
+    reproduce [MWCNT] literally.
 
     This is the contact-normal system with a flat normal n = e_z, so the same kernel, flags and
-    fallback apply: motion along the beam axis (v_y -> 0, tan(phi) -> 0, seed 001's
+    fallback apply: motion along the beam axis (v_y -> 0, tan(phi) -> 0, [Alabdulmuhsin]'s
     "unmeasurable" case) is SINGULAR/ILL_CONDITIONED and v = 0 is NO_MOTION; both fall back to
     ``"bending_only"``, F = (0, tau, beta).
 

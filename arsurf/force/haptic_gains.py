@@ -1,4 +1,4 @@
-"""Photodiode signal -> haptic force gains (seed 001, sec. 4.2.2, Tables 4.4-4.6).
+"""Photodiode signal -> haptic force gains ([Alabdulmuhsin], sec. 4.2.2, Tables 4.4-4.6).
 
 The thesis scales the cantilever forces by one gain K_f into the haptic device
 (F_h,z = K_f F_n, F_h,y = K_f F_l, Eq. 9-10), with F_n = k S_n V_v and F_l = G_l V_h (Eq. 7, 25).
@@ -13,7 +13,7 @@ The resulting force sensitivities are:
     \\frac{F_{h,y}}{\\delta_y} = \\frac{K_f G_l\\, l}{h S_n} \\;(\\text{Eq. 28, Table 4.6}),
 
 where delta_y is the lateral displacement of the tip apex (twist theta_x = delta_y / h) and the
-lateral angular sensitivity is taken as S_n / l (seed 001 after Eq. 27). The tables list
+lateral angular sensitivity is taken as S_n / l ([Alabdulmuhsin] after Eq. 27). The tables list
 magnitudes; the values returned here keep the signs of S_n and G_l.
 """
 from __future__ import annotations
@@ -53,7 +53,7 @@ def signal_to_haptic_force_gain(
     Parameters
     ----------
     force_scale : float
-        K_f, haptic newtons per cantilever newton (> 0; seed 001 uses 15e6).
+        K_f, haptic newtons per cantilever newton (> 0; [Alabdulmuhsin] uses 15e6).
     spring_constant : float, N/m (k > 0)
     normal_sensitivity : float, metres per vertical signal unit (S_n, non-zero)
     lateral_gain : float, N per lateral signal unit (G_l, non-zero)

@@ -1,25 +1,25 @@
 """Four-quadrant photodiode: quadrant voltages -> vertical/lateral signals -> cantilever angles.
 
-Quadrant layout (seed 001 Fig. 2.2 and seed 003 Fig. 1 describe the same cell)::
+Quadrant layout ([Alabdulmuhsin] Fig. 2.2 and [Bolopion] Fig. 1 describe the same cell)::
 
         A (top-left)    | B (top-right)
         ----------------+----------------
         C (bottom-left) | D (bottom-right)
 
-Seed 003 names them T_l, T_r, B_l, B_r = A, B, C, D. Two conventions for the signals:
+[Bolopion] names them T_l, T_r, B_l, B_r = A, B, C, D. Two conventions for the signals:
 
-* ``"normalized"`` (seed 001 Eq. 3, 5): divided by the total light, dimensionless, in [-1, 1],
+* ``"normalized"`` ([Alabdulmuhsin] Eq. 3, 5): divided by the total light, dimensionless, in [-1, 1],
   insensitive to laser power:
 
   .. math:: V_v = \\frac{(A+B)-(C+D)}{A+B+C+D}, \\qquad V_h = \\frac{(A+C)-(B+D)}{A+B+C+D}
 
-* ``"difference"`` (seed 003 Eq. 1): raw differences in volts,
+* ``"difference"`` ([Bolopion] Eq. 1): raw differences in volts,
   :math:`u_v = (A+B)-(C+D)`, :math:`u_h = (A+C)-(B+D)`.
 
 A vertical spot displacement comes from bending, a horizontal one from torsion. Sensitivities
 turn signals into angles: ``bending = vertical_sensitivity * V_v``, ``torsion =
 lateral_sensitivity * V_h`` (rad per signal unit; either may be negative, depending on how the
-detector is mounted - seed 001 finds a negative normal gain).
+detector is mounted - [Alabdulmuhsin] finds a negative normal gain).
 """
 from __future__ import annotations
 
@@ -38,8 +38,8 @@ CONVENTIONS = ("normalized", "difference")
 def _check_convention(convention: str) -> None:
     if convention not in CONVENTIONS:
         raise ForceError(
-            f"convention must be 'normalized' (seed 001, divided by the sum) or 'difference' "
-            f"(seed 003, raw differences) (got {convention!r})"
+            f"convention must be 'normalized' ([Alabdulmuhsin], divided by the sum) or 'difference' "
+            f"([Bolopion], raw differences) (got {convention!r})"
         )
 
 
@@ -51,7 +51,7 @@ def quadrant_signals(a, b, c, d, convention: str = "normalized"):
     a, b, c, d : float or array (broadcastable), volts
         Top-left, top-right, bottom-left, bottom-right quadrant outputs.
     convention : {"normalized", "difference"}
-        Divide by the total A+B+C+D (seed 001) or not (seed 003).
+        Divide by the total A+B+C+D ([Alabdulmuhsin]) or not ([Bolopion]).
 
     Returns
     -------
@@ -137,7 +137,7 @@ class Photodiode:
     vertical_sensitivity : float, rad per signal unit
         Bending angle per unit vertical signal (non-zero; sign follows the detector mounting).
     lateral_sensitivity : float, rad per signal unit
-        Torsion angle per unit lateral signal (non-zero). Seed 000 takes it equal to the vertical
+        Torsion angle per unit lateral signal (non-zero). [MWCNT] takes it equal to the vertical
         one (k_h = k_v / l_c), since the cell has one angular sensitivity in both directions.
     convention : {"normalized", "difference"}
         Which signals the sensitivities refer to (see :func:`quadrant_signals`).
@@ -180,7 +180,7 @@ class Photodiode:
 
         .. math:: S_v = \\frac{3}{2l}\\,S_{\\delta}
 
-        The lateral sensitivity defaults to the same angular sensitivity (seed 000, sec. 2.3.2).
+        The lateral sensitivity defaults to the same angular sensitivity ([MWCNT], sec. 2.3.2).
 
         Parameters
         ----------

@@ -6,7 +6,7 @@
   exactly discretised stochastic harmonic oscillator (the input of the thermal-noise calibration).
 * :func:`simulate_approach_curve` - approach (and retract) deflection signal against piezo z.
 * :func:`simulate_wedge_sliding` - vertical and lateral signals while sliding up or down a tilted
-  surface (the input of the wedge calibration), from the force balance of seed 001 Eq. 15-18.
+  surface (the input of the wedge calibration), from the force balance of [Alabdulmuhsin] Eq. 15-18.
 
 Every generator takes ``seed`` (int or ``numpy.random.Generator``) and is deterministic for a
 fixed seed.
@@ -245,7 +245,7 @@ def wedge_forces(load, tilt: float, friction: float, adhesion: float, direction:
     """Lab-frame normal and lateral force on the tip sliding on a tilted surface.
 
     The surface rises along +y at angle theta; N is the contact (repulsive) force along the surface
-    normal and f = mu N + A the friction (seed 001 Eq. 15-18), opposing the motion. Sliding up
+    normal and f = mu N + A the friction ([Alabdulmuhsin] Eq. 15-18), opposing the motion. Sliding up
     (motion +y) and down (motion -y):
 
     .. math::

@@ -1,4 +1,4 @@
-"""Master-slave couplings: direct (scaled force) and force-position (PI + P, seed 003 Fig. 4).
+"""Master-slave couplings: direct (scaled force) and force-position (PI + P, [Bolopion] Fig. 4).
 
 Both couplings are used in two phases per servo tick, so the collision sits between them::
 
@@ -10,9 +10,9 @@ Sign conventions: ``f_probe`` is the force the sample exerts on the probe; ``F``
 device exerts on the hand. In steady contact both couplings render :math:`F = A_f \\odot f_{probe}`.
 
 **Direct coupling**: :math:`p = p_0 + (x_m - x_0)/A_d` (:class:`~arsurf.haptics.scaling.PositionScaling`,
-with clutch and limits) and :math:`F = A_f \\odot f_{probe}` (seed 001 Eq. 9-10).
+with clutch and limits) and :math:`F = A_f \\odot f_{probe}` ([Alabdulmuhsin] Eq. 9-10).
 
-**Force-position coupling** (seed 003 Fig. 4, after Bolopion et al. 2009), per axis. The slave
+**Force-position coupling** ([Bolopion] Fig. 4, after Bolopion et al. 2009), per axis. The slave
 (the probe's positioner) is velocity-commanded, :math:`V_c = H_s(s) V_s` with
 :math:`H_s(s) = 1/((1+\\tau_1 s)(1+\\tau_2 s))` (Eq. 15). The PI controller
 :math:`C(s) = B_{fp} + K_{fp}/s` acts on the master-slave velocity error in master units, i.e. a
@@ -65,7 +65,7 @@ NONFINITE = status.NONFINITE  #: non-finite master state (no force, slave frozen
 
 #: the parameters of :func:`fp_step` (per-axis fields of 3): K_fp (N/m), B_fp (N s/m), G_n
 #: (m/(N s)), A_f, A_d, the probe range (m), the period (s), and 1 to hold the last force while the
-#: clutch is held (seed 003), 0 for no force (seed 001)
+#: clutch is held ([Bolopion]), 0 for no force ([Alabdulmuhsin])
 FP_PARAMS = Layout("force-position parameters", [
     ("stiffness", 3), ("damping", 3), ("slave_gain", 3), ("force_scale", 3), ("position_scale", 3),
     ("probe_lower", 3), ("probe_upper", 3), ("dt", 1), ("hold_force", 1)])
@@ -105,7 +105,7 @@ def fp_step(params, phi, gamma, state, x_m, v_m, f_probe, clutched, force_out, p
             state[_S_XPREV + j] = state[_S_SL + 3 * j]
         state[_S_ANCHOR] = 1.0
     if clutched or not master_ok:
-        # slave stopped where it is; no force (or the last one held while clutching, seed 003);
+        # slave stopped where it is; no force (or the last one held while clutching, [Bolopion]);
         # re-anchor on release
         hold = clutched and params[_P_HOLD] != 0.0
         if clutched:
@@ -201,7 +201,7 @@ class DirectCoupling:
 
 
 class ForcePositionCoupling:
-    """Force-position coupling (PI on the master, P on the slave), seed 003 Fig. 4.
+    """Force-position coupling (PI on the master, P on the slave), [Bolopion] Fig. 4.
 
     Parameters
     ----------
@@ -220,8 +220,8 @@ class ForcePositionCoupling:
     clutch_mask : int
         Buttons that hold the clutch (slave frozen, re-anchor on release).
     hold_force_on_clutch : bool
-        While clutching, keep rendering the last force (seed 003: "the force sent back to the user
-        is constant during this operation") instead of none (default; seed 001: the button
+        While clutching, keep rendering the last force ([Bolopion]: "the force sent back to the user
+        is constant during this operation") instead of none (default; [Alabdulmuhsin]: the button
         "temporarily disables the force").
     mass, damping : float or (3,), optional
         Master :math:`M_v`, :math:`B_v`; when given (and ``check``), the gains are checked with

@@ -131,7 +131,7 @@ class DeviceInfo:
                 v.setflags(write=False)
 
 
-# Geomagic Touch X, seed 001 section 3.2 (vendor datasheet [23] there): 7.9 N maximum force,
+# Geomagic Touch X, [Alabdulmuhsin] section 3.2 (vendor datasheet [23] there): 7.9 N maximum force,
 # workspace 160 mm wide (Y_h) x 120 mm high (Z_h) x 120 mm deep (X_h), spring stiffness
 # 1.86, 2.35, 1.48 N/mm along X, Y, Z. The seed gives no damping limit.
 TOUCH_X = DeviceInfo(

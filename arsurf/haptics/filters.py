@@ -1,9 +1,9 @@
 """Low-pass filters for the haptic force: first order (exact ZOH) and Butterworth (biquads).
 
 The measured force carries photodiode noise that the hand feels and feeds back into the probe
-(seed 001 section 4.3), so the force is low-passed before it is rendered.
+([Alabdulmuhsin] section 4.3), so the force is low-passed before it is rendered.
 
-**First order.** :math:`\\dot y = \\omega_c (x - y)`, :math:`\\omega_c = 2\\pi f_c` (seed 001 Eq.
+**First order.** :math:`\\dot y = \\omega_c (x - y)`, :math:`\\omega_c = 2\\pi f_c` ([Alabdulmuhsin] Eq.
 31-32). With the input held over a tick of :math:`\\Delta T` (zero-order hold) the exact solution is
 
 .. math:: y_k = y_{k-1} + \\alpha\\,(x_k - y_{k-1}), \\qquad \\alpha = 1 - e^{-\\omega_c \\Delta T},
@@ -11,7 +11,7 @@ The measured force carries photodiode noise that the hand feels and feeds back i
 stable for every cutoff (the pole :math:`e^{-\\omega_c\\Delta T}` lies in (0, 1)). Its step response
 :math:`1 - e^{-\\omega_c (k+1)\\Delta T}` is the continuous one, sampled exactly.
 
-**Seed 001 Eq. 34 is not that.** The thesis discretises with forward Euler,
+**[Alabdulmuhsin] Eq. 34 is not that.** The thesis discretises with forward Euler,
 :math:`y_{k+1} = (1 - \\omega_c\\Delta T) y_k + \\omega_c\\Delta T\\, x_k`, whose pole
 :math:`1 - \\omega_c\\Delta T` leaves the unit circle for :math:`\\omega_c\\Delta T > 2`, and rings
 (alternates sign) for :math:`\\omega_c\\Delta T > 1`. The thesis' own setting, :math:`f_c` = 5 kHz at
@@ -79,7 +79,7 @@ def lowpass_alpha(cutoff: float, dt: float) -> float:
 
     Examples
     --------
-    >>> round(lowpass_alpha(5000.0, 1e-4), 6)   # seed 001's 5 kHz at 10 kHz: stable, alpha < 1
+    >>> round(lowpass_alpha(5000.0, 1e-4), 6)   # [Alabdulmuhsin]'s 5 kHz at 10 kHz: stable, alpha < 1
     0.956786
     """
     fc = _positive(cutoff, "cutoff", "Hz", "it is the -3 dB frequency of the filter")
@@ -88,7 +88,7 @@ def lowpass_alpha(cutoff: float, dt: float) -> float:
 
 
 def forward_euler_pole(cutoff: float, dt: float) -> float:
-    """Pole of seed 001's forward-Euler low-pass (Eq. 34): :math:`1 - 2\\pi f_c\\Delta T`.
+    """Pole of [Alabdulmuhsin]'s forward-Euler low-pass (Eq. 34): :math:`1 - 2\\pi f_c\\Delta T`.
 
     Stable iff the pole is inside the unit circle, i.e. :math:`0 < \\omega_c\\Delta T < 2`.
 
@@ -103,7 +103,7 @@ def forward_euler_pole(cutoff: float, dt: float) -> float:
 
 
 def check_forward_euler(cutoff: float, dt: float, on_unstable: str = "raise") -> float:
-    """Check seed 001's forward-Euler low-pass (Eq. 34) for stability; return :math:`\\omega_c\\Delta T`.
+    """Check [Alabdulmuhsin]'s forward-Euler low-pass (Eq. 34) for stability; return :math:`\\omega_c\\Delta T`.
 
     - :math:`\\omega_c\\Delta T \\ge 2`: the pole :math:`1-\\omega_c\\Delta T` is on or outside the
       unit circle, the output oscillates with growing (or constant) amplitude: raises
@@ -127,7 +127,7 @@ def check_forward_euler(cutoff: float, dt: float, on_unstable: str = "raise") ->
     >>> check_forward_euler(5000.0, 1e-4)
     Traceback (most recent call last):
     ...
-    arsurf.errors.HapticsError: forward-Euler low-pass is unstable: w_c*dT = 2*pi*5000 Hz*0.0001 s = 3.1416 >= 2 (pole 1 - w_c*dT = -2.142 is outside the unit circle; seed 001 Eq. 34 at its own 5 kHz / 10 kHz setting); use LowPass(method='zoh') (alpha = 1 - exp(-w_c*dT)), or cutoff < 3183.1 Hz at this rate
+    arsurf.errors.HapticsError: forward-Euler low-pass is unstable: w_c*dT = 2*pi*5000 Hz*0.0001 s = 3.1416 >= 2 (pole 1 - w_c*dT = -2.142 is outside the unit circle; [Alabdulmuhsin] Eq. 34 at its own 5 kHz / 10 kHz setting); use LowPass(method='zoh') (alpha = 1 - exp(-w_c*dT)), or cutoff < 3183.1 Hz at this rate
     """
     if on_unstable not in ("raise", "warn"):
         raise HapticsError(f"on_unstable must be 'raise' or 'warn' (got {on_unstable!r})")
@@ -137,7 +137,7 @@ def check_forward_euler(cutoff: float, dt: float, on_unstable: str = "raise") ->
         limit = 2.0 / (2.0 * math.pi * dt)
         msg = (
             f"forward-Euler low-pass is unstable: w_c*dT = 2*pi*{cutoff:g} Hz*{dt:g} s = {wdt:.4f} >= 2 "
-            f"(pole 1 - w_c*dT = {pole:.3f} is outside the unit circle; seed 001 Eq. 34 at its own "
+            f"(pole 1 - w_c*dT = {pole:.3f} is outside the unit circle; [Alabdulmuhsin] Eq. 34 at its own "
             f"5 kHz / 10 kHz setting); use LowPass(method='zoh') (alpha = 1 - exp(-w_c*dT)), "
             f"or cutoff < {limit:.1f} Hz at this rate"
         )
@@ -236,7 +236,7 @@ class LowPass:
         Number of signals filtered together (3 for a force).
     method : {"zoh", "forward_euler"}
         ``"zoh"`` (default): exact discretisation, :math:`\\alpha = 1 - e^{-\\omega_c\\Delta T}`,
-        stable for every cutoff. ``"forward_euler"``: seed 001 Eq. 34,
+        stable for every cutoff. ``"forward_euler"``: [Alabdulmuhsin] Eq. 34,
         :math:`\\alpha = \\omega_c\\Delta T`, for comparisons only; refused when unstable
         (:func:`check_forward_euler`).
     initial : float or (channels,)

@@ -1,6 +1,6 @@
-r"""Admissible gains of the force-position coupling (seed 003 Table II, corrected).
+r"""Admissible gains of the force-position coupling ([Bolopion] Table II, corrected).
 
-**Admissible gains** (the corrected Table II of seed 003: docs/design.rst, "Known errors in the
+**Admissible gains** (the corrected Table II of [Bolopion]: docs/design.rst, "Known errors in the
 sources"), per axis, with master
 :math:`H_m = 1/(B_v + M_v s)` and sampling period :math:`T_e`:
 
@@ -164,7 +164,7 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
 
     The slave-gain bound is reported twice. Table II as printed (docs/design.rst, "Known errors in the sources") reads
     :math:`G_n \le A_f / (A_d (K_{fp} T_e/2 + B_{fp}))` (``G_n_max``); the gains the authors used
-    (825 and 19.8, seed 003 Figs. 5-6) are :math:`0.99\,A_f / (A_d (K_{fp} T_e + B_{fp}))`: they
+    (825 and 19.8, [Bolopion] Figs. 5-6) are :math:`0.99\,A_f / (A_d (K_{fp} T_e + B_{fp}))`: they
     applied the bound with :math:`T_e`, up to 1.7x tighter (``G_n_max_applied``). By default
     (``slave_bound="applied"``) the conservative one is required; ``"printed"`` requires only
     Table II's as printed (the other is then reported, not required).
@@ -196,7 +196,7 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
     Examples
     --------
     >>> c = check_gains(100.0, 0.1, 825.0, A_f=25e6, A_d=50e3, mass=0.5, damping=0.2, dt=5e-3)
-    >>> c.ok, round(float(c.bound("G_n_max").limit[0]), 2)      # seed 003, Fig. 5 (x axis)
+    >>> c.ok, round(float(c.bound("G_n_max").limit[0]), 2)      # [Bolopion], Fig. 5 (x axis)
     (True, 1428.57)
     >>> round(825.0 / float(c.bound("G_n_max_applied").limit[0]), 4)  # the authors' 0.99 of the T_e bound
     0.99
@@ -208,8 +208,8 @@ def check_gains(K_fp, B_fp, G_n, *, A_f, A_d, mass, damping, dt, env_stiffness=0
     if slave_bound not in ("applied", "printed"):
         raise HapticsError(f"slave_bound must be 'applied' or 'printed' (got {slave_bound!r})")
     K, B, G, Af, Ad, M, Bv, T, ke = _gain_arrays(K_fp, B_fp, G_n, A_f, A_d, mass, damping, dt, env_stiffness)
-    table = "seed 003 Table II as corrected in docs/design.rst"
-    applied = "seed 003 as applied by its authors (T_e, not T_e/2: G_n = 825 and 19.8 are 0.99 of it)"
+    table = "[Bolopion] Table II as corrected in docs/design.rst"
+    applied = "[Bolopion] as applied by its authors (T_e, not T_e/2: G_n = 825 and 19.8 are 0.99 of it)"
     g_applied = Af / (Ad * (K * T + B))
     derived = "same sampled-data analysis (Jury criterion at z = -1), arsurf.haptics.coupling"
     k_max = 4.0 * M / T**2

@@ -1,6 +1,6 @@
 r"""The haptic rendering loop: one deterministic, compiled tick from stylus to device force.
 
-``step`` (seeds 001 and 003; docs/design.rst, "The pipeline") runs, in one compiled call:
+``step`` ([Alabdulmuhsin] and [Bolopion]; docs/design.rst, "The pipeline") runs, in one compiled call:
 
 1. **position**: master position -> probe (tip centre) position, per-axis scale and clutch
    (:func:`arsurf.haptics.scaling.position_map_step`), or the slave position of the
@@ -10,7 +10,7 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    from the two angles: given by an AFM / a session, or synthesised by the model from the
    simulated force through the cantilever model plus photodiode noise; out of contact the
    classical reading, see :func:`arsurf.model.model_tick_kernel`) or ``"blended"``
-   :math:`F = w F_{meas} + (1 - w) F_{sim}` (seed 002's augmented reality);
+   :math:`F = w F_{meas} + (1 - w) F_{sim}` ([SplineAR]'s augmented reality);
 4. **filter**: first-order low-pass, exact ZOH discretisation (:mod:`arsurf.haptics.filters`), of
    what is noisy or jumps, never of the contact spring's magnitude (a lagging spring returns more
    energy than it took: a 200 Hz low-pass on the whole force gave the hand ~35 nJ per 2 Hz tap,
@@ -20,8 +20,8 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    :math:`\bar n = \mathrm{LP}(n)/\lVert\mathrm{LP}(n)\rVert` (where the closest point jumps
    between two slopes of a rough scan the force direction turns over a few ticks instead of one,
    while a press or a tap, whose normal stays, gets its force at once);
-5. **coupling**: direct, :math:`F_h = K_f \odot F` (seed 001 Eq. 9-10), or force-position with the
-   PI controller :math:`C(s) = B_{fp} + K_{fp}/s` and P slave controller (seed 003);
+5. **coupling**: direct, :math:`F_h = K_f \odot F` ([Alabdulmuhsin] Eq. 9-10), or force-position with the
+   PI controller :math:`C(s) = B_{fp} + K_{fp}/s` and P slave controller ([Bolopion]);
 6. **safety**: saturation, ramp, rate limit, watchdog, disengage (:mod:`arsurf.haptics.safety`).
 
 With a scene of nano-objects (``HapticLoop(..., scene=TubeScene)``, :mod:`arsurf.manipulation.scene`)
@@ -446,10 +446,10 @@ class HapticLoop:
         ``scene`` the optional nano-objects (see the class).
 
         Stability: the hand feels the contact stiffness k_c (N/m at the probe, ~E* a) as
-        K_f k_c s N/m; a sampled loop renders at most 4 M_v / T² (corrected Table II, seed 003:
+        K_f k_c s N/m; a sampled loop renders at most 4 M_v / T² (corrected Table II, [Bolopion]:
         13 kN/m for a 3.3 g stylus at 1 kHz), less with a filter's delay in the loop: with
         k_c ~ 200 N/m and s = 1e-5, K_f = 1e5 renders 200 N/m and is stable with a 200 Hz
-        low-pass, K_f = 1e6 (2 kN/m) chatters (measured in the demo); seed 001's K_f = 15e6
+        low-pass, K_f = 1e6 (2 kN/m) chatters (measured in the demo); [Alabdulmuhsin]'s K_f = 15e6
         at this scale would not be passive.
         """
         from arsurf.haptics.scaling import ForceScaling, PositionScaling

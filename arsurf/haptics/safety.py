@@ -35,7 +35,7 @@ The rate-limited force lies between two forces of norm at most :math:`F_{max}`, 
 the output never exceeds :math:`F_{max}`; a final check enforces it against rounding. The kernel
 allocates nothing and never raises; :class:`SafetyLayer` validates the settings once.
 
-Limits: 7.9 N for a Touch X (seed 001), 6 N as seed 003 saturates its Virtuose.
+Limits: 7.9 N for a Touch X ([Alabdulmuhsin]), 6 N as [Bolopion] saturates its Virtuose.
 
 Examples
 --------

@@ -5,26 +5,26 @@
 
 .. math:: p = p_0 + s \\odot (x - x_0), \\qquad s = 1/A_d ,
 
-clamped to the probe's range (the piezo travel). Seed 001 (section 4.2.1) states the scale as a
+clamped to the probe's range (the piezo travel). [Alabdulmuhsin] (section 4.2.1) states the scale as a
 *sensitivity* in probe nm per haptic mm, :math:`S = 10^{6} s`; the smallest probe step the hand
 can make is the *resolution* :math:`S \\times` 1 mm (the human hand's own resolution there, not
 the device's 0.023 mm) and the probe *range* covered by the haptic workspace is
 :math:`S \\times` workspace: Tables 4.2 and 4.3 (e.g. 5000 nm / 120 mm: 41.7 nm, 5000 nm).
 
-**Clutch / indexing** (seed 003 section V-A, seed 001 section 3.2): while the clutch button is
+**Clutch / indexing** ([Bolopion] section V-A, [Alabdulmuhsin] section 3.2): while the clutch button is
 held the probe stays where it is and the master moves freely; on release the anchors become
 :math:`x_0 \\leftarrow x`, :math:`p_0 \\leftarrow p`, so the probe continues from where it stopped
 and the operator has re-centred the stylus in its workspace.
 
-**Force** (probe -> master): :math:`F_h = K_f \\odot F_{probe}` (seed 001 Eq. 9-10, :math:`K_f`
-= 15e6; seed 003 uses per-axis :math:`A_f` = 25e6 along x and 2e6 along y).
+**Force** (probe -> master): :math:`F_h = K_f \\odot F_{probe}` ([Alabdulmuhsin] Eq. 9-10, :math:`K_f`
+= 15e6; [Bolopion] uses per-axis :math:`A_f` = 25e6 along x and 2e6 along y).
 
 Kernels take plain float64 arrays and return bit flags (:data:`CLUTCHED`, :data:`CLAMPED`,
 :data:`MASTER_OUTSIDE`, :data:`NONFINITE`).
 
 Examples
 --------
->>> s = PositionScaling.from_sensitivity(5000 / 120)          # nm per mm, seed 001 Table 4.2
+>>> s = PositionScaling.from_sensitivity(5000 / 120)          # nm per mm, [Alabdulmuhsin] Table 4.2
 >>> (s.map([0.012, 0.0, 0.0]) * 1e9).round(3).tolist()        # 12 mm of stylus -> 500 nm of probe
 [500.0, 0.0, 0.0]
 >>> ForceScaling(15e6).apply([0.0, 0.0, 100e-9]).round(3).tolist()   # 100 nN -> 1.5 N
@@ -57,10 +57,10 @@ __all__ = [
     "position_map_step",
 ]
 
-#: The human hand positions a stylus to about 1 mm (seed 001 section 4.2.1); the resolution column
+#: The human hand positions a stylus to about 1 mm ([Alabdulmuhsin] section 4.2.1); the resolution column
 #: of Tables 4.2-4.3 is the sensitivity times this.
 HAND_RESOLUTION = 1e-3  # m
-#: Force scale of seed 001 (section 4.2.2): 15e6 (N on the hand per N on the probe).
+#: Force scale of [Alabdulmuhsin] (section 4.2.2): 15e6 (N on the hand per N on the probe).
 SEED001_K_F = 15e6
 
 # flags returned by the kernels (one table for all loop stages: arsurf.status)
@@ -211,7 +211,7 @@ class PositionScaling:
     # -- construction from the seed's quantities ------------------------------------------------
     @classmethod
     def from_sensitivity(cls, nm_per_mm, **kwargs) -> "PositionScaling":
-        """From a sensitivity in probe nm per haptic mm (seed 001 Tables 4.2-4.3): :math:`s = 10^{-6} S`.
+        """From a sensitivity in probe nm per haptic mm ([Alabdulmuhsin] Tables 4.2-4.3): :math:`s = 10^{-6} S`.
 
         Examples
         --------
@@ -236,7 +236,7 @@ class PositionScaling:
             raise HapticsError(f"ranges must be positive (got probe {pr.tolist()} m, master {mr.tolist()} m)")
         return cls(pr / mr, **kwargs)
 
-    # -- derived quantities (seed 001 Tables 4.2 and 4.3) ------------------------------------
+    # -- derived quantities ([Alabdulmuhsin] Tables 4.2 and 4.3) ------------------------------------
     @property
     def scale(self) -> np.ndarray:
         """Probe metres per master metre, (3,)."""
@@ -244,12 +244,12 @@ class PositionScaling:
 
     @property
     def A_d(self) -> np.ndarray:
-        """Position down-scaling factor :math:`A_d = 1/s` (seed 003), (3,)."""
+        """Position down-scaling factor :math:`A_d = 1/s` ([Bolopion]), (3,)."""
         return 1.0 / self.params[_P_SCALE:_P_SCALE + 3]
 
     @property
     def sensitivity_nm_per_mm(self) -> np.ndarray:
-        """Probe nm per haptic mm, (3,) (seed 001's 'sensitivity')."""
+        """Probe nm per haptic mm, (3,) ([Alabdulmuhsin]'s 'sensitivity')."""
         return self.params[_P_SCALE:_P_SCALE + 3] * 1e6
 
     def resolution(self, master_resolution: float = HAND_RESOLUTION) -> np.ndarray:
@@ -285,12 +285,12 @@ class PositionScaling:
 
 
 class ForceScaling:
-    """Probe force -> hand force, per axis: :math:`F_h = K_f \\odot F_{probe}` (seed 001 Eq. 9-10).
+    """Probe force -> hand force, per axis: :math:`F_h = K_f \\odot F_{probe}` ([Alabdulmuhsin] Eq. 9-10).
 
     Parameters
     ----------
     gain : float or (3,)
-        :math:`K_f` (seed 001: 15e6) or per-axis :math:`A_f` (seed 003: 25e6 along x, 2e6 along y).
+        :math:`K_f` ([Alabdulmuhsin]: 15e6) or per-axis :math:`A_f` ([Bolopion]: 25e6 along x, 2e6 along y).
         Positive and finite.
 
     Examples

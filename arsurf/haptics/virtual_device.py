@@ -1,6 +1,6 @@
 """A simulated haptic device held by a modelled hand: the default device and the test fixture.
 
-The master is a mass with viscous damping per axis, seed 003 Eq. 15,
+The master is a mass with viscous damping per axis, [Bolopion] Eq. 15,
 
 .. math:: H_m(s) = \\frac{V_m(s)}{F(s)} = \\frac{1}{B_v + M_v s},
 
@@ -23,7 +23,7 @@ device holds its force between servo ticks) and the state is advanced *exactly*:
 :math:`\\Gamma = \\int_0^{\\Delta t} e^{A s}\\,ds\\,B`, computed once per device. The simulation is
 deterministic: the clock is the tick count times ``dt``, never the wall clock.
 
-Default parameters. Seed 001 Eq. 30 fits the hand-held stylus (hand + Touch X) by
+Default parameters. [Alabdulmuhsin] Eq. 30 fits the hand-held stylus (hand + Touch X) by
 :math:`H(s) = 300/(s^2 + 100 s + 10000)` m/N (force to position): a total mass of 1/300 kg,
 damping 1/3 N s/m and hand stiffness 100/3 N/m (:math:`\\omega_n` = 100 rad/s, 16 Hz, :math:`\\zeta`
 = 0.5). The defaults reproduce it exactly; how the damping splits between device (:math:`B_v`,
@@ -62,13 +62,13 @@ __all__ = [
     "discretize_zoh",
 ]
 
-# Seed 001 Eq. 30: H(s) = 300 / (s^2 + 100 s + 10000) m/N for the hand-held stylus, i.e.
+# [Alabdulmuhsin] Eq. 30: H(s) = 300 / (s^2 + 100 s + 10000) m/N for the hand-held stylus, i.e.
 # 1 / (M s^2 + B s + K) with M = 1/300 kg, B = 100/300 N s/m, K = 10000/300 N/m.
 DEFAULT_MASS = 1.0 / 300.0  # kg, all of the fitted mass is given to the device
 DEFAULT_DAMPING = 0.1 * (100.0 / 300.0)  # N s/m, device share of the fitted damping (a choice)
 DEFAULT_HAND_DAMPING = 0.9 * (100.0 / 300.0)  # N s/m, hand share of the fitted damping
 DEFAULT_HAND_STIFFNESS = 10000.0 / 300.0  # N/m, the fitted stiffness is the hand's grip
-HAND_BANDWIDTH = 10.0  # Hz, human hand bandwidth, seed 001 section 4.3 (ref. [32] there)
+HAND_BANDWIDTH = 10.0  # Hz, human hand bandwidth, [Alabdulmuhsin] section 4.3 (ref. [32] there)
 
 
 def discretize_zoh(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -179,12 +179,12 @@ class HandModel:
         initial position, a callable ``t -> (3,)`` gives it at time ``t`` (s), or arrays
         ``times (n,)``, ``positions (n, 3)`` are interpolated linearly (held at both ends).
     stiffness : float or (3,), N/m
-        Grip stiffness :math:`K_h` (default 100/3 N/m, seed 001 Eq. 30).
+        Grip stiffness :math:`K_h` (default 100/3 N/m, [Alabdulmuhsin] Eq. 30).
     damping : float or (3,), N s/m
         Grip damping :math:`B_h` (default 0.3 N s/m, with the device's 1/30 the seed's 1/3).
     bandwidth : float, Hz
         Bandwidth :math:`f_h` of the critically damped filter between the trajectory and the hand
-        set point (default 10 Hz, seed 001 section 4.3).
+        set point (default 10 Hz, [Alabdulmuhsin] section 4.3).
 
     Examples
     --------
@@ -224,7 +224,7 @@ class VirtualDevice(Device):
     dt : float, s
         Tick period (1e-3 for 1 kHz).
     mass : float or (3,), kg
-        Master inertia :math:`M_v` (default 1/300 kg, seed 001 Eq. 30).
+        Master inertia :math:`M_v` (default 1/300 kg, [Alabdulmuhsin] Eq. 30).
     damping : float or (3,), N s/m
         Master damping :math:`B_v` (default 1/30 N s/m).
     hand : HandModel or None
@@ -232,7 +232,7 @@ class VirtualDevice(Device):
         ``None`` leaves the stylus free (no grip).
     external_force : callable, optional
         ``t -> (3,)`` force (N) applied by the operator on top of the grip, e.g. the sinusoidal
-        force of seed 001 Eq. 29.
+        force of [Alabdulmuhsin] Eq. 29.
     buttons : int or callable, optional
         Button bitmask, constant or ``t -> int``.
     initial_position : (3,) float, m
@@ -256,7 +256,7 @@ class VirtualDevice(Device):
     -----
     ``info.max_stiffness`` is :math:`4 M_v/\\Delta t^2` and ``info.max_damping`` is
     :math:`2 M_v/\\Delta t - B_v`: the stiffness and damping that a sampled coupling can render on
-    this mass at this rate (corrected Table II of seed 003, see :mod:`arsurf.haptics.coupling`).
+    this mass at this rate (corrected Table II of [Bolopion], see :mod:`arsurf.haptics.coupling`).
 
     Examples
     --------

@@ -1,4 +1,4 @@
-"""The engage procedure of seed 001 (Sec. 3.4, Fig. 3.10): bring the tip into contact safely.
+"""The engage procedure of [Alabdulmuhsin] (Sec. 3.4, Fig. 3.10): bring the tip into contact safely.
 
 Starting with the sample a few micrometres below the tip, the procedure repeats:
 
@@ -17,7 +17,7 @@ than it was at the previous (checked) fine step. The micro stage's 0.05 um resol
 the sweep, so the guarantee holds. The lever therefore bends by at most the set point plus one
 fine step (plus the noise on the detection) before the procedure stops.
 
-A safety layer watches the force estimated from every sample of the signal (seed 001 Eq. 7,
+A safety layer watches the force estimated from every sample of the signal ([Alabdulmuhsin] Eq. 7,
 ``k S_n (V - V_0)``) and aborts, retracting the fine stage, if it exceeds ``force_limit``.
 
 Examples
@@ -83,7 +83,7 @@ def engage(afm, setpoint: float, *, fine_step: float = 1e-9, fine_range: float =
            coarse_step: float = 0.16e-6, fine_stage: str = "nano", coarse_stage: str = "micro",
            samples_per_check: int = 10, baseline_time: float = 0.05, force_limit: float | None = None,
            max_coarse_steps: int | None = None) -> EngageResult:
-    """Engage the tip with the sample (seed 001 Fig. 3.10) on a :class:`VirtualAFM`.
+    """Engage the tip with the sample ([Alabdulmuhsin] Fig. 3.10) on a :class:`VirtualAFM`.
 
     Parameters
     ----------
@@ -93,11 +93,11 @@ def engage(afm, setpoint: float, *, fine_step: float = 1e-9, fine_range: float =
         Change of the normalised vertical signal that means contact, in signal units; its sign is
         taken from the detector (``afm.deflection_sensitivity``), so pass a magnitude.
     fine_step, fine_range : float, metres
-        Nano-stage step (1 nm) and sweep (0.2 um), seed 001.
+        Nano-stage step (1 nm) and sweep (0.2 um), [Alabdulmuhsin].
     coarse_step : float, metres
-        Micro-stage step (0.16 um = 80 % of the sweep), seed 001. Must not exceed ``fine_range``.
+        Micro-stage step (0.16 um = 80 % of the sweep), [Alabdulmuhsin]. Must not exceed ``fine_range``.
     fine_stage, coarse_stage : str
-        ``"nano"``/``"micro"``; seed 001 notes the PicoCube can replace the nano stage
+        ``"nano"``/``"micro"``; [Alabdulmuhsin] notes the PicoCube can replace the nano stage
         (``fine_stage="pico"``).
     samples_per_check : int
         Signal samples averaged at each check (one per loop tick: 10 ticks = 1 ms at 10 kHz).

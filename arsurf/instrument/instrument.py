@@ -5,9 +5,9 @@ It is one :class:`~arsurf.instrument.interface.Instrument` (the others drive a r
 nano stage XY) and Z (the PicoCube), engage (the procedure of :mod:`arsurf.instrument.engage`),
 hold the deflection with an ideal Z feedback, withdraw.
 
-The instrument of seed 001 (Fig. 3.1): the micro stage and the nano stage raise the sample under
+The instrument of [Alabdulmuhsin] (Fig. 3.1): the micro stage and the nano stage raise the sample under
 the tip, the PicoCube carries the probe. The simulation runs at the real-time loop rate (10 kHz in
-seed 001) and records every sample: stage positions, gap, deflection, true force and the
+[Alabdulmuhsin]) and records every sample: stage positions, gap, deflection, true force and the
 measured vertical signal.
 
 Vertical model (contact mode, no adhesion; the sample is much stiffer than the lever):
@@ -20,8 +20,8 @@ Vertical model (contact mode, no adhesion; the sample is much stiffer than the l
 with :math:`z_{tip} = h_{probe} - z_{pico}` (the tip apex when the lever is straight; the PicoCube
 extends the probe towards the sample) and
 :math:`z_{surface} = h(x, y) + z_{micro} + z_{nano}`. The normalised vertical signal saturates at
-:math:`\pm 1` (seed 001, Sec. 4.2.2). Seed 001's rectangular lever: k = 0.3 N/m (Table 4.1),
-:math:`|S_n|` = 1117 nm/V (Sec. 4.1.1; the sign depends on the detector mounting, seed 001
+:math:`\pm 1` ([Alabdulmuhsin], Sec. 4.2.2). [Alabdulmuhsin]'s rectangular lever: k = 0.3 N/m (Table 4.1),
+:math:`|S_n|` = 1117 nm/V (Sec. 4.1.1; the sign depends on the detector mounting, [Alabdulmuhsin]
 finds it negative).
 
 Lateral signal: while the tip slides in contact, friction opposes the motion,
@@ -32,7 +32,7 @@ Z feedback (``set_feedback(True)``, or after :meth:`VirtualAFM.engage`): an idea
 that sets the PicoCube, every tick, so that the deflection equals the set point (within its
 travel): :math:`\delta = |S_n| V_{set}`.
 
-Photodiode noise (seed 001, Fig. 4.4): with the sample away from the lever the vertical signal
+Photodiode noise ([Alabdulmuhsin], Fig. 4.4): with the sample away from the lever the vertical signal
 spans 0.0140 V peak to peak over 5 s for the rectangular cantilever, 0.0195 V for the triangular
 one, which also shows low-frequency noise below 60 Hz. :class:`PhotodiodeNoise` is white
 Gaussian noise (plus an optional first-order low-pass component) whose standard deviation is set
@@ -87,14 +87,14 @@ def expected_range(n: int) -> float:
 
 @dataclass(frozen=True)
 class PhotodiodeNoise:
-    """Noise of the vertical photodiode signal, specified as seed 001 measures it.
+    """Noise of the vertical photodiode signal, specified as [Alabdulmuhsin] measures it.
 
     Parameters
     ----------
     peak_to_peak : float, volts (signal units)
         Expected max - min over ``window`` seconds sampled at ``rate``.
     window : float, seconds
-        Length of the record the peak-to-peak refers to (5 s in seed 001, Fig. 4.4).
+        Length of the record the peak-to-peak refers to (5 s in [Alabdulmuhsin], Fig. 4.4).
     rate : float, Hz
         Sampling rate of the record (the 10 kHz real-time loop).
     low_frequency_fraction : float in [0, 1)
@@ -157,13 +157,13 @@ class PhotodiodeNoise:
         return white + lf, float(lf[-1])
 
 
-# Seed 001 Sec. 4 (Fig. 4.4): disengaged vertical signal over 5 s.
+# [Alabdulmuhsin] Sec. 4 (Fig. 4.4): disengaged vertical signal over 5 s.
 RECTANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0140)
 # The triangular lever's 0.0195 V includes noise below 60 Hz; its share is not given (assumed 1/2).
 TRIANGULAR_NOISE = PhotodiodeNoise(peak_to_peak=0.0195, low_frequency_fraction=0.5, corner=60.0)
 
 
-#: how far a withdraw backs the micro stage off (the engage's coarse step, seed 001), metres
+#: how far a withdraw backs the micro stage off (the engage's coarse step, [Alabdulmuhsin]), metres
 WITHDRAW_COARSE = 0.16e-6
 
 
@@ -218,9 +218,9 @@ class VirtualAFM(Instrument):
     tip_xy : (2,) float, metres
         Lateral tip position over the sample (moved by :meth:`move_to` on the XY nano stage).
     spring_constant : float, N/m
-        Normal stiffness k (seed 001 Table 4.1: 0.3 N/m).
+        Normal stiffness k ([Alabdulmuhsin] Table 4.1: 0.3 N/m).
     deflection_sensitivity : float, metres per signal unit
-        S_n: deflection per unit of normalised signal (seed 001: 1117 nm/V); its sign is the
+        S_n: deflection per unit of normalised signal ([Alabdulmuhsin]: 1117 nm/V); its sign is the
         detector's mounting.
     signal_offset : float
         Free-lever signal V_0 (the laser is rarely centred perfectly).
@@ -437,13 +437,13 @@ class VirtualAFM(Instrument):
         return InstrumentHistory(*(np.concatenate([c[i] for c in self._chunks]) for i in range(len(_FIELDS))))
 
     def force_from_signal(self, signal, baseline: float):
-        """Force estimated from the vertical signal as seed 001 Eq. 7 does: k S_n (V - V_0)."""
+        """Force estimated from the vertical signal as [Alabdulmuhsin] Eq. 7 does: k S_n (V - V_0)."""
         return self.spring_constant * self.deflection_sensitivity * (np.asarray(signal) - baseline)
 
     # -- the Instrument interface ------------------------------------------------------------------------
     @property
     def name(self) -> str:
-        return "virtual AFM (seed 001 stages)"
+        return "virtual AFM ([Alabdulmuhsin] stages)"
 
     @property
     def limits(self) -> InstrumentLimits:
@@ -511,7 +511,7 @@ class VirtualAFM(Instrument):
         self._apply_feedback()
 
     def _engage(self) -> None:
-        """The procedure of seed 001 (:func:`arsurf.instrument.engage.engage`), then the feedback on,
+        """The procedure of [Alabdulmuhsin] (:func:`arsurf.instrument.engage.engage`), then the feedback on,
         with the nano stage's position at contact moved to the PicoCube as its working range."""
         self._feedback = False
         result = engage(self, setpoint=self.setpoint, force_limit=self.engage_force_limit)

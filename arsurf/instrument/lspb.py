@@ -1,6 +1,6 @@
 r"""Linear Segments with Parabolic Blends (LSPB): smooth point-to-point moves for the stages.
 
-Seed 001 (Sec. 3.4, Fig. 4.6) smooths every step sent to the piezo stages with an LSPB
+[Alabdulmuhsin] (Sec. 3.4, Fig. 4.6) smooths every step sent to the piezo stages with an LSPB
 interpolator so that the stages never see a step input. Each axis accelerates at
 :math:`a` for a blend time :math:`t_b`, cruises at :math:`V`, and decelerates at :math:`a`:
 

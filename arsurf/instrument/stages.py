@@ -1,8 +1,8 @@
-"""Positioning stages of the AFM of seed 001, moved through LSPB profiles.
+"""Positioning stages of the AFM of [Alabdulmuhsin], moved through LSPB profiles.
 
 Each stage is one axis with a travel range, a resolution (the smallest step it executes: targets
 are rounded to the resolution grid) and the velocity and acceleration limits its LSPB moves use.
-Ranges and resolutions are those of seed 001 (Tables 3.1-3.3); velocity and acceleration limits
+Ranges and resolutions are those of [Alabdulmuhsin] (Tables 3.1-3.3); velocity and acceleration limits
 that the seed does not give are stated as assumptions next to each preset.
 
 Examples
@@ -84,20 +84,20 @@ class Stage:
         return LSPB.plan(s, t, self.max_velocity, self.max_acceleration)
 
 
-# Seed 001, Table 3.1: PI M-112.1DG, 25 mm travel, 0.05 um resolution, 1.5 mm/s. The acceleration
+# [Alabdulmuhsin], Table 3.1: PI M-112.1DG, 25 mm travel, 0.05 um resolution, 1.5 mm/s. The acceleration
 # is not in the seed: 10 mm/s^2 (assumed; a DC-motor stage reaches 1.5 mm/s in 0.15 s).
 MICRO_STAGE = Stage("micro stage (PI M-112.1DG)", travel=25e-3, resolution=0.05e-6, max_velocity=1.5e-3,
-                    max_acceleration=10e-3, source="seed 001 Table 3.1; acceleration assumed")
+                    max_acceleration=10e-3, source="[Alabdulmuhsin] Table 3.1; acceleration assumed")
 
-# Seed 001, Table 3.2: PI P-620.ZCL PIHera Z axis, 50 um travel, 0.2 nm resolution (the XY
+# [Alabdulmuhsin], Table 3.2: PI P-620.ZCL PIHera Z axis, 50 um travel, 0.2 nm resolution (the XY
 # P-621.2CL has 100 um; the text gives 0.4 nm for XY, the table 0.2 nm). Velocity and acceleration
 # limits are the LSPB smoothing chosen to spare the piezo (assumed): 100 um/s, 10 mm/s^2.
 NANO_STAGE = Stage("nano stage Z (PI P-620.ZCL)", travel=50e-6, resolution=0.2e-9, max_velocity=100e-6,
-                   max_acceleration=10e-3, source="seed 001 Table 3.2; limits assumed")
+                   max_acceleration=10e-3, source="[Alabdulmuhsin] Table 3.2; limits assumed")
 NANO_STAGE_XY = Stage("nano stage XY (PI P-621.2CL)", travel=100e-6, resolution=0.2e-9, max_velocity=100e-6,
-                      max_acceleration=10e-3, source="seed 001 Table 3.2; limits assumed")
+                      max_acceleration=10e-3, source="[Alabdulmuhsin] Table 3.2; limits assumed")
 
-# Seed 001, Table 3.3: PI P-363 PicoCube, 5 um travel, 0.1 nm resolution; limits assumed as for
+# [Alabdulmuhsin], Table 3.3: PI P-363 PicoCube, 5 um travel, 0.1 nm resolution; limits assumed as for
 # the nano stage.
 PICOCUBE = Stage("PicoCube (PI P-363)", travel=5e-6, resolution=0.1e-9, max_velocity=100e-6,
-                 max_acceleration=10e-3, source="seed 001 Table 3.3; limits assumed")
+                 max_acceleration=10e-3, source="[Alabdulmuhsin] Table 3.3; limits assumed")

@@ -1,10 +1,10 @@
 r"""A multi-walled carbon nanotube (MWCNT) lying on the sample, and how an AFM tip pushes it.
 
-The tube is a rigid rod (seed 000, Sec. 3): the set of points within ``diameter / 2`` of an axis
+The tube is a rigid rod ([MWCNT], Sec. 3): the set of points within ``diameter / 2`` of an axis
 segment of length ``length`` that lies horizontally on the substrate (a capsule; the caps are
 hemispherical, like a closed MWCNT). Its pose is the axis centre (x, y) and the axis angle.
 
-Pushing (seed 000, Eq. 9, corrected)
+Pushing ([MWCNT], Eq. 9, corrected)
 ------------------------------------
 A tip touching the tube at arc-length :math:`l` from end A (``0 <= l <= L``) and moving sideways
 exerts a force :math:`F` perpendicular to the axis (the tip-tube contact is frictionless, so the
@@ -25,12 +25,12 @@ The first gives :math:`F = f (L - 2 s)`; substituting into the second,
 
     s = l - \sqrt{l^2 - l L + L^2/2} = \frac{L (l - L/2)}{l + \sqrt{l^2 - l L + L^2/2}} .
 
-(The printed Eq. 10 of seed 000 has :math:`L^2` instead of :math:`L^2/2`; it violates its own
+(The printed Eq. 10 of [MWCNT] has :math:`L^2` instead of :math:`L^2/2`; it violates its own
 Eq. 9 - docs/design.rst, "Known errors in the sources".) The second form avoids cancellation near the middle.
 Pushing at the end, :math:`l = L`, gives :math:`s = L (1 - 1/\sqrt2)`, the classical pivot of a
 rod pushed at its end. The same root minimises the force :math:`F(s) = f[(L-s)^2 + s^2] / (2(l-s))`
 that the moment balance alone requires, so S is the pivot that needs the least push ("minimal
-force" in seed 000). The mirror case (push before the middle, :math:`l < L/2`) is
+force" in [MWCNT]). The mirror case (push before the middle, :math:`l < L/2`) is
 :math:`s = l + \sqrt{l^2 - l L + L^2/2}`, i.e. ``L - s(L - l)``.
 
 At :math:`l = L/2` exactly no pivot inside the tube balances the moment (the root reaches the far
@@ -40,7 +40,7 @@ contacts within ``middle_band * L`` of the middle (a modelling band; the default
 
 Contact at a cap (tip beyond an end) has a normal with an axial part; the tube then rotates about
 S by the perpendicular part and slides along its axis by the axial part, so that the contact
-point moves along the contact normal (an extension of seed 000 for end-on pushes).
+point moves along the contact normal (an extension of [MWCNT] for end-on pushes).
 
 Scene integration: which one the live loop uses
 -----------------------------------------------
@@ -397,7 +397,7 @@ def rotation_centre(contact, length):
         s = l - \sqrt{l^2 - l L + L^2/2}\ \ (l > L/2), \qquad
         s = l + \sqrt{l^2 - l L + L^2/2}\ \ (l < L/2)
 
-    the solution of seed 000's Eq. 9 (force and moment balance with uniform resistance), not its
+    the solution of [MWCNT]'s Eq. 9 (force and moment balance with uniform resistance), not its
     printed Eq. 10 (see the module docstring for the derivation). At the exact middle the tube
     translates: the pivot is at infinity and ``inf`` is returned.
 

@@ -18,10 +18,10 @@ inpainting (:func:`arsurf.inpaint`) *before* the fit, so that a tube is not pres
 in the spline, where it could not move, once as an object). Moving a tube then changes three
 numbers, never the surface (nanotube.py, "Scene integration").
 
-Force on the tip (seed 000, Sec. 3: uniform resistance)
+Force on the tip ([MWCNT], Sec. 3: uniform resistance)
 -------------------------------------------------------
 The substrate resists a sliding tube with a uniform force :math:`f` per unit length, opposite
-to the local velocity (seed 000's model behind Eq. 9). The tip-tube contact is frictionless,
+to the local velocity ([MWCNT]'s model behind Eq. 9). The tip-tube contact is frictionless,
 so the tube pushes the tip back along the contact normal :math:`\hat n` (from the tube axis
 towards the tip centre). Its horizontal magnitude is the force that balances the distributed
 friction of the motion the push produces:
@@ -38,7 +38,7 @@ power balance :math:`F\,\delta = f \int_0^L |\Delta r(x)|\,dx`: tested); it is :
 push at the middle (translation) and :math:`f L (\sqrt2 - 1)` at an end. The second is the
 resistance of the axial slide of a cap push (the whole tube slides: :math:`f L`); a
 cap contact with an oblique normal interpolates linearly between the two exact cases (a
-simple, documented law: seed 000 gives no model for oblique cap pushes). The vertical part
+simple, documented law: [MWCNT] gives no model for oblique cap pushes). The vertical part
 follows from the frictionless contact: the force is along the 3D normal, so
 :math:`F_z = F_h\, \Delta z / d_h` (:math:`\Delta z` the tip centre's height above the axis,
 :math:`d_h` its horizontal distance to the axis), with :math:`d_h` floored at 10 % of
@@ -64,7 +64,7 @@ this is a calibration of *f* on the figure, not a reproduction of it; the stick-
 are not modelled (the resistance is uniform kinetic friction).
 
 Limits: tubes do not collide with each other (a tube pushed onto another passes through it);
-they slide, never roll (seed 000: "it prefers sliding rather than rolling").
+they slide, never roll ([MWCNT]: "it prefers sliding rather than rolling").
 
 Determinism: :meth:`TubeScene.tick` is a compiled kernel of the previous and current tip
 centres and the poses only; replaying the recorded probe positions reproduces the poses bit for
@@ -100,7 +100,7 @@ __all__ = ["TubeScene", "SceneStep", "TubeMotion", "FRICTION_PER_LENGTH", "tube_
            "scene_step_kernel"]
 
 #: Substrate resistance per unit tube length, N/m (= nN/nm). Chosen so that an end push of the
-#: demo's 0.33-0.52 um tubes (seed 000 Fig. 10's configuration) takes 14-22 nN, within the figure's
+#: demo's 0.33-0.52 um tubes ([MWCNT] Fig. 10's configuration) takes 14-22 nN, within the figure's
 #: 0-30 nN; middle or axial pushes take f L, up to 52 nN (module docstring).
 FRICTION_PER_LENGTH = 0.1
 #: Floor of the horizontal contact distance, as a fraction of R + r, in the vertical force.

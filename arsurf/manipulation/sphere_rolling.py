@@ -1,8 +1,8 @@
-r"""Rolling a microsphere under a tipless cantilever, with forces for two haptic axes (seed 003).
+r"""Rolling a microsphere under a tipless cantilever, with forces for two haptic axes ([Bolopion]).
 
 A sphere squeezed between the substrate and a tipless cantilever rolls without sliding when the
-cantilever moves (seed 003, Sec. III). Its centre then moves by half the cantilever's motion in
-the substrate frame (seed 003 Eq. 12):
+cantilever moves ([Bolopion], Sec. III). Its centre then moves by half the cantilever's motion in
+the substrate frame ([Bolopion] Eq. 12):
 
 .. math:: x_s(j) = x_s(0) + \frac{x_c(j) - x_c(0)}{2} .
 
@@ -21,7 +21,7 @@ Rendered forces (the deflection at the free end, delta(L, 0), is servoed constan
 
     F_e^y = \frac{k_{t\phi}(L)}{w/2}\,\phi(L,0) \qquad \text{(Eq. 14)}
 
-With seed 003's beam, :math:`k_z(x_p) = (L/x_p)^3 k_z(L)` and the first term is Eq. 8,
+With [Bolopion]'s beam, :math:`k_z(x_p) = (L/x_p)^3 k_z(L)` and the first term is Eq. 8,
 :math:`2L^3 k_z(L)\delta(L,0) / (x_p^2 (3L - x_p))`: it is smallest at the extremity, so the offset
 makes the extremity a zero-force stable equilibrium (Fig. 2a, Sec. III-A). :math:`F_e^y` changes
 sign with the twist and grows with it (Fig. 2b). The two are uncoupled, so they drive two haptic
@@ -44,7 +44,7 @@ Examples
 >>> kz = lambda x: E * w * t**3 / (4 * x**3)
 >>> kt = lambda x: E / (2 * (1 + nu)) * w * t**3 / (3 * x)
 >>> probe = RollingProbe(L, w, kz, kt)
->>> round(probe.normal_force(L, 0.7e-6) * 1e6, 2)   # seed 003: about 1.7 uN at the extremity
+>>> round(probe.normal_force(L, 0.7e-6) * 1e6, 2)   # [Bolopion]: about 1.7 uN at the extremity
 1.62
 >>> probe.force_x(L, 0.7e-6)                        # the extremity is the equilibrium
 0.0
@@ -113,7 +113,7 @@ def load_point(x_c, x_c0: float, x_p0: float):
 
 @dataclass(frozen=True)
 class RollingProbe:
-    """A tipless cantilever used to roll a sphere: the rendered forces of seed 003 Eq. 13-14.
+    """A tipless cantilever used to roll a sphere: the rendered forces of [Bolopion] Eq. 13-14.
 
     Parameters
     ----------
@@ -122,9 +122,9 @@ class RollingProbe:
     width : float, metres
         Beam width w (a sphere with :math:`|y_p| > w/2` has left the beam).
     normal_stiffness : callable x_p -> N/m
-        k_z at a load point (seed 003 Eq. 6); vectorised over numpy arrays.
+        k_z at a load point ([Bolopion] Eq. 6); vectorised over numpy arrays.
     torsional_stiffness : callable x_p -> N m/rad
-        k_tphi at a load point (seed 003 Eq. 10).
+        k_tphi at a load point ([Bolopion] Eq. 10).
 
     Examples
     --------
@@ -154,7 +154,7 @@ class RollingProbe:
     @classmethod
     def from_cantilever(cls, lever) -> "RollingProbe":
         """Build from an :class:`arsurf.force.cantilever.Cantilever` (its ``normal_stiffness_at``
-        and ``torsional_stiffness_at`` are seed 003 Eq. 6 and Eq. 10)."""
+        and ``torsional_stiffness_at`` are [Bolopion] Eq. 6 and Eq. 10)."""
         for attr in ("length", "width", "normal_stiffness_at", "torsional_stiffness_at"):
             if not hasattr(lever, attr):
                 raise ManipulationError(
@@ -277,10 +277,10 @@ class RollingFeedback:
 
 
 class SphereRolling:
-    """2D rolling of a sphere under a tipless cantilever, rendered on two haptic axes (seed 003).
+    """2D rolling of a sphere under a tipless cantilever, rendered on two haptic axes ([Bolopion]).
 
     The cantilever starts at ``cantilever0`` with the sphere at ``load_point0`` on the beam
-    (seed 003 starts at the extremity, ``(L, 0)``, where no torsion is measured). Each call to
+    ([Bolopion] starts at the extremity, ``(L, 0)``, where no torsion is measured). Each call to
     :meth:`update` takes the cantilever position (nanotranslator sensors) and the measured end
     deflection and twist, and returns the estimated load point and the handle force.
 
@@ -333,7 +333,7 @@ class SphereRolling:
         ----------
         cantilever : (2,) or (n, 2) float, metres
         end_deflection : float or (n,) float, metres
-            Measured delta(L, 0) (servoed constant in seed 003).
+            Measured delta(L, 0) (servoed constant in [Bolopion]).
         torsion : float or (n,) float, radians, optional
             Measured phi(L, 0); when omitted it is simulated with the forward model
             (:meth:`RollingProbe.torsion`), for a virtual experiment.

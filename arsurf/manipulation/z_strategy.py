@@ -1,8 +1,8 @@
-r"""The "Z" strategy of seed 000: move a nanotube to a goal pose by pushing its ends alternately.
+r"""The "Z" strategy of [MWCNT]: move a nanotube to a goal pose by pushing its ends alternately.
 
 A push near an end, perpendicular to the axis, turns the tube about the pivot of
 :func:`~arsurf.manipulation.nanotube.rotation_centre` (about 0.29 L from the other end), which
-needs the least force (seed 000, Sec. 3). With the contact at arc-length :math:`l_B = L - m`
+needs the least force ([MWCNT], Sec. 3). With the contact at arc-length :math:`l_B = L - m`
 (margin :math:`m`) or :math:`l_A = m`, pivot :math:`s_B = s(l_B)`, lever :math:`a = l_B - s_B`
 and arm :math:`c = L/2 - s_B`, a push of :math:`d` (signed, along the tube normal :math:`\nu`)
 turns and moves the tube, to first order, by
@@ -110,7 +110,7 @@ def plan_z_pushes(tube: Nanotube, goal, tip_radius: float, *, position_tolerance
                   angle_tolerance: float, end_margin: float = 0.1, max_rotation: float = 0.15,
                   clearance: float | None = None, max_pushes: int = 1000,
                   match_ends: bool = False) -> PushPlan:
-    r"""Plan alternate end pushes ("Z" strategy, seed 000) that bring ``tube`` to ``goal``.
+    r"""Plan alternate end pushes ("Z" strategy, [MWCNT]) that bring ``tube`` to ``goal``.
 
     Repeats, from the simulated pose, until both tolerances are met:
 

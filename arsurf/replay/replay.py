@@ -19,8 +19,8 @@ file                   content
                        (shortest exact round trip), ``nan`` where absent
 ``summary.json``       tick count, duration, peaks, agreement with the recorded contact (SI, the
                        unit in each key: ``duration_s``, ``peak_force_N``, ``max_depth_m``)
-``forces.png``         force components in nN vs time, contact shaded (seed 000 Fig. 10)
-``coupled_motion.png`` probe z / device F_z / probe y / device F_y vs time (seed 001 Fig. 4.21)
+``forces.png``         force components in nN vs time, contact shaded ([MWCNT] Fig. 10)
+``coupled_motion.png`` probe z / device F_z / probe y / device F_y vs time ([Alabdulmuhsin] Fig. 4.21)
 ``path.png``           the probe path over the processed height map (nm, colour bar)
 ``frames/``            ``frame_NNNNN.png``, only with ``frames > 0`` and :mod:`arsurf_viewer`
 =====================  =======================================================================

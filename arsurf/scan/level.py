@@ -185,7 +185,7 @@ def level(
 
     Notes
     -----
-    The source (seed 002) smooths the scan before the B-spline fit; levelling first is the
+    The source ([SplineAR]) smooths the scan before the B-spline fit; levelling first is the
     usual AFM practice (Gwyddion: Nečas & Klapetek 2012, Cent. Eur. J. Phys. 10, 181).
 
     Examples

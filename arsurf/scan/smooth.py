@@ -1,4 +1,4 @@
-"""Gaussian low-pass filtering of a height map before the B-spline fit (seed 002).
+"""Gaussian low-pass filtering of a height map before the B-spline fit ([SplineAR]).
 
 The width is given in metres and converted per axis, so non-square pixels are filtered
 isotropically in physical space. Missing pixels (NaN) are handled by normalised convolution
@@ -76,7 +76,7 @@ def smooth(
 
     Notes
     -----
-    Seed 002 smooths the scan "with a Gaussian low-pass filter to remove noise" before fitting
+    [SplineAR] smooths the scan "with a Gaussian low-pass filter to remove noise" before fitting
     the bicubic B-spline; the width is not given there: choose it from the noise scale, a few
     pixels.
 

@@ -5,9 +5,9 @@ analytic (or, for :func:`rough`, a seeded Gaussian random field with known stati
 optional white noise and a tilt so that levelling and smoothing have work to do:
 
 - :func:`calibration_grating` - rectangular (or trapezoidal) steps, as the MikroMasch TGZ
-  gratings seed 000 uses to calibrate k_v with 20, 101.8 and 500 nm steps;
+  gratings [MWCNT] uses to calibrate k_v with 20, 101.8 and 500 nm steps;
 - :func:`sinusoid` - a sinusoidal grating;
-- :func:`nanotubes` - cylinders (MWCNTs, seed 000) lying on a flat substrate;
+- :func:`nanotubes` - cylinders (MWCNTs, [MWCNT]) lying on a flat substrate;
 - :func:`nanoparticles` - spherical caps (or whole spheres) on a flat substrate;
 - :func:`rough` - Gaussian random roughness with a given rms and correlation length.
 
@@ -39,7 +39,7 @@ __all__ = [
 ]
 
 
-#: Step heights (m) of the three Z calibration gratings of seed 000 (section 2.3.1, Fig. 3),
+#: Step heights (m) of the three Z calibration gratings of [MWCNT] (section 2.3.1, Fig. 3),
 #: which gave 32, 156 and 710 mV of vertical PSD signal and k_v = 706 nm/V.
 SEED000_STEPS = (20e-9, 101.8e-9, 500e-9)
 #: Pitch of the MikroMasch TGZ01-03 step gratings (manufacturer's datasheet: 3.0 um).
@@ -82,7 +82,7 @@ def calibration_grating(
     Parameters
     ----------
     step : float, metres
-        Step height (seed 000 uses 20e-9, 101.8e-9 and 500e-9: :data:`SEED000_STEPS`).
+        Step height ([MWCNT] uses 20e-9, 101.8e-9 and 500e-9: :data:`SEED000_STEPS`).
     shape : (ny, nx) int
         Pixels.
     pixel : float or (dx, dy), metres

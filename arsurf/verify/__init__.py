@@ -6,7 +6,7 @@
   broadening removed.
 * :mod:`~arsurf.verify.compare` - found tubes matched to the model's poses: position and angle
   errors, and the flag of a wrong model.
-* :mod:`~arsurf.verify.figure` - prediction and scan after, side by side and overlaid (seed 000
+* :mod:`~arsurf.verify.figure` - prediction and scan after, side by side and overlaid ([MWCNT]
   Fig. 9).
 * :mod:`~arsurf.verify.verify` - a session and its scans in, the report, figure and next scene out.
 * :mod:`~arsurf.verify.command` - the ``arsurf verify`` command.

@@ -1,4 +1,4 @@
-"""The model meets the scan after, in the manner of seed 000 Fig. 9 (live display beside the scan
+"""The model meets the scan after, in the manner of [MWCNT] Fig. 9 (live display beside the scan
 after each push): (a) the model's prediction - the substrate the session fitted with every tube
 at the pose the model left it, (b) the scan after carried into the same frame by the
 registration (grey where it did not reach), (c) the two overlaid - the scan after with the predicted outlines (dashed) and the

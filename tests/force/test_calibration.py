@@ -1,5 +1,5 @@
-"""Calibration: seed 000 k_v/k_h, approach-curve S_n with contact detection and 95 % CI, wedge
-G_l and mu, thermal-noise k, seed 001 force-scaling tables, bad input."""
+"""Calibration: [MWCNT] k_v/k_h, approach-curve S_n with contact detection and 95 % CI, wedge
+G_l and mu, thermal-noise k, [Alabdulmuhsin] force-scaling tables, bad input."""
 from __future__ import annotations
 
 import math
@@ -29,15 +29,15 @@ from arsurf.force.simulate import (
     wedge_forces,
 )
 
-# seed 000, sec. 2.3.1: grating steps and the vertical PSD jumps
+# [MWCNT], sec. 2.3.1: grating steps and the vertical PSD jumps
 STEPS = [20e-9, 101.8e-9, 500e-9]
 JUMPS = [0.032, 0.156, 0.710]
-# seed 001: k = 0.3 N/m, S_n = 1117 nm/V, G_l = -63.78 nN/V, mu = 1.861, K_f = 15e6
+# [Alabdulmuhsin]: k = 0.3 N/m, S_n = 1117 nm/V, G_l = -63.78 nN/V, mu = 1.861, K_f = 15e6
 K_SEED001, SN_SEED001, GL_SEED001, MU_SEED001 = 0.3, 1117e-9, -63.78e-9, 1.861
 NORMAL_GAIN = K_SEED001 * SN_SEED001  # N per vertical volt
 
 
-# ---- seed 000: k_v and k_h -----------------------------------------------------------------------
+# ---- [MWCNT]: k_v and k_h -----------------------------------------------------------------------
 def test_seed000_vertical_sensitivity():
     r = vertical_sensitivity_from_steps(STEPS, JUMPS)
     assert r.value == pytest.approx(706e-9, rel=0.01)
@@ -55,7 +55,7 @@ def test_seed000_vertical_sensitivity():
 
 
 def test_seed000_lateral_sensitivity():
-    # seed 000: k_h = k_v / l_c = 0.00565 rad/V; l_c follows from its two numbers
+    # [MWCNT]: k_h = k_v / l_c = 0.00565 rad/V; l_c follows from its two numbers
     l_c = 706e-9 / 0.00565
     assert lateral_sensitivity_from_vertical(706e-9, l_c, model="chord") == pytest.approx(0.00565, rel=1e-12)
     kv = vertical_sensitivity_from_steps(STEPS, JUMPS).value
@@ -65,7 +65,7 @@ def test_seed000_lateral_sensitivity():
 
 
 def test_the_default_lateral_sensitivity_is_the_photodiodes_bending_sensitivity():
-    """Why k_h defaults to the end-load slope, not seed 000's chord: torsion and bending share
+    """Why k_h defaults to the end-load slope, not [MWCNT]'s chord: torsion and bending share
     one angular sensitivity (the seed's premise), and the bending one arsurf reads from the same
     deflection sensitivity is the end slope."""
     from arsurf.force.photodiode import Photodiode
@@ -112,7 +112,7 @@ def test_approach_curve_confidence_interval_coverage():
 
 
 def test_approach_retract_cycle_and_negative_gain():
-    # seed 001 Eq. 13 has a negative sensitivity (-1117 nm/V); adhesion distorts the retract branch
+    # [Alabdulmuhsin] Eq. 13 has a negative sensitivity (-1117 nm/V); adhesion distorts the retract branch
     z, v = simulate_approach_curve(-SN_SEED001, 150e-9, 0.0, 400e-9, 500, noise=1e-3, retract=True,
                                    pull_off=60e-9, seed=9)
     r = normal_sensitivity_from_curve(z, v)
@@ -260,7 +260,7 @@ def test_thermal_with_detector_noise_floor():
     assert naive < 0.95 * k < r.value
 
 
-# ---- seed 001: force scaling tables 4.4 - 4.6 -----------------------------------------------------------
+# ---- [Alabdulmuhsin]: force scaling tables 4.4 - 4.6 -----------------------------------------------------------
 def test_seed001_force_scaling_tables():
     g = signal_to_haptic_force_gain(15e6, K_SEED001, SN_SEED001, GL_SEED001, length=450e-6, tip_height=15e-6)
     # Table 4.4 (magnitudes)

@@ -1,4 +1,4 @@
-"""Cantilever: seed 003 figures, load-point formulas, torsion table, forward model vs beam integrals."""
+"""Cantilever: [Bolopion] figures, load-point formulas, torsion table, forward model vs beam integrals."""
 from __future__ import annotations
 
 import math
@@ -17,9 +17,9 @@ from arsurf.force.cantilever import (
     torsional_stiffness_from_geometry,
 )
 
-# seed 003, Table I: silicon tipless lever
+# [Bolopion], Table I: silicon tipless lever
 SEED003 = dict(length=220e-6, width=27e-6, thickness=2.9e-6, tip_height=0.0, youngs_modulus=150e9, poisson_ratio=0.17)
-# seed 001, Table 4.1 geometry with silicon moduli
+# [Alabdulmuhsin], Table 4.1 geometry with silicon moduli
 CONTACT = dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6, youngs_modulus=169e9, poisson_ratio=0.27)
 
 
@@ -31,7 +31,7 @@ def test_seed003_normal_stiffness():
 
 
 def test_seed003_torsional_stiffness_thin_plate():
-    # seed 003 Eq. 10 uses k_tphi = G w t^3 / (3 x_p), i.e. beta = 1/3: 64.0e-9 N m
+    # [Bolopion] Eq. 10 uses k_tphi = G w t^3 / (3 x_p), i.e. beta = 1/3: 64.0e-9 N m
     lever = Cantilever(**SEED003, beta=1 / 3)
     assert lever.torsional_stiffness == pytest.approx(64.0e-9, rel=2e-3)
     assert lever.torsional_stiffness_at(220e-6) == pytest.approx(lever.torsional_stiffness, rel=1e-15)

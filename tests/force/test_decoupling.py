@@ -1,5 +1,5 @@
 """Decoupling: round trip over >= 10,000 fixed-seed cases against an explicit numpy solve,
-degenerate cases flagged with a sane fallback, the motion method vs seed 000 Eq. 6, bad input."""
+degenerate cases flagged with a sane fallback, the motion method vs [MWCNT] Eq. 6, bad input."""
 from __future__ import annotations
 
 import math
@@ -27,9 +27,9 @@ from arsurf.force.decoupling import (
 )
 
 LEVERS = [
-    Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27),  # seed 001 contact lever
-    Cantilever(125e-6, 30e-6, 4.0e-6, 10e-6, 169e9, 0.27, normal_stiffness=38.6),  # seed 000-like stiff lever
-    Cantilever(220e-6, 27e-6, 2.9e-6, 0.0, 150e9, 0.17, beta=1 / 3),  # seed 003 tipless
+    Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27),  # [Alabdulmuhsin] contact lever
+    Cantilever(125e-6, 30e-6, 4.0e-6, 10e-6, 169e9, 0.27, normal_stiffness=38.6),  # [MWCNT]-like stiff lever
+    Cantilever(220e-6, 27e-6, 2.9e-6, 0.0, 150e9, 0.17, beta=1 / 3),  # [Bolopion] tipless
 ]
 ALL_DEGENERATE = (DecouplingFlag.NO_MOTION | DecouplingFlag.STEEP_NORMAL | DecouplingFlag.SINGULAR
                   | DecouplingFlag.ILL_CONDITIONED)
@@ -287,9 +287,9 @@ def test_kernel_status_on_invalid_input():
     assert decouple_kernel(1e-4, 1e-4, 0.0, 0.0, 1.0, 0.0, 1e-6, params, out) == 0
 
 
-# ---- decoupling by the motion direction (seeds 000, 001) ------------------------------------------
+# ---- decoupling by the motion direction ([MWCNT], [Alabdulmuhsin]) ------------------------------------------
 def seed000_eq6(s_v, s_h, k, k_v, k_h, k_ct, h_t, b, l_c, alpha):
-    """Seed 000 Eq. 6 in its own frame (x lateral, y along the beam), 'c tan' read as cot."""
+    """[MWCNT] Eq. 6 in its own frame (x lateral, y along the beam), 'c tan' read as cot."""
     fx = k_ct * k_h * s_h / (h_t + b / 2)
     fy = fx / math.tan(alpha)
     fz = k * k_v * s_v - fy * (h_t + b / 2) / l_c
@@ -299,7 +299,7 @@ def seed000_eq6(s_v, s_h, k, k_v, k_h, k_ct, h_t, b, l_c, alpha):
 @pytest.mark.parametrize("alpha_deg", [15.0, 45.0, 80.0, 120.0, -60.0])
 def test_motion_method_reproduces_seed000_eq6(alpha_deg):
     lever = LEVERS[1]
-    k_v, k_h = 706e-9, 0.00565  # seed 000 sensitivities
+    k_v, k_h = 706e-9, 0.00565  # [MWCNT] sensitivities
     s_v, s_h = 0.31, -0.07
     alpha = math.radians(alpha_deg)
     # the same measurement as angles: torsion = k_h S_h; bending such that beta = k delta = k k_v S_v
@@ -309,7 +309,7 @@ def test_motion_method_reproduces_seed000_eq6(alpha_deg):
                              coupling=lever.lever_arm / lever.length)
     fx_s, fy_s, fz_s = seed000_eq6(s_v, s_h, lever.normal_stiffness, k_v, k_h, lever.torsional_stiffness,
                                    lever.tip_height, lever.thickness, lever.length, alpha)
-    # seed 000's lateral x is our y, its beam axis y is our x
+    # [MWCNT]'s lateral x is our y, its beam axis y is our x
     assert est.method == "motion_direction"
     assert est.force == pytest.approx([fy_s, fx_s, fz_s], rel=1e-12)
 
@@ -336,7 +336,7 @@ def test_motion_method_round_trip_and_equivalence_with_flat_normal():
 def test_motion_method_degenerate():
     lever = LEVERS[0]
     b, t = lever.angles([-3e-9, 0.0, 20e-9])
-    along_beam = decouple_by_motion(b, t, [1e-6, 0.0], lever)  # tan(phi) = 0: seed 001's unmeasurable case
+    along_beam = decouple_by_motion(b, t, [1e-6, 0.0], lever)  # tan(phi) = 0: [Alabdulmuhsin]'s unmeasurable case
     assert along_beam.flags == DecouplingFlag.SINGULAR and along_beam.method == "bending_only"
     still = decouple_by_motion(b, t, [0.0, 0.0, 0.0], lever)
     assert still.flags == DecouplingFlag.NO_MOTION and still.method == "bending_only"

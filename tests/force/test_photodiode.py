@@ -22,7 +22,7 @@ def test_conventions_by_hand():
     v, h = quadrant_signals(a, b, c, d)
     assert v == pytest.approx(-6 / 12, rel=1e-15)
     assert h == pytest.approx(-4 / 12, rel=1e-15)
-    # seed 003 names: T_l, T_r, B_l, B_r -> u_v = (T_l + T_r) - (B_l + B_r), u_h = (T_l + B_l) - (T_r + B_r)
+    # [Bolopion] names: T_l, T_r, B_l, B_r -> u_v = (T_l + T_r) - (B_l + B_r), u_h = (T_l + B_l) - (T_r + B_r)
     tl, tr, bl, br = 0.3, 0.1, 0.7, 0.2
     assert quadrant_signals(tl, tr, bl, br, "difference") == pytest.approx(((tl + tr) - (bl + br), (tl + bl) - (tr + br)))
 
@@ -64,7 +64,7 @@ def test_sensitivities_round_trip_and_sign():
 def test_from_deflection_sensitivity_matches_end_loaded_beam():
     """S_v = 3 S_delta / (2 l): the bending angle of the lever under an end force equals S_v times
     the signal that the calibrated deflection sensitivity assigns to its end deflection."""
-    s_delta = 1117e-9  # m per signal unit (seed 001)
+    s_delta = 1117e-9  # m per signal unit ([Alabdulmuhsin])
     pd = Photodiode.from_deflection_sensitivity(s_delta, LEVER.length)
     force = 25e-9
     deflection = force / LEVER.normal_stiffness

@@ -1,4 +1,4 @@
-"""Couplings: corrected Table II of seed 003, and the closed loop measured inside and outside it."""
+"""Couplings: corrected Table II of [Bolopion], and the closed loop measured inside and outside it."""
 from __future__ import annotations
 
 import math
@@ -16,7 +16,7 @@ from arsurf.haptics.device import BUTTON_1
 from arsurf.haptics.scaling import ForceScaling, PositionScaling
 from arsurf.haptics.virtual_device import HandModel, discretize_zoh
 
-# master of the virtual device (seed 001 Eq. 30 defaults), 1 kHz, 1 mm -> 10 nm, 100 nN -> 1 N
+# master of the virtual device ([Alabdulmuhsin] Eq. 30 defaults), 1 kHz, 1 mm -> 10 nm, 100 nN -> 1 N
 M, BV, T = 1 / 300, 1 / 30, 1e-3
 AF, AD = 1e7, 1e5
 KE = 10.0  # N/m on the probe side: the hand feels A_f k_e / A_d = 1000 N/m
@@ -57,7 +57,7 @@ def sim(K, B, G, *, tau=TAU, k_e=KE, duration=1.0, **kw):
 # check_gains: the table
 # ---------------------------------------------------------------------------------------------
 def test_table_ii_bounds_by_hand_on_seed003_gains():
-    # seed 003 Figs. 5-6: A_d = 50e3, T_e = 5 ms, K_fp = 100 N/m; x: A_f = 25e6, B_fp = 0.1, G_n = 825;
+    # [Bolopion] Figs. 5-6: A_d = 50e3, T_e = 5 ms, K_fp = 100 N/m; x: A_f = 25e6, B_fp = 0.1, G_n = 825;
     # y: A_f = 2e6, B_fp = 1.5, G_n = 19.8. The paper gives no M_v, B_v for its Virtuose: 0.5 kg
     # and 0.2 N s/m are assumptions for this check (B_fp^x = 0.1 needs B_v >= 0.15).
     kw = dict(A_d=50e3, mass=0.5, damping=0.2, dt=5e-3)
@@ -310,7 +310,7 @@ def test_envelope_decay_ratio():
 
 @pytest.mark.parametrize("A_f, B_fp, G_n", [(25e6, 0.1, 825.0), (2e6, 1.5, 19.8)])
 def test_the_seed003_gains_are_099_of_the_bound_applied_with_Te(A_f, B_fp, G_n):
-    """Seed 003 Figs. 5-6: G_n = 825 (x) and 19.8 (y) are 0.99 A_f / (A_d (K_fp T_e + B_fp)) - the
+    """[Bolopion] Figs. 5-6: G_n = 825 (x) and 19.8 (y) are 0.99 A_f / (A_d (K_fp T_e + B_fp)) - the
     slave bound applied with T_e, not Table II's printed T_e/2 (docs/design.rst, "Known errors in the
     sources"). Both are reported; the
     conservative one is required by default."""

@@ -1,4 +1,4 @@
-"""Device interface, VirtualDevice (exact master + modelled hand, seed 001 Eq. 30), ReplayDevice."""
+"""Device interface, VirtualDevice (exact master + modelled hand, [Alabdulmuhsin] Eq. 30), ReplayDevice."""
 from __future__ import annotations
 
 import math
@@ -140,7 +140,7 @@ def test_defaults_reproduce_seed001_eq30_as_a_whole():
 
 @pytest.mark.parametrize("f", [0.5, 10.0, 20.0, 100.0])
 def test_held_stylus_frequency_response_is_seed001_eq30(f):
-    """Seed 001 Figs. 4.15-4.17: a 0.5 N sinusoidal force on the held stylus, f = 0.5, 10, 20, 100 Hz."""
+    """[Alabdulmuhsin] Figs. 4.15-4.17: a 0.5 N sinusoidal force on the held stylus, f = 0.5, 10, 20, 100 Hz."""
     dt = 2e-4
     amp = 0.5
     dev = VirtualDevice(dt=dt, external_force=lambda t: (amp * math.sin(2 * math.pi * f * t), 0.0, 0.0)).open()

@@ -1,4 +1,4 @@
-"""Filters: exact first-order step/frequency response, seed 001's unstable forward Euler, Butterworth."""
+"""Filters: exact first-order step/frequency response, [Alabdulmuhsin]'s unstable forward Euler, Butterworth."""
 from __future__ import annotations
 
 import math
@@ -90,10 +90,10 @@ def test_first_order_holds_on_nonfinite_input_and_counts_it():
 
 
 # ---------------------------------------------------------------------------------------------
-# seed 001 Eq. 34: forward Euler
+# [Alabdulmuhsin] Eq. 34: forward Euler
 # ---------------------------------------------------------------------------------------------
 def forward_euler_reference(wdt, n):
-    """Seed 001 Eq. 34 literally: y[k+1] = (1 - dT w_c) y[k] + dT w_c x[k], unit step input."""
+    """[Alabdulmuhsin] Eq. 34 literally: y[k+1] = (1 - dT w_c) y[k] + dT w_c x[k], unit step input."""
     y = [0.0]
     for _ in range(n):
         y.append((1 - wdt) * y[-1] + wdt * 1.0)

@@ -1,4 +1,4 @@
-"""Position and force scaling: seed 001 Tables 4.2-4.6, clutch/indexing, limits."""
+"""Position and force scaling: [Alabdulmuhsin] Tables 4.2-4.6, clutch/indexing, limits."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,7 +19,7 @@ from arsurf.haptics.scaling import (
     PositionScaling,
 )
 
-# Seed 001 Table 4.2 (X and Z axes, 120 mm of haptic travel) and Table 4.3 (Y axis, 160 mm):
+# [Alabdulmuhsin] Table 4.2 (X and Z axes, 120 mm of haptic travel) and Table 4.3 (Y axis, 160 mm):
 # (probe range nm, resolution nm as printed). Two cells are garbled in the source text
 # ("120/120 -> (blank)" and "12/120 -> 0 1"); their values follow from the same rule: 1 and 0.1.
 TABLE_4_2 = [(5000, 41.7), (1200, 10.0), (1000, 8.3), (500, 4.2), (120, 1.0), (100, 0.8), (12, 0.1)]
@@ -45,13 +45,13 @@ def test_seed001_tables_4_2_and_4_3(table, axis):
 
 
 def test_device_resolution_is_finer_than_the_hand():
-    # seed 001: the Touch X resolves 0.023 mm, the hand about 1 mm
+    # [Alabdulmuhsin]: the Touch X resolves 0.023 mm, the hand about 1 mm
     s = PositionScaling.from_sensitivity(5000 / 120)
     assert s.resolution(0.023e-3)[0] * 1e9 == pytest.approx(0.958, abs=1e-3)
 
 
 def test_seed001_force_tables_4_4_to_4_6():
-    k, S_n, G_l = 0.3, 1117e-9, 63.78e-9  # N/m, m/V, N/V (magnitude), seed 001 section 4.1
+    k, S_n, G_l = 0.3, 1117e-9, 63.78e-9  # N/m, m/V, N/V (magnitude), [Alabdulmuhsin] section 4.1
     L, h = 450e-6, 15e-6  # cantilever length and tip height, Table 4.1
     fs = ForceScaling(SEED001_K_F)
     # Table 4.4: F_h,z / V_v = K_f k S_n; F_h,y / V_h = K_f G_l
@@ -95,7 +95,7 @@ def test_clutch_recentres_the_master_without_moving_the_probe():
     np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-18)
     p3 = s.map([0.03, 0.01, 0.0])
     np.testing.assert_allclose(p3, p1 + [5e-7, 0, 0], rtol=1e-12)
-    # seed 003: 40 um of probe travel needs indexing with a 35 cm master (A_d = 50e3)
+    # [Bolopion]: 40 um of probe travel needs indexing with a 35 cm master (A_d = 50e3)
     s = PositionScaling(1 / 50e3, master_origin=(-0.125, 0, 0))  # probe at 0 with the stylus at -125 mm
     for _ in range(8):  # 8 strokes of 25 cm, clutching back in between
         for xm in np.linspace(-0.125, 0.125, 11):

@@ -1,4 +1,4 @@
-"""Virtual AFM: seed 001 stages, photodiode noise, cantilever spring and the engage of Fig. 3.10."""
+"""Virtual AFM: [Alabdulmuhsin] stages, photodiode noise, cantilever spring and the engage of Fig. 3.10."""
 from __future__ import annotations
 
 import math
@@ -19,8 +19,8 @@ from arsurf.instrument.stages import MICRO_STAGE, NANO_STAGE, NANO_STAGE_XY, PIC
 from arsurf.scan.scan import Scan
 from tests.support.real_scans import real_scan_path
 
-K = 0.3  # N/m, seed 001 Table 4.1
-S_N = 1117e-9  # m per signal unit, seed 001 Sec. 4.1.1
+K = 0.3  # N/m, [Alabdulmuhsin] Table 4.1
+S_N = 1117e-9  # m per signal unit, [Alabdulmuhsin] Sec. 4.1.1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -133,7 +133,7 @@ def test_virtual_afm_input_checks():
 
 
 # ------------------------------------------------------------------------------------------------
-# engage (seed 001 Fig. 3.10)
+# engage ([Alabdulmuhsin] Fig. 3.10)
 # ------------------------------------------------------------------------------------------------
 
 SETPOINT = 0.05  # signal units: 55.9 nm of bending, 16.8 nN
@@ -181,7 +181,7 @@ def test_engage_from_5_um_above_a_real_scan():
 
 
 def test_engage_with_the_picocube_as_fine_stage():
-    afm = VirtualAFM(surface=0.0, probe_height=0.7e-6, seed=4, deflection_sensitivity=-S_N)  # seed 001's sign
+    afm = VirtualAFM(surface=0.0, probe_height=0.7e-6, seed=4, deflection_sensitivity=-S_N)  # [Alabdulmuhsin]'s sign
     result = engage(afm, setpoint=SETPOINT, fine_stage="pico", force_limit=FORCE_LIMIT)
     check_engage(result, afm)
     assert np.mean(afm.dwell(0.01)) < -0.04  # a negative sensitivity: the signal goes down

@@ -1,4 +1,4 @@
-"""LSPB interpolator (seed 001 Sec. 3.4): limits, exact end point, continuity, minimum time."""
+"""LSPB interpolator ([Alabdulmuhsin] Sec. 3.4): limits, exact end point, continuity, minimum time."""
 from __future__ import annotations
 
 import math
@@ -124,7 +124,7 @@ def test_longer_duration_lowers_the_cruise_speed():
 
 
 def test_sample_at_the_loop_rate_ends_on_the_target():
-    move = LSPB.plan(0.0, 1e-6, 1e-4, 1e-2)  # seed 001 Fig. 4.6: a 1000 nm step
+    move = LSPB.plan(0.0, 1e-6, 1e-4, 1e-2)  # [Alabdulmuhsin] Fig. 4.6: a 1000 nm step
     t, q, v, a = move.sample(10e3)
     assert t[0] == 0.0 and t[-1] == move.duration and q[-1, 0] == 1e-6
     assert np.all(np.diff(t) > 0)

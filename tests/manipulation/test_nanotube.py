@@ -1,4 +1,4 @@
-"""Nanotube model (seed 000, Eq. 9 corrected), pushing, scene integration and the "Z" planner."""
+"""Nanotube model ([MWCNT], Eq. 9 corrected), pushing, scene integration and the "Z" planner."""
 from __future__ import annotations
 
 import math
@@ -19,7 +19,7 @@ SQ2 = math.sqrt(2.0)
 
 
 def eq9_residuals(l, s, L, f=1.0):
-    """Seed 000 Eq. 9 for a push beyond the middle (mirror for l < L/2), with F from the force
+    """[MWCNT] Eq. 9 for a push beyond the middle (mirror for l < L/2), with F from the force
     balance; returns (F, moment residual) in units of f and f L^2."""
     if l > L / 2:
         F = f * (L - s) - f * s
@@ -54,7 +54,7 @@ def test_end_push_gives_the_classical_pivot():
 
 
 def test_printed_eq10_is_not_a_solution_of_eq9():
-    # docs/design.rst, "Known errors in the sources": seed 000's Eq. 10 (L^2 under the root) violates its own Eq. 9
+    # docs/design.rst, "Known errors in the sources": [MWCNT]'s Eq. 10 (L^2 under the root) violates its own Eq. 9
     L, l = L0, 0.9 * L0
     s_printed = l - math.sqrt(l * l - l * L + L * L)
     assert abs(eq9_residuals(l, s_printed, L)[1]) > 0.01

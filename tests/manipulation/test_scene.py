@@ -445,7 +445,7 @@ def test_a_nan_tip_in_the_fast_path_does_nothing():
 
 
 def test_seed000_fig10_configuration_end_pushes_stay_in_its_0_30_nN():
-    """Seed 000 Fig. 10 (0-30 nN lateral force) is the first push of the "Z" strategy: the tip at a
+    """[MWCNT] Fig. 10 (0-30 nN lateral force) is the first push of the "Z" strategy: the tip at a
     tube end, moving across the axis. There the resistance is f L (sqrt 2 - 1): for the demo's
     tubes (0.33 and 0.52 um) 14-22 nN at f = 0.1 N/m, inside the figure's range. The 32-52 nN of
     the same tubes is f L, a push at the middle (pure translation) or along the axis: another

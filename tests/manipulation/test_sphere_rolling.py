@@ -1,4 +1,4 @@
-"""Sphere rolling under a tipless cantilever (seed 003 Eq. 4-14, Fig. 2)."""
+"""Sphere rolling under a tipless cantilever ([Bolopion] Eq. 4-14, Fig. 2)."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,13 +14,13 @@ from arsurf.manipulation.sphere_rolling import (
     sphere_position,
 )
 
-# seed 003, Table I and Sec. V-A
+# [Bolopion], Table I and Sec. V-A
 E, NU, L, T, W = 150e9, 0.17, 220e-6, 2.9e-6, 27e-6
 G = E / (2 * (1 + NU))
 DELTA = 0.7e-6
 
 
-# seed 003 closed forms, written out here as the reference
+# [Bolopion] closed forms, written out here as the reference
 def kz_closed(x):
     """Eq. 6: k_z(x_p) = E w t^3 / (4 x_p^3)."""
     return E * W * T**3 / (4 * np.asarray(x) ** 3)
@@ -135,7 +135,7 @@ def test_eq12_kinematics_against_no_slip_integration():
 def test_2d_rolling_two_uncoupled_restoring_axes():
     roll = SphereRolling(PROBE, cantilever0=(1e-6, -2e-6))
     theta = np.linspace(0, 2 * np.pi, 73)
-    # the operator draws circles with the cantilever (seed 003 Fig. 7), inside the beam
+    # the operator draws circles with the cantilever ([Bolopion] Fig. 7), inside the beam
     path = np.stack([1e-6 + 60e-6 + 50e-6 * np.cos(theta), -2e-6 + 20e-6 * np.sin(theta)], axis=1)
     fb = roll.update(path, end_deflection=DELTA)
     assert np.all(fb.on_beam)

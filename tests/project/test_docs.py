@@ -32,8 +32,8 @@ def test_the_site_has_its_pages(site):
                  "auto_examples/index.html", "auto_examples/plot_contact_mechanics.html"):
         assert (site / page).is_file(), page
     equations = (site / "equations.html").read_text(encoding="utf-8")
-    for source in ("Maugis 1992", "Johnson &amp; Greenwood 1997", "seed 000 Eq. 9", "Hannaford &amp; Ryu 2002",
-                   "seed 003 Table II", "seed 001 Eq. 31-34"):
+    for source in ("Maugis 1992", "Johnson &amp; Greenwood 1997", "[MWCNT] Eq. 9", "Hannaford &amp; Ryu 2002",
+                   "[Bolopion] Table II", "[Alabdulmuhsin] Eq. 31-34"):
         assert source in equations, source
 
 

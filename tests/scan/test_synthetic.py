@@ -37,7 +37,7 @@ def _measure_step(scan: Scan, axis: str = "x", guard_px: int = 6) -> float:
 
 
 # ---------------------------------------------------------------------------------------------
-# calibration gratings (seed 000)
+# calibration gratings ([MWCNT])
 
 
 @pytest.mark.parametrize("step,noise", list(zip(SEED000_STEPS, (0.5e-9, 1e-9, 2e-9))))
@@ -50,7 +50,7 @@ def test_grating_step_heights_are_measured_back(step, noise):
 
 
 def test_seed000_calibration_gives_k_v_706_nm_per_volt_from_the_measured_steps():
-    # seed 000, section 2.3.1: steps of 20, 101.8 and 500 nm gave 32, 156 and 710 mV of vertical
+    # [MWCNT], section 2.3.1: steps of 20, 101.8 and 500 nm gave 32, 156 and 710 mV of vertical
     # PSD signal; k_v is the slope of deflection against signal (Fig. 4): 706 nm/V
     volts = np.array([32e-3, 156e-3, 710e-3])
     heights = np.array([_measure_step(syn.calibration_grating(h, noise=1e-9, tilt=(1e-3, 0), seed=i))

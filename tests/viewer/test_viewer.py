@@ -526,7 +526,7 @@ def test_headless_view_that_cannot_render_fails_saying_what_to_install(tmp_path,
 @pytest.mark.viewer
 def test_a_pushed_tube_is_drawn_where_the_scene_moved_it(gl):
     """The tube scene feeds SceneState.tubes: after an end push the tube's pixels move at the
-    pushed end and stay at the pivot (seed 000's rotation about s(l))."""
+    pushed end and stay at the pivot ([MWCNT]'s rotation about s(l))."""
     from arsurf.manipulation.nanotube import Nanotube, rotation_centre
     from arsurf.manipulation.scene import TubeScene
 
