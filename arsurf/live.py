@@ -201,11 +201,8 @@ def _device_metadata(device, backend: str) -> dict:
     """The ``device`` record of the session (:class:`~arsurf.config.DeviceConfig`)."""
     from arsurf.config import DeviceConfig
 
-    info = device.info
     record = getattr(device, "safety_record", None)  # a hardware adapter: its watchdog, limits' sources
-    return DeviceConfig(interface=backend, name=info.name, max_force=float(info.max_force),
-                        workspace=np.asarray(info.workspace, dtype=np.float64).tolist(),
-                        extra=dict(record() if callable(record) else {})).to_metadata()
+    return DeviceConfig.of(device.info, backend, **(record() if callable(record) else {})).to_metadata()
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,

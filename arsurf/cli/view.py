@@ -159,6 +159,7 @@ def _bridge_view(args, bridge, record) -> int:
     from functools import partial
 
     from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.config import DeviceConfig
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
     from arsurf.live import bridge_loop
@@ -180,9 +181,8 @@ def _bridge_view(args, bridge, record) -> int:
         host, port = dev.address
         writer = contextlib.nullcontext()
         if record is not None:  # the key is never recorded; where the client came in is
-            info = dev.info
-            meta = dict(meta, device={"interface": "udp-bridge", "protocol_version": VERSION, "host": host,
-                                      "port": port, "name": info.name, "max_force": info.max_force})
+            meta = dict(meta, device=DeviceConfig.of(dev.info, "udp-bridge", protocol_version=VERSION, host=host,
+                                                     port=port).to_metadata())
             writer = SessionWriter(record, meta, handle_signals=True)
             live.record = partial(record_loop_tick, writer)
         with writer:
