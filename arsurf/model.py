@@ -18,7 +18,8 @@ attached or a session is replayed, the measured bending and torsion angles),
    (:meth:`~arsurf.spline.surface.BSplineSurface.sync`);
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
-   :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
+   :math:`\mu_s N`, slipping to the kinetic cone :math:`\mu_k N` and sticking there again, with
+   :math:`N = P + |P_c|` by default; no velocity in the law);
    *measured* F from the two angles by the contact-normal decoupling ([SplineAR];
    docs/design.rst, "Force from the two angles",
    :mod:`arsurf.force.decoupling`) with the proxy's slip direction as the friction direction; a
