@@ -16,8 +16,8 @@ where the friction proxy slipped, :math:`N` the friction's normal of the model's
 (:mod:`arsurf.contact.friction`: :math:`P + |P_c|` for the adhesive law, :math:`P` for the
 compressive one; on a flat surface of one material it equals the kinetic coefficient). The motion
 is scripted, so the answers depend only on the contact physics; :mod:`arsurf.feel_scenarios`
-scores the feel through the whole haptic loop. This is the physics of ``arsurf batch sweep`` (:mod:`arsurf.batch.pipelines`), one grid point per call. Lengths in m,
-forces in N.
+scores the feel through the whole haptic loop. This is the physics of ``arsurf batch sweep``
+(:mod:`arsurf.batch.pipelines`), one grid point per call. Lengths in m, forces in N.
 """
 from __future__ import annotations
 
