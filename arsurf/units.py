@@ -104,6 +104,7 @@ STATISTICS = frozenset({"min", "median", "max", "mean", "p5", "p95", "p99", "std
 
 _COUNT = re.compile(r"^(n|ticks|ran|skipped)_|_(count|ticks|steps|pixels|mismatches|failures|index|indices|"
                     r"ratio|fraction)$|_over_")
+_NAME = re.compile(r"[A-Za-z0-9_]+")
 _SUFFIX = re.compile(r"_(" + "|".join(re.escape(s) for s in {**SUFFIXES, **SCALED_SUFFIXES}) + r")$")
 
 
@@ -121,6 +122,8 @@ def unit_of(name: str) -> str | None:
         The unit (``"N"`` for ``peak_force_N``), ``"1"`` for a dimensionless name (a count,
         ratio, index or one of :data:`DIMENSIONLESS`), None when the name declares no unit.
     """
+    if not _NAME.fullmatch(name):  # E*_GPa: a unit suffix on a name that is no identifier
+        return None
     m = _SUFFIX.search(name)
     if m is not None:
         return SUFFIXES.get(m.group(1)) or SCALED_SUFFIXES[m.group(1)]

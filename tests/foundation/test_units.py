@@ -24,7 +24,6 @@ from arsurf.demo import run_demo
 from arsurf.replay.replay import REPLAY_FIELDS
 from arsurf.sessions.schema import TICK_FIELDS, SAFETY_FLAGS, TUBE_POSES
 from arsurf.units import SCALED_SUFFIXES, SUFFIXES, summary_json, undeclared, unit_of, with_unit
-from tests.support.real_scans import write_qnm_npz
 
 ROOT = Path(__file__).resolve().parents[2]
 FIELD_UNITS = {f.name: f.unit for f in (*TICK_FIELDS, *REPLAY_FIELDS, TUBE_POSES, SAFETY_FLAGS)}
@@ -37,7 +36,7 @@ def test_names_declare_their_units():
     for name in ("n_ticks", "ticks_in_contact", "inpainted_pixels", "friction_ratio", "slip_fraction", "friction",
                  "pushed_tube_index", "high_frequency_over_normal", "contact_mismatches", "maugis_lambda"):
         assert unit_of(name) == "1", name
-    for name in ("duration", "peak_force", "rate_hz", "E*", "pull_off", "tick_compute_median_usec"):
+    for name in ("duration", "peak_force", "rate_hz", "E*", "E*_GPa", "pull_off", "tick_compute_median_usec"):
         assert unit_of(name) is None, name  # no unit, or a spelling that is none
     for name, unit in (("max_depth_nm", "nm"), ("rotation_deg", "deg"), ("tick_compute_median_us", "us"),
                        ("effective_modulus_GPa", "GPa"), ("work_of_adhesion_mJ_per_m2", "mJ/m^2"),
@@ -45,9 +44,16 @@ def test_names_declare_their_units():
         assert unit_of(name) == unit, name  # a scaled unit, for people (arsurf info --json)
 
 
-@pytest.mark.parametrize("unit", sorted(set(SUFFIXES.values()) | set(SCALED_SUFFIXES.values())))
+@pytest.mark.parametrize("unit", sorted(set(SUFFIXES.values())))
 def test_with_unit_and_unit_of_agree(unit):
     assert unit_of(with_unit("quantity", unit)) == unit
+
+
+@pytest.mark.parametrize("suffix", sorted(SCALED_SUFFIXES))
+def test_a_scaled_suffix_is_read_as_its_unit_and_never_written_by_with_unit(suffix):
+    assert unit_of(f"quantity_{suffix}") == SCALED_SUFFIXES[suffix]
+    with pytest.raises(ValueError, match="has no name suffix"):
+        with_unit("quantity", SCALED_SUFFIXES[suffix])  # the files of record stay in SI
 
 
 def test_with_unit_refuses_a_unit_without_a_suffix():
@@ -100,14 +106,19 @@ def outputs(tmp_path_factory):
               workers=0, progress=False)
     # the material demo on a small QNM-like map: soft and stiff halves, a sticky disc
     y, x = np.mgrid[0:80, 0:80] * 1e-9
-    qnm = write_qnm_npz(root / "qnm.npz", 0.05e-9 * np.sin(x / 7e-9), np.where(x < 40e-9, 0.3e9, 8e9),
-                        np.where(np.hypot(x - 20e-9, y - 55e-9) < 10e-9, 12e-9, 3e-9), 1e-9)
+    qnm = root / "qnm.npz"
+    np.savez(qnm, Height=0.05e-9 * np.sin(x / 7e-9), DMTModulus=np.where(x < 40e-9, 0.3e9, 8e9),
+             Adhesion=np.where(np.hypot(x - 20e-9, y - 55e-9) < 10e-9, 12e-9, 3e-9),
+             arsurf_meta=np.array(json.dumps({"dx": 1e-9, "dy": 1e-9,
+                                              "units": {"Height": "m", "DMTModulus": "Pa", "Adhesion": "N"}})))
     run_material_demo(root / "material", qnm, MaterialConversion(5e-9), images=False,
                       channels={"modulus": "DMTModulus", "adhesion": "Adhesion", "deformation": None,
                                 "dissipation": None}, units={"modulus": "Pa", "adhesion": "N"})
     # arsurf verify on a virtual push (a session, the scan after it)
     e = run_experiment(Case(seed=3, tip_radius=8e-9, drift_rate=0.05e-9, noise=0.1e-9, push_at=0.85, push=40e-9),
                        tmp_path_factory.mktemp("experiment"))
+    for folder in ("convert", "fit", "export"):
+        (root / folder).mkdir()
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["verify", str(e.session), str(e.after), "--out", str(root / "verify")]) == 0
         assert main(["convert", str(scans[0]), "-o", str(root / "convert" / "sinusoid.npy")]) == 0
@@ -140,6 +151,9 @@ def test_every_json_is_strict_and_names_the_unit_of_every_number(outputs):
     assert len(files) >= 14
     for name, path in files.items():
         doc = json.loads(path.read_text(encoding="utf-8"), parse_constant=lambda c: pytest.fail(f"{name}: {c}"))
+        if name.endswith(".npy.json"):  # a scan's sidecar: its "metadata" is the source file's own, carried verbatim
+            assert "dx_m" in doc and "dy_m" in doc, name
+            doc = {k: v for k, v in doc.items() if k != "metadata"}
         assert undeclared(doc) == [], f"{name}: numbers whose key gives no unit"
 
 
