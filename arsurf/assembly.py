@@ -276,7 +276,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     friction : float
         Coefficient of the model's simulated friction.
     friction_law : str
-        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, mu (P + |P_c|)),
+        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, ``mu (P + |P_c|)``),
         ``"area"`` (tau pi a^2, with ``shear_strength`` in Pa) or ``"compressive"`` (mu max(P, 0)).
     deform : bool
         Whether the model dents the surface.

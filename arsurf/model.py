@@ -101,7 +101,7 @@ S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
 #: zero-load depths (m), the friction law (a code of :data:`arsurf.contact.friction.LAW_NAMES`),
-#: the law's pull-off force magnitude |P_c| (N) and the interfacial shear strength (Pa, area law)
+#: the law's pull-off force magnitude ``|P_c|`` (N) and the interfacial shear strength (Pa, area law)
 PROXY_PARAMS = Layout("proxy parameters", [
     ("static_friction", 1), ("kinetic_friction", 1), ("stiffness_per_radius", 1), ("coupling_stiffness", 1),
     ("jump_out_depth", 1), ("zero_load_depth", 1), ("friction_law", 1), ("pull_off_force", 1),
@@ -281,7 +281,7 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
 def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratch, out):
     """Step 4, simulated: F = P n + F_t, the friction of the stick-slip proxy
     (:func:`~arsurf.contact.friction.stick_slip_kernel`) within the limits of the friction law
-    (:func:`~arsurf.contact.friction.friction_limits`: by default mu (P + |P_c|), so an adhesive
+    (:func:`~arsurf.contact.friction.friction_limits`: by default ``mu (P + |P_c|)``, so an adhesive
     contact under tensile load resists sliding too) while in contact. Returns what the measured
     force needs of the friction: its direction (x, y), strength, components along x and z per unit
     load (zeros without friction or without a compressive load) and the static limit f_s (N)."""
