@@ -19,10 +19,12 @@ Maugis-Dugdale contact with :math:`E^*, w, \sigma_0`, friction coefficient, cant
 Examples
 --------
 >>> sorted(PRESETS)
-['demo', 'seed000', 'seed001', 'seed002', 'seed003', 'viewer']
->>> p = PRESETS["seed003"]
+['demo', 'mwcnt-push', 'spline-ar', 'thesis-haptics', 'tipless-rolling', 'viewer']
+>>> p = preset("tipless-rolling")
 >>> round(p.cantilever["length"] * 1e6), p.haptics["coupling"]
 (220, 'force_position')
+>>> preset("seed003") is p          # the name it had before (PRESET_ALIASES), still accepted
+True
 """
 from __future__ import annotations
 
@@ -144,23 +146,23 @@ def _presets() -> dict[str, Preset]:
             demo, name="viewer", description="the interactive viewer: Si tip on polystyrene (arsurf.MATERIALS)",
             effective_modulus=e_si_ps, work_of_adhesion=w_si_ps, sigma=0.0,
             sources="E* and w from the Si and polystyrene presets of arsurf.contact.materials; the rest is the demo's"),
-        "seed000": dataclasses.replace(
-            demo, name="seed000", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
+        "mwcnt-push": dataclasses.replace(
+            demo, name="mwcnt-push", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=38.6, torsional_stiffness=8.56e-7)),
             sources="[MWCNT] Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
                     "are not given there: the demo's"),
-        "seed001": dataclasses.replace(
-            demo, name="seed001", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
+        "thesis-haptics": dataclasses.replace(
+            demo, name="thesis-haptics", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=0.3)), sigma=0.0,
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, force_gain=15e6, source="measured", filter_cutoff=None)),
             sources="[Alabdulmuhsin] Tables 4.2-4.6: k = 0.3 N/m, K_f = 15e6; scale, tip and sample: the demo's"),
-        "seed002": dataclasses.replace(
-            demo, name="seed002", description="the spline AR interface ([SplineAR]): smoothing, B-spline, MD, dent, "
+        "spline-ar": dataclasses.replace(
+            demo, name="spline-ar", description="the spline AR interface ([SplineAR]): smoothing, B-spline, MD, dent, "
                                               "decoupling with the contact normal",
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, source="measured")),
             sources="[SplineAR] gives the method, not the numbers: the demo's values with measured signals"),
-        "seed003": dataclasses.replace(
-            demo, name="seed003", description="2D rolling telemanipulation with a tipless beam ([Bolopion])",
+        "tipless-rolling": dataclasses.replace(
+            demo, name="tipless-rolling", description="2D rolling telemanipulation with a tipless beam ([Bolopion])",
             tip_radius=25e-6, sigma=0.0,
             cantilever=MappingProxyType(dict(length=220e-6, width=27e-6, thickness=2.9e-6, tip_height=0.0,
                                              youngs_modulus=150e9, poisson_ratio=0.17)),
@@ -174,6 +176,10 @@ def _presets() -> dict[str, Preset]:
 
 #: the named presets (read-only); :func:`preset_metadata` turns one into session metadata
 PRESETS: Mapping[str, Preset] = MappingProxyType(_presets())
+#: the names the source presets had before they were named for what they are (sessions and scripts
+#: that say ``seed000``..``seed003`` keep working): old name -> preset name
+PRESET_ALIASES: Mapping[str, str] = MappingProxyType({
+    "seed000": "mwcnt-push", "seed001": "thesis-haptics", "seed002": "spline-ar", "seed003": "tipless-rolling"})
 
 #: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
 #: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
@@ -184,11 +190,12 @@ BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_g
 
 
 def preset(name: str | Preset) -> Preset:
-    """The :class:`Preset` called ``name`` (a Preset is returned as is)."""
+    """The :class:`Preset` called ``name``, or by its old name in :data:`PRESET_ALIASES` (a Preset
+    is returned as is)."""
     if isinstance(name, Preset):
         return name
     try:
-        return PRESETS[name]
+        return PRESETS[PRESET_ALIASES.get(name, name)]
     except (KeyError, TypeError):
         raise SessionError(f"unknown preset {name!r}; presets are {sorted(PRESETS)}") from None
 
