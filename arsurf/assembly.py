@@ -139,7 +139,7 @@ def _presets() -> dict[str, Preset]:
         "demo", "the demo: a 20 nm silicon tip on a soft adhesive polymer-like film (lambda ~ 0.5, dents visibly)",
         tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER, friction=0.2,
         level="plane", sigma=2e-9, haptics=_DEMO_HAPTICS,
-        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: README, Design notes)")
+        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: docs/design.rst, Design notes)")
     return {
         "demo": demo,
         "viewer": dataclasses.replace(

@@ -198,10 +198,10 @@ class RenderingUnavailable(ArsurfError, RuntimeError):
     """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 
 
-#: what to install when VTK cannot render offscreen (one line; README "Offscreen rendering")
+#: what to install when VTK cannot render offscreen (one line; docs/install.rst, "Offscreen rendering")
 RENDERING_HINT = (
     "install EGL (Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or OSMesa "
-    "(apt-get install libosmesa6; without root: README, Offscreen rendering), or run under a display"
+    "(apt-get install libosmesa6; without root: docs/install.rst, Offscreen rendering), or run under a display"
 )
 
 

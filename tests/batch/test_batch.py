@@ -301,3 +301,13 @@ def test_an_unreachable_scheduler_is_one_line_and_writes_nothing(folder, tmp_pat
         run_batch("process", [folder], tmp_path / "out", scheduler="tcp://127.0.0.1:9", connect_timeout=1.0,
                   progress=False)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("old, new", [("seed000", "mwcnt-push"), ("seed001", "thesis-haptics"),
+                                      ("seed002", "spline-ar"), ("seed003", "tipless-rolling")])
+def test_a_sweep_accepts_a_presets_old_name_and_records_the_new_one(old, new):
+    from arsurf.assembly import PRESETS
+    from arsurf.batch.pipelines import _check_sweep
+
+    checked = _check_sweep({"preset": old})
+    assert checked["preset"] == new and checked["tip_radius"] == [PRESETS[new].tip_radius]
