@@ -9,6 +9,7 @@ import sys
 import time
 
 from arsurf.cli.args import _count, _nm, _positive, _prepare, _processing_flags, _record_target
+from arsurf.cli.live import _priority
 
 
 def register(sub) -> None:
@@ -32,6 +33,11 @@ def register(sub) -> None:
     s.add_argument("--bridge-peer-timeout", type=_positive("seconds"), default=None, metavar="S",
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
+    s.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
+                   help="with --bridge-port: run the haptic loop thread under SCHED_FIFO at priority N (1-99) where "
+                        "the OS allows it (root, CAP_SYS_NICE or an rtprio limit): the loop keeps its 1 kHz when "
+                        "other processes, a flood of the port among them, compete for the CPU (default: the "
+                        "ordinary policy)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
                    "(.h5, must not exist), replayable with `arsurf replay FILE --scan SCAN`")
@@ -69,7 +75,8 @@ def _bridge_setup(args):
     if args.bridge_port is None:
         given = [f for f, v in (("--host", args.bridge_host), ("--bridge-key", args.bridge_key),
                                 ("--bridge-key-file", args.bridge_key_file),
-                                ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record))
+                                ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record),
+                                ("--realtime-priority", args.realtime_priority))
                  if v is not None]
         if given:
             raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
@@ -159,6 +166,7 @@ def _bridge_view(args, bridge, record) -> int:
     from functools import partial
 
     from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.config import DeviceConfig
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
     from arsurf.live import bridge_loop
@@ -173,16 +181,15 @@ def _bridge_view(args, bridge, record) -> int:
                            sigma=args.sigma_nm * 1e-9, haptics=dict(BRIDGE_HAPTICS, scale=args.scale))
     setup = build_model(meta)
     live = bridge_loop(setup.model, setup.config.haptics, host=bridge.host, port=bridge.port, key=bridge.key,
-                       peer_timeout=bridge.peer_timeout)
+                       peer_timeout=bridge.peer_timeout, priority=args.realtime_priority or 0)
     dev = live.device
     try:
         dev.open()  # a busy port fails here, before a recording starts
         host, port = dev.address
         writer = contextlib.nullcontext()
         if record is not None:  # the key is never recorded; where the client came in is
-            info = dev.info
-            meta = dict(meta, device={"interface": "udp-bridge", "protocol_version": VERSION, "host": host,
-                                      "port": port, "name": info.name, "max_force": info.max_force})
+            meta = dict(meta, device=DeviceConfig.of(dev.info, "udp-bridge", protocol_version=VERSION, host=host,
+                                                     port=port).to_metadata())
             writer = SessionWriter(record, meta, handle_signals=True)
             live.record = partial(record_loop_tick, writer)
         with writer:
@@ -201,7 +208,9 @@ def _bridge_view(args, bridge, record) -> int:
                     _serve_headless(args, live, setup)
             finally:
                 stats = live.stop()
-                print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
+                print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz"
+                      + (f" (SCHED_FIFO priority {stats.realtime_priority})" if stats.realtime_priority else ""),
+                      file=sys.stderr)
     finally:
         dev.close()
     if record is not None:
