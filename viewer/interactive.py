@@ -304,7 +304,9 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
         log.info("arsurf view: no display (DISPLAY is unset or unreachable), so no window can open; rendering "
                  "%d frames offscreen to %s/ instead (%s).", frames, out,
                  "following the pose source" if pose_source else "along a scripted approach-indent-slide-retract path")
-        poses = scripted_path(surface, tip_radius, frames) if pose_source is None else None
+        # pressed as deep as the keyboard may go (the law's a << R bound), not deeper
+        poses = scripted_path(surface, tip_radius, frames, getattr(physics, "max_depth", None)) \
+            if pose_source is None else None
 
         failure = {}
 

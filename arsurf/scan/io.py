@@ -169,7 +169,7 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
         return ext_fmt
     raise UnknownFormat(
         f"{path}: neither the content nor the extension {ext or '(none)'!r} identify a supported scan "
-        f"format; `arsurf formats` lists them"
+        f"format; supported: {', '.join(FORMATS)} (`arsurf formats` lists their extensions)"
     )
 
 
