@@ -12,6 +12,7 @@ OUT    ?= out/demo
 QNM ?= ../shared/scans-real/sample_0.spm
 
 setup: system $(STAMP)
+	@$(PY) tools/editable_root.py  # this checkout on the path: a folder named arsurf beside a script cannot shadow it
 
 # Debian packages for offscreen rendering (Mesa/OSMesa); only installs what is missing.
 system:

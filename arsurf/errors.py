@@ -31,6 +31,11 @@ class CorruptScan(ScanError):
     """The file is truncated or inconsistent with its own header."""
 
 
+class UnsupportedScan(ScanError):
+    """A valid file of a kind arsurf does not read (Gwyddion 1.x, force curves, an RGB picture, a
+    Nanonis grid): the message says what the file is and how to get a height map from it."""
+
+
 class ChannelNotFound(ScanError, KeyError):
     """The requested channel is not in the file (the message lists those that are)."""
 

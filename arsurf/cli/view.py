@@ -11,6 +11,10 @@ import time
 from arsurf.cli.args import _count, _nm, _positive, _prepare, _processing_flags, _record_target
 from arsurf.cli.live import _priority
 
+#: frames of the scripted offscreen path (approach, indent, slide, retract: one at least each);
+#: the same bound as :func:`arsurf_viewer.interactive.scripted_path`, which this module must not import
+MIN_SCRIPTED_FRAMES = 4
+
 
 def register(sub) -> None:
     """Add ``arsurf view`` to the subcommands ``sub``."""
@@ -45,8 +49,9 @@ def register(sub) -> None:
                    help="make the nanotubes of a synthetic scan live objects the tip can push (not with --bridge-port)")
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
-    s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90); with "
-                   "--bridge-port, 0: no view at all, the loop serves the client until it sends RELEASE")
+    s.add_argument("--frames", type=_count, default=90, help=f"without a display: how many frames (default 90, at "
+                   f"least {MIN_SCRIPTED_FRAMES}); with --bridge-port any number, 0: no view at all, the loop serves "
+                   "the client until it sends RELEASE")
     s.add_argument("--material", action="store_true", help="colour the surface by the file's mechanical channels "
                    "(key c cycles the colourings); uncalibrated channels need the conversion flags below")
     s.add_argument("--color-by", default=None, choices=("height", "deformation", "modulus", "adhesion",
@@ -80,8 +85,10 @@ def _bridge_setup(args):
                  if v is not None]
         if given:
             raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
-        if args.frames == 0:
-            raise HapticsError("--frames 0 (no view) is for a --bridge-port loop; without one give at least 1 frame")
+        if args.frames < MIN_SCRIPTED_FRAMES:
+            raise HapticsError(f"--frames {args.frames}: at least {MIN_SCRIPTED_FRAMES} without --bridge-port (the "
+                               "offscreen path approaches, indents, slides and retracts); 0 (no view) is only for a "
+                               "--bridge-port loop")
         return None
     if args.tubes:
         raise HapticsError("--tubes is not available with --bridge-port yet (the bridge loop has no tube scene); "
