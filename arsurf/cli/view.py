@@ -8,7 +8,8 @@ from __future__ import annotations
 import sys
 import time
 
-from arsurf.cli.args import _count, _nm, _positive, _prepare, _processing_flags, _record_target
+from arsurf.cli.args import (_count, _nm, _positive, _prepare, _processing_flags,
+                              _protection_flags, _protections, _record_target)
 
 
 def register(sub) -> None:
@@ -33,6 +34,7 @@ def register(sub) -> None:
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
+    _protection_flags(s)
     s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
                    "(.h5, must not exist), replayable with `arsurf replay FILE --scan SCAN`")
     s.add_argument("--tubes", action="store_true",
@@ -71,6 +73,8 @@ def _bridge_setup(args):
                                 ("--bridge-key-file", args.bridge_key_file),
                                 ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record))
                  if v is not None]
+        given += [f for f, on in (("--no-virtual-coupling", args.virtual_coupling), ("--no-passivity", args.passivity))
+                  if not on]
         if given:
             raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
         if args.frames == 0:
@@ -158,7 +162,7 @@ def _bridge_view(args, bridge, record) -> int:
     import contextlib
     from functools import partial
 
-    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, loop_metadata, preset_metadata
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
     from arsurf.live import bridge_loop
@@ -170,7 +174,8 @@ def _bridge_view(args, bridge, record) -> int:
         require("pyvista", "viewer", "arsurf view")
     scan_path = args.scan or str(BUNDLED_SCAN)
     meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
-                           sigma=args.sigma_nm * 1e-9, haptics=dict(BRIDGE_HAPTICS, scale=args.scale))
+                           sigma=args.sigma_nm * 1e-9, haptics={**BRIDGE_HAPTICS, "scale": args.scale, "virtual_coupling": True,
+                                                                  "passivity": True, **_protections(args)})
     setup = build_model(meta)
     live = bridge_loop(setup.model, setup.config.haptics, host=bridge.host, port=bridge.port, key=bridge.key,
                        peer_timeout=bridge.peer_timeout)
@@ -183,6 +188,7 @@ def _bridge_view(args, bridge, record) -> int:
             info = dev.info
             meta = dict(meta, device={"interface": "udp-bridge", "protocol_version": VERSION, "host": host,
                                       "port": port, "name": info.name, "max_force": info.max_force})
+            meta = loop_metadata(meta, live.loop)  # the virtual coupling chosen from the device, for the replay
             writer = SessionWriter(record, meta, handle_signals=True)
             live.record = partial(record_loop_tick, writer)
         with writer:
