@@ -94,9 +94,9 @@ def test_a_fault_mid_session_keeps_the_recording_and_zeroes_the_force(setup, tmp
             raise RuntimeError("injected fault in the recorder")
         record_loop_tick(writer, loop, t, state)
 
+    live, dev = _live(setup, record)
     with pytest.raises(LoopError, match="injected fault"):
-        with SessionWriter(path, meta) as writer:
-            live, dev = _live(setup, record)
+        with SessionWriter(path, loop_metadata(meta, live.loop)) as writer:
             live.start()
             try:
                 _run_until(live, 10**9)  # until the fault stops it
