@@ -464,7 +464,6 @@ class ARModel:
         self.static_friction = static
         self.friction_law = friction_law
         self.shear_strength = shear_strength
-        self.coupling_stiffness = coupling_stiffness
         self.signal_noise = signal_noise
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
@@ -491,6 +490,23 @@ class ARModel:
         self._scratch = np.empty(SCRATCH_SIZE)
         self._ev = np.empty((EVALUATION_ROWS, 3))
         self.out = np.zeros(M_SIZE)
+
+    @property
+    def coupling_stiffness(self) -> float:
+        """Stiffness (N/m, at the probe's scale) of the virtual coupling between the target and
+        the tip (:mod:`arsurf.contact.proxy`); ``inf``: none, the tip is the target."""
+        return float(self._friction[F_COUPLING])
+
+    def set_coupling_stiffness(self, stiffness: float) -> None:
+        """Give the model the virtual coupling ``stiffness`` (N/m at the probe's scale; ``inf``:
+        none). A haptic loop calls it before its first tick, when it chooses the coupling from the
+        device (:meth:`arsurf.haptics.loop.HapticLoop.direct`); the compiled tick reads it from
+        the same vector."""
+        stiffness = float(stiffness)
+        if not stiffness > 0.0:
+            raise ContactError(f"`coupling_stiffness` must be > 0 N/m or inf (got {stiffness!r})")
+        self._friction[F_COUPLING] = stiffness
+        self._deepest_well = None  # adhesion_energy's bound includes the coupling's stretch
 
     def adhesion_energy(self, with_map: bool = True) -> float:
         """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.
