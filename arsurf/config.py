@@ -233,7 +233,9 @@ class HapticsConfig:
     ``coupling`` ("direct" | "force_position"), ``scale`` (probe m per stylus m), ``force_gain``
     (hand N per probe N), ``rate`` (Hz), ``source``, ``blend``, ``filter_cutoff`` (Hz; None:
     off), ``signal_noise`` (rad), ``seed``, ``ramp_time`` (s), ``coupling_stiffness`` (N/m at the
-    handle), ``passivity``, ``max_rate`` (N/s), and the force-position coupling's ``K_fp`` (N/m),
+    handle), ``virtual_coupling`` (False: the direct loop runs without one; UNSET or True: with
+    ``coupling_stiffness``, else one chosen from the device and the rate), ``passivity``,
+    ``max_rate`` (N/s), and the force-position coupling's ``K_fp`` (N/m),
     ``B_fp`` (N s/m), ``G_n``.
     """
 
@@ -248,6 +250,7 @@ class HapticsConfig:
     seed: int = UNSET
     ramp_time: float = UNSET
     coupling_stiffness: float | None = UNSET
+    virtual_coupling: bool = UNSET
     passivity: bool = UNSET
     max_rate: float = UNSET
     K_fp: float = UNSET

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, preset_metadata
+from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, loop_metadata, preset_metadata
 from arsurf.errors import InstrumentError, LoopError
 
 __all__ = ["Z_MARGIN", "LiveResult", "bridge_loop", "live_metadata", "open_instrument", "parse_instrument",
@@ -81,11 +81,16 @@ def parse_instrument(spec: str) -> tuple:
     return ("nanonis", host, int(port))
 
 
-def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool) -> dict:
+def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool,
+                  virtual_coupling: bool = True, passivity: bool = True) -> dict:
     """Session metadata of a live session: the viewer preset (Si tip on polystyrene) with the
     bridge loop's haptic settings (:data:`arsurf.assembly.BRIDGE_HAPTICS`) at ``scale`` probe m
-    per stylus m; ``measured``: the force read from the instrument's signals."""
-    haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated")
+    per stylus m; ``measured``: the force read from the instrument's signals. The virtual
+    coupling and the passivity controller are on unless turned off here (recorded either way;
+    the coupling's stiffness is the one the loop chooses from the device,
+    :func:`arsurf.assembly.loop_metadata`)."""
+    haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated",
+                   virtual_coupling=bool(virtual_coupling), passivity=bool(passivity))
     return preset_metadata(scan, "viewer", tip_radius=tip_radius, level=level, sigma=sigma, haptics=haptics)
 
 
@@ -282,6 +287,7 @@ def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwarg
     from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
     loop = build_loop(setup.model, setup.config.haptics, device.info, origin, scene=setup.scene, **safety_kwargs)
+    meta = loop_metadata(meta, loop)  # the virtual coupling chosen from the device, for the replay
     live = LiveLoop(loop, device, priority=priority)
     writer = contextlib.nullcontext()
     if record is not None:
