@@ -37,6 +37,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from arsurf import status
+from arsurf._figure_style import HEIGHT_CMAP, PERCENTILES, robust_limits, scale_bar_length
 from arsurf._files import atomic_write
 from arsurf.errors import FigureError, require
 
@@ -49,10 +50,8 @@ FORMATS = ("png", "pdf", "svg")
 #: default resolution of PNG output (dots per inch); PDF and SVG are vector
 DEFAULT_DPI = 200
 DPI_RANGE = (50, 1200)
-#: perceptually uniform maps: heights; the dent contours are drawn in a colour outside it
-HEIGHT_CMAP = "magma"
-#: robust colour limits: these percentiles of the finite data shown
-PERCENTILES = (1.0, 99.0)
+# the conventions shared with the 3D views (arsurf._figure_style): heights in HEIGHT_CMAP (the dent
+# contours in a colour outside it), colour limits at the PERCENTILES of the data shown
 #: the rows of the flag strip, top to bottom: (key, label)
 FLAG_ROWS = (("buzz", "buzz (reversal)"), ("saturated", "saturated"), ("watchdog", "watchdog"),
              ("passivity", "passivity"))
@@ -76,45 +75,6 @@ def _figure(width: float, height: float):
     fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     return style, fig
-
-
-def robust_limits(*arrays, percentiles: tuple[float, float] = PERCENTILES) -> tuple[float, float]:
-    """Colour limits from the data: the ``percentiles`` of the finite values of all ``arrays``
-    together (one pair for panels that are compared). A constant map gets +-1 around its value.
-
-    Examples
-    --------
-    >>> robust_limits(np.arange(101.0), np.array([np.nan]))
-    (1.0, 99.0)
-    """
-    values = np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in arrays]) if arrays else np.empty(0)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return -1.0, 1.0
-    lo, hi = (float(x) for x in np.percentile(values, percentiles))
-    if not hi > lo:
-        lo, hi = lo - 1.0, hi + 1.0
-    return lo, hi
-
-
-def scale_bar_length(span: float) -> float:
-    """The longest 1, 2 or 5 x 10^k not over a quarter of ``span`` (same unit).
-
-    Examples
-    --------
-    >>> scale_bar_length(1000.0), scale_bar_length(90.0), scale_bar_length(7.0)
-    (200.0, 20.0, 1.0)
-    """
-    span = float(span)
-    if not (math.isfinite(span) and span > 0.0):
-        raise FigureError(f"a scale bar needs a positive finite span (got {span!r})")
-    target = 0.25 * span
-    k = math.floor(math.log10(target))
-    best = 10.0 ** k
-    for m in (2.0, 5.0, 10.0):
-        if m * 10.0 ** k <= target * (1 + 1e-12):
-            best = m * 10.0 ** k
-    return float(best)
 
 
 def add_scale_bar(ax, color: str = "white", loc: str = "lower left"):
@@ -209,28 +169,30 @@ def add_figure_arguments(parser) -> None:
 
 
 def session_flags(t, device_force=None, safety_flags=None, passivity_damping=None, energy=None,
-                  in_contact=None) -> tuple[dict, object]:
+                  in_contact=None, energy_reserve: float = 0.0) -> tuple[dict, object]:
     """Per-tick feel and safety flags of a session, and its feel score.
 
     Parameters
     ----------
     t : (n,) float, s
     device_force : (n, 3) float, N, optional
-        Force sent to the device: buzz is scored on it (:func:`arsurf.haptics.feel.score_force`
-        from the first contact tick on; ``buzz`` marks the ticks it counts as reversals).
+        Force sent to the device: the feel is :func:`arsurf.haptics.feel.score_session` of it (the
+        window from the first contact tick); ``buzz`` marks the ticks it counts as reversals.
     safety_flags : (n,) int, optional
         The loop's flag word (:mod:`arsurf.status`); negative: not recorded.
     passivity_damping : (n,) float, N s/m, optional
         Used for ``passivity`` when the flag word is not recorded.
     energy, in_contact : (n,), optional
         Passed to the feel score.
+    energy_reserve : float, J
+        The passive store the feel score allows (:func:`~arsurf.haptics.feel.score_force`).
 
     Returns
     -------
     flags : dict key -> (n,) bool or None (not recorded), keys of :data:`FLAG_ROWS`
     feel : FeelScore or None (no usable device force)
     """
-    from arsurf.haptics.feel import reversal_ticks, score_force
+    from arsurf.haptics.feel import reversal_ticks, score_session
 
     t = np.asarray(t, dtype=np.float64)
     n = t.size
@@ -246,16 +208,11 @@ def session_flags(t, device_force=None, safety_flags=None, passivity_damping=Non
             flags["passivity"] = d > 0.0
     feel = None
     f = None if device_force is None else np.asarray(device_force, dtype=np.float64)
-    if f is not None and f.shape == (n, 3) and n > 2 and np.isfinite(f).all():
+    if f is not None and f.shape == (n, 3) and n > 2:
         dt = float(np.median(np.diff(t)))
-        contact = None if in_contact is None else np.asarray(in_contact, dtype=bool)
-        first = int(np.argmax(contact)) if contact is not None and contact.any() else 0
-        settle = min(first * dt, max(0.0, (n - 1) * dt - 0.1))
-        if dt > 0.0 and (n - round(settle / dt)) * dt >= 0.1:
-            e = None if energy is None else np.asarray(energy, dtype=np.float64)
-            feel = score_force(f, dt, settle=settle, contact=contact,
-                               energy=e if e is not None and e.shape == (n,) else None)
-            flags["buzz"] = reversal_ticks(f, dt, settle=settle)
+        feel = score_session(f, dt, contact=in_contact, energy=energy, energy_reserve=energy_reserve)
+        if feel is not None:
+            flags["buzz"] = reversal_ticks(f, dt, settle=feel.start)
     return flags, feel
 
 

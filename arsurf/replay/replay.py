@@ -149,7 +149,9 @@ class ReplayResult:
     (md_status) differs from the replay; ``collision_failures``: ticks the collision could not
     answer; ``elapsed``: wall time (s, not written to any file); ``tube_poses`` (n, k, 3) the
     replayed poses (None without a tube scene); ``tube_pose_difference`` largest |replayed -
-    recorded| pose component (NaN: nothing to compare).
+    recorded| pose component (NaN: nothing to compare); ``feel``: the session's feel score
+    (:func:`arsurf.haptics.feel.score_session`; None: no usable device force), the one in
+    ``summary.json`` and on ``forces.png``.
     """
 
     out_dir: Path
@@ -168,6 +170,7 @@ class ReplayResult:
     elapsed: float
     tube_poses: np.ndarray | None = None
     tube_pose_difference: float = _NAN
+    feel: object = None
 
     def _repr_html_(self) -> str:
         """Peaks, agreement with the recording, files and a force thumbnail (IPython)."""
@@ -647,15 +650,26 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
             "count": len(scene),
             "position_difference_m": _json_number(_max_abs(diff[..., :2]) if diff is not None else _NAN),
             "angle_difference_rad": _json_number(_max_abs(diff[..., 2]) if diff is not None else _NAN),
-            "ticks_pushing": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0, axis=(1, 2)))),
+            # ticks where some tube moved (not the same count as the demo's ticks_with_tube_force: a
+            # push below the static friction limit loads the tube without moving it)
+            "ticks_tube_pose_changed": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0,
+                                                                   axis=(1, 2)))),
             "displacement_m": [scene.motion(i).displacement for i in range(len(scene))],
             "rotation_rad": [scene.motion(i).rotation for i in range(len(scene))],
         }
     t = data["t"]
+    from arsurf.assembly import passivity_reserve
+    from arsurf.replay import plots
+
+    # the session's one feel score: in summary.json, on forces.png and coupled_motion.png, in the demo's summary
+    flags, feel = plots.session_flags(t, ticks["device_force"], ticks.get("safety_flags"), ticks["passivity_damping"],
+                                      ticks["energy"], data["in_contact"] == 1,
+                                      energy_reserve=passivity_reserve(setup.model, setup.config.haptics))
     summary = {
         "format": "arsurf-replay-summary", "units": "SI", "n_ticks": n,
         "duration_s": float(t[-1] - t[0]), "ticks_in_contact": int(np.count_nonzero(data["in_contact"])),
         "ticks_with_signals": int(np.count_nonzero(have)), "frames": rec["frames"],
+        "feel": feel.as_dict() if feel is not None else None,
         "scan": {"path": session.metadata["scan"]["path"], "sha256": scan_hash}, "session_sha256": session_hash,
         "peak_recorded_force_N": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
         **{with_unit(k, _STAT_UNITS[k]): _json_number(v) if isinstance(v, float) else v
@@ -670,11 +684,13 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         summary["session_recovered_from_journal"] = bool(session.recovered)
     (tmp / "summary.json").write_text(summary_json(summary, sort_keys=True), encoding="utf-8")
 
-    _write_figures(tmp, session, setup, rec, data, figure_format, dpi)
+    _write_figures(tmp, session, setup, rec, data, figure_format, dpi, flags, feel)
+    stats["feel"] = feel
     return stats
 
 
-def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, figure_format: str, dpi) -> None:
+def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, figure_format: str, dpi, flags,
+                   feel) -> None:
     """forces, coupled_motion, path, tubes (a tube scene), dent (a dent): :mod:`arsurf.replay.plots`."""
     from arsurf.model import M_PX, M_PY, M_RADIUS
     from arsurf.replay import plots
@@ -689,8 +705,6 @@ def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, fi
     def save(fig, name: str) -> None:
         plots.save_figure(fig, tmp / f"{name}.{figure_format}", dpi=dpi)
 
-    flags, feel = plots.session_flags(t, ticks["device_force"], ticks.get("safety_flags"),
-                                      ticks["passivity_damping"], ticks["energy"], contact)
     save(plots.forces_figure(t, {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
                                  "measured": data["measured_force"]}, contact, flags, feel), "forces")
     save(plots.coupled_motion_figure(t, data["probe_position"], ticks["device_force"], contact, flags, feel),
