@@ -41,7 +41,7 @@ from arsurf._figure_style import HEIGHT_CMAP, PERCENTILES, robust_limits, scale_
 from arsurf._files import atomic_write
 from arsurf.errors import FigureError, require
 
-__all__ = ["FORMATS", "DEFAULT_DPI", "HEIGHT_CMAP", "FLAG_ROWS", "robust_limits", "scale_bar_length",
+__all__ = ["FORMATS", "DEFAULT_DPI", "HEIGHT_CMAP", "FLAG_ROWS", "FORCE_CAPTION", "robust_limits", "scale_bar_length",
            "add_scale_bar", "save_figure", "check_figure_options", "session_flags", "forces_figure", "coupled_motion_figure", "path_figure",
            "tubes_figure", "dent_figure", "add_figure_arguments"]
 
@@ -57,7 +57,19 @@ FLAG_ROWS = (("buzz", "buzz (reversal)"), ("saturated", "saturated"), ("watchdog
              ("passivity", "passivity"))
 _METADATA = {"png": {"Software": None}, "pdf": {"Creator": None, "Producer": None, "CreationDate": None},
              "svg": {"Creator": None, "Date": None}}
-_STYLES = {"recorded": ("k", "-", 1.2), "simulated": ("tab:blue", "--", 1.0), "measured": ("tab:red", ":", 1.2)}
+_STYLES = {"recorded": ("k", "-", 1.2), "simulated": ("tab:blue", "--", 1.0), "measured": ("tab:red", ":", 1.2),
+           "tube": ("tab:green", "-.", 1.0)}
+#: legend labels of the force curves (the caption says what each is: :data:`FORCE_CAPTION`)
+_LABELS = {"tube": "tube reaction"}
+#: what the curves and shadings of :func:`forces_figure` are, printed under it
+FORCE_CAPTION = {
+    "recorded": "recorded: the force on the tip the loop used (session file): the blend of measured and simulated, "
+                "low-pass filtered, plus the tubes' reaction",
+    "simulated": "simulated: the contact model re-run over the recorded probe path (the substrate only)",
+    "measured": "measured: the force decoupled from the recorded angle signals (photodiode noise included)",
+    "tube": "tube reaction: the pushed nanotubes' resistance on the tip, from the replayed scene",
+}
+_TUBE_SHADE = "#f6d7a7"
 _FLAG_COLOURS = {"buzz": "tab:red", "saturated": "tab:orange", "watchdog": "tab:purple", "passivity": "tab:blue"}
 _PATH, _CONTACT, _BEFORE, _AFTER, _DENT = "white", "#00e5ff", "0.8", "#7CFC00", "#00e5ff"
 
@@ -216,12 +228,13 @@ def session_flags(t, device_force=None, safety_flags=None, passivity_damping=Non
     return flags, feel
 
 
-def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray, label: bool) -> None:
-    """Grey bands where ``in_contact`` (one artist, stepwise over the tick times)."""
+def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray, label: bool, color: str = "0.88",
+                   name: str = "contact") -> None:
+    """Bands of ``color`` where ``in_contact`` (one artist, stepwise over the tick times)."""
     mask = np.asarray(in_contact, dtype=bool)
     if t.size and mask.any():
-        ax.fill_between(t, 0.0, 1.0, where=mask, step="post", color="0.88", linewidth=0.0,
-                        transform=ax.get_xaxis_transform(), label="contact" if label else None, zorder=0)
+        ax.fill_between(t, 0.0, 1.0, where=mask, step="post", color=color, linewidth=0.0,
+                        transform=ax.get_xaxis_transform(), label=name if label else None, zorder=0)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -269,9 +282,10 @@ def _time_panels(fig, n_panels: int, flags_row: bool):
 
 
 def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: Mapping | None = None, feel=None,
-                  title: str | None = None):
+                  title: str | None = None, tube_contact=None):
     """Force components in nN against time (s), one panel per component, contact shaded, the
-    feel and safety flags (:func:`session_flags`) in a strip below.
+    feel and safety flags (:func:`session_flags`) in a strip below, and a caption saying what
+    each curve and shading is (:data:`FORCE_CAPTION`). 7 in wide: a two-column page's width.
 
     Parameters
     ----------
@@ -279,30 +293,38 @@ def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: M
     forces : dict name -> (n, 3) float, N
         Curves (``recorded``, ``simulated``, ``measured``...); all-NaN ones are skipped.
     in_contact : (n,) bool, optional
+        Tip on the substrate: shaded grey.
     flags : dict key -> (n,) bool or None, optional
         No strip when None.
     feel : FeelScore, optional
         Its verdict above the strip.
     title : str, optional
+    tube_contact : (n,) bool, optional
+        Tip touching a tube (its reaction is not zero): shaded light orange.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    style, fig = _figure(7.0, 7.5 if flags is not None else 6.5)
+    style, fig = _figure(7.0, 8.3 if flags is not None else 7.3)
     t = np.asarray(t, dtype=np.float64)
     contact = np.zeros(t.shape, bool) if in_contact is None else np.asarray(in_contact, dtype=bool)
+    tubes = np.zeros(t.shape, bool) if tube_contact is None else np.asarray(tube_contact, dtype=bool)
+    drawn = []
     with style.context("default"):
         axes = _time_panels(fig, 3, flags is not None)
         names = ("F$_x$ (lateral)", "F$_y$ (lateral)", "F$_z$ (normal)")
         for k, ax in enumerate(axes[:3]):
             _shade_contact(ax, t, contact, label=k == 0)
+            _shade_contact(ax, t, tubes & ~contact, label=k == 0, color=_TUBE_SHADE, name="tube contact only")
             for name, f in forces.items():
                 f = np.asarray(f, dtype=np.float64)
                 if f.shape != (t.size, 3) or not np.isfinite(f[:, k]).any():
                     continue
                 color, ls, lw = _STYLES.get(name, (None, "-", 1.0))
-                ax.plot(t, f[:, k] * 1e9, color=color, linestyle=ls, linewidth=lw, label=name)
+                ax.plot(t, f[:, k] * 1e9, color=color, linestyle=ls, linewidth=lw, label=_LABELS.get(name, name))
+                if name not in drawn:
+                    drawn.append(name)
             lo, hi = ax.dataLim.y0, ax.dataLim.y1
             if ax.lines and np.isfinite([lo, hi]).all() and hi - lo < 1e-3:  # a flat component (< 1 pN):
                 mid = 0.5 * (lo + hi)                                     # no offset-scaled round-off noise
@@ -315,8 +337,16 @@ def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: M
             fig.suptitle(title)
         axes[-1].set_xlabel("time (s)")
         handles, labels = axes[0].get_legend_handles_labels()
-        if handles:
-            axes[0].legend(handles, labels, loc="upper right", fontsize=8, ncol=len(handles))
+        if handles:  # above the panels, clear of the curves
+            fig.legend(handles, labels, loc="outside upper center", fontsize=8, ncol=len(handles), frameon=False)
+        lines = [FORCE_CAPTION[name] for name in drawn if name in FORCE_CAPTION]
+        shading = ["grey: the tip on the substrate"] if contact.any() else []
+        if (tubes & ~contact).any():
+            shading.append("orange: the tip touching a tube only")
+        if shading:
+            lines.append("shading: " + "; ".join(shading))
+        if lines:
+            fig.supxlabel("\n".join(lines), x=0.01, ha="left", fontsize=7, color="0.2", linespacing=1.35)
     return fig
 
 

@@ -513,10 +513,11 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     lam = setup.model.contact.maugis_parameter
     radius = setup.model.tip_radius
     scene = setup.scene
-    poses = None
+    poses = tube_force = None
     if scene is not None:
         scene.reset()
         poses = np.empty((n, len(scene), 3))
+        tube_force = np.zeros((n, 3))  # the tubes' resistance on the tip, which the loop added to its force
         prev = np.full(3, np.nan)  # tick 0: no previous probe position, as in the live loop
         here = np.empty(3)
 
@@ -532,7 +533,7 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
                         np.copyto(deepest["net"], model.surface.control_points)  # (the dent moved onto the net)
                     if scene is not None:
                         here[:] = outs[k, M_TIP:M_TIP + 3]  # the tip behind the coupling pushes
-                        scene.tick(prev, here, radius)
+                        tube_force[k] = scene.tick(prev, here, radius)
                         poses[k] = scene.poses
                         prev[:] = here
                     if is_frame[k]:
@@ -560,7 +561,7 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
         bar.close()
     failed = outs[:, M_COLLIDE_STATUS] < 0
     return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames, "tube_poses": poses,
-            "deepest": deepest}
+            "tube_force": tube_force, "deepest": deepest}
 
 
 def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals, scene=None):
@@ -705,8 +706,13 @@ def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, fi
     def save(fig, name: str) -> None:
         plots.save_figure(fig, tmp / f"{name}.{figure_format}", dpi=dpi)
 
-    save(plots.forces_figure(t, {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
-                                 "measured": data["measured_force"]}, contact, flags, feel), "forces")
+    forces = {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
+              "measured": data["measured_force"]}
+    tube_contact = None
+    if rec.get("tube_force") is not None:  # the loop added the tubes' resistance to its force: drawn, shaded
+        forces["tube"] = rec["tube_force"]
+        tube_contact = np.any(rec["tube_force"] != 0.0, axis=1)
+    save(plots.forces_figure(t, forces, contact, flags, feel, tube_contact=tube_contact), "forces")
     save(plots.coupled_motion_figure(t, data["probe_position"], ticks["device_force"], contact, flags, feel),
          "coupled_motion")
     scan, scene, model = setup.scan, setup.scene, setup.model
