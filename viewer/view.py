@@ -456,27 +456,35 @@ class SurfaceView:
             out.GetPoints().SetData(numpy_to_vtk(on_surface, deep=1))
         self._dent_lines.ShallowCopy(out)
 
-    def _build_scale_bar(self) -> None:
-        """The ``scalebar`` layer: a white bar of :func:`~arsurf._figure_style.scale_bar_length` of the
-        scan's width, lying on the lowest rest height just in front of the scan's front edge, its
-        length written under it; and the caption line (bottom left) with the vertical exaggeration."""
+    def _build_scale_bar(self, width: float | None = None, origin=None) -> None:
+        """The ``scalebar`` layer: a white bar of :func:`~arsurf._figure_style.scale_bar_length` of
+        ``width`` (nm) from ``origin`` (x, y, z nm) along x, its length written above it; by default
+        the scan's width, just in front of its front edge on its lowest rest height, the length
+        written under it; and the
+        caption line (bottom left) with the bar's length and the vertical exaggeration."""
         from vtkmodules.vtkRenderingCore import vtkBillboardTextActor3D, vtkTextActor
 
         for actor in getattr(self, "_scale_actors", ()):
             self.plotter.remove_actor(actor, render=False)
         (u0, u1), (v0, _) = self.surface.domain
-        width = (u1 - u0) * SCENE_SCALE
+        on_surface = origin is not None  # a close-up's bar: its length above it, clear of the heights
+        if width is None or origin is None:
+            width = (u1 - u0) * SCENE_SCALE
+            origin = (u0 * SCENE_SCALE + 0.04 * width, v0 * SCENE_SCALE - 0.04 * width,
+                      float(self._rest_points[..., 2].min()))
         length = scale_bar_length(width)
         self.scale_bar_nm = length
-        z = float(self._rest_points[..., 2].min())
-        x0, y = u0 * SCENE_SCALE + 0.04 * width, v0 * SCENE_SCALE - 0.04 * width
+        x0, y, z = (float(v) for v in origin)
         t = 0.004 * width
         bar = self.plotter.add_mesh(self._pv.Box(bounds=(x0, x0 + length, y - t, y + t, z - 0.5 * t, z + 0.5 * t)),
                                     color="white", lighting=False, reset_camera=False, pickable=False)
         h = self.plotter.window_size[1]
         label = vtkBillboardTextActor3D()
         label.SetInput(_length_label(length))
-        label.SetPosition(x0 + 0.5 * length, y - 5.0 * t, z)
+        if on_surface:
+            label.SetPosition(x0 + 0.5 * length, y, z + 0.06 * width)
+        else:  # in front of the scan: the length under the bar
+            label.SetPosition(x0 + 0.5 * length, y - 5.0 * t, z)
         prop = label.GetTextProperty()
         _use_font(prop)
         prop.SetFontSize(max(10, int(h / 36)))
@@ -484,7 +492,10 @@ class SurfaceView:
         prop.SetColor(1.0, 1.0, 1.0)
         prop.ShadowOn()
         prop.SetJustificationToCentered()
-        prop.SetVerticalJustificationToTop()
+        if on_surface:
+            prop.SetVerticalJustificationToBottom()
+        else:
+            prop.SetVerticalJustificationToTop()
         self.plotter.add_actor(label, reset_camera=False, pickable=False)
         caption = vtkTextActor()
         caption.SetInput(self.caption)
@@ -498,6 +509,8 @@ class SurfaceView:
         self.plotter.add_actor(caption, reset_camera=False, pickable=False)
         self._scale_actors = (bar, label, caption)
         self.caption_actor = caption
+        for a in self._scale_actors:
+            a.SetVisibility(self._layers["scalebar"])
 
     @property
     def caption(self) -> str:
@@ -688,6 +701,8 @@ class SurfaceView:
     def set_camera(self, mode: str = "oblique") -> None:
         """Frame the surface: ``"oblique"`` (perspective from the front-left, 35° elevation) or
         ``"top"`` (parallel projection looking down -z, x to the right, y up)."""
+        if getattr(self, "camera_mode", None) == "close-up":  # the scale bar of the whole scan again
+            self._build_scale_bar()
         cam = self.plotter.camera
         pts = self._rest_points
         lo = pts.reshape(-1, 3).min(axis=0)
@@ -741,6 +756,11 @@ class SurfaceView:
         cam.up = (0.0, 0.0, 1.0)
         cam.is_set = True
         self.camera_mode = "close-up"
+        # a scale bar for this width, on the surface in front of the centre
+        (u0, u1), (v0, v1) = self.surface.domain
+        y = c[1] - 0.3 * w
+        z = float(self.surface.evaluate(min(max(c[0] * 1e-9, u0), u1), min(max(y * 1e-9, v0), v1))[2]) * SCENE_SCALE
+        self._build_scale_bar(w, (c[0] - 0.5 * scale_bar_length(w), y, z + 0.2))
         self.plotter.renderer.ResetCameraClippingRange()
 
     def update(self, state: SceneState, render: bool = True) -> None:
