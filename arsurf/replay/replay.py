@@ -651,8 +651,8 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
             "count": len(scene),
             "position_difference_m": _json_number(_max_abs(diff[..., :2]) if diff is not None else _NAN),
             "angle_difference_rad": _json_number(_max_abs(diff[..., 2]) if diff is not None else _NAN),
-            # ticks where some tube moved (not the same count as the demo's ticks_with_tube_force: a
-            # push below the static friction limit loads the tube without moving it)
+            # ticks where some tube moved (not the demo's ticks_with_tube_force: a tube can resist the
+            # tip in a tick without moving; docs/figures.rst)
             "ticks_tube_pose_changed": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0,
                                                                    axis=(1, 2)))),
             "displacement_m": [scene.motion(i).displacement for i in range(len(scene))],
