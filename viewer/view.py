@@ -103,7 +103,7 @@ LAYERS = {"surface": True, "tip": True, "contact": True, "force": True, "hud": T
 #: Colours, chosen to be told apart from the 'magma' surface (black, purple, red, orange, cream: no
 #: green, no blue brighter than its red by more than ~55 levels).
 COLORS = {
-    "tip": "#cfd6de",  # silver, translucent
+    "tip": "#5aa9e6",  # steel blue, translucent
     "contact": "#fff275",
     "normal": "#2ecc40",  # green: g > r, b
     "force": "#1e6bff",  # blue: b >> r, g

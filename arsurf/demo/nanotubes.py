@@ -270,7 +270,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     if feel is not None:
         progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes
                                    else ""))
-    pngs = _render(viewer, views, out) if viewer is not None else []
+    pngs = _render(viewer, views, out, dpi) if viewer is not None else []
     from arsurf.sessions.reader import load_session
 
     ticks = load_session(out / "session.h5").ticks
@@ -313,7 +313,9 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     return summary
 
 
-def _render(viewer, views: dict, out: Path) -> list[Path]:
+def _render(viewer, views: dict, out: Path, dpi: int) -> list[Path]:
+    """The 3D views (960 x 720 px, the PNG stating ``dpi``: the figures' --dpi), in the 2D figures'
+    conventions (:mod:`arsurf_viewer.view`: magma, 1-99 % limits, scale bar, no HUD)."""
     from arsurf.errors import rendering_failed
 
     SceneState, SurfaceView = viewer.SceneState, viewer.SurfaceView
@@ -323,7 +325,7 @@ def _render(viewer, views: dict, out: Path) -> list[Path]:
             view = SurfaceView(kw["surface"])  # coloured by height, the dent as contour lines over it
             view.update(SceneState(**kw))
             path = out / f"view_{name}.png"
-            view.screenshot(path)
+            view.screenshot(path, dpi=dpi)
             view.close()
             paths.append(path)
             if name == "indent":  # the dent itself: ~8 tip radii of field, surface sampled at ~1 nm
@@ -331,7 +333,7 @@ def _render(viewer, views: dict, out: Path) -> list[Path]:
                 view.update(SceneState(**kw))
                 view.close_up(kw["tip_center"], 8 * kw["tip_radius"])
                 path = out / "view_indent_closeup.png"
-                view.screenshot(path)
+                view.screenshot(path, dpi=dpi)
                 view.close()
                 paths.append(path)
     except Exception as exc:  # no OpenGL context after all: the numbers are written, the views asked for are not

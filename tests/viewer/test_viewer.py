@@ -329,7 +329,9 @@ def test_force_arrow_appears_points_along_the_force_and_hides(gl):
 @pytest.mark.viewer
 def test_contact_normal_arrow_and_layers(gl):
     s = sinusoid_surface()
-    view = make_view(s, camera="oblique", tip_opacity=0.3, layers={"hud": False})
+    # 640 x 480: the oblique view leaves room for the scale bar and the colour bar, and the 1.8 R
+    # arrow inside the translucent tip is ~17 px long at 320 x 240, too few to judge its colour
+    view = make_view(s, camera="oblique", tip_opacity=0.3, layers={"hud": False}, window_size=(640, 480))
     try:
         c = above(s, 100e-9, 100e-9, -1e-9)
         p = s.evaluate(100e-9, 100e-9)
