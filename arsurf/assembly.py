@@ -141,7 +141,7 @@ def _presets() -> dict[str, Preset]:
         "demo", "the demo: a 20 nm silicon tip on a soft adhesive polymer-like film (lambda ~ 0.5, dents visibly)",
         tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER, friction=0.2,
         level="plane", sigma=2e-9, haptics=_DEMO_HAPTICS,
-        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: README, Design notes)")
+        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: docs/design.rst, Design notes)")
     return {
         "demo": demo,
         "viewer": dataclasses.replace(
@@ -287,7 +287,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     friction : float
         Coefficient of the model's simulated friction.
     friction_law : str
-        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, mu (P + |P_c|)),
+        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, ``mu (P + |P_c|)``),
         ``"area"`` (tau pi a^2, with ``shear_strength`` in Pa) or ``"compressive"`` (mu max(P, 0)).
     deform : bool
         Whether the model dents the surface.

@@ -337,8 +337,11 @@ class MaterialConfig:
 
 @dataclass(frozen=True)
 class DeviceConfig:
-    """The haptic device a live session ran on (``device`` of the metadata): its backend
-    ``interface``, ``name``, ``max_force`` (N) and ``workspace`` ((2, 3) m: min and max corners)."""
+    """The haptic device a session ran on (``device`` of the metadata): its backend ``interface``,
+    ``name``, ``max_force`` (N; absent when the device has no finite limit) and ``workspace`` ((3,)
+    m: the extents of the box centred on the home position, :class:`~arsurf.haptics.device.DeviceInfo`).
+    The session reader bounds the recorded stylus positions and device forces by these
+    (:func:`arsurf.sessions.reader.check_ticks`)."""
 
     interface: str = UNSET
     name: str = UNSET
@@ -349,6 +352,18 @@ class DeviceConfig:
     @classmethod
     def from_metadata(cls, device: Mapping) -> "DeviceConfig":
         return _from(cls, device, where="device")
+
+    @classmethod
+    def of(cls, info, interface: str, **extra) -> "DeviceConfig":
+        """The record of a device whose limits are ``info`` (a :class:`~arsurf.haptics.device.DeviceInfo`).
+
+        >>> from arsurf.haptics.device import TOUCH_X
+        >>> DeviceConfig.of(TOUCH_X, "virtual").to_metadata()["workspace"]
+        [0.12, 0.16, 0.12]
+        """
+        mf = float(info.max_force)
+        return cls(interface=interface, name=info.name, **({"max_force": mf} if math.isfinite(mf) else {}),
+                   workspace=[float(w) for w in info.workspace], extra=dict(extra))
 
     def to_metadata(self) -> dict:
         return _json(self)

@@ -95,14 +95,16 @@ def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: f
 
 
 def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
-                peer_timeout: float | None = None, start=None, record=None):
+                peer_timeout: float | None = None, start=None, record=None, priority: int = 0):
     """A :class:`~arsurf.haptics.live_loop.LiveLoop` for real hardware: the UDP bridge device on
     ``host``:``port`` with the session ``key`` (a fresh one on loopback if None; see
     :class:`~arsurf.haptics.udp_bridge.UdpBridgeDevice`) driving the
     AR ``model`` through :func:`arsurf.assembly.build_loop` with ``haptics`` (default
     :data:`~arsurf.assembly.BRIDGE_HAPTICS`). The stylus origin maps to ``start`` (default
     :func:`~arsurf.haptics.live_loop.bridge_start`). ``record(loop, t, state)``: see the
-    LiveLoop. Nothing is opened here:
+    LiveLoop. ``priority``: ``SCHED_FIFO`` priority of the loop thread where the OS grants it (0:
+    the ordinary policy); it keeps the loop's rate when other local processes - a flood of the
+    bridge port among them - compete for the CPU (docs/bridge-safety.rst). Nothing is opened here:
     :meth:`LiveLoop.start <arsurf.haptics.live_loop.LiveLoop.start>` (or ``live.device.open()``)
     binds the port.
 
@@ -115,7 +117,7 @@ def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 474
         start = bridge_start(model.surface, model.tip_radius)
     device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
     loop = build_loop(model, BRIDGE_HAPTICS if haptics is None else haptics, device.info, start)
-    return LiveLoop(loop, device, record=record)
+    return LiveLoop(loop, device, record=record, priority=priority)
 
 
 def press_trajectory(tip_radius: float, scale: float, indent: float = 10e-9):
@@ -206,11 +208,8 @@ def _device_metadata(device, backend: str) -> dict:
     """The ``device`` record of the session (:class:`~arsurf.config.DeviceConfig`)."""
     from arsurf.config import DeviceConfig
 
-    info = device.info
     record = getattr(device, "safety_record", None)  # a hardware adapter: its watchdog, limits' sources
-    return DeviceConfig(interface=backend, name=info.name, max_force=float(info.max_force),
-                        workspace=np.asarray(info.workspace, dtype=np.float64).tolist(),
-                        extra=dict(record() if callable(record) else {})).to_metadata()
+    return DeviceConfig.of(device.info, backend, **(record() if callable(record) else {})).to_metadata()
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,

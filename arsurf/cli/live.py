@@ -40,7 +40,7 @@ def register(sub) -> None:
     s.add_argument("--device", default="virtual", metavar="NAME",
                    help=f"haptic device: {' | '.join(DEVICES)} (default virtual: a scripted hand presses the "
                         "stylus into the surface every 2 s; `arsurf devices` lists what is connected)")
-    g = s.add_argument_group("device options (each adapter takes some; see README, Haptic devices)")
+    g = s.add_argument_group("device options (each adapter takes some; see docs/devices.rst)")
     g.add_argument("--max-force-n", type=_positive("N"), help="force limit in N, at most the device's own (default 1 N, "
                    "the first-connection limit, or the device's if lower)")
     g.add_argument("--workspace-mm", type=_positive("mm"), nargs=3, metavar=("X", "Y", "Z"),
@@ -63,7 +63,7 @@ def register(sub) -> None:
     s.add_argument("--realtime-priority", type=_priority, default=0, metavar="N",
                    help="run the loop thread under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
                         "CAP_SYS_NICE or an rtprio limit); 0, the default: the ordinary policy. Not with a device "
-                        "that answers from a thread of this process (haply, openhaptics): see README")
+                        "that answers from a thread of this process (haply, openhaptics): see docs/feel.rst")
     s.add_argument("--record", metavar="FILE", help="record the session to FILE (.h5, must not exist), replayable "
                    "with `arsurf replay FILE --scan SCAN`")
     _protection_flags(s)

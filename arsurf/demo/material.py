@@ -19,6 +19,7 @@ import numpy as np
 from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
 from arsurf.assembly import build_loop, build_model, loop_metadata, preset_metadata
+from arsurf.config import DeviceConfig
 from arsurf.demo.scripted import DEMO, RATE, SCALE, scene_snapshot, session_tick, viewer_or_none
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.units import summary_json
@@ -209,6 +210,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     meta = loop_metadata(meta, loop)
     n = int(math.ceil(times[-1] * RATE))
     journal_path(out / "session.h5").unlink(missing_ok=True)
+    meta = dict(meta, device=DeviceConfig.of(dev.info, "virtual").to_metadata())  # bounds its stylus on replay
     writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
     hand = np.empty(n)

@@ -53,8 +53,8 @@ from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
 from arsurf.haptics.samples import SAMPLE_FAULTS, SampleCheck
 from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
-from arsurf.model import (M_BENDING, M_MEAS_FX, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS, SIGNALS_GIVEN,
-                          SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
+from arsurf.model import (M_BENDING, M_MEAS_FX, M_MODEL_FLAGS, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS,
+                          SIGNALS_GIVEN, SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
 _BUTTONS_LIMIT = 1 << 31  # a button word is a small non-negative bit mask
@@ -243,7 +243,8 @@ def loop_output_kernel(a, buttons, now, age):
             hand[0] = math.nan
     pflag = passivity_observe_control(a.pc_params, pc_state, x_m, v_m, hand)
     dev = out[L_F_DEVICE:L_F_DEVICE + 3]
-    flags = safety_step(a.safety_params, a.safety_state, hand, now, age, buttons, dev) | pflag
+    flags = safety_step(a.safety_params, a.safety_state, hand, now, age, buttons, dev) | pflag \
+        | int(a.mout[M_MODEL_FLAGS])  # the model's caveats (BEYOND_MODEL) in the recorded word
     passivity_applied(pc_state, dev)
     out[L_ENERGY] = pc_state[S_ENERGY]
     out[L_PC_DAMPING] = pc_state[S_ALPHA]
