@@ -10,6 +10,7 @@ import time
 
 from arsurf.cli.args import (_count, _nm, _positive, _prepare, _processing_flags,
                               _protection_flags, _protections, _record_target)
+from arsurf.cli.live import _priority
 
 #: frames of the scripted offscreen path (approach, indent, slide, retract: one at least each);
 #: the same bound as :func:`arsurf_viewer.interactive.scripted_path`, which this module must not import
