@@ -55,6 +55,7 @@ __all__ = [
     "check_metadata",
     "loop_metadata",
     "make_model",
+    "passivity_reserve",
     "preset_metadata",
     "scan_sha256",
     "session_metadata",
@@ -697,3 +698,22 @@ def loop_metadata(metadata: Mapping, loop) -> dict:
         h["coupling_stiffness"] = float(k_vc)
     h["passivity"] = bool(loop.config.passivity)
     return dict(metadata, haptics=h)
+
+
+def passivity_reserve(model, haptics: Mapping | HapticsConfig) -> float:
+    """The passive energy store E0 (J, at the hand) that :func:`build_loop`'s loop gives its
+    passivity controller for recorded haptic settings: the model's adhesion well
+    (:meth:`~arsurf.model.ARModel.adhesion_energy`) times the direct coupling's energy gain
+    (:meth:`~arsurf.haptics.coupling.DirectCoupling.energy_gain`). A replay scores the recorded
+    feel with it (:func:`arsurf.haptics.feel.score_session`) as the demo and the live loop do.
+    0 for a coupling other than the direct one (nothing is allowed)."""
+    from arsurf.haptics.coupling import DirectCoupling
+    from arsurf.haptics.scaling import ForceScaling, PositionScaling
+
+    if isinstance(haptics, HapticsConfig):
+        haptics = haptics.to_metadata()
+    h = {**_DEMO_HAPTICS, **dict(haptics or {})}
+    if h["coupling"] != "direct":
+        return 0.0
+    coupling = DirectCoupling(PositionScaling(float(h["scale"])), ForceScaling(float(h["force_gain"])))
+    return float(model.adhesion_energy() * coupling.energy_gain())

@@ -13,8 +13,10 @@ metres and does the conversion itself.
 What is drawn
     * ``surface`` - S(u, v) sampled on a regular (u, v) grid (a ``pyvista.StructuredGrid``) with
       the exact normals :math:`\mathbf n = S_u \times S_v / |S_u \times S_v|` for smooth shading,
-      coloured by height z (nm, 'afmhot', the AFM convention; fixed range = the rest surface's) or
-      by deformation :math:`|S(u, v) - S_{rest}(u, v)|` (nm, from a rest copy evaluated once).
+      coloured by height z (nm, in the 2D figures' colour map, :data:`arsurf._figure_style.HEIGHT_CMAP`,
+      between the 1st and 99th percentiles of the rest surface, computed once per scan: a scratch
+      does not wash the sample out) or by deformation :math:`|S(u, v) - S_{rest}(u, v)|` (nm, from
+      a rest copy evaluated once).
     * ``tip`` - the tip sphere (translucent, so the dent under it shows).
     * ``contact`` - the contact point and the normal there (green arrow, length 1.8 R).
     * ``force`` - the force on the tip, a magenta arrow from the tip surface along F, of length
@@ -28,7 +30,16 @@ What is drawn
       :math:`|S - S_{rest}|`, :math:`\Delta` = 1, 2 or 5 x 10^k, about a quarter of the deepest
       dent, named in the HUD), so the topography's colours stay visible under the dent.
     * ``tubes`` - nano-objects (capsules) from the state.
-    * ``colorbar`` - the colour scale.
+    * ``colorbar`` - the colour scale, its unit in the title, ticks at round values
+      (:func:`arsurf._figure_style.round_ticks`).
+    * ``scalebar`` - a bar of a round length (:func:`arsurf._figure_style.scale_bar_length` of the
+      scan's width) along the scan's front edge, labelled in nm or µm, and a caption line
+      (bottom left) saying the bar's length and the vertical exaggeration (none: z is drawn to scale).
+
+Saved pictures (an off-screen view: :meth:`~SurfaceView.screenshot` to a file, the demo's views,
+replay frames) leave the HUD out unless ``layers={"hud": True}``: its box would cover the scene.
+``window_size`` sets the picture's pixels and ``screenshot(path, dpi=...)`` the resolution the
+PNG states (e.g. 2100 x 1500 px at 300 dpi: 7 x 5 in).
 
 Examples
 --------
@@ -51,6 +62,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from arsurf._figure_style import HEIGHT_CMAP, robust_limits, round_ticks, scale_bar_length
 from arsurf._files import atomic_write
 from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
 from arsurf.errors import require
@@ -89,13 +101,14 @@ __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 SCENE_SCALE = 1e9
 #: Layers that :meth:`SurfaceView.set_layer` switches, and whether each is on by default.
 LAYERS = {"surface": True, "tip": True, "contact": True, "force": True, "hud": True,
-          "probe": False, "tubes": True, "colorbar": True, "dent": True}
-#: Colours (chosen to be told apart from the 'afmhot' surface, whose pixels have r >= g >= b).
+          "probe": False, "tubes": True, "colorbar": True, "dent": True, "scalebar": True}
+#: Colours, chosen to be told apart from the 'magma' surface (black, purple, red, orange, cream: no
+#: green, no blue brighter than its red by more than ~55 levels).
 COLORS = {
-    "tip": "#5aa9e6",  # steel blue: b > r
+    "tip": "#5aa9e6",  # steel blue, translucent
     "contact": "#fff275",
     "normal": "#2ecc40",  # green: g > r, b
-    "force": "#ff2bd6",  # magenta: r, b >> g
+    "force": "#1e6bff",  # blue: b >> r, g
     "probe": "#b8c4d0",
     "tubes": "#6b6b6b",
     "dent": "#00e5ff",  # cyan: b, g >> r
@@ -103,7 +116,7 @@ COLORS = {
     "background": "#202124",
     "background_top": "#4a4c50",
 }
-_SURFACE_CMAPS = {"height": "afmhot", "deformation": "YlOrBr", "modulus": "viridis", "adhesion": "plasma",
+_SURFACE_CMAPS = {"height": HEIGHT_CMAP, "deformation": "YlOrBr", "modulus": "viridis", "adhesion": "plasma",
                   "sample_deformation": "cividis", "dissipation": "inferno"}
 #: colour modes read from a material map (arsurf.contact.material_map): field, and the unit shown
 #: for each unit the field may have (scale to the shown unit, title); a log colour scale for E*
@@ -126,15 +139,31 @@ def _check_resolution(resolution) -> tuple[int, int]:
     return nu, nv
 
 
-def _mono_font() -> str | None:
-    """DejaVu Sans Mono from matplotlib (has λ, ·, ±), or None for VTK's built-in Courier."""
+def _mono_font(name: str = "DejaVuSansMono.ttf") -> str | None:
+    """A DejaVu font file from matplotlib (has λ, µ, ·, ±): Sans Mono by default, or None for VTK's
+    built-in fonts."""
     try:
         import matplotlib
 
-        path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSansMono.ttf")
+        path = os.path.join(matplotlib.get_data_path(), "fonts", "ttf", name)
         return path if os.path.isfile(path) else None
     except ImportError:
         return None
+
+
+def _use_font(prop, name: str = "DejaVuSans.ttf") -> None:
+    """Set a VTK text property to a DejaVu font file (µ renders), else VTK's Arial."""
+    font = _mono_font(name)
+    if font:
+        prop.SetFontFamily(4)  # VTK_FONT_FILE
+        prop.SetFontFile(font)
+    else:
+        prop.SetFontFamilyToArial()
+
+
+def _length_label(nm: float) -> str:
+    """A round length in nm as the 2D figures' scale bars write it: "200 nm", "1 µm"."""
+    return f"{nm / 1000:g} µm" if nm >= 1000 else f"{nm:g} nm"
 
 
 def _frame(direction: np.ndarray) -> np.ndarray:
@@ -253,6 +282,8 @@ class SurfaceView:
         self._tip_opacity = float(tip_opacity)
         self._probe_height = probe_height
         self._layers = dict(LAYERS)
+        if self.off_screen:  # a saved picture: the HUD's box would cover the scene (layers={"hud": True} keeps it)
+            self._layers["hud"] = False
         for name, on in (layers or {}).items():
             self._check_layer(name)
             self._layers[name] = bool(on)
@@ -324,12 +355,11 @@ class SurfaceView:
                     lo, hi = lo - 0.5 * abs(lo) - 1e-12, hi + 0.5 * abs(hi) + 1e-12
                 self._material_clim[mode] = (lo, hi)
         zr = self._rest_points[..., 2]
-        lo, hi = float(zr.min()), float(zr.max())
+        # the 2D figures' limits, once per scan (not per frame): the 1st and 99th percentiles
+        lo, hi = robust_limits(zr)
         if hi - lo < 1e-3:
             lo, hi = lo - 1.0, hi + 1.0
-        # the bottom of 'afmhot' is black: start the scale below the lowest point so the
-        # substrate reads as dark brown, not a black hole, under the lights
-        self._height_clim = (lo - 0.25 * (hi - lo), hi)
+        self._height_clim = (lo, hi)
         self._extent_nm = max(u1 - u0, v1 - v0) * SCENE_SCALE
         self.surface_actor = self.plotter.add_mesh(
             grid, scalars="height_nm", cmap=_SURFACE_CMAPS["height"], clim=self._height_clim,
@@ -341,9 +371,9 @@ class SurfaceView:
         self.surface_actor.prop.interpolation = "phong"
         self._mapper = self.surface_actor.mapper
         size = max(10, int(self.plotter.window_size[1] / 40))
-        bar_args = dict(title="z (nm)", vertical=True, position_x=0.885, position_y=0.12, height=0.62,
-                        width=0.1, color=COLORS["hud"], title_font_size=size + 2, label_font_size=size,
-                        n_labels=5, fmt="%.1f", font_family="courier")
+        bar_args = dict(title="height (nm)", vertical=True, position_x=0.87, position_y=0.14, height=0.62,
+                        width=0.11, color=COLORS["hud"], title_font_size=size, label_font_size=size,
+                        n_labels=5, fmt="%.1f", font_family="arial")
         self.scalar_bar = self.plotter.add_scalar_bar(mapper=self._mapper, **bar_args)
         # the same dark, translucent box as the HUD, so the labels read on a pale surface too
         self.scalar_bar.DrawBackgroundOn()
@@ -352,7 +382,10 @@ class SurfaceView:
         self.scalar_bar.SetBarRatio(0.4)
         for prop in (self.scalar_bar.GetTitleTextProperty(), self.scalar_bar.GetLabelTextProperty()):
             prop.ShadowOn()
+            _use_font(prop)
+        self._bar_ticks = None
         self._build_legend()
+        self._build_scale_bar()
         self.set_color_by(self.color_by)
         from vtkmodules.vtkCommonDataModel import vtkImageData
         from vtkmodules.vtkFiltersCore import vtkFlyingEdges2D
@@ -424,6 +457,67 @@ class SurfaceView:
                           + ty * ((1 - tx) * p[j + 1, i] + tx * p[j + 1, i + 1]))
             out.GetPoints().SetData(numpy_to_vtk(on_surface, deep=1))
         self._dent_lines.ShallowCopy(out)
+
+    def _build_scale_bar(self, width: float | None = None, origin=None) -> None:
+        """The ``scalebar`` layer: a white bar of :func:`~arsurf._figure_style.scale_bar_length` of
+        ``width`` (nm) from ``origin`` (x, y, z nm) along x, its length written above it; by default
+        the scan's width, just in front of its front edge on its lowest rest height, the length
+        written under it; and the
+        caption line (bottom left) with the bar's length and the vertical exaggeration."""
+        from vtkmodules.vtkRenderingCore import vtkBillboardTextActor3D, vtkTextActor
+
+        for actor in getattr(self, "_scale_actors", ()):
+            self.plotter.remove_actor(actor, render=False)
+        (u0, u1), (v0, _) = self.surface.domain
+        on_surface = origin is not None  # a close-up's bar: its length above it, clear of the heights
+        if width is None or origin is None:
+            width = (u1 - u0) * SCENE_SCALE
+            origin = (u0 * SCENE_SCALE + 0.04 * width, v0 * SCENE_SCALE - 0.04 * width,
+                      float(self._rest_points[..., 2].min()))
+        length = scale_bar_length(width)
+        self.scale_bar_nm = length
+        x0, y, z = (float(v) for v in origin)
+        t = 0.004 * width
+        bar = self.plotter.add_mesh(self._pv.Box(bounds=(x0, x0 + length, y - t, y + t, z - 0.5 * t, z + 0.5 * t)),
+                                    color="white", lighting=False, reset_camera=False, pickable=False)
+        h = self.plotter.window_size[1]
+        label = vtkBillboardTextActor3D()
+        label.SetInput(_length_label(length))
+        if on_surface:
+            label.SetPosition(x0 + 0.5 * length, y, z + 0.06 * width)
+        else:  # in front of the scan: the length under the bar
+            label.SetPosition(x0 + 0.5 * length, y - 5.0 * t, z)
+        prop = label.GetTextProperty()
+        _use_font(prop)
+        prop.SetFontSize(max(10, int(h / 36)))
+        prop.BoldOn()
+        prop.SetColor(1.0, 1.0, 1.0)
+        prop.ShadowOn()
+        prop.SetJustificationToCentered()
+        if on_surface:
+            prop.SetVerticalJustificationToBottom()
+        else:
+            prop.SetVerticalJustificationToTop()
+        self.plotter.add_actor(label, reset_camera=False, pickable=False)
+        caption = vtkTextActor()
+        caption.SetInput(self.caption)
+        cprop = caption.GetTextProperty()
+        _use_font(cprop)
+        cprop.SetFontSize(max(9, int(h / 52)))
+        cprop.SetColor(*self._pv.Color(COLORS["hud"]).float_rgb)
+        cprop.SetVerticalJustificationToBottom()
+        caption.GetPositionCoordinate().SetCoordinateSystemToNormalizedViewport()
+        caption.GetPositionCoordinate().SetValue(0.015, 0.015)
+        self.plotter.add_actor(caption, reset_camera=False, pickable=False)
+        self._scale_actors = (bar, label, caption)
+        self.caption_actor = caption
+        for a in self._scale_actors:
+            a.SetVisibility(self._layers["scalebar"])
+
+    @property
+    def caption(self) -> str:
+        """The caption line of a picture: the scale bar's length and the vertical exaggeration."""
+        return f"scale bar {_length_label(self.scale_bar_nm)}; vertical exaggeration 1x (heights drawn to scale)"
 
     def _build_markers(self) -> None:
         pv = self._pv
@@ -563,9 +657,10 @@ class SurfaceView:
         if mode in _MATERIAL_MODES:
             title = self._material_unit(mode)[1]
         else:
-            title = "z (nm)" if mode == "height" else "dent (nm)"
+            title = "height (nm)" if mode == "height" else "dent (nm)"
         self.scalar_bar.SetTitle(title)
-        self.scalar_bar.SetLabelFormat("%.3g" if mode in _MATERIAL_MODES else "%.1f")
+        self._bar_ticks = None
+        self._set_bar_ticks()
         self.legend_actor.SetVisibility(self._layers["colorbar"] and self._layers["surface"]
                                         and mode in _MATERIAL_MODES)
 
@@ -576,10 +671,40 @@ class SurfaceView:
             self._mapper.scalar_range = self._material_clim[self.color_by]
         else:
             self._mapper.scalar_range = (0.0, max(self._dent_top, 0.5))
+        self._set_bar_ticks()
+
+    def _set_bar_ticks(self) -> None:
+        """Colour-bar labels at round values (:func:`~arsurf._figure_style.round_ticks`), with the
+        decimals their step needs; re-made only when the colour range changes (a log scale keeps
+        VTK's labels, 3 significant digits)."""
+        lo, hi = (float(v) for v in self._mapper.scalar_range)
+        log = bool(self._mapper.lookup_table.log_scale)
+        key = (lo, hi, log)
+        if key == self._bar_ticks:
+            return
+        self._bar_ticks = key
+        bar = self.scalar_bar
+        if log or not hi > lo:
+            bar.SetUseCustomLabels(False)
+            bar.SetLabelFormat("%.3g")
+            return
+        from vtkmodules.vtkCommonCore import vtkDoubleArray
+
+        values, labels = round_ticks(lo, hi)
+        ticks = vtkDoubleArray()
+        for v in values:
+            ticks.InsertNextValue(v)
+        self._bar_labels = labels
+        bar.SetCustomLabels(ticks)
+        bar.SetUseCustomLabels(True)
+        decimals = len(labels[0].partition(".")[2])
+        bar.SetLabelFormat(f"%.{decimals}f")
 
     def set_camera(self, mode: str = "oblique") -> None:
         """Frame the surface: ``"oblique"`` (perspective from the front-left, 35° elevation) or
         ``"top"`` (parallel projection looking down -z, x to the right, y up)."""
+        if getattr(self, "camera_mode", None) == "close-up":  # the scale bar of the whole scan again
+            self._build_scale_bar()
         cam = self.plotter.camera
         pts = self._rest_points
         lo = pts.reshape(-1, 3).min(axis=0)
@@ -587,6 +712,7 @@ class SurfaceView:
         centre = 0.5 * (lo + hi)
         ext = float(max(hi[0] - lo[0], hi[1] - lo[1], 1e-6))
         w, h = self.plotter.window_size
+        cam.SetWindowCenter(0.0, 0.0)
         if mode == "top":
             cam.parallel_projection = True
             cam.focal_point = tuple(centre)
@@ -600,10 +726,14 @@ class SurfaceView:
             cam.view_angle = 30.0
             direction = np.array([-0.45, -1.0, 0.85])
             direction /= np.linalg.norm(direction)
-            dist = 1.05 * ext / (2.0 * math.tan(math.radians(15.0)))
-            cam.focal_point = tuple(centre - np.array([0.0, 0.0, 0.0]))
-            cam.position = tuple(centre + dist * direction)
+            cam.focal_point = tuple(centre)
+            cam.position = tuple(centre + ext * direction)
             cam.up = (0.0, 0.0, 1.0)
+            # the whole scan and the scale bar in front of it in the picture (VTK fits their bounding
+            # sphere), a little closer than the sphere, the scene left of the colour bar
+            self.plotter.renderer.ResetCamera(lo[0], hi[0], lo[1] - 0.12 * ext, hi[1], lo[2], hi[2])
+            cam.zoom(1.25)
+            cam.SetWindowCenter(0.12 if self._layers["colorbar"] else 0.0, 0.0)
         else:
             raise ViewerError(f"camera must be 'oblique' or 'top' (got {mode!r})")
         cam.is_set = True  # keep pyvista from resetting it at the first render
@@ -620,6 +750,7 @@ class SurfaceView:
         cam = self.plotter.camera
         cam.parallel_projection = False
         cam.view_angle = 30.0
+        cam.SetWindowCenter(0.0, 0.0)
         direction = np.array([-0.45, -1.0, 0.85])
         direction /= np.linalg.norm(direction)
         cam.focal_point = tuple(c)
@@ -627,6 +758,11 @@ class SurfaceView:
         cam.up = (0.0, 0.0, 1.0)
         cam.is_set = True
         self.camera_mode = "close-up"
+        # a scale bar for this width, on the surface in front of the centre
+        (u0, u1), (v0, v1) = self.surface.domain
+        y = c[1] - 0.3 * w
+        z = float(self.surface.evaluate(min(max(c[0] * 1e-9, u0), u1), min(max(y * 1e-9, v0), v1))[2]) * SCENE_SCALE
+        self._build_scale_bar(w, (c[0] - 0.5 * scale_bar_length(w), y, z + 0.2))
         self.plotter.renderer.ResetCameraClippingRange()
 
     def update(self, state: SceneState, render: bool = True) -> None:
@@ -685,8 +821,14 @@ class SurfaceView:
         self.plotter.renderer.ResetCameraClippingRange()
         self.plotter.render()
 
-    def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:
-        """Render and return the picture (height, width, 3) uint8; also write a PNG to ``path``."""
+    def screenshot(self, path: str | os.PathLike | None = None, dpi: int | None = None) -> np.ndarray:
+        """Render and return the picture (height, width, 3) uint8; also write a PNG to ``path``.
+
+        ``dpi`` (50-1200): the resolution the PNG states, so that it prints at ``window_size / dpi``
+        inches (e.g. 2100 x 1500 px at 300 dpi: 7 x 5 in, a two-column figure); the pixels are
+        ``window_size``'s."""
+        if dpi is not None and (isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 50 <= dpi <= 1200):
+            raise ViewerError(f"`dpi` must be a whole number of dots per inch in [50, 1200] (got {dpi!r})")
         self.render()
         img = self.plotter.screenshot(None, return_img=True)
         if path is not None:
@@ -695,7 +837,8 @@ class SurfaceView:
                 raise ViewerError(f"screenshots are PNG files (got {p.name!r}); use a .png name")
             image = require("PIL.Image", "viewer", "writing PNG screenshots")
             with atomic_write(p, what="screenshot", error=ViewerError) as fh:  # no text chunks: same bytes each run
-                image.fromarray(np.ascontiguousarray(img)).save(fh, format="PNG")
+                image.fromarray(np.ascontiguousarray(img)).save(fh, format="PNG",
+                                                                **({"dpi": (dpi, dpi)} if dpi else {}))
         return img
 
     def world_to_pixel(self, points) -> np.ndarray:
@@ -833,6 +976,8 @@ class SurfaceView:
         self.normal_arrow.set_visible(L["contact"] and self._contact_on and getattr(self, "_normal_on", False))
         self.force_arrow.set_visible(L["force"] and self._force_on)
         self.hud_actor.SetVisibility(L["hud"])
+        for a in self._scale_actors:
+            a.SetVisibility(L["scalebar"])
         for actor, _ in self._tubes:
             actor.SetVisibility(L["tubes"])
         for a in self._probe_actors:

@@ -61,6 +61,23 @@ def _count(text: str) -> int:
     return value
 
 
+#: picture sizes ``--size`` accepts, pixels per side
+PICTURE_SIDE = (64, 8192)
+
+
+def _picture_size(text: str) -> tuple[int, int]:
+    """An argparse type: a picture size ``WxH`` in pixels (e.g. ``2100x1500``: 7 x 5 in at 300 dpi)."""
+    w, sep, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h)) if sep else None
+    except ValueError:
+        size = None
+    if size is None or not all(PICTURE_SIDE[0] <= v <= PICTURE_SIDE[1] for v in size):
+        raise argparse.ArgumentTypeError(f"must be WIDTHxHEIGHT in pixels, each {PICTURE_SIDE[0]}-{PICTURE_SIDE[1]} "
+                                         f"(e.g. 2100x1500; got {text!r})")
+    return size
+
+
 def _values(unit: str, scale: float, strict: bool):
     """An argparse type: comma-separated finite numbers in ``unit`` (>= 0, or > 0 if ``strict``), as SI."""
     def parse(text: str) -> list[float]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 import time
 
-from arsurf.cli.args import (_count, _nm, _positive, _prepare, _processing_flags,
+from arsurf.cli.args import (_count, _nm, _picture_size, _positive, _prepare, _processing_flags,
                               _protection_flags, _protections, _record_target)
 from arsurf.cli.live import _priority
 
@@ -51,6 +51,9 @@ def register(sub) -> None:
                    help="make the nanotubes of a synthetic scan live objects the tip can push (not with --bridge-port)")
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
+    s.add_argument("--size", type=_picture_size, default=(960, 720), metavar="WxH",
+                   help="picture size in pixels (default 960x720; e.g. 2100x1500 prints 7 x 5 in at 300 dpi); the "
+                        "saved frames leave the HUD out and state the scale bar and the vertical exaggeration")
     s.add_argument("--frames", type=_count, default=90, help=f"without a display: how many frames (default 90, at "
                    f"least {MIN_SCRIPTED_FRAMES}); with --bridge-port any number, 0: no view at all, the loop serves "
                    "the client until it sends RELEASE")
@@ -158,7 +161,7 @@ def _view(args, bridge, record) -> int:
     if args.color_by is not None:
         colour["color_by"] = args.color_by
     view_scan(scan, tip_radius=tip_radius, level_method=None, sigma=None, tubes=args.tubes, out_dir=args.out,
-              frames=args.frames, **colour)
+              frames=args.frames, window_size=tuple(args.size), **colour)
     return 0
 
 
@@ -216,7 +219,8 @@ def _bridge_view(args, bridge, record) -> int:
                     from arsurf_viewer.live import live_scene
 
                     run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=partial(live_scene, live),
-                                    pose_source=live.pose, out_dir=args.out, frames=args.frames)
+                                    pose_source=live.pose, out_dir=args.out, frames=args.frames,
+                                    window_size=tuple(args.size))
                 else:
                     _serve_headless(args, live, setup)
             finally:
@@ -249,6 +253,6 @@ def _serve_headless(args, live, setup) -> None:
         from arsurf_viewer.live import live_scene
 
         run_interactive(setup.surface, tip_radius=setup.model.tip_radius, physics=partial(live_scene, live),
-                        pose_source=live.pose, out_dir=args.out, frames=args.frames)
+                        pose_source=live.pose, out_dir=args.out, frames=args.frames, window_size=tuple(args.size))
     while dev.peer is not None and running.is_running:
         time.sleep(0.01)

@@ -40,10 +40,8 @@ from arsurf._logging import progress as progress_bar
 from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, loop_metadata, preset_metadata
 from arsurf.config import DeviceConfig
 from arsurf.demo.scripted import DEMO, RATE, SCALE, TIP_RADIUS, scene_snapshot, session_tick, viewer_or_none
-from arsurf.haptics.feel import score_force
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
-from arsurf.model import M_IN_CONTACT
 from arsurf.units import summary_json
 
 log = logging.getLogger("arsurf.demo")
@@ -222,21 +220,14 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     meta = dict(meta, device=DeviceConfig.of(dev.info, "virtual").to_metadata())  # bounds its stylus on replay
     writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
-    device_force = np.empty((n, 3))
-    energy = np.empty(n)
     damping = np.empty(n)
-    in_contact = np.empty(n, bool)
     views = {}
     marks = {"approach": int(1.2 * RATE), "indent": int(2.4 * RATE), "slide": int(3.6 * RATE), "retract": n - 1}
     tube_force = np.zeros(n)
     with writer:  # an exception or a signal still closes the file (incomplete) with every tick
         for k in progress_bar(range(n), desc="session", unit="tick"):
             st, f, compute[k] = session_tick(dev, loop, model, writer, scene)
-            o, mo = loop.out, model.out
-            device_force[k] = f
-            energy[k] = LOOP_OUT.get(o, "energy")
-            damping[k] = LOOP_OUT.get(o, "passivity_damping")
-            in_contact[k] = mo[M_IN_CONTACT] > 0.5
+            damping[k] = LOOP_OUT.get(loop.out, "passivity_damping")
             if scene is not None:
                 tube_force[k] = math.hypot(scene.force[0], scene.force[1])
             for name, tick in marks.items():
@@ -245,9 +236,6 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     dev.close()
     progress(f"loop: {n} ticks at {RATE:.0f} Hz, tick compute median {np.median(compute) / 1e3:.1f} us, "
              f"p99 {np.percentile(compute, 99) / 1e3:.1f} us")
-    feel = score_force(device_force, 1.0 / RATE, settle=marks["approach"] / RATE, energy=energy, contact=in_contact,
-                       energy_reserve=loop.passivity.reserve)
-    progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes else ""))
     tube_summary = None
     if scene is not None:
         i = plan["tube"]
@@ -264,7 +252,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
             "pole_arc_fraction": motion.pole_arc_length / L,
             "eq9_pivot_arc_fraction": float(rotation_centre(plan["contact"], L)) / L,  # at the first contact
             "pole_offset_m": motion.pole_offset,
-            "ticks_pushing": int(np.count_nonzero(tube_force)),
+            "ticks_with_tube_force": int(np.count_nonzero(tube_force)),  # the scene pushed back on the tip
             "peak_tube_force_N": float(tube_force.max()),
             "median_tube_force_while_pushing_N": float(np.median(tube_force[tube_force > 0]))
             if tube_force.any() else 0.0,
@@ -280,7 +268,12 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     progress(f"replay: {result.n_ticks} ticks, {result.contact_mismatches} contact mismatches"
              + (f", tube poses differ by {result.tube_pose_difference:g}" if scene is not None else "")
              + f", files {', '.join(result.files)}")
-    pngs = _render(viewer, views, out) if viewer is not None else []
+    # the session's one feel score (arsurf.haptics.feel.score_session): the replay's, drawn on forces.png
+    feel = result.feel
+    if feel is not None:
+        progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes
+                                   else ""))
+    pngs = _render(viewer, views, out, dpi) if viewer is not None else []
     from arsurf.sessions.reader import load_session
 
     ticks = load_session(out / "session.h5").ticks
@@ -305,7 +298,7 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
         "max_contact_radius_m": float(np.nanmax(ticks["contact_radius"])),
         "ticks_in_contact": int(ticks["in_contact"].sum()),
         "peak_device_force_N": float(np.linalg.norm(ticks["device_force"], axis=1).max()),
-        "feel": feel.as_dict(),
+        "feel": feel.as_dict() if feel is not None else None,
         "passivity_controller_ticks": int(np.count_nonzero(damping)),
         "tick_compute_median_s": float(np.median(compute) / 1e9),
         "tick_compute_p99_s": float(np.percentile(compute, 99) / 1e9),
@@ -323,7 +316,9 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     return summary
 
 
-def _render(viewer, views: dict, out: Path) -> list[Path]:
+def _render(viewer, views: dict, out: Path, dpi: int) -> list[Path]:
+    """The 3D views (960 x 720 px, the PNG stating ``dpi``: the figures' --dpi), in the 2D figures'
+    conventions (:mod:`arsurf_viewer.view`: magma, 1-99 % limits, scale bar, no HUD)."""
     from arsurf.errors import rendering_failed
 
     SceneState, SurfaceView = viewer.SceneState, viewer.SurfaceView
@@ -333,7 +328,7 @@ def _render(viewer, views: dict, out: Path) -> list[Path]:
             view = SurfaceView(kw["surface"])  # coloured by height, the dent as contour lines over it
             view.update(SceneState(**kw))
             path = out / f"view_{name}.png"
-            view.screenshot(path)
+            view.screenshot(path, dpi=dpi)
             view.close()
             paths.append(path)
             if name == "indent":  # the dent itself: ~8 tip radii of field, surface sampled at ~1 nm
@@ -341,7 +336,7 @@ def _render(viewer, views: dict, out: Path) -> list[Path]:
                 view.update(SceneState(**kw))
                 view.close_up(kw["tip_center"], 8 * kw["tip_radius"])
                 path = out / "view_indent_closeup.png"
-                view.screenshot(path)
+                view.screenshot(path, dpi=dpi)
                 view.close()
                 paths.append(path)
     except Exception as exc:  # no OpenGL context after all: the numbers are written, the views asked for are not

@@ -47,11 +47,13 @@ import numpy as np
 
 from arsurf.errors import HapticsError
 
-__all__ = ["FeelScore", "reversal_ticks", "score_force"]
+__all__ = ["FeelScore", "reversal_ticks", "score_force", "session_window_start", "score_session"]
 
 BUZZ_LIMIT = 0.02
 REVERSAL_FRACTION = 0.01
 ENERGY_TOLERANCE = 1e-2  # of the record's largest |E|
+#: the shortest window :func:`score_force` scores, s
+MIN_WINDOW = 0.1
 
 
 @dataclass(frozen=True)
@@ -60,7 +62,8 @@ class FeelScore:
 
     ``high_frequency`` (3,) rms above the cutoff / mean normal force; ``reversals`` (3,) counts;
     ``mean_normal`` N; ``peak`` N; ``largest_step`` N; ``min_energy`` J (NaN: not observed);
-    ``settle_time`` s (NaN: no contact or never settled); ``window`` s scored; ``buzzes``.
+    ``settle_time`` s (NaN: no contact or never settled); ``window`` s scored, from ``start`` s
+    (from the record's first tick); ``buzzes``.
     """
 
     high_frequency: np.ndarray
@@ -72,13 +75,15 @@ class FeelScore:
     settle_time: float
     window: float
     buzzes: bool
+    start: float = 0.0
 
     def as_dict(self) -> dict:
         """JSON-ready, units in the keys."""
         return {"high_frequency_over_normal": [float(x) for x in self.high_frequency],
                 "reversals": [int(x) for x in self.reversals], "mean_normal_N": self.mean_normal,
                 "peak_N": self.peak, "largest_step_N": self.largest_step, "min_energy_J": self.min_energy,
-                "settle_time_s": self.settle_time, "window_s": self.window, "buzzes": self.buzzes}
+                "settle_time_s": self.settle_time, "window_start_s": self.start, "window_s": self.window,
+                "buzzes": self.buzzes}
 
     def summary(self) -> str:
         """One line for the demo and replay."""
@@ -146,7 +151,7 @@ def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0,
         raise HapticsError("the force record holds non-finite values: the device was given no such force")
     start = int(round(settle / dt))
     w = f[start:]
-    if w.shape[0] * dt < 0.1:
+    if w.shape[0] * dt < MIN_WINDOW:
         raise HapticsError(f"the record ({f.shape[0] * dt:.3g} s) leaves less than 0.1 s after {settle} s of "
                            "settling: record longer or settle shorter")
     n = w.shape[0]
@@ -184,4 +189,44 @@ def score_force(force, dt: float, *, settle: float = 1.0, cutoff: float = 100.0,
         generated = min_energy < -energy_reserve - energy_tolerance * float(np.nanmax(np.abs(e)))
     buzzes = bool((high > buzz_limit).any() or rev.any() or generated)
     return FeelScore(high_frequency=high, reversals=rev.astype(np.int64), mean_normal=mean_normal, peak=peak,
-                     largest_step=step, min_energy=min_energy, settle_time=settle_time, window=n * dt, buzzes=buzzes)
+                     largest_step=step, min_energy=min_energy, settle_time=settle_time, window=n * dt, buzzes=buzzes,
+                     start=start * dt)
+
+
+def session_window_start(n: int, dt: float, contact=None) -> float:
+    """Where a session's feel is scored from (s after its first tick): the first contact tick (the
+    approach in free space and the start ramp are not felt as buzz), 0 without contact, and never
+    later than :data:`MIN_WINDOW` before the end.
+
+    Examples
+    --------
+    >>> session_window_start(3000, 1e-3, np.arange(3000) >= 1520)
+    1.52
+    >>> session_window_start(3000, 1e-3), session_window_start(3000, 1e-3, np.arange(3000) >= 2990)
+    (0.0, 2.899)
+    """
+    c = None if contact is None else np.asarray(contact, dtype=bool).reshape(-1)
+    first = int(np.argmax(c)) if c is not None and c.any() else 0
+    return max(0.0, min(first * dt, (n - 1) * dt - MIN_WINDOW))
+
+
+def score_session(force, dt: float, *, contact=None, energy=None, energy_reserve: float = 0.0) -> FeelScore | None:
+    """The feel of a session: :func:`score_force` on the window from :func:`session_window_start`.
+
+    The one score of a session: the demo prints it and writes it in its summary, the replay
+    writes it in its summary and draws it over its flag strip (:mod:`arsurf.replay.plots`).
+    Returns None for a record that cannot be scored (wrong shape, non-finite forces, shorter
+    than :data:`MIN_WINDOW`); ``energy`` of the wrong shape is left out.
+    """
+    f = np.asarray(force, dtype=np.float64)
+    dt = float(dt)
+    n = f.shape[0] if f.ndim == 2 else 0
+    if f.ndim != 2 or f.shape[1] != 3 or n < 3 or not np.isfinite(f).all() or not (math.isfinite(dt) and dt > 0.0):
+        return None
+    settle = session_window_start(n, dt, contact)
+    if (n - round(settle / dt)) * dt < MIN_WINDOW:
+        return None
+    e = None if energy is None else np.asarray(energy, dtype=np.float64)
+    c = None if contact is None else np.asarray(contact, dtype=bool)
+    return score_force(f, dt, settle=settle, contact=c if c is not None and c.shape == (n,) else None,
+                       energy=e if e is not None and e.shape == (n,) else None, energy_reserve=energy_reserve)

@@ -37,10 +37,11 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from arsurf import status
+from arsurf._figure_style import HEIGHT_CMAP, PERCENTILES, robust_limits, scale_bar_length
 from arsurf._files import atomic_write
 from arsurf.errors import FigureError, require
 
-__all__ = ["FORMATS", "DEFAULT_DPI", "HEIGHT_CMAP", "FLAG_ROWS", "robust_limits", "scale_bar_length",
+__all__ = ["FORMATS", "DEFAULT_DPI", "HEIGHT_CMAP", "FLAG_ROWS", "FORCE_CAPTION", "robust_limits", "scale_bar_length",
            "add_scale_bar", "save_figure", "check_figure_options", "session_flags", "forces_figure", "coupled_motion_figure", "path_figure",
            "tubes_figure", "dent_figure", "add_figure_arguments"]
 
@@ -49,16 +50,26 @@ FORMATS = ("png", "pdf", "svg")
 #: default resolution of PNG output (dots per inch); PDF and SVG are vector
 DEFAULT_DPI = 200
 DPI_RANGE = (50, 1200)
-#: perceptually uniform maps: heights; the dent contours are drawn in a colour outside it
-HEIGHT_CMAP = "magma"
-#: robust colour limits: these percentiles of the finite data shown
-PERCENTILES = (1.0, 99.0)
+# the conventions shared with the 3D views (arsurf._figure_style): heights in HEIGHT_CMAP (the dent
+# contours in a colour outside it), colour limits at the PERCENTILES of the data shown
 #: the rows of the flag strip, top to bottom: (key, label)
 FLAG_ROWS = (("buzz", "buzz (reversal)"), ("saturated", "saturated"), ("watchdog", "watchdog"),
              ("passivity", "passivity"))
 _METADATA = {"png": {"Software": None}, "pdf": {"Creator": None, "Producer": None, "CreationDate": None},
              "svg": {"Creator": None, "Date": None}}
-_STYLES = {"recorded": ("k", "-", 1.2), "simulated": ("tab:blue", "--", 1.0), "measured": ("tab:red", ":", 1.2)}
+_STYLES = {"recorded": ("k", "-", 1.2), "simulated": ("tab:blue", "--", 1.0), "measured": ("tab:red", ":", 1.2),
+           "tube": ("tab:green", "-.", 1.0)}
+#: legend labels of the force curves (the caption says what each is: :data:`FORCE_CAPTION`)
+_LABELS = {"tube": "tube reaction"}
+#: what the curves and shadings of :func:`forces_figure` are, printed under it
+FORCE_CAPTION = {
+    "recorded": "recorded: the force on the tip the loop used (session file): the blend of measured and simulated, "
+                "low-pass filtered, plus the tubes' reaction",
+    "simulated": "simulated: the contact model re-run over the recorded probe path (the substrate only)",
+    "measured": "measured: the force decoupled from the recorded angle signals (photodiode noise included)",
+    "tube": "tube reaction: the pushed nanotubes' resistance on the tip, from the replayed scene",
+}
+_TUBE_SHADE = "#f6d7a7"
 _FLAG_COLOURS = {"buzz": "tab:red", "saturated": "tab:orange", "watchdog": "tab:purple", "passivity": "tab:blue"}
 _PATH, _CONTACT, _BEFORE, _AFTER, _DENT = "white", "#00e5ff", "0.8", "#7CFC00", "#00e5ff"
 
@@ -76,45 +87,6 @@ def _figure(width: float, height: float):
     fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     return style, fig
-
-
-def robust_limits(*arrays, percentiles: tuple[float, float] = PERCENTILES) -> tuple[float, float]:
-    """Colour limits from the data: the ``percentiles`` of the finite values of all ``arrays``
-    together (one pair for panels that are compared). A constant map gets +-1 around its value.
-
-    Examples
-    --------
-    >>> robust_limits(np.arange(101.0), np.array([np.nan]))
-    (1.0, 99.0)
-    """
-    values = np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in arrays]) if arrays else np.empty(0)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return -1.0, 1.0
-    lo, hi = (float(x) for x in np.percentile(values, percentiles))
-    if not hi > lo:
-        lo, hi = lo - 1.0, hi + 1.0
-    return lo, hi
-
-
-def scale_bar_length(span: float) -> float:
-    """The longest 1, 2 or 5 x 10^k not over a quarter of ``span`` (same unit).
-
-    Examples
-    --------
-    >>> scale_bar_length(1000.0), scale_bar_length(90.0), scale_bar_length(7.0)
-    (200.0, 20.0, 1.0)
-    """
-    span = float(span)
-    if not (math.isfinite(span) and span > 0.0):
-        raise FigureError(f"a scale bar needs a positive finite span (got {span!r})")
-    target = 0.25 * span
-    k = math.floor(math.log10(target))
-    best = 10.0 ** k
-    for m in (2.0, 5.0, 10.0):
-        if m * 10.0 ** k <= target * (1 + 1e-12):
-            best = m * 10.0 ** k
-    return float(best)
 
 
 def add_scale_bar(ax, color: str = "white", loc: str = "lower left"):
@@ -209,28 +181,30 @@ def add_figure_arguments(parser) -> None:
 
 
 def session_flags(t, device_force=None, safety_flags=None, passivity_damping=None, energy=None,
-                  in_contact=None) -> tuple[dict, object]:
+                  in_contact=None, energy_reserve: float = 0.0) -> tuple[dict, object]:
     """Per-tick feel and safety flags of a session, and its feel score.
 
     Parameters
     ----------
     t : (n,) float, s
     device_force : (n, 3) float, N, optional
-        Force sent to the device: buzz is scored on it (:func:`arsurf.haptics.feel.score_force`
-        from the first contact tick on; ``buzz`` marks the ticks it counts as reversals).
+        Force sent to the device: the feel is :func:`arsurf.haptics.feel.score_session` of it (the
+        window from the first contact tick); ``buzz`` marks the ticks it counts as reversals.
     safety_flags : (n,) int, optional
         The loop's flag word (:mod:`arsurf.status`); negative: not recorded.
     passivity_damping : (n,) float, N s/m, optional
         Used for ``passivity`` when the flag word is not recorded.
     energy, in_contact : (n,), optional
         Passed to the feel score.
+    energy_reserve : float, J
+        The passive store the feel score allows (:func:`~arsurf.haptics.feel.score_force`).
 
     Returns
     -------
     flags : dict key -> (n,) bool or None (not recorded), keys of :data:`FLAG_ROWS`
     feel : FeelScore or None (no usable device force)
     """
-    from arsurf.haptics.feel import reversal_ticks, score_force
+    from arsurf.haptics.feel import reversal_ticks, score_session
 
     t = np.asarray(t, dtype=np.float64)
     n = t.size
@@ -246,25 +220,21 @@ def session_flags(t, device_force=None, safety_flags=None, passivity_damping=Non
             flags["passivity"] = d > 0.0
     feel = None
     f = None if device_force is None else np.asarray(device_force, dtype=np.float64)
-    if f is not None and f.shape == (n, 3) and n > 2 and np.isfinite(f).all():
+    if f is not None and f.shape == (n, 3) and n > 2:
         dt = float(np.median(np.diff(t)))
-        contact = None if in_contact is None else np.asarray(in_contact, dtype=bool)
-        first = int(np.argmax(contact)) if contact is not None and contact.any() else 0
-        settle = min(first * dt, max(0.0, (n - 1) * dt - 0.1))
-        if dt > 0.0 and (n - round(settle / dt)) * dt >= 0.1:
-            e = None if energy is None else np.asarray(energy, dtype=np.float64)
-            feel = score_force(f, dt, settle=settle, contact=contact,
-                               energy=e if e is not None and e.shape == (n,) else None)
-            flags["buzz"] = reversal_ticks(f, dt, settle=settle)
+        feel = score_session(f, dt, contact=in_contact, energy=energy, energy_reserve=energy_reserve)
+        if feel is not None:
+            flags["buzz"] = reversal_ticks(f, dt, settle=feel.start)
     return flags, feel
 
 
-def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray, label: bool) -> None:
-    """Grey bands where ``in_contact`` (one artist, stepwise over the tick times)."""
+def _shade_contact(ax, t: np.ndarray, in_contact: np.ndarray, label: bool, color: str = "0.88",
+                   name: str = "contact") -> None:
+    """Bands of ``color`` where ``in_contact`` (one artist, stepwise over the tick times)."""
     mask = np.asarray(in_contact, dtype=bool)
     if t.size and mask.any():
-        ax.fill_between(t, 0.0, 1.0, where=mask, step="post", color="0.88", linewidth=0.0,
-                        transform=ax.get_xaxis_transform(), label="contact" if label else None, zorder=0)
+        ax.fill_between(t, 0.0, 1.0, where=mask, step="post", color=color, linewidth=0.0,
+                        transform=ax.get_xaxis_transform(), label=name if label else None, zorder=0)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -312,9 +282,10 @@ def _time_panels(fig, n_panels: int, flags_row: bool):
 
 
 def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: Mapping | None = None, feel=None,
-                  title: str | None = None):
+                  title: str | None = None, tube_contact=None):
     """Force components in nN against time (s), one panel per component, contact shaded, the
-    feel and safety flags (:func:`session_flags`) in a strip below.
+    feel and safety flags (:func:`session_flags`) in a strip below, and a caption saying what
+    each curve and shading is (:data:`FORCE_CAPTION`). 7 in wide: a two-column page's width.
 
     Parameters
     ----------
@@ -322,30 +293,38 @@ def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: M
     forces : dict name -> (n, 3) float, N
         Curves (``recorded``, ``simulated``, ``measured``...); all-NaN ones are skipped.
     in_contact : (n,) bool, optional
+        Tip on the substrate: shaded grey.
     flags : dict key -> (n,) bool or None, optional
         No strip when None.
     feel : FeelScore, optional
         Its verdict above the strip.
     title : str, optional
+    tube_contact : (n,) bool, optional
+        Tip touching a tube (its reaction is not zero): shaded light orange.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    style, fig = _figure(7.0, 7.5 if flags is not None else 6.5)
+    style, fig = _figure(7.0, 8.3 if flags is not None else 7.3)
     t = np.asarray(t, dtype=np.float64)
     contact = np.zeros(t.shape, bool) if in_contact is None else np.asarray(in_contact, dtype=bool)
+    tubes = np.zeros(t.shape, bool) if tube_contact is None else np.asarray(tube_contact, dtype=bool)
+    drawn = []
     with style.context("default"):
         axes = _time_panels(fig, 3, flags is not None)
         names = ("F$_x$ (lateral)", "F$_y$ (lateral)", "F$_z$ (normal)")
         for k, ax in enumerate(axes[:3]):
             _shade_contact(ax, t, contact, label=k == 0)
+            _shade_contact(ax, t, tubes & ~contact, label=k == 0, color=_TUBE_SHADE, name="tube contact only")
             for name, f in forces.items():
                 f = np.asarray(f, dtype=np.float64)
                 if f.shape != (t.size, 3) or not np.isfinite(f[:, k]).any():
                     continue
                 color, ls, lw = _STYLES.get(name, (None, "-", 1.0))
-                ax.plot(t, f[:, k] * 1e9, color=color, linestyle=ls, linewidth=lw, label=name)
+                ax.plot(t, f[:, k] * 1e9, color=color, linestyle=ls, linewidth=lw, label=_LABELS.get(name, name))
+                if name not in drawn:
+                    drawn.append(name)
             lo, hi = ax.dataLim.y0, ax.dataLim.y1
             if ax.lines and np.isfinite([lo, hi]).all() and hi - lo < 1e-3:  # a flat component (< 1 pN):
                 mid = 0.5 * (lo + hi)                                     # no offset-scaled round-off noise
@@ -358,8 +337,16 @@ def forces_figure(t, forces: Mapping[str, np.ndarray], in_contact=None, flags: M
             fig.suptitle(title)
         axes[-1].set_xlabel("time (s)")
         handles, labels = axes[0].get_legend_handles_labels()
-        if handles:
-            axes[0].legend(handles, labels, loc="upper right", fontsize=8, ncol=len(handles))
+        if handles:  # above the panels, clear of the curves
+            fig.legend(handles, labels, loc="outside upper center", fontsize=8, ncol=len(handles), frameon=False)
+        lines = [FORCE_CAPTION[name] for name in drawn if name in FORCE_CAPTION]
+        shading = ["grey: the tip on the substrate"] if contact.any() else []
+        if (tubes & ~contact).any():
+            shading.append("orange: the tip touching a tube only")
+        if shading:
+            lines.append("shading: " + "; ".join(shading))
+        if lines:
+            fig.supxlabel("\n".join(lines), x=0.01, ha="left", fontsize=7, color="0.2", linespacing=1.35)
     return fig
 
 

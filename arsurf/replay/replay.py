@@ -149,7 +149,9 @@ class ReplayResult:
     (md_status) differs from the replay; ``collision_failures``: ticks the collision could not
     answer; ``elapsed``: wall time (s, not written to any file); ``tube_poses`` (n, k, 3) the
     replayed poses (None without a tube scene); ``tube_pose_difference`` largest |replayed -
-    recorded| pose component (NaN: nothing to compare).
+    recorded| pose component (NaN: nothing to compare); ``feel``: the session's feel score
+    (:func:`arsurf.haptics.feel.score_session`; None: no usable device force), the one in
+    ``summary.json`` and on ``forces.png``.
     """
 
     out_dir: Path
@@ -168,6 +170,7 @@ class ReplayResult:
     elapsed: float
     tube_poses: np.ndarray | None = None
     tube_pose_difference: float = _NAN
+    feel: object = None
 
     def _repr_html_(self) -> str:
         """Peaks, agreement with the recording, files and a force thumbnail (IPython)."""
@@ -535,10 +538,11 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
     lam = setup.model.contact.maugis_parameter
     radius = setup.model.tip_radius
     scene = setup.scene
-    poses = None
+    poses = tube_force = None
     if scene is not None:
         scene.reset()
         poses = np.empty((n, len(scene), 3))
+        tube_force = np.zeros((n, 3))  # the tubes' resistance on the tip, which the loop added to its force
         prev = np.full(3, np.nan)  # tick 0: no previous probe position, as in the live loop
         here = np.empty(3)
 
@@ -554,7 +558,7 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
                         np.copyto(deepest["net"], model.surface.control_points)  # (the dent moved onto the net)
                     if scene is not None:
                         here[:] = outs[k, M_TIP:M_TIP + 3]  # the tip behind the coupling pushes
-                        scene.tick(prev, here, radius)
+                        tube_force[k] = scene.tick(prev, here, radius)
                         poses[k] = scene.poses
                         prev[:] = here
                     if is_frame[k]:
@@ -582,7 +586,7 @@ def _run(session: Session, setup, tmp: Path, frames: int, frame_size, progress: 
         bar.close()
     failed = outs[:, M_COLLIDE_STATUS] < 0
     return {"outs": outs, "have_signals": have, "failed": failed, "frames": n_frames, "tube_poses": poses,
-            "deepest": deepest}
+            "tube_force": tube_force, "deepest": deepest}
 
 
 def _scene_state(state_cls, surface, o: np.ndarray, center, radius, lam, t, have_signals, scene=None):
@@ -672,15 +676,26 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
             "count": len(scene),
             "position_difference_m": _json_number(_max_abs(diff[..., :2]) if diff is not None else _NAN),
             "angle_difference_rad": _json_number(_max_abs(diff[..., 2]) if diff is not None else _NAN),
-            "ticks_pushing": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0, axis=(1, 2)))),
+            # ticks where some tube moved (not the demo's ticks_with_tube_force: a tube can resist the
+            # tip in a tick without moving; docs/figures.rst)
+            "ticks_tube_pose_changed": int(np.count_nonzero(np.any(np.diff(poses, axis=0, prepend=start) != 0,
+                                                                   axis=(1, 2)))),
             "displacement_m": [scene.motion(i).displacement for i in range(len(scene))],
             "rotation_rad": [scene.motion(i).rotation for i in range(len(scene))],
         }
     t = data["t"]
+    from arsurf.assembly import passivity_reserve
+    from arsurf.replay import plots
+
+    # the session's one feel score: in summary.json, on forces.png and coupled_motion.png, in the demo's summary
+    flags, feel = plots.session_flags(t, ticks["device_force"], ticks.get("safety_flags"), ticks["passivity_damping"],
+                                      ticks["energy"], data["in_contact"] == 1,
+                                      energy_reserve=passivity_reserve(setup.model, setup.config.haptics))
     summary = {
         "format": "arsurf-replay-summary", "units": "SI", "n_ticks": n,
         "duration_s": float(t[-1] - t[0]), "ticks_in_contact": int(np.count_nonzero(data["in_contact"])),
         "ticks_with_signals": int(np.count_nonzero(have)), "frames": rec["frames"],
+        "feel": feel.as_dict() if feel is not None else None,
         "scan": {"path": session.metadata["scan"]["path"], "sha256": scan_hash}, "session_sha256": session_hash,
         "peak_recorded_force_N": _json_number(_max_abs(np.linalg.norm(data["recorded_force"], axis=1))),
         **{with_unit(k, _STAT_UNITS[k]): _json_number(v) if isinstance(v, float) else v
@@ -695,11 +710,13 @@ def _write_outputs(tmp: Path, session: Session, setup, rec: dict, session_hash: 
         summary["session_recovered_from_journal"] = bool(session.recovered)
     (tmp / "summary.json").write_text(summary_json(summary, sort_keys=True), encoding="utf-8")
 
-    _write_figures(tmp, session, setup, rec, data, figure_format, dpi)
+    _write_figures(tmp, session, setup, rec, data, figure_format, dpi, flags, feel)
+    stats["feel"] = feel
     return stats
 
 
-def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, figure_format: str, dpi) -> None:
+def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, figure_format: str, dpi, flags,
+                   feel) -> None:
     """forces, coupled_motion, path, tubes (a tube scene), dent (a dent): :mod:`arsurf.replay.plots`."""
     from arsurf.model import M_PX, M_PY, M_RADIUS
     from arsurf.replay import plots
@@ -714,10 +731,13 @@ def _write_figures(tmp: Path, session: Session, setup, rec: dict, data: dict, fi
     def save(fig, name: str) -> None:
         plots.save_figure(fig, tmp / f"{name}.{figure_format}", dpi=dpi)
 
-    flags, feel = plots.session_flags(t, ticks["device_force"], ticks.get("safety_flags"),
-                                      ticks["passivity_damping"], ticks["energy"], contact)
-    save(plots.forces_figure(t, {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
-                                 "measured": data["measured_force"]}, contact, flags, feel), "forces")
+    forces = {"recorded": data["recorded_force"], "simulated": data["simulated_force"],
+              "measured": data["measured_force"]}
+    tube_contact = None
+    if rec.get("tube_force") is not None:  # the loop added the tubes' resistance to its force: drawn, shaded
+        forces["tube"] = rec["tube_force"]
+        tube_contact = np.any(rec["tube_force"] != 0.0, axis=1)
+    save(plots.forces_figure(t, forces, contact, flags, feel, tube_contact=tube_contact), "forces")
     save(plots.coupled_motion_figure(t, data["probe_position"], ticks["device_force"], contact, flags, feel),
          "coupled_motion")
     scan, scene, model = setup.scan, setup.scene, setup.model

@@ -354,7 +354,7 @@ def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     summary = json.loads((tmp_path / "replay" / "summary.json").read_text())
     assert summary["tubes"]["position_difference_m"] == 0.0 and summary["tubes"]["angle_difference_rad"] == 0.0
     assert summary["tubes"]["rotation_rad"][0] == pytest.approx(setup.scene.motion(0).rotation, rel=0)
-    assert summary["tubes"]["ticks_pushing"] > 300
+    assert summary["tubes"]["ticks_tube_pose_changed"] > 300
 
 
 SESSION_BASE = dict(scan={"path": "x.npz", "sha256": "0" * 64, "channel": None,

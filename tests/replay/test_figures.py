@@ -282,26 +282,33 @@ def demo_figures(tmp_path_factory):
     """Run the demo (4 s: the push has begun) with SVG figures; keep every Figure it saved."""
     from arsurf.demo import run_demo
 
-    saved = {}
-    real = plots.save_figure
+    saved, given = {}, {}
+    real, real_forces = plots.save_figure, plots.forces_figure
 
     def keep(fig, path, format=None, dpi=plots.DEFAULT_DPI):
         out = real(fig, path, format, dpi)
         saved[out.name] = (fig, out)
         return out
 
+    def forces_given(t, forces, in_contact=None, flags=None, feel=None, **kw):
+        given.update(forces=forces, feel=feel, in_contact=in_contact, **kw)
+        return real_forces(t, forces, in_contact, flags, feel, **kw)
+
     mp = pytest.MonkeyPatch()
     mp.setattr(plots, "save_figure", keep)
+    mp.setattr(plots, "forces_figure", forces_given)
     try:
         out = tmp_path_factory.mktemp("demo") / "out"
         summary = run_demo(out, seconds=4.0, images=False, figure_format="svg")
     finally:
         mp.undo()
+    saved["given"] = given
     return saved, summary, out
 
 
 def test_every_demo_figure_passes_the_checks(demo_figures, tmp_path):
     saved, summary, out = demo_figures
+    saved = {k: v for k, v in saved.items() if k != "given"}
     assert sorted(saved) == ["coupled_motion.svg", "dent.svg", "forces.svg", "path.svg", "tubes.svg"]
     assert sorted(p.name for p in (out / "replay").glob("*.svg")) == sorted(saved)
     maps = 0
@@ -316,3 +323,45 @@ def test_every_demo_figure_passes_the_checks(demo_figures, tmp_path):
     strip = fig.axes[3]
     assert "not recorded" not in [x.get_text() for x in strip.texts]
     assert summary["tube"]["end_displacement_m"] > 1e-9
+
+
+def test_the_feel_in_both_summaries_is_the_one_drawn(demo_figures):
+    """One score, one window: the demo's summary.json, the replay's and the strip of forces.svg."""
+    import json
+
+    from arsurf.units import summary_json
+
+    saved, summary, out = demo_figures
+    feel = saved["given"]["feel"]
+    drawn = json.loads(summary_json(feel.as_dict()))
+    assert summary["feel"] == drawn
+    assert json.loads((out / "replay" / "summary.json").read_text())["feel"] == drawn
+    first_contact = np.flatnonzero(saved["given"]["in_contact"])[0] * 1e-3
+    assert feel.start == pytest.approx(first_contact) and feel.window == pytest.approx(4.0 - first_contact)
+    strip = saved["forces.svg"][0].axes[3]
+    assert f"feel ({feel.window:.2f} s scored)" in strip.get_title(loc="left")
+    assert "ticks_with_tube_force" in summary["tube"]  # the demo's count: ticks with a tube reaction
+
+
+def test_forces_figure_explains_its_curves_and_the_tube_reaction(demo_figures):
+    """The recorded force is the loop's: the blend of measured and simulated, low-pass filtered, plus
+    the tubes' reaction. Drawn with the replayed reaction, recorded - simulated - tube is small
+    where the tube pushes back, though recorded - simulated is not; the caption says so."""
+    saved, summary, out = demo_figures
+    given = saved["given"]
+    tube = np.asarray(given["forces"]["tube"])
+    recorded, simulated = np.asarray(given["forces"]["recorded"]), np.asarray(given["forces"]["simulated"])
+    pushing = np.linalg.norm(tube, axis=1) > 2e-9
+    assert pushing.sum() > 100 and given["tube_contact"][pushing].all()
+    gap = np.linalg.norm(recorded - simulated, axis=1)[pushing]
+    rest = np.linalg.norm(recorded - simulated - tube, axis=1)[pushing]
+    assert np.median(rest) < 0.25 * np.median(gap)
+    fig = saved["forces.svg"][0]
+    caption = fig._supxlabel.get_text()
+    for name in ("recorded:", "simulated:", "measured:", "tube reaction:", "shading: grey"):
+        assert name in caption
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    only_tube = bool((given["tube_contact"] & ~np.asarray(given["in_contact"], bool)).any())
+    assert labels == ["contact"] + ["tube contact only"] * only_tube + ["recorded", "simulated", "measured",
+                                                                         "tube reaction"]
+    assert fig.get_size_inches()[0] == pytest.approx(7.0)  # a two-column page's width
