@@ -39,8 +39,8 @@ from arsurf.haptics.gains import coupling_stiffness
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 
-__all__ = ["FAMILIES", "MOTIONS", "SOURCES", "FeelRun", "GeneratedSurface", "generated_surfaces", "prepared_surface",
-           "run_scenario", "synthetic_surface"]
+__all__ = ["FAMILIES", "MOTIONS", "RATE_TOLERANCE", "SOURCES", "FeelRun", "GeneratedSurface", "energy_ok",
+           "generated_surfaces", "prepared_surface", "rate_convergence", "run_scenario", "synthetic_surface"]
 
 MOTIONS = ("press", "slide-1", "slide-10", "slide-100", "stroke", "tap")
 #: motions of the generated families beyond the table's: slides at 0.1 nm/s, and circles (a slide
@@ -274,3 +274,40 @@ def generated_surfaces(count: int, seed: int = 0, families=FAMILIES) -> list[Gen
         tip = draw(TIP_RANGE[0], max(TIP_RANGE[0], min(TIP_RANGE[1], side / 6.0 - 1e-9)))
         out.append(GeneratedSurface(family, int(rng.integers(2**31)), draw(*RMS_RANGE), length, pixel, tip))
     return out
+
+
+#: rate convergence (issue 27 §3): a faster motion's force at 1 kHz must match the same motion at
+#: 10 kHz, averaged over each 1 ms tick, within this rms fraction of the 10 kHz force's rms
+RATE_TOLERANCE = 0.15
+
+
+def energy_ok(run: FeelRun) -> bool:
+    """Observed energy >= -E0 (the passive store), to the score's tolerance
+    (:func:`~arsurf.haptics.feel.score_force`)."""
+    from arsurf.haptics.feel import ENERGY_TOLERANCE
+
+    e = run.score.min_energy
+    return bool(math.isnan(e) or e >= -run.energy_reserve - ENERGY_TOLERANCE * float(np.nanmax(np.abs(run.energy))))
+
+
+def rate_convergence(surface, motion: str, source: str = "simulated", seconds: float = 2.0, tip_radius=None,
+                     seed: int = 7) -> dict:
+    """Texture is not buzz: what the surface gives stays when the loop rate goes from 1 to 10 kHz,
+    what the loop adds does not. Runs ``motion`` at both rates and returns the rms of
+    :math:`F_{1k}(t_k) - \bar F_{10k}(t_k)` over the rms of :math:`\bar F_{10k}` after 1 s
+    (:math:`\bar F_{10k}` the 10 kHz force averaged over the 1 ms of tick k), whether both runs
+    kept the observed energy >= -E0, and ``ok`` (error <= :data:`RATE_TOLERANCE` and energy)."""
+    slow = run_scenario(surface, motion=motion, source=source, rate=1000.0, seconds=seconds, tip_radius=tip_radius,
+                        seed=seed)
+    fast = run_scenario(surface, motion=motion, source=source, rate=10000.0, seconds=seconds,
+                        tip_radius=tip_radius, seed=seed)
+    n = min(slow.force.shape[0], fast.force.shape[0] // 10)
+    f1 = slow.force[:n]
+    f10 = fast.force[:10 * n].reshape(n, 10, 3).mean(axis=1)
+    w = slice(1000, n)
+    ref = float(np.sqrt(np.mean(np.sum(f10[w] ** 2, axis=1))))
+    err = float(np.sqrt(np.mean(np.sum((f1[w] - f10[w]) ** 2, axis=1)))) / ref if ref > 0 else 0.0
+    energy = [energy_ok(r) for r in (slow, fast)]
+    return {"motion": motion, "source": source, "rate_error": err, "energy_ok": all(energy),
+            "min_energy_J": [slow.score.min_energy, fast.score.min_energy],
+            "ok": bool(err <= RATE_TOLERANCE and all(energy))}

@@ -165,7 +165,8 @@ def model_tick_kernel(proj,                                              # Proje
                                             margin, prev_u, prev_v, state, S_CONTACTS, coll)
     _copy_collision(coll, out)
     if count > 1:  # the tip moves behind the coupling along the total normal
-        out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT])
+        out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
+                                                                   margin)
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     was_interacting = state[S_INTERACTING] > 0.5
     # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)

@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.feel_scenarios import (MOTIONS, SOURCES, generated_surfaces, prepared_surface, run_scenario,
-                                   synthetic_surface)
+from arsurf.feel_scenarios import (MOTIONS, RATE_TOLERANCE, SOURCES, generated_surfaces, prepared_surface,
+                                   rate_convergence, run_scenario, synthetic_surface)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from collision import vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
@@ -48,38 +48,9 @@ SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parent
 REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
 
 
-#: rate convergence: rms |F(1 kHz) - F(10 kHz, averaged per 1 ms)| / rms |F(10 kHz)| at most this
-RATE_TOLERANCE = 0.15
 SLOW_MOTIONS = ("press", "slide-0.1", "slide-1", "slide-10")
 FAST_MOTIONS = ("circle-100", "circle-1000", "stroke", "tap")
 RATES = (1000.0, 5000.0, 10000.0)
-
-
-def _energy_ok(run) -> bool:
-    """Observed energy >= -E0 (the passive store), to the score's tolerance (:func:`score_force`)."""
-    from arsurf.haptics.feel import ENERGY_TOLERANCE
-
-    e = run.score.min_energy
-    return bool(math.isnan(e) or e >= -run.energy_reserve - ENERGY_TOLERANCE * float(np.nanmax(np.abs(run.energy))))
-
-
-def rate_convergence(surface, motion: str, source: str, seconds: float, tip_radius=None, seed: int = 7) -> dict:
-    """The same motion at 1 and 10 kHz: relative rms difference of the forces after 1 s (the
-    10 kHz record averaged over each 1 ms), and both energies."""
-    slow = run_scenario(surface, motion=motion, source=source, rate=1000.0, seconds=seconds, tip_radius=tip_radius,
-                        seed=seed)
-    fast = run_scenario(surface, motion=motion, source=source, rate=10000.0, seconds=seconds,
-                        tip_radius=tip_radius, seed=seed)
-    n = min(slow.force.shape[0], fast.force.shape[0] // 10)
-    f1 = slow.force[:n]
-    f10 = fast.force[:10 * n].reshape(n, 10, 3).mean(axis=1)
-    w = slice(1000, n)
-    ref = float(np.sqrt(np.mean(np.sum(f10[w] ** 2, axis=1))))
-    err = float(np.sqrt(np.mean(np.sum((f1[w] - f10[w]) ** 2, axis=1)))) / ref if ref > 0 else 0.0
-    energy = [_energy_ok(r) for r in (slow, fast)]
-    return {"motion": motion, "source": source, "rate_error": err, "energy_ok": all(energy),
-            "min_energy_J": [slow.score.min_energy, fast.score.min_energy],
-            "ok": bool(err <= RATE_TOLERANCE and all(energy))}
 
 
 def judge_surface(name: str, surface, rng, seconds: float, tip_radius=None, slow_runs: int = 2,

@@ -41,8 +41,8 @@ rows with equal weights, so the sum does not step. The total normal force is the
 
 each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip
 (:mod:`arsurf.model` moves the tip behind the virtual coupling along the total normal
-:math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`, :math:`q_i = (\delta_i - \delta_{out})_+^{3/2}`, the
-depth beyond the jump-out depth to the Hertz power: the direction of :math:`F_N` for similar
+:math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`, :math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}`,
+the depth beyond the jump-out depth to the Hertz power: the direction of :math:`F_N` for similar
 compressive contacts, and continuous through every change of the set of contacts).
 
 Lipschitz bound: depths, normals and barriers are continuous in C (depths and distances are
@@ -233,19 +233,18 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
 
 
 @njit(cache=True)
-def total_normal_kernel(tab, at, count, jump_out):
+def total_normal_kernel(tab, at, count, jump_out, margin):
     """The total normal n (unit) of the contacts in ``tab`` (module docstring): the weighted sum
-    of their normals with the weights :math:`w_i (\\delta_i - \\delta_{out})_+^{3/2}`; row 0's
-    normal when that sum vanishes."""
-    r0 = _row(at, 0)
+    of their normals with the weights :math:`w_i ((\delta_i - \delta_{out})_+ + 10^{-3} m)^{3/2}`
+    (the small floor keeps the direction continuous, and symmetric, where every contact is out of
+    reach)."""
+    floor = 1e-3 * margin
     bx = by = bz = 0.0
     for i in range(count):
         r = _row(at, i)
-        q = tab[r + C_WEIGHT] * max(tab[r + C_DEPTH] - jump_out, 0.0) ** 1.5
+        q = tab[r + C_WEIGHT] * (max(tab[r + C_DEPTH] - jump_out, 0.0) + floor) ** 1.5
         bx += q * tab[r + C_NX]
         by += q * tab[r + C_NX + 1]
         bz += q * tab[r + C_NX + 2]
     bn = math.sqrt(bx * bx + by * by + bz * bz)
-    if not bn > 0.0:
-        return tab[r0 + C_NX], tab[r0 + C_NX + 1], tab[r0 + C_NX + 2]
     return bx / bn, by / bn, bz / bn

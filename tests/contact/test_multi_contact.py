@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.contact.projection import collide
 from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
@@ -26,7 +27,7 @@ LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
 
 
 def _surface(kind: str):
-    if kind == "sinusoid":  # valleys (minima) at x = 9, 21, 33 ... nm
+    if kind == "sinusoid":  # valleys (minima) at x = 9, 21, 33 ... nm (33: far from the fit's boundary effects)
         scan = synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=2e-9, period=PERIOD)
     else:  # two Gaussian bumps 14 nm apart, the valley between them at x = 36 nm
         x = np.arange(72) * PIXEL
@@ -68,13 +69,18 @@ def _turns(v):
 
 
 # pressed so that, over the valley's middle, both slopes are ~0.4 nm deep
-CASES = [("sinusoid", 5.0e-9, 13.0e-9, 9e-9), ("bumps", 32.0e-9, 40.0e-9, 36e-9)]
+CASES = [("sinusoid", 29.0e-9, 37.0e-9, 33e-9), ("bumps", 32.0e-9, 40.0e-9, 36e-9)]
 
 
 def _height_for(kind: str, x_mid: float, depth: float = 0.4e-9) -> float:
-    m = _model(kind)
-    t = m.step((x_mid, 24e-9, 40e-9))
-    return 40e-9 - t.distance + (R - depth)
+    """The tip height (m) at which the tip over ``x_mid`` is ``depth`` into the surface (its
+    closest point, along the normal there: a few Newton steps on the collision)."""
+    s = _surface(kind)
+    z = 40e-9
+    for _ in range(6):
+        c = collide(s, (x_mid, 24e-9, z), R)
+        z -= (depth - c.depth) / c.normal[2]
+    return z
 
 
 @pytest.mark.parametrize("coupling", [math.inf, 5.0])
