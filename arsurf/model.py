@@ -174,13 +174,15 @@ def model_tick_kernel(proj,                                              # Proje
     rx = ry = rz = 0.0
     if count > 1:  # each contact's own law at its own depth under the one rigid tip; the loads summed
         md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, tip_radius, coll[pj.OUT_DEPTH] - depth, count,
-                                                          was_interacting, state, out)
+                                                          was_interacting, md_st, a, load, state, out)
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
+        # the tip sphere's dent: the closest contact's zone along its own normal; the sphere's
+        # no-interpenetration guard (out to R around the axis) presses the other contacts onto it
         zone = md_zone_radius(a, depth, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA])
         d0 = int(md_args[H_DENT])
         out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, out[M_TIP], out[M_TIP + 1],
-                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, nx, ny, nz, a,
-                                          depth, zone)
+                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, coll[pj.OUT_NX],
+                                          coll[pj.OUT_NY], coll[pj.OUT_NZ], a, depth, zone)
     # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     sx, sy, strength, share_x, share_z = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state,
                                                           scratch, out)
@@ -283,28 +285,34 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
 
 
 @njit(cache=True)
-def _sum_contacts(md, tip_radius, lift, count, was_interacting, state, out):
+def _sum_contacts(md, tip_radius, lift, count, was_interacting, st0, a0, p0, state, out):
     r"""Step 2 with several contacts (:mod:`arsurf.contact.multi_contact`): the tip sits ``lift``
     out along the total normal n (``out``'s normal); contact i is then
     :math:`\delta_i = \delta_{t,i} - \text{lift}\,(n\cdot n_i)` deep, under the law ``md`` with the tip's
-    hysteresis state. Writes the closest contact's depth, radius and status, the total load
+    hysteresis state (``st0, a0, p0``: the closest contact's answer without the lift, kept when the
+    tip is not lifted). Writes the closest contact's depth, radius and status, the total load
     :math:`F_N\cdot n`; returns ``(status, a, load, depth)`` like :func:`_contact_mechanics` and the
     part of :math:`F_N = \sum_i w_i P_i n_i` off n."""
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     fx = fy = fz = 0.0
-    st0, a0, d0 = SEPARATED, 0.0, 0.0
+    d0 = state[S_CONTACTS + mc.T_ROWS + mc.C_DEPTH]
     for i in range(count):
         r = S_CONTACTS + mc.T_ROWS + i * mc.C_SIZE
+        w = state[r + mc.C_WEIGHT]
+        if not w > 0.0:
+            continue
         mx, my, mz = state[r + mc.C_NX], state[r + mc.C_NX + 1], state[r + mc.C_NX + 2]
         d = state[r + mc.C_DEPTH] - lift * (nx * mx + ny * my + nz * mz)
-        st, a, p = md_contact_hysteresis_kernel(d, was_interacting, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE],
-                                                md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
+        if i == 0 and lift == 0.0:
+            st, a, p = st0, a0, p0  # the tip is the target: the answer of step 2
+        else:
+            st, a, p = md_contact_hysteresis_kernel(d, was_interacting, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE],
+                                                    md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
         if st < 0:
             a = p = 0.0
-        p *= state[r + mc.C_WEIGHT]
-        fx += p * mx
-        fy += p * my
-        fz += p * mz
+        fx += w * p * mx
+        fy += w * p * my
+        fz += w * p * mz
         if i == 0:
             st0, a0, d0 = st, a, d
     load = fx * nx + fy * ny + fz * nz

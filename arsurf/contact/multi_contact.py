@@ -18,7 +18,8 @@ the global closest point of the collision query (exact: hull tree + Newton). New
 (:func:`~arsurf.contact.newton.newton_box`) is run from the contacts of the previous tick
 (tracking), from where the collision query's own Newton run from the previous closest point
 ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
-:data:`PROBES` starts a distance :data:`PROBE_REACH` R around the closest point (discovery).
+:data:`PROBES` starts a distance :data:`PROBE_REACH` R around the closest point (discovery; one
+of them per tick, in turn, after the first touch).
 Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal)
 is within the interaction range is a contact; ends within :data:`SAME_POINT` knot spacings of
 one already found are the same contact (found from two starts) and merged.
@@ -51,6 +52,11 @@ Lipschitz bound: depths, normals and barriers are continuous in C (depths and di
 :math:`dP/d\delta`, :math:`\rho` the distance over which the normal turns by a radian), with
 no step: halving the step halves the largest change (tests/contact/test_multi_contact.py).
 
+**Dent.** The tick records one dent, the tip sphere's (:func:`~arsurf.contact.deformation.record_dent_kernel`,
+O(1), applied when the net is read): the closest contact's zone and elastic surround along its own
+normal, and the sphere's no-interpenetration guard, which presses every control point within R
+of the tip axis that is inside the sphere onto it - the other contacts' zones included.
+
 The model keeps the contact table in its state (:data:`CONTACT_TABLE`: the tracked (u, v),
 point, normal, depth, weight of each contact, and their count).
 """
@@ -76,13 +82,16 @@ C_SIZE = CONTACT.size
 #: the contact table (in the model state): the count, the contacts (row 0 the closest point), and
 #: the previous tick's (u, v) of each (the tracking starts)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
-                                         ("previous_uv", 2 * MAX_CONTACTS)])
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
+T_PROBE = CONTACT_TABLE.offset("probe")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
-#: discovery starts per tick, on a circle of PROBE_REACH tip radii around the closest point
+#: discovery starts on a circle of PROBE_REACH tip radii around the closest point: all of them at the
+#: first touch, then one per tick in turn (a contact is born with weight 0: found within PROBES
+#: ticks, it has gained next to nothing)
 PROBES = 4
 PROBE_REACH = 0.6
 #: points sampled on the (u, v) segment between a contact and the closest point for its barrier
@@ -204,21 +213,21 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
         if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, h, tab, at, count)
-            jumped = True
-            if count > 1:  # Newton from there may end at the closest point after all
-                r = _row(at, 1)
-                jumped = math.hypot(tab[r + C_U] - u1, tab[r + C_V] - v1) > SAME_POINT * h
-            if count > 1 and tab[_row(at, 1) + C_DEPTH] < floor:
+            jumped = count > 1  # Newton from there ended at another minimum than the closest point
+            if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
                 count = 1  # a jump, but the old point is out of reach
     if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
-        for i in range(old):
+        for i in range(1, old):  # (row 0, the previous closest point: the run above)
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
                          tab[at + T_PREVIOUS + 2 * i + 1], floor, h, tab, at, count)
+        k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
         reach = PROBE_REACH * radius
-        for k in range(PROBES):
+        for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
             phi = 2.0 * math.pi * k / PROBES
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
                          v1 + reach * math.sin(phi), floor, h, tab, at, count)
+            k = (k + 1) % PROBES
+        tab[at + T_PROBE] = k
     d1 = radius - coll[ly.OUT_DEPTH]
     for i in range(1, count):
         r = _row(at, i)

@@ -147,3 +147,84 @@ def test_one_contact_surfaces_take_the_single_contact_path():
         assert t.load > 0.0
         assert m.state[S_CONTACTS + mc.T_COUNT] == 1
         assert np.array_equal(t.simulated_force, t.load * t.normal)
+
+
+# --- the warm-start record ----------------------------------------------------------------------
+def _grooves(n: int = 96, pixel: float = 1e-9):
+    """V grooves 8 nm apart: the 20 nm tip bridges each and rests on two slopes."""
+    from arsurf.spline.surface import BSplineSurface
+
+    x = np.arange(n) * pixel
+    z = 3e-9 * np.abs(np.sin(np.pi * x / 8e-9))[:, None] * np.ones(n)[None, :]
+    return BSplineSurface.from_heights(z, (0.0, x[-1]), (0.0, x[-1]))
+
+
+@pytest.mark.parametrize("kind", ["pyramid", "tiles"])
+def test_the_collision_s_warm_record_stands_for_newton_from_the_previous_point(kind):
+    """The contact search takes where the collision query's own Newton run from the previous
+    closest point ended (OUT_WARM_U/V) instead of running it again: with the record hidden
+    (NaN: the kernel runs Newton from the previous point itself) every answer - the contacts,
+    their weights, the jump flag - is the same, on one pyramid and on tiles."""
+    from arsurf.contact import layout as ly
+    from arsurf.contact import multi_contact as mc
+    from arsurf.contact.closest_point import collide_any
+    from arsurf.contact.projection import Projector, TiledProjector
+
+    s = _grooves()
+    proj = (Projector(s) if kind == "pyramid" else TiledProjector(s, tile=8)).kernel_args()
+    ctrl, ku, kv = s.net_arrays()
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    coll = np.empty(ly.OUT_SIZE)
+    ev = np.empty((6, 3))
+    fast, slow = np.full(mc.TABLE_SIZE, np.nan), np.full(mc.TABLE_SIZE, np.nan)
+    rng = np.random.default_rng(3)
+    walk = np.column_stack([40e-9 + np.cumsum(rng.normal(0.0, 0.15e-9, 600)),
+                            48e-9 + np.cumsum(rng.normal(0.0, 0.05e-9, 600)),
+                            R + 2.5e-9 + 0.3e-9 * np.sin(np.arange(600) / 17.0)])
+    pu = pv = np.nan
+    counts, jumps = [], 0
+    for cx, cy, cz in walk:
+        assert collide_any(proj, cx, cy, cz, R, pu, pv, coll) >= 0
+        hidden = coll.copy()
+        hidden[ly.OUT_WARM_U] = hidden[ly.OUT_WARM_V] = np.nan
+        a = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, fast, 0, coll)
+        b = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, slow, 0, hidden)
+        assert a == b
+        for i in range(a[0]):
+            r = mc.T_ROWS + i * mc.C_SIZE
+            metres = [r + mc.C_U, r + mc.C_V, r + mc.C_PX, r + mc.C_PX + 1, r + mc.C_PX + 2, r + mc.C_DEPTH]
+            np.testing.assert_allclose(fast[metres], slow[metres], rtol=0, atol=1e-6 * h)
+            unitless = [r + mc.C_NX, r + mc.C_NX + 1, r + mc.C_NX + 2, r + mc.C_WEIGHT]
+            np.testing.assert_allclose(fast[unitless], slow[unitless], rtol=0, atol=1e-9)
+        slow[:] = fast  # the same history for both
+        counts.append(a[0])
+        jumps += a[1]
+        pu, pv = coll[ly.OUT_U], coll[ly.OUT_V]
+    # the walk does rest on two slopes and hops between them
+    assert sum(c >= 2 for c in counts) >= 20 and jumps >= 1
+
+
+def test_the_warm_record_is_newtons_answer_from_the_hint():
+    """On one pyramid, OUT_WARM_U/V is what Newton over the whole domain from the hint gives
+    (the very run the contact search would make), and NaN for a cold query."""
+    from arsurf.contact import layout as ly
+    from arsurf.contact.closest_point import collide_any
+    from arsurf.contact.multi_contact import SAME_POINT
+    from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+    from arsurf.contact.projection import Projector
+
+    s = _grooves()
+    proj = Projector(s).kernel_args()
+    ctrl, ku, kv = s.net_arrays()
+    coll = np.empty(ly.OUT_SIZE)
+    ev = np.empty((6, 3))
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    collide_any(proj, 41e-9, 47e-9, R + 2e-9, R, np.nan, np.nan, coll)
+    assert np.isnan(coll[ly.OUT_WARM_U]) and np.isnan(coll[ly.OUT_WARM_V])
+    hint = (43.5e-9, 47e-9)
+    collide_any(proj, 41e-9, 47e-9, R + 2e-9, R, *hint, coll)
+    nu, nv = ku.shape[0], kv.shape[0]
+    u, v, _, _, conv = newton_box(ctrl, ku, kv, ev, 41e-9, 47e-9, R + 2e-9, *hint, ku[3], ku[nu - 4], kv[3],
+                                  kv[nv - 4], STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    assert conv
+    assert np.hypot(coll[ly.OUT_WARM_U] - u, coll[ly.OUT_WARM_V] - v) <= SAME_POINT * h
