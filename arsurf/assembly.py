@@ -19,10 +19,12 @@ Maugis-Dugdale contact with :math:`E^*, w, \sigma_0`, friction coefficient, cant
 Examples
 --------
 >>> sorted(PRESETS)
-['demo', 'seed000', 'seed001', 'seed002', 'seed003', 'viewer']
->>> p = PRESETS["seed003"]
+['demo', 'mwcnt-push', 'spline-ar', 'thesis-haptics', 'tipless-rolling', 'viewer']
+>>> p = preset("tipless-rolling")
 >>> round(p.cantilever["length"] * 1e6), p.haptics["coupling"]
 (220, 'force_position')
+>>> preset("seed003") is p          # the name it had before (PRESET_ALIASES), still accepted
+True
 """
 from __future__ import annotations
 
@@ -64,6 +66,11 @@ BUNDLED_SCAN = bundled_scan("nanotubes")
 LEVER = MappingProxyType(dict(length=450e-6, width=50e-6, thickness=2.5e-6, tip_height=15e-6,
                               youngs_modulus=169e9, poisson_ratio=0.27))
 
+#: the friction laws a session may record (:data:`arsurf.contact.friction.LAW_NAMES`), the one new
+#: sessions record and the one of sessions recorded before the law was (friction only for P > 0)
+FRICTION_LAWS = ("adhesive", "area", "compressive")
+DEFAULT_FRICTION_LAW = "adhesive"
+LEGACY_FRICTION_LAW = "compressive"
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
                     "normal_stiffness", "torsional_stiffness", "beta")
 _HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
@@ -139,23 +146,23 @@ def _presets() -> dict[str, Preset]:
             demo, name="viewer", description="the interactive viewer: Si tip on polystyrene (arsurf.MATERIALS)",
             effective_modulus=e_si_ps, work_of_adhesion=w_si_ps, sigma=0.0,
             sources="E* and w from the Si and polystyrene presets of arsurf.contact.materials; the rest is the demo's"),
-        "seed000": dataclasses.replace(
-            demo, name="seed000", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
+        "mwcnt-push": dataclasses.replace(
+            demo, name="mwcnt-push", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=38.6, torsional_stiffness=8.56e-7)),
             sources="[MWCNT] Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
                     "are not given there: the demo's"),
-        "seed001": dataclasses.replace(
-            demo, name="seed001", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
+        "thesis-haptics": dataclasses.replace(
+            demo, name="thesis-haptics", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=0.3)), sigma=0.0,
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, force_gain=15e6, source="measured", filter_cutoff=None)),
             sources="[Alabdulmuhsin] Tables 4.2-4.6: k = 0.3 N/m, K_f = 15e6; scale, tip and sample: the demo's"),
-        "seed002": dataclasses.replace(
-            demo, name="seed002", description="the spline AR interface ([SplineAR]): smoothing, B-spline, MD, dent, "
+        "spline-ar": dataclasses.replace(
+            demo, name="spline-ar", description="the spline AR interface ([SplineAR]): smoothing, B-spline, MD, dent, "
                                               "decoupling with the contact normal",
             haptics=MappingProxyType(dict(_DEMO_HAPTICS, source="measured")),
             sources="[SplineAR] gives the method, not the numbers: the demo's values with measured signals"),
-        "seed003": dataclasses.replace(
-            demo, name="seed003", description="2D rolling telemanipulation with a tipless beam ([Bolopion])",
+        "tipless-rolling": dataclasses.replace(
+            demo, name="tipless-rolling", description="2D rolling telemanipulation with a tipless beam ([Bolopion])",
             tip_radius=25e-6, sigma=0.0,
             cantilever=MappingProxyType(dict(length=220e-6, width=27e-6, thickness=2.9e-6, tip_height=0.0,
                                              youngs_modulus=150e9, poisson_ratio=0.17)),
@@ -169,6 +176,10 @@ def _presets() -> dict[str, Preset]:
 
 #: the named presets (read-only); :func:`preset_metadata` turns one into session metadata
 PRESETS: Mapping[str, Preset] = MappingProxyType(_presets())
+#: the names the source presets had before they were named for what they are (sessions and scripts
+#: that say ``seed000``..``seed003`` keep working): old name -> preset name
+PRESET_ALIASES: Mapping[str, str] = MappingProxyType({
+    "seed000": "mwcnt-push", "seed001": "thesis-haptics", "seed002": "spline-ar", "seed003": "tipless-rolling"})
 
 #: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
 #: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
@@ -179,11 +190,12 @@ BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_g
 
 
 def preset(name: str | Preset) -> Preset:
-    """The :class:`Preset` called ``name`` (a Preset is returned as is)."""
+    """The :class:`Preset` called ``name``, or by its old name in :data:`PRESET_ALIASES` (a Preset
+    is returned as is)."""
     if isinstance(name, Preset):
         return name
     try:
-        return PRESETS[name]
+        return PRESETS[PRESET_ALIASES.get(name, name)]
     except (KeyError, TypeError):
         raise SessionError(f"unknown preset {name!r}; presets are {sorted(PRESETS)}") from None
 
@@ -252,7 +264,8 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
                      level: str = "plane", sigma: float = 0.0, inpaint: bool = True,
                      control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
                      calibration: Mapping | None = None, haptics: Mapping | None = None,
-                     loop_rate: float | None = None, material=None, **extra) -> dict:
+                     loop_rate: float | None = None, material=None, friction_law: str = DEFAULT_FRICTION_LAW,
+                     shear_strength: float | None = None, **extra) -> dict:
     """The metadata dict of a session, checked and JSON-ready.
 
     Parameters
@@ -269,6 +282,9 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
         The cantilever (or its constructor arguments).
     friction : float
         Coefficient of the model's simulated friction.
+    friction_law : str
+        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, mu (P + |P_c|)),
+        ``"area"`` (tau pi a^2, with ``shear_strength`` in Pa) or ``"compressive"`` (mu max(P, 0)).
     deform : bool
         Whether the model dents the surface.
     calibration, haptics : dict, optional
@@ -310,8 +326,11 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     else:
         lever_meta = {name: getattr(cantilever, name) for name in _CANTILEVER_ARGS}
     meta = {"scan": scan_meta, "tip_radius": tip_radius, "contact": contact_meta, "friction": friction,
-            "deform": deform, "cantilever": lever_meta, "calibration": dict(calibration or {}),
+            "deform": deform, "friction_law": friction_law, "cantilever": lever_meta,
+            "calibration": dict(calibration or {}),
             "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
+    if shear_strength is not None:
+        meta["shear_strength"] = shear_strength
     if material is not None:
         meta["material"] = _material_meta(material, scan_meta["path"])
     return check_metadata(_jsonable(meta, "metadata")).to_metadata()
@@ -445,7 +464,8 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
     """(tip_radius, MaugisDugdale, Cantilever, model keyword arguments, deform) of the records.
 
     The keyword arguments are the friction coefficients (``friction`` = mu_k, ``static_friction``
-    mu_s, default mu_k), the coupling stiffness at the probe's scale, k_vc / (K_f s) from
+    mu_s, default mu_k), the friction law and its shear strength (a session without
+    ``friction_law`` was recorded with :data:`LEGACY_FRICTION_LAW`), the coupling stiffness at the probe's scale, k_vc / (K_f s) from
     ``haptics.coupling_stiffness`` (hand side) of a direct coupling (inf without one), and the
     measured angles' rms noise, ``haptics.signal_noise`` (the loop synthesises signals with it; 0:
     noise-free), None without one (the model's default for signals of unknown noise)."""
@@ -460,6 +480,8 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         friction = float(c.friction)
         static = c.static_friction
         static = friction if static is None or static is UNSET else float(static)
+        law = LEGACY_FRICTION_LAW if c.friction_law is UNSET else c.friction_law
+        shear = None if c.shear_strength is UNSET or c.shear_strength is None else float(c.shear_strength)
         k_vc = h.get("coupling_stiffness") if h.get("coupling", "direct") == "direct" else None
         k_probe = math.inf if k_vc is None else float(k_vc) / (
             float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
@@ -471,12 +493,17 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         raise SessionError(f"metadata friction must be >= 0 (got {friction!r})")
     if not (math.isfinite(static) and static >= friction):
         raise SessionError(f"metadata static_friction must be >= friction (got {static!r})")
+    if law not in FRICTION_LAWS:
+        raise SessionError(f"metadata friction_law must be one of {sorted(FRICTION_LAWS)} (got {law!r})")
+    if (law == "area") != (shear is not None) or (shear is not None and not (math.isfinite(shear) and shear > 0.0)):
+        raise SessionError(f"metadata shear_strength must be > 0 Pa with the area friction law and absent otherwise "
+                           f"(got {shear!r} with {law!r})")
     if not k_probe > 0.0:
         raise SessionError(f"metadata haptics.coupling_stiffness must be > 0 N/m (got {k_vc!r})")
     if noise is not None and not (math.isfinite(noise) and noise >= 0.0):
         raise SessionError(f"metadata haptics.signal_noise must be >= 0 rad (got {noise!r})")
     return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe,
-                                       signal_noise=noise), bool(c.deform)
+                                       signal_noise=noise, friction_law=law, shear_strength=shear), bool(c.deform)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -500,7 +527,8 @@ class ModelSetup:
 def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_adhesion: float,
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
                deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf,
-               material=None, signal_noise: float | None = None):
+               material=None, signal_noise: float | None = None, friction_law: str = DEFAULT_FRICTION_LAW,
+               shear_strength: float | None = None):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -516,6 +544,10 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
         :class:`~arsurf.force.cantilever.Cantilever` arguments (default :data:`LEVER`).
     friction, static_friction : float
         Kinetic and static friction coefficients (static default: the kinetic one).
+    friction_law : str
+        ``"adhesive"`` (default), ``"area"`` or ``"compressive"`` (:mod:`arsurf.contact.friction`).
+    shear_strength : float, Pa, optional
+        The area law's interfacial shear strength.
     deform : bool
     coupling_stiffness : float, N/m
         The virtual coupling at the probe's scale (:mod:`arsurf.contact.proxy`; inf: none).
@@ -526,7 +558,7 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
         Noise of the measured angles (:class:`~arsurf.model.ARModel`; default: unknown).
     """
     contact = ContactConfig(tip_radius, effective_modulus, work_of_adhesion, dugdale_stress, friction,
-                            static_friction, deform)
+                            static_friction, deform, friction_law, UNSET if shear_strength is None else shear_strength)
     haptics = HapticsConfig() if signal_noise is None else HapticsConfig(signal_noise=signal_noise)
     from arsurf.model import ARModel
 

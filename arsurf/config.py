@@ -154,7 +154,10 @@ class ScanConfig:
 class ContactConfig:
     """The tip and its contact law: ``tip_radius`` (m), Maugis-Dugdale ``effective_modulus`` (Pa),
     ``work_of_adhesion`` (J/m^2), ``dugdale_stress`` (Pa; None: from w), the friction
-    coefficients (``static_friction`` UNSET: the kinetic one) and ``deform`` (the model dents)."""
+    coefficients (``static_friction`` UNSET: the kinetic one), ``deform`` (the model dents), the
+    friction law (``friction_law``: ``"adhesive"``, ``"area"`` or ``"compressive"``,
+    :mod:`arsurf.contact.friction`; UNSET, a session recorded before the law was recorded: the
+    compressive law it ran with) and the area law's ``shear_strength`` (Pa)."""
 
     tip_radius: float
     effective_modulus: float
@@ -163,16 +166,19 @@ class ContactConfig:
     friction: float = 0.2
     static_friction: float | None = UNSET
     deform: bool = True
+    friction_law: str = UNSET
+    shear_strength: float | None = UNSET
 
     @classmethod
     def from_metadata(cls, meta: Mapping) -> "ContactConfig":
         """From the metadata's top level (``tip_radius``, ``friction``, ``static_friction``,
-        ``deform``) and its ``contact`` object (the law)."""
+        ``deform``, ``friction_law``, ``shear_strength``) and its ``contact`` object (the law)."""
         c = meta["contact"]
         for k in ("effective_modulus", "work_of_adhesion"):
             _need(c, k, "contact")
         return cls(meta["tip_radius"], c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"),
-                   meta["friction"], meta.get("static_friction", UNSET), meta.get("deform", True))
+                   meta["friction"], meta.get("static_friction", UNSET), meta.get("deform", True),
+                   meta.get("friction_law", UNSET), meta.get("shear_strength", UNSET))
 
     def law(self) -> dict:
         """The ``contact`` object of the metadata."""
@@ -183,8 +189,9 @@ class ContactConfig:
         """The top-level keys this record writes (``contact`` among them)."""
         out = {"tip_radius": self.tip_radius, "contact": self.law(), "friction": self.friction,
                "deform": self.deform}
-        if self.static_friction is not UNSET:
-            out["static_friction"] = self.static_friction
+        for key in ("static_friction", "friction_law", "shear_strength"):
+            if getattr(self, key) is not UNSET:
+                out[key] = getattr(self, key)
         return out
 
 
@@ -384,8 +391,8 @@ class SessionConfig:
         spec = meta.get("material")
         material = None if spec is None else MaterialConfig.from_metadata(spec, material_roles)
         device = None if meta.get("device") is None else DeviceConfig.from_metadata(meta["device"])
-        named = {"scan", "tip_radius", "contact", "friction", "static_friction", "deform", "cantilever", "haptics",
-                 "material", "device", "tubes", "calibration", "loop_rate"}
+        named = {"scan", "tip_radius", "contact", "friction", "static_friction", "deform", "friction_law",
+                 "shear_strength", "cantilever", "haptics", "material", "device", "tubes", "calibration", "loop_rate"}
         return cls(scan, contact, lever, haptics, material, device, meta.get("tubes"),
                    MappingProxyType(dict(meta.get("calibration") or {})), meta.get("loop_rate"),
                    MappingProxyType({k: v for k, v in meta.items() if k not in named}))

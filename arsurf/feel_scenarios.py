@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arsurf.assembly import PRESETS, build_loop, make_model
+from arsurf.assembly import build_loop, make_model
+from arsurf.assembly import preset as _preset
 from arsurf.errors import HapticsError
 from arsurf.haptics.feel import FeelScore, score_force
 from arsurf.haptics.gains import coupling_stiffness
@@ -78,7 +79,7 @@ def prepared_surface(path, preset: str = "demo"):
     from arsurf.scan.prepare import prepare_scan
     from arsurf.spline.fit import fit_surface
 
-    p = PRESETS[preset]
+    p = _preset(preset)
     scan = prepare_scan(path, None, p.level, p.sigma, True)
     return scan, fit_surface(scan)
 
@@ -144,7 +145,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     False: the controller only observes; ``max_rate`` N/s the safety layer's rate limit (default:
     the preset's); ``filter_cutoff`` Hz of the force low-pass (None: off; default: the preset's);
     ``tip_radius`` m (default: the preset's). The surface is restored to rest afterwards."""
-    p = PRESETS[preset]
+    p = _preset(preset)
     h = dict(p.haptics)
     scale, gain = float(h["scale"]), float(h["force_gain"])
     dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(_trajectory(motion, scale))).open()

@@ -18,7 +18,8 @@ attached or a session is replayed, the measured bending and torsion angles),
    (:meth:`~arsurf.spline.surface.BSplineSurface.sync`);
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
    anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
-   :math:`\mu_s P`, sliding at :math:`\mu_k P` along the cone's edge; no velocity in the law);
+   :math:`\mu_s N`, slipping to the kinetic cone :math:`\mu_k N` and sticking there again, with
+   :math:`N = P + |P_c|` by default; no velocity in the law);
    *measured* F from the two angles by the contact-normal decoupling ([SplineAR];
    docs/design.rst, "Force from the two angles",
    :mod:`arsurf.force.decoupling`) with the proxy's slip direction as the friction direction; a
@@ -46,7 +47,7 @@ from arsurf.contact import friction as fr
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
-                                         local_contact_kernel)
+                                         local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_contact_hysteresis_kernel, md_zone_radius)
@@ -99,13 +100,17 @@ S_FRICTION = MODEL_STATE.offset("friction")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
-#: zero-load depths (m)
+#: zero-load depths (m), the friction law (a code of :data:`arsurf.contact.friction.LAW_NAMES`),
+#: the law's pull-off force magnitude |P_c| (N) and the interfacial shear strength (Pa, area law)
 PROXY_PARAMS = Layout("proxy parameters", [
     ("static_friction", 1), ("kinetic_friction", 1), ("stiffness_per_radius", 1), ("coupling_stiffness", 1),
-    ("jump_out_depth", 1), ("zero_load_depth", 1)])
+    ("jump_out_depth", 1), ("zero_load_depth", 1), ("friction_law", 1), ("pull_off_force", 1),
+    ("shear_strength", 1)])
 F_MU_S, F_MU_K = PROXY_PARAMS.offset("static_friction"), PROXY_PARAMS.offset("kinetic_friction")
 F_KT_PER_A, F_COUPLING = PROXY_PARAMS.offset("stiffness_per_radius"), PROXY_PARAMS.offset("coupling_stiffness")
 F_JUMP_OUT, F_ZERO_LOAD = PROXY_PARAMS.offset("jump_out_depth"), PROXY_PARAMS.offset("zero_load_depth")
+F_LAW, F_PULL_OFF = PROXY_PARAMS.offset("friction_law"), PROXY_PARAMS.offset("pull_off_force")
+F_SHEAR = PROXY_PARAMS.offset("shear_strength")
 #: the tick's scratch vector: the friction proxy's output (:data:`arsurf.contact.friction.FRICTION_OUT`),
 #: then the measured force's (:data:`arsurf.force.decoupling.MEASURED_SCRATCH`, whose first field is
 #: the blend, a decoupling output)
@@ -158,7 +163,8 @@ def model_tick_kernel(proj,                                              # Proje
     # the contact law where the tip touches: a material map's local E* and w, else the reference
     md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
     if local:
-        friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load)
+        friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
+                                       local_pull_off_kernel(md_args, md))
     # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
     count, jumped = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, friction[F_JUMP_OUT] - margin,
@@ -184,8 +190,8 @@ def model_tick_kernel(proj,                                              # Proje
                                           out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, coll[pj.OUT_NX],
                                           coll[pj.OUT_NY], coll[pj.OUT_NZ], a, depth, zone)
     # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
-    sx, sy, strength, share_x, share_z = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state,
-                                                          scratch, out)
+    sx, sy, strength, share_x, share_z, f_static = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction,
+                                                                    state, scratch, out)
     out[M_SIM_FX] += rx  # the part of the summed normal force off the total normal (0 for one contact)
     out[M_SIM_FY] += ry
     out[M_SIM_FZ] += rz
@@ -200,7 +206,7 @@ def model_tick_kernel(proj,                                              # Proje
             ds = bending_only_kernel(bending, torsion, dec_params, scratch)
         else:  # decoupled with the contact normal and the proxy's friction direction
             ds = blended_decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, strength, share_x, share_z,
-                                         friction[F_MU_S] * load, dec_params, scratch)
+                                         f_static, dec_params, scratch)
         out[M_DECOUPLE_STATUS] = ds
         for j in range(3):
             out[M_MEAS_FX + j] = scratch[_MEASURED + dc.O_FORCE + j]
@@ -229,10 +235,10 @@ def _forget_contact(state):
 
 
 @njit(cache=True)
-def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load):
+def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load, pull_off):
     """The proxy parameters under a material map's local law: the model's, with the local
-    tangential stiffness and the local jump-out and zero-load depths, written in the contact
-    vector's scratch section."""
+    tangential stiffness, the local jump-out and zero-load depths and pull-off force magnitude,
+    written in the contact vector's scratch section."""
     f0 = int(md_args[H_FRICTION])
     local = md_args[f0:f0 + friction.size]
     for k in range(friction.size):
@@ -240,6 +246,7 @@ def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load):
     local[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
     local[F_JUMP_OUT] = jump_out
     local[F_ZERO_LOAD] = zero_load
+    local[F_PULL_OFF] = pull_off
     return local
 
 
@@ -329,35 +336,40 @@ def _sum_contacts(md, tip_radius, lift, count, was_interacting, st0, a0, p0, sta
 @njit(cache=True)
 def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratch, out):
     """Step 4, simulated: F = P n + F_t, the friction of the stick-slip proxy
-    (:func:`~arsurf.contact.friction.stick_slip_kernel`) while in contact with a load and friction.
-    Returns what the measured force needs of the friction: its direction (x, y), strength and
-    components along x and z per unit load (zeros without friction)."""
+    (:func:`~arsurf.contact.friction.stick_slip_kernel`) within the limits of the friction law
+    (:func:`~arsurf.contact.friction.friction_limits`: by default mu (P + |P_c|), so an adhesive
+    contact under tensile load resists sliding too) while in contact. Returns what the measured
+    force needs of the friction: its direction (x, y), strength, components along x and z per unit
+    load (zeros without friction or without a compressive load) and the static limit f_s (N)."""
     fx = load * out[M_NX]
     fy = load * out[M_NY]
     fz = load * out[M_NZ]
     sx = sy = strength = share_x = share_z = 0.0
-    if load > 0.0 and md_st == CONTACT and friction[F_MU_S] > 0.0 and a > 0.0:
+    f_static, f_kinetic = fr.friction_limits(int(friction[F_LAW]), friction[F_MU_S], friction[F_MU_K], load,
+                                             friction[F_PULL_OFF], friction[F_SHEAR], a)
+    if md_st == CONTACT and f_static > 0.0 and a > 0.0:
         k_t = friction[F_KT_PER_A] * a
         kc = friction[F_COUPLING]
         if kc < math.inf:
             k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
         out[M_SLIPPING] = fr.stick_slip_kernel(out[M_PX], out[M_PY], out[M_PZ], out[M_NX], out[M_NY], out[M_NZ],
-                                               cx, cy, cz, jumped, load, k_t, friction[F_MU_S], friction[F_MU_K],
-                                               state, S_FRICTION, scratch)
+                                               cx, cy, cz, jumped, f_static, f_kinetic, k_t, state, S_FRICTION,
+                                               scratch)
         fx += scratch[fr.O_FORCE]
         fy += scratch[fr.O_FORCE + 1]
         fz += scratch[fr.O_FORCE + 2]
         sx = scratch[fr.O_DIRECTION]
         sy = scratch[fr.O_DIRECTION + 1]
         strength = scratch[fr.O_STRENGTH]
-        share_x = scratch[fr.O_FORCE] / load
-        share_z = scratch[fr.O_FORCE + 2] / load
+        if load > 0.0:  # the fallback's F = N (n + share) needs a load to scale (blended_decouple_kernel)
+            share_x = scratch[fr.O_FORCE] / load
+            share_z = scratch[fr.O_FORCE + 2] / load
     else:
         fr.release(state, S_FRICTION)
     out[M_SIM_FX] = fx
     out[M_SIM_FY] = fy
     out[M_SIM_FZ] = fz
-    return sx, sy, strength, share_x, share_z
+    return sx, sy, strength, share_x, share_z, f_static
 
 
 @dataclass(frozen=True)
@@ -411,7 +423,15 @@ class ARModel:
         Kinetic friction coefficient :math:`\\mu_k` (>= 0); the seeds give one coefficient, 0.2.
     static_friction : float, optional
         Static coefficient :math:`\\mu_s \\ge \\mu_k` of the stick-slip proxy
-        (:mod:`arsurf.contact.friction`); default :math:`\\mu_k` (no stick-slip jump).
+        (:mod:`arsurf.contact.friction`); default :math:`\\mu_k` (no stick-slip jump; above it a
+        slide shows the saw-tooth of period :math:`(\\mu_s - \\mu_k) N / (k_t v)`).
+    friction_law : {"adhesive", "area", "compressive"}
+        The friction's normal (:func:`~arsurf.contact.friction.friction_limits`): ``"adhesive"``
+        (default) :math:`N = P + |P_c|`, friction down to the pull-off; ``"area"``
+        :math:`f_k = \\tau \\pi a^2`; ``"compressive"`` :math:`N = \\max(P, 0)` (sessions recorded
+        before the law was recorded).
+    shear_strength : float, Pa, optional
+        Interfacial shear strength :math:`\\tau` of the ``"area"`` law (required there, > 0).
     coupling_stiffness : float, N/m, optional
         Stiffness of the virtual coupling between the target and the tip, at the probe's scale
         (:mod:`arsurf.contact.proxy`); ``inf`` (default): the tip is the target.
@@ -441,7 +461,8 @@ class ARModel:
     def __init__(self, surface: BSplineSurface, tip_radius: float, contact: MaugisDugdale,
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
                  static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
-                 signal_noise: float | None = None):
+                 signal_noise: float | None = None, friction_law: str = "adhesive",
+                 shear_strength: float | None = None):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -458,6 +479,18 @@ class ARModel:
         if static < friction:
             raise ContactError(f"static_friction ({static!r}) must be >= friction ({friction!r}): the static cone "
                                "contains the kinetic one")
+        law = fr.LAW_NAMES.get(friction_law) if isinstance(friction_law, str) else None
+        if law is None:
+            raise ContactError(f"friction_law must be one of {sorted(fr.LAW_NAMES)} (got {friction_law!r})")
+        if law == fr.LAW_AREA:
+            shear_strength = _validation.non_negative(shear_strength, "shear_strength", ContactError,
+                                                      hint="the interfacial shear strength of the area law, Pa")
+            if not (shear_strength > 0.0 and friction > 0.0):
+                raise ContactError(f"the area friction law needs shear_strength > 0 Pa and friction > 0 (got "
+                                   f"{shear_strength!r} Pa, {friction!r}): its static limit is mu_s / mu_k times "
+                                   "tau pi a^2")
+        elif shear_strength is not None:
+            raise ContactError(f"shear_strength is the area law's; friction_law is {friction_law!r}")
         signal_noise = DEFAULT_SIGNAL_NOISE if signal_noise is None else _validation.non_negative(
             signal_noise, "signal_noise", ContactError, hint="the rms noise of the measured angles, rad")
         coupling_stiffness = float(coupling_stiffness)
@@ -479,6 +512,8 @@ class ARModel:
         self.cantilever = cantilever
         self.friction = friction
         self.static_friction = static
+        self.friction_law = friction_law
+        self.shear_strength = shear_strength
         self.coupling_stiffness = coupling_stiffness
         self.signal_noise = signal_noise
         self.deform = bool(deform)
@@ -490,7 +525,9 @@ class ARModel:
             "static_friction": static, "kinetic_friction": friction,
             "stiffness_per_radius": fr.MINDLIN_RATIO * 2.0 * contact.effective_modulus,
             "coupling_stiffness": coupling_stiffness, "jump_out_depth": contact.jump_out_depth(),
-            "zero_load_depth": float(contact.depth(0.0))})
+            "zero_load_depth": float(contact.depth(0.0)), "friction_law": float(law),
+            "pull_off_force": abs(contact.pull_off_force()),
+            "shear_strength": 0.0 if shear_strength is None else shear_strength})
         self.material = material
         self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile

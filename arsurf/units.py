@@ -23,7 +23,10 @@ A number without a unit suffix is dimensionless, and its name says so: a count (
 ``ticks_in_contact``, ``inpainted_pixels``, ``contact_mismatches``), a ratio or fraction
 (``friction_ratio``, ``slip_fraction``, ``high_frequency_over_normal``), an index (``_index``) or
 one of the dimensionless quantities of :data:`DIMENSIONLESS` (the friction coefficient, the
-Maugis parameter...). :func:`unit_of` reads a name the way this table says, and
+Maugis parameter...). What a command writes for people (``arsurf info --json``, ``arsurf fit``, ``arsurf verify``'s
+report) may give a scaled unit instead, as its suffix says (:data:`SCALED_SUFFIXES`: ``_nm``,
+``_nN``, ``_GPa``, ``_mJ_per_m2``, ``_ms``, ``_us``, ``_deg``, ``_percent``, ``_A``); a lower-case
+``_hz`` or an ``E*`` is no unit. :func:`unit_of` reads a name the way this table says, and
 :func:`undeclared` lists the numbers of a JSON document whose names give no unit (the tests run it
 over every file the demo, the replay and a batch write).
 
@@ -43,7 +46,7 @@ import math
 import re
 from typing import Any
 
-__all__ = ["UNITS_ATTR", "SUFFIXES", "DIMENSIONLESS", "STATISTICS", "unit_of", "undeclared", "with_unit",
+__all__ = ["UNITS_ATTR", "SUFFIXES", "SCALED_SUFFIXES", "DIMENSIONLESS", "STATISTICS", "unit_of", "undeclared", "with_unit",
            "summary_json"]
 
 #: the HDF5 attribute that holds a dataset's unit
@@ -69,6 +72,20 @@ SUFFIXES: dict[str, str] = {
     "s": "s",
 }
 
+#: name suffix -> a scaled unit, accepted where a command writes for people (``arsurf info --json``
+#: in nm, ``arsurf verify``'s report in nm and degrees); the files of record stay in SI
+SCALED_SUFFIXES: dict[str, str] = {
+    "mJ_per_m2": "mJ/m^2",
+    "percent": "%",
+    "GPa": "GPa",
+    "deg": "deg",
+    "nm": "nm",
+    "nN": "nN",
+    "ms": "ms",
+    "us": "us",
+    "A": "A",
+}
+
 #: names of dimensionless numbers that no pattern below recognises
 DIMENSIONLESS = frozenset({
     "friction",  # kinetic friction coefficient mu
@@ -83,11 +100,12 @@ DIMENSIONLESS = frozenset({
 })
 
 #: statistics that take the unit of the key they are under (``count`` is always a count)
-STATISTICS = frozenset({"min", "median", "max", "mean", "p99", "std"})
+STATISTICS = frozenset({"min", "median", "max", "mean", "p5", "p95", "p99", "std"})
 
 _COUNT = re.compile(r"^(n|ticks|ran|skipped)_|_(count|ticks|steps|pixels|mismatches|failures|index|indices|"
                     r"ratio|fraction)$|_over_")
-_SUFFIX = re.compile(r"_(" + "|".join(re.escape(s) for s in SUFFIXES) + r")$")
+_NAME = re.compile(r"[A-Za-z0-9_]+")
+_SUFFIX = re.compile(r"_(" + "|".join(re.escape(s) for s in {**SUFFIXES, **SCALED_SUFFIXES}) + r")$")
 
 
 def unit_of(name: str) -> str | None:
@@ -104,9 +122,11 @@ def unit_of(name: str) -> str | None:
         The unit (``"N"`` for ``peak_force_N``), ``"1"`` for a dimensionless name (a count,
         ratio, index or one of :data:`DIMENSIONLESS`), None when the name declares no unit.
     """
+    if not _NAME.fullmatch(name):  # E*_GPa: a unit suffix on a name that is no identifier
+        return None
     m = _SUFFIX.search(name)
     if m is not None:
-        return SUFFIXES[m.group(1)]
+        return SUFFIXES.get(m.group(1)) or SCALED_SUFFIXES[m.group(1)]
     if name in DIMENSIONLESS or _COUNT.search(name) or name == "count":
         return "1"
     return None

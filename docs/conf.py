@@ -7,6 +7,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this tree's arsurf, whatever is installed
+sys.path.insert(0, str(ROOT / "docs" / "_ext"))  # arsurf_schema: the session schema table, from the code
 os.environ.setdefault("MPLBACKEND", "Agg")  # the gallery draws without a display
 
 import arsurf  # noqa: E402
@@ -22,8 +23,9 @@ extensions = [
     "sphinx.ext.viewcode",
     "numpydoc",
     "sphinx_gallery.gen_gallery",
+    "arsurf_schema",
 ]
-exclude_patterns = ["_build", "**.md", "auto_examples/*.ipynb", "auto_examples/*.py", "auto_examples/*.zip",
+exclude_patterns = ["_build", "_ext", "**.md", "auto_examples/*.ipynb", "auto_examples/*.py", "auto_examples/*.zip",
                     "auto_examples/*.md5", "auto_examples/*.json"]
 templates_path: list[str] = []
 html_theme = "alabaster"

@@ -7,7 +7,7 @@
  * client's checks on every FORCE packet, and the session key file reader. A CHAI3D or
  * OpenHaptics program includes it as it is; examples/cpp/arsurf_client.cpp is a complete client.
  *
- * The protocol is docs/bridge-protocol.md (its test vector is checked by
+ * The protocol is docs/bridge-protocol.rst (its test vector is checked by
  * `arsurf_self_test()` and by tests/test_cpp_bridge.py); the server is
  * arsurf/haptics/udp_bridge.py, the reference client in Python arsurf/haptics/client.py.
  * Every field is little-endian, f64 is IEEE-754 binary64, there is no padding: the offsets
@@ -538,7 +538,7 @@ ARSURF_INLINE uint64_t arsurf_client_release(arsurf_client *c, double t, uint8_t
     return c->seq;
 }
 
-/* Every check of docs/bridge-protocol.md "What the client must do with a datagram", in its order:
+/* Every check of docs/bridge-protocol.rst "What the client must do with a datagram", in its order:
  * size, sender (`from_server`: the datagram came from the server's address and port), format
  * (FORCE or CHALLENGE), tag, sequence number (replay window of 64, shared by both types), ack
  * among this client's packets; then a CHALLENGE gives the session id (ARSURF_CHALLENGE, nothing
@@ -753,7 +753,7 @@ ARSURF_INLINE int arsurf_read_key_file(const char *path, uint8_t *key, size_t *k
 #endif /* ARSURF_BRIDGE_NO_FILES */
 
 /* ---------------------------------------------------------------------------------------------
- * self-test: the test vector of docs/bridge-protocol.md
+ * self-test: the test vector of docs/bridge-protocol.rst
  * ------------------------------------------------------------------------------------------- */
 ARSURF_INLINE int arsurf_hex_equal(const uint8_t *bytes, const char *hex, size_t n) {
     size_t i;

@@ -66,8 +66,9 @@ three straight legs of ``steps`` ticks each through the :class:`~arsurf.model.AR
 The row gives the largest depth and load and the contact radius at the largest load
 (Maugis-Dugdale, :mod:`arsurf.contact.maugis_dugdale`), the pull-off force (the most tensile load
 while retracting), and the friction during the slide: the mean tangential force
-:math:`|F - P n|` and the mean ratio :math:`|F_t| / P` over the ticks where the friction proxy
-slipped (:mod:`arsurf.contact.friction`; on a flat surface it equals the kinetic coefficient).
+:math:`|F - P n|` and the mean ratio :math:`|F_t| / N` over the ticks where the friction proxy
+slipped, :math:`N = P + |P_c|` under the default adhesive friction law (:mod:`arsurf.contact.friction`;
+on a flat surface it equals the kinetic coefficient).
 The motion is scripted, without a hand, device or haptic loop, so the answers depend only on the
 contact physics being swept (:mod:`arsurf.feel_scenarios` scores the feel through the whole loop);
 it is :func:`arsurf.manipulation.press_slide.press_slide_retract`.

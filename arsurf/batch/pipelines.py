@@ -136,10 +136,11 @@ _SWEEP_DEFAULT_STEPS = 40
 
 
 def _check_sweep(options: Mapping) -> dict:
-    from arsurf.assembly import PRESETS
+    from arsurf.assembly import PRESET_ALIASES, PRESETS
 
     refuse_unknown(options, _SWEEP_OPTIONS, "sweep")
     name = options.get("preset", "demo")
+    name = PRESET_ALIASES.get(name, name) if isinstance(name, str) else name
     if name not in PRESETS:
         raise BatchError(f"option 'preset' must be one of {sorted(PRESETS)} (got {name!r})")
     p = PRESETS[name]
@@ -263,10 +264,10 @@ def _fitted(path: str, stamp: tuple, level: str, sigma: float):
 
 
 def _sweep(item: Item, o: Mapping, out_dir: Path) -> dict:
-    from arsurf.assembly import PRESETS, make_model
+    from arsurf.assembly import make_model, preset
     from arsurf.manipulation.press_slide import press_slide_retract
 
-    p = PRESETS[o["preset"]]
+    p = preset(o["preset"])
     st = os.stat(item.path)
     surface = _fitted(item.path, (st.st_size, st.st_mtime_ns), p.level, p.sigma).copy()
     g = dict(item.params)

@@ -121,10 +121,10 @@ def _material_info(args, scan) -> int:
         # what the map means: convention, Poisson ratio and its source, cross-check, masks by reason
         **dict(zip(("convention", "sample_poisson", "channel_cross_check", "masked_modulus", "masked_adhesion"),
                    m.describe())),
-        "E*_GPa": pct(st["reduced_modulus"], 1e-9),
-        "w_mJ_per_m2": pct(st["work_of_adhesion"], 1e3),
+        "effective_modulus_GPa": pct(st["reduced_modulus"], 1e-9),
+        "work_of_adhesion_mJ_per_m2": pct(st["work_of_adhesion"], 1e3),
         "sample_modulus_GPa": pct(st["sample_modulus"], 1e-9),
-        "pull_off_nN": pct(st["pull_off_force"], 1e9),
+        "pull_off_force_nN": pct(st["pull_off_force"], 1e9),
         "masked_modulus_percent": 100.0 * m.masked["modulus"]["masked"],
         "masked_adhesion_percent": 100.0 * m.masked["adhesion"]["masked"],
         "adhesion_floor_nN": m.masked["adhesion"]["floor_N"] * 1e9,

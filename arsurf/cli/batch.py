@@ -8,7 +8,7 @@ from arsurf.cli.args import (_calibration, _calibration_flags, _count, _nm, _Par
 
 def register(sub) -> None:
     """``arsurf batch {process,replay,sweep} INPUT... -o DIR [--workers N | --scheduler ADDR] [--resume]``."""
-    from arsurf.assembly import PRESETS
+    from arsurf.assembly import PRESET_ALIASES, PRESETS
 
     s = sub.add_parser("batch", help="run a pipeline (process | replay | sweep) over a folder or glob of files, on "
                        "local processes or a Dask cluster; results.csv is written as items finish (--resume)")
@@ -59,8 +59,10 @@ def register(sub) -> None:
                    help="tip radii in nm, comma-separated (default: the preset's)")
     b.add_argument("--modulus-gpa", type=_values("GPa", 1e9, True), metavar="LIST",
                    help="effective contact moduli E* in GPa, comma-separated (default: the preset's)")
-    b.add_argument("--preset", default="demo", choices=sorted(PRESETS), metavar="NAME",
-                   help=f"scan processing, adhesion and cantilever: {' | '.join(sorted(PRESETS))} (default demo)")
+    b.add_argument("--preset", default="demo", choices=[*sorted(PRESETS), *sorted(PRESET_ALIASES)],
+                   metavar="NAME",
+                   help=f"scan processing, adhesion and cantilever: {' | '.join(sorted(PRESETS))} (default demo; "
+                        "seed000..seed003 are the old names of the four source presets)")
     b.add_argument("--depth-nm", type=_nm(strict=True), default=2.0, help="indentation of the press in nm (default 2)")
     b.add_argument("--slide-nm", type=_nm(), default=20.0, help="slide length along x in nm (default 20)")
     b.add_argument("--steps", type=int, default=40, help="ticks of each leg: press, slide, retract (default 40)")

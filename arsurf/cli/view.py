@@ -19,7 +19,7 @@ def register(sub) -> None:
     _processing_flags(s)
     s.add_argument("--bridge-port", type=int, default=None,
                    help="run the full haptic loop against a device on the UDP bridge at 127.0.0.1:PORT "
-                        "(authenticated poses in, forces out; protocol in docs/bridge-protocol.md; "
+                        "(authenticated poses in, forces out; protocol in docs/bridge-protocol.rst; "
                         "`python -m arsurf.haptics.client` is a reference client)")
     s.add_argument("--host", "--bridge-host", dest="bridge_host", default=None, metavar="ADDRESS",
                    help="address the bridge listens on (default 127.0.0.1: this machine only); any other address "

@@ -13,24 +13,53 @@ the tip:
 
 .. math::
 
-    F_t = -k_t\,d \quad \text{(stuck, } k_t\lVert d\rVert \le \mu P\text{)}, \qquad
-    F_t = -\mu_k P\,\hat d,\quad A \leftarrow p - \frac{\mu_k P}{k_t}\,\hat d
+    F_t = -k_t\,d \quad \text{(stuck, } k_t\lVert d\rVert \le f_s\text{)}, \qquad
+    F_t = -f_k\,\hat d,\quad A \leftarrow p - \frac{f_k}{k_t}\,\hat d
     \quad \text{(slipping)},
 
-where :math:`\mu = \mu_s` for a stuck anchor and :math:`\mu = \mu_k` for one that slipped on the
-previous tick (a sliding contact keeps sliding while it is pushed at the kinetic limit: the
-hysteresis that keeps the slip state, and the friction direction the decoupling is given, from
-flipping tick to tick). :math:`k_t` is the tangential contact stiffness of Mindlin (1949),
+with the static and kinetic limits :math:`f_s = \mu_s N \ge f_k = \mu_k N` of the friction law
+(:func:`friction_limits`). The proxy has no mass, so a slip takes no time: pushed out of the
+static cone, the anchor slides until the stretch has relaxed to the kinetic cone
+(:math:`k_t\lVert d\rVert = f_k`) and the contact sticks there again - the usual friction proxy
+with two cones (Salisbury et al. 1995, "Haptic rendering: programming touch interaction with
+force-feedback devices": stick inside the static cone, move to the edge of the dynamic one when
+pushed out; Hayward & Armstrong 2000). :math:`k_t` is the tangential contact stiffness of Mindlin (1949),
 :math:`k_t = 8 G^* a`, which for like materials is
 :math:`k_t = \frac{2(1-\nu)}{2-\nu}\,2 E^* a` (Johnson, *Contact Mechanics*, 1985, Sec. 7.2),
-in series with the virtual coupling's stiffness when there is one. A steady slide therefore
-carries exactly :math:`\mu_k P`; a tip pressed still on a slope flatter than the static cone
-stays put and feels a steady force.
+in series with the virtual coupling's stiffness when there is one.
+
+*Saw-tooth.* With :math:`\mu_s > \mu_k` a contact point sliding at speed :math:`v` (ticks of
+:math:`\Delta t`) sticks right after each slip with the stretch at the kinetic cone; the friction
+then grows by :math:`k_t v \Delta t` per tick until it would leave the static cone, where it slips
+back to :math:`f_k`. The stuck ticks after a slip number :math:`\lfloor (f_s - f_k) / (k_t v \Delta t)\rfloor`,
+so the friction is a saw-tooth from :math:`f_k` up to at most :math:`f_s` (amplitude
+:math:`f_s - f_k = (\mu_s - \mu_k) N` less at most one tick's rise :math:`k_t v \Delta t`) with the period
+
+.. math::
+
+    T = \Delta t \left(\left\lfloor \frac{(\mu_s - \mu_k)\,N}{k_t\,v\,\Delta t} \right\rfloor + 1\right)
+    \;\approx\; \frac{(\mu_s - \mu_k)\,N}{k_t\,v} + \Delta t,
+
+the time the tip takes to stretch the spring across the gap between the two cones, rounded up to
+the tick. With :math:`\mu_s = \mu_k` the gap is zero: every moving tick slips at :math:`f_k` and
+a steady slide carries exactly :math:`\mu_k N`, without teeth; a tip pressed still on a slope
+flatter than the static cone stays put and feels a steady force.
+
+*Friction law* (the normal :math:`N`, :data:`LAW_NAMES`): ``"adhesive"`` (the default),
+:math:`N = P + |P_c|` with :math:`P_c` the Maugis-Dugdale pull-off force of the local law, so a
+tip held by adhesion still resists sliding under a tensile load, down to the pull-off; [Alabdulmuhsin]
+writes the friction as :math:`\mu N + A`, and AFM friction on single asperities follows the
+contact area, which stays finite under tensile load until the pull-off (Carpick & Salmeron 1997,
+"Scratching the surface: fundamental investigations of tribology with atomic force microscopy",
+Chem. Rev. 97, 1163). ``"area"``: that proportionality itself, :math:`f_k = \tau \pi a^2` with an
+interfacial shear strength :math:`\tau` (Pa) and :math:`f_s = (\mu_s / \mu_k) f_k`.
+``"compressive"``: :math:`N = \max(P, 0)`, friction only under a compressive load (the law of
+sessions recorded before the friction law was recorded; their replay uses it).
 
 The *friction direction* the decoupling of measured signals needs is read off the proxy, never
 differentiated from positions: the slip direction while the contact slides, the direction of the
 static friction's own pull (:math:`\hat d`) while it sticks, with the friction's *strength*
-:math:`s = \lVert F_t\rVert / \mu_k P` (1 when sliding). The model fades the decoupling from its
+:math:`s = \lVert F_t\rVert / f_k` (1 when sliding). The model fades the decoupling from its
 no-motion fallback to the directional solution as :math:`s` grows (:mod:`arsurf.model`), so a tip
 standing still - whose offset from the anchor is tiny and points anywhere as it jitters - gets
 the no-motion answer steadily, and nothing jumps when the hand starts or stops pushing sideways.
@@ -40,7 +69,7 @@ asperity to the next between two ticks, the contact point moving far more than t
 anchor is carried along by the same jump: the tangential stretch, hence the friction, is that of
 the contact, which the jump does not undo (a tip sliding across two asperities keeps resisting the
 same way). Without it the stretch to the old anchor pointed backwards after the jump and the
-friction reversed in one tick (+-mu_k P: a 7 mN step at the hand on a real scan). A jump is a
+friction reversed in one tick (+-f_k: a 7 mN step at the hand on a real scan). A jump is a
 change of basin of the closest point (Newton from the previous closest point ends at another
 local minimum, :mod:`arsurf.contact.multi_contact`; the model passes it as ``jumped``) or a
 contact-point move larger than :data:`JUMP_RATIO` times the tip's move plus :data:`JUMP_FLOOR`.
@@ -49,7 +78,7 @@ valley while a 150 nm/s stroke moves the tip 0.15-0.19 nm per 1 ms tick (a frict
 about 6 mN at the hand on a real scan).
 
 State (10 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
-tick), the slip flag of the previous tick, the previous contact point and tip centre (NaN: none).
+tick), the slip flag (1: the contact slipped on the last tick), the previous contact point and tip centre (NaN: none).
 """
 from __future__ import annotations
 
@@ -63,7 +92,7 @@ from arsurf._layout import Layout
 #: :func:`stick_slip_kernel` (at an offset)
 FRICTION_STATE = Layout("friction state", [("anchor", 3), ("slipping", 1), ("last_point", 3), ("last_center", 3)])
 #: what :func:`stick_slip_kernel` writes: the friction force on the tip (N), the friction direction
-#: (unit: the tip's motion over the surface; zeros: none), the strength |F_t| / mu_k P
+#: (unit: the tip's motion over the surface; zeros: none), the strength |F_t| / f_k (the kinetic limit)
 FRICTION_OUT = Layout("friction output", [("force", 3), ("direction", 3), ("strength", 1)])
 # the offsets as the kernel uses them
 ANCHOR, SLIPPING = FRICTION_STATE.offset("anchor"), FRICTION_STATE.offset("slipping")
@@ -76,9 +105,29 @@ OUT_SIZE = FRICTION_OUT.size
 JUMP_RATIO = 10.0
 #: ... plus this (m): far below the moves of a contact point sliding with the tip
 JUMP_FLOOR = 1e-11
+#: the friction laws (module docstring): their codes in the proxy parameters, by name
+LAW_COMPRESSIVE, LAW_ADHESIVE, LAW_AREA = 0, 1, 2
+LAW_NAMES = {"compressive": LAW_COMPRESSIVE, "adhesive": LAW_ADHESIVE, "area": LAW_AREA}
 #: ratio of Mindlin's tangential to the normal contact stiffness for like materials with
 #: Poisson's ratio 0.3: 2 (1 - nu) / (2 - nu) (Johnson 1985, Sec. 7.2)
 MINDLIN_RATIO = 2.0 * (1.0 - 0.3) / (2.0 - 0.3)
+
+
+@njit(cache=True)
+def friction_limits(law, mu_s, mu_k, load, pull_off, shear_strength, radius):
+    r"""The static and kinetic friction limits ``(f_s, f_k)`` (N) of a contact (module docstring).
+
+    ``law`` a code of :data:`LAW_NAMES`; ``load`` P (N, > 0 compressive), ``pull_off`` the
+    magnitude :math:`|P_c|` of the law's pull-off force (N), ``shear_strength`` :math:`\tau` (Pa,
+    area law), ``radius`` the contact radius a (m). Load laws: :math:`f = \mu N` with
+    :math:`N = \max(P + |P_c|, 0)` (adhesive) or :math:`\max(P, 0)` (compressive); area law:
+    :math:`f_k = \tau\pi a^2`, :math:`f_s = (\mu_s/\mu_k) f_k`."""
+    if law == LAW_AREA:
+        fk = shear_strength * math.pi * radius * radius
+        return (fk * mu_s / mu_k if mu_k > 0.0 else fk), fk
+    normal = load + pull_off if law == LAW_ADHESIVE else load
+    normal = max(normal, 0.0)
+    return mu_s * normal, mu_k * normal
 
 
 @njit(cache=True)
@@ -90,16 +139,17 @@ def release(state, at) -> None:
 
 
 @njit(cache=True)
-def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_s, mu_k, state, at, out):
+def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, f_static, f_kinetic, k_t, state, at, out):
     r"""One tick of the stick-slip proxy (module docstring).
 
     ``p`` contact point (m), ``n`` unit normal, ``c`` the tip centre (m; for the jump test),
     ``jumped`` True when the closest point is known to have changed basins this tick (a jump
-    whatever the two moves), ``load`` P (N, > 0), ``k_t`` tangential stiffness
-    (N/m, > 0), friction coefficients ``mu_s >= mu_k >= 0``; ``state[at:at + STATE_SIZE]`` (updated).
+    whatever the two moves), the static and kinetic friction limits ``f_static >= f_kinetic >= 0``
+    (N: :math:`\mu_s N`, :math:`\mu_k N` of the friction law, :func:`friction_limits`), ``k_t``
+    the tangential stiffness (N/m, > 0); ``state[at:at + STATE_SIZE]`` (updated).
     Writes ``out`` (:data:`FRICTION_OUT`): the friction force on the tip (N), the friction direction
     (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and the
-    strength :math:`\lVert F_t\rVert / \mu_k P` (1 when slipping). Returns 1 when the contact
+    strength :math:`\lVert F_t\rVert / f_k` (1 when slipping). Returns 1 when the contact
     slipped this tick, else 0."""
     for j in range(OUT_SIZE):
         out[j] = 0.0
@@ -134,9 +184,7 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_
     dy -= dn * ny
     dz -= dn * nz
     d = math.sqrt(dx * dx + dy * dy + dz * dz)
-    mu = mu_k if state[at + SLIPPING] > 0.5 else mu_s
-    limit = mu * load
-    if k_t * d <= limit or d == 0.0:
+    if k_t * d <= f_static or d == 0.0:  # stuck: inside the static cone
         out[O_FORCE] = -k_t * dx
         out[O_FORCE + 1] = -k_t * dy
         out[O_FORCE + 2] = -k_t * dz
@@ -145,20 +193,21 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, load, k_t, mu_
             out[O_DIRECTION] = dx / d
             out[O_DIRECTION + 1] = dy / d
             out[O_DIRECTION + 2] = dz / d
-            out[O_STRENGTH] = k_t * d / (mu_k * load) if mu_k > 0.0 else 0.0
+            out[O_STRENGTH] = k_t * d / f_kinetic if f_kinetic > 0.0 else 0.0
         return 0
     ux = dx / d
     uy = dy / d
     uz = dz / d
-    fk = mu_k * load
-    back = fk / k_t  # the anchor trails the contact point at the kinetic limit
+    # the massless proxy slips at once: the anchor slides until the stretch has relaxed to the
+    # kinetic cone, where the contact sticks again (re-sticking: the saw-tooth when mu_s > mu_k)
+    back = f_kinetic / k_t
     state[at + ANCHOR] = px - back * ux
     state[at + ANCHOR + 1] = py - back * uy
     state[at + ANCHOR + 2] = pz - back * uz
     state[at + SLIPPING] = 1.0
-    out[O_FORCE] = -fk * ux
-    out[O_FORCE + 1] = -fk * uy
-    out[O_FORCE + 2] = -fk * uz
+    out[O_FORCE] = -f_kinetic * ux
+    out[O_FORCE + 1] = -f_kinetic * uy
+    out[O_FORCE + 2] = -f_kinetic * uz
     out[O_DIRECTION] = ux
     out[O_DIRECTION + 1] = uy
     out[O_DIRECTION + 2] = uz

@@ -202,6 +202,15 @@ def _table_rows(cv, lam):
 
 
 @njit(cache=True)
+def local_pull_off_kernel(cv, md):
+    """Magnitude (N) of the pull-off force :math:`|P_c|` (load control) of a local law ``md``
+    (:func:`local_contact_kernel`'s answer where ``here``): the critical-point table's
+    :math:`\bar P_c`, interpolated linearly in ln lambda, times the law's load scale pi w R."""
+    r0, r1, f = _table_rows(cv, md[A_LAMBDA])
+    return abs(cv[r0 + T_PULL] + f * (cv[r1 + T_PULL] - cv[r0 + T_PULL])) * md[A_LOAD_SCALE]
+
+
+@njit(cache=True)
 def deepest_well_kernel(cv, x0, y0, hx, hy, nx, ny, coupling_stiffness, dugdale_range):
     r"""Largest adhesive energy bound :math:`E_0` (J) of the local laws at the grid points
     (x0 + i hx, y0 + j hy), i < nx, j < ny (m, the height's frame); 0 where the law is the

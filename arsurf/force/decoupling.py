@@ -286,8 +286,8 @@ def directional_noise_kernel(nx, ny, nz, vx, vy, params, sigma_bending, sigma_to
 
 #: The measured force of a contact (:func:`blended_decouple_kernel`) fades from the no-motion
 #: fallback (normal + torsion, plus the friction model's share along the beam axis per unit load)
-#: to the directional solution as the friction strength |F_t| / mu_k P grows over this band, and no
-#: switch makes the force jump
+#: to the directional solution as the friction strength |F_t| / f_k (f_k the kinetic limit,
+#: mu_k N) grows over this band, and no switch makes the force jump
 FADE_STRENGTH = (0.05, 0.25)
 #: ... and back to the fallback as the condition number of the directional system grows over this
 #: band (log scale; the decoupling refuses above 1e3): noise gain and the switch both fade out.
@@ -327,9 +327,10 @@ def blended_decouple_kernel(bending, torsion, nx, ny, nz, fx, fy, strength, shar
     the noise outweighs the friction (:data:`FADE_STRENGTH`, :data:`FADE_CONDITION`); both
     reproduce the two measured angles exactly, so every blend does too.
 
-    ``strength`` :math:`\\lVert F_t\\rVert / \\mu_k P` of the friction, ``share_x``, ``share_z`` its
-    components along x and z per unit load (the fallback's beam-plane friction), ``friction_limit``
-    :math:`\\mu_s P` (N, sigma_B); ``params`` (:data:`MEASURED_PARAMS`); writes ``out``
+    ``strength`` :math:`\\lVert F_t\\rVert / f_k` of the friction (:math:`f_k = \\mu_k N`),
+    ``share_x``, ``share_z`` its components along x and z per unit load (the fallback's beam-plane
+    friction), ``friction_limit``
+    :math:`f_s = \\mu_s N` (N, sigma_B); ``params`` (:data:`MEASURED_PARAMS`); writes ``out``
     (:data:`MEASURED_SCRATCH`): the force and condition of the blend first. Returns the status
     bits (:class:`DecouplingFlag`)."""
     ds = decouple_kernel(bending, torsion, nx, ny, nz, fx, fy, params, out[_BLEND:_BLEND + _OUT_SIZE])

@@ -3,7 +3,7 @@
 
 Standard library only, so this one file can be copied to the haptic PC as it is and run there
 (``python client.py ...``); with arsurf installed it is ``python -m arsurf.haptics.client``. The packet layout is the one
-documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.md`` (protocol version
+documented in ``arsurf/haptics/udp_bridge.py`` and ``docs/bridge-protocol.rst`` (protocol version
 3, little-endian, HMAC-SHA256 tag last, a per-session id from the server's CHALLENGE); ``tests/haptics/test_udp_bridge.py`` checks that this file and
 the bridge agree byte for byte and that this client drops every bad FORCE packet.
 

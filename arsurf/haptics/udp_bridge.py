@@ -4,7 +4,7 @@ As in the seed systems, where the haptic PC and the AFM PC talk over Ethernet, r
 drive arsurf through a small binary protocol over UDP. arsurf is the server (it listens on
 127.0.0.1 by default, port :data:`DEFAULT_PORT`); the haptic PC is the client: it sends one POSE
 packet per servo tick and applies the FORCE packets it receives. ``arsurf/haptics/client.py`` is the
-reference client in plain Python (standard library only); ``docs/bridge-protocol.md`` is the same
+reference client in plain Python (standard library only); ``docs/bridge-protocol.rst`` is the same
 specification for a C/C++ implementer, with a test vector.
 
 The bridge answers its operator only. Every packet is authenticated with a per-session key

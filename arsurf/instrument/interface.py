@@ -10,7 +10,7 @@ its Z feedback switched on and off, and closed.
 Coordinates are the instrument's own (its *instrument frame*), in metres, with z the height of
 the tip (growing away from the sample, as a withdraw moves it). :class:`InstrumentFrame` maps
 the scan frame of the AR model onto it (an offset and a sign per axis: the bring-up checklist of
-docs/instruments.md measures both).
+docs/instruments.rst measures both).
 
 Every instrument is its own last line of defence, as every haptic device is: the public methods
 check that it is open, that a target is finite and inside its limits, and that Z is commanded

@@ -201,7 +201,7 @@ class NanonisAFM(Instrument):
         The Nanonis TCP server (default port 6501).
     limits : InstrumentLimits
         The box the tip may be commanded in (instrument frame, metres) and the largest speed (m/s).
-        Required: measure it at bring-up (docs/instruments.md). Its Z range is narrowed to the
+        Required: measure it at bring-up (docs/instruments.rst). Its Z range is narrowed to the
         controller's Z limits (``ZCtrl.LimitsGet``); a box wider than the piezo range
         (``Piezo.RangeGet``) is refused; the Follow Me speed is set to ``max_speed``.
     deflection, torsion : str or int

@@ -11,12 +11,13 @@ The tip centre is driven in three straight legs of ``steps`` ticks each through 
 :func:`press_slide_retract` answers the largest depth and load, the contact radius at the largest
 load (Maugis-Dugdale, :mod:`arsurf.contact.maugis_dugdale`), the pull-off force (the most tensile
 load while retracting) and the friction during the slide: the mean tangential force
-:math:`|F - P n|` over the ticks in contact and the mean ratio :math:`|F_t| / P` over the ticks
-where the friction proxy slipped (:mod:`arsurf.contact.friction`; on a flat surface it equals the
-kinetic coefficient). The motion is scripted, so the answers depend only on the contact physics;
-:mod:`arsurf.feel_scenarios` scores the feel through the whole haptic loop. This is the physics of
-``arsurf batch sweep`` (:mod:`arsurf.batch.pipelines`), one grid point per call. Lengths in m,
-forces in N.
+:math:`|F - P n|` over the ticks in contact and the mean ratio :math:`|F_t| / N` over the ticks
+where the friction proxy slipped, :math:`N` the friction's normal of the model's law
+(:mod:`arsurf.contact.friction`: :math:`P + |P_c|` for the adhesive law, :math:`P` for the
+compressive one; on a flat surface of one material it equals the kinetic coefficient). The motion
+is scripted, so the answers depend only on the contact physics; :mod:`arsurf.feel_scenarios`
+scores the feel through the whole haptic loop. This is the physics of ``arsurf batch sweep``
+(:mod:`arsurf.batch.pipelines`), one grid point per call. Lengths in m, forces in N.
 """
 from __future__ import annotations
 
@@ -75,8 +76,10 @@ def press_slide_retract(model, x: float, y: float, *, tip_radius: float, depth: 
     normal = slid[:, M_NX:M_NX + 3]
     tangential = np.linalg.norm(slid[:, M_SIM_FX:M_SIM_FX + 3] - slid[:, M_LOAD:M_LOAD + 1] * normal, axis=1)
     touching = slid[:, M_IN_CONTACT] > 0.5
-    slipping = touching & (slid[:, M_SLIPPING] > 0.5) & (slid[:, M_LOAD] > 0.0)
-    ratio = float(np.mean(tangential[slipping] / slid[slipping, M_LOAD])) if slipping.any() else math.nan
+    held = abs(model.contact.pull_off_force()) if model.friction_law != "compressive" else 0.0
+    friction_normal = slid[:, M_LOAD] + held
+    slipping = touching & (slid[:, M_SLIPPING] > 0.5) & (friction_normal > 0.0)
+    ratio = float(np.mean(tangential[slipping] / friction_normal[slipping])) if slipping.any() else math.nan
     model.reset()
     return {"max_depth_m": float(np.max(press_slide[:, M_DEPTH])), "peak_load_N": float(press_slide[k_peak, M_LOAD]),
             "contact_radius_m": float(press_slide[k_peak, M_RADIUS]),

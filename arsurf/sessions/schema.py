@@ -48,6 +48,13 @@ key                         JSON value
 ``contact``                 ``{"effective_modulus" (Pa), "work_of_adhesion" (J/m^2),
                             "dugdale_stress" (Pa|null)}`` (Maugis-Dugdale)
 ``friction``                coefficient mu of the simulated friction
+``static_friction``         optional: the static coefficient mu_s of the stick-slip proxy
+                            (absent: mu)
+``friction_law``            optional: ``"adhesive"`` (mu (P + |P_c|), what sessions record
+                            by default), ``"area"`` (tau pi a^2) or ``"compressive"`` (mu P
+                            for P > 0 only; absent: this law, the one sessions recorded before
+                            the key existed ran with), :mod:`arsurf.contact.friction`
+``shear_strength``          Pa, the interfacial shear strength tau of the ``"area"`` law
 ``deform``                  bool, the model dented the surface
 ``cantilever``              the :class:`~arsurf.force.cantilever.Cantilever` constructor
                             arguments (length, width, thickness, tip_height, youngs_modulus,

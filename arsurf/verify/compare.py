@@ -79,7 +79,7 @@ class ObjectCheck:
 
     def to_json(self, dx: float) -> dict:
         f = self.found
-        return {"index": self.index, "moved_by_model": self.moved,
+        return {"tube_index": self.index, "moved_by_model": self.moved,
                 "predicted": {"x_nm": self.predicted[0] * 1e9, "y_nm": self.predicted[1] * 1e9,
                               "angle_deg": math.degrees(self.predicted[2])},
                 "measured": None if f is None else {"x_nm": f.x * 1e9, "y_nm": f.y * 1e9,

@@ -92,7 +92,7 @@ class Registration:
     def to_json(self, dx: float, dy: float) -> dict:
         return {"affine_px": self.affine.tolist(), "drift_x_nm": float(self.drift[0] * 1e9),
                 "drift_y_nm": float(self.drift[1] * 1e9), "drift_x_px": float(self.shift_px[0]),
-                "drift_y_px": float(self.shift_px[1]), "overlap": self.overlap,
+                "drift_y_px": float(self.shift_px[1]), "overlap_fraction": self.overlap,
                 "substrate_fraction": self.substrate_fraction, "residual_rms_nm": self.residual_rms * 1e9,
                 "pixel_dx_nm": dx * 1e9, "pixel_dy_nm": dy * 1e9}
 

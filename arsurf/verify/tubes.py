@@ -83,7 +83,7 @@ class FoundTube:
         return {"x_nm": self.x * 1e9, "y_nm": self.y * 1e9, "angle_deg": math.degrees(self.angle),
                 "length_nm": self.length * 1e9, "diameter_nm": self.diameter * 1e9, "height_nm": self.height * 1e9,
                 "apparent_width_nm": self.apparent_width * 1e9, "tip_radius_nm": self.tip_radius * 1e9,
-                "pixels": self.pixels, "fit_rms_nm": self.rms * 1e9, "touches_edge": self.touches_edge}
+                "n_pixels": self.pixels, "fit_rms_nm": self.rms * 1e9, "touches_edge": self.touches_edge}
 
 
 def _wrap_half(angle: float) -> float:

@@ -10,7 +10,7 @@
 //
 // It moves a simulated stylus; a CHAI3D or OpenHaptics program replaces the two functions marked
 // DEVICE below (read_stylus, apply_force) with its device's calls. The bridge's frame is arsurf's
-// (docs/bridge-protocol.md: x right, y away from the operator, z up, metres, newtons; the force
+// (docs/bridge-protocol.rst: x right, y away from the operator, z up, metres, newtons; the force
 // is the one to apply to the stylus), not the device's: for OpenHaptics (x right, y up, z towards
 // the operator, millimetres), in the servo callback,
 //   hdGetDoublev(HD_CURRENT_POSITION, p_mm); from_openhaptics(p_mm, pos);   // and the velocity alike
@@ -310,7 +310,7 @@ void json_number(FILE *out, double x) {
 
 int main(int argc, char **argv) {
     Options o = parse(argc, argv);
-    if (!frames_ok()) {  // the frame conversions a device client needs (docs/bridge-protocol.md)
+    if (!frames_ok()) {  // the frame conversions a device client needs (docs/bridge-protocol.rst)
         std::fprintf(stderr, "arsurf_client: the OpenHaptics frame conversion is wrong\n");
         return 1;
     }

@@ -167,7 +167,7 @@ def test_sweep_agrees_with_the_contact_law_on_a_flat_scan(tmp_path):
         assert row["max_depth_m"] == pytest.approx(1.5e-9, rel=1e-6)
         assert row["peak_load_N"] == pytest.approx(float(state.load), rel=1e-6)
         assert row["contact_radius_m"] == pytest.approx(float(state.radius), rel=1e-6)
-        # sliding on a plane the proxy slips on the edge of the cone: |F_t| = mu_k P
+        # sliding on a plane the proxy slips on the edge of the cone: |F_t| = mu_k N, N = P + |P_c|
         assert row["friction_ratio"] == pytest.approx(row["friction"], rel=1e-9)
         assert 0.0 < row["slip_fraction"] <= 1.0
         # displacement-controlled retract samples the tensile branch: at most the pull-off force

@@ -343,7 +343,7 @@ def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     """Against a reference law elsewhere (10 GPa, 0.05 J/m^2), the kernel's scaled arguments equal
     a MaugisDugdale built from the map's values (lambda from ~0.1 to ~10: with and without a fold),
     every depth gives the same state, and the coupled solver's bracket ends hold."""
-    from arsurf.contact.material_map import contact_vector
+    from arsurf.contact.material_map import contact_vector, local_pull_off_kernel
     from arsurf.contact.maugis_dugdale import md_contact_from_depth_kernel
 
     conv = MaterialConversion(R, sample_poisson=0.0)                        # E* = the sample modulus
@@ -362,6 +362,8 @@ def test_the_local_law_is_the_maugis_dugdale_law_of_the_local_values(e_star, w):
     else:
         assert md[4] == math.inf and md[5] == pytest.approx(local_law.kernel_args[5], rel=1e-12)
     assert jump == pytest.approx(local_law.jump_out_depth(), rel=1e-5)
+    # the pull-off the friction law adds to the load (mu (P + |P_c|)), from the table
+    assert local_pull_off_kernel(cv, md) == pytest.approx(-local_law.pull_off_force(), rel=1e-5)
     zero_load = float(local_law.depth(0.0))
     assert zero_load <= zero <= zero_load + 2e-4 * local_law.depth_scale   # an upper bound, and tight
     for q in np.linspace(-1.0, 3.0, 9) * local_law.depth_scale:         # every depth: the same state

@@ -146,9 +146,9 @@ def test_the_header_compiles_warning_free_as_c_and_cxx(lang, cc, cxx, tmp_path):
 
 
 def _doc_vectors() -> dict[str, bytes]:
-    text = (ROOT / "docs" / "bridge-protocol.md").read_text()
+    text = (ROOT / "docs" / "bridge-protocol.rst").read_text()
     found: dict[str, bytes] = {}
-    for name, part, data in re.findall(r"^(\w+)\.(body|tag)\s+(?:[0-9a-f]{4}:)?\s*([0-9a-f ]+)$", text, re.MULTILINE):
+    for name, part, data in re.findall(r"^\s*(\w+)\.(body|tag)\s+(?:[0-9a-f]{4}:)?\s*([0-9a-f ]+)$", text, re.MULTILINE):
         found[name] = found.get(name, b"") + bytes.fromhex(data.replace(" ", ""))
     return found
 

@@ -190,9 +190,9 @@ def test_packet_layout_matches_the_documented_offsets():
 
 
 def _doc_vectors():
-    text = (ROOT / "docs" / "bridge-protocol.md").read_text()
+    text = (ROOT / "docs" / "bridge-protocol.rst").read_text()
     found: dict[str, bytes] = {}
-    for name, part, data in re.findall(r"^(key|session|\w+)(?:\.(body|tag))?\s+(?:[0-9a-f]{4}:)?\s*([0-9a-f ]+)$", text,
+    for name, part, data in re.findall(r"^\s*(key|session|\w+)(?:\.(body|tag))?\s+(?:[0-9a-f]{4}:)?\s*([0-9a-f ]+)$", text,
                                        re.MULTILINE):
         k = name if not part else f"{name}.{part}"
         found[k] = found.get(k, b"") + bytes.fromhex(data.replace(" ", ""))
@@ -200,7 +200,7 @@ def _doc_vectors():
 
 
 def test_the_documented_test_vector():
-    """docs/bridge-protocol.md's vector (what a C client checks itself against) is what both
+    """docs/bridge-protocol.rst's vector (what a C client checks itself against) is what both
     Python implementations produce, and its tags are plain HMAC-SHA256 over the body."""
     v = _doc_vectors()
     key, sid = v["key"], v["session"]

@@ -135,7 +135,7 @@ def test_the_small_kernels_write_exactly_their_layouts():
     state[fr.SLIPPING] = 0.0
     o_p, out = padded(fr.FRICTION_OUT)
     for x in (0.0, 1e-10, 5e-9):
-        fr.stick_slip_kernel(x, 0.0, 0.0, 0.0, 0.0, 1.0, x, 0.0, 20e-9, False, 1e-7, 10.0, 0.3, 0.2, state, 0, out)
+        fr.stick_slip_kernel(x, 0.0, 0.0, 0.0, 0.0, 1.0, x, 0.0, 20e-9, False, 0.3e-7, 0.2e-7, 10.0, state, 0, out)
     assert out[fr.O_STRENGTH] == 1.0 and untouched(st_p, fr.STATE_SIZE) and untouched(o_p, fr.OUT_SIZE)
     assert not np.any(out == SENTINEL)
     # decoupling and its blend
@@ -228,7 +228,7 @@ def test_no_hand_counted_kernel_offsets_or_sizes():
     # codes and counts, not offsets: an enumeration of modes, a protocol's or a vendor's constants,
     # a key's bounds, the sizes of a quadrature grid
     allowed = ("SIGNALS_NONE", "HD_CALLBACK", "HD_CALIBRATION", "TAG_", "SCANNED", "HEADER, TICKS", "_KEY_MIN",
-               "_NQ, _NMU, _NR")
+               "_NQ, _NMU, _NR", "LAW_COMPRESSIVE")
     bad = [b for b in bad if not any(a in b for a in allowed)]
     assert not bad, "kernel vectors sized or indexed by hand (use arsurf._layout.Layout):\n" + "\n".join(bad)
 

@@ -29,7 +29,9 @@ def site(tmp_path_factory):
 
 def test_the_site_has_its_pages(site):
     for page in ("index.html", "pipeline.html", "equations.html", "units.html", "notebook.html", "api/index.html",
-                 "auto_examples/index.html", "auto_examples/plot_contact_mechanics.html"):
+                 "auto_examples/index.html", "auto_examples/plot_contact_mechanics.html", "install.html", "cli.html",
+                 "formats.html", "figures.html", "sessions.html", "devices.html", "instruments.html",
+                 "bridge-protocol.html", "feel.html", "benchmarks.html", "references.html"):
         assert (site / page).is_file(), page
     equations = (site / "equations.html").read_text(encoding="utf-8")
     for source in ("Maugis 1992", "Johnson &amp; Greenwood 1997", "[MWCNT] Eq. 9", "Hannaford &amp; Ryu 2002",
@@ -54,3 +56,17 @@ def test_the_gallery_ran_its_examples(site):
     assert "largest |spline - pixel| on this profile" in page
     images = sorted(p.name for p in (site / "_images").glob("sphx_glr_plot_*_001.png"))
     assert len(images) == len(list((ROOT / "examples").glob("plot_*.py"))) >= 3
+
+
+def test_the_session_schema_page_lists_every_tick_field(site):
+    """docs/sessions.rst's per-tick table is generated from the code at every build (docs/_ext/arsurf_schema.py):
+    every dataset a session may hold is on the page, with its unit."""
+    from arsurf.sessions import schema
+
+    page = (site / "sessions.html").read_text(encoding="utf-8")
+    table = page.split("Per-tick datasets", 1)[1]
+    fields = (*schema.TICK_FIELDS, schema.SAFETY_FLAGS, schema.TUBE_POSES, schema.INSTRUMENT_POSITION)
+    names = re.findall(r'<tr class="row-\w+"><td><p><code class="[^"]*"><span class="pre">([a-z_]+)</span>', table)
+    assert names[:len(fields)] == [f.name for f in fields]
+    for name in ("tip_position", "energy", "passivity_damping", "instrument_position"):  # missing from the old README
+        assert name in names, name

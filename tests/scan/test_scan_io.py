@@ -194,6 +194,20 @@ def test_npy_round_trip_is_bit_exact(tmp_path, scan):
 
 @HYP
 @given(scan=scans())
+def test_npy_sidecar_names_the_unit_and_an_older_one_still_reads(tmp_path, scan):
+    p = tmp_path / "r.npy"
+    save_scan(scan, p)
+    side = tmp_path / "r.npy.json"
+    info = json.loads(side.read_text(encoding="utf-8"))
+    assert (info["dx_m"], info["dy_m"]) == (scan.dx, scan.dy) and "dx" not in info  # arsurf.units: unit in the key
+    info["dx"], info["dy"] = info.pop("dx_m"), info.pop("dy_m")  # as written before the rule
+    side.write_text(json.dumps(info), encoding="utf-8")
+    back = load_scan(p)
+    assert (back.dx, back.dy) == (scan.dx, scan.dy) and back.heights.tobytes() == scan.heights.tobytes()
+
+
+@HYP
+@given(scan=scans())
 def test_gsf_round_trip_exact_to_float32(tmp_path, scan):
     p = tmp_path / "r.gsf"
     save_scan(scan, p)

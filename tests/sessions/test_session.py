@@ -149,6 +149,26 @@ def test_metadata_builds_the_recorded_model_objects_exactly():
     assert m["contact"]["dugdale_stress"] == MD.dugdale_stress
 
 
+def test_the_friction_law_is_recorded_and_rebuilt_and_old_sessions_keep_theirs():
+    """New sessions record the adhesive law (mu (P + |P_c|)); a session without the key was
+    recorded when friction acted only under compressive load, and is rebuilt with that law so
+    its replay stays bit-identical; the area law needs its shear strength."""
+    from arsurf import assembly
+
+    m = meta()
+    assert m["friction_law"] == "adhesive" and "shear_strength" not in m
+    assert assembly._model_parts(json.loads(json.dumps(m)))[3]["friction_law"] == "adhesive"
+    old = {k: v for k, v in m.items() if k != "friction_law"}
+    assert assembly._model_parts(old)[3]["friction_law"] == "compressive"
+    area = meta(friction_law="area", shear_strength=5e7)
+    kwargs = assembly._model_parts(json.loads(json.dumps(area)))[3]
+    assert (kwargs["friction_law"], kwargs["shear_strength"]) == ("area", 5e7)
+    with pytest.raises(SessionError, match="shear_strength"):
+        meta(friction_law="area")
+    with pytest.raises(SessionError, match="friction_law"):
+        meta(friction_law="viscous")
+
+
 def test_root_attributes_and_growth(tmp_path):
     path = write(tmp_path / "s.h5", n=37, capacity=1, when_full="wait")
     s = load_session(path)

@@ -5,7 +5,8 @@ cannot run code.
 
 A ``.npy`` holds only the array. :func:`write` stores ``heights`` (float64 metres, row 0 =
 bottom, exactly as in the :class:`~arsurf.scan.scan.Scan`) and a sidecar ``<file>.npy.json``
-with ``dx``, ``dy``, ``channel``, ``source`` and the metadata, so the round trip is bit-exact.
+with ``dx_m``, ``dy_m`` (``dx``, ``dy`` in files written before the unit was in the key, still
+read), ``channel``, ``source`` and the metadata, so the round trip is bit-exact.
 A ``.npy`` from elsewhere, without the sidecar, needs ``dx``/``dy`` (m) and ``z_unit`` passed
 to :func:`arsurf.load_scan`; otherwise :class:`MissingCalibration` is raised.
 """
@@ -43,6 +44,9 @@ def read_sidecar(path, side: Path) -> dict:
         raise CorruptScan(f"{path}: its sidecar {side.name} is not valid JSON ({exc})") from None
     if not isinstance(info, dict):
         raise CorruptScan(f"{path}: its sidecar {side.name} does not hold a JSON object")
+    for key in ("dx", "dy"):  # the spacing is stored as dx_m, dy_m (arsurf.units); files before that say dx, dy
+        if f"{key}_m" in info:
+            info[key] = info.pop(f"{key}_m")
     return info
 
 
@@ -113,4 +117,6 @@ def write(scan, path: Path | str) -> None:
     """Write ``scan.heights`` (float64, bit-exact) and the ``.npy.json`` sidecar."""
     with atomic_write(path, what="scan file", error=ScanError) as fh:
         np.save(fh, np.asarray(scan.heights, dtype=np.float64), allow_pickle=False)
-    write_text(sidecar(path), json.dumps(header_info(scan), allow_nan=True), what="scan sidecar", error=ScanError)
+    info = header_info(scan)
+    info = {"dx_m": info.pop("dx"), "dy_m": info.pop("dy"), **info}  # the unit in the key, as every JSON we write
+    write_text(sidecar(path), json.dumps(info, allow_nan=True), what="scan sidecar", error=ScanError)
