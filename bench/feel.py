@@ -56,16 +56,21 @@ RATES = (1000.0, 5000.0, 10000.0)
 def judge_surface(name: str, surface, rng, seconds: float, tip_radius=None, slow_runs: int = 2,
                   fast_runs: int = 1) -> list:
     """The family criteria (module docstring) on one surface: ``slow_runs`` still/slow motions at a
-    seeded rate and source, ``fast_runs`` rate-convergence pairs."""
+    seeded rate and source, ``fast_runs`` rate-convergence pairs; slides and strokes only where
+    the surface has room for them (a small scan's tip would leave it)."""
     rows = []
-    for motion in rng.choice(SLOW_MOTIONS, size=slow_runs, replace=False):
+    (u0, u1), (v0, v1) = surface.domain
+    room = 0.5 * min(u1 - u0, v1 - v0) - (tip_radius or 20e-9) - 2e-9  # m the tip may travel from the middle
+    slow = [m for m in SLOW_MOTIONS if not m.startswith("slide-") or float(m[6:]) * 1e-9 * (seconds - 0.5) <= room]
+    fast = [m for m in FAST_MOTIONS if m != "stroke" or 150e-9 <= room]
+    for motion in rng.choice(slow, size=min(slow_runs, len(slow)), replace=False):
         rate = float(rng.choice(RATES))
         source = str(rng.choice(SOURCES))
         run = run_scenario(surface, motion=str(motion), source=source, rate=rate, seconds=seconds,
                            tip_radius=tip_radius)
         rows.append({"surface": name, "kind": "slow", "motion": str(motion), "source": source, "rate_hz": rate,
                      **run.score.as_dict(), "ok": not run.score.buzzes})
-    for motion in rng.choice(FAST_MOTIONS, size=fast_runs, replace=False):
+    for motion in rng.choice(fast, size=min(fast_runs, len(fast)), replace=False):
         source = str(rng.choice(SOURCES))
         rows.append({"surface": name, "kind": "fast",
                      **rate_convergence(surface, str(motion), source, seconds, tip_radius=tip_radius)})
