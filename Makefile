@@ -12,6 +12,7 @@ OUT    ?= out/demo
 QNM ?= ../shared/scans-real/sample_0.spm
 
 setup: system $(STAMP)
+	@$(PY) tools/editable_root.py  # this checkout on the path: a folder named arsurf beside a script cannot shadow it
 
 # Debian packages for offscreen rendering (Mesa/OSMesa); only installs what is missing.
 system:
@@ -28,9 +29,9 @@ demo: setup
 	$(VENV)/bin/arsurf demo --out $(OUT)
 
 # feel a QNM file's soft, stiff and sticky regions. sample_0.spm leaves its DMTModulus (Arb) and
-# Adhesion (V of deflection) uncalibrated: the conversions below are stated assumptions (README,
-# "Material maps"), not the file's: 1.7e10 Pa per Arb (median E* ~1 GPa), 50 nm/V, 40 N/m; R 5 nm
-# is the file's own Tip Radius
+# Adhesion (V of deflection) uncalibrated: the conversions below are stated assumptions
+# (docs/materials.rst), not the file's: 1.7e10 Pa per Arb (median E* ~1 GPa), 50 nm/V, 40 N/m;
+# R 5 nm is the file's own Tip Radius
 demo-material: setup
 	$(VENV)/bin/arsurf demo --material $(QNM) --out out/demo-material --tip-radius-nm 5 \
 		--modulus-scale 1.7e10 --deflection-sensitivity-nm-per-v 50 --spring-constant 40

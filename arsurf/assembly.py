@@ -53,6 +53,7 @@ __all__ = [
     "build_loop",
     "build_model",
     "check_metadata",
+    "loop_metadata",
     "make_model",
     "preset_metadata",
     "scan_sha256",
@@ -74,7 +75,7 @@ LEGACY_FRICTION_LAW = "compressive"
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
                     "normal_stiffness", "torsional_stiffness", "beta")
 _HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
-                "seed", "ramp_time", "coupling_stiffness", "passivity", "max_rate")
+                "seed", "ramp_time", "coupling_stiffness", "virtual_coupling", "passivity", "max_rate")
 
 
 @dataclass(frozen=True)
@@ -100,9 +101,10 @@ class Preset:
         ``coupling`` ("direct" | "force_position"), ``scale`` (probe m per stylus m),
         ``force_gain`` (hand N per probe N), ``rate`` (Hz), ``source``, ``filter_cutoff`` (Hz),
         ``signal_noise`` (rad), ``coupling_stiffness`` (N/m at the handle: the direct coupling's
-        virtual coupling, :func:`arsurf.haptics.gains.coupling_stiffness`; absent: none),
-        ``passivity`` (the passivity controller on), and for the force-position coupling ``K_fp``,
-        ``B_fp``, ``G_n``.
+        virtual coupling, :func:`arsurf.haptics.gains.coupling_stiffness`; absent: the loop
+        chooses it from the device and the rate, :meth:`~arsurf.haptics.loop.HapticLoop.direct`),
+        ``virtual_coupling`` (False: none, explicitly), ``passivity`` (the passivity controller
+        on; absent: on), and for the force-position coupling ``K_fp``, ``B_fp``, ``G_n``.
     sources : str
         Where the values come from; values a source does not give are the demo's, and said so.
     """
@@ -126,11 +128,11 @@ def _viewer_contact() -> tuple[float, float]:
     return effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene")
 
 
-# the virtual coupling of the demo's VirtualDevice at 1 kHz: 2 b / T (arsurf.haptics.gains.coupling_stiffness)
-_DEMO_COUPLING = 2.0 * (100.0 / 300.0) * 0.1 * 1000.0
+# no coupling_stiffness: the loop chooses the virtual coupling from the device it runs on and the rate
+# (arsurf.haptics.gains.coupling_stiffness; 2 b / T = 66.7 N/m for the demo's VirtualDevice at 1 kHz)
 _DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
                                   "source": "blended", "filter_cutoff": 50.0, "signal_noise": 2e-7,
-                                  "coupling_stiffness": _DEMO_COUPLING, "passivity": True})
+                                  "virtual_coupling": True, "passivity": True})
 
 
 def _presets() -> dict[str, Preset]:
@@ -139,7 +141,7 @@ def _presets() -> dict[str, Preset]:
         "demo", "the demo: a 20 nm silicon tip on a soft adhesive polymer-like film (lambda ~ 0.5, dents visibly)",
         tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER, friction=0.2,
         level="plane", sigma=2e-9, haptics=_DEMO_HAPTICS,
-        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: README, Design notes)")
+        sources="chosen for the demo; scale 1 mm -> 10 nm, K_f = 1e5 (1e6 chatters: docs/design.rst, Design notes)")
     return {
         "demo": demo,
         "viewer": dataclasses.replace(
@@ -183,7 +185,9 @@ PRESET_ALIASES: Mapping[str, str] = MappingProxyType({
 
 #: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
 #: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
-#: friction, no synthesised signals), a 200 Hz low-pass, no virtual coupling
+#: friction, no synthesised signals), a 200 Hz low-pass, the passivity controller, and the
+#: virtual coupling the loop chooses from the device and the rate (recorded with the session:
+#: :func:`loop_metadata`)
 BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
                                    "source": "simulated", "filter_cutoff": 200.0, "signal_noise": 0.0,
                                    "passivity": True})
@@ -283,7 +287,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     friction : float
         Coefficient of the model's simulated friction.
     friction_law : str
-        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, mu (P + |P_c|)),
+        The friction's normal (:mod:`arsurf.contact.friction`): ``"adhesive"`` (default, ``mu (P + |P_c|)``),
         ``"area"`` (tau pi a^2, with ``shear_strength`` in Pa) or ``"compressive"`` (mu max(P, 0)).
     deform : bool
         Whether the model dents the surface.
@@ -483,6 +487,9 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         law = LEGACY_FRICTION_LAW if c.friction_law is UNSET else c.friction_law
         shear = None if c.shear_strength is UNSET or c.shear_strength is None else float(c.shear_strength)
         k_vc = h.get("coupling_stiffness") if h.get("coupling", "direct") == "direct" else None
+        if h.get("virtual_coupling", True) is False and k_vc is not None:
+            raise SessionError(f"metadata haptics.virtual_coupling is false but haptics.coupling_stiffness is "
+                               f"{k_vc!r} N/m; record one or the other")
         k_probe = math.inf if k_vc is None else float(k_vc) / (
             float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
         noise = h.get("signal_noise")
@@ -622,6 +629,11 @@ def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origi
     ``blend``, ``filter_cutoff`` Hz (None: off), ``signal_noise`` rad; missing keys take the demo's
     values. ``safety_kwargs`` go to the safety layer (e.g. ``ramp_time``).
 
+    The loop has the virtual coupling and the passivity controller unless the settings turn them
+    off (``virtual_coupling``: False, ``passivity``: False): the model's, built from a recorded
+    ``coupling_stiffness``, or else one chosen from ``device_info`` and the rate
+    (:meth:`~arsurf.haptics.loop.HapticLoop.direct`; record it with :func:`loop_metadata`).
+
     Examples
     --------
     >>> import numpy as np
@@ -649,5 +661,39 @@ def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origi
                         seed=int(h.get("seed", seed)), passivity=bool(h.get("passivity", True)))
     if "max_rate" in h and "max_rate" not in safety_kwargs:
         safety_kwargs["max_rate"] = float(h["max_rate"])
+    vc = h.get("virtual_coupling", True)
+    if not isinstance(vc, bool):
+        raise SessionError(f"haptics.virtual_coupling must be true or false (got {vc!r})")
     return HapticLoop.direct(model, device_info, probe_origin, scale=float(h["scale"]),
-                             force_gain=float(h["force_gain"]), config=config, scene=scene, **safety_kwargs)
+                             force_gain=float(h["force_gain"]), config=config, scene=scene, virtual_coupling=vc,
+                             **safety_kwargs)
+
+
+def loop_metadata(metadata: Mapping, loop) -> dict:
+    """``metadata`` with the haptic protections ``loop`` runs with, as a session records them:
+    ``haptics.virtual_coupling`` (bool), ``haptics.coupling_stiffness`` (N/m at the handle, the
+    one the loop chose from the device when none was recorded; absent without a coupling) and
+    ``haptics.passivity`` (bool). :func:`build_model` on the result rebuilds the model the loop
+    ticks, bit for bit (the replay's guarantee).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from arsurf.spline.surface import BSplineSurface
+    >>> from arsurf.haptics.virtual_device import VirtualDevice
+    >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 100e-9), (0.0, 100e-9))
+    >>> m = make_model(s, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1)
+    >>> loop = build_loop(m, BRIDGE_HAPTICS, VirtualDevice().info, (50e-9, 50e-9, 30e-9))
+    >>> h = loop_metadata({"haptics": dict(BRIDGE_HAPTICS)}, loop)["haptics"]
+    >>> h["virtual_coupling"], round(h["coupling_stiffness"], 2), h["passivity"]
+    (True, 66.67, True)
+    """
+    h = dict(metadata.get("haptics") or {})
+    k_vc = loop.virtual_coupling
+    h["virtual_coupling"] = k_vc is not None
+    if k_vc is None:
+        h.pop("coupling_stiffness", None)
+    elif h.get("coupling_stiffness") is None:
+        h["coupling_stiffness"] = float(k_vc)
+    h["passivity"] = bool(loop.config.passivity)
+    return dict(metadata, haptics=h)

@@ -233,7 +233,9 @@ class HapticsConfig:
     ``coupling`` ("direct" | "force_position"), ``scale`` (probe m per stylus m), ``force_gain``
     (hand N per probe N), ``rate`` (Hz), ``source``, ``blend``, ``filter_cutoff`` (Hz; None:
     off), ``signal_noise`` (rad), ``seed``, ``ramp_time`` (s), ``coupling_stiffness`` (N/m at the
-    handle), ``passivity``, ``max_rate`` (N/s), and the force-position coupling's ``K_fp`` (N/m),
+    handle), ``virtual_coupling`` (False: the direct loop runs without one; UNSET or True: with
+    ``coupling_stiffness``, else one chosen from the device and the rate), ``passivity``,
+    ``max_rate`` (N/s), and the force-position coupling's ``K_fp`` (N/m),
     ``B_fp`` (N s/m), ``G_n``.
     """
 
@@ -248,6 +250,7 @@ class HapticsConfig:
     seed: int = UNSET
     ramp_time: float = UNSET
     coupling_stiffness: float | None = UNSET
+    virtual_coupling: bool = UNSET
     passivity: bool = UNSET
     max_rate: float = UNSET
     K_fp: float = UNSET
@@ -334,8 +337,11 @@ class MaterialConfig:
 
 @dataclass(frozen=True)
 class DeviceConfig:
-    """The haptic device a live session ran on (``device`` of the metadata): its backend
-    ``interface``, ``name``, ``max_force`` (N) and ``workspace`` ((2, 3) m: min and max corners)."""
+    """The haptic device a session ran on (``device`` of the metadata): its backend ``interface``,
+    ``name``, ``max_force`` (N; absent when the device has no finite limit) and ``workspace`` ((3,)
+    m: the extents of the box centred on the home position, :class:`~arsurf.haptics.device.DeviceInfo`).
+    The session reader bounds the recorded stylus positions and device forces by these
+    (:func:`arsurf.sessions.reader.check_ticks`)."""
 
     interface: str = UNSET
     name: str = UNSET
@@ -346,6 +352,18 @@ class DeviceConfig:
     @classmethod
     def from_metadata(cls, device: Mapping) -> "DeviceConfig":
         return _from(cls, device, where="device")
+
+    @classmethod
+    def of(cls, info, interface: str, **extra) -> "DeviceConfig":
+        """The record of a device whose limits are ``info`` (a :class:`~arsurf.haptics.device.DeviceInfo`).
+
+        >>> from arsurf.haptics.device import TOUCH_X
+        >>> DeviceConfig.of(TOUCH_X, "virtual").to_metadata()["workspace"]
+        [0.12, 0.16, 0.12]
+        """
+        mf = float(info.max_force)
+        return cls(interface=interface, name=info.name, **({"max_force": mf} if math.isfinite(mf) else {}),
+                   workspace=[float(w) for w in info.workspace], extra=dict(extra))
 
     def to_metadata(self) -> dict:
         return _json(self)

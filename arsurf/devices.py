@@ -1,6 +1,7 @@
 """``arsurf devices``: which haptic device backends are installed, and which devices answer.
 
-One line per backend (:data:`~arsurf.haptics.backends.BACKENDS`: name -> adapter module, each with
+One line per backend, the built-in ``virtual`` one first (:data:`VIRTUAL`), then the hardware ones
+(:data:`~arsurf.haptics.backends.BACKENDS`: name -> adapter module, each with
 ``probe() -> BackendReport``), whatever is missing: a backend that is not installed
 says what to install, one that is installed lists the devices it finds (``none connected`` is not
 an error). Exit status 0 in every case; ``--json`` prints the same as a JSON list.
@@ -18,12 +19,17 @@ import json
 from arsurf.haptics.backends import BACKENDS
 from arsurf.haptics.hardware import BackendReport
 
-__all__ = ["BACKENDS", "list_backends", "register"]
+__all__ = ["BACKENDS", "VIRTUAL", "list_backends", "register"]
+
+#: the built-in simulated device (``arsurf live --device virtual``), always there
+VIRTUAL = BackendReport("virtual", True, "built in: arsurf.haptics.virtual_device; the UDP bridge takes any other "
+                        "device", ["virtual (a simulated stylus and hand)"])
 
 
 def list_backends() -> list[BackendReport]:
-    """Probe every backend; a probe that fails is reported on its line, never raised."""
-    reports = []
+    """The built-in backend, then every hardware backend probed; a probe that fails is reported on its
+    line, never raised."""
+    reports = [VIRTUAL]
     for name, (module, _) in BACKENDS.items():
         try:
             reports.append(importlib.import_module(module).probe())
@@ -45,7 +51,6 @@ def _cmd(args) -> int:
     if args.json:
         print(json.dumps([r.__dict__ for r in reports], indent=2))
     else:
-        print(f"{'virtual':<15} built in (arsurf.haptics.virtual_device; the UDP bridge takes any other device)")
         for r in reports:
             print(r.line())
     return 0

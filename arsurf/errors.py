@@ -31,6 +31,11 @@ class CorruptScan(ScanError):
     """The file is truncated or inconsistent with its own header."""
 
 
+class UnsupportedScan(ScanError):
+    """A valid file of a kind arsurf does not read (Gwyddion 1.x, force curves, an RGB picture, a
+    Nanonis grid): the message says what the file is and how to get a height map from it."""
+
+
 class ChannelNotFound(ScanError, KeyError):
     """The requested channel is not in the file (the message lists those that are)."""
 
@@ -198,10 +203,10 @@ class RenderingUnavailable(ArsurfError, RuntimeError):
     """No OpenGL context can be made (no display, no EGL, no OSMesa, no Xvfb)."""
 
 
-#: what to install when VTK cannot render offscreen (one line; README "Offscreen rendering")
+#: what to install when VTK cannot render offscreen (one line; docs/install.rst, "Offscreen rendering")
 RENDERING_HINT = (
     "install EGL (Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or OSMesa "
-    "(apt-get install libosmesa6; without root: README, Offscreen rendering), or run under a display"
+    "(apt-get install libosmesa6; without root: docs/install.rst, Offscreen rendering), or run under a display"
 )
 
 

@@ -36,7 +36,6 @@ from arsurf.assembly import build_loop, make_model
 from arsurf.assembly import preset as _preset
 from arsurf.errors import HapticsError
 from arsurf.haptics.feel import FeelScore, score_force
-from arsurf.haptics.gains import coupling_stiffness
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 
@@ -149,19 +148,17 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     h = dict(p.haptics)
     scale, gain = float(h["scale"]), float(h["force_gain"])
     dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(_trajectory(motion, scale))).open()
-    k_vc = coupling_stiffness(dev.info, rate) if coupling else None
     radius = p.tip_radius if tip_radius is None else float(tip_radius)
     model = make_model(surface, tip_radius=radius, effective_modulus=p.effective_modulus,
                        work_of_adhesion=p.work_of_adhesion, cantilever=p.cantilever,
                        friction=p.friction if friction is None else friction, static_friction=static_friction,
-                       coupling_stiffness=math.inf if k_vc is None else k_vc / (gain * scale),
                        signal_noise=0.0 if source == "simulated" else signal_noise)  # the loop's, below
     (u0, u1), (v0, v1) = surface.domain
     x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if at is None else at
     z = float(surface.evaluate(x - (150e-9 if motion == "stroke" else 0.0), y)[2])
     origin = (x, y, z + radius + 2e-9)
     h.update(rate=float(rate), source=source, signal_noise=0.0 if source == "simulated" else signal_noise,
-             passivity=passivity, seed=seed)
+             virtual_coupling=bool(coupling), passivity=passivity, seed=seed)  # the coupling: from dev, rate
     if max_rate is not None:
         h["max_rate"] = max_rate
     if filter_cutoff != "preset":

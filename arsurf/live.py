@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, preset_metadata
+from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, loop_metadata, preset_metadata
 from arsurf.errors import InstrumentError, LoopError
 
 __all__ = ["Z_MARGIN", "LiveResult", "bridge_loop", "live_metadata", "open_instrument", "parse_instrument",
@@ -81,23 +81,30 @@ def parse_instrument(spec: str) -> tuple:
     return ("nanonis", host, int(port))
 
 
-def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool) -> dict:
+def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool,
+                  virtual_coupling: bool = True, passivity: bool = True) -> dict:
     """Session metadata of a live session: the viewer preset (Si tip on polystyrene) with the
     bridge loop's haptic settings (:data:`arsurf.assembly.BRIDGE_HAPTICS`) at ``scale`` probe m
-    per stylus m; ``measured``: the force read from the instrument's signals."""
-    haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated")
+    per stylus m; ``measured``: the force read from the instrument's signals. The virtual
+    coupling and the passivity controller are on unless turned off here (recorded either way;
+    the coupling's stiffness is the one the loop chooses from the device,
+    :func:`arsurf.assembly.loop_metadata`)."""
+    haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated",
+                   virtual_coupling=bool(virtual_coupling), passivity=bool(passivity))
     return preset_metadata(scan, "viewer", tip_radius=tip_radius, level=level, sigma=sigma, haptics=haptics)
 
 
 def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,
-                peer_timeout: float | None = None, start=None, record=None):
+                peer_timeout: float | None = None, start=None, record=None, priority: int = 0):
     """A :class:`~arsurf.haptics.live_loop.LiveLoop` for real hardware: the UDP bridge device on
     ``host``:``port`` with the session ``key`` (a fresh one on loopback if None; see
     :class:`~arsurf.haptics.udp_bridge.UdpBridgeDevice`) driving the
     AR ``model`` through :func:`arsurf.assembly.build_loop` with ``haptics`` (default
     :data:`~arsurf.assembly.BRIDGE_HAPTICS`). The stylus origin maps to ``start`` (default
     :func:`~arsurf.haptics.live_loop.bridge_start`). ``record(loop, t, state)``: see the
-    LiveLoop. Nothing is opened here:
+    LiveLoop. ``priority``: ``SCHED_FIFO`` priority of the loop thread where the OS grants it (0:
+    the ordinary policy); it keeps the loop's rate when other local processes - a flood of the
+    bridge port among them - compete for the CPU (docs/bridge-safety.rst). Nothing is opened here:
     :meth:`LiveLoop.start <arsurf.haptics.live_loop.LiveLoop.start>` (or ``live.device.open()``)
     binds the port.
 
@@ -110,7 +117,7 @@ def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 474
         start = bridge_start(model.surface, model.tip_radius)
     device = UdpBridgeDevice(host, port, key=key, peer_timeout=peer_timeout)
     loop = build_loop(model, BRIDGE_HAPTICS if haptics is None else haptics, device.info, start)
-    return LiveLoop(loop, device, record=record)
+    return LiveLoop(loop, device, record=record, priority=priority)
 
 
 def press_trajectory(tip_radius: float, scale: float, indent: float = 10e-9):
@@ -201,11 +208,8 @@ def _device_metadata(device, backend: str) -> dict:
     """The ``device`` record of the session (:class:`~arsurf.config.DeviceConfig`)."""
     from arsurf.config import DeviceConfig
 
-    info = device.info
     record = getattr(device, "safety_record", None)  # a hardware adapter: its watchdog, limits' sources
-    return DeviceConfig(interface=backend, name=info.name, max_force=float(info.max_force),
-                        workspace=np.asarray(info.workspace, dtype=np.float64).tolist(),
-                        extra=dict(record() if callable(record) else {})).to_metadata()
+    return DeviceConfig.of(device.info, backend, **(record() if callable(record) else {})).to_metadata()
 
 
 def run_live(metadata, device, *, backend: str = "", instrument=None, photodiode=None, frame=None,
@@ -283,6 +287,7 @@ def _device_run(meta, device, setup, origin, record, seconds, stop, safety_kwarg
     from arsurf.sessions.writer import SessionWriter, record_loop_tick
 
     loop = build_loop(setup.model, setup.config.haptics, device.info, origin, scene=setup.scene, **safety_kwargs)
+    meta = loop_metadata(meta, loop)  # the virtual coupling chosen from the device, for the replay
     live = LiveLoop(loop, device, priority=priority)
     writer = contextlib.nullcontext()
     if record is not None:

@@ -60,14 +60,15 @@ from arsurf.force.decoupling import (MEASURED_SCRATCH, P_BENDING_COMPLIANCE, P_C
                                      P_SIGNAL_NOISE, P_TORSION_COMPLIANCE, bending_only_kernel,  # the model's
                                      blended_decouple_kernel, decoupling_parameters)  # decoupling vector)
 from arsurf.spline.surface import BSplineSurface
-from arsurf.status import COHESIVE, CONTACT, SEPARATED, TEXT
+from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
+from arsurf.status import BEYOND_MODEL, COHESIVE, CONTACT, SEPARATED, TEXT
 
 #: the model output vector (``ARModel.out``): m, N, rad; statuses and counts as floats
 MODEL_OUT = Layout("model output", [
     ("point", 3), ("normal", 3), ("uv", 2), ("distance", 1), ("depth", 1), ("contact_radius", 1), ("load", 1),
     ("simulated_force", 3), ("measured_force", 3), ("condition", 1), ("collide_status", 1), ("md_status", 1),
     ("decoupling_flags", 1), ("moved", 1), ("in_contact", 1), ("bending", 1), ("torsion", 1), ("tip", 3),
-    ("slipping", 1), ("coupled", 1)])
+    ("slipping", 1), ("coupled", 1), ("model_flags", 1)])
 # the offsets as the kernels use them
 M_PX, M_NX, M_U = MODEL_OUT.offset("point"), MODEL_OUT.offset("normal"), MODEL_OUT.offset("uv")
 M_PY, M_PZ, M_NY, M_NZ, M_V = M_PX + 1, M_PX + 2, M_NX + 1, M_NX + 2, M_U + 1
@@ -80,6 +81,7 @@ M_MD_STATUS, M_DECOUPLE_STATUS = MODEL_OUT.offset("md_status"), MODEL_OUT.offset
 M_MOVED, M_IN_CONTACT = MODEL_OUT.offset("moved"), MODEL_OUT.offset("in_contact")
 M_BENDING, M_TORSION = MODEL_OUT.offset("bending"), MODEL_OUT.offset("torsion")
 M_TIP, M_SLIPPING, M_COUPLED = MODEL_OUT.offset("tip"), MODEL_OUT.offset("slipping"), MODEL_OUT.offset("coupled")
+M_MODEL_FLAGS = MODEL_OUT.offset("model_flags")
 M_SIZE = MODEL_OUT.size
 #: the model's arrays and settings in the order of :func:`model_tick_kernel`'s arguments (less the
 #: per-tick target and signals): what :meth:`ARModel.kernel_args` returns, in the loop's struct by
@@ -101,7 +103,7 @@ S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
 #: zero-load depths (m), the friction law (a code of :data:`arsurf.contact.friction.LAW_NAMES`),
-#: the law's pull-off force magnitude |P_c| (N) and the interfacial shear strength (Pa, area law)
+#: the law's pull-off force magnitude ``|P_c|`` (N) and the interfacial shear strength (Pa, area law)
 PROXY_PARAMS = Layout("proxy parameters", [
     ("static_friction", 1), ("kinetic_friction", 1), ("stiffness_per_radius", 1), ("coupling_stiffness", 1),
     ("jump_out_depth", 1), ("zero_load_depth", 1), ("friction_law", 1), ("pull_off_force", 1),
@@ -181,6 +183,8 @@ def model_tick_kernel(proj,                                              # Proje
     if count > 1:  # each contact's own law at its own depth under the one rigid tip; the loads summed
         md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, tip_radius, coll[pj.OUT_DEPTH] - depth, count,
                                                           was_interacting, md_st, a, load, state, out)
+    if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
+        out[M_MODEL_FLAGS] = BEYOND_MODEL
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
         # the tip sphere's dent: the closest contact's zone along its own normal; the sphere's
         # no-interpenetration guard (out to R around the axis) presses the other contacts onto it
@@ -337,7 +341,7 @@ def _sum_contacts(md, tip_radius, lift, count, was_interacting, st0, a0, p0, sta
 def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratch, out):
     """Step 4, simulated: F = P n + F_t, the friction of the stick-slip proxy
     (:func:`~arsurf.contact.friction.stick_slip_kernel`) within the limits of the friction law
-    (:func:`~arsurf.contact.friction.friction_limits`: by default mu (P + |P_c|), so an adhesive
+    (:func:`~arsurf.contact.friction.friction_limits`: by default ``mu (P + |P_c|)``, so an adhesive
     contact under tensile load resists sliding too) while in contact. Returns what the measured
     force needs of the friction: its direction (x, y), strength, components along x and z per unit
     load (zeros without friction or without a compressive load) and the static limit f_s (N)."""
@@ -383,7 +387,8 @@ class ModelTick:
     box, the points it may move: the tick records the dent, the net moves to it when read);
     ``tip`` the tip centre behind the virtual coupling (the target without one), ``slipping``
     whether the friction proxy slid this tick, ``coupled`` whether the coupling equation was
-    solved (False: the tip is at the target).
+    solved (False: the tip is at the target); ``model_flags`` the caveats of :mod:`arsurf.status`
+    (``BEYOND_MODEL``: a contact wider than the law holds for, a > 0.4 R).
     """
 
     point: np.ndarray
@@ -404,6 +409,7 @@ class ModelTick:
     tip: np.ndarray
     slipping: bool
     coupled: bool
+    model_flags: int = 0
 
 
 class ARModel:
@@ -514,7 +520,6 @@ class ARModel:
         self.static_friction = static
         self.friction_law = friction_law
         self.shear_strength = shear_strength
-        self.coupling_stiffness = coupling_stiffness
         self.signal_noise = signal_noise
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
@@ -541,6 +546,23 @@ class ARModel:
         self._scratch = np.empty(SCRATCH_SIZE)
         self._ev = np.empty((EVALUATION_ROWS, 3))
         self.out = np.zeros(M_SIZE)
+
+    @property
+    def coupling_stiffness(self) -> float:
+        """Stiffness (N/m, at the probe's scale) of the virtual coupling between the target and
+        the tip (:mod:`arsurf.contact.proxy`); ``inf``: none, the tip is the target."""
+        return float(self._friction[F_COUPLING])
+
+    def set_coupling_stiffness(self, stiffness: float) -> None:
+        """Give the model the virtual coupling ``stiffness`` (N/m at the probe's scale; ``inf``:
+        none). A haptic loop calls it before its first tick, when it chooses the coupling from the
+        device (:meth:`arsurf.haptics.loop.HapticLoop.direct`); the compiled tick reads it from
+        the same vector."""
+        stiffness = float(stiffness)
+        if not stiffness > 0.0:
+            raise ContactError(f"`coupling_stiffness` must be > 0 N/m or inf (got {stiffness!r})")
+        self._friction[F_COUPLING] = stiffness
+        self._deepest_well = None  # adhesion_energy's bound includes the coupling's stretch
 
     def adhesion_energy(self, with_map: bool = True) -> float:
         """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.
@@ -639,5 +661,5 @@ class ARModel:
             simulated_force=o[M_SIM_FX:M_SIM_FZ + 1].copy(), measured_force=meas,
             decoupling_flags=int(o[M_DECOUPLE_STATUS]), condition=float(o[M_CONDITION]),
             moved=int(o[M_MOVED]), collide_status=int(o[M_COLLIDE_STATUS]), tip=o[M_TIP:M_TIP + 3].copy(),
-            slipping=bool(o[M_SLIPPING]), coupled=bool(o[M_COUPLED]),
+            slipping=bool(o[M_SLIPPING]), coupled=bool(o[M_COUPLED]), model_flags=int(o[M_MODEL_FLAGS]),
         )

@@ -58,7 +58,14 @@ flag                    bit     meaning
 ``SAMPLE_OUTSIDE``      8192    device sample outside the device workspace plus margin: zero force (fault)
 ``SAMPLE_TOO_FAST``     16384   device sample moved faster than a stylus can: zero force (fault)
 ``TIME_BACKWARDS``      32768   the sample's stamp or the loop clock went backwards: zero force (fault)
+``BEYOND_MODEL``        65536   the model tick's contact is wider than its contact law holds for
+                                (a > :data:`~arsurf.contact.mechanics.SMALL_CONTACT_LIMIT` R; the
+                                law assumes a << R): the force is an extrapolation (not a fault)
 ======================  ======  =====================================================================
+
+The model tick sets ``BEYOND_MODEL`` in its own flag word (``model_flags`` of
+:class:`arsurf.model.ModelTick`); the haptic loop ORs that word into the tick's flags, which a
+session records (``safety_flags``) and the viewer's HUD names.
 
 The decoupling's bits (:class:`arsurf.force.decoupling.DecouplingFlag`) are a word of their own,
 recorded as such in session files.
@@ -78,7 +85,8 @@ __all__ = ["BAD_BUTTONS", "BAD_INPUT", "BRANCH_NAMES", "CLAMPED", "CLUTCHED", "C
            "DEGENERATE", "DISENGAGED", "FLAG_NAMES", "ITERATION_LIMIT", "MASTER_OUTSIDE", "NONFINITE",
            "NON_FINITE", "NOT_CONVERGED", "OK", "PASSIVITY", "PUSH_FALLBACK", "PUSH_NAMES", "PUSH_OK",
            "PUSH_SUBSTEP_CAP", "RAMPING", "RATE_LIMITED", "SAMPLE_MALFORMED", "SAMPLE_OUTSIDE", "SAMPLE_TOO_FAST",
-           "SATURATED", "SEPARATED", "STALE", "TEXT", "TIME_BACKWARDS", "WATCHDOG", "flag_names"]
+           "SATURATED", "SEPARATED", "STALE", "TEXT", "TIME_BACKWARDS", "WATCHDOG", "BEYOND_MODEL",
+           "flag_names"]
 
 OK = 0
 ITERATION_LIMIT = 1
@@ -128,10 +136,11 @@ SAMPLE_MALFORMED = 4096
 SAMPLE_OUTSIDE = 8192
 SAMPLE_TOO_FAST = 16384
 TIME_BACKWARDS = 32768
+BEYOND_MODEL = 65536
 #: names of the flag bits, lowest bit first
 FLAG_NAMES = ("SATURATED", "RATE_LIMITED", "RAMPING", "STALE", "WATCHDOG", "DISENGAGED", "NONFINITE", "CLUTCHED",
               "CLAMPED", "MASTER_OUTSIDE", "BAD_BUTTONS", "PASSIVITY", "SAMPLE_MALFORMED", "SAMPLE_OUTSIDE",
-              "SAMPLE_TOO_FAST", "TIME_BACKWARDS")
+              "SAMPLE_TOO_FAST", "TIME_BACKWARDS", "BEYOND_MODEL")
 
 
 def flag_names(flags: int) -> list[str]:

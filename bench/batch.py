@@ -40,7 +40,7 @@ OPTIONS = {"level": "plane", "sigma": 1e-9}
 
 
 def _items(tmp: Path, repeat: int) -> tuple[Path, list[str]]:
-    files, _ = collect_inputs([REAL_SCANS])
+    files = collect_inputs([REAL_SCANS]).files
     folder = tmp / "scans"
     for k in range(repeat):
         d = folder / f"rep{k}"

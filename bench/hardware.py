@@ -53,6 +53,7 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
     n = int(seconds * 1000 * 1.2) + 100
     io = np.zeros(n)
     age = np.zeros(n)
+    starts = np.zeros(n, dtype=np.int64)  # ns, each tick's read: the loop's own periods
     k = [0]
     clock = time.perf_counter_ns
     t_read = [0]
@@ -68,6 +69,7 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
         i = k[0]
         if i < n:
             age[i] = dev.now() - s.timestamp
+            starts[i] = t0
         return s
 
     def sink(f):
@@ -90,8 +92,10 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
         after = io[half[0]:min(m, half[0] + 50)]
         lost = {"lost_reply": {"worst_tick_in_adapter_ms": float(after.max() * 1e3) if after.size else None,
                                "read_timeout_ms": getattr(dev, "read_timeout", math.nan) * 1e3}}
+    periods = np.diff(starts[:m]) * 1e-6  # ms
     return {
         **lost,
+        "period_p99_ms": float(np.percentile(periods, 99)) if periods.size else None,
         "io": stats(io[:m]),
         "sample_age": stats(age[:m][ok]),
         "missed_samples": int(getattr(dev, "missed_samples", 0)),
@@ -224,7 +228,40 @@ def main() -> None:
         if name not in BENCHMARKS:
             raise SystemExit(f"bench/hardware.py: unknown section {name!r}; known: {', '.join(BENCHMARKS)}")
         results[name] = BENCHMARKS[name](args.seconds)
+    results["summary"] = summary(results)
     emit("hardware", results)
+
+
+#: why a device section has no lost-reply figure (bench docstring)
+_NO_LOST_REPLY = {"forcedimension": "not modelled: the SDK's calls are synchronous USB transfers with an "
+                                    "undocumented timeout",
+                  "openhaptics": "none: the loop reads the servo thread's shared memory, never the device",
+                  "virtual (peer)": "none: no I/O"}
+
+
+def summary(results: dict) -> dict:
+    """Per device (shipped defaults) and the Nanonis link, at 1 kHz: loop rate (Hz), p99 period
+    (ms), p99 sample age (ms) and the worst tick spent in the adapter after a lost reply (ms,
+    against the 1 ms period)."""
+    out = {}
+    for name, r in results.items():
+        if name == "nanonis":
+            link = r.get("live_link") or {}
+            out[name] = {"loop_rate_hz": link.get("loop_rate_hz"), "period_p99_ms": link.get("period_p99_ms"),
+                         "sample_age_p99_ms": link.get("sample_age_p99_ms"),
+                         "lost_reply_worst_tick_ms": (link["tick_in_link_max_after_loss_us"] * 1e-3
+                                                      if "tick_in_link_max_after_loss_us" in link else None)}
+            continue
+        if "haply" == name:
+            r = r.get("shipped defaults", {})
+        if "achieved_rate_hz" not in r:
+            out[name] = {"skipped": r.get("skipped") or r.get("error")}
+            continue
+        lost = (r.get("lost_reply") or {}).get("worst_tick_in_adapter_ms")
+        out[name] = {"loop_rate_hz": r["achieved_rate_hz"], "period_p99_ms": r["period_p99_ms"],
+                     "sample_age_p99_ms": r["sample_age"]["p99_us"] * 1e-3,
+                     "lost_reply_worst_tick_ms": lost if lost is not None else _NO_LOST_REPLY.get(name)}
+    return out
 
 
 if __name__ == "__main__":

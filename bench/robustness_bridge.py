@@ -13,10 +13,18 @@ median and p99 of one POSE check (HMAC-SHA256) in microseconds.
 :func:`flood` is the bridge under load: a 1 kHz servo loop (read the pose, command a spring force)
 serves the reference client run as its own process at 1 kHz, while a keyless local process floods
 the bridge port from 4 sockets with POSE-sized datagrams under a wrong key (bounded: at most
-``--flood-packets`` datagrams in ``--flood-seconds``). It reports the operator's poses accepted
-over poses sent and the loop's ticks per second, with the same run without the flood beside it.
+``--flood-packets`` datagrams in ``--flood-seconds`` minus 0.5 s; a small C flooder with
+``sendmmsg`` when a C compiler is found, else a Python one). It reports the operator's poses accepted
+over poses sent, the loop's ticks per second and the CPU time the loop thread and the bridge's
+``read_state`` spent per tick (what the bridge costs, whatever else the machine runs), for
+``--pairs`` alternated pairs of a run without and a run with the flood, then the flood against
+the bridge with its kernel filter off (protocol version 2's behaviour). About 6 s per run.
 
-Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0] [--flood-seconds 3]``
+``--realtime-priority P`` runs the servo thread under ``SCHED_FIFO`` where the OS grants it, as
+``arsurf live --realtime-priority`` runs its loop.
+
+Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0] [--flood-seconds 3] [--pairs 2]
+[--realtime-priority 0]``
 """
 from __future__ import annotations
 
@@ -329,14 +337,70 @@ print(sent, tried, time.perf_counter() - t0)
 """
 
 
-def _serve(dev, stop, ticks, rate, reads):
-    """A 1 kHz servo loop on absolute deadlines (missed ones skipped): read the pose, command a spring force."""
+_FLOODER_C = r"""
+#define _GNU_SOURCE
+#include <arpa/inet.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + 1e-9 * t.tv_nsec; }
+int main(int argc, char **argv) {  /* port seconds limit hexpacket: 4 sockets, sendmmsg 64 at a time */
+    int port = atoi(argv[1]); double seconds = atof(argv[2]); long long limit = atoll(argv[3]);
+    size_t n = strlen(argv[4]) / 2; unsigned char pkt[2048];
+    if (n > sizeof pkt) return 2;
+    for (size_t i = 0; i < n; i++) sscanf(argv[4] + 2 * i, "%2hhx", &pkt[i]);
+    struct sockaddr_in to = {0}; to.sin_family = AF_INET; to.sin_port = htons(port);
+    to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    int socks[4];
+    for (int k = 0; k < 4; k++) { socks[k] = socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK, 0); if (socks[k] < 0) return 2; }
+    struct iovec iov = {pkt, n}; struct mmsghdr msgs[64]; memset(msgs, 0, sizeof msgs);
+    for (int i = 0; i < 64; i++) { msgs[i].msg_hdr.msg_name = &to; msgs[i].msg_hdr.msg_namelen = sizeof to;
+                                   msgs[i].msg_hdr.msg_iov = &iov; msgs[i].msg_hdr.msg_iovlen = 1; }
+    long long sent = 0, tried = 0; double t0 = now();
+    while (tried < limit && now() - t0 < seconds)
+        for (int k = 0; k < 4; k++) { int r = sendmmsg(socks[k], msgs, 64, 0); tried += 64; if (r > 0) sent += r; }
+    printf("%lld %lld %f\n", sent, tried, now() - t0);
+    return 0;
+}
+"""
+
+
+def _flooder(tmp: str) -> list[str]:
+    """The flooder's command: the C one (sendmmsg, several times the Python one's rate) when a C
+    compiler is found, else the Python one."""
+    import shutil
+    import subprocess
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc:
+        src, exe = os.path.join(tmp, "flood.c"), os.path.join(tmp, "flood")
+        with open(src, "w") as fh:
+            fh.write(_FLOODER_C)
+        if subprocess.run([cc, "-O2", "-o", exe, src], capture_output=True).returncode == 0:
+            return [exe]
+    return [sys.executable, "-c", _FLOODER]
+
+
+def _serve(dev, stop, ticks, rate, reads, cpu, priority=0, granted=None):
+    """A 1 kHz servo loop on absolute deadlines (missed ones skipped): read the pose, command a spring
+    force. ``cpu`` gets the thread's CPU time at each tick (what the loop itself spent, whatever
+    else the machine runs). ``priority``: ``SCHED_FIFO`` for this thread where the OS grants it,
+    as ``arsurf live --realtime-priority`` gives its loop (the priority granted goes to ``granted``)."""
+    from arsurf.haptics.scheduler import _realtime_priority
+
+    got = _realtime_priority(priority)
+    if granted is not None:
+        granted.append(got)
     period = 1.0 / rate
     k, t0 = 0, time.perf_counter()
     while not stop.is_set():
-        t_read = time.perf_counter()
+        cpu.append(time.thread_time())
+        t_read, c_read = time.perf_counter(), time.thread_time()
         s = dev.read_state()  # the bridge's own work: drain the socket, parse, check
-        reads.append(time.perf_counter() - t_read)
+        reads.append((time.perf_counter() - t_read, time.thread_time() - c_read))
         dev.command_force(-100.0 * s.position)
         ticks.append(time.perf_counter())
         k += 1
@@ -352,7 +416,7 @@ def _serve(dev, stop, ticks, rate, reads):
 
 
 def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000, rate: float = 1000.0,
-              kernel_filter: bool = True) -> dict:
+              kernel_filter: bool = True, priority: int = 0) -> dict:
     """One served session of ``seconds`` with the reference client at ``rate``, flooded or not.
 
     ``kernel_filter=False`` is the ablation: the pinned peer is not connected and 256
@@ -366,10 +430,19 @@ def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000,
             LOOPBACK, 0, key=key, max_packets_per_read=64 if kernel_filter else 256) as dev:
         if not kernel_filter:
             dev._pin = lambda addr: setattr(dev, "peer", addr)  # no connect(): every sender queues
+            sock_send = dev._transmit
+
+            def transmit(pkt, addr):  # an unconnected socket sends with sendto
+                peer, dev.peer = dev.peer, None
+                try:
+                    sock_send(pkt, addr)
+                finally:
+                    dev.peer = peer
+            dev._transmit = transmit
         kf = save_key(os.path.join(d, "k"), key)
         port = dev.address[1]
-        stop, ticks, reads = threading.Event(), [], []
-        th = threading.Thread(target=_serve, args=(dev, stop, ticks, rate, reads), daemon=True)
+        stop, ticks, reads, cpu, granted = threading.Event(), [], [], [], []
+        th = threading.Thread(target=_serve, args=(dev, stop, ticks, rate, reads, cpu, priority, granted), daemon=True)
         th.start()
         client = subprocess.Popen([sys.executable, "-m", "arsurf.haptics.client", "--port", str(port), "--key-file",
                                    kf, "--rate", str(rate), "--duration", str(seconds), "--radius", "0.01"],
@@ -382,17 +455,24 @@ def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000,
         flooded = {"packets": 0, "seconds": 0.0}
         if flood:
             junk = encode_pose(generate_key(), 1, 0.0, (0.3, 0.3, 0.3), session=bytes(16))  # keyless: a wrong key
-            out = subprocess.run([sys.executable, "-c", _FLOODER, str(port), str(seconds - 0.5), str(flood_packets),
-                                  junk.hex()], capture_output=True, text=True, timeout=seconds + 30)
+            cmd = _flooder(d)
+            out = subprocess.run([*cmd, str(port), str(seconds - 0.5), str(flood_packets), junk.hex()],
+                                 capture_output=True, text=True, timeout=seconds + 30)
             n, tried, dt = out.stdout.split()
-            flooded = {"packets": int(n), "tried": int(tried), "seconds": float(dt), "packets_per_s": int(n) / float(dt)}
+            flooded = {"flooder": "C, sendmmsg" if len(cmd) == 1 else "Python", "packets": int(n), "tried": int(tried),
+                       "seconds": float(dt), "packets_per_s": int(n) / float(dt)}
         out, err = client.communicate(timeout=seconds + 30)
         t_end = time.perf_counter()
         stop.set()
         th.join(2.0)
         summary = json.loads(out)
-        window = [t for t in ticks if t_pin <= t <= t_end]
-        in_window = [r for t, r in zip(ticks, reads) if t_pin <= t <= t_end] or [0.0]
+        ticks, cpu = ticks[:len(cpu)], cpu[:len(ticks)]
+        inside = [i for i, t in enumerate(ticks) if t_pin <= t <= t_end]
+        window = [ticks[i] for i in inside]
+        cpu_per_tick = ((cpu[inside[-1]] - cpu[inside[0]]) / (len(inside) - 1)) if len(inside) > 1 else 0.0
+        in_window = [r for t, r in zip(ticks, reads) if t_pin <= t <= t_end] or [(0.0, 0.0)]
+        read_cpu = [c for _, c in in_window]
+        in_window = [w for w, _ in in_window]
         gaps = np.diff(window) if len(window) > 1 else np.array([0.0])
         return {
             "flood": flooded,
@@ -404,34 +484,53 @@ def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000,
             "loop_rate_fraction": ((len(window) - 1) / (window[-1] - window[0]) / rate) if len(window) > 1 else 0.0,
             "loop_tick_gap_p99_ms": float(np.percentile(gaps, 99)) * 1e3,
             "loop_tick_gap_max_ms": float(gaps.max()) * 1e3,
+            "loop_cpu_per_tick_us": cpu_per_tick * 1e6,
+            "loop_realtime_priority": granted[0] if granted else 0,
             "bridge_read_state_median_us": float(np.median(in_window)) * 1e6,
             "bridge_read_state_p99_us": float(np.percentile(in_window, 99)) * 1e6,
+            "bridge_read_state_cpu_mean_us": float(np.mean(read_cpu)) * 1e6,
             "machine_load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
             "bridge_stats": dev.stats.as_dict(),
         }
 
 
-def flood(seconds: float = 3.0, flood_packets: int = 3_000_000) -> dict:
-    """The bridge with and without a keyless local flood, side by side."""
-    quiet = flood_run(False, seconds, flood_packets)
-    loud = flood_run(True, seconds, flood_packets)
-    ablation = flood_run(True, seconds, flood_packets, kernel_filter=False)
-    return {"no_flood": quiet, "flood": loud, "flood_without_kernel_filter_v2_behaviour": ablation,
-            "operator_poses_kept_under_flood": loud["operator_accepted_fraction"] / max(
-                1e-12, quiet["operator_accepted_fraction"]),
-            "loop_rate_kept_under_flood": loud["loop_ticks_per_s"] / max(1e-12, quiet["loop_ticks_per_s"]),
-            "bridge_read_state_p99_ratio_under_flood": loud["bridge_read_state_p99_us"] / max(
-                1e-12, quiet["bridge_read_state_p99_us"])}
+def flood(seconds: float = 3.0, flood_packets: int = 3_000_000, pairs: int = 2, priority: int = 0) -> dict:
+    """The bridge with and without a keyless local flood, side by side: ``pairs`` quiet/flooded
+    pairs run alternately (so a change of the machine's load hits both alike), then the ablation.
+    The kept fractions are the medians over the pairs of flooded over quiet."""
+    runs = []
+    for _ in range(pairs):
+        runs.append((flood_run(False, seconds, flood_packets, priority=priority),
+                     flood_run(True, seconds, flood_packets, priority=priority)))
+    ablation = flood_run(True, seconds, flood_packets, kernel_filter=False, priority=priority)
+
+    def kept(key):
+        return [loud[key] / max(1e-12, quiet[key]) for quiet, loud in runs]
+
+    poses, rate, cpu = kept("operator_accepted_fraction"), kept("loop_ticks_per_s"), kept("loop_cpu_per_tick_us")
+    read_cpu = kept("bridge_read_state_cpu_mean_us")
+    return {"pairs": [{"no_flood": q, "flood": f} for q, f in runs],
+            "flood_without_kernel_filter_v2_behaviour": ablation,
+            "operator_poses_kept_under_flood": float(np.median(poses)), "operator_poses_kept_per_pair": poses,
+            "loop_rate_kept_under_flood": float(np.median(rate)), "loop_rate_kept_per_pair": rate,
+            "loop_cpu_per_tick_ratio_under_flood": float(np.median(cpu)), "loop_cpu_per_tick_ratio_per_pair": cpu,
+            "bridge_read_state_cpu_ratio_under_flood": float(np.median(read_cpu)),
+            "bridge_read_state_cpu_ratio_per_pair": read_cpu,
+            "ablation_operator_poses_kept": ablation["operator_accepted_fraction"] / max(
+                1e-12, float(np.median([q["operator_accepted_fraction"] for q, _ in runs]))),
+            "ablation_loop_rate_kept": ablation["loop_ticks_per_s"] / max(
+                1e-12, float(np.median([q["loop_ticks_per_s"] for q, _ in runs])))}
 
 
-def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True, flood_seconds: float = 3.0) -> dict:
+def bridge_attacks(n: int = 200, seed: int = 0, echo: bool = True, flood_seconds: float = 3.0, pairs: int = 2,
+                   priority: int = 0, flood_packets: int = 3_000_000) -> dict:
     """Run every attack ``n`` times on the bridge and on the reference client, and the flood
     (:func:`flood`, skipped with ``flood_seconds=0``); print and return JSON."""
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     server = server_attacks(n, rng)
     client = client_attacks(n, rng)
-    flooded = flood(flood_seconds) if flood_seconds > 0 else None
+    flooded = flood(flood_seconds, flood_packets, pairs=pairs, priority=priority) if flood_seconds > 0 else None
     report = {
         "benchmark": "robustness_bridge",
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
@@ -462,8 +561,13 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=200, help="attempts per attack kind")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--flood-seconds", type=float, default=3.0, help="length of each flood run, s (0: no flood)")
+    ap.add_argument("--pairs", type=int, default=2, help="quiet/flooded run pairs (alternated)")
+    ap.add_argument("--flood-packets", type=int, default=3_000_000, help="at most this many flood datagrams per run")
+    ap.add_argument("--realtime-priority", type=int, default=0, metavar="P",
+                    help="SCHED_FIFO priority of the flood runs' servo thread where the OS grants it (0: none)")
     args = ap.parse_args(argv)
-    bridge_attacks(args.n, args.seed, flood_seconds=args.flood_seconds)
+    bridge_attacks(args.n, args.seed, flood_seconds=args.flood_seconds, pairs=args.pairs,
+                   priority=args.realtime_priority, flood_packets=args.flood_packets)
     return 0
 
 

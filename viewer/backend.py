@@ -23,7 +23,7 @@ make a context, VTK may abort the process, so :func:`probe` tries the chosen bac
 process and reports (once per process) whether a real picture came out; the viewer tests skip
 on its answer and only on it. In a source checkout ``tools/install-system-deps.sh`` installs the
 ``egl`` packages (the ones CI and headless servers need) and the ``x11`` ones for desktops; the
-README ("Offscreen rendering") says how to get OSMesa without root.
+docs/install.rst ("Offscreen rendering") says how to get OSMesa without root.
 
 Examples
 --------

@@ -6,7 +6,8 @@ returning the tip centre (3,) in metres, or None to keep the keyboard pose), els
 keys - runs ``physics(tip_center, dt) -> SceneState`` and updates the view in place.
 
 Keys (:class:`StylusController`)
-    ←/→ move x, ↑/↓ move y, Page Up/Page Down move z; ``[`` / ``]`` halve/double the step;
+    ←/→ move x, ↑/↓ move y, Page Up/Page Down move z (by R/10; Page Down stops at the depth where
+    the contact reaches the law's a << R bound); ``[`` / ``]`` halve/double the step;
     ``r`` resets the surface, ``p`` pauses/resumes, ``t`` cycles layer sets, ``1``-``8`` toggle
     single layers (surface, tip, contact, force, hud, probe, tubes, colorbar), ``c`` switches the
     colouring (height/deformation), ``v`` the camera (oblique/top), ``q`` quits.
@@ -35,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from arsurf._logging import progress
+from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
 from arsurf.spline.surface import BSplineSurface
 
 from .backend import choose_backend, has_display
@@ -66,25 +68,43 @@ class StylusController:
         Reset by ``r``.
     tip_center : (3,) float, metres
         Start position.
+    tip_radius : float, metres
+        The tip's radius R: the vertical step and the depth limit scale with it.
     step : float, metres, optional
         Lateral step per key press (default: 1/50 of the scan size).
     z_step : float, metres, optional
-        Vertical step (default: step / 4, fine enough to control an indentation).
+        Vertical step (default: R / 10, so that the depth limit is a few presses deep).
+    max_depth : float, metres, optional
+        Deepest indentation Page Down drives the tip to: the depth at which the contact radius
+        reaches the contact law's bound, :data:`arsurf.contact.mechanics.SMALL_CONTACT_LIMIT` R
+        (:attr:`ContactPhysics.max_depth` for the law in use; default the Hertz depth
+        ``SMALL_CONTACT_LIMIT**2 R`` = 0.16 R, where a = sqrt(R d) reaches it). The depth is the last one the
+        physics reported (:attr:`depth`, set by the viewer each frame), plus the presses since:
+        a vertical press deepens the contact by at most its own length.
     view : SurfaceView, optional
         Receives the layer, colouring and camera keys.
     on_reset : callable, optional
         Called after ``r`` (e.g. to release a deformer).
     """
 
-    def __init__(self, surface: BSplineSurface, tip_center, *, step: float | None = None,
-                 z_step: float | None = None, view=None, on_reset: Callable[[], None] | None = None):
+    def __init__(self, surface: BSplineSurface, tip_center, tip_radius: float = 20e-9, *, step: float | None = None,
+                 z_step: float | None = None, max_depth: float | None = None, view=None,
+                 on_reset: Callable[[], None] | None = None):
         self.surface = surface
         self.tip_center = np.asarray(tip_center, dtype=np.float64).reshape(3).copy()
         (u0, u1), (v0, v1) = surface.domain
+        r = float(tip_radius)
+        if not (math.isfinite(r) and r > 0):
+            raise ViewerError(f"`tip_radius` must be a positive length in metres (got {tip_radius!r})")
         self.step = float(step) if step is not None else max(u1 - u0, v1 - v0) / 50.0
-        self.z_step = float(z_step) if z_step is not None else self.step / 4.0
+        self.z_step = float(z_step) if z_step is not None else r / 10.0
+        self.max_depth = float(max_depth) if max_depth is not None else SMALL_CONTACT_LIMIT ** 2 * r
         if not (self.step > 0 and self.z_step > 0 and math.isfinite(self.step) and math.isfinite(self.z_step)):
             raise ViewerError(f"steps must be positive lengths in metres (got step={step!r}, z_step={z_step!r})")
+        if not (math.isfinite(self.max_depth) and self.max_depth >= 0):
+            raise ViewerError(f"`max_depth` must be a length >= 0 in metres (got {max_depth!r})")
+        #: the indentation depth the physics last reported, m (< 0: a gap), plus the presses since
+        self.depth = -math.inf
         self.view = view
         self.on_reset = on_reset
         self.paused = False
@@ -97,8 +117,18 @@ class StylusController:
                  "Next": (2, -1.0), "Prior": (2, 1.0)}
         if key in moves:
             axis, sign = moves[key]
-            self.tip_center[axis] += sign * (self.z_step if axis == 2 else self.step)
-            return f"tip at ({', '.join(f'{c * 1e9:.1f}' for c in self.tip_center)}) nm"
+            move = sign * (self.z_step if axis == 2 else self.step)
+            note = ""
+            if key == "Next":
+                room = self.max_depth - self.depth
+                if room <= 0.0:
+                    return (f"depth limit {self.max_depth * 1e9:.3g} nm reached (the contact law holds for a << R); "
+                            "Page Up lifts the tip")
+                if -move > room:
+                    move, note = -room, f" (held at the depth limit {self.max_depth * 1e9:.3g} nm)"
+                self.depth += -move
+            self.tip_center[axis] += move
+            return f"tip at ({', '.join(f'{c * 1e9:.1f}' for c in self.tip_center)}) nm" + note
         if key == "bracketleft":
             self.step /= 2.0
             self.z_step /= 2.0
@@ -179,6 +209,9 @@ class ContactPhysics:
         self.model = make_model(surface, tip_radius=self.tip_radius, effective_modulus=e, work_of_adhesion=w,
                                 dugdale_stress=s0, deform=deform, material=material)
         self.contact = self.model.contact
+        #: the indentation depth (m) at which the reference law's contact radius is 1 % inside the bound
+        #: it holds to, :data:`~arsurf.contact.mechanics.SMALL_CONTACT_LIMIT` R: the keyboard's depth limit
+        self.max_depth = float(self.contact.at_radius(0.99 * SMALL_CONTACT_LIMIT * self.tip_radius).depth)
         if scene is not None and not (callable(getattr(scene, "tick", None)) and hasattr(scene, "viewer_tubes")):
             raise ViewerError(f"`scene` must be an arsurf.manipulation.scene.TubeScene (got {type(scene).__name__})")
         self.scene = scene
@@ -203,7 +236,7 @@ class ContactPhysics:
         return SceneState(self.surface, c, self.tip_radius, contact_point=t.point, contact_normal=t.normal,
                           depth=t.depth, contact_radius=t.contact_radius, force=force,
                           maugis_lambda=self.contact.maugis_parameter, loop_rate_hz=rate,
-                          device_status=self.status, tubes=tubes)
+                          device_status=self.status, tubes=tubes, flags=t.model_flags)
 
 
 def scripted_path(surface: BSplineSurface, tip_radius: float, frames: int = 60, indent: float | None = None) -> np.ndarray:
@@ -271,7 +304,9 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
         log.info("arsurf view: no display (DISPLAY is unset or unreachable), so no window can open; rendering "
                  "%d frames offscreen to %s/ instead (%s).", frames, out,
                  "following the pose source" if pose_source else "along a scripted approach-indent-slide-retract path")
-        poses = scripted_path(surface, tip_radius, frames) if pose_source is None else None
+        # pressed as deep as the keyboard may go (the law's a << R bound), not deeper
+        poses = scripted_path(surface, tip_radius, frames, getattr(physics, "max_depth", None)) \
+            if pose_source is None else None
 
         failure = {}
 
@@ -295,10 +330,11 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
             raise rendering_failed("arsurf view (offscreen frames)", exc) from exc
 
     view = SurfaceView(surface, off_screen=False, **view_kwargs)
-    ctl = StylusController(surface, start, view=view,
+    ctl = StylusController(surface, start, tip_radius, view=view, max_depth=getattr(physics, "max_depth", None),
                            on_reset=getattr(physics, "release", None))
     plotter = view.plotter
     state = physics(ctl.tip_center, dt)
+    ctl.depth = state.depth
     view.update(state, render=False)
     last_tick = [time.perf_counter()]
 
@@ -314,7 +350,9 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
             pose = pose_source()
             if pose is not None:
                 ctl.tip_center[:] = np.asarray(pose, dtype=np.float64).reshape(3)
-        view.update(physics(ctl.tip_center, elapsed if elapsed > 0 else dt))
+        state = physics(ctl.tip_center, elapsed if elapsed > 0 else dt)
+        ctl.depth = state.depth  # the depth limit of Page Down follows the model's own depth
+        view.update(state)
 
     keys = ("Left", "Right", "Up", "Down", "Prior", "Next", "bracketleft", "bracketright",
             "r", "p", "t", "c", "v", *"12345678")
@@ -332,6 +370,7 @@ def run_interactive(surface: BSplineSurface, *, tip_radius: float = 20e-9, physi
         x, y = float(point[0]) * 1e-9, float(point[1]) * 1e-9
         z = float(surface.evaluate(x, y)[2])
         ctl.tip_center[:] = (x, y, z + tip_radius)
+        ctl.depth = 0.0  # just touching, until the next frame measures it
 
     plotter.track_click_position(clicked, side="right")
     plotter.iren.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(round(1000 * dt))), callback=tick)

@@ -33,8 +33,8 @@ def live_scene(live, tip_center, dt: float) -> SceneState:
     depth, radius, flags = v["scalars"]
     elapsed = live.scheduler.elapsed()
     rate = live.scheduler.ticks / elapsed if elapsed > 0 else math.nan
-    status = live.device_name + (f" · safety flags {int(flags)}" if int(flags) else " · ok")
+    status = live.device_name + (" · flagged" if int(flags) else " · ok")  # the HUD names the flags
     return SceneState(m.surface, v["tip"], m.tip_radius, contact_point=v["point"], contact_normal=v["normal"],
                       depth=float(depth), contact_radius=float(radius), force=v["force"],
                       maugis_lambda=m.contact.maugis_parameter, loop_rate_hz=rate, device_status=status,
-                      time=snap.time)
+                      time=snap.time, flags=int(flags))

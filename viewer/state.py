@@ -113,6 +113,9 @@ class SceneState:
         Nano-objects to draw (see :class:`Tube`).
     time : float, seconds, or NaN
         Session time shown in the HUD.
+    flags : int
+        Flag bits of :mod:`arsurf.status` to name in the HUD (the model's ``BEYOND_MODEL``, the
+        loop's safety flags); 0: none.
     """
 
     surface: BSplineSurface
@@ -128,6 +131,7 @@ class SceneState:
     device_status: str = ""
     tubes: Sequence[Any] = ()
     time: float = math.nan
+    flags: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.surface, BSplineSurface):
@@ -150,6 +154,9 @@ class SceneState:
         self.time = _scalar("time", self.time, allow_nan=True)
         self.device_status = str(self.device_status)
         self.tubes = tuple(Tube.coerce(t) for t in self.tubes)
+        if isinstance(self.flags, bool) or not isinstance(self.flags, (int, np.integer)) or self.flags < 0:
+            raise ViewerError(f"`flags` must be a non-negative integer of arsurf.status bits (got {self.flags!r})")
+        self.flags = int(self.flags)
 
     @property
     def force_magnitude(self) -> float:

@@ -52,7 +52,9 @@ import numpy as np
 from numba import njit
 
 from arsurf._files import atomic_write
+from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
 from arsurf.errors import require
+from arsurf.status import BEYOND_MODEL, flag_names
 from arsurf.spline.surface import BSplineSurface
 
 from .backend import choose_backend
@@ -852,6 +854,12 @@ class SurfaceView:
         ]
         if st.device_status:
             lines.append(f"device: {st.device_status}")
+        if st.flags & BEYOND_MODEL:
+            lines.append(f"BEYOND MODEL: contact radius {st.contact_radius / st.tip_radius:.2f} R > "
+                         f"{SMALL_CONTACT_LIMIT:g} R, the contact law assumes a << R")
+        others = flag_names(st.flags & ~BEYOND_MODEL)
+        if others:
+            lines.append("flags: " + " ".join(others))
         if self.dent_step_nm > 0.0 and self._layers["dent"]:
             lines.append(f"dent contours every {self.dent_step_nm:g} nm")
         return "\n".join(lines)

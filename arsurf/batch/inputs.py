@@ -10,11 +10,11 @@ import glob
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 from arsurf.errors import BatchError
 
-__all__ = ["Item", "collect_inputs", "item_key", "item_file_name"]
+__all__ = ["Inputs", "Item", "collect_inputs", "item_key", "item_file_name", "skipped_note"]
 
 
 @dataclass(frozen=True)
@@ -29,27 +29,63 @@ class Item:
 
 
 
-def _scan_suffixes() -> tuple[str, ...]:
-    from arsurf.scan.io import _ext_map
+class Inputs(NamedTuple):
+    """What :func:`collect_inputs` found: ``files`` (absolute, sorted), ``root`` (the folder item keys
+    are relative to) and ``skipped`` (the files of named folders that are not inputs, sorted)."""
 
-    return tuple(sorted(_ext_map()))
+    files: list[Path]
+    root: Path
+    skipped: list[Path]
+
+
+def _is_scan(path: Path) -> bool:
+    """True when :func:`arsurf.scan.io.detect_format` names a format for ``path``: by its content
+    (NanoScope ``.di``/``.001``, a renamed file...), else by its extension, as ``load_scan`` reads it."""
+    from arsurf.errors import ScanError
+    from arsurf.scan.io import detect_format
+
+    try:
+        detect_format(path)
+    except ScanError:
+        return False
+    return True
+
+
+def _taken(path: Path, suffixes: Sequence[str] | None) -> bool:
+    if suffixes is None:
+        return _is_scan(path)
+    return path.suffix.lower() in {s.lower() for s in suffixes}
+
+
+def skipped_note(skipped: Sequence[Path], shown: int = 5) -> str:
+    """One line naming the files a folder held that are not inputs (``""``: none).
+
+    >>> skipped_note([Path("a/notes.md"), Path("a/log.txt")])
+    'skipped: 2 files, not inputs: notes.md, log.txt'
+    """
+    if not skipped:
+        return ""
+    names = ", ".join(p.name for p in skipped[:shown])
+    more = f" and {len(skipped) - shown} more" if len(skipped) > shown else ""
+    return f"skipped: {len(skipped)} file{'s' if len(skipped) != 1 else ''}, not inputs: {names}{more}"
 
 
 def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] | None = None, *,
-                   exclude: str | os.PathLike | None = None) -> tuple[list[Path], Path]:
-    """The input files of a batch, sorted, and the folder they are named relative to.
+                   exclude: str | os.PathLike | None = None) -> Inputs:
+    """The input files of a batch, sorted, the folder they are named relative to, and what was left out.
 
-    Each input is a file (taken as it is), a folder (its files whose extension is in
-    ``suffixes``, case-insensitive, not recursive) or a glob pattern (``*``, ``?``, ``[...]``;
-    ``**`` recurses; every regular file it matches). Files inside ``exclude`` (the batch's output
-    folder) are left out.
+    Each input is a file (taken as it is), a folder (not recursive: with ``suffixes`` None, every
+    file :func:`arsurf.scan.io.load_scan` would read, detected by its **content** then its
+    extension, e.g. a NanoScope ``.di``; else its files whose extension is in ``suffixes``,
+    case-insensitive) or a glob pattern (``*``, ``?``, ``[...]``; ``**`` recurses; every regular
+    file it matches). Files inside ``exclude`` (the batch's output folder) are left out.
 
     Returns
     -------
-    files : list of Path
-        Absolute (symbolic links are not resolved), without duplicates.
-    root : Path
-        The deepest folder holding all of them (item keys are relative to it).
+    Inputs
+        ``files`` absolute (symbolic links are not resolved), without duplicates; ``root`` the
+        deepest folder holding all of them (item keys are relative to it); ``skipped`` the files of
+        the named folders that are not inputs (neither a scan nor of the pipeline's kind).
 
     Raises
     ------
@@ -60,9 +96,9 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
         inputs = [inputs]
     if not inputs:
         raise BatchError("no input given: name scan files, folders or glob patterns")
-    wanted = {s.lower() for s in (suffixes if suffixes is not None else _scan_suffixes())}
     skips = set() if exclude is None else {Path(os.path.abspath(exclude)), Path(exclude).resolve()}
     found: dict[Path, None] = {}
+    left: dict[Path, None] = {}
     for entry in inputs:
         text = os.fspath(entry)
         if glob.has_magic(text):
@@ -70,10 +106,15 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
             if not matches:
                 raise BatchError(f"no file matches the pattern {text!r}")
         elif os.path.isdir(text):
-            matches = sorted(p for p in Path(text).iterdir() if p.is_file() and p.suffix.lower() in wanted)
+            matches, others = [], []
+            for p in sorted(p for p in Path(text).iterdir() if p.is_file()):
+                (matches if _taken(p, suffixes) else others).append(p)
             if not matches:
-                raise BatchError(f"folder {text!r} holds no input file (extensions {', '.join(sorted(wanted))}); "
-                                 "name the files or a glob pattern to take others")
+                kind = "scan file (arsurf formats lists the formats)" if suffixes is None else \
+                    f"file with the extension {', '.join(sorted(suffixes))}"
+                raise BatchError(f"folder {text!r} holds no {kind}; name the files or a glob pattern to take others")
+            for p in others:
+                left.setdefault(Path(os.path.abspath(p)), None)
         elif os.path.isfile(text):
             matches = [Path(text)]
         else:
@@ -88,7 +129,7 @@ def collect_inputs(inputs: Sequence[str | os.PathLike], suffixes: Sequence[str] 
         raise BatchError(f"every input is inside the output folder {os.fspath(exclude)!r}; choose another output "
                          "folder")
     root = Path(os.path.commonpath([str(p.parent) for p in files]))
-    return files, root
+    return Inputs(files, root, sorted(p for p in left if p not in found))
 
 
 def item_key(path: Path, root: Path) -> str:

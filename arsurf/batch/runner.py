@@ -49,7 +49,8 @@ class BatchResult:
     ``total`` items in the batch, ``ran`` in this call, ``skipped`` (done before: ``resume``),
     ``ok`` and ``failed`` over the whole table (this call and the earlier ones), ``errors``:
     ``((item, reason), ...)`` of the failed ones, ``elapsed`` wall time of this call and
-    ``items_per_second`` (items run by this call / elapsed).
+    ``items_per_second`` (items run by this call / elapsed), ``not_inputs``: the files of the named
+    folders that were not taken (neither a scan nor of the pipeline's kind), relative to the inputs' folder.
     """
 
     out_dir: Path
@@ -63,6 +64,7 @@ class BatchResult:
     errors: tuple[tuple[str, str], ...]
     elapsed: float
     items_per_second: float
+    not_inputs: tuple[str, ...] = ()
 
 
 class _Progress:
@@ -127,7 +129,7 @@ def _check_out_dir(out: Path, pipeline: Pipeline, options: dict, resume: bool) -
 
 
 def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mapping], ran: int, skipped: int,
-             elapsed: float, complete: bool) -> dict:
+             elapsed: float, complete: bool, not_inputs: Sequence[str] = ()) -> dict:
     mine = [rows[it.key] for it in items if it.key in rows]
     ok = [r for r in mine if r.get("status") == "ok"]
     failed = [(r["item"], r.get("error", "")) for r in mine if r.get("status") != "ok"]
@@ -145,7 +147,8 @@ def _summary(pipeline: Pipeline, items: Sequence[Item], rows: Mapping[str, Mappi
             "complete": complete, "items": len(items), "ok": len(ok), "failed": len(failed),
             "not_run": len(items) - len(mine), "ran_this_time": ran, "skipped_as_done": skipped,
             "elapsed_s": elapsed, "items_per_s": ran / elapsed if elapsed > 0 else None,
-            "errors": [{"item": k, "reason": v} for k, v in failed], "statistics": stats}
+            "errors": [{"item": k, "reason": v} for k, v in failed], "statistics": stats,
+            "not_inputs": list(not_inputs)}
 
 
 def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
@@ -215,20 +218,21 @@ def run_batch(pipeline: str, inputs: Sequence[str | os.PathLike], out_dir: str |
         require("distributed", "dask", "arsurf batch on a Dask cluster (--scheduler)")
     opts = json.loads(json.dumps(p.check(dict(options or {}))))  # JSON-normal: tuples -> lists
     out = Path(out_dir)
-    files, root = collect_inputs(inputs, p.suffixes, exclude=out)
+    files, root, left = collect_inputs(inputs, p.suffixes, exclude=out)
     items = make_items(p, files, root, opts)
+    not_inputs = tuple(os.path.relpath(f, root) for f in left)
     if len({it.key for it in items}) != len(items):
         raise BatchError("two inputs give the same item name; rename one of them")
     client, own = connect(scheduler, float(connect_timeout)) if scheduler is not None else (None, False)
     try:
-        return _run(p, items, opts, out, workers, client, resume, progress, t0, item_timeout)
+        return _run(p, items, opts, out, workers, client, resume, progress, t0, item_timeout, not_inputs)
     finally:
         if own:
             client.close()
 
 
 def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client, resume: bool, progress: bool,
-         t0: float, item_timeout: float | None = ITEM_TIMEOUT) -> BatchResult:
+         t0: float, item_timeout: float | None = ITEM_TIMEOUT, not_inputs: tuple[str, ...] = ()) -> BatchResult:
     """The part of :func:`run_batch` after every check: the table, the execution, the summary."""
     _check_out_dir(out, p, opts, resume)
     table_path = check_target(out / TABLE, "results table", error=BatchError)  # not a planted link
@@ -265,9 +269,9 @@ def _run(p: Pipeline, items: list[Item], opts: dict, out: Path, workers, client,
         table.close()
         bar.close()
         elapsed = time.perf_counter() - t0
-        summary = _summary(p, items, rows, ran, skipped, elapsed, complete)
+        summary = _summary(p, items, rows, ran, skipped, elapsed, complete, not_inputs)
         write_text(out / SUMMARY, summary_json(summary), what="batch summary", error=BatchError)
     return BatchResult(out_dir=out, table=table_path, summary=out / SUMMARY, total=len(items), ran=ran,
                        skipped=skipped, ok=summary["ok"], failed=summary["failed"],
                        errors=tuple((e["item"], e["reason"]) for e in summary["errors"]), elapsed=elapsed,
-                       items_per_second=summary["items_per_s"] or 0.0)
+                       items_per_second=summary["items_per_s"] or 0.0, not_inputs=not_inputs)

@@ -11,7 +11,7 @@ Messages: results go to stdout; progress messages, notes and bars to stderr thro
 hides the bars, ``-v``/``--verbose`` adds debug messages (before or after the subcommand).
 
 One module per command group: this one holds the parser, :func:`main` and the scan-file commands
-(``info``, ``fit``, ``synth``, ``export``, ``convert``); :mod:`arsurf.cli.view`,
+(``info``, ``formats``, ``fit``, ``synth``, ``export``, ``convert``); :mod:`arsurf.cli.view`,
 :mod:`arsurf.cli.live` and :mod:`arsurf.cli.batch` their commands; :mod:`arsurf.cli.args` the
 argument types and flags they share; ``demo``, ``replay`` and ``devices`` register themselves
 (:data:`_EXTRA_COMMANDS`).
@@ -82,12 +82,27 @@ def _print(obj: dict, as_json: bool) -> None:
 
 def cmd_info(args) -> int:
     from arsurf.scan.io import load_scan
+    from arsurf.spline.storage import is_surface_file, load_surface, surface_summary
 
+    if is_surface_file(args.scan) and not getattr(args, "material", False):  # `arsurf fit`'s output, not a scan
+        meta = _surface_metadata(args.scan)
+        _print({"file": str(args.scan), **surface_summary(load_surface(args.scan)),
+                "fitted_from": meta.get("scan", "?")}, args.json)
+        return 0
     scan = load_scan(args.scan, channel=args.channel, frame=args.frame, **_calibration(args))
     if getattr(args, "material", False):
         return _material_info(args, scan)
     _print(_scan_summary(scan), args.json)
     return 0
+
+
+def _surface_metadata(path) -> dict:
+    with np.load(path, allow_pickle=False) as f:
+        try:
+            meta = json.loads(str(f["metadata_json"]))
+        except ValueError:
+            return {}
+    return meta if isinstance(meta, dict) else {}
 
 
 def _material_info(args, scan) -> int:
@@ -177,6 +192,15 @@ def cmd_synth(args) -> int:
 _SCAN_OUTPUTS = (".gwy", ".gsf", ".npz", ".npy")
 
 
+def cmd_formats(args) -> int:
+    """``arsurf formats``: the scan formats :func:`arsurf.load_scan` reads, with their extensions
+    (the content decides first: a renamed file is still read)."""
+    from arsurf.scan.io import format_extensions
+
+    _print(format_extensions(), args.json)
+    return 0
+
+
 def cmd_export(args) -> int:
     from arsurf.export import export_surface
     from arsurf.spline.storage import load_surface
@@ -241,6 +265,11 @@ def build_parser() -> argparse.ArgumentParser:
     _calibration_flags(s)
     _frame_flag(s)
     s.set_defaults(func=cmd_fit)
+
+    s = sub.add_parser("formats", help="list the scan formats arsurf reads and their extensions (detected by "
+                       "content first)")
+    s.add_argument("--json", action="store_true", help="print JSON")
+    s.set_defaults(func=cmd_formats)
 
     s = sub.add_parser("synth", help="write the synthetic demo scans (gratings, tubes, particles...)")
     s.add_argument("--out", default="scans")

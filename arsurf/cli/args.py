@@ -123,6 +123,24 @@ def _prepare(args, path, channel=None, inpaint: bool = True, **options):
         ) from None
 
 
+def _protection_flags(s) -> None:
+    """``--no-virtual-coupling`` and ``--no-passivity``: the loop's two protections are on unless
+    turned off here, and a session records which (``haptics.virtual_coupling``, ``haptics.passivity``)."""
+    g = s.add_argument_group("protections (on by default; turning one off is recorded in the session)")
+    g.add_argument("--no-virtual-coupling", dest="virtual_coupling", action="store_false",
+                   help="run without the virtual coupling (the spring, chosen from the device's limits and the "
+                        "1 kHz rate, through which the hand feels the contact): the hand feels the sample's "
+                        "stiffness, which can buzz on a rough scan")
+    g.add_argument("--no-passivity", dest="passivity", action="store_false",
+                   help="run without the passivity controller (the observer still logs the energy)")
+
+
+def _protections(args) -> dict:
+    """The haptic settings of :func:`_protection_flags`: ``{"virtual_coupling": False}`` and/or
+    ``{"passivity": False}`` when turned off, else nothing (the defaults: on)."""
+    return {k: False for k in ("virtual_coupling", "passivity") if getattr(args, k, True) is False}
+
+
 def _record_target(args):
     """The session file of ``--record`` (None without it), refused before anything slow runs:
     it must not exist (a recording never replaces another) and its folder must."""

@@ -101,6 +101,11 @@ def cmd_batch(args) -> int:
         print(f"arsurf batch: ... and {len(r.errors) - shown} more failures (see {r.table})", file=sys.stderr)
     print(f"{r.total} items: {r.ok} ok, {r.failed} failed, {r.total - r.ok - r.failed} not run; {r.ran} run now, "
           f"{r.skipped} done before, in {r.elapsed:.2f} s ({r.items_per_second:.3g} items/s)")
+    if r.not_inputs:
+        from arsurf.batch.inputs import skipped_note
+        from pathlib import Path
+
+        print(skipped_note([Path(n) for n in r.not_inputs]) + f" (listed in {r.summary})")
     print(f"results: {r.table}")
     print(f"summary: {r.summary}")
     return 1 if r.failed else 0

@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from arsurf.cli.args import _count, _nm, _positive, _processing_flags, _record_target
+from arsurf.cli.args import (_count, _nm, _positive, _processing_flags,
+                              _protection_flags, _protections, _record_target)
 
 #: ``arsurf live`` device flags: (argparse dest, flag, the adapters' option, SI factor or None)
 _DEVICE_FLAGS = (
@@ -39,7 +40,7 @@ def register(sub) -> None:
     s.add_argument("--device", default="virtual", metavar="NAME",
                    help=f"haptic device: {' | '.join(DEVICES)} (default virtual: a scripted hand presses the "
                         "stylus into the surface every 2 s; `arsurf devices` lists what is connected)")
-    g = s.add_argument_group("device options (each adapter takes some; see README, Haptic devices)")
+    g = s.add_argument_group("device options (each adapter takes some; see docs/devices.rst)")
     g.add_argument("--max-force-n", type=_positive("N"), help="force limit in N, at most the device's own (default 1 N, "
                    "the first-connection limit, or the device's if lower)")
     g.add_argument("--workspace-mm", type=_positive("mm"), nargs=3, metavar=("X", "Y", "Z"),
@@ -62,9 +63,10 @@ def register(sub) -> None:
     s.add_argument("--realtime-priority", type=_priority, default=0, metavar="N",
                    help="run the loop thread under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
                         "CAP_SYS_NICE or an rtprio limit); 0, the default: the ordinary policy. Not with a device "
-                        "that answers from a thread of this process (haply, openhaptics): see README")
+                        "that answers from a thread of this process (haply, openhaptics): see docs/feel.rst")
     s.add_argument("--record", metavar="FILE", help="record the session to FILE (.h5, must not exist), replayable "
                    "with `arsurf replay FILE --scan SCAN`")
+    _protection_flags(s)
     g = s.add_argument_group("instrument (the force read from its deflection and torsion signals)")
     g.add_argument("--instrument", metavar="SPEC", help="virtual (a virtual AFM whose sample is the scan) or "
                    "nanonis://HOST:PORT (the Nanonis TCP programming interface)")
@@ -141,7 +143,8 @@ def cmd_live(args) -> int:
     device = _live_device(args)
     scan_path = args.scan or str(BUNDLED_SCAN)
     meta = live_metadata(scan_path, tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
-                         sigma=args.sigma_nm * 1e-9, scale=args.scale, measured=args.instrument is not None)
+                         sigma=args.sigma_nm * 1e-9, scale=args.scale, measured=args.instrument is not None,
+                         **_protections(args))
     setup = build_model(meta)
     instrument = photodiode = frame = None
     if args.instrument is not None:

@@ -8,7 +8,13 @@ from __future__ import annotations
 import sys
 import time
 
-from arsurf.cli.args import _count, _nm, _positive, _prepare, _processing_flags, _record_target
+from arsurf.cli.args import (_count, _nm, _positive, _prepare, _processing_flags,
+                              _protection_flags, _protections, _record_target)
+from arsurf.cli.live import _priority
+
+#: frames of the scripted offscreen path (approach, indent, slide, retract: one at least each);
+#: the same bound as :func:`arsurf_viewer.interactive.scripted_path`, which this module must not import
+MIN_SCRIPTED_FRAMES = 4
 
 
 def register(sub) -> None:
@@ -32,15 +38,22 @@ def register(sub) -> None:
     s.add_argument("--bridge-peer-timeout", type=_positive("seconds"), default=None, metavar="S",
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
+    s.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
+                   help="with --bridge-port: run the haptic loop thread under SCHED_FIFO at priority N (1-99) where "
+                        "the OS allows it (root, CAP_SYS_NICE or an rtprio limit): the loop keeps its 1 kHz when "
+                        "other processes, a flood of the port among them, compete for the CPU (default: the "
+                        "ordinary policy)")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
+    _protection_flags(s)
     s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
                    "(.h5, must not exist), replayable with `arsurf replay FILE --scan SCAN`")
     s.add_argument("--tubes", action="store_true",
                    help="make the nanotubes of a synthetic scan live objects the tip can push (not with --bridge-port)")
     s.add_argument("--out", default="out/view", help="without a display: folder of the offscreen PNG frames "
                    "(default out/view)")
-    s.add_argument("--frames", type=_count, default=90, help="without a display: how many frames (default 90); with "
-                   "--bridge-port, 0: no view at all, the loop serves the client until it sends RELEASE")
+    s.add_argument("--frames", type=_count, default=90, help=f"without a display: how many frames (default 90, at "
+                   f"least {MIN_SCRIPTED_FRAMES}); with --bridge-port any number, 0: no view at all, the loop serves "
+                   "the client until it sends RELEASE")
     s.add_argument("--material", action="store_true", help="colour the surface by the file's mechanical channels "
                    "(key c cycles the colourings); uncalibrated channels need the conversion flags below")
     s.add_argument("--color-by", default=None, choices=("height", "deformation", "modulus", "adhesion",
@@ -69,12 +82,17 @@ def _bridge_setup(args):
     if args.bridge_port is None:
         given = [f for f, v in (("--host", args.bridge_host), ("--bridge-key", args.bridge_key),
                                 ("--bridge-key-file", args.bridge_key_file),
-                                ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record))
+                                ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record),
+                                ("--realtime-priority", args.realtime_priority))
                  if v is not None]
+        given += [f for f, on in (("--no-virtual-coupling", args.virtual_coupling), ("--no-passivity", args.passivity))
+                  if not on]
         if given:
             raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
-        if args.frames == 0:
-            raise HapticsError("--frames 0 (no view) is for a --bridge-port loop; without one give at least 1 frame")
+        if args.frames < MIN_SCRIPTED_FRAMES:
+            raise HapticsError(f"--frames {args.frames}: at least {MIN_SCRIPTED_FRAMES} without --bridge-port (the "
+                               "offscreen path approaches, indents, slides and retracts); 0 (no view) is only for a "
+                               "--bridge-port loop")
         return None
     if args.tubes:
         raise HapticsError("--tubes is not available with --bridge-port yet (the bridge loop has no tube scene); "
@@ -158,7 +176,8 @@ def _bridge_view(args, bridge, record) -> int:
     import contextlib
     from functools import partial
 
-    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, preset_metadata
+    from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, loop_metadata, preset_metadata
+    from arsurf.config import DeviceConfig
     from arsurf.errors import require
     from arsurf.haptics.udp_bridge import VERSION
     from arsurf.live import bridge_loop
@@ -170,19 +189,20 @@ def _bridge_view(args, bridge, record) -> int:
         require("pyvista", "viewer", "arsurf view")
     scan_path = args.scan or str(BUNDLED_SCAN)
     meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
-                           sigma=args.sigma_nm * 1e-9, haptics=dict(BRIDGE_HAPTICS, scale=args.scale))
+                           sigma=args.sigma_nm * 1e-9, haptics={**BRIDGE_HAPTICS, "scale": args.scale, "virtual_coupling": True,
+                                                                  "passivity": True, **_protections(args)})
     setup = build_model(meta)
     live = bridge_loop(setup.model, setup.config.haptics, host=bridge.host, port=bridge.port, key=bridge.key,
-                       peer_timeout=bridge.peer_timeout)
+                       peer_timeout=bridge.peer_timeout, priority=args.realtime_priority or 0)
     dev = live.device
     try:
         dev.open()  # a busy port fails here, before a recording starts
         host, port = dev.address
         writer = contextlib.nullcontext()
         if record is not None:  # the key is never recorded; where the client came in is
-            info = dev.info
-            meta = dict(meta, device={"interface": "udp-bridge", "protocol_version": VERSION, "host": host,
-                                      "port": port, "name": info.name, "max_force": info.max_force})
+            meta = dict(meta, device=DeviceConfig.of(dev.info, "udp-bridge", protocol_version=VERSION, host=host,
+                                                     port=port).to_metadata())
+            meta = loop_metadata(meta, live.loop)  # the virtual coupling chosen from the device, for the replay
             writer = SessionWriter(record, meta, handle_signals=True)
             live.record = partial(record_loop_tick, writer)
         with writer:
@@ -201,7 +221,9 @@ def _bridge_view(args, bridge, record) -> int:
                     _serve_headless(args, live, setup)
             finally:
                 stats = live.stop()
-                print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz", file=sys.stderr)
+                print(f"arsurf view: loop stopped after {stats.ticks} ticks at {stats.rate:.0f} Hz"
+                      + (f" (SCHED_FIFO priority {stats.realtime_priority})" if stats.realtime_priority else ""),
+                      file=sys.stderr)
     finally:
         dev.close()
     if record is not None:

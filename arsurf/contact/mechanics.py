@@ -64,7 +64,32 @@ __all__ = [
     "Hertz",
     "JKR",
     "jkr_radius_from_depth_kernel",
+    "SMALL_CONTACT_LIMIT",
+    "parabolic_gap_error",
 ]
+
+#: Largest contact radius per tip radius, a/R, for which the sphere-on-flat models hold. Hertz, DMT,
+#: JKR and Maugis-Dugdale all replace the sphere by the paraboloid r²/2R, an approximation for
+#: a << R (Johnson 1985, §4.2). The relative error of that gap at the contact's edge is
+#: :func:`parabolic_gap_error`: 4.2 % at a/R = 0.4, 6.7 % at 0.5, 20 % at 0.8, and the
+#: half-space's small-strain elasticity is strained as far. Beyond 0.4 (a Hertz depth of 0.16 R)
+#: a result is flagged :data:`arsurf.status.BEYOND_MODEL`: the contact law is extrapolated there,
+#: not applied.
+SMALL_CONTACT_LIMIT = 0.4
+
+
+def parabolic_gap_error(a_over_r: float) -> float:
+    r"""Relative error of the paraboloid gap r²/2R against the sphere's R - sqrt(R² - r²) at r = a.
+
+    .. math:: \epsilon(x) = 1 - \frac{x^2 / 2}{1 - \sqrt{1 - x^2}}, \quad x = a/R
+
+    >>> round(parabolic_gap_error(SMALL_CONTACT_LIMIT), 3)
+    0.042
+    """
+    x = float(a_over_r)
+    if not 0.0 < x <= 1.0:
+        raise ContactError(f"a/R must be in (0, 1] (got {a_over_r!r}): a contact disk wider than the sphere has no gap")
+    return 1.0 - 0.5 * x * x / (1.0 - math.sqrt(1.0 - x * x))
 
 
 class Branch(IntEnum):

@@ -18,7 +18,8 @@ import numpy as np
 
 from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
-from arsurf.assembly import build_loop, build_model, preset_metadata
+from arsurf.assembly import build_loop, build_model, loop_metadata, preset_metadata
+from arsurf.config import DeviceConfig
 from arsurf.demo.scripted import DEMO, RATE, SCALE, scene_snapshot, session_tick, viewer_or_none
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.units import summary_json
@@ -206,8 +207,10 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     times, pts, windows = _press_tour(surface, spots, R, origin)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel((times, pts))).open()
     loop = build_loop(model, setup.config.haptics, dev.info, origin, seed=7, ramp_time=0.2)
+    meta = loop_metadata(meta, loop)
     n = int(math.ceil(times[-1] * RATE))
     journal_path(out / "session.h5").unlink(missing_ok=True)
+    meta = dict(meta, device=DeviceConfig.of(dev.info, "virtual").to_metadata())  # bounds its stylus on replay
     writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
     hand = np.empty(n)

@@ -37,7 +37,8 @@ import numpy as np
 
 from arsurf._files import write_text
 from arsurf._logging import progress as progress_bar
-from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, preset_metadata
+from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, loop_metadata, preset_metadata
+from arsurf.config import DeviceConfig
 from arsurf.demo.scripted import DEMO, RATE, SCALE, TIP_RADIUS, scene_snapshot, session_tick, viewer_or_none
 from arsurf.haptics.feel import score_force
 from arsurf.haptics.loop import LOOP_OUT
@@ -214,9 +215,11 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     origin = (x0, y0, z_hover + TIP_RADIUS + 8e-9)
     dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
     loop = build_loop(model, setup.config.haptics, dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
+    meta = loop_metadata(meta, loop)
     n = int(seconds * RATE)
     journal_path(out / "session.h5").unlink(missing_ok=True)  # a killed earlier run's: replaced like the rest
     # the loop runs in simulated time, faster than real time: wait for the disk rather than drop ticks
+    meta = dict(meta, device=DeviceConfig.of(dev.info, "virtual").to_metadata())  # bounds its stylus on replay
     writer = SessionWriter(out / "session.h5", meta, when_full="wait", handle_signals=handle_signals)
     compute = np.empty(n)
     device_force = np.empty((n, 3))

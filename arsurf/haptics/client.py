@@ -23,6 +23,12 @@ this client's poses, finite values, ``--max-force``) and is zero when no such pa
 ``--timeout`` seconds. On exit the client sends RELEASE so that another client may connect.
 ``examples/cpp/arsurf_client.cpp`` is the same client in C++ (on ``include/arsurf_bridge.h``).
 
+The bridge's frame is arsurf's (x right, y away from the operator, z up; metres, newtons; the
+FORCE is the one to apply to the stylus, docs/bridge.rst): the circle here is drawn in it. A
+device in another frame converts at this edge: :func:`from_openhaptics` (HD frame: x right, y up,
+z towards the operator, millimetres) before :meth:`HapticClient.send_pose`, and
+:func:`to_openhaptics` on :meth:`HapticClient.poll`'s force before applying it.
+
 Examples
 --------
 >>> c = HapticClient("127.0.0.1", 9, key=bytes(32))   # nothing needs to listen to build packets
@@ -68,6 +74,28 @@ WINDOW = 64
 #: Reasons a datagram from the server is dropped (the keys of :attr:`HapticClient.stats`, with the totals).
 DROP_REASONS = ("oversized", "truncated", "foreign", "bad_magic", "bad_version", "bad_type", "bad_mac",
                 "replayed", "out_of_order", "bad_ack", "bad_session", "nonfinite", "over_limit")
+
+
+def from_openhaptics(hd_mm):
+    """A position (mm) or velocity (mm/s) in OpenHaptics' HD frame (x right, y up, z towards the
+    operator) in the bridge's frame, in m (m/s): :math:`(x, -z, y) \\times 10^{-3}`.
+
+    >>> from_openhaptics((0.0, -2.0, 5.0))   # 2 mm down, 5 mm towards the operator
+    (0.0, -0.005, -0.002)
+    """
+    x, y, z = hd_mm
+    return (1e-3 * x, -1e-3 * z, 1e-3 * y)
+
+
+def to_openhaptics(force):
+    """The bridge's force (N, to apply to the stylus) in OpenHaptics' HD frame: :math:`(F_x, F_z, -F_y)`
+    (a rotation, the inverse of :func:`from_openhaptics`'s: the power F.v is the same in both).
+
+    >>> to_openhaptics((0.0, 0.0, 1.5))   # the surface pushes the hand up: HD +y
+    (0.0, 1.5, -0.0)
+    """
+    fx, fy, fz = force
+    return (fx, fz, -fy)
 
 
 def mac(key, body):

@@ -25,7 +25,7 @@ window after ``settle`` seconds (the approach and the start ramp are excluded):
 
 The record *buzzes* when any axis has more than ``buzz_limit`` (2 %) above the cutoff, when there
 is any reversal, or when the energy went below ``-energy_tolerance``. Thresholds are those of the
-feel targets in the README ("Haptic feel").
+feel targets in docs/feel.rst.
 
 Examples
 --------

@@ -115,7 +115,7 @@ def _sdk():
                 "forcedimension-core is installed but the Force Dimension SDK library (libdrd) was not found: install "
                 "the SDK and set FDSDK to its folder (it looks in $FDSDK/lib/release/lin-<machine>-gcc/)") from exc
         raise MissingDependency("Force Dimension devices need forcedimension-core; install it with: "
-                                f"pip install 'arsurf[{EXTRA}]' (and the vendor SDK, see the README)") from exc
+                                f"pip install 'arsurf[{EXTRA}]' (and the vendor SDK, see docs/devices.rst)") from exc
     return dhd, drd
 
 

@@ -139,7 +139,7 @@ class HaplyDevice(HardwareDevice):
                 raise HapticsError(f"{name} must be a serial port path or None (got {v!r})")
         if workspace is None:
             raise HapticsError("the Inverse3 reports no workspace: give workspace=(x, y, z) in metres (the box, "
-                               "centred on home, the handle may use; see the README's bring-up checklist)")
+                               "centred on home, the handle may use; see the bring-up checklist in docs/bringup.rst)")
         self.workspace = _vec3(workspace, "workspace")
         if (self.workspace <= 0).any():
             raise HapticsError(f"workspace extents must be positive metres (got {self.workspace.tolist()})")

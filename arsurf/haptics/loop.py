@@ -47,13 +47,14 @@ from arsurf.errors import HapticsError
 from arsurf.haptics.coupling import FP_PARAMS, FP_STATE, DirectCoupling, ForcePositionCoupling, fp_step
 from arsurf.haptics.device import DeviceState
 from arsurf.haptics.filters import LowPass, lowpass1_step
+from arsurf.haptics.gains import coupling_stiffness
 from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
 from arsurf.haptics.samples import SAMPLE_FAULTS, SampleCheck
 from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
-from arsurf.model import (M_BENDING, M_MEAS_FX, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS, SIGNALS_GIVEN,
-                          SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
+from arsurf.model import (M_BENDING, M_MEAS_FX, M_MODEL_FLAGS, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS,
+                          SIGNALS_GIVEN, SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
 
 SOURCES = {"simulated": 0, "measured": 1, "blended": 2}
 _BUTTONS_LIMIT = 1 << 31  # a button word is a small non-negative bit mask
@@ -242,7 +243,8 @@ def loop_output_kernel(a, buttons, now, age):
             hand[0] = math.nan
     pflag = passivity_observe_control(a.pc_params, pc_state, x_m, v_m, hand)
     dev = out[L_F_DEVICE:L_F_DEVICE + 3]
-    flags = safety_step(a.safety_params, a.safety_state, hand, now, age, buttons, dev) | pflag
+    flags = safety_step(a.safety_params, a.safety_state, hand, now, age, buttons, dev) | pflag \
+        | int(a.mout[M_MODEL_FLAGS])  # the model's caveats (BEYOND_MODEL) in the recorded word
     passivity_applied(pc_state, dev)
     out[L_ENERGY] = pc_state[S_ENERGY]
     out[L_PC_DAMPING] = pc_state[S_ALPHA]
@@ -262,6 +264,37 @@ def loop_tick_kernel(a, buttons, now, age):
     the scene's step."""
     loop_model_kernel(a, buttons)
     return loop_output_kernel(a, buttons, now, age)
+
+
+def _hand_per_probe_stiffness(coupling: DirectCoupling) -> float:
+    """The largest hand stiffness per probe stiffness of a direct coupling, :math:`\\max_i |K_{f,i} s_i|`
+    (a probe spring k is felt as :math:`K_f s k` at the handle)."""
+    return float(np.max(np.abs(np.asarray(coupling.force.gain) * np.asarray(coupling.position.scale))))
+
+
+def _give_virtual_coupling(model: ARModel, coupling: DirectCoupling, device_info, rate: float, on) -> float | None:
+    """Give ``model`` the direct coupling's virtual coupling (class docstring, ``virtual_coupling``);
+    returns the stiffness chosen (N/m at the handle), None when none was (off, or the model's own).
+
+    The probe's stiffness is :math:`k_{vc}/\\max_i |K_{f,i} s_i|`, the same floating-point
+    operations as :func:`arsurf.assembly.build_model` does on the recorded ``coupling_stiffness``:
+    a replay rebuilds the same bits."""
+    if not isinstance(on, (bool, np.bool_)):
+        raise HapticsError(f"virtual_coupling must be True or False (got {on!r})")
+    has = math.isfinite(model.coupling_stiffness)
+    if not on:
+        if has:
+            raise HapticsError(f"virtual_coupling=False but the model has a virtual coupling of "
+                               f"{model.coupling_stiffness:g} N/m at the probe; build the model without one")
+        return None
+    if has:
+        return None
+    if device_info is None:
+        raise HapticsError("the direct coupling's virtual coupling is chosen from the device's limits: pass "
+                           "device_info=device.info, or virtual_coupling=False to run without one (record it)")
+    k_vc = coupling_stiffness(device_info, rate)
+    model.set_coupling_stiffness(k_vc / _hand_per_probe_stiffness(coupling))
+    return k_vc
 
 
 @dataclass
@@ -341,7 +374,16 @@ class HapticLoop:
         Largest damping the passivity controller may add (the device's ``max_damping``).
     device_info : DeviceInfo, optional
         The device whose samples the loop takes: its workspace bounds a credible stylus position
-        (:mod:`arsurf.haptics.samples`; None: every other sample check still applies).
+        (:mod:`arsurf.haptics.samples`; None: every other sample check still applies), and with
+        the rate its limits choose the direct coupling's virtual coupling.
+    virtual_coupling : bool
+        The direct coupling's virtual coupling (:mod:`arsurf.contact.proxy`), on by default: the
+        hand feels the contact through a spring of :func:`~arsurf.haptics.gains.coupling_stiffness`
+        (N/m at the handle, from the device's limits and the rate), given to the model at the
+        probe's scale, :math:`k_{vc} / \\max_i |K_{f,i}\\, s_i|`. A model that already has a
+        coupling (a recorded session's, :func:`arsurf.assembly.build_model`) keeps it. False: no
+        coupling (the model must have none); record it (``haptics.virtual_coupling``). The
+        force-position coupling is itself a position coupling and takes no other.
 
     Examples
     --------
@@ -349,7 +391,7 @@ class HapticLoop:
     """
 
     def __init__(self, model: ARModel, coupling, safety: SafetyLayer, config: LoopConfig | None = None,
-                 scene=None, max_damping: float = math.inf, device_info=None):
+                 scene=None, max_damping: float = math.inf, device_info=None, virtual_coupling: bool = True):
         config = config or LoopConfig()
         config.validate()
         if not isinstance(model, ARModel):
@@ -379,6 +421,9 @@ class HapticLoop:
             self._fp = (coupling.params, coupling.phi, coupling.gamma, coupling.state)
         else:
             raise HapticsError(f"coupling must be DirectCoupling or ForcePositionCoupling (got {type(coupling).__name__})")
+        # the stiffness chosen here from the device (N/m at the handle), None when the model came with its own
+        self._vc_chosen = (_give_virtual_coupling(model, coupling, device_info, config.rate, virtual_coupling)
+                           if self._mode == 0 else None)
         self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity,
                                              reserve=model.adhesion_energy() * coupling.energy_gain())
         # the measured part and the contact normal (FILTER_CHANNELS; module docstring, step 4)
@@ -435,15 +480,30 @@ class HapticLoop:
         self._device_force = self.out[L_F_DEVICE:L_F_DEVICE + 3]
         self._packed = self._pack()
 
+    @property
+    def virtual_coupling(self) -> float | None:
+        """Stiffness (N/m at the handle) of the direct coupling's virtual coupling, None without
+        one (or with the force-position coupling): what a session records as
+        ``haptics.coupling_stiffness``."""
+        if self._vc_chosen is not None:
+            return self._vc_chosen
+        k = self.model.coupling_stiffness
+        if self._mode != 0 or not math.isfinite(k):
+            return None
+        return k * _hand_per_probe_stiffness(self.coupling)
+
     @classmethod
     def direct(cls, model: ARModel, device_info, probe_origin, *, scale: float = 1e-5, force_gain: float = 1e5,
-               config: LoopConfig | None = None, scene=None, **safety_kwargs) -> "HapticLoop":
+               config: LoopConfig | None = None, scene=None, virtual_coupling: bool = True,
+               **safety_kwargs) -> "HapticLoop":
         """The usual assembly: direct coupling (master displacement x ``scale`` -> probe, probe
-        force x ``force_gain`` -> hand) and a safety layer saturating at the device's max force.
+        force x ``force_gain`` -> hand), the virtual coupling chosen from the device and the rate,
+        the passivity controller (``config.passivity``) and a safety layer saturating at the
+        device's max force.
 
         ``probe_origin`` (3,) m is where the probe is when the master is at its origin; ``scale``
         is probe metres per master metre (1e-5: 1 mm -> 10 nm); ``force_gain`` N per N;
-        ``scene`` the optional nano-objects (see the class).
+        ``scene`` the optional nano-objects, ``virtual_coupling`` (default on) as in the class.
 
         Stability: the hand feels the contact stiffness k_c (N/m at the probe, ~E* a) as
         K_f k_c s N/m; a sampled loop renders at most 4 M_v / T² (corrected Table II, [Bolopion]:
@@ -461,7 +521,8 @@ class HapticLoop:
         # the passivity controller's damping limit: the device's, else its stiffness limit over one tick
         max_damping = (float(np.min(device_info.max_stiffness)) / config.rate if device_info.max_damping is None
                        else float(np.min(device_info.max_damping)))
-        return cls(model, coupling, safety, config, scene=scene, max_damping=max_damping, device_info=device_info)
+        return cls(model, coupling, safety, config, scene=scene, max_damping=max_damping, device_info=device_info,
+                   virtual_coupling=virtual_coupling)
 
     def step(self, inputs: DeviceState, now: float, signals=None) -> np.ndarray:
         """One tick from a device sample; returns the device force (3,) N (a reused array).

@@ -84,7 +84,7 @@ def _binding():
             from pyOpenHaptics import hd
     except ImportError as exc:
         raise MissingDependency("3D Systems devices need pyopenhaptics; install it with: "
-                                f"pip install 'arsurf[{EXTRA}]' (and OpenHaptics, see the README)") from exc
+                                f"pip install 'arsurf[{EXTRA}]' (and OpenHaptics, see docs/devices.rst)") from exc
     except OSError as exc:  # the binding loads libHD.so at import
         raise MissingDependency(f"pyopenhaptics is installed but the OpenHaptics library libHD.so cannot be loaded "
                                 f"({exc}); install OpenHaptics and the device driver and put libHD.so on the "

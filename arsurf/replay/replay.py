@@ -268,7 +268,29 @@ def _rmtree(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=False)
 
 
-def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_dir: str | os.PathLike, *,
+def recorded_scan(session, session_path: str | os.PathLike) -> Path:
+    """The scan file a session names (``metadata["scan"]["path"]``): an absolute path as it is, a
+    relative one from the current folder (where ``arsurf`` was run when it recorded), else from the
+    session's folder. Only a regular file is taken (the caller checks its SHA-256 against the session's).
+
+    Raises
+    ------
+    SessionError
+        The session names no scan, or no regular file is found there (the message says where it looked).
+    """
+    named = (session.metadata.get("scan") or {}).get("path")
+    if not isinstance(named, str) or not named:
+        raise SessionError(f"session {str(session_path)!r} records no scan path; pass the scan with --scan")
+    path = Path(named)
+    places = [path] if path.is_absolute() else [Path.cwd() / path, Path(session_path).resolve().parent / path]
+    for candidate in places:
+        if candidate.is_file():
+            return candidate
+    raise SessionError(f"session {str(session_path)!r} was recorded on {named!r}, which is not a file here (looked "
+                       f"at {', '.join(repr(str(p)) for p in places)}); pass the scan with --scan")
+
+
+def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike | None, out_dir: str | os.PathLike, *,
            frames: int = 0, progress: bool = True, overwrite: bool = False,
            frame_size: tuple[int, int] = (800, 600), allow_incomplete: bool = False,
            isolate="auto", figure_format: str = "png", dpi: int | None = None) -> ReplayResult:
@@ -278,8 +300,9 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     ----------
     session_path : path-like
         A session file (:class:`~arsurf.sessions.writer.SessionWriter`).
-    scan_path : path-like
-        The scan file the session was recorded on (its SHA-256 must match the session's).
+    scan_path : path-like or None
+        The scan file the session was recorded on (its SHA-256 must match the session's); None:
+        the one the session names (:func:`recorded_scan`), hash-checked the same way.
     out_dir : path-like
         Output folder; must not exist unless ``overwrite`` (its files are replaced only at the
         end). It gets :data:`MANIFEST`, the list of the files written (size, SHA-256).
@@ -351,6 +374,8 @@ def replay(session_path: str | os.PathLike, scan_path: str | os.PathLike, out_di
     if not session.verified:
         notes.append("the session carries no checksums (format_version 1): its content cannot be verified")
     expected = session.metadata["scan"]["sha256"]
+    if scan_path is None:
+        scan_path = recorded_scan(session, session_path)
     actual = scan_sha256(scan_path)
     if actual != expected:
         raise SessionError(
@@ -747,11 +772,12 @@ def cmd_replay(args) -> int:
 
 
 def register(subparsers) -> None:
-    """Add ``arsurf replay SESSION --scan SCAN --out DIR [--frames N] [--overwrite]`` (``-q``: arsurf.cli)."""
+    """Add ``arsurf replay SESSION [--scan SCAN] --out DIR [--frames N] [--overwrite]`` (``-q``: arsurf.cli)."""
     s = subparsers.add_parser("replay", help="re-run the model over a recorded session; write forces, contacts, "
                                              "plots and frames")
     s.add_argument("session", help="session file (.h5) recorded by the live loop or arsurf demo")
-    s.add_argument("--scan", required=True, help="the scan file the session was recorded on (hash-checked)")
+    s.add_argument("--scan", help="the scan file the session was recorded on (hash-checked; default: the path the "
+                   "session records, from this folder or the session's)")
     s.add_argument("--out", required=True, help="output folder (must not exist unless --overwrite)")
     s.add_argument("--frames", type=int, default=0, help="offscreen PNG frames to render (needs the viewer)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")

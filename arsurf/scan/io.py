@@ -46,7 +46,9 @@ the channel is topography, and :func:`arsurf.fit_surface` refuses one that is no
 Errors are :class:`arsurf.errors.ScanError` subclasses naming the file and the problem:
 :class:`~arsurf.errors.ScanFileNotFound`, :class:`~arsurf.errors.UnknownFormat`,
 :class:`~arsurf.errors.CorruptScan` (truncated or inconsistent; any exception of a
-third-party parser is wrapped in it), :class:`~arsurf.errors.ChannelNotFound` (lists the
+third-party parser is wrapped in it), :class:`~arsurf.errors.UnsupportedScan` (a valid file of a
+kind arsurf does not read: Gwyddion 1.x, force curves, an RGB TIFF, a Nanonis grid; the message says
+what it is), :class:`~arsurf.errors.ChannelNotFound` (lists the
 channels), :class:`~arsurf.errors.InvalidHeights` (e.g. no finite pixel) and
 :class:`MissingCalibration` (a bare matrix without spacing or unit).
 """
@@ -67,11 +69,13 @@ from arsurf.errors import (
     ScanError,
     ScanFileNotFound,
     UnknownFormat,
+    UnsupportedScan,
 )
 from arsurf.errors import MissingCalibration
 from arsurf.scan.readers._common import HDF5_SIGNATURE
 
-__all__ = ["load_scan", "save_scan", "detect_format", "FORMATS", "MissingCalibration"]
+__all__ = ["load_scan", "save_scan", "detect_format", "format_extensions", "unsupported_kind", "FORMATS",
+           "MissingCalibration"]
 
 #: format name -> reader module, in sniffing order (strong binary magics first, text last)
 FORMATS: dict[str, str] = {
@@ -111,6 +115,21 @@ def _ext_map() -> dict[str, str]:
     return out
 
 
+def format_extensions() -> dict[str, str]:
+    """Each format's extensions as one short text (NanoScope's numbered ones as ``.000-.999``).
+
+    >>> format_extensions()["nanoscope"]
+    '.spm, .000-.999'
+    """
+    out = {}
+    for fmt in FORMATS:
+        exts = _module(fmt).EXTENSIONS
+        named = [e for e in exts if not e[1:].isdigit()]
+        numbered = " .000-.999" if len(named) < len(exts) else ""
+        out[fmt] = ", ".join(named) + ("," if named and numbered else "") + numbered
+    return {k: v.strip() for k, v in out.items()}
+
+
 def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
     """The format name of ``path``: by content first, by extension when the content is silent.
 
@@ -136,13 +155,78 @@ def detect_format(path: str | os.PathLike, head: bytes | None = None) -> str:
     if text_fmt is not None:
         # a numeric table: the extension decides between XYZ and matrix when it names one
         return ext_fmt if ext_fmt in _TEXT_FORMATS else text_fmt
+    kind = unsupported_kind(head)
+    if kind is not None:
+        raise UnsupportedScan(f"{path}: {kind}")
+    if ext_fmt in _TEXT_FORMATS and _is_binary(head):
+        raise UnknownFormat(f"{path}: a binary file, not a text table as its extension {ext!r} suggests (binary "
+                            f"layouts such as SPIEPy's raw .dat say nothing of their shape or units); export it as a "
+                            f"text matrix, .gsf or .npy (arsurf formats lists what arsurf reads)")
+    if ext_fmt in ("npz", "npy") and not head.startswith(b"PK"):  # numpy would take them for a pickle
+        raise CorruptScan(f"{path}: not a NumPy {ext} file (its first bytes are {head[:8]!r}, not the "
+                          f"{'zip archive' if ext_fmt == 'npz' else 'NPY'} signature); is it another format renamed?")
     if ext_fmt is not None:  # the content is silent: trust the extension (the reader says what is wrong)
         return ext_fmt
-    known = ", ".join(sorted({e for e in _ext_map() if not e[1:].isdigit()}))
     raise UnknownFormat(
         f"{path}: neither the content nor the extension {ext or '(none)'!r} identify a supported scan "
-        f"format; supported: {', '.join(FORMATS)} (extensions {known}, NanoScope .000-.999)"
+        f"format; supported: {', '.join(FORMATS)} (`arsurf formats` lists their extensions)"
     )
+
+
+def _is_binary(head: bytes) -> bool:
+    """True when ``head`` is not text: a NUL byte, or not UTF-8/Latin-1 printable in the main."""
+    if b"\x00" in head:
+        return True
+    sample = head[:4096]
+    controls = sum(1 for b in sample if b < 32 and b not in (9, 10, 13))
+    return bool(sample) and controls > 0.01 * len(sample)
+
+
+#: valid files of kinds arsurf does not read, by their first bytes: (test, what the file is)
+_UNSUPPORTED = (
+    (lambda h: h.startswith(b"GWYO"), "a Gwyddion 1.x file (GWYO magic), an older format that arsurf does not read; "
+     "open it in Gwyddion 2 and save it again (as .gwy or .gsf)"),
+    (lambda h: h.startswith(b'Grid dim="'), "a Nanonis grid spectroscopy file (.3ds): spectra on a grid, not a height "
+     "image; give the .sxm scan recorded with it"),
+    (lambda h: h.startswith(b"Experiment\t"), "a Nanonis spectroscopy file (.dat: bias or Z spectroscopy curves), "
+     "not a height image; give the .sxm scan"),
+    (lambda h: h.startswith(b"PK\x03\x04") and (b"header.properties" in h[:512] or b"segments/" in h[:512]),
+     "a JPK force-curve archive (.jpk-force / .jpk-qi-data): force curves, not a height image; give the .jpk scan"),
+)
+
+
+def unsupported_kind(head: bytes) -> str | None:
+    """What a valid file that arsurf does not read is (a sentence with the way out), or None.
+
+    TIFFs: a TIFF without the Park or JPK tags (sniffed before this) is a picture, not a
+    calibrated height map: an RGB one is named as such.
+
+    >>> unsupported_kind(b"GWYO" + b"GwyContainer")[:22]
+    'a Gwyddion 1.x file (G'
+    """
+    for test, what in _UNSUPPORTED:
+        if test(head):
+            return what
+    from arsurf.scan.readers._common import tiff_first_ifd_tags
+
+    tags = tiff_first_ifd_tags(head)
+    if tags:
+        bo = "<" if head[:2] == b"II" else ">"
+
+        def short(code, default):
+            if code not in tags:
+                return default
+            typ, _, value = tags[code]
+            return int.from_bytes(value[:2], "little" if bo == "<" else "big") if typ == 3 else \
+                int.from_bytes(value[:4], "little" if bo == "<" else "big")
+
+        samples, photometric = short(277, 1), short(262, 1)
+        if samples >= 3 or photometric == 2:
+            return (f"an RGB TIFF picture ({samples} samples per pixel): colours, not heights; export the height "
+                    "channel from the instrument's software (.gsf, text matrix) or give the scan file")
+        return ("a TIFF without the Park Systems or JPK tags: an image with no height calibration; export the height "
+                "channel as .gsf or a text matrix, or give the instrument's scan file")
+    return None
 
 
 
@@ -224,7 +308,7 @@ def load_scan(
 
     Raises
     ------
-    ScanFileNotFound, UnknownFormat, CorruptScan, ChannelNotFound, InvalidHeights, MissingCalibration
+    ScanFileNotFound, UnknownFormat, CorruptScan, UnsupportedScan, ChannelNotFound, InvalidHeights, MissingCalibration
         All are :class:`arsurf.errors.ScanError`; :class:`arsurf.errors.MissingDependency` when
         the format needs an optional package (``pip install 'arsurf[formats]'``).
 

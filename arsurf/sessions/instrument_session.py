@@ -45,7 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.assembly import build_loop, build_model
+from arsurf.assembly import build_loop, build_model, loop_metadata
+from arsurf.config import DeviceConfig
 from arsurf.errors import InstrumentError, InstrumentLinkLost, LoopError, SessionError
 from arsurf.force.photodiode import Photodiode
 from arsurf.haptics.device import DeviceState
@@ -214,7 +215,9 @@ def record_instrument_session(path: str | os.PathLike, metadata, device, instrum
         max_age, age_source = _max_age(instrument, axes, max_age)
         base = (np.asarray(baseline, dtype=np.float64).reshape(2) if baseline is not None
                 else _baseline(link, int(baseline_samples), first_sample_timeout))
-        meta = dict(metadata)
+        meta = loop_metadata(metadata, loop)  # the virtual coupling chosen from the device, for the replay
+        if meta.get("device") is None:  # the limits the reader bounds the stylus and device force by
+            meta["device"] = DeviceConfig.of(device.info, type(device).__name__).to_metadata()
         meta["instrument"] = {
             "name": instrument.name, "signal_units": list(instrument.signal_units), "axes": axes,
             "frame": frame.to_metadata(), "max_age": max_age, "max_age_source": age_source,

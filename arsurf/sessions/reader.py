@@ -405,10 +405,11 @@ def _existing(path, what: str) -> Path:
 
 
 #: no desk haptic device reaches farther than this from its home position, m (the largest,
-#: Haption's Virtuose 6D, spans about 1.1 m); a session may record a smaller ``workspace``
+#: Haption's Virtuose 6D, spans about 1.1 m): the bound of a session that records no device
+#: workspace (older than arsurf 0.9), and the most a recorded one may claim
 DEVICE_REACH = 1.0
-#: no desk haptic device pushes harder than this, N (the strongest give ~35-40 N peak); a session
-#: may record its device's ``max_force``
+#: no desk haptic device pushes harder than this, N (the strongest give ~35-40 N peak): the bound
+#: of a session that records no device ``max_force``, and the most a recorded one may claim
 DEVICE_FORCE_LIMIT = 100.0
 #: no tip position in a scan frame lies farther than this from its origin, m (AFM scanners travel
 #: at most ~0.1 mm); the replay checks the scan's own extent once the scan is read
@@ -419,6 +420,35 @@ def _first(bad: np.ndarray) -> int:
     return int(np.flatnonzero(bad)[0])
 
 
+def device_bounds(metadata) -> tuple[np.ndarray, str, float, str]:
+    r"""``(reach (3,) m, why, force limit N, why)``: how far from home a recorded stylus may be,
+    per axis, and how hard the device may push, from the session's ``device`` record
+    (:class:`~arsurf.config.DeviceConfig`).
+
+    The reach is the workspace half-extent plus the same again, :math:`|x_j| \le w_j`, the
+    margin the live loop's sample check uses (:class:`~arsurf.haptics.samples.SampleCheck`); the
+    force limit is ``max_force`` plus 1 %. A session without a usable record (recorded before
+    the device was, or by a script) gets :data:`DEVICE_REACH` and :data:`DEVICE_FORCE_LIMIT`,
+    which also cap what a record may claim.
+
+    >>> reach, _, limit, _ = device_bounds({"device": {"max_force": 7.9, "workspace": [0.12, 0.16, 0.12]}})
+    >>> reach.tolist(), round(limit, 3)
+    ([0.12, 0.16, 0.12], 7.979)
+    """
+    device = metadata.get("device") if isinstance(metadata.get("device"), dict) else {}
+    reach, where = np.full(3, DEVICE_REACH), "no desk haptic device reaches farther"
+    ws = device.get("workspace")
+    if (isinstance(ws, list) and len(ws) == 3
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 < x < math.inf for x in ws)):
+        reach = np.minimum(np.asarray(ws, dtype=np.float64), DEVICE_REACH)
+        where = "outside the recorded device workspace (half-extent plus as much again, per axis)"
+    limit, what = DEVICE_FORCE_LIMIT, "no desk haptic device pushes harder"
+    mf = device.get("max_force")
+    if isinstance(mf, (int, float)) and not isinstance(mf, bool) and 0 < mf < DEVICE_FORCE_LIMIT:
+        limit, what = 1.01 * mf, "above the recorded device's max_force (plus 1 %)"
+    return reach, where, limit, what
+
+
 def check_ticks(s: Session, name: str) -> None:
     """Refuse ticks that cannot be real, naming the tick and the field (:class:`SessionError`).
 
@@ -426,12 +456,13 @@ def check_ticks(s: Session, name: str) -> None:
     - ``probe_position`` (and ``tip_position``, ``contact_point``, ``instrument_position`` where
       given): finite, within :data:`PROBE_REACH` of the scan frame's origin (the replay then checks
       the scan's extent, :func:`arsurf.replay.replay.check_probe_extent`);
-    - ``stylus_position`` where given: within the device's reach (its recorded
-      ``haptics.workspace`` half-extents plus half again, else :data:`DEVICE_REACH`);
-    - ``device_force`` where given: finite, norm within the device's limit (recorded
-      ``haptics.max_force`` plus 1 %, else :data:`DEVICE_FORCE_LIMIT`); ``force`` finite where given.
+    - ``stylus_position`` where given: within the recorded device workspace (:func:`device_bounds`);
+    - ``device_force`` where given: finite, norm within the recorded device's ``max_force``
+      (:func:`device_bounds`); ``force`` finite where given.
 
     NaN is the fill of an optional field (not given) and is allowed there; an infinity never is.
+    A sealed session is checked the same way: the seal says the bytes are intact, not that they
+    make sense.
     """
     t = s.ticks["t"]
     if t.size:
@@ -444,42 +475,36 @@ def check_ticks(s: Session, name: str) -> None:
             k = _first(steps <= 0) + 1
             raise SessionError(f"{name}: tick {k}: t = {float(t[k])!r} s is not after tick {k - 1} "
                                f"(t = {float(t[k - 1])!r} s); time must increase strictly")
-    haptics = s.metadata.get("haptics") if isinstance(s.metadata.get("haptics"), dict) else {}
-    reach, where = DEVICE_REACH, "no desk haptic device reaches farther"
-    ws = haptics.get("workspace")
-    if isinstance(ws, list) and len(ws) == 3 and all(isinstance(x, (int, float)) and x > 0 for x in ws):
-        reach, where = 0.75 * max(ws), "outside the recorded device workspace (half-extents plus half again)"
-    limit, what = DEVICE_FORCE_LIMIT, "no desk haptic device pushes harder"
-    mf = haptics.get("max_force")
-    if isinstance(mf, (int, float)) and not isinstance(mf, bool) and 0 < mf < DEVICE_FORCE_LIMIT:
-        limit, what = 1.01 * mf, "above the recorded device's max_force"
-    checks = [("probe_position", PROBE_REACH, "m", "outside any scanner's travel", False),
-              ("tip_position", PROBE_REACH, "m", "outside any scanner's travel", False),
-              ("contact_point", PROBE_REACH, "m", "outside any scanner's travel", False),
-              ("instrument_position", PROBE_REACH, "m", "outside any scanner's travel", False),
-              ("stylus_position", reach, "m", where, False),
-              ("device_force", limit, "N", what, False),
-              ("force", math.inf, "N", "", False)]
-    for field_name, bound, unit, why, required in checks:
+    reach, where, limit, what = device_bounds(s.metadata)
+    # (field, bound: a norm, or (3,) per-axis magnitudes, unit, why)
+    checks = [("probe_position", PROBE_REACH, "m", "outside any scanner's travel"),
+              ("tip_position", PROBE_REACH, "m", "outside any scanner's travel"),
+              ("contact_point", PROBE_REACH, "m", "outside any scanner's travel"),
+              ("instrument_position", PROBE_REACH, "m", "outside any scanner's travel"),
+              ("stylus_position", reach, "m", where),
+              ("device_force", limit, "N", what),
+              ("force", math.inf, "N", "")]
+    for field_name, bound, unit, why in checks:
         a = s.ticks.get(field_name)
         if a is None or not a.size:
             continue
         a = a.reshape(a.shape[0], -1)
         given = ~np.isnan(a).any(axis=1)
-        if required and not given.all():
-            k = _first(~given)
-            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is not finite; it is "
-                               "required at every tick")
         inf = np.isinf(a).any(axis=1)
         if inf.any():
             k = _first(inf)
             raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is infinite")
-        size = np.linalg.norm(np.where(given[:, None], a, 0.0), axis=1)
-        far = size > bound
+        a0 = np.where(given[:, None], a, 0.0)
+        if np.ndim(bound):
+            far = (np.abs(a0) > bound).any(axis=1)
+            size, shown = np.abs(a0).max(axis=1), f"per axis {np.asarray(bound).tolist()} {unit}"
+        else:
+            size = np.linalg.norm(a0, axis=1)
+            far, shown = size > bound, f"{bound:g} {unit}"
         if far.any():
             k = _first(far)
-            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} (norm {size[k]:.3g} {unit}) "
-                               f"is {why} ({bound:g} {unit}); the file is damaged or crafted")
+            raise SessionError(f"{name}: tick {k}: {field_name} = {a[k].tolist()} {unit} is {why} ({shown}); "
+                               "the file is damaged or crafted")
 
 
 def _check_session(s: Session, path) -> None:

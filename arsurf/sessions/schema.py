@@ -50,7 +50,7 @@ key                         JSON value
 ``friction``                coefficient mu of the simulated friction
 ``static_friction``         optional: the static coefficient mu_s of the stick-slip proxy
                             (absent: mu)
-``friction_law``            optional: ``"adhesive"`` (mu (P + |P_c|), what sessions record
+``friction_law``            optional: ``"adhesive"`` (``mu (P + |P_c|)``, what sessions record
                             by default), ``"area"`` (tau pi a^2) or ``"compressive"`` (mu P
                             for P > 0 only; absent: this law, the one sessions recorded before
                             the key existed ran with), :mod:`arsurf.contact.friction`

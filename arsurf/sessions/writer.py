@@ -569,8 +569,9 @@ class SessionWriter:
             if error is not None:
                 _OPEN_WRITERS.discard(self)
                 raise SessionError(f"recording to {str(self.path)!r} failed: the journal {str(self.journal)!r} could "
-                                   f"not be written ({error}); the ticks written before are in it "
-                                   "(load_session(..., allow_incomplete=True))") from error
+                                   f"not be written ({error}); its {st.written} ticks are kept "
+                                   f"(load_session(..., allow_incomplete=True)), the {self.unrecorded_ticks} "
+                                   "appended after them were not recorded") from error
         end = self._end
         index = _journal.scan_journal(self.journal)
         _merge_journal(index, self.path, complete=end["complete"], reason=end["reason"], created=end["created"])

@@ -11,6 +11,8 @@ from arsurf._files import atomic_write
 from arsurf.errors import SurfaceError
 from arsurf.spline.surface import BSplineSurface
 
+__all__ = ["FORMAT_VERSION", "is_surface_file", "load_surface", "save_surface", "surface_summary"]
+
 FORMAT_VERSION = 1
 
 
@@ -35,6 +37,29 @@ def save_surface(surface: BSplineSurface, path: str | os.PathLike, metadata: dic
         np.savez(fh, control_points=ctrl, rest_control_points=rest, knots_u=ku, knots_v=kv,
                  metadata_json=np.str_(json.dumps(meta, default=str)))
     return path
+
+
+def is_surface_file(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a ``.npz`` written by :func:`save_surface` (its entries say so; nothing
+    else is read). False for anything else, unreadable files included."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as f:
+            return {"control_points", "knots_u", "knots_v", "metadata_json"} <= set(f.files)
+    except Exception:  # noqa: BLE001 - not a zip, not numpy, not there: not a surface
+        return False
+
+
+def surface_summary(surface: BSplineSurface) -> dict:
+    """What ``arsurf info`` shows of a fitted surface: control net, domain and height range (nm),
+    whether it is dented (its net differs from its rest net)."""
+    (u0, u1), (v0, v1) = surface.domain
+    ctrl, rest, _, _ = surface.kernel_arrays()
+    xs, ys = np.meshgrid(np.linspace(u0, u1, 64), np.linspace(v0, v1, 64))
+    z = surface.evaluate(xs, ys)[..., 2]
+    nu, nv = surface.shape
+    return {"kind": "fitted B-spline surface (arsurf fit); not a scan", "control_points": f"{nu} x {nv}",
+            "domain_nm": [(u1 - u0) * 1e9, (v1 - v0) * 1e9], "z_min_nm": float(z.min() * 1e9),
+            "z_max_nm": float(z.max() * 1e9), "deformed": bool(not np.array_equal(ctrl, rest))}
 
 
 def load_surface(path: str | os.PathLike) -> BSplineSurface:

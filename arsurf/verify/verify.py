@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arsurf._files import write_text
 from arsurf.errors import ArsurfError, ChannelNotFound, VerifyError
 from arsurf.scan.scan import Scan
 from arsurf.verify.compare import (ANGLE_THRESHOLD_DEG, POSITION_THRESHOLD_PX, ObjectCheck, compare,
@@ -203,5 +204,6 @@ def verify_session(session_path, after_path, *, before_path=None, out_dir=None, 
                             result.checks, result.wrong, tip_radius=result.tip_radius)
         result.files["figure"] = save_figure(fig, out / f"verify.{figure_format}", dpi=dpi or 200)
         result.files["report"] = out / "verify.json"
-        (out / "verify.json").write_text(json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
+        write_text(out / "verify.json", json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n",
+                   what="verify report", error=VerifyError)  # atomic, never through a planted link
     return result

@@ -226,7 +226,7 @@ def test_missing_dask_is_one_line(folder, tmp_path, monkeypatch):
 
 
 def test_inputs_globs_and_the_output_folder(folder, tmp_path):
-    files, root = collect_inputs([str(folder / "s*.*"), folder / "s0.gsf"])
+    files, root, _ = collect_inputs([str(folder / "s*.*"), folder / "s0.gsf"])
     assert [f.name for f in files] == ["s0.gsf", "s1.npz", "s2.gwy"] and root == Path(os.path.abspath(folder))
     # an output folder inside the input folder: its tables and surfaces are not inputs
     out = folder / "out"
@@ -301,3 +301,47 @@ def test_an_unreachable_scheduler_is_one_line_and_writes_nothing(folder, tmp_pat
         run_batch("process", [folder], tmp_path / "out", scheduler="tcp://127.0.0.1:9", connect_timeout=1.0,
                   progress=False)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("old, new", [("seed000", "mwcnt-push"), ("seed001", "thesis-haptics"),
+                                      ("seed002", "spline-ar"), ("seed003", "tipless-rolling")])
+def test_a_sweep_accepts_a_presets_old_name_and_records_the_new_one(old, new):
+    from arsurf.assembly import PRESETS
+    from arsurf.batch.pipelines import _check_sweep
+
+    checked = _check_sweep({"preset": old})
+    assert checked["preset"] == new and checked["tip_radius"] == [PRESETS[new].tip_radius]
+
+
+def test_a_folder_is_read_by_content_and_what_is_left_is_listed(tmp_path, capsys):
+    """#30: a NanoScope file named ``.di`` (which ``arsurf info`` reads) is taken from a folder, as a
+    renamed .gsf is; a file that is no scan is named in the output and the summary, not dropped silently."""
+    from tests.support.real_scans import real_scan_path
+
+    d = tmp_path / "scans"
+    d.mkdir()
+    (d / "tip.di").write_bytes(real_scan_path("Veeco_20160622.003").read_bytes())
+    save_scan(_scan(0), d / "renamed.gsf")
+    (d / "renamed.gsf").rename(d / "renamed.dat2")
+    (d / "notes.md").write_text("not a scan\n")
+    files, root, skipped = collect_inputs([d])
+    assert [f.name for f in files] == ["renamed.dat2", "tip.di"] and [p.name for p in skipped] == ["notes.md"]
+    assert load_scan(files[1]).metadata["format"] == "nanoscope"
+    out = tmp_path / "out"
+    assert main(["batch", "process", str(d), "-o", str(out), "--workers", "0", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert "2 items: 2 ok" in printed and "skipped: 1 file, not inputs: notes.md" in printed
+    assert json.loads((out / "summary.json").read_text())["not_inputs"] == ["notes.md"]
+
+
+def test_a_folder_without_scans_is_one_short_line(tmp_path, capsys):
+    """#30: not every extension (NanoScope alone has a thousand): one line saying how to list the formats."""
+    d = tmp_path / "empty"
+    d.mkdir()
+    (d / "notes.md").write_text("not a scan\n")
+    assert _exit_status(["batch", "process", str(d), "-o", str(tmp_path / "out"), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and len(err) < 250 and "arsurf formats" in err, err
+    assert main(["formats"]) == 0
+    listing = capsys.readouterr().out
+    assert ".000-.999" in listing and len(listing.splitlines()) == len(load_scan.__globals__["FORMATS"])

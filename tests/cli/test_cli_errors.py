@@ -2,10 +2,12 @@
 error is one line on stderr naming the flag or file, with exit status 2."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tests.support.real_scans import real_scan_path
 
@@ -237,3 +239,43 @@ def test_a_channel_that_is_not_the_topography_is_fitted_only_on_request(capsys, 
     assert main(["fit", ibw, "-o", out, "--channel", "AmplitudeRetrace", "--control", "20", "20", "--as-height"]) == 0
     capsys.readouterr()
     _fails(capsys, ["fit", ibw, "-o", out, "--channel", "PhaseRetrace", "--as-height"], "PhaseRetrace", "deg")
+
+
+@pytest.mark.parametrize("frames", ["0", "2"])
+def test_view_frames_name_the_option_and_its_bound(capsys, frames):
+    """#30: ``--frames 0`` said "at least 1 frame", ``--frames 2`` "`frames` must be at least 4" (a
+    Python name); both now name the CLI option and the one bound, which --help states too."""
+    from arsurf.cli.view import MIN_SCRIPTED_FRAMES
+
+    code = main(["view", str(SCAN), "--frames", frames])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert f"--frames {frames}: at least {MIN_SCRIPTED_FRAMES} without --bridge-port" in err and "`frames`" not in err
+    with pytest.raises(SystemExit):
+        main(["view", "--help"])
+    assert f"at least {MIN_SCRIPTED_FRAMES}" in " ".join(capsys.readouterr().out.split())
+
+
+def test_the_frames_bound_is_the_scripted_paths():
+    pytest.importorskip("pyvista")
+    from arsurf.cli.view import MIN_SCRIPTED_FRAMES
+    from arsurf.errors import ViewerError
+    from arsurf.spline.surface import BSplineSurface
+    from arsurf_viewer.interactive import scripted_path
+
+    s = BSplineSurface.from_heights(np.zeros((6, 6)), (0.0, 50e-9), (0.0, 50e-9))
+    assert scripted_path(s, 20e-9, MIN_SCRIPTED_FRAMES).shape == (MIN_SCRIPTED_FRAMES, 3)
+    with pytest.raises(ViewerError):
+        scripted_path(s, 20e-9, MIN_SCRIPTED_FRAMES - 1)
+
+
+def test_info_on_a_fitted_surface_says_it_is_one(capsys, tmp_path):
+    """#30: ``arsurf info`` on `arsurf fit`'s output said "no 2-D numeric array"."""
+    out = tmp_path / "s.npz"
+    assert main(["fit", str(SCAN), "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"].startswith("fitted B-spline surface") and info["fitted_from"] == str(SCAN)
+    assert info["z_max_nm"] > info["z_min_nm"] and info["deformed"] is False
+    assert "x" in info["control_points"]

@@ -50,3 +50,10 @@ def test_the_simulated_devices_are_listed(tmp_path):
     assert fd.startswith("#0 omega.3 s/n 4242") and reports["openhaptics"]["installed"]
     # where the watchdog and the workspace came from are shown (the bring-up's first checks)
     assert "watchdog_set yes" in fd and "workspace_source kinematics" in fd
+
+
+def test_json_lists_every_backend_the_text_lists(tmp_path):
+    """#30: ``--json`` had no ``virtual`` entry although the text listed it first."""
+    text = [line.split()[0] for line in _devices({"HOME": str(tmp_path)}).stdout.splitlines()]
+    js = json.loads(_devices({"HOME": str(tmp_path)}, "--json").stdout)
+    assert [r["backend"] for r in js] == text and text[0] == "virtual" and js[0]["installed"]

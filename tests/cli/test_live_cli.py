@@ -63,6 +63,26 @@ def test_virtual_device_session_is_recorded_and_replays_exactly(capsys, tmp_path
     _replayed_exactly(capsys, path, tmp_path / "replay")
 
 
+@pytest.mark.parametrize("flags", [(), ("--no-virtual-coupling",), ("--no-passivity",)], ids=["default", "no-vc", "no-pc"])
+def test_the_session_records_the_virtual_coupling_and_passivity_and_replays_with_them(capsys, tmp_path, flags):
+    """By default the loop has the virtual coupling of the device and rate and the passivity
+    controller, and the session says so; a flag turns one off, recorded too; either way the replay
+    rebuilds the loop that ran (the replay takes the recorded setting, not the default)."""
+    from arsurf.haptics.gains import coupling_stiffness
+
+    path = tmp_path / "s.h5"
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.6", "--record", str(path), *flags)
+    assert rc == 0, err
+    h = load_session(path).metadata["haptics"]
+    vc, pc = "--no-virtual-coupling" not in flags, "--no-passivity" not in flags
+    assert h["virtual_coupling"] is vc and h["passivity"] is pc
+    if vc:
+        assert h["coupling_stiffness"] == coupling_stiffness(make_device("virtual").info, 1000.0)
+    else:
+        assert "coupling_stiffness" not in h
+    _replayed_exactly(capsys, path, tmp_path / "replay")
+
+
 def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path):
     """The simulated Nanonis controller (a virtual AFM over a flat sample, tip at (5, 5) um) with the
     scan's origin at (4.49, 4.49, 0) um: the scan's middle, whose height is ~0 after levelling, is

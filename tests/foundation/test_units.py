@@ -128,6 +128,8 @@ def outputs(tmp_path_factory):
     _stdout_json(["info", str(qnm), "--json", "--material", "--tip-radius-nm", "5"], root / "stdout" / "info_material.json")
     _stdout_json(["fit", str(scans[1]), "-o", str(root / "fit" / "grating.npz"), "--json"], root / "stdout" / "fit.json")
     _stdout_json(["devices", "--json"], root / "stdout" / "devices.json")
+    _stdout_json(["info", str(root / "fit" / "sinusoid.npz"), "--json"], root / "stdout" / "info_surface.json")
+    _stdout_json(["formats", "--json"], root / "stdout" / "formats.json")
     return root
 
 

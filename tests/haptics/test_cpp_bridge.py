@@ -653,7 +653,14 @@ def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_
 
     rec = load_session(session)
     assert rec.complete and rec.verified and rec.n_ticks > 300
-    assert rec.metadata["device"]["interface"] == "udp-bridge" and rec.metadata["haptics"] == dict(BRIDGE_HAPTICS)
+    # the bridge's settings, with the protections the loop ran with: the coupling of the bridge's device
+    # (a Touch X: half its smallest stiffness limit, 740 N/m at 1 kHz) and the passivity controller
+    from arsurf.haptics.gains import coupling_stiffness
+    from arsurf.haptics.udp_bridge import UdpBridgeDevice
+
+    k_vc = coupling_stiffness(UdpBridgeDevice().info, BRIDGE_HAPTICS["rate"])
+    assert rec.metadata["device"]["interface"] == "udp-bridge"
+    assert rec.metadata["haptics"] == dict(BRIDGE_HAPTICS, virtual_coupling=True, coupling_stiffness=k_vc, passivity=True)
     assert kf.read_text().strip() not in session.read_bytes().hex()  # the key is never recorded
     t = rec.ticks
     pos, _, applied = _read_log(tmp_path / "c.csv")

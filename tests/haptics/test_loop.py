@@ -19,9 +19,9 @@ R = 20e-9
 LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
 
 
-def _setup(source="simulated", noise=0.0, trajectory=None, max_force=7.9, seed=0):
+def _setup(source="simulated", noise=0.0, trajectory=None, max_force=7.9, seed=0, e_star=50e9):
     s = fit_surface(sinusoid((96, 96), 4e-9, 5e-9, 160e-9))
-    model = ARModel(s, R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.2)
+    model = ARModel(s, R, MaugisDugdale(R, e_star, 0.05), LEVER, friction=0.2)
     c = (190e-9, 190e-9)
     origin = (*c, s.evaluate(*c)[2] + R + 5e-9)
     if trajectory is None:  # press 10 nm down, slide 30 nm along x, lift
@@ -146,3 +146,22 @@ def test_bad_settings():
 
     with pytest.raises(HapticsError, match="same rate"):
         HapticLoop(model, loop.coupling, SafetyLayer(7.9, 1e-4), LoopConfig(rate=1000.0))
+
+
+def test_a_contact_beyond_the_law_is_flagged_in_the_recorded_word():
+    """#30: the model's BEYOND_MODEL (a > 0.4 R) reaches the tick's flag word, which sessions record
+    (``safety_flags``), exactly on the ticks whose contact is that wide."""
+    from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
+    from arsurf.haptics.loop import L_SAFETY_FLAGS
+    from arsurf.model import M_RADIUS
+    from arsurf.status import BEYOND_MODEL
+
+    press = (np.array([0.0, 2.0, 4.0]), np.array([[0, 0, 0], [0, 0, -4e-3], [0, 0, 0]]))  # 40 nm down and up
+    _, model, dev, loop = _setup(trajectory=press, e_star=2e9)  # a polymer: the hand sinks in
+    wide, flagged = [], []
+    for _ in range(4000):
+        st = dev.read_state()
+        dev.command_force(loop.step(st, st.timestamp))
+        wide.append(model.out[M_RADIUS] > SMALL_CONTACT_LIMIT * R)
+        flagged.append(bool(int(loop.out[L_SAFETY_FLAGS]) & BEYOND_MODEL))
+    assert any(wide) and not all(wide) and flagged == wide

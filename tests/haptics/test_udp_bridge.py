@@ -791,6 +791,7 @@ def test_the_cli_refuses_a_bad_recording_setup_before_anything_runs(capsys, tmp_
                          (["view", "--bridge-port", "0", "--record", str(existing)], "never replaces"),
                          (["view", "--bridge-port", "0", "--record", str(tmp_path / "no" / "r.h5")], "folder"),
                          (["view", "--frames", "0"], "--frames 0"),
+                         (["view", "--realtime-priority", "5"], "give --bridge-port"),
                          (["view", "--bridge-port", "0", "--tubes"], "--tubes")):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
@@ -851,3 +852,19 @@ def test_reference_client_against_the_bridge(capsys, tmp_path):
     assert dev.stats.accepted > 0 and dev.stats.dropped == 0
     assert dev.stats.releases == 1 and dev.peer is None  # the client said goodbye on exit
     np.testing.assert_allclose(radii, 0.01, rtol=1e-9)
+
+
+def test_the_python_client_converts_the_openhaptics_frame_as_the_protocol_states():
+    """docs/bridge.rst: HD (x right, y up, z towards the operator, mm) -> the bridge's frame (x right,
+    y away, z up, m) is (x, -z, y) 1e-3; the force back is (Fx, Fz, -Fy). A press down is -z, the
+    surface's push back up is HD +y, and the power F.v is the same in both frames (a rotation)."""
+    from arsurf.haptics.client import from_openhaptics, to_openhaptics
+
+    assert from_openhaptics((0.0, -2.0, 0.0)) == (0.0, 0.0, -2e-3)
+    assert to_openhaptics((0.0, 0.0, 1.5)) == (0.0, 1.5, 0.0)
+    assert from_openhaptics((0.0, 0.0, 3.0)) == (0.0, -3e-3, 0.0)  # towards the operator: -y in the bridge
+    rng = np.random.default_rng(4)
+    for v_hd, f in zip(rng.normal(size=(20, 3)), rng.normal(size=(20, 3))):
+        v = np.array(from_openhaptics(v_hd))
+        assert np.isclose(np.dot(to_openhaptics(f), v_hd) * 1e-3, np.dot(f, v), rtol=1e-12, atol=0)
+        assert np.isclose(np.linalg.norm(v), 1e-3 * np.linalg.norm(v_hd), rtol=1e-12)

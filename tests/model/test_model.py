@@ -193,3 +193,26 @@ def test_pressing_still_on_a_slope_below_the_cone_sticks_and_above_it_slides(md)
             assert not any(slips) and np.ptp(held, axis=0).max() <= 1e-12 * np.abs(held).max()
         else:
             assert any(slips[:100])
+
+
+def test_a_contact_wider_than_the_law_holds_for_is_flagged(flat):
+    """#30: a 20 nm tip driven 75.9 nm into polystyrene answered 14.8 uN at a = 39 nm (about 2 R)
+    unflagged. The law assumes a << R: past a = 0.4 R the tick says BEYOND_MODEL."""
+    from arsurf.assembly import make_model
+    from arsurf.contact.materials import effective_modulus, work_of_adhesion
+    from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT, parabolic_gap_error
+    from arsurf.status import BEYOND_MODEL, flag_names
+
+    # the bound's reason: the paraboloid every sphere-on-flat law uses is 4.2 % short of the sphere at its edge
+    assert 0.04 < parabolic_gap_error(SMALL_CONTACT_LIMIT) < 0.05 < parabolic_gap_error(0.5)
+    m = make_model(flat, tip_radius=R, effective_modulus=effective_modulus("Si", "polystyrene"),
+                   work_of_adhesion=work_of_adhesion("Si", "polystyrene"), deform=False)
+    x = y = 100e-9
+    flags = {}
+    for depth in (0.5e-9, 2e-9, 0.3 * R, 75.9e-9):
+        t = m.step((x, y, R - depth))
+        flags[depth] = t.model_flags
+        assert bool(t.model_flags & BEYOND_MODEL) == (t.contact_radius > SMALL_CONTACT_LIMIT * R), (depth, t)
+    assert flags[0.5e-9] == 0 and flag_names(flags[75.9e-9]) == ["BEYOND_MODEL"]
+    m.reset()
+    assert m.step((x, y, 2 * R)).model_flags == 0  # out of contact: nothing to flag

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 import struct
 import sys
 from pathlib import Path
@@ -513,3 +514,25 @@ def test_a_replay_result_whose_folder_is_gone_still_shows_its_numbers(replayed, 
     damaged.mkdir()
     (damaged / "replay.h5").write_bytes(b"not an HDF5 file")
     assert dataclasses.replace(replayed.result, out_dir=damaged)._repr_png_() is None
+
+
+def test_the_scan_defaults_to_the_one_the_session_names(recording, replayed, tmp_path, monkeypatch, capsys):
+    """#30: ``arsurf replay SESSION --out DIR`` without ``--scan`` takes the scan the session records
+    (absolute, or relative from here or the session's folder), refusing it on a hash mismatch as with --scan."""
+    out = tmp_path / "cli"
+    assert main(["replay", str(recording.session), "--out", str(out)]) == 0
+    assert _files(out) == _files(replayed.out)
+    # a session that names its scan relatively, replayed from another folder: found beside the session
+    d = tmp_path / "moved"
+    d.mkdir()
+    shutil.copyfile(recording.scan, d / "scan.npz")
+    meta = {**recording.meta, "scan": {**recording.meta["scan"], "path": "scan.npz"}}
+    session = _small_session(d / "s.h5", meta, [(0, 0, 0)] * 3)
+    monkeypatch.chdir(tmp_path)
+    assert replay(session, None, tmp_path / "r1", progress=False).n_ticks == 3
+    (d / "scan.npz").write_bytes((d / "scan.npz").read_bytes() + b"\0")  # another file under that name
+    assert main(["replay", str(session), "--out", str(tmp_path / "r2"), "-q"]) == 2
+    assert "SHA-256" in capsys.readouterr().err and not (tmp_path / "r2").exists()
+    (d / "scan.npz").unlink()
+    assert main(["replay", str(session), "--out", str(tmp_path / "r3"), "-q"]) == 2
+    assert "pass the scan with --scan" in capsys.readouterr().err

@@ -232,6 +232,9 @@ def test_a_session_through_the_simulated_nanonis_records_and_replays_the_measure
     assert s.complete and s.n_ticks == result.ticks >= 1600
     assert s.metadata["instrument"]["signals"] == ["X (m)", "Y (m)", "Z (m)", "Input 1 (V)", "Input 2 (V)"]
     assert s.metadata["calibration"]["vertical_sensitivity"] == pd.vertical_sensitivity
+    # the device's limits, which the reader bounds the recorded stylus and device force by
+    assert s.metadata["device"]["workspace"] == dev.info.workspace.tolist()
+    assert s.metadata["device"]["max_force"] == dev.info.max_force
     assert np.all(np.isfinite(t["signals"])) and result.instrument_samples > 50
     # the signals are the instrument's: the bending angle reads the true deflection of the virtual
     # lever, F = k delta (classical reading alpha / g; float32 on the wire, noise 1e-4 units)

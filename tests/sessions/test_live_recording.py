@@ -9,7 +9,7 @@ from functools import partial
 import numpy as np
 import pytest
 
-from arsurf.assembly import BUNDLED_SCAN, build_model, preset_metadata
+from arsurf.assembly import BUNDLED_SCAN, build_model, loop_metadata, preset_metadata
 from arsurf.errors import LoopError, SessionError
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.replay.replay import replay
@@ -60,8 +60,10 @@ def _run_until(live, ticks):
 def test_a_live_device_loop_records_a_session_that_replays_bit_for_bit(setup, tmp_path):
     meta, _ = setup
     path = tmp_path / "live.h5"
-    with SessionWriter(path, meta) as writer:
-        live, dev = _live(setup, partial(record_loop_tick, writer))
+    live, dev = _live(setup)
+    # the session records the virtual coupling the loop chose from the device: the replay rebuilds it
+    with SessionWriter(path, loop_metadata(meta, live.loop)) as writer:
+        live.record = partial(record_loop_tick, writer)
         live.start()
         try:
             _run_until(live, 800)
@@ -92,9 +94,9 @@ def test_a_fault_mid_session_keeps_the_recording_and_zeroes_the_force(setup, tmp
             raise RuntimeError("injected fault in the recorder")
         record_loop_tick(writer, loop, t, state)
 
+    live, dev = _live(setup, record)
     with pytest.raises(LoopError, match="injected fault"):
-        with SessionWriter(path, meta) as writer:
-            live, dev = _live(setup, record)
+        with SessionWriter(path, loop_metadata(meta, live.loop)) as writer:
             live.start()
             try:
                 _run_until(live, 10**9)  # until the fault stops it

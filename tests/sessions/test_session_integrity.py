@@ -65,17 +65,71 @@ def test_ticks_that_cannot_be_real_are_refused_naming_tick_and_field(tmp_path, c
         assert "\n" not in str(info.value)
 
 
-def test_the_recorded_device_limits_are_used_when_given(tmp_path):
+def _device_meta(max_force=3.3, workspace=(0.12, 0.16, 0.12)):
     meta = _meta()
-    meta["haptics"] = {"device": "virtual", "max_force": 3.3, "workspace": [0.12, 0.16, 0.12]}
-    load_session(_write(tmp_path / "ok.h5", meta=meta, edit=lambda k, f: f.update(device_force=[3.3, 0, 0])))
+    meta["device"] = {"interface": "virtual", "name": "virtual", "max_force": max_force, "workspace": list(workspace)}
+    return meta
+
+
+def test_the_recorded_device_limits_are_used_when_given(tmp_path):
+    """The ``device`` record the live loop, the bridge view and the demos write bounds the stylus per
+    axis (half-extent plus as much again, as the live sample check) and the device force (max_force
+    plus 1 %), far inside the fixed bounds of an old session (1 m, 100 N)."""
+    meta = _device_meta()
+    load_session(_write(tmp_path / "ok.h5", meta=meta, edit=lambda k, f: f.update(
+        device_force=[3.3, 0, 0], stylus_position=[0.119, -0.159, 0.119])))
     with pytest.raises(SessionError, match=r"tick 5: device_force .*recorded device's max_force"):
         load_session(_write(tmp_path / "f.h5", meta=meta,
                             edit=lambda k, f: f.update(device_force=[4.0, 0, 0]) if k == 5 else None))
-    with pytest.raises(SessionError, match=r"tick 8: stylus_position .*recorded device workspace"):
+    # 0.2 m along y: a fifth of the fixed 1 m, outside the device's 0.16 m per-axis bound
+    with pytest.raises(SessionError, match=r"tick 8: stylus_position = \[0\.0, 0\.2, 0\.0\] m is outside the "
+                                           r"recorded device workspace"):
         load_session(_write(tmp_path / "w.h5", meta=meta,
-                            edit=lambda k, f: f.update(stylus_position=[0.5, 0, 0]) if k == 8 else None))
+                            edit=lambda k, f: f.update(stylus_position=[0.0, 0.2, 0.0]) if k == 8 else None))
+    with pytest.raises(SessionError, match=r"tick 2: stylus_position = \[0\.13, 0\.0, 0\.0\] m"):
+        load_session(_write(tmp_path / "x.h5", meta=meta,
+                            edit=lambda k, f: f.update(stylus_position=[0.13, 0.0, 0.0]) if k == 2 else None))
     assert DEVICE_FORCE_LIMIT >= 40.0  # the strongest desk devices give ~35-40 N
+
+
+def test_a_recorded_device_cannot_widen_the_fixed_bounds(tmp_path):
+    """A crafted record claiming a 1 km workspace and a 1 MN device is capped at 1 m and 100 N."""
+    meta = _device_meta(max_force=1e6, workspace=(1e3, 1e3, 1e3))
+    with pytest.raises(SessionError, match=r"tick 4: stylus_position .*per axis \[1\.0, 1\.0, 1\.0\] m"):
+        load_session(_write(tmp_path / "w.h5", meta=meta,
+                            edit=lambda k, f: f.update(stylus_position=[0, 0, 2.0]) if k == 4 else None))
+    with pytest.raises(SessionError, match=r"tick 6: device_force .*pushes harder"):
+        load_session(_write(tmp_path / "f.h5", meta=meta,
+                            edit=lambda k, f: f.update(device_force=[0, 200.0, 0]) if k == 6 else None))
+
+
+SEALED_EDITS = {
+    "t": (lambda a: a.__setitem__(9, a[8]), r"tick 9: t = .* is not after tick 8"),
+    "stylus_position": (lambda a: a.__setitem__(12, [0.0, 0.0, 0.3]), r"tick 12: stylus_position .*device workspace"),
+    "device_force": (lambda a: a.__setitem__(3, [0.0, 0.0, -5.0]), r"tick 3: device_force .*max_force"),
+    "probe_position": (lambda a: a.__setitem__(20, [0.0, 0.5, 0.0]), r"tick 20: probe_position .*scanner's travel"),
+}
+
+
+@pytest.mark.parametrize("field", sorted(SEALED_EDITS))
+def test_a_resealed_session_that_makes_no_sense_is_refused(tmp_path, field):
+    """Ticks edited after recording, checksums and seal redone: the bytes are 'intact', the content
+    is still checked, in-process and isolated."""
+    import h5py
+
+    from tests.support.hdf5_attacks import reseal_session
+
+    p = _write(tmp_path / "s.h5", meta=_device_meta())
+    edit, match = SEALED_EDITS[field]
+    with h5py.File(p, "r+") as f:
+        a = f["ticks"][field][()]
+        edit(a)
+        f["ticks"][field][...] = a
+    reseal_session(p)
+    for isolate in (False, True):
+        with pytest.raises(SessionError, match=match) as info:
+            load_session(p, isolate=isolate)
+        assert "\n" not in str(info.value)
 
 
 def test_a_killed_recordings_journal_is_checked_too(tmp_path):

@@ -97,6 +97,23 @@ def test_the_cli_writes_the_report_the_figure_and_the_next_scene(experiments, tm
     assert np.array_equal(nxt.heights, load_scan(e.after).heights)
 
 
+def test_a_planted_link_as_the_report_is_never_written_through(experiments, tmp_path, capsys):
+    """A second user plants ``verify.json -> victim`` in the output folder: refused, victim intact."""
+    import os
+
+    from arsurf.cli import main
+
+    e, _ = experiments[-1]
+    out, victim = tmp_path / "v", tmp_path / "victim"
+    out.mkdir()
+    victim.write_text("precious")
+    os.symlink(victim, out / "verify.json")
+    rc = main(["verify", str(e.session), str(e.after), "--out", str(out), "--dpi", "60"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "symbolic link" in err and len(err.strip().splitlines()) == 1
+    assert victim.read_text() == "precious"
+
+
 def test_the_tip_radius_is_estimated_from_the_tubes(experiments):
     from arsurf.verify.tubes import find_tubes
 

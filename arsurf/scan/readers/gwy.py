@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf._files import atomic_write
-from arsurf.errors import CorruptScan, ScanError
+from arsurf.errors import CorruptScan, ScanError, UnsupportedScan
 from arsurf.scan.readers._common import (
     Channel,
     check_shape,
@@ -134,7 +134,7 @@ class _Parser:
 def parse(path, buf: bytes) -> dict:
     """The top-level object of a GWY file as nested dicts (arrays as read-only numpy views)."""
     if buf.startswith(MAGIC_V1):
-        raise CorruptScan(f"{path}: Gwyddion 1.x file (GWYO magic), an older format that arsurf does not read; "
+        raise UnsupportedScan(f"{path}: a Gwyddion 1.x file (GWYO magic), an older format that arsurf does not read; "
                           "open it in Gwyddion 2 and save it again (as .gwy or .gsf)")
     if not buf.startswith(MAGIC):
         raise CorruptScan(f"{path}: missing the GWYP magic bytes")

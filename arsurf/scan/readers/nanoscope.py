@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.errors import CorruptScan
+from arsurf.errors import CorruptScan, UnsupportedScan
 from arsurf.scan.readers._common import (
     Channel,
     check_data_size,
@@ -278,6 +278,9 @@ def read(path: Path | str, channel: str | None = None):
     sections = parse_header(path, buf)
     images = [d for name, d in sections if name.lower() in ("ciao image list", "afm image list", "stm image list")]
     if not images:
+        if buf.startswith(_MAGICS[3]):
+            raise UnsupportedScan(f"{path}: a NanoScope force-curve file ('\\*Force file list') without an image; "
+                                  "arsurf reads height images, not force curves: give the scan's image file")
         raise CorruptScan(f"{path}: the header lists no image (no '\\*Ciao image list' section)")
     chans: list[Channel] = []
     for i, d in enumerate(images):

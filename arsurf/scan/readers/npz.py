@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf._files import atomic_write
-from arsurf.errors import CorruptScan, ScanError
+from arsurf.errors import CorruptScan, ScanError, UnsupportedScan
 from arsurf.scan.readers._common import Channel, select_channel
 from arsurf.scan.readers.npy import finish, header_info
 
@@ -55,6 +55,9 @@ def read(path: Path | str, channel: str | None = None, *, dx: float | None = Non
             a = z[n]
             if a.ndim == 2 and a.dtype.kind in "fiub":
                 images.append(n)
+        if not images and {"control_points", "knots_u", "knots_v", "metadata_json"} <= set(z.files):
+            raise UnsupportedScan(f"{path}: a fitted surface (`arsurf fit` output), not a scan; `arsurf info` "
+                                  "describes it, `arsurf export SURFACE -o heights.gsf` samples it as a height map")
         if not images:
             raise CorruptScan(f"{path}: no 2-D numeric array in the archive (entries: {z.files})")
         chans = [Channel(n, key=n, unit="m", direction=None) for n in images]

@@ -48,7 +48,7 @@ class Run:
 
 
 def run(device, path, seconds: float, *, force_gain: float = 1e5, events=(), ramp_time: float = 0.05) -> Run:
-    from arsurf.assembly import LEVER
+    from arsurf.assembly import LEVER, loop_metadata
 
     surface = BSplineSurface.from_heights(np.zeros((24, 24)), (0.0, SIDE), (0.0, SIDE))
     model = make_model(surface, tip_radius=R, effective_modulus=CONTACT["effective_modulus"],
@@ -57,9 +57,9 @@ def run(device, path, seconds: float, *, force_gain: float = 1e5, events=(), ram
                              config=LoopConfig(rate=1000.0, filter_cutoff=200.0), ramp_time=ramp_time,
                              miss_factor=50.0)
     loop.warm_up()
-    meta = session_metadata(scan=SCAN, tip_radius=R, contact=CONTACT, cantilever=dict(LEVER), friction=0.2,
-                            haptics={"device": device.info.name, "scale": 1e-5, "force_gain": force_gain},
-                            loop_rate=1000.0)
+    meta = loop_metadata(session_metadata(
+        scan=SCAN, tip_radius=R, contact=CONTACT, cantilever=dict(LEVER), friction=0.2,
+        haptics={"device": device.info.name, "scale": 1e-5, "force_gain": force_gain}, loop_rate=1000.0), loop)
     writer = SessionWriter(path, meta)
     get = LOOP_OUT.get
     t0 = device.now()
