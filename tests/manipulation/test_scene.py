@@ -318,7 +318,7 @@ def test_loop_refuses_a_scene_without_tick():
 
 def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     from arsurf.replay.replay import load_replay, replay
-    from arsurf.assembly import build_model, session_metadata
+    from arsurf.assembly import build_model, loop_metadata, session_metadata
     from arsurf.sessions.reader import load_session
     from arsurf.sessions.schema import contact_fields
     from arsurf.sessions.writer import SessionWriter
@@ -336,6 +336,7 @@ def test_replay_reproduces_the_tube_poses_bit_for_bit(tmp_path):
     origin = (*start, float(setup.surface.evaluate(*start)[2]) + R + 7e-9)
     dev = VirtualDevice(dt=1e-3, hand=HandModel(end_push_hand(85e-9))).open()
     loop = HapticLoop.direct(setup.model, dev.info, origin, scene=setup.scene, ramp_time=0.05)
+    meta = loop_metadata(meta, loop)  # the virtual coupling the loop chose from the device, for the replay
     with SessionWriter(tmp_path / "s.h5", meta) as w:
         for _ in range(2900):
             s = dev.read_state()
