@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["finite", "non_negative", "positive", "positive_arg"]
+__all__ = ["finite", "non_negative", "positive", "positive_arg", "real"]
 
 
 def _number(value, name: str, error: type[Exception], unit: str, hint: str) -> float:
@@ -58,6 +58,20 @@ def non_negative(value, name: str, error: type[Exception], *, unit: str = "", hi
     v = _number(value, name, error, unit, hint)
     if not (math.isfinite(v) and v >= 0.0):
         raise error(_message(f"{name} must be >= 0 and finite", value, unit, hint))
+    return v
+
+
+def real(value, name: str, what: str, error: type[Exception], *, positive: bool = False,
+         nonneg: bool = False) -> float:
+    """``float(value)`` if it is a finite real number (and > 0 with ``positive``, >= 0 with
+    ``nonneg``), else ``error`` naming ``name``, what it is (``what``) and the value."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a real number ({what}) (got {value!r})") from None
+    if not math.isfinite(v) or (positive and v <= 0.0) or (nonneg and v < 0.0):
+        rule = "positive and finite" if positive else ">= 0 and finite" if nonneg else "finite"
+        raise error(f"{name} must be {rule} ({what}) (got {value!r})")
     return v
 
 

@@ -68,6 +68,7 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
+from arsurf._validation import real
 from arsurf.errors import InstrumentError
 from arsurf.scan.scan import Scan
 
@@ -76,14 +77,7 @@ __all__ = ["Sample", "TipShape", "ScanSettings", "ThermalDrift", "ScanTruth", "I
 
 
 def _real(name: str, value, what: str, *, positive: bool = False, nonneg: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InstrumentError(f"{name} must be a real number ({what}) (got {value!r})") from None
-    if not math.isfinite(v) or (positive and v <= 0.0) or (nonneg and v < 0.0):
-        rule = "positive and finite" if positive else ">= 0 and finite" if nonneg else "finite"
-        raise InstrumentError(f"{name} must be {rule} ({what}) (got {value!r})")
-    return v
+    return real(value, name, what, InstrumentError, positive=positive, nonneg=nonneg)
 
 
 def _pair(name: str, value, what: str, *, positive: bool = False) -> tuple[float, float]:

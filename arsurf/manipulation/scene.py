@@ -91,6 +91,7 @@ import numpy as np
 from numba import njit
 
 from arsurf._layout import Layout
+from arsurf._validation import real
 from arsurf.errors import ManipulationError
 from arsurf.manipulation.nanotube import Nanotube, _centre, _seg_dist, push_kernel
 from arsurf.scan.scan import Scan
@@ -209,14 +210,7 @@ def scene_step_kernel(poses, geom, band, max_substeps, prev, tip, tip_radius, fo
 
 
 def _real(name: str, value, what: str, *, positive: bool = False, nonneg: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ManipulationError(f"{name} must be a real number ({what}) (got {value!r})") from None
-    if not math.isfinite(v) or (positive and v <= 0.0) or (nonneg and v < 0.0):
-        rule = "positive" if positive else ">= 0" if nonneg else "finite"
-        raise ManipulationError(f"{name} must be {rule} ({what}) (got {value!r})")
-    return v
+    return real(value, name, what, ManipulationError, positive=positive, nonneg=nonneg)
 
 
 def _point(name: str, value) -> np.ndarray:
