@@ -1,4 +1,5 @@
-"""Build numba's cache once, at install: ``python -m arsurf.warmup`` (``make setup`` runs it).
+"""Build numba's cache once, at install: ``arsurf warmup`` (``make setup`` runs it as
+``python -m arsurf.warmup``; after ``pip install`` of a wheel, run it once yourself).
 
 arsurf's hot code is numba kernels compiled on first use and cached on disk
 (``cache=True``, in a folder keyed on the sources: :func:`arsurf._configure_numba_cache`).
@@ -15,6 +16,7 @@ makes it a few seconds. ``--quiet`` prints only the summary line.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -66,14 +68,34 @@ def warm_up(progress=None) -> dict:
     return times
 
 
+#: the command's one-line help (``arsurf warmup`` and ``python -m arsurf.warmup``)
+HELP = ("compile numba's kernels into the cache once, after installing or upgrading (the first demo or "
+        "session then loads them instead of waiting on the compiler)")
+
+
+def register(sub) -> None:
+    """Add ``arsurf warmup`` to the CLI."""
+    p = sub.add_parser("warmup", help=HELP, description=HELP[0].upper() + HELP[1:] + ".")
+    p.set_defaults(func=_cmd)
+
+
+def _cmd(args) -> int:
+    from arsurf._logging import LOGGER
+
+    _run(LOGGER.info)
+    return 0
+
+
+def _run(progress) -> None:
+    times = warm_up(progress)
+    print(f"arsurf warm-up: numba cache built in {times['total_s']:.1f} s ({os.environ.get('NUMBA_CACHE_DIR', '')})")
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m arsurf.warmup", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m arsurf.warmup", description=HELP)
     ap.add_argument("--quiet", action="store_true", help="print only the summary line")
     args = ap.parse_args(argv)
-    import os
-
-    times = warm_up(None if args.quiet else print)
-    print(f"arsurf warm-up: numba cache built in {times['total_s']:.1f} s ({os.environ.get('NUMBA_CACHE_DIR', '')})")
+    _run(None if args.quiet else print)
     return 0
 
 

@@ -33,26 +33,31 @@ ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 
 _PROFILE = r"""
-import json, sys, time
+import json, os, sys, time
 from numba.core import event
 totals = {}
 class Timer(event.Listener):
+    # numba:compile fires only on a cache miss; nested events are the callees a kernel compiles:
+    # inclusive time counts them, exclusive time does not
     def __init__(self):
         self.stack = []
     def on_start(self, ev):
-        self.stack.append(time.process_time())
+        self.stack.append([time.process_time(), 0.0])
     def on_end(self, ev):
-        t = time.process_time() - self.stack.pop()
+        t0, inner = self.stack.pop()
+        t = time.process_time() - t0
+        if self.stack:
+            self.stack[-1][1] += t
         d = ev.data["dispatcher"]
         name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
-        n, s = totals.get(name, (0, 0.0))
-        totals[name] = (n + 1, s + t)
+        n, s, x, sigs = totals.get(name, (0, 0.0, 0.0, []))
+        totals[name] = (n + 1, s + t, x + t - inner, sigs + [str(ev.data["args"])[:400]])
 event.install_listener("numba:compile", Timer())
 from arsurf.cli import main
 t0 = time.perf_counter()
-main(["demo", *sys.argv[1:]])
-print("##" + json.dumps({"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time(), "compiles": totals}),
-      file=sys.stderr)
+main(sys.argv[1:])
+print("##" + json.dumps({"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time(), "compiles": totals,
+                         "loadavg_1min": os.getloadavg()[0]}), file=sys.stderr)
 """
 
 _TICKS = r"""
@@ -92,50 +97,66 @@ print("##" + __import__("json").dumps({"total_s": t_end - t0, "scan_s": t_scan -
 
 
 def _run(args, cache: str, timeout: float = 3600.0) -> tuple[dict, dict | None]:
-    """Wall and CPU time (user + system, s) of ``args`` in a fresh process on ``cache``, and its
-    ``##`` JSON line if any. On a shared machine the CPU time is the figure that repeats: the
-    wall time adds the waits for a core."""
+    """Wall and CPU time (user + system, s) of ``args`` in a fresh process on ``cache``, the load
+    average before it, and its ``##`` JSON line if any. On a shared machine the CPU time is the
+    figure that repeats: the wall time adds the waits for a core."""
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     r = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     wall = {"wall_s": round(time.perf_counter() - t0, 2),
-            "cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 2)}
+            "cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 2),
+            "loadavg_1min_before": round(load, 2), "loadavg_1min_after": round(os.getloadavg()[0], 2)}
     if r.returncode != 0:
         raise RuntimeError(f"{args} failed ({r.returncode}): {r.stderr[-2000:]}")
     line = next((x for x in r.stderr.splitlines() if x.startswith("##")), None)
     return wall, json.loads(line[2:]) if line else None
 
 
+def _compiles(prof: dict, top: int = 20) -> dict:
+    """numba's compilations in a profiled run: kernels, specialisations, the compile CPU time
+    (the sum of the exclusive times) and the ``top`` kernels by exclusive time, each as
+    ``[specialisations, inclusive s, exclusive s]``."""
+    rows = sorted(prof["compiles"].items(), key=lambda kv: -kv[1][2])
+    return {"kernels_compiled": len(rows), "specialisations": sum(v[0] for _, v in rows),
+            "compile_cpu_s": round(sum(v[2] for _, v in rows), 2),
+            "top_compiles_specialisations_inclusive_exclusive_cpu_s": {
+                k: [v[0], round(v[1], 2), round(v[2], 2)] for k, v in rows[:top]},
+            "kernels_with_several_specialisations": {k: v[3] for k, v in rows if v[0] > 1}}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--skip-4096", action="store_true", help="no 4096 x 4096 figure")
     ap.add_argument("--quick", action="store_true", help="only the demo on an empty cache and after the warm-up")
+    ap.add_argument("--after-warmup", action="store_true",
+                    help="only the warm-up and the demo after it (the compilations left to the demo)")
     args = ap.parse_args()
     results = {}
     with tempfile.TemporaryDirectory(prefix="arsurf-first-run-") as tmp:
-        empty = str(Path(tmp) / "empty")
-        wall, prof = _run([PY, "-c", _PROFILE, "--no-images", "--out", str(Path(tmp) / "demo1")], empty)
-        compiles = sorted(prof["compiles"].items(), key=lambda kv: -kv[1][1])
-        results["demo_empty_cache"] = {
-            **wall, "kernels_compiled": len(compiles), "specialisations": sum(v[0] for _, v in compiles),
-            "top_compiles_cpu_inclusive_s": {k: [v[0], round(v[1], 2)] for k, v in compiles[:20]}}
+        demo = [PY, "-c", _PROFILE, "demo", "--no-images", "--out"]
+        if not args.after_warmup:
+            wall, prof = _run([*demo, str(Path(tmp) / "demo1")], str(Path(tmp) / "empty"))
+            results["demo_empty_cache"] = {**wall, **_compiles(prof)}
         warm = str(Path(tmp) / "warm")
         results["warmup_empty_cache"] = _run([PY, "-m", "arsurf.warmup", "--quiet"], warm)[0]
-        results["demo_after_warmup"] = _run([PY, "-m", "arsurf", "demo", "--no-images", "--out",
-                                               str(Path(tmp) / "demo2")], warm)[0]
-        if not args.quick:
+        wall, prof = _run([*demo, str(Path(tmp) / "demo2")], warm)
+        results["demo_after_warmup"] = {**wall, **_compiles(prof, top=5)}
+        if not (args.quick or args.after_warmup):
             sizes = (256,) if args.skip_4096 else (256, 4096)
             for n in sizes:
                 wall, parts = _run([PY, "-c", _TICKS, str(n)], warm)
                 results[f"model_and_1000_ticks_{n}_after_warmup"] = {**wall, **parts}
-            wall, parts = _run([PY, "-c", _TICKS, "256"], str(Path(tmp) / "empty256"))
-            results["model_and_1000_ticks_256_empty_cache"] = {**wall, **parts}
+            for n in sizes:
+                wall, parts = _run([PY, "-c", _TICKS, str(n)], str(Path(tmp) / f"empty{n}"))
+                results[f"model_and_1000_ticks_{n}_empty_cache"] = {**wall, **parts}
             if not args.skip_4096:
-                results["cpu_ratio_4096_over_256_after_warmup"] = (
-                    results["model_and_1000_ticks_4096_after_warmup"]["cpu_s"]
-                    / results["model_and_1000_ticks_256_after_warmup"]["cpu_s"])
+                for when in ("after_warmup", "empty_cache"):
+                    results[f"cpu_ratio_4096_over_256_{when}"] = round(
+                        results[f"model_and_1000_ticks_4096_{when}"]["cpu_s"]
+                        / results[f"model_and_1000_ticks_256_{when}"]["cpu_s"], 2)
     emit("first_run", results)
 
 

@@ -20,6 +20,7 @@ Examples
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -230,7 +231,21 @@ class ContactBatch(NamedTuple):
     cells: np.ndarray
 
 
-class Projector:
+class _Entries:
+    """The compiled single-query entries of a projector, compiled (or loaded from the cache) at
+    the first :func:`project` / :func:`collide` on it: a program that only runs the loop's
+    kernels (the demo, a session) never compiles them."""
+
+    @functools.cached_property
+    def _project(self):
+        return _entry_point(_project_packed, self._packed, 5)
+
+    @functools.cached_property
+    def _collide(self):
+        return _entry_point(_collide_packed, self._packed, 6)
+
+
+class Projector(_Entries):
     """Per-surface state of the projection: the hull-box pyramid and the kernel workspace.
 
     Created once per surface by :func:`projector` (kept on the surface as an instance attribute,
@@ -267,8 +282,6 @@ class Projector:
         self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.curv,
                       self.tree.levels, self.work)
         self._packed = KernelArrays(*self._args, np.empty(OUT_SIZE))
-        self._project = _entry_point(_project_packed, self._packed, 5)
-        self._collide = _entry_point(_collide_packed, self._packed, 6)
 
     def __reduce__(self):
         # a pickled or deep-copied surface drops its projector (compiled entry points do not
@@ -303,7 +316,7 @@ TILE = 16
 POOL_BYTES = 64 << 20
 
 
-class TiledProjector:
+class TiledProjector(_Entries):
     """The projection state of a large surface: hull-box pyramids built per tile, on demand.
 
     The knot cells are cut into ``tile`` x ``tile`` tiles; a tile's pyramid is built the first
@@ -372,8 +385,6 @@ class TiledProjector:
         self._args = (ctrl, ku, kv, self.mu, self.mv, self.pnodes, self.pcurv, self.plevels, self.pwork, self.prows,
                       self.bez, self.grid, self.slack, self.tile_slot, self.slot_info, np.empty(OUT_SIZE))
         self._packed = TiledArrays(*self._args, np.empty(OUT_SIZE))
-        self._project = _entry_point(_project_packed, self._packed, 5)
-        self._collide = _entry_point(_collide_packed, self._packed, 6)
 
     def __reduce__(self):
         return _no_projector, ()
