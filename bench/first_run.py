@@ -52,7 +52,7 @@ class Timer(event.Listener):
         name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
         n, s, x, sigs = totals.get(name, (0, 0.0, 0.0, []))
         totals[name] = (n + 1, s + t, x + t - inner, sigs + [str(ev.data["args"])[:400]])
-event.install_listener("numba:compile", Timer())
+event.register("numba:compile", Timer())  # (install_listener is a context manager)
 from arsurf.cli import main
 t0 = time.perf_counter()
 main(sys.argv[1:])

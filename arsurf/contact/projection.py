@@ -80,6 +80,19 @@ structref.define_proxy(TiledArrays, _TiledArraysType,
                         "slack", "tile_slot", "slot_info", "tmp", "out"])
 
 
+@njit(cache=True)
+def _new_kernel_arrays(args):
+    """``KernelArrays(*args)`` by a cached kernel: the proxy's own constructor (numba's) is
+    compiled anew in every process, ~0.5 s of CPU at each start even on a warm cache."""
+    return KernelArrays(*args)
+
+
+@njit(cache=True)
+def _new_tiled_arrays(args):
+    """``TiledArrays(*args)``, cached like :func:`_new_kernel_arrays`."""
+    return TiledArrays(*args)
+
+
 def _project_struct(a, cx, cy, cz, hint_u, hint_v, out):
     """:func:`project_kernel` or :func:`tiled_project_kernel` on a packed projector. Compiled
     callers get the overload below, which picks by the struct's type; from Python the call goes
@@ -281,7 +294,7 @@ class Projector(_Entries):
         self.work[CACHE_ROW, 0] = -1.0  # no candidate list yet
         self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.curv,
                       self.tree.levels, self.work)
-        self._packed = KernelArrays(*self._args, np.empty(OUT_SIZE))
+        self._packed = _new_kernel_arrays((*self._args, np.empty(OUT_SIZE)))
 
     def __reduce__(self):
         # a pickled or deep-copied surface drops its projector (compiled entry points do not
@@ -384,7 +397,7 @@ class TiledProjector(_Entries):
         self.mv = bezier_matrices(kv)
         self._args = (ctrl, ku, kv, self.mu, self.mv, self.pnodes, self.pcurv, self.plevels, self.pwork, self.prows,
                       self.bez, self.grid, self.slack, self.tile_slot, self.slot_info, np.empty(OUT_SIZE))
-        self._packed = TiledArrays(*self._args, np.empty(OUT_SIZE))
+        self._packed = _new_tiled_arrays((*self._args, np.empty(OUT_SIZE)))
 
     def __reduce__(self):
         return _no_projector, ()

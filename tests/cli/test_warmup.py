@@ -27,7 +27,7 @@ class Count(event.Listener):
         compiled.append(f"{d.py_func.__module__}.{d.py_func.__qualname__}{tuple(ev.data['args'])}"[:300])
 
 
-event.install_listener("numba:compile", Count())
+event.register("numba:compile", Count())  # for the whole process (install_listener is a context manager)
 from arsurf.cli import main
 
 code = main(["demo", "--no-images", "--out", sys.argv[1]])
