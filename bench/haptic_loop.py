@@ -111,18 +111,18 @@ def _timing_row(d: dict, rate: float) -> dict:
     return d
 
 
-def scheduler_runs(seconds: float) -> dict:
+def scheduler_runs(seconds: float, configs=None) -> dict:
     """The Scheduler running the 512 x 512 tick (device read into one reused sample): 1 kHz and
     10 kHz under the ordinary policy, 10 kHz with the loop thread under SCHED_FIFO at the live
     loop's default priority (where granted: ``realtime_priority`` says). Issue 28's goal at
     10 kHz: overruns plus skipped slots <= 0.1 % of the nominal ticks and no gap between two
     ticks above 1 ms, under both policies; ``awake_max`` is the loop thread's largest share of
     a second awake (the kernel throttles a SCHED_FIFO thread above 0.95), ``cpu_share`` its CPU
-    time over the run."""
+    time over the run. ``configs``: (rate Hz, priority) pairs, default those three."""
     from arsurf.haptics.scheduler import DEFAULT_REALTIME_PRIORITY
 
     out = {}
-    for rate, priority in ((1000.0, 0), (10000.0, 0), (10000.0, DEFAULT_REALTIME_PRIORITY)):
+    for rate, priority in configs or ((1000.0, 0), (10000.0, 0), (10000.0, DEFAULT_REALTIME_PRIORITY)):
         dev, loop = build(rate)
         loop.warm_up()
         sched = Scheduler(loop.scheduler_step, loop, rate=rate, source=partial(dev.read_state, DeviceState()),
