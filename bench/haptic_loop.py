@@ -130,7 +130,8 @@ def scheduler_runs(seconds: float, configs=None) -> dict:
         d = _timing_row(sched.run_for(seconds).as_dict(), rate)
         out[f"scheduler_{int(rate)}Hz_{seconds:g}s_{'fifo' if priority else 'ordinary'}"] = d
         print(f"{rate:g} Hz priority {priority}: overruns+skipped {100 * d['overruns_and_skipped_fraction_of_nominal']:.3f} %,"
-              f" longest gap {d['longest_gap_us']:.0f} us, awake max {d['awake_max']:.2f}", file=sys.stderr)
+              f" longest gap {d['longest_gap_us']:.0f} us, worst second awake {d['awake_max']:.2f}, on the CPU "
+              f"{d['cpu_max']:.2f}", file=sys.stderr)
     return out
 
 
@@ -165,9 +166,11 @@ def fifo_lockup_check(seconds: float = 3.0) -> dict:
             d = s.run_for(seconds).as_dict()
         finally:
             sched_mod.FIFO_IDLE_SHARE = old
-        out[name] = {k: d[k] for k in ("realtime_priority", "ticks", "overruns", "skipped", "awake_max", "cpu_share")}
+        out[name] = {k: d[k] for k in ("realtime_priority", "ticks", "overruns", "skipped", "awake_max", "cpu_max",
+                                        "cpu_share")}
         out[name]["longest_gap_us"] = d["longest_gap"] * 1e6
-        print(f"lockup check {name}: cpu share {d['cpu_share']:.3f}, awake max {d['awake_max']:.3f}, "
+        print(f"lockup check {name}: cpu share {d['cpu_share']:.3f} (worst second {d['cpu_max']:.3f}), "
+              f"awake max {d['awake_max']:.3f}, "
               f"longest gap {d['longest_gap'] * 1e6:.0f} us", file=sys.stderr)
     return out
 

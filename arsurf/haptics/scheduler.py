@@ -97,11 +97,13 @@ class Pacer:
     (a step that never fits its period runs at the rate that allows). A tick whose work ends after the next deadline is an *overrun*; deadlines that
     passed entirely are *skipped* (the grid is kept: no burst of catch-up ticks). It also counts
     the time the thread is awake - running or runnable, everything but its sleeps here - per
-    second of the kernel's real-time accounting (:attr:`awake_max`): under ``SCHED_FIFO`` the
-    kernel stops a thread awake more than 95 % of a second (``sched_rt_runtime_us``).
+    second of the kernel's real-time accounting (:attr:`awake_max`), and the thread's CPU time
+    per second (:attr:`cpu_max`, from ``cpu_clock`` read once a second; it also counts the
+    kernel's work for the sleeps themselves): under ``SCHED_FIFO`` the kernel stops a thread that
+    ran more than 95 % of a second (``sched_rt_runtime_us``).
 
-    ``clock`` (ns, monotonic) and ``sleep`` (s) are injectable: tests drive the pacer with a
-    scripted clock, no timing involved.
+    ``clock`` (ns, monotonic), ``sleep`` (s) and ``cpu_clock`` (ns) are injectable: tests drive
+    the pacer with a scripted clock, no timing involved.
 
     Examples
     --------
@@ -121,14 +123,15 @@ class Pacer:
     """
 
     def __init__(self, period_ns: int, spin_ns: int, idle_share: float = 0.0, burst_ns: int = 0, *,
-                 clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep) -> None:
+                 clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep,
+                 cpu_clock: Callable[[], int] = time.thread_time_ns) -> None:
         self.period = int(period_ns)
         self.spin = int(spin_ns)
         if not 0.0 <= idle_share < 1.0:
             raise HapticsError(f"idle_share must be in [0, 1) (got {idle_share!r})")
         self.idle_ratio = idle_share / (1.0 - idle_share)  # sleep owed per unit of time awake
         self.burst = int(burst_ns)
-        self.clock, self.sleep = clock, sleep
+        self.clock, self.sleep, self.cpu_clock = clock, sleep, cpu_clock
         self.start(clock())
 
     def start(self, t0: int | None = None) -> int:
@@ -144,6 +147,8 @@ class Pacer:
         self._window_end = t0 + _AWAKE_WINDOW_NS
         self._window_awake = 0
         self._debt = 0.0              # ns of sleep owed
+        self.cpu_max = 0.0            # the largest share of a second the thread spent on the CPU
+        self._cpu_mark = (t0, self.cpu_clock())
         return t0
 
     def begin(self) -> int:
@@ -158,6 +163,10 @@ class Pacer:
 
     def _count_awake(self, a: int, b: int) -> None:
         self.awake += b - a
+        if b > self._window_end:  # once a second: the thread's CPU time (what the kernel budgets)
+            t, c = b, self.cpu_clock()
+            self.cpu_max = max(self.cpu_max, (c - self._cpu_mark[1]) / max(1, t - self._cpu_mark[0]))
+            self._cpu_mark = (t, c)
         while b > self._window_end:  # close the windows that ended, each with its own share
             if a < self._window_end:
                 self._window_awake += self._window_end - a
@@ -236,8 +245,10 @@ class TimingStats:
     longest wait for a new force; the period distributions cover the last ``history`` ticks);
     ``spin_max`` the longest busy wait before a deadline; ``awake_max`` the largest share of one
     second the loop thread spent awake, running or runnable (:class:`Pacer`; under
-    ``SCHED_FIFO`` the kernel throttles a thread above 0.95); ``cpu_share`` the thread's CPU
-    time over the run's duration (after the run).
+    ``SCHED_FIFO`` the kernel throttles a thread above 0.95); ``cpu_max`` the largest share of
+    a second it spent on the CPU (what the kernel counts: it includes the sleeps' own system
+    time; 0 in runs shorter than a second); ``cpu_share`` its CPU time over the run's duration
+    (after the run).
     """
 
     ticks: int
@@ -258,6 +269,7 @@ class TimingStats:
     longest_gap: float = 0.0
     spin_max: float = 0.0
     awake_max: float = 0.0
+    cpu_max: float = 0.0
     cpu_share: float = 0.0
 
     def as_dict(self) -> dict[str, float | int]:
@@ -611,7 +623,8 @@ class Scheduler:
         return (time.perf_counter_ns() - self._t_start) * 1e-9
 
     def pacer_for(self, realtime: bool, *, clock: Callable[[], int] = time.perf_counter_ns,
-                  sleep: Callable[[float], Any] = time.sleep) -> Pacer:
+                  sleep: Callable[[float], Any] = time.sleep,
+                  cpu_clock: Callable[[], int] = time.thread_time_ns) -> Pacer:
         """The :class:`Pacer` the loop thread keeps time with, under ``SCHED_FIFO`` when
         ``realtime``: a spin of :data:`FIFO_SPIN` (at most a quarter of a period; a given
         ``spin`` is kept) and a sleep of at least :data:`FIFO_IDLE_SHARE` of its time; under
@@ -622,7 +635,8 @@ class Scheduler:
             if not self._spin_given:
                 spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)
             idle = FIFO_IDLE_SHARE
-        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep)
+        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep,
+                     cpu_clock=cpu_clock)
 
     def _run(self) -> None:
         _tight_timer_slack()
@@ -710,5 +724,6 @@ class Scheduler:
             longest_gap=p.longest_gap * 1e-9 if p else 0.0,
             spin_max=p.spin_max * 1e-9 if p else 0.0,
             awake_max=p.awake_share() if p else 0.0,
+            cpu_max=p.cpu_max if p else 0.0,
             cpu_share=(self.cpu_ns * 1e-9 / duration) if duration > 0 and not self.is_running else 0.0,
         )

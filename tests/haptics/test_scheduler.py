@@ -229,11 +229,16 @@ def test_run_for_takes_a_finite_duration():
 class ScriptedTime:
     """A monotonic clock in ns that advances only when read (``read_ns`` per reading), by the
     work the test scripts, and by each sleep plus a wake-up ``latency_ns(k)``; it records every
-    sleep."""
+    sleep. Its CPU clock counts all but the time asleep, and ``sleep_cpu_ns`` of each sleep (the
+    system call's own work)."""
 
-    def __init__(self, read_ns: int = 200, latency_ns=lambda k: 0):
-        self.t, self.read_ns, self.latency_ns = 1_000_000, read_ns, latency_ns
+    def __init__(self, read_ns: int = 200, latency_ns=lambda k: 0, sleep_cpu_ns: int = 0):
+        self.t, self.read_ns, self.latency_ns, self.sleep_cpu_ns = 1_000_000, read_ns, latency_ns, sleep_cpu_ns
         self.sleeps: list[int] = []
+        self.idle = 0
+
+    def cpu(self) -> int:
+        return self.t - self.idle
 
     def clock(self) -> int:
         self.t += self.read_ns
@@ -242,7 +247,9 @@ class ScriptedTime:
     def sleep(self, seconds: float) -> None:
         ns = round(seconds * 1e9)
         self.sleeps.append(ns)
-        self.t += ns + self.latency_ns(len(self.sleeps))
+        late = self.latency_ns(len(self.sleeps))
+        self.t += ns + late
+        self.idle += max(0, ns - self.sleep_cpu_ns) + late
 
     def run(self, pacer, work_ns, ticks: int):
         """``ticks`` ticks whose work takes ``work_ns(k)``; the sleeps of each tick's wait."""
@@ -258,7 +265,8 @@ class ScriptedTime:
 
 
 def _fifo_pacer(rate, clock):
-    return Scheduler(lambda s, i, d: None, rate=rate).pacer_for(True, clock=clock.clock, sleep=clock.sleep)
+    return Scheduler(lambda s, i, d: None, rate=rate).pacer_for(True, clock=clock.clock, sleep=clock.sleep,
+                                                                 cpu_clock=clock.cpu)
 
 
 @pytest.mark.parametrize("rate", [1000.0, 4000.0, 10000.0, 20000.0])
@@ -274,7 +282,7 @@ def test_a_realtime_loop_sleeps_every_period_and_stays_under_the_kernels_budget(
     period = round(1e9 / rate)
     rng = np.random.default_rng(7)
     lat = rng.integers(0, 10_000, 200_000)  # a real-time sleeper wakes 0-10 us late
-    clock = ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]))
+    clock = ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]), sleep_cpu_ns=3_000)
     pacer = _fifo_pacer(rate, clock)
     ticks = int(2.5 * rate / max(cost, 1.0))  # 2.5 s of scripted time
     per_tick = clock.run(pacer, lambda k: int(cost * period), ticks)
@@ -284,6 +292,7 @@ def test_a_realtime_loop_sleeps_every_period_and_stays_under_the_kernels_budget(
     assert pacer.awake <= (1 - FIFO_IDLE_SHARE) * elapsed + FIFO_IDLE_BURST_NS
     assert pacer.spin_max <= min(FIFO_SPIN, 0.25 / rate) * 1e9 + clock.read_ns
     assert pacer.awake_max <= 1.0 - FIFO_IDLE_SHARE + FIFO_IDLE_BURST_NS * 1e-9 < 0.95
+    assert 0.0 < pacer.cpu_max < 0.95  # with 3 us of system time per sleep (what the kernel counts)
     if cost <= 0.6:  # the step and the spin fit in the period, the wake-ups in the spin: no deadline missed
         assert pacer.overruns == pacer.skipped == 0
         assert pacer.longest_gap <= period + 10 * clock.read_ns
