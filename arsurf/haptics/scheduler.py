@@ -434,13 +434,17 @@ class Scheduler:
         (reference counting frees its temporaries); the collector is restored at the end.
     priority : int
         Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
-        (40 is below the 50 of Linux's interrupt threads), or 0 (default): the ordinary policy.
-        What was granted is :attr:`TimingStats.realtime_priority`. A real-time loop thread
-        keeps the machine's other work from delaying a tick, but it also runs before this
-        process's other threads on its core: a device whose driver answers from a thread of
-        this process (the simulated Haply's reader) then went unanswered for 0.4 s. At 10 kHz
-        over 60 s on the 2-core test machine it missed 0.048-0.085 % of the deadlines in three
-        runs, the ordinary policy 0.056-0.22 % (``bench/haptic_loop.py`` times both).
+        (:data:`DEFAULT_REALTIME_PRIORITY`, 10, is what ``arsurf live`` asks for; keep it below
+        the 50 of Linux's interrupt threads), or 0 (default here): the ordinary policy; the
+        CLI decides with :func:`choose_realtime`. What was granted is
+        :attr:`TimingStats.realtime_priority`. A real-time loop thread keeps the machine's
+        other work from delaying a tick, but it also runs before this process's other threads
+        on its core: a device whose driver answers from a thread of this process (the simulated
+        Haply's reader) then went unanswered for 0.4 s. It sleeps at least
+        :data:`FIFO_IDLE_SHARE` of its time (:meth:`pacer_for`). At 10 kHz over 60 s on the
+        2-core machine shared by eight jobs (load 11) it kept 9,944 ticks/s, 0.56 % of the
+        slots skipped and a 7.1 ms longest gap; the ordinary policy 2,806 ticks/s
+        (``bench/haptic_loop.py`` times both).
 
     Examples
     --------
