@@ -32,8 +32,8 @@ def _priority(text: str) -> int:
 
 
 #: devices whose driver answers from a thread of this process: a real-time loop thread would delay
-#: it on a busy core (the simulated Haply went unanswered for 0.4 s), so they keep the ordinary
-#: policy unless --realtime-priority N asks
+#: it on a busy core (the simulated Haply went unanswered for 0.4 s), so they, and an instrument
+#: (read by its link thread), keep the ordinary policy unless --realtime-priority N asks
 _DEVICE_THREADS = ("haply", "openhaptics")
 
 
@@ -44,7 +44,7 @@ def _realtime_flags(s, what: str) -> None:
                    help=f"run {what} under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
                         "CAP_SYS_NICE or an rtprio limit). Default: SCHED_FIFO priority 10 where allowed, else the "
                         "ordinary policy (what was chosen, and why, is printed and recorded in the session); "
-                        "haply and openhaptics keep the ordinary policy unless asked (docs/bridge-safety.rst)")
+                        "haply, openhaptics and --instrument keep the ordinary policy unless asked (docs/bridge-safety.rst)")
     s.add_argument("--no-realtime-priority", dest="realtime_priority", action="store_const", const=0,
                    help=f"run {what} under the ordinary policy (recorded in the session)")
 
@@ -174,7 +174,8 @@ def cmd_live(args) -> int:
             on_link_loss=args.on_link_loss)
     from arsurf.haptics.scheduler import choose_realtime
 
-    realtime = choose_realtime(args.realtime_priority, device_thread=args.device in _DEVICE_THREADS)
+    realtime = choose_realtime(args.realtime_priority,
+                               device_thread=args.device in _DEVICE_THREADS or args.instrument is not None)
     meta["realtime"] = realtime.to_metadata()
     stop = threading.Event()
 

@@ -353,9 +353,9 @@ def choose_realtime(priority: int | None = None, *, device_thread: bool = False)
     """Decide the loop thread's policy: ``priority`` None is the default (SCHED_FIFO at
     :data:`DEFAULT_REALTIME_PRIORITY` where the OS permits it and the kernel's real-time
     throttling is on; else the ordinary policy, with the reason), 0 the ordinary policy (opted
-    out), N asks SCHED_FIFO at N. ``device_thread``: the device answers from a thread of this
-    process (Haply, OpenHaptics), which a real-time loop thread would starve on a busy core: the
-    default is then the ordinary policy. Permission is tried in a short-lived thread (its
+    out), N asks SCHED_FIFO at N. ``device_thread``: the device or the instrument answers from a
+    thread of this process (Haply, OpenHaptics, the instrument link), which a real-time loop
+    thread would delay on a busy core: the default is then the ordinary policy. Permission is tried in a short-lived thread (its
     policy ends with it); the loop thread asks again and reports what it got
     (:attr:`TimingStats.realtime_priority`).
 
@@ -368,8 +368,8 @@ def choose_realtime(priority: int | None = None, *, device_thread: bool = False)
         return RealtimeChoice(0, 0, "turned off (--no-realtime-priority)")
     if priority is None:
         if device_thread:
-            return RealtimeChoice(0, 0, "the device answers from a thread of this process, which a real-time "
-                                        "loop would delay; ask with --realtime-priority N")
+            return RealtimeChoice(0, 0, "the device or instrument answers from a thread of this process, which a "
+                                        "real-time loop would delay; ask with --realtime-priority N")
         try:
             with open(_RT_RUNTIME) as f:
                 unthrottled = f.read().strip() == "-1"

@@ -104,6 +104,8 @@ def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path
     assert inst["name"] == f"Nanonis at {host}:{port}" and inst["frame"]["origin"][0] == pytest.approx(4.49e-6)
     assert s.metadata["haptics"]["source"] == "measured"
     assert s.metadata["calibration"]["vertical_sensitivity"] == pytest.approx(1.5 * 1117e-9 / 450e-6)
+    # the instrument's link thread must run in time: the loop keeps the ordinary policy by default
+    assert s.metadata["realtime"]["policy"] == "ordinary" and "instrument" in s.metadata["realtime"]["reason"]
     # the controller measured the tip where the loop commanded it (scan frame)
     lag = np.abs(t["instrument_position"] - t["probe_position"])
     assert np.nanmedian(lag[:, 2]) < 2e-9
