@@ -6,10 +6,8 @@
    limit; the surface height it finds sets where the haptic loop takes over (the tip is lifted
    to hover 8 nm above it);
 2. **haptic session**: a scripted operator (a :class:`~arsurf.haptics.virtual_device.HandModel`
-   on a :class:`~arsurf.haptics.virtual_device.VirtualDevice`) approaches the substrate, presses
-   it to the load :data:`HELD_LOAD` ([MWCNT] Fig. 10a: its operator kept the normal force at
-   20-40 nN; :func:`press_for_load`), then slides sideways into the tube near one end and pushes
-   that end about 50 nm, so that
+   on a :class:`~arsurf.haptics.virtual_device.VirtualDevice`) approaches the substrate, indents
+   it, then slides sideways into the tube near one end and pushes that end about 50 nm, so that
    the tube turns about the corrected Eq. 9 pivot (about 0.29 L from the other end), then
    retracts - through the full loop at 1 kHz: position scaling, Newton collision on the
    B-spline of the substrate, Maugis-Dugdale with approach/retract hysteresis, control-net dent,
@@ -43,12 +41,12 @@ from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, loop_metadata
 from arsurf.config import DeviceConfig
 from arsurf.demo.scripted import DEMO, RATE, SCALE, TIP_RADIUS, scene_snapshot, session_tick, viewer_or_none
 from arsurf.haptics.loop import LOOP_OUT
-from arsurf.haptics.virtual_device import DEFAULT_HAND_STIFFNESS, HandModel, VirtualDevice
+from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.units import summary_json
 
 log = logging.getLogger("arsurf.demo")
 
-__all__ = ["run_demo", "engage_at", "hand_trajectory", "plan_end_push", "press_for_load", "HELD_LOAD"]
+__all__ = ["run_demo", "engage_at", "hand_trajectory", "plan_end_push"]
 
 #: how far the scripted operator pushes the tube's end sideways (contact-point travel)
 PUSH = 50e-9
@@ -60,12 +58,6 @@ PUSH_END_MARGIN = 20e-9
 ENGAGE_FROM = 5e-6
 ENGAGE_SETPOINT = 0.05
 ENGAGE_FORCE_LIMIT = 30e-9
-#: the load the scripted operator presses the substrate to before pushing (N): the middle of the
-#: 20-40 nN at which [MWCNT] Fig. 10a's operator kept the normal force during its tube push (the
-#: paper gives no set point: its operator controlled the force by hand, with the force feedback);
-#: the tube's reaction on its curved flank adds its vertical part during the push (docs/design.rst,
-#: "The normal force of a tube push")
-HELD_LOAD = 30e-9
 
 
 def _tube_top(scan, surface):
@@ -92,29 +84,6 @@ def hand_trajectory(approach_from: float, indent: float, slide: float, direction
         [dx, dy, 0.0],
     ])
     return times, pts
-
-
-def press_for_load(loop, load: float, hand_stiffness: float = DEFAULT_HAND_STIFFNESS) -> float:
-    r"""How far past first touch (probe metres) the hand's set point must go for the tip to rest on
-    a flat substrate at ``load`` (N), through ``loop`` (direct coupling) held by a hand of grip
-    stiffness ``hand_stiffness`` (N/m, :class:`~arsurf.haptics.virtual_device.HandModel`).
-
-    The grip :math:`K_h` acts on the tip through the direct coupling (force gain :math:`K_f`,
-    scale :math:`s`) as a spring :math:`k_h = K_h/(K_f s)`, in series with the virtual coupling
-    :math:`k_{vc}` (the model's, at the probe). At rest the stretch of that chain carries the
-    load, :math:`P = k\,(i - \delta(P))` with :math:`1/k = 1/k_h + 1/k_{vc}` and :math:`\delta(P)`
-    the depth of the model's Maugis-Dugdale law at :math:`P` (load control), so
-
-    .. math:: i = \delta(P) + P/k.
-
-    The grip is the operator's lever: like the cantilever of an AFM, it sets the load by its
-    deflection (the demo's 22 N/m at the probe; [MWCNT]'s lever is 38.6 N/m).
-    """
-    gain = float(np.broadcast_to(np.asarray(loop.coupling.force.gain, dtype=np.float64), (3,))[2])
-    scale = float(np.broadcast_to(np.asarray(loop.coupling.position.scale, dtype=np.float64), (3,))[2])
-    k_hand = float(hand_stiffness) / (gain * scale)
-    k = 1.0 / (1.0 / k_hand + 1.0 / loop.model.coupling_stiffness)
-    return float(loop.model.contact.contact_state(load=load).depth) + load / k
 
 
 def plan_end_push(scene, scan, tip_radius: float):
@@ -242,12 +211,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     z_strip = surface.evaluate(x0 + np.linspace(-1.5, 1.5, 31) * TIP_RADIUS, np.full(31, y0))[:, 2].max()
     z_hover = max(z_found, z_strip) if eng.engaged else z_strip
     origin = (x0, y0, z_hover + TIP_RADIUS + 8e-9)
-    # the loop chooses its virtual coupling from the device's limits (mass, damping, rate; not the hand's);
-    # the hand then presses to the held load through that chain (press_for_load)
-    loop = build_loop(model, setup.config.haptics, VirtualDevice(dt=1.0 / RATE).info, origin, scene=scene, seed=7,
-                      ramp_time=0.2)
-    hand = HandModel(hand_trajectory(8e-9, press_for_load(loop, HELD_LOAD), slide, direction))
-    dev = VirtualDevice(dt=1.0 / RATE, hand=hand).open()
+    dev = VirtualDevice(dt=1.0 / RATE, hand=HandModel(hand_trajectory(8e-9, 5e-9, slide, direction))).open()
+    loop = build_loop(model, setup.config.haptics, dev.info, origin, scene=scene, seed=7, ramp_time=0.2)
     meta = loop_metadata(meta, loop)
     n = int(seconds * RATE)
     journal_path(out / "session.h5").unlink(missing_ok=True)  # a killed earlier run's: replaced like the rest

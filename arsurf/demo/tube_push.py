@@ -6,22 +6,22 @@ Eq. 6 (Fig. 10): the lateral force saw-toothed at 0-30 nN, the normal force "wel
 about 20-40 nN with the assistance of force feedback". The normal force is the total vertical
 force on the tip, the lever's bending (Eq. 6, :math:`F_z = k k_v S_v - F_y (h_t + b/2)/l_c`): the
 substrate's reaction plus the tube's. The paper states no set point (its operator held the force
-by hand), no tip radius and no tube diameter.
+by hand, with the force feedback), no tip radius and no tube diameter.
 
 :func:`run_tube_push` closes the whole loop as the demo does (:mod:`arsurf.demo.nanotubes`) but
 without the engage, the recording and the replay: the preset's model (``mwcnt-push``: a 20 nm
 silicon tip on polycarbonate, the paper's lever) on the bundled nanotubes scan, its tube scene,
 the direct coupling with its virtual coupling and passivity controller, and a scripted hand
-that presses the substrate to a held load (:func:`~arsurf.demo.nanotubes.press_for_load`,
-default :data:`~arsurf.demo.nanotubes.HELD_LOAD`, the floor of Fig. 10a) and pushes a tube end
-50 nm across its axis. The normal force is then the model's own: the held load on the substrate
+that presses the substrate to a held load (:func:`press_for_load`,
+default :data:`HELD_LOAD`, the middle of Fig. 10a's range) and pushes a
+tube end 50 nm across its axis. The normal force is then the model's own: the load on the
+substrate (the held load, moved by the topography under the sliding tip at the grip's stiffness)
 plus the vertical part of the tube's reaction. The tip is wider than the tube's radius, so its
 centre lies above the tube's axis and the contact normal (axis to tip centre) tilts upward: the
 frictionless contact force :math:`F_h` of the push (the substrate friction of the sliding tube,
 :mod:`arsurf.manipulation.scene`) comes with an upward :math:`F_z = F_h\,\Delta z/d_h`, which
 the hand's compliance shares with the substrate (docs/design.rst, "The normal force of a tube
 push"). Forces in N, lengths in m, time in s.
-
 """
 from __future__ import annotations
 
@@ -30,12 +30,44 @@ from dataclasses import dataclass
 import numpy as np
 
 from arsurf.assembly import BUNDLED_SCAN, build_loop, build_model, preset, preset_metadata
-from arsurf.demo.nanotubes import HELD_LOAD, hand_trajectory, plan_end_push, press_for_load
+from arsurf.demo.nanotubes import hand_trajectory, plan_end_push
 from arsurf.haptics.loop import LOOP_OUT
-from arsurf.haptics.virtual_device import HandModel, VirtualDevice
+from arsurf.haptics.virtual_device import DEFAULT_HAND_STIFFNESS, HandModel, VirtualDevice
 from arsurf.model import MODEL_OUT
 
-__all__ = ["TubePush", "run_tube_push"]
+__all__ = ["HELD_LOAD", "TubePush", "press_for_load", "run_tube_push"]
+
+#: the load the scripted operator presses the substrate to before pushing (N): the middle of the
+#: 20-40 nN at which [MWCNT] Fig. 10a's operator kept the normal force during its tube push (the
+#: paper gives no set point: its operator controlled the force by hand, with the force feedback);
+#: the tube's reaction on its curved flank adds its vertical part during the push (docs/design.rst,
+#: "The normal force of a tube push")
+HELD_LOAD = 30e-9
+
+
+def press_for_load(loop, load: float, hand_stiffness: float = DEFAULT_HAND_STIFFNESS) -> float:
+    r"""How far past first touch (probe metres) the hand's set point must go for the tip to rest on
+    a flat substrate at ``load`` (N), through ``loop`` (direct coupling) held by a hand of grip
+    stiffness ``hand_stiffness`` (N/m, :class:`~arsurf.haptics.virtual_device.HandModel`).
+
+    The grip :math:`K_h` acts on the tip through the direct coupling (force gain :math:`K_f`,
+    scale :math:`s`) as a spring :math:`k_h = K_h/(K_f s)`, in series with the virtual coupling
+    :math:`k_{vc}` (the model's, at the probe). At rest the stretch of that chain carries the
+    load, :math:`P = k\,(i - \delta(P))` with :math:`1/k = 1/k_h + 1/k_{vc}` and :math:`\delta(P)`
+    the depth of the model's Maugis-Dugdale law at :math:`P` (load control), so
+
+    .. math:: i = \delta(P) + P/k.
+
+    The grip is the operator's lever: like the cantilever of an AFM, it sets the load by its
+    deflection (22 N/m at the probe with the demo's hand, device and gains; [MWCNT]'s lever is 38.6 N/m).
+    """
+    gain = float(np.broadcast_to(np.asarray(loop.coupling.force.gain, dtype=np.float64), (3,))[2])
+    scale = float(np.broadcast_to(np.asarray(loop.coupling.position.scale, dtype=np.float64), (3,))[2])
+    k_hand = float(hand_stiffness) / (gain * scale)
+    k = 1.0 / (1.0 / k_hand + 1.0 / loop.model.coupling_stiffness)
+    return float(loop.model.contact.contact_state(load=load).depth) + load / k
+
+
 
 #: the hand hovers this far above the substrate (probe m) before it approaches (the demo's)
 HOVER = 8e-9
@@ -55,6 +87,8 @@ class TubePush:
         The tubes' reaction on the tip (:attr:`arsurf.manipulation.scene.TubeScene.force`).
     tip : (n, 3) m
         The tip centre.
+    device_force : (n, 3) N
+        The force commanded to the hand (the feel: :func:`arsurf.haptics.feel.score_force`).
     load : (n,) N
         The Maugis-Dugdale load on the substrate (NaN out of contact).
     held_load : float, N
@@ -68,6 +102,7 @@ class TubePush:
     contact_force: np.ndarray
     tube_force: np.ndarray
     tip: np.ndarray
+    device_force: np.ndarray
     load: np.ndarray
     held_load: float
     tube: int
@@ -114,13 +149,15 @@ def run_tube_push(preset_name: str = "mwcnt-push", *, held_load: float = HELD_LO
     hand = HandModel(hand_trajectory(HOVER, press_for_load(loop, held_load), slide, direction))
     dev = VirtualDevice(dt=1.0 / rate, hand=hand).open()
     n = int(seconds * rate)
-    contact, tube, tip, load = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    contact, tube, tip, felt = (np.empty((n, 3)) for _ in range(4))
+    load = np.empty(n)
     sim, m_load = MODEL_OUT.slice("simulated_force"), MODEL_OUT.offset("load")
     l_tip = LOOP_OUT.slice("tip")
     try:
         for k in range(n):
             st = dev.read_state()
-            dev.command_force(loop.step(st, st.timestamp))
+            felt[k] = loop.step(st, st.timestamp)
+            dev.command_force(felt[k])
             contact[k] = model.out[sim]
             tube[k] = scene.force
             tip[k] = loop.out[l_tip]
@@ -128,6 +165,6 @@ def run_tube_push(preset_name: str = "mwcnt-push", *, held_load: float = HELD_LO
     finally:
         dev.close()
     t = scene.initial[plan["tube"]]
-    return TubePush(time=np.arange(n) / rate, contact_force=contact, tube_force=tube, tip=tip, load=load,
+    return TubePush(time=np.arange(n) / rate, contact_force=contact, tube_force=tube, tip=tip, device_force=felt, load=load,
                     held_load=float(held_load), tube=int(plan["tube"]), end=plan["end"], tube_radius=t.radius,
                     tip_radius=p.tip_radius, axis_height=t.axis_height)

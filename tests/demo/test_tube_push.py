@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arsurf.demo.nanotubes import HELD_LOAD
-from arsurf.demo.tube_push import run_tube_push
+from arsurf.demo.tube_push import HELD_LOAD, run_tube_push
 from arsurf.manipulation.scene import CONTACT_ALLOWANCE
 
 #: [MWCNT] Fig. 10: the normal force "well controlled at about 20-40 nN", the lateral force 0-30 nN
@@ -36,7 +35,8 @@ def test_press_for_load_holds_the_load_on_a_flat_substrate():
     coupling in series and the Maugis-Dugdale depth at the load, gives that load at rest (and
     while sliding: friction is tangential on a flat substrate)."""
     from arsurf.assembly import PRESETS, build_loop, make_model
-    from arsurf.demo.nanotubes import hand_trajectory, press_for_load
+    from arsurf.demo.nanotubes import hand_trajectory
+    from arsurf.demo.tube_push import press_for_load
     from arsurf.haptics.virtual_device import HandModel, VirtualDevice
     from arsurf.model import MODEL_OUT
     from arsurf.spline.surface import BSplineSurface

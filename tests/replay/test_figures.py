@@ -365,18 +365,3 @@ def test_forces_figure_explains_its_curves_and_the_tube_reaction(demo_figures):
     assert labels == ["contact"] + ["tube contact only"] * only_tube + ["recorded", "simulated", "measured",
                                                                          "tube reaction"]
     assert fig.get_size_inches()[0] == pytest.approx(7.0)  # a two-column page's width
-
-
-def test_the_demo_push_normal_force_is_in_mwcnt_fig10a_range(demo_figures):
-    """[MWCNT] Fig. 10a: the normal force during the tube push is 20-40 nN. The demo's operator
-    presses to the held load (arsurf.demo.nanotubes.HELD_LOAD) and the tube adds the vertical part
-    of its reaction: the total vertical force on the tip (substrate plus tube) stays in that range
-    while the tube pushes back (the former 5 nm scripted press gave 61-82 nN)."""
-    saved, summary, out = demo_figures
-    given = saved["given"]
-    tube = np.asarray(given["forces"]["tube"])
-    pushing = np.hypot(tube[:, 0], tube[:, 1]) > 0.0
-    assert pushing.sum() > 300
-    normal = (np.asarray(given["forces"]["simulated"])[:, 2] + tube[:, 2])[pushing]
-    assert 20e-9 <= normal.min() and normal.max() <= 40e-9
-    assert (tube[pushing, 2] > 0).all()  # the tip (R = 20 nm) rides on the tube's curved flank
