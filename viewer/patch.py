@@ -1,0 +1,172 @@
+r"""The view's per-frame work on a patch of its sampled grid (numba kernels).
+
+A dent moves a few control points; by the B-spline's local support it changes the sampled grid
+only in a box of samples around them. These kernels do everything a frame needs on such a box,
+in place in the arrays the VTK mesh reads, with no Python loop over samples:
+
+* :func:`changed_box` - the box of control points that moved since the view last looked;
+* :func:`sample_patch` - the surface points (nm), exact unit normals
+  :math:`\mathbf n = S_u \times S_v / |S_u \times S_v|`, heights and deformation
+  :math:`|S - S_{rest}|` of a box of grid samples;
+* :func:`dent_extent` - the box of deformed samples (deformation > 0) inside a box, and the
+  deepest deformation: a sample at rest is bitwise its rest point (same net, same arithmetic),
+  so its deformation is exactly 0;
+* :func:`contour_patch` - the dent's contour lines (marching squares on the box's cells, saddles
+  resolved by the cell's mean), each end of a segment put on the sampled surface by linear
+  interpolation along the cell's edge.
+
+The arrays are the grid's, indexed [row = v sample, column = u sample]; boxes are half-open
+(iu0, iu1, jv0, jv1) sample index ranges.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from arsurf.spline.basis import N_ROWS, S, SU, SV, surface_point
+
+__all__ = ["changed_box", "sample_patch", "dent_extent", "contour_patch"]
+
+
+@njit(cache=True)
+def changed_box(ctrl, last):
+    """Index box (i0, i1, j0, j1) of the control points where ``ctrl`` differs from ``last``
+    (empty: i1 = i0 = 0), copied into ``last``: one pass, no temporaries."""
+    nu, nv = ctrl.shape[0], ctrl.shape[1]
+    i0, i1, j0, j1 = nu, -1, nv, -1
+    for i in range(nu):
+        for j in range(nv):
+            if ctrl[i, j, 0] != last[i, j, 0] or ctrl[i, j, 1] != last[i, j, 1] or ctrl[i, j, 2] != last[i, j, 2]:
+                i0 = min(i0, i)
+                i1 = max(i1, i)
+                j0 = min(j0, j)
+                j1 = max(j1, j)
+    if i1 < 0:
+        return 0, 0, 0, 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for c in range(3):
+                last[i, j, c] = ctrl[i, j, c]
+    return i0, i1 + 1, j0, j1 + 1
+
+
+@njit(cache=True)
+def sample_patch(ctrl, ku, kv, us, vs, iu0, iu1, jv0, jv1, scale, rest, pts, normals, height, deform):
+    """Re-sample the grid box [jv0, jv1) x [iu0, iu1) of the surface (``ctrl``, ``ku``, ``kv``,
+    metres) at parameters ``us`` (columns) and ``vs`` (rows), in place.
+
+    Writes ``pts`` (rows, cols, 3) = S * ``scale`` (nm with scale 1e9), ``normals`` (rows, cols, 3)
+    the unit normal S_u x S_v / |S_u x S_v| (the norm floored at 1e-300), ``height`` (rows, cols)
+    the z of ``pts`` and ``deform`` (rows, cols) = |pts - rest| with ``rest`` (rows, cols, 3) the
+    rest surface's points in the same unit."""
+    out = np.empty((N_ROWS, 3))
+    for j in range(jv0, jv1):
+        v = vs[j]
+        for i in range(iu0, iu1):
+            surface_point(ctrl, ku, kv, us[i], v, 1, out)
+            x = out[S, 0] * scale
+            y = out[S, 1] * scale
+            z = out[S, 2] * scale
+            pts[j, i, 0] = x
+            pts[j, i, 1] = y
+            pts[j, i, 2] = z
+            nx = out[SU, 1] * out[SV, 2] - out[SU, 2] * out[SV, 1]
+            ny = out[SU, 2] * out[SV, 0] - out[SU, 0] * out[SV, 2]
+            nz = out[SU, 0] * out[SV, 1] - out[SU, 1] * out[SV, 0]
+            nn = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+            normals[j, i, 0] = nx / nn
+            normals[j, i, 1] = ny / nn
+            normals[j, i, 2] = nz / nn
+            height[j, i] = z
+            dx = x - rest[j, i, 0]
+            dy = y - rest[j, i, 1]
+            dz = z - rest[j, i, 2]
+            deform[j, i] = math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(cache=True)
+def dent_extent(deform, iu0, iu1, jv0, jv1):
+    """(iu0, iu1, jv0, jv1, top): the box of samples with ``deform`` > 0 inside the given box
+    (all zero when none) and the largest ``deform`` there (0 when none)."""
+    a0, a1, b0, b1 = iu1, iu0 - 1, jv1, jv0 - 1
+    top = 0.0
+    for j in range(jv0, jv1):
+        for i in range(iu0, iu1):
+            d = deform[j, i]
+            if d > 0.0:
+                a0 = min(a0, i)
+                a1 = max(a1, i)
+                b0 = min(b0, j)
+                b1 = max(b1, j)
+                top = max(top, d)
+    if a1 < a0:
+        return 0, 0, 0, 0, 0.0
+    return a0, a1 + 1, b0, b1 + 1, top
+
+
+@njit(cache=True, inline="always")
+def _edge_point(pts, f, level, ja, ia, jb, ib, out, k):
+    """The point of the edge from sample (ja, ia) to (jb, ib) where ``f`` crosses ``level``,
+    on the straight line between the two samples' points, into ``out[k]`` (if it fits)."""
+    if k >= out.shape[0]:
+        return
+    fa = f[ja, ia]
+    t = (level - fa) / (f[jb, ib] - fa)
+    for c in range(3):
+        out[k, c] = pts[ja, ia, c] + t * (pts[jb, ib, c] - pts[ja, ia, c])
+
+
+@njit(cache=True)
+def contour_patch(f, pts, iu0, iu1, jv0, jv1, levels, out):
+    """Contour lines of ``f`` (rows, cols) at each of ``levels`` over the cells of the sample box
+    [jv0, jv1) x [iu0, iu1), as segments on the surface ``pts`` (rows, cols, 3).
+
+    Marching squares: a corner is inside when f >= level; the two ambiguous cases (opposite
+    corners inside) join the inside corners when the mean of the four values is inside. Segment
+    k's ends go to ``out[2k]`` and ``out[2k + 1]`` as long as they fit. Returns the number of
+    segments (call again with a larger ``out`` when it exceeds ``out.shape[0] // 2``)."""
+    n = 0
+    for level in levels:
+        for j in range(jv0, jv1 - 1):
+            for i in range(iu0, iu1 - 1):
+                fa = f[j, i]          # corner a = (j, i), b = (j, i + 1), c = (j + 1, i + 1), d = (j + 1, i)
+                fb = f[j, i + 1]
+                fc = f[j + 1, i + 1]
+                fd = f[j + 1, i]
+                case = ((fa >= level) * 1) | ((fb >= level) * 2) | ((fc >= level) * 4) | ((fd >= level) * 8)
+                if case == 0 or case == 15:
+                    continue
+                if case == 5 or case == 10:
+                    centre_in = 0.25 * (fa + fb + fc + fd) >= level
+                    # edges: 0 = a-b, 1 = b-c, 2 = c-d (d-c), 3 = d-a (a-d)
+                    if (case == 5) == centre_in:  # b and d cut off
+                        pairs = ((0, 1), (2, 3))
+                    else:  # a and c cut off
+                        pairs = ((3, 0), (1, 2))
+                    n_seg = 2
+                else:
+                    n_seg = 1
+                    e = _SINGLE[case]
+                    pairs = ((e[0], e[1]), (e[0], e[1]))
+                for s in range(n_seg):
+                    for end in range(2):
+                        edge = pairs[s][end]
+                        k = 2 * n + end
+                        if edge == 0:
+                            _edge_point(pts, f, level, j, i, j, i + 1, out, k)
+                        elif edge == 1:
+                            _edge_point(pts, f, level, j, i + 1, j + 1, i + 1, out, k)
+                        elif edge == 2:
+                            _edge_point(pts, f, level, j + 1, i, j + 1, i + 1, out, k)
+                        else:
+                            _edge_point(pts, f, level, j, i, j + 1, i, out, k)
+                    n += 1
+    return n
+
+
+#: the edges (from, to) of the one segment of each unambiguous marching-squares case (bit 1: corner
+#: a inside, 2: b, 4: c, 8: d); rows 0, 5, 10 and 15 are unused
+_SINGLE = np.array([[0, 0], [3, 0], [0, 1], [3, 1], [1, 2], [0, 0], [0, 2], [3, 2],
+                    [2, 3], [0, 2], [0, 0], [1, 2], [1, 3], [0, 1], [3, 0], [0, 0]], dtype=np.int64)
