@@ -3,7 +3,9 @@ r"""The 3D view of the live model: deformed surface, tip, contact, force arrow a
 :class:`SurfaceView` builds every actor once and :meth:`SurfaceView.update` changes them in
 place from a :class:`~arsurf_viewer.state.SceneState` (points and scalars written into the
 existing VTK arrays, actors moved with their ``user_matrix``, text set), so a frame costs the
-re-sampling of the changed part of the surface plus one render.
+re-sampling of the changed part of the surface (:mod:`arsurf_viewer.patch`: the patch of
+samples over the control points the dents moved, its deformed box and the dent's contour lines
+there) plus one render.
 
 **The scene is in nanometres**: the engine's metres are multiplied by 1e9 at this edge. VTK's
 camera, clipping planes and picking use absolute tolerances tuned for coordinates of order
@@ -16,7 +18,9 @@ What is drawn
       coloured by height z (nm, in the 2D figures' colour map, :data:`arsurf._figure_style.HEIGHT_CMAP`,
       between the 1st and 99th percentiles of the rest surface, computed once per scan: a scratch
       does not wash the sample out) or by deformation :math:`|S(u, v) - S_{rest}(u, v)|` (nm, from
-      a rest copy evaluated once).
+      a rest copy evaluated once; from 0 to a 1-2-5 value at or above the deepest dent seen, grown
+      only when a dent goes deeper). Frames never recompute the limits:
+      :meth:`SurfaceView.refresh_color_limits` does, on demand.
     * ``tip`` - the tip sphere (translucent, so the dent under it shows).
     * ``contact`` - the contact point and the normal there (green arrow, length 1.8 R).
     * ``force`` - the force on the tip, a magenta arrow from the tip surface along F, of length
