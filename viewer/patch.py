@@ -62,10 +62,11 @@ def sample_patch(ctrl, ku, kv, us, vs, iu0, iu1, jv0, jv1, scale, rest, pts, nor
     the z of ``pts`` and ``deform`` (rows, cols) = |pts - rest| with ``rest`` (rows, cols, 3) the
     rest surface's points in the same unit."""
     out = np.empty((N_ROWS, 3))
-    for j in range(jv0, jv1):
+    first = np.int64(1)  # derivatives to first order, typed as the engine's calls type it (not a literal 1,
+    for j in range(jv0, jv1):  # which would compile another specialisation of surface_point)
         v = vs[j]
         for i in range(iu0, iu1):
-            surface_point(ctrl, ku, kv, us[i], v, 1, out)
+            surface_point(ctrl, ku, kv, us[i], v, first, out)
             x = out[S, 0] * scale
             y = out[S, 1] * scale
             z = out[S, 2] * scale
@@ -106,67 +107,59 @@ def dent_extent(deform, iu0, iu1, jv0, jv1):
     return a0, a1 + 1, b0, b1 + 1, top
 
 
-@njit(cache=True, inline="always")
-def _edge_point(pts, f, level, ja, ia, jb, ib, out, k):
-    """The point of the edge from sample (ja, ia) to (jb, ib) where ``f`` crosses ``level``,
-    on the straight line between the two samples' points, into ``out[k]`` (if it fits)."""
-    if k >= out.shape[0]:
-        return
-    fa = f[ja, ia]
-    t = (level - fa) / (f[jb, ib] - fa)
-    for c in range(3):
-        out[k, c] = pts[ja, ia, c] + t * (pts[jb, ib, c] - pts[ja, ia, c])
-
-
 @njit(cache=True)
 def contour_patch(f, pts, iu0, iu1, jv0, jv1, levels, out):
     """Contour lines of ``f`` (rows, cols) at each of ``levels`` over the cells of the sample box
     [jv0, jv1) x [iu0, iu1), as segments on the surface ``pts`` (rows, cols, 3).
 
     Marching squares: a corner is inside when f >= level; the two ambiguous cases (opposite
-    corners inside) join the inside corners when the mean of the four values is inside. Segment
-    k's ends go to ``out[2k]`` and ``out[2k + 1]`` as long as they fit. Returns the number of
+    corners inside) join the inside corners when the mean of the four values is inside. A
+    segment's end is where f crosses the level on a cell edge, on the straight line between the
+    edge's two samples' points (linear interpolation from the lower-index sample). Segment k's
+    ends go to ``out[2k]`` and ``out[2k + 1]`` as long as they fit. Returns the number of
     segments (call again with a larger ``out`` when it exceeds ``out.shape[0] // 2``)."""
     n = 0
+    cap = out.shape[0]
     for level in levels:
         for j in range(jv0, jv1 - 1):
             for i in range(iu0, iu1 - 1):
-                fa = f[j, i]          # corner a = (j, i), b = (j, i + 1), c = (j + 1, i + 1), d = (j + 1, i)
+                fa = f[j, i]  # corners a = (j, i), b = (j, i + 1), c = (j + 1, i + 1), d = (j + 1, i)
                 fb = f[j, i + 1]
                 fc = f[j + 1, i + 1]
                 fd = f[j + 1, i]
                 case = ((fa >= level) * 1) | ((fb >= level) * 2) | ((fc >= level) * 4) | ((fd >= level) * 8)
                 if case == 0 or case == 15:
                     continue
-                if case == 5 or case == 10:
-                    centre_in = 0.25 * (fa + fb + fc + fd) >= level
-                    # edges: 0 = a-b, 1 = b-c, 2 = c-d (d-c), 3 = d-a (a-d)
-                    if (case == 5) == centre_in:  # b and d cut off
-                        pairs = ((0, 1), (2, 3))
-                    else:  # a and c cut off
-                        pairs = ((3, 0), (1, 2))
-                    n_seg = 2
-                else:
-                    n_seg = 1
-                    e = _SINGLE[case]
-                    pairs = ((e[0], e[1]), (e[0], e[1]))
-                for s in range(n_seg):
+                row = case
+                if case == 5 or case == 10:  # a saddle: which pair of corners does the mean join?
+                    row = _B_D_CUT if (0.25 * (fa + fb + fc + fd) >= level) == (case == 5) else _A_C_CUT
+                for s in range(_SEGMENTS[row, 0, 0]):
                     for end in range(2):
-                        edge = pairs[s][end]
                         k = 2 * n + end
-                        if edge == 0:
-                            _edge_point(pts, f, level, j, i, j, i + 1, out, k)
-                        elif edge == 1:
-                            _edge_point(pts, f, level, j, i + 1, j + 1, i + 1, out, k)
-                        elif edge == 2:
-                            _edge_point(pts, f, level, j + 1, i, j + 1, i + 1, out, k)
-                        else:
-                            _edge_point(pts, f, level, j, i, j + 1, i, out, k)
+                        if k < cap:
+                            e = _SEGMENTS[row, 1 + s, end]
+                            j0 = j + _EDGES[e, 0]
+                            i0 = i + _EDGES[e, 1]
+                            j1 = j + _EDGES[e, 2]
+                            i1 = i + _EDGES[e, 3]
+                            t = (level - f[j0, i0]) / (f[j1, i1] - f[j0, i0])
+                            for c in range(3):
+                                out[k, c] = pts[j0, i0, c] + t * (pts[j1, i1, c] - pts[j0, i0, c])
                     n += 1
     return n
 
 
-#: the edges (from, to) of the one segment of each unambiguous marching-squares case (bit 1: corner
-#: a inside, 2: b, 4: c, 8: d); rows 0, 5, 10 and 15 are unused
-_SINGLE = np.array([[0, 0], [3, 0], [0, 1], [3, 1], [1, 2], [0, 0], [0, 2], [3, 2],
-                    [2, 3], [0, 2], [0, 0], [1, 2], [1, 3], [0, 1], [3, 0], [0, 0]], dtype=np.int64)
+#: the cell's edges as (row, column) offsets of their two samples, lower index first: 0 = a-b
+#: (bottom), 1 = b-c (right), 2 = d-c (top), 3 = a-d (left)
+_EDGES = np.array([[0, 0, 0, 1], [0, 1, 1, 1], [1, 0, 1, 1], [0, 0, 1, 0]], dtype=np.int64)
+#: per marching-squares case (bit 1: corner a inside, 2: b, 4: c, 8: d): [number of segments, 0],
+#: then the (from, to) edges of each segment; rows 16 and 17 are the saddles' two resolutions
+_B_D_CUT, _A_C_CUT = 16, 17
+_SEGMENTS = np.array([
+    [[0, 0], [0, 0], [0, 0]], [[1, 0], [3, 0], [0, 0]], [[1, 0], [0, 1], [0, 0]], [[1, 0], [3, 1], [0, 0]],
+    [[1, 0], [1, 2], [0, 0]], [[0, 0], [0, 0], [0, 0]], [[1, 0], [0, 2], [0, 0]], [[1, 0], [3, 2], [0, 0]],
+    [[1, 0], [2, 3], [0, 0]], [[1, 0], [0, 2], [0, 0]], [[0, 0], [0, 0], [0, 0]], [[1, 0], [1, 2], [0, 0]],
+    [[1, 0], [1, 3], [0, 0]], [[1, 0], [0, 1], [0, 0]], [[1, 0], [3, 0], [0, 0]], [[0, 0], [0, 0], [0, 0]],
+    [[2, 0], [0, 1], [2, 3]],  # b and d cut off
+    [[2, 0], [3, 0], [1, 2]],  # a and c cut off
+], dtype=np.int64)
