@@ -332,8 +332,13 @@ class SurfaceView:
         self._ku, self._kv = ku, kv
         self._last_ctrl = np.array(ctrl, copy=True)
         uu, vv = np.meshgrid(self._u, self._v)
-        rest_surface = BSplineSurface.construct_fast(np.array(rest, copy=True), ku, kv)
-        self._rest_points = rest_surface.evaluate(uu, vv) * SCENE_SCALE  # (nv, nu, 3) nm
+        # the rest grid (nv, nu, 3) nm, by the frames' own kernel: a sample whose control points are at
+        # rest is then bitwise its rest point, its deformation exactly 0 (the dent box stays the dent's)
+        self._rest_points = np.zeros((nv, nu, 3))
+        normals, height = np.empty((nv, nu, 3)), np.empty((nv, nu))
+        sample_patch(rest, ku, kv, self._u, self._v, 0, nu, 0, nv, SCENE_SCALE, self._rest_points,
+                     self._rest_points, normals, height, height)
+        del normals, height
         grid = pv.StructuredGrid()
         grid.points = np.zeros((nu * nv, 3))
         grid.dimensions = (nu, nv, 1)
