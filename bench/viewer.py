@@ -8,7 +8,9 @@ evaluation with numpy normals, as the view did before its patch kernels) against
 2 nm deep (a = 8 nm, Dugdale zone 10 nm) sliding 0.5 nm per frame, recorded as the tick records
 it (``record_dent_kernel``); the frame moves the net to it (``sync``), re-samples the patch,
 finds the deformed samples and contours them (the colour limits stay). Each figure: median,
-p90 and p99 in µs; ``ratio_full_over_local``: the faster peer's median over the local frame's.
+p90 and p99 in µs, as wall time and as this thread's CPU time (the parallel batch evaluation's
+worker threads are not in its CPU figure); ``ratio_full_over_local``: the faster peer's median
+over the local frame's.
 
 Run: .venv/bin/python bench/viewer.py   (prints JSON)
 """
