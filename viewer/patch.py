@@ -8,9 +8,10 @@ in place in the arrays the VTK mesh reads, with no Python loop over samples:
 * :func:`sample_patch` - the surface points (nm), exact unit normals
   :math:`\mathbf n = S_u \times S_v / |S_u \times S_v|`, heights and deformation
   :math:`|S - S_{rest}|` of a box of grid samples;
-* :func:`dent_extent` - the box of deformed samples (deformation > 0) inside a box, and the
-  deepest deformation: a sample at rest is bitwise its rest point (same net, same arithmetic),
-  so its deformation is exactly 0;
+* :func:`dent_boxes` - the boxes of deformed samples (deformation > 0) inside a box, one per
+  dent apart from the others, and the deepest deformation in each (:func:`dent_extent`): a
+  sample at rest is bitwise its rest point (same net, same kernel), so its deformation is
+  exactly 0;
 * :func:`contour_patch` - the dent's contour lines (marching squares on the box's cells, saddles
   resolved by the cell's mean), each end of a segment put on the sampled surface by linear
   interpolation along the cell's edge.
@@ -27,7 +28,7 @@ from numba import njit
 
 from arsurf.spline.basis import N_ROWS, S, SU, SV, surface_point
 
-__all__ = ["changed_box", "sample_patch", "dent_extent", "contour_patch"]
+__all__ = ["changed_box", "sample_patch", "dent_extent", "dent_boxes", "contour_patch"]
 
 
 @njit(cache=True)
@@ -105,6 +106,53 @@ def dent_extent(deform, iu0, iu1, jv0, jv1):
     if a1 < a0:
         return 0, 0, 0, 0, 0.0
     return a0, a1 + 1, b0, b1 + 1, top
+
+
+@njit(cache=True)
+def dent_boxes(deform, iu0, iu1, jv0, jv1, out):
+    """The deformed samples (``deform`` > 0) of the given box as separate boxes: the box is cut
+    at its rows with no deformed sample, each band at its columns with none, and each piece
+    shrunk to its deformed samples (:func:`dent_extent`), so dents apart (two contacts) keep a
+    box each. Writes (iu0, iu1, jv0, jv1, top) of box k to ``out[k]`` (m, 5) while it fits;
+    returns the number of boxes (call again with a larger ``out`` when it exceeds m)."""
+    n = 0
+    rows = np.zeros(max(jv1 - jv0, 0), np.bool_)
+    for j in range(jv0, jv1):
+        for i in range(iu0, iu1):
+            if deform[j, i] > 0.0:
+                rows[j - jv0] = True
+                break
+    cols = np.zeros(max(iu1 - iu0, 0), np.bool_)
+    j = jv0
+    while j < jv1:
+        if not rows[j - jv0]:
+            j += 1
+            continue
+        r0 = j
+        while j < jv1 and rows[j - jv0]:
+            j += 1
+        cols[:] = False
+        for jj in range(r0, j):
+            for i in range(iu0, iu1):
+                if deform[jj, i] > 0.0:
+                    cols[i - iu0] = True
+        i = iu0
+        while i < iu1:
+            if not cols[i - iu0]:
+                i += 1
+                continue
+            c0 = i
+            while i < iu1 and cols[i - iu0]:
+                i += 1
+            a0, a1, b0, b1, top = dent_extent(deform, c0, i, r0, j)
+            if n < out.shape[0]:
+                out[n, 0] = a0
+                out[n, 1] = a1
+                out[n, 2] = b0
+                out[n, 3] = b1
+                out[n, 4] = top
+            n += 1
+    return n
 
 
 @njit(cache=True)

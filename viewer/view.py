@@ -48,7 +48,7 @@ PNG states (e.g. 2100 x 1500 px at 300 dpi: 7 x 5 in).
 Examples
 --------
 >>> import numpy as np
->>> from arsurf.spline.surface import BSplineSurface
+>>> from arsurf.spline.surface import BSplineSurface, merge_boxes
 >>> from arsurf_viewer import SceneState, SurfaceView
 >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 100e-9), (0.0, 100e-9))
 >>> view = SurfaceView(s, off_screen=True, window_size=(320, 240))
@@ -70,10 +70,10 @@ from arsurf._files import atomic_write
 from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
 from arsurf.errors import require
 from arsurf.status import BEYOND_MODEL, flag_names
-from arsurf.spline.surface import BSplineSurface
+from arsurf.spline.surface import BSplineSurface, merge_boxes
 
 from .backend import choose_backend
-from .patch import changed_box, contour_patch, dent_extent, sample_patch
+from .patch import changed_box, contour_patch, dent_boxes, sample_patch
 from .state import SceneState
 from arsurf.errors import ViewerError
 
@@ -353,8 +353,8 @@ class SurfaceView:
         self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
         self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
         self._resample(0, nu, 0, nv)
-        self._dent_box = (0, nu, 0, nv)  # grid box (iu0, iu1, jv0, jv1) holding every deformed sample
-        self._find_dent(self._dent_box)
+        self._dent_found = np.empty((16, 5))  # dent_boxes' output: (iu0, iu1, jv0, jv1, top) per box
+        self._find_dent([(0, nu, 0, nv)])  # the grid boxes (iu0, iu1, jv0, jv1) of the deformed samples
         self._material_clim = {}
         if self.material is not None:  # the material fields on the rest grid (they move with the surface)
             for mode, (name, units, log) in _MATERIAL_MODES.items():
@@ -426,15 +426,31 @@ class SurfaceView:
         self.dent_step_nm = 0.0
         self._update_dent()
 
-    def _find_dent(self, box) -> None:
-        """Shrink :attr:`_dent_box` to the deformed samples inside ``box`` (which holds them all)
-        and note their largest deformation: O(box), not O(grid)."""
-        iu0, iu1, jv0, jv1, top = dent_extent(self._deform, *(int(k) for k in box))
-        self._dent_box, self._dent_top = (iu0, iu1, jv0, jv1), float(top)
+    def _find_dent(self, boxes) -> None:
+        """Shrink :attr:`_dent_boxes` to the deformed samples inside ``boxes`` (disjoint grid boxes
+        holding them all) and note their largest deformation: O(boxes), not O(grid)."""
+        found, top = [], 0.0
+        for box in boxes:
+            n = dent_boxes(self._deform, *box, self._dent_found)
+            if n > self._dent_found.shape[0]:
+                self._dent_found = np.empty((2 * n, 5))
+                n = dent_boxes(self._deform, *box, self._dent_found)
+            for a0, a1, b0, b1, t in self._dent_found[:n].tolist():
+                found.append((int(a0), int(a1), int(b0), int(b1)))
+                top = max(top, t)
+        self._dent_boxes, self._dent_top = found, top
+
+    @property
+    def _dent_box(self) -> tuple:
+        """The bounding box (iu0, iu1, jv0, jv1) of the deformed samples ((0, 0, 0, 0): none)."""
+        b = self._dent_boxes
+        if not b:
+            return (0, 0, 0, 0)
+        return (min(x[0] for x in b), max(x[1] for x in b), min(x[2] for x in b), max(x[3] for x in b))
 
     def _update_dent(self) -> None:
         """Contour lines of the deformation (every :attr:`dent_step_nm` nm) on the surface, lifted
-        0.1 nm off it; computed on the deformed samples (:attr:`_dent_box`) only, written in place
+        0.1 nm off it; computed on the deformed samples (:attr:`_dent_boxes`) only, written in place
         into the lines' VTK arrays (:func:`~arsurf_viewer.patch.contour_patch`)."""
         top = self._dent_top
         if top < 0.02:  # nothing a reader could see: no lines
@@ -445,18 +461,27 @@ class SurfaceView:
         k = math.floor(math.log10(top / 4.0))
         step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
         self.dent_step_nm = step
-        iu0, iu1, jv0, jv1 = self._dent_box
-        # one sample of margin each side: the lines close where the deformation falls to 0
+        # one sample of margin each side: the lines close where the deformation falls to 0; boxes
+        # whose margins meet are contoured as one (no cell twice)
         nu, nv = self.resolution
-        a0, a1, b0, b1 = max(iu0 - 1, 0), min(iu1 + 1, nu), max(jv0 - 1, 0), min(jv1 + 1, nv)
+        boxes = merge_boxes([(max(a0 - 1, 0), min(a1 + 1, nu), max(b0 - 1, 0), min(b1 + 1, nv))
+                             for a0, a1, b0, b1 in self._dent_boxes])
         levels = np.arange(1, int(top / step) + 1) * step
-        n = contour_patch(self._deform, self._pts, a0, a1, b0, b1, levels, self._dent_xyz)
+        n = self._contour(boxes, levels)
         if 2 * n > self._dent_xyz.shape[0]:  # more segments than ever before: room for twice as many
             self._dent_xyz = np.empty((4 * n, 3))
             self._dent_ids = np.arange(4 * n, dtype=np.int64)
             self._dent_starts = np.arange(0, 4 * n + 1, 2, dtype=np.int64)
-            n = contour_patch(self._deform, self._pts, a0, a1, b0, b1, levels, self._dent_xyz)
+            n = self._contour(boxes, levels)
         self._set_dent_segments(n)
+
+    def _contour(self, boxes, levels) -> int:
+        """Segments of the deformation's ``levels`` in each grid box, one after another into
+        :attr:`_dent_xyz` (as far as it holds them); returns how many there are."""
+        n = 0
+        for a0, a1, b0, b1 in boxes:
+            n += contour_patch(self._deform, self._pts, a0, a1, b0, b1, levels, self._dent_xyz[2 * n:])
+        return n
 
     def _set_dent_segments(self, n: int) -> None:
         """Show the first ``n`` segments of :attr:`_dent_xyz` as the dent's lines: the VTK arrays
@@ -901,29 +926,29 @@ class SurfaceView:
 
     # -- per-frame work -----------------------------------------------------------------------
     def _sync_surface(self) -> None:
-        """Re-sample the part of the grid whose control points changed since the last frame."""
-        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dent first)
-        anything, box = self._watch.take()
+        """Re-sample the parts of the grid whose control points changed since the last frame (one
+        patch per box the deformers moved), find the deformed samples there and contour them."""
+        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dents first)
+        anything, boxes = self._watch.take()
         if anything:  # written from outside the deformers: compare the whole net
-            i0, i1, j0, j1 = changed_box(ctrl, self._last_ctrl)
-        elif box is None:
-            return
-        else:  # only the deformers' boxes can differ
-            b0, b1, c0, c1 = box
+            boxes = [(0, ctrl.shape[0], 0, ctrl.shape[1])]
+        patches = []
+        for b0, b1, c0, c1 in boxes:  # only the deformers' boxes can differ
             i0, i1, j0, j1 = changed_box(ctrl[b0:b1, c0:c1], self._last_ctrl[b0:b1, c0:c1])
+            if i1 <= i0:
+                continue
             i0, i1, j0, j1 = i0 + b0, i1 + b0, j0 + c0, j1 + c0
-        if i1 <= i0:
+            # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
+            patch = (int(np.searchsorted(self._u, ku[i0], side="left")),
+                     int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right")),
+                     int(np.searchsorted(self._v, kv[j0], side="left")),
+                     int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right")))
+            self._resample(*patch)
+            patches.append(patch)
+        if not patches:
             return
-        # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
-        iu0 = int(np.searchsorted(self._u, ku[i0], side="left"))
-        iu1 = int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right"))
-        jv0 = int(np.searchsorted(self._v, kv[j0], side="left"))
-        jv1 = int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right"))
-        self._resample(iu0, iu1, jv0, jv1)
-        # the deformed samples are in the old dent box or the re-sampled one
-        b = self._dent_box
-        self._find_dent((iu0, iu1, jv0, jv1) if b[1] <= b[0] else
-                        (min(b[0], iu0), max(b[1], iu1), min(b[2], jv0), max(b[3], jv1)))
+        # the deformed samples are in the old dent boxes or the re-sampled patches
+        self._find_dent(merge_boxes([*self._dent_boxes, *patches]))
         self._follow_dent_clim()
         self._update_dent()
 

@@ -164,6 +164,33 @@ def test_local_frames_equal_a_full_resample_after_moving_dents(gl):
 
 
 @pytest.mark.viewer
+def test_two_contacts_far_apart_are_two_small_patches(gl):
+    from arsurf_viewer import SceneState
+
+    s = rough_surface()
+    rest = s.copy()
+    near, far = Deformer(s), Deformer(s)
+    view = make_view(s, resolution=150)
+    try:
+        for k in range(4):  # two tips sliding at opposite corners of the scan
+            for dent, (x, y) in ((near, (30e-9 + 2e-9 * k, 30e-9)), (far, (170e-9 - 2e-9 * k, 170e-9))):
+                z = float(rest.evaluate(x, y)[2]) + R - 2e-9
+                dent.apply((x, y, z), R, (0.0, 0.0, 1.0), 5e-9, depth=2e-9, zone_radius=6e-9)
+            view.update(SceneState(s, (100e-9, 100e-9, 40e-9), R), render=False)
+            pts, normals, deform = full_resample(view, s, rest)
+            np.testing.assert_allclose(view._pts, pts, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(view._deform, deform, rtol=0, atol=1e-9)
+            boxes = view._dent_boxes
+            assert len(boxes) == 2 and all(b[1] - b[0] < 40 and b[3] - b[2] < 40 for b in boxes)  # of 150 x 150
+            lines, n = dent_lines(view)
+            levels = np.arange(1, int(deform.max() / view.dent_step_nm) + 1) * view.dent_step_nm
+            assert same_point_sets(lines, vtk_contour_points(deform, pts, levels), 1e-4)
+            assert (lines[:, 0] < 100).any() and (lines[:, 0] > 100).any()  # around both dents
+    finally:
+        view.close()
+
+
+@pytest.mark.viewer
 @pytest.mark.parametrize("color_by", ["height", "deformation"])
 def test_the_locally_updated_picture_is_that_of_a_new_view(gl, color_by):
     from arsurf_viewer import SceneState
