@@ -6,7 +6,8 @@ arsurf's hot code is numba kernels compiled on first use and cached on disk
 On an empty cache the first ``arsurf demo`` spent most of its time in the compiler. This
 module compiles what a session uses before anyone waits for it: the demo pipeline itself
 (scan preparation, fit, engage, the haptic loop with the nanotube scene, the session writer,
-the replay and the feel scores) on 1.5 s of simulated stylus, and the loop
+the replay and the feel scores, and the 3D views when the viewer is installed and can render) on
+1.5 s of simulated stylus, the replay's threaded batch evaluation, and the loop
 without a scene on a surface above :data:`~arsurf.contact.projection.TILED_ABOVE` control
 cells (a large scan's tiled projector specialises every kernel that collides).
 
@@ -16,6 +17,7 @@ makes it a few seconds. ``--quiet`` prints only the summary line.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import os
 import sys
@@ -30,6 +32,7 @@ def warm_up(progress=None) -> dict:
 
     from arsurf.assembly import PRESETS, build_loop
     from arsurf.demo import run_demo
+    from arsurf.errors import RenderingUnavailable
     from arsurf.haptics.virtual_device import VirtualDevice
     from arsurf.model import ARModel
     from arsurf.contact.maugis_dugdale import MaugisDugdale
@@ -44,7 +47,13 @@ def warm_up(progress=None) -> dict:
     times = {}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="arsurf-warmup-") as out:
-        run_demo(out, seconds=1.5, images=False, progress=say)  # the demo settles 1.2 s before it scores
+        # the demo settles 1.2 s before it scores; its views too where they can be drawn (the
+        # viewer's own kernels), as `make demo` and `arsurf demo` draw them
+        images = importlib.util.find_spec("arsurf_viewer") is not None
+        try:
+            run_demo(out, seconds=1.5, images=images, progress=say)
+        except RenderingUnavailable:  # raised before the session: nothing was compiled twice
+            run_demo(out, seconds=1.5, images=False, progress=say)
     times["demo_s"] = time.perf_counter() - t0
     say(f"demo pipeline compiled in {times['demo_s']:.1f} s")
     t1 = time.perf_counter()
