@@ -33,8 +33,9 @@ whole (an atomic reference swap in CPython, no lock):
 
 - *state* (link -> loop): a sequence number, the time the reply arrived, position and velocity.
   ``read_state`` takes the latest and never blocks; a state older than ``sample_timeout`` (default
-  5 ms), or older than a lost reply, is a missed sample (timestamp :math:`-\infty`: the safety layer flags it ``STALE`` and
-  commands zero in that tick), and ``disconnect_after`` of them in a row end the session;
+  5 ms), or older than a lost reply, is a missed sample (timestamp :math:`-\infty`: the safety
+  layer flags it ``STALE`` and commands zero in that tick), and ``disconnect_after`` of them in a
+  row end the session;
 - *command* (loop -> link): the force, when it was commanded, and the sequence number of the state
   it was computed from. ``command_force`` stores it and wakes the link, which sends it at once.
 
