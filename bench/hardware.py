@@ -51,7 +51,7 @@ WORK = Path(tempfile.mkdtemp(prefix="arsurf-bench-hw-"))
 
 def loop_through(dev, seconds: float, halfway=None) -> dict:
     """The 1 kHz Scheduler through ``dev`` (open): io and sample-age statistics, and the timing;
-    ``halfway()`` is called once in the tick at half the run (e.g. to lose a reply)."""
+    ``halfway()`` is called once, in the first tick at half the run's time (e.g. to lose a reply)."""
     n = int(seconds * 1000 * 1.2) + 100
     io = np.zeros(n)
     age = np.zeros(n)
@@ -60,10 +60,12 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
     clock = time.perf_counter_ns
     t_read = [0]
 
-    half = [int(seconds * 500)]
+    half = [n]  # the tick of halfway(): the first at half the run's time (a slow loop has fewer ticks)
+    t_half = [math.inf]
 
     def source():
-        if halfway is not None and k[0] == half[0]:
+        if halfway is not None and half[0] == n and time.perf_counter() >= t_half[0]:
+            half[0] = k[0]
             halfway()
         t0 = clock()
         s = dev.read_state()
@@ -86,6 +88,7 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
         dev.read_state()
         dev.command_force(FORCE)
     sched = Scheduler(lambda st, inputs, dt: FORCE, None, rate=1000.0, source=source, sink=sink)
+    t_half[0] = time.perf_counter() + seconds / 2
     st = sched.run_for(seconds)
     m = min(k[0], n)
     ok = np.isfinite(age[:m])
