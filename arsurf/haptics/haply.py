@@ -84,7 +84,7 @@ from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
 from arsurf.haptics.device import BUTTON_1, DeviceInfo, _vec3
 from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
 
-__all__ = ["HaplyDevice", "probe"]
+__all__ = ["HaplyDevice", "Inverse3Link", "probe"]
 
 log = logging.getLogger(__name__)
 EXTRA = "haply"
@@ -407,6 +407,12 @@ class HaplyDevice(HardwareDevice):
             except Exception:  # noqa: BLE001 - a silent handle reads as disengaged (see _poll)
                 time.sleep(0.01)
             time.sleep(0.002)
+
+    def safety_record(self) -> dict:
+        """The base record plus the link's timeouts (``read_timeout_s``, ``sample_timeout_s``,
+        ``command_timeout_s``) and ``workspace_source`` (always ``given``)."""
+        return {**super().safety_record(), "read_timeout_s": self.read_timeout, "sample_timeout_s": self.sample_timeout,
+                "command_timeout_s": self.command_timeout, "workspace_source": "given"}
 
     # -- the servo tick: the link's mailboxes, never the port ----------------------------------------
     def _poll(self, vpos, vvel):

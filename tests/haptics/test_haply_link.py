@@ -106,5 +106,6 @@ def test_a_stale_sample_reads_missed_zero_force_and_flagged(fake):
     np.testing.assert_array_equal(f, 0.0)
     assert "STALE" in safety.flag_names()
     assert len(inv.calls) == first  # the loop read without touching the port
+    assert dev.safety_record()["sample_timeout_s"] == SAMPLE_TIMEOUT  # in the session metadata
     inv.release()
     wait_until(lambda: len(inv.calls) > first, what="the held exchange ending")
