@@ -8,9 +8,10 @@ the read timeout again, and returns zeros for a reply that did not come (it prin
 never raises); ``flush_input`` drains the input at once. The Inverse3 answers only a command, each
 with its state (Haply's Inverse Service documentation: to read the position "you must send a force
 value to the device"), ``latency`` s later. So an exchange costs its caller ``latency``, and a lost
-reply ``2 * read_timeout``: that time passes on :class:`ModelClock` and is charged to the thread
-that made the call (:attr:`FakeInverse3.calls`), so a test reads who waited, and how long,
-deterministically.
+reply ``2 * read_timeout``: that time is charged to the thread that made the call
+(:attr:`FakeInverse3.calls`), so a test reads who waited, and how long, deterministically. The
+clock (:class:`ModelClock`) is the test's: it moves only when the test advances it (the adapter's
+link thread exchanges on its own, so its calls must not move the test's time).
 
 ``lose(n)`` loses the replies to the next ``n`` commands (the device applied the force, the host
 never heard back); ``hold()`` makes the next exchange wait, for real, until ``release()`` (a reply
@@ -70,7 +71,6 @@ class FakeInverse3:
 
     # -- the package's API, as the adapter calls it ------------------------------------------------
     def device_wakeup_dict(self) -> dict:
-        self.clock.advance(self.latency)
         return {"device_id": 0x2A2A, "device_model_number": 3, "hardware_version": 1, "firmware_version": 7,
                 "device_id_ext": uuid.UUID(bytes=UUID_BYTES)}
 
@@ -85,7 +85,6 @@ class FakeInverse3:
         lost = self._lose > 0
         self._lose -= lost
         cost = 2.0 * self.read_timeout if lost else self.latency  # header wait, then body wait
-        self.clock.advance(cost)
         self.calls.append(Call(threading.get_ident(), tuple(float(f) for f in force), cost, lost))
         if lost:
             return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
