@@ -157,8 +157,6 @@ class Inverse3Link:
     exchanges, lost_replies, zero_retries, stale_commands : int
         Exchanges made; replies lost; exchanges sent as zero because of a lost reply, and because
         the command was older than ``command_timeout``.
-    sent : tuple of float
-        The force (N, Inverse3 frame) of the last exchange.
     zero_below : int
         States numbered below this are older than a lost reply: the commands computed from them go
         out as zero, and the loop reads them as missed samples.
@@ -178,7 +176,6 @@ class Inverse3Link:
         self._stop = threading.Event()
         self._thread = None
         self.exchanges = self.lost_replies = self.zero_retries = self.stale_commands = 0
-        self.sent = (0.0, 0.0, 0.0)
 
     # -- the loop's side: never blocks --------------------------------------------------------------
     def latest(self):
@@ -206,7 +203,6 @@ class Inverse3Link:
         elif not (self._clock() - t <= self.command_timeout):
             fx = fy = fz = 0.0
             self.stale_commands += 1
-        self.sent = (fx, fy, fz)
         self.exchanges += 1
         try:
             pos, vel = self._inv.end_effector_force([fx, fy, fz])
@@ -250,7 +246,6 @@ class Inverse3Link:
         if self._thread is not None:
             self._thread.join(timeout)
             self._thread = None
-
 
 
 class HaplyDevice(HardwareDevice):
