@@ -3,18 +3,18 @@ simulated devices of the tests (tests/support/hardware_sim), with the virtual de
 
 For each backend the Scheduler runs at 1 kHz for ``--seconds`` with the device's ``read_state`` as
 source and ``command_force`` as sink (a constant 0.1 N, so every tick talks to the device both
-ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library or
-serial exchange), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
+ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library; for
+Haply the link thread's mailboxes, the serial exchange is that thread's), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
 servo thread samples on its own clock); then the scheduler's period jitter (|period - 1 ms|),
 overruns and achieved rate. Every device runs with its shipped defaults (no max_force: the
 first-connection 1 N; Haply's 1 ms read timeout and 5 ms sample timeout; OpenHaptics' 5 ms sample
 timeout). A lost reply is injected halfway where the simulator models one (Haply: ``lose``):
 ``lost_reply`` is the longest tick spent in the adapter after it, against the 1 ms period, and
 for Haply the force of the command the device got after it (``retry_after_lost_reply_N``: zero)
-and its link thread's counts (exchanges per second, lost replies, zero retries) (Force Dimension: its
-SDK's calls are synchronous USB transfers whose timeout the vendor does not document and the
-simulator does not model; OpenHaptics: arsurf reads shared memory, the servo thread's misses never
-block the loop). The simulated devices are not the real ones: a real USB device adds
+and its link thread's counts (exchanges per second, lost replies, zero retries). Force Dimension:
+not modelled (its SDK's calls are synchronous USB transfers whose timeout the vendor does not
+document); OpenHaptics: none (arsurf reads shared memory, the servo thread's misses never block
+the loop). The simulated devices are not the real ones: a real USB device adds
 its bus latency (~0.1-1 ms) to ``io``; what this measures is arsurf's side of the round trip.
 
 BENCHMARKS maps a section name to a function returning its JSON dict; the ``nanonis`` section is
