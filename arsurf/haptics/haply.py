@@ -19,8 +19,9 @@ main button).
 **The package never raises on a dead link.** A read that times out prints a line on stderr and
 returns zeros (a wake-up even returns uninitialised memory as the device id). The adapter
 treats an all-zero state (a position at the base's origin, where the handle cannot be, and a
-velocity of exactly zero) as a missed sample, drains the input after a miss so a late reply
-cannot shift every later one, and checks that the wake-up answered with a non-zero UUID (1 s).
+velocity of exactly zero) as a missed sample, drains the input before every exchange so a late
+reply (which the package, reading whatever bytes come first, returns as the next exchange's) can
+answer at most one later command, and checks that the wake-up answered with a non-zero UUID (1 s).
 
 **The loop never waits on the serial port.** The package's exchange (``end_effector_force``: the
 force out, the state back) busy-polls the port for the reply's header, up to ``read_timeout``,
@@ -40,7 +41,7 @@ whole (an atomic reference swap in CPython, no lock):
   it was computed from. ``command_force`` stores it and wakes the link, which sends it at once.
 
 **A lost reply: the retry carries zero.** When a reply is lost (the package returns zeros), the
-link drains the input and retries at once with zero force, and keeps sending zero until a command
+link retries at once with zero force, and keeps sending zero until a command
 computed from a state newer than the loss arrives: the held force is never sent again on a state
 the loop has not seen. Between commands the link exchanges every :data:`LINK_PERIOD` (1 ms, the
 period of Haply's own examples) so the state stays fresh when the loop commands nothing (the
@@ -205,16 +206,13 @@ class Inverse3Link:
             self.stale_commands += 1
         self.exchanges += 1
         try:
+            self._inv.flush_input()  # a late reply (or its successor) must not answer this command
             pos, vel = self._inv.end_effector_force([fx, fy, fz])
         except Exception:  # noqa: BLE001 - the package does not raise on a dead link; treat it as a lost reply
             pos = vel = (0.0, 0.0, 0.0)
         if _lost(pos, vel):
             self.lost_replies += 1
             self.zero_below = self._seq + 1  # until a command computed from the next state: zero
-            try:
-                self._inv.flush_input()  # a late reply must not become the answer to the retry
-            except Exception:  # noqa: BLE001 - the next exchange finds out
-                pass
             return False
         self.publish(pos, vel)
         return True

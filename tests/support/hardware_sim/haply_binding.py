@@ -14,7 +14,11 @@ clock (:class:`ModelClock`) is the test's: it moves only when the test advances 
 link thread exchanges on its own, so its calls must not move the test's time).
 
 ``lose(n)`` loses the replies to the next ``n`` commands (the device applied the force, the host
-never heard back); ``hold()`` makes the next exchange wait, for real, until ``release()`` (a reply
+never heard back); ``lose(n, late=True)`` makes them late instead: such a reply lands while the
+next exchange waits (after any flush before it), and the package, which reads whatever bytes come
+first (the protocol has no sequence number), returns it as that exchange's reply, leaving the
+exchange's own reply in the input for the one after (:attr:`Call.answer_to` says whose state each
+call returned); ``hold()`` makes the next exchange wait, for real, until ``release()`` (a reply
 still on its way while the loop goes on).
 """
 from __future__ import annotations
@@ -45,12 +49,13 @@ class ModelClock:
 @dataclass
 class Call:
     """One ``end_effector_force``: the calling thread, the force (N), the modelled time it took (s),
-    whether its reply was lost."""
+    whether its reply was lost, and the index of the call whose reply it returned (None: zeros)."""
 
     thread: int
     force: tuple
     cost: float
     lost: bool
+    answer_to: int | None = None
 
 
 class FakeInverse3:
@@ -64,6 +69,9 @@ class FakeInverse3:
         self.position = list(REST)
         self.velocity = [0.0, 0.0, 1e-3]
         self._lose = 0
+        self._late = False
+        self._landing = []  # late replies that land during the next exchange's wait: (index, state)
+        self._input = []  # replies waiting in the input: (index, state)
         self._gate = threading.Event()
         self._gate.set()
         self.holding = threading.Event()  # an exchange is waiting in hold()
@@ -82,21 +90,32 @@ class FakeInverse3:
             self.holding.set()
             self._gate.wait(30.0)
             self.holding.clear()
+        k = len(self.calls)
         lost = self._lose > 0
         self._lose -= lost
-        cost = 2.0 * self.read_timeout if lost else self.latency  # header wait, then body wait
-        self.calls.append(Call(threading.get_ident(), tuple(float(f) for f in force), cost, lost))
-        if lost:
+        own = (k, (list(self.position), list(self.velocity)))
+        self._input += self._landing  # a late reply lands while this exchange waits
+        self._landing = []
+        if lost and self._late:
+            self._landing.append(own)
+        elif not lost:
+            self._input.append(own)
+        got = self._input.pop(0) if self._input else None
+        cost = self.latency if got is not None else 2.0 * self.read_timeout  # header wait, then body wait
+        self.calls.append(Call(threading.get_ident(), tuple(float(f) for f in force), cost, got is None,
+                               None if got is None else got[0]))
+        if got is None:
             return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
-        return list(self.position), list(self.velocity)
+        return got[1]
 
     def flush_input(self) -> None:
         self.flushes += 1
+        self._input.clear()
 
     # -- the test's controls --------------------------------------------------------------------------
-    def lose(self, n: int = 1) -> None:
-        """Lose the replies to the next ``n`` commands."""
-        self._lose = int(n)
+    def lose(self, n: int = 1, late: bool = False) -> None:
+        """Lose the replies to the next ``n`` commands (``late``: they land during the next exchange)."""
+        self._lose, self._late = int(n), bool(late)
 
     def hold(self) -> None:
         """The next exchange waits (for real, at most 30 s) until :meth:`release`."""
