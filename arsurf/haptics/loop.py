@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, types
+from numba import njit, typeof, types
 from numba.experimental import structref
 
 from arsurf._layout import Layout
@@ -51,7 +51,7 @@ from arsurf.haptics.gains import coupling_stiffness
 from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
-from arsurf.haptics.samples import SAMPLE_FAULTS, SampleCheck
+from arsurf.haptics.samples import SAMPLE_FAULTS, SAMPLE_STATE, SampleCheck, sample_check_step
 from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
 from arsurf.model import (M_BENDING, M_MEAS_FX, M_MODEL_FLAGS, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS,
                           SIGNALS_GIVEN, SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
@@ -266,6 +266,48 @@ def loop_tick_kernel(a, buttons, now, age):
     return loop_output_kernel(a, buttons, now, age)
 
 
+#: where the sample check keeps its last good position (:data:`~arsurf.haptics.samples.SAMPLE_STATE`)
+_LAST_GOOD = SAMPLE_STATE.offset("position")
+#: the strides of a C-contiguous (3,) float64 sample vector
+_C3 = (8,)
+
+
+@njit(cache=True)
+def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now):
+    """A tick from a well-formed device sample in one compiled call: the sample check
+    (:func:`~arsurf.haptics.samples.sample_check_step`), the sample - or, for a sample that cannot
+    be real, the last good position held still - into ``a.x``, ``a.v``, then
+    :func:`loop_tick_kernel` with the sample's age ``now - stamp`` (0 for a bad sample).
+    ``position``, ``velocity`` (3,) m, m/s; ``stamp``, ``now`` s. Returns the sample's flags
+    (0: a sample that can be real); :meth:`HapticLoop.step` adds them to the tick."""
+    bad = sample_check_step(check_params, check_state, position, velocity, stamp, now)
+    x = a.x
+    v = a.v
+    if bad:
+        for j in range(3):
+            x[j] = check_state[_LAST_GOOD + j]
+            v[j] = 0.0
+        age = 0.0
+    else:
+        for j in range(3):
+            x[j] = position[j]
+            v[j] = velocity[j]
+        age = now - stamp
+    loop_tick_kernel(a, buttons, now, age)
+    return bad
+
+
+def _entry_point(dispatcher, args):
+    """The compiled entry point of ``dispatcher`` for the types of ``args`` (it must have run on
+    them), or the dispatcher itself if numba does not expose it. Calling the entry point skips
+    the dispatcher's type resolution - ~2 µs per call for a structref argument such as
+    :class:`LoopArrays` - so it may only be called with arguments of exactly these types."""
+    try:
+        return dispatcher.overloads[tuple(typeof(x) for x in args)].entry_point
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return dispatcher
+
+
 def _hand_per_probe_stiffness(coupling: DirectCoupling) -> float:
     """The largest hand stiffness per probe stiffness of a direct coupling, :math:`\\max_i |K_{f,i} s_i|`
     (a probe spring k is felt as :math:`K_f s k` at the handle)."""
@@ -452,6 +494,7 @@ class HapticLoop:
         self._scene_prev = np.full(3, np.nan)
         self._model_args = model.kernel_args()
         self._packed = self._pack()
+        self._fused = None  # loop_sample_tick_kernel's entry point for this loop's types (set at the first tick)
 
     def _pack(self) -> LoopArrays:
         """The tick's arrays and settings as one struct (:class:`LoopArrays`, :data:`LOOP_FIELDS`),
@@ -473,6 +516,7 @@ class HapticLoop:
         state = self.__dict__.copy()
         del state["_packed"]  # a numba struct does not pickle; rebuilt from the arrays
         del state["_device_force"]  # a view of out: a copy would be its own array
+        state["_fused"] = None  # the compiled entry point of the struct's types: found again at the first tick
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -532,16 +576,6 @@ class HapticLoop:
         once here (:mod:`arsurf.haptics.samples`): one that cannot be real gives zero force in
         this tick, its flag, and the model runs on the last good sample.
         """
-        x, v = self._x, self._v
-        bad = self.sample_check.step(inputs, now)
-        if bad:
-            x[:] = self.sample_check.last_good
-            v[:] = 0.0
-            age = 0.0
-        else:
-            x[:] = inputs.position
-            v[:] = inputs.velocity
-            age = float(now - inputs.timestamp)
         if signals is not None:
             self._ext[0], self._ext[1] = signals
             self._ext_given = True
@@ -561,7 +595,29 @@ class HapticLoop:
         bad_buttons = False
         if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
             buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
-
+        p, v = inputs.position, inputs.velocity
+        if self.scene is None and SampleCheck.well_formed(inputs) and p.strides == _C3 and v.strides == _C3:
+            # the usual tick: check, sample and tick in one compiled call, through its entry point
+            check = self.sample_check
+            args = (self._packed, check.params, check.state, p, v, float(inputs.timestamp), buttons, float(now))
+            if self._fused is None:
+                bad = loop_sample_tick_kernel(*args)
+                self._fused = _entry_point(loop_sample_tick_kernel, args)
+            else:
+                bad = self._fused(*args)
+            if bad_buttons or bad:
+                self._flag_input(BAD_BUTTONS * bad_buttons | bad)
+            return self._device_force
+        x, v = self._x, self._v
+        bad = self.sample_check.step(inputs, now)
+        if bad:
+            x[:] = self.sample_check.last_good
+            v[:] = 0.0
+            age = 0.0
+        else:
+            x[:] = inputs.position
+            v[:] = inputs.velocity
+            age = float(now - inputs.timestamp)
         if self.scene is None:
             loop_tick_kernel(self._packed, buttons, float(now), age)
             if bad_buttons or bad:
