@@ -268,18 +268,21 @@ def loop_tick_kernel(a, buttons, now, age):
 
 #: where the sample check keeps its last good position (:data:`~arsurf.haptics.samples.SAMPLE_STATE`)
 _LAST_GOOD = SAMPLE_STATE.offset("position")
-#: the strides of a C-contiguous (3,) float64 sample vector
-_C3 = (8,)
+#: what a sample vector that can go straight to the compiled tick is: a C-contiguous (3,) float64 array
+_NDARRAY, _F8, _SHAPE3, _C3 = np.ndarray, np.dtype(np.float64), (3,), (8,)
+#: sample stamps that go to it as they are (a float64)
+_STAMPS = frozenset((float, np.float64))
 
 
 @njit(cache=True)
-def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now):
+def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now, noise, row):
     """A tick from a well-formed device sample in one compiled call: the sample check
     (:func:`~arsurf.haptics.samples.sample_check_step`), the sample - or, for a sample that cannot
-    be real, the last good position held still - into ``a.x``, ``a.v``, then
-    :func:`loop_tick_kernel` with the sample's age ``now - stamp`` (0 for a bad sample).
-    ``position``, ``velocity`` (3,) m, m/s; ``stamp``, ``now`` s. Returns the sample's flags
-    (0: a sample that can be real); :meth:`HapticLoop.step` adds them to the tick."""
+    be real, the last good position held still - into ``a.x``, ``a.v``, the synthesised signals'
+    noise ``noise[row]`` into ``a.noise`` (``row`` < 0: none), then :func:`loop_tick_kernel` with
+    the sample's age ``now - stamp`` (0 for a bad sample). ``position``, ``velocity`` (3,) m, m/s;
+    ``stamp``, ``now`` s. Returns the sample's flags (0: a sample that can be real);
+    :meth:`HapticLoop.step` adds them to the tick."""
     bad = sample_check_step(check_params, check_state, position, velocity, stamp, now)
     x = a.x
     v = a.v
@@ -293,6 +296,9 @@ def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, st
             x[j] = position[j]
             v[j] = velocity[j]
         age = now - stamp
+    if row >= 0:
+        a.noise[0] = noise[row, 0]
+        a.noise[1] = noise[row, 1]
     loop_tick_kernel(a, buttons, now, age)
     return bad
 
@@ -582,32 +588,39 @@ class HapticLoop:
         elif self._ext_given:
             self._ext[:] = np.nan
             self._ext_given = False
+        row = -1
         if self.config.signal_noise > 0.0:  # drawn a block of ticks at a time: no allocation per tick
-            k = self._noise_i
-            if k == self._noise_block.shape[0]:
+            row = self._noise_i
+            if row == self._noise_block.shape[0]:
                 self._rng.standard_normal(out=self._noise_block)
                 self._noise_block *= self.config.signal_noise
-                k = 0
-            self._noise[0] = self._noise_block[k, 0]
-            self._noise[1] = self._noise_block[k, 1]
-            self._noise_i = k + 1
+                row = 0
+            self._noise_i = row + 1
         buttons = inputs.buttons
         bad_buttons = False
         if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
             buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
-        p, v = inputs.position, inputs.velocity
-        if self.scene is None and SampleCheck.well_formed(inputs) and p.strides == _C3 and v.strides == _C3:
-            # the usual tick: check, sample and tick in one compiled call, through its entry point
+        p, v, stamp = inputs.position, inputs.velocity, inputs.timestamp
+        if (type(p) is _NDARRAY and type(v) is _NDARRAY and p.strides == _C3 and v.strides == _C3 and p.shape == _SHAPE3
+                and v.shape == _SHAPE3 and p.dtype is _F8 and v.dtype is _F8 and type(stamp) in _STAMPS
+                and self.scene is None):
+            # the usual tick (a C-contiguous float64 sample): check, sample, noise and tick in one
+            # compiled call, through its entry point
             check = self.sample_check
-            args = (self._packed, check.params, check.state, p, v, float(inputs.timestamp), buttons, float(now))
-            if self._fused is None:
+            fused = self._fused
+            if fused is None:
+                args = (self._packed, check.params, check.state, p, v, stamp, buttons, float(now), self._noise_block, row)
                 bad = loop_sample_tick_kernel(*args)
                 self._fused = _entry_point(loop_sample_tick_kernel, args)
             else:
-                bad = self._fused(*args)
+                bad = fused(self._packed, check.params, check.state, p, v, stamp, buttons, float(now),
+                            self._noise_block, row)
             if bad_buttons or bad:
                 self._flag_input(BAD_BUTTONS * bad_buttons | bad)
             return self._device_force
+        if row >= 0:
+            self._noise[0] = self._noise_block[row, 0]
+            self._noise[1] = self._noise_block[row, 1]
         x, v = self._x, self._v
         bad = self.sample_check.step(inputs, now)
         if bad:
