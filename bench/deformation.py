@@ -95,6 +95,9 @@ def tick_intervals_with_reader(surface, tip: float, depth: float, ticks: int, gi
     for k in range(50):
         tick((c[0] + tt.STEP * (k % 80), c[1], c[2]))
     surface.sync()
+    d = deformer.dent   # the peer's kernel compiled (or loaded) before the timing
+    deform_kernel(ctrl, rest, ku, kv, d[D_CX], d[D_CY], d[D_CZ], d[D_RADIUS], d[D_NX], d[D_NY], d[D_NZ], d[D_A],
+                  d[D_DEPTH], d[D_ZONE], profile, patch)
     starts = np.empty(ticks, dtype=np.int64)
     clock = time.perf_counter_ns
     reader = threading.Thread(target=read, daemon=True)

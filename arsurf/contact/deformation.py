@@ -58,7 +58,7 @@ not know) is put on the sphere. Every other control point keeps its rest positio
 Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
 (+ one knot spacing) of the tip axis' foot can move: the kernel puts the previous box back to
 rest where the new one does not cover it and writes the new one, each point once, so a dent
-costs O((2 r_b/h)²) whatever the scan size (:func:`deform_kernel`). That is
+costs O((2 r_b/h)²) whatever the scan size (:func:`sync_dent_kernel`). That is
 :math:`(2r_b/h)^2`: 27,000 points for a 20 nm tip on a 0.25 nm net, 250,000 at 0.1 nm and
 50 nm. So the haptic tick does not dent: it *records* the dent (centre, normal, R, a, δ, c:
 :func:`record_dent_kernel`, O(1) whatever the pitch), and the net is moved to the recorded dent
@@ -67,8 +67,23 @@ when it is next read (:meth:`Deformer.sync`, called by
 the control points, the kernel arrays). A reader therefore sees exactly, bitwise, the full dent
 of the last tick - there is no approximation to state - and the work is done at the reader's
 rate (a 60 Hz view) instead of the tick's (10 kHz), once per read. (The compiled tick holds
-the GIL, so a reader in another thread never sees a half-recorded dent.)
+the GIL while it records, and the reader copies the record while it holds the GIL, so it never
+sees a half-recorded dent; the net is then written without the GIL - the tick never reads the
+live net - so a reader in another thread does not stall the haptic thread.)
 :meth:`Deformer.release` puts the box back to rest; ``surface.reset()`` restores everything.
+
+**Several contacts of one tip** (a groove, two asperities: contacts k = 1..n with their own
+normal n_k, contact radius a_k, depth δ_k and zone c_k) each record a dent, and the net is
+moved to all of them at once: a point inside contact k's disc goes onto the tip's cap along
+n_k; elsewhere the elastic displacements add,
+
+.. math:: P = P_0 - \sum_k u_k(ρ_k)\, n_k ,
+
+the half-space's response to the sum of the contacts' tractions (linear elasticity: Johnson
+1985 §3.2, superposition of Boussinesq's solution), each :math:`u_k` the single-contact
+profile above; a point still inside the tip then goes onto the sphere. The cost is that of
+the union of the contacts' boxes (each point written once), and one contact is the
+single-contact dent bit for bit.
 
 The rest net must be a height-field net on the Greville abscissae (what
 :func:`arsurf.fit_surface` builds), so the index box is found in O(1) from the knot spacing.
