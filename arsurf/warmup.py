@@ -99,20 +99,21 @@ def register(sub) -> None:
 def _cmd(args) -> int:
     from arsurf._logging import LOGGER
 
-    _run(LOGGER.info)
+    print(_run(LOGGER.info))
     return 0
 
 
-def _run(progress) -> None:
+def _run(progress) -> str:
+    """Warm the cache up; the one summary line the commands print."""
     times = warm_up(progress)
-    print(f"arsurf warm-up: numba cache built in {times['total_s']:.1f} s ({os.environ.get('NUMBA_CACHE_DIR', '')})")
+    return f"arsurf warm-up: numba cache built in {times['total_s']:.1f} s ({os.environ.get('NUMBA_CACHE_DIR', '')})"
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m arsurf.warmup", description=HELP)
     ap.add_argument("--quiet", action="store_true", help="print only the summary line")
     args = ap.parse_args(argv)
-    _run(None if args.quiet else print)
+    print(_run(None if args.quiet else print))
     return 0
 
 
