@@ -97,11 +97,13 @@ SIGNALS = Layout("signals", [("bending", 1), ("torsion", 1)])
 #: (:mod:`~arsurf.haptics.scaling`), the force-position coupling (:mod:`~arsurf.haptics.coupling`;
 #: placeholders of its layouts when direct), the force scale, the filter's alpha and state
 #: (:data:`FILTER_CHANNELS`), the passivity controller and the safety layer; the model's arrays
-#: (:data:`arsurf.model.MODEL_ARGS`); the previous probe position and the output (:data:`LOOP_OUT`).
+#: (:data:`arsurf.model.MODEL_ARGS`); the previous probe position and the output (:data:`LOOP_OUT`);
+#: the sample check's parameters and memory (:mod:`~arsurf.haptics.samples`) and the block of
+#: noise rows drawn ahead (:data:`SIGNALS` per row), which the one-call tick reads.
 LOOP_FIELDS = ("x", "v", "dt", "ext", "noise", "source", "blend", "coupling_mode", "clutch_mask",
                "pos_params", "pos_state", "fp_params", "fp_phi", "fp_gamma", "fp_state",
                "gain", "alpha", "filt_state", "pc_params", "pc_state", "safety_params", "safety_state",
-               *MODEL_ARGS, "prev_probe", "out")
+               *MODEL_ARGS, "prev_probe", "out", "check_params", "check_state", "noise_block")
 
 
 @structref.register
@@ -113,7 +115,8 @@ class _LoopArraysType(types.StructRef):
 class LoopArrays(structref.StructRefProxy):
     """The compiled tick's arrays and settings (:data:`LOOP_FIELDS`) as one numba struct, built
     once per loop: a tick from Python passes one reference instead of the ~40 arrays and settings
-    (16 of them the projector's arrays; ~2 µs of unboxing per tick)."""
+    (16 of them the projector's arrays; ~2 µs of unboxing per tick), and with them the sample
+    check's and the noise block's, so that a tick passes only the sample's two arrays besides."""
 
 
 structref.define_proxy(LoopArrays, _LoopArraysType, list(LOOP_FIELDS))
@@ -282,15 +285,19 @@ _STAMPS = frozenset((float, np.float64))
 
 
 @njit(cache=True)
-def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now, noise, row):
+def loop_sample_tick_kernel(a, position, velocity, stamp, buttons, now, row):
     """A tick from a well-formed device sample in one compiled call: the sample check
-    (:func:`~arsurf.haptics.samples.sample_check_step`), the sample - or, for a sample that cannot
-    be real, the last good position held still - into ``a.x``, ``a.v``, the synthesised signals'
-    noise ``noise[row]`` into ``a.noise`` (``row`` < 0: none), then :func:`loop_tick_kernel` with
-    the sample's age ``now - stamp`` (0 for a bad sample). ``position``, ``velocity`` (3,) m, m/s;
-    ``stamp``, ``now`` s. Returns the sample's flags (0: a sample that can be real);
-    :meth:`HapticLoop.step` adds them to the tick."""
-    bad = sample_check_step(check_params, check_state, position, velocity, stamp, now)
+    (:func:`~arsurf.haptics.samples.sample_check_step` on ``a.check_params``, ``a.check_state``),
+    the sample - or, for a sample that cannot be real, the last good position held still - into
+    ``a.x``, ``a.v``, the synthesised signals' noise ``a.noise_block[row]`` into ``a.noise``
+    (``row`` < 0: none), then :func:`loop_tick_kernel` with the sample's age ``now - stamp`` (0
+    for a bad sample). ``position``, ``velocity`` (3,) m, m/s; ``stamp``, ``now`` s. Returns the
+    sample's flags (0: a sample that can be real); :meth:`HapticLoop.step` adds them to the tick.
+
+    Two arrays and four numbers per call: each array argument costs ~0.1-0.2 µs to unbox from
+    Python, so everything that does not come with the sample lives in ``a``."""
+    check_state = a.check_state
+    bad = sample_check_step(a.check_params, check_state, position, velocity, stamp, now)
     x = a.x
     v = a.v
     if bad:
@@ -304,6 +311,7 @@ def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, st
             v[j] = velocity[j]
         age = now - stamp
     if row >= 0:
+        noise = a.noise_block
         a.noise[0] = noise[row, 0]
         a.noise[1] = noise[row, 1]
     loop_tick_kernel(a, buttons, now, age)
@@ -520,7 +528,9 @@ class HapticLoop:
                   "gain": self._gain, "alpha": float(self._alpha), "filt_state": self._filt_state,
                   "pc_params": self.passivity.params, "pc_state": self.passivity.state,
                   "safety_params": self.safety.params, "safety_state": self.safety.state,
-                  **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out}
+                  **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out,
+                  "check_params": self.sample_check.params, "check_state": self.sample_check.state,
+                  "noise_block": self._noise_block}
         if set(values) != set(LOOP_FIELDS):
             raise HapticsError(f"the loop's arrays {sorted(set(values) ^ set(LOOP_FIELDS))} do not match LOOP_FIELDS")
         return _new_loop_arrays(tuple(values[name] for name in LOOP_FIELDS))
@@ -613,15 +623,13 @@ class HapticLoop:
                 and self.scene is None):
             # the usual tick (a C-contiguous float64 sample): check, sample, noise and tick in one
             # compiled call, through its entry point
-            check = self.sample_check
             fused = self._fused
             if fused is None:
-                args = (self._packed, check.params, check.state, p, v, stamp, buttons, float(now), self._noise_block, row)
+                args = (self._packed, p, v, stamp, buttons, float(now), row)
                 bad = loop_sample_tick_kernel(*args)
                 self._fused = _entry_point(loop_sample_tick_kernel, args)
             else:
-                bad = fused(self._packed, check.params, check.state, p, v, stamp, buttons, float(now),
-                            self._noise_block, row)
+                bad = fused(self._packed, p, v, stamp, buttons, float(now), row)
             if bad_buttons or bad:
                 self._flag_input(BAD_BUTTONS * bad_buttons | bad)
             return self._device_force
