@@ -280,8 +280,11 @@ def loop_tick_kernel(a, buttons, now, age):
 _LAST_GOOD = SAMPLE_STATE.offset("position")
 #: what a sample vector that can go straight to the compiled tick is: a C-contiguous (3,) float64 array
 _NDARRAY, _F8, _SHAPE3, _C3 = np.ndarray, np.dtype(np.float64), (3,), (8,)
-#: sample stamps that go to it as they are (a float64)
+#: sample stamps and clock readings that go to it as they are (a float64)
 _STAMPS = frozenset((float, np.float64))
+#: noise rows drawn at a time: one draw costs ~1.7 µs (1024 at once cost 22 µs in one tick, a
+#: missed deadline at 10 kHz); the sequence is the same whatever the block size
+_NOISE_ROWS = 64
 
 
 @njit(cache=True)
@@ -496,10 +499,9 @@ class HapticLoop:
         self._filt_state = self.filter.state if self.filter else FILTER_CHANNELS.zeros()
         self._rng = np.random.default_rng(config.seed)
         self._noise = SIGNALS.zeros()
-        # 64 ticks at a time: one draw costs ~1.7 µs (1024 at once cost 22 µs in one tick, a
-        # missed deadline at 10 kHz); the sequence is the same whatever the block size
-        self._noise_block = np.empty((64, SIGNALS.size))
-        self._noise_i = self._noise_block.shape[0]  # empty: filled at the first tick
+        self._noise_block = np.empty((_NOISE_ROWS, SIGNALS.size))
+        self._noise_i = _NOISE_ROWS  # empty: filled at the first tick
+        self._noisy = config.signal_noise > 0.0
         self._ext = SIGNALS.full(np.nan)
         self._ext_given = False  # the last tick was given signals: clear them when the next is not
         self._x = np.zeros(3)
@@ -598,21 +600,52 @@ class HapticLoop:
         measured (bending, torsion) in rad. Allocation-free: the hot path. The sample is checked
         once here (:mod:`arsurf.haptics.samples`): one that cannot be real gives zero force in
         this tick, its flag, and the model runs on the last good sample.
+
+        The usual tick - a C-contiguous (3,) float64 position and velocity, a float stamp and
+        clock, a button word in [0, 2^31), no scene - is one compiled call
+        (:func:`loop_sample_tick_kernel` through its entry point) after a few type tests; any other
+        input takes :meth:`_step_checked`, which gives the same outputs bit for bit.
         """
-        if signals is not None:
-            self._ext[0], self._ext[1] = signals
-            self._ext_given = True
-        elif self._ext_given:
-            self._ext[:] = np.nan
-            self._ext_given = False
+        if signals is not None or self._ext_given:
+            self._take_signals(signals)
         row = -1
-        if self.config.signal_noise > 0.0:  # drawn a block of ticks at a time: no allocation per tick
+        if self._noisy:  # drawn a block of ticks at a time: no allocation per tick
             row = self._noise_i
-            if row == self._noise_block.shape[0]:
+            if row == _NOISE_ROWS:
                 self._rng.standard_normal(out=self._noise_block)
                 self._noise_block *= self.config.signal_noise
                 row = 0
             self._noise_i = row + 1
+        buttons = inputs.buttons
+        p = inputs.position
+        v = inputs.velocity
+        stamp = inputs.timestamp
+        fused = self._fused
+        if (fused is not None and type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT
+                and type(p) is _NDARRAY and type(v) is _NDARRAY and p.dtype is _F8 and v.dtype is _F8
+                and p.shape == _SHAPE3 and v.shape == _SHAPE3 and p.strides == _C3 and v.strides == _C3
+                and type(stamp) in _STAMPS and type(now) in _STAMPS and self.scene is None):
+            bad = fused(self._packed, p, v, stamp, buttons, now, row)
+            if bad:
+                self._flag_input(bad)
+            return self._device_force
+        return self._step_checked(inputs, now, row)
+
+    def _take_signals(self, signals) -> None:
+        """The measured (bending, torsion) of this tick into the loop's, or NaN when none follow
+        a tick that had them."""
+        if signals is not None:
+            self._ext[0], self._ext[1] = signals
+            self._ext_given = True
+        else:
+            self._ext[:] = np.nan
+            self._ext_given = False
+
+    def _step_checked(self, inputs: DeviceState, now: float, row: int) -> np.ndarray:
+        """:meth:`step` for any input (the noise row ``row`` drawn, -1: none): buttons that are not
+        a button word count as none and are flagged; a well-formed sample without a scene ticks in
+        the one compiled call (the first such finds its entry point); any other sample is checked
+        in Python and ticks in :func:`loop_tick_kernel`, or around the scene in two halves."""
         buttons = inputs.buttons
         bad_buttons = False
         if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
@@ -621,15 +654,13 @@ class HapticLoop:
         if (type(p) is _NDARRAY and type(v) is _NDARRAY and p.strides == _C3 and v.strides == _C3 and p.shape == _SHAPE3
                 and v.shape == _SHAPE3 and p.dtype is _F8 and v.dtype is _F8 and type(stamp) in _STAMPS
                 and self.scene is None):
-            # the usual tick (a C-contiguous float64 sample): check, sample, noise and tick in one
-            # compiled call, through its entry point
-            fused = self._fused
-            if fused is None:
-                args = (self._packed, p, v, stamp, buttons, float(now), row)
+            # a C-contiguous float64 sample: check, sample, noise and tick in one compiled call
+            args = (self._packed, p, v, stamp, buttons, float(now), row)
+            if self._fused is None:
                 bad = loop_sample_tick_kernel(*args)
                 self._fused = _entry_point(loop_sample_tick_kernel, args)
             else:
-                bad = fused(self._packed, p, v, stamp, buttons, float(now), row)
+                bad = self._fused(*args)
             if bad_buttons or bad:
                 self._flag_input(BAD_BUTTONS * bad_buttons | bad)
             return self._device_force
