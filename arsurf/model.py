@@ -51,7 +51,7 @@ from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, dee
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
-from arsurf.contact.proxy import coupled_depth_kernel
+from arsurf.contact.proxy import MD_MEMO, MEMO_SIZE, coupled_depth_kernel
 from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force import decoupling as dc
@@ -92,13 +92,15 @@ MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", 
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
 #: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the second contact's (u, v)
-#: (:mod:`arsurf.contact.second_contact`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`)
+#: (:mod:`arsurf.contact.second_contact`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
+#: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`)
 MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("second_uv", 2),
-                                     ("friction", fr.STATE_SIZE)])
+                                     ("friction", fr.STATE_SIZE), ("coupling_memo", MD_MEMO.size)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
 S_TIP_DEPTH, S_SECOND = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("second_uv")
 S_FRICTION = MODEL_STATE.offset("friction")
+S_MEMO = MODEL_STATE.offset("coupling_memo")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
@@ -260,7 +262,7 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
     md_st, a, load, depth, coupled = coupled_depth_kernel(
         target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
         friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
-        md[A_DELTA_FOLD])
+        md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
     lift = target_depth - depth
     out[M_TIP] = cx + lift * out[M_NX]
     out[M_TIP + 1] = cy + lift * out[M_NY]
