@@ -62,7 +62,7 @@ import numpy as np
 from arsurf.errors import HapticsError, LoopError
 
 __all__ = ["DEFAULT_REALTIME_PRIORITY", "LoopError", "Pacer", "RealtimeChoice", "Scheduler", "Snapshot",
-           "TimingStats", "choose_realtime"]
+           "TickTrace", "TimingStats", "choose_realtime", "explain_trace"]
 
 #: busy-wait margin (s) before each deadline when the loop thread runs under SCHED_FIFO: a
 #: real-time thread's sleep ends within tens of microseconds, and the short spin keeps the thread
@@ -124,7 +124,8 @@ class Pacer:
 
     def __init__(self, period_ns: int, spin_ns: int, idle_share: float = 0.0, burst_ns: int = 0, *,
                  clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep,
-                 cpu_clock: Callable[[], int] = time.thread_time_ns) -> None:
+                 cpu_clock: Callable[[], int] = time.thread_time_ns, trace: "TickTrace | None" = None) -> None:
+        self.trace = trace
         self.period = int(period_ns)
         self.spin = int(spin_ns)
         if not 0.0 <= idle_share < 1.0:
@@ -154,6 +155,8 @@ class Pacer:
     def begin(self) -> int:
         """A tick starts now: returns the time, ns, and the gap since the previous start (0 first)."""
         start = self.clock()
+        if self.trace is not None:
+            self.trace.begin(self.deadline, start, self.cpu_clock())
         gap = 0 if self._last_start is None else start - self._last_start
         if gap > self.longest_gap:
             self.longest_gap = gap
@@ -190,6 +193,9 @@ class Pacer:
         clock, period = self.clock, self.period
         self.deadline += period
         now = clock()
+        trace = self.trace
+        if trace is not None:
+            trace.work_done(now, self.cpu_clock())
         if now > self.deadline:  # this tick ended after the next one should have started
             self.overruns += 1
             missed = (now - self.deadline) // period
@@ -202,6 +208,8 @@ class Pacer:
             self._count_awake(self._awake_since, now)
             self.sleep(nap * 1e-9)
             woke = clock()
+            if trace is not None:
+                trace.slept(nap, woke)
             self._debt = max(0.0, self._debt - (woke - now))
             now = self._awake_since = woke
         spin_from = now
@@ -214,6 +222,124 @@ class Pacer:
         """The loop ended: count its last time awake."""
         self._count_awake(self._awake_since, self.clock())
         self._awake_since = self.clock()
+
+
+class TickTrace:
+    """The timeline of the last ``n`` ticks of a :class:`Pacer` (ns), to find where slots are lost.
+
+    Per tick (:data:`TRACE_FIELDS`): the deadline it was due at, its start, the thread's CPU
+    clock at its start, the end of its work (when :meth:`Pacer.wait` was called) and the CPU clock
+    then, the sleep the wait asked for (0: none) and when the thread was awake again (the end of
+    its work when it did not sleep). Preallocated; recording costs two reads of the thread's CPU
+    clock per tick (~1 us), so it is off unless asked (``Scheduler(trace=n)``).
+    """
+
+    def __init__(self, n: int) -> None:
+        if not isinstance(n, int) or n < 1:
+            raise HapticsError(f"a trace keeps n >= 1 ticks (got {n!r})")
+        self.rows = np.zeros((n, len(TRACE_FIELDS)), dtype=np.int64)
+        self.n = n
+        self.ticks = 0
+        self._row = self.rows[0]
+
+    def begin(self, deadline: int, start: int, cpu: int) -> None:
+        row = self._row = self.rows[self.ticks % self.n]
+        row[0], row[1], row[2] = deadline, start, cpu
+        self.ticks += 1
+
+    def work_done(self, now: int, cpu: int) -> None:
+        row = self._row
+        row[3], row[4], row[5], row[6] = now, cpu, 0, now
+
+    def slept(self, nap: int, woke: int) -> None:
+        row = self._row
+        row[5], row[6] = nap, woke
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The recorded ticks in order, oldest first, one array per field."""
+        k = min(self.ticks, self.n)
+        first = self.ticks % self.n if self.ticks > self.n else 0
+        ordered = np.roll(self.rows, -first, axis=0)[:k]
+        return {name: ordered[:, i].copy() for i, name in enumerate(TRACE_FIELDS)}
+
+
+#: the fields of a :class:`TickTrace` row, ns
+TRACE_FIELDS = ("deadline", "start", "cpu_start", "work_end", "cpu_end", "nap", "woke")
+
+#: the causes :func:`explain_trace` gives a lost slot
+LOST_CAUSES = ("step", "preempted_in_step", "idle_share", "late_wake_up", "preempted_in_spin")
+
+
+def explain_trace(trace: TickTrace, period_ns: int) -> dict:
+    """Where a run's lost slots and long gaps come from, from its :class:`TickTrace`.
+
+    A tick :math:`j` *overruns* when its work ends after :math:`d_j + T` (its deadline plus one
+    period); with the whole periods it also covered (skipped) those are the lost slots, each
+    given one cause (:data:`LOST_CAUSES`):
+
+    - its work took more than a period: ``step`` when the thread was on the CPU at least half of
+      that time, else ``preempted_in_step`` (another thread or process ran);
+    - it started late (the work itself fitted): ``idle_share`` when the previous wait's sleep was
+      asked to end after the deadline (the real-time idle share), ``late_wake_up`` when the
+      sleep was asked to end before it but the thread woke after it, else
+      ``preempted_in_spin``.
+
+    The same causes are given to each gap between two tick starts longer than ``gap_ns``
+    (1 ms), by the part of the gap that is longest. Returns the counts and the distributions
+    (us): work, its CPU share, lateness of the starts, and oversleep (woke minus asked).
+    """
+    c = trace.columns()
+    dl, start, work_end = c["deadline"], c["start"], c["work_end"]
+    work = work_end - start
+    cpu = c["cpu_end"] - c["cpu_start"]
+    nap, woke = c["nap"], c["woke"]
+    asked_end = work_end + nap
+    oversleep = np.where(nap > 0, woke - asked_end, 0)
+    n = dl.size
+    lost = {name: 0 for name in LOST_CAUSES}
+    gaps = {name: 0 for name in LOST_CAUSES}
+    if n < 2:
+        return {"ticks": int(n), "lost": lost, "gaps_over_1ms": gaps}
+    late = start - dl
+
+    def cause(j: int) -> str:
+        """Why tick j ran past its slot (j >= 1: the wait before it is in the trace)."""
+        if work[j] > period_ns:
+            return "step" if cpu[j] >= 0.5 * work[j] else "preempted_in_step"
+        i = j - 1
+        if nap[i] > 0 and asked_end[i] > dl[j]:
+            return "idle_share"
+        if nap[i] > 0 and woke[i] > dl[j]:
+            return "late_wake_up"
+        return "preempted_in_spin"
+
+    overran = np.flatnonzero(work_end[:-1] > dl[:-1] + period_ns)
+    for j in overran:
+        skipped = max(0, int((dl[j + 1] - dl[j]) // period_ns) - 1)
+        if j >= 1:
+            lost[cause(int(j))] += 1 + skipped
+    gap = np.diff(start)
+    for k in np.flatnonzero(gap > 1_000_000) + 1:  # tick k started > 1 ms after tick k-1
+        i = k - 1
+        if work[i] >= gap[k - 1] / 2:
+            gaps["step" if cpu[i] >= 0.5 * work[i] else "preempted_in_step"] += 1
+        elif nap[i] > 0 and asked_end[i] > dl[k]:
+            gaps["idle_share"] += 1
+        elif nap[i] > 0 and oversleep[i] >= gap[k - 1] / 2:
+            gaps["late_wake_up"] += 1
+        else:
+            gaps["preempted_in_spin"] += 1
+
+    def q(x) -> dict:
+        x = np.asarray(x, dtype=float) * 1e-3
+        return {"median_us": float(np.median(x)), "p99_us": float(np.percentile(x, 99)),
+                "p999_us": float(np.percentile(x, 99.9)), "max_us": float(x.max())}
+
+    slept = nap > 0
+    return {"ticks": int(n), "overruns": int(overran.size), "lost": lost, "gaps_over_1ms": gaps,
+            "work": q(work), "work_cpu_share_p1": float(np.percentile(cpu / np.maximum(work, 1), 1)),
+            "start_late": q(late), "oversleep": q(oversleep[slept]) if slept.any() else None,
+            "slept_share_of_ticks": float(slept.mean())}
 
 
 @dataclass(frozen=True)
@@ -432,6 +558,9 @@ class Scheduler:
         collector off while the loop runs (default True): a full collection stops every thread
         for milliseconds, a missed deadline at 10 kHz. The tick allocates nothing that needs it
         (reference counting frees its temporaries); the collector is restored at the end.
+    trace : int
+        Keep the timeline of the last ``trace`` ticks (:class:`TickTrace`, :attr:`trace`; read it
+        with :func:`explain_trace`); 0 (default): none.
     priority : int
         Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
         (:data:`DEFAULT_REALTIME_PRIORITY`, 10, is what ``arsurf live`` asks for; keep it below
@@ -459,7 +588,7 @@ class Scheduler:
                  snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
                  snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
                  spin: float | None = None, history: int = 65536, pause_gc: bool = True,
-                 priority: int = 0) -> None:
+                 priority: int = 0, trace: int = 0) -> None:
         if not callable(step):
             raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
         for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
@@ -487,6 +616,10 @@ class Scheduler:
             raise HapticsError(f"history must be an integer >= 16 (got {history!r})")
         if not isinstance(priority, int) or isinstance(priority, bool) or not 0 <= priority <= 99:
             raise HapticsError(f"priority must be an integer in [0, 99] (got {priority!r}); 0: no real-time policy")
+        if not isinstance(trace, int) or isinstance(trace, bool) or trace < 0:
+            raise HapticsError(f"trace must be a number of ticks >= 0 (got {trace!r}); 0: no trace")
+        self._trace_n = trace
+        self.trace: TickTrace | None = None
         self.priority = priority
         self.realtime_priority = 0
         self.step, self.state = step, state
@@ -512,6 +645,7 @@ class Scheduler:
     def _reset_counters(self) -> None:
         self.ticks = 0
         self.pacer: Pacer | None = None
+        self.trace = TickTrace(self._trace_n) if self._trace_n else None
         self.cpu_ns = 0
         self.snapshots_published = 0
         self.snapshots_skipped = 0
@@ -640,7 +774,7 @@ class Scheduler:
                 spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)
             idle = FIFO_IDLE_SHARE
         return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep,
-                     cpu_clock=cpu_clock)
+                     cpu_clock=cpu_clock, trace=self.trace)
 
     def _run(self) -> None:
         _tight_timer_slack()
