@@ -64,46 +64,79 @@ from arsurf.errors import HapticsError, LoopError
 __all__ = ["DEFAULT_REALTIME_PRIORITY", "LoopError", "Pacer", "RealtimeChoice", "Scheduler", "Snapshot",
            "TickTrace", "TimingStats", "choose_realtime", "explain_trace"]
 
-#: busy-wait margin (s) before each deadline when the loop thread runs under SCHED_FIFO: a
-#: real-time thread's sleep ends within tens of microseconds, and the short spin keeps the thread
-#: idle most of each period, below Linux's real-time throttling (sched_rt_runtime_us 950000 of
-#: every 1000000: a thread spinning ~all of each period was stopped ~50 ms each second)
-FIFO_SPIN = 3e-5
+#: least wake margin (s) before each deadline when the loop thread runs under SCHED_FIFO: the
+#: margin is learned from how late the thread's sleeps end (a real-time sleeper on bare metal
+#: wakes within ~10 us, on the virtual machine of the benches 23-35 us late at the median and up
+#: to ~100 us, ``bench/haptic_loop.py --diagnose``), and shrinks toward this when the CPU
+#: budget runs low
+FIFO_SPIN = 5e-6
 
-#: least share of its time a real-time loop thread sleeps, whatever its step costs (after each
-#: tick it sleeps at least 1/9 of the time it was awake): it is then awake at most 90 % of any
-#: second, below the kernel's 95 % real-time budget, so the throttling (a ~50 ms stop of the
-#: thread) is never reached, and ordinary threads on its core always get 10 %
+#: least share of its time a real-time loop thread is off the CPU, whatever its step costs, on
+#: the thread's own CPU clock (what the kernel's real-time throttling counts; on a virtual
+#: machine each sleep's timer and context switch cost the thread ~25 us of CPU, so a thread
+#: that "sleeps" briefly every period can still be on the CPU 99 % of a second): it is then on
+#: the CPU at most 90 % of any second plus the bucket, below the kernel's 95 % budget, so the
+#: throttling (a ~50 ms stop of the thread) is never reached
 FIFO_IDLE_SHARE = 0.1
 
-#: awake time (ns) a real-time loop may run ahead of :data:`FIFO_IDLE_SHARE` before it must
-#: sleep: a one-off stall of a few ms is not paid back at once (that would lengthen the gap),
-#: and the worst second stays at 90 % + 1 % awake
+#: CPU time (ns) a real-time loop may run ahead of :data:`FIFO_IDLE_SHARE`, the size of its
+#: budget's bucket: a one-off stall of a few ms is not paid back at once, and the worst second
+#: stays at 90 % + 1 % on the CPU
 FIFO_IDLE_BURST_NS = 10_000_000
 
-#: the window (ns) of :attr:`Pacer.awake_max`: the kernel's real-time period
+#: wall time (ns) between two readings of the thread's CPU clock for the budget (a system call)
+BUDGET_STEP_NS = 1_000_000
+
+#: longest sleep (ns) the budget forces at once: the rest is owed to the next ticks, so the
+#: budget alone never makes a gap between two ticks longer than this plus two periods
+MAX_FORCED_NAP_NS = 500_000
+
+#: ticks per block of the learned wake-up lateness: the margin is the largest lateness of the
+#: sleeps of the last one to two blocks (~ its 99.9th percentile; 0.1-0.2 s at 10 kHz)
+LATENESS_BLOCK = 1024
+
+#: short sleeps :meth:`Pacer.start` takes to guess the wake-up lateness before the first tick
+CALIBRATION_SLEEPS = 16
+
+#: the window (ns) of :attr:`Pacer.awake_max` and :attr:`Pacer.cpu_max`: the kernel's real-time period
 _AWAKE_WINDOW_NS = 1_000_000_000
 
 
 class Pacer:
     """The loop's time-keeping: an absolute deadline grid, overruns and skipped slots, and the
-    wait before each deadline, a sleep then a spin of at most ``spin_ns``.
+    wait before each deadline, a sleep then a spin of a wake margin.
 
-    Deadlines are :math:`t_k = t_0 + k\\,T`. After the tick's work, :meth:`wait` sleeps until
-    ``spin_ns`` before the next deadline, then spins on the clock to the deadline. With an
-    ``idle_share`` :math:`s`, each time awake :math:`a` owes a sleep of :math:`a\\,s/(1-s)` and
-    each sleep pays its length back; when the debt exceeds ``burst_ns`` the thread sleeps it off
-    even after a late tick, so it is awake at most :math:`1 - s` of any second plus ``burst_ns``
-    (a step that never fits its period runs at the rate that allows). A tick whose work ends after the next deadline is an *overrun*; deadlines that
-    passed entirely are *skipped* (the grid is kept: no burst of catch-up ticks). It also counts
-    the time the thread is awake - running or runnable, everything but its sleeps here - per
-    second of the kernel's real-time accounting (:attr:`awake_max`), and the thread's CPU time
-    per second (:attr:`cpu_max`, from ``cpu_clock`` read once a second; it also counts the
-    kernel's work for the sleeps themselves): under ``SCHED_FIFO`` the kernel stops a thread that
-    ran more than 95 % of a second (``sched_rt_runtime_us``).
+    Deadlines are :math:`t_k = t_0 + k\\,T`. After the tick's work, :meth:`wait` sleeps until a
+    *wake margin* before the next deadline, then spins on the clock to the deadline. The margin
+    is ``spin_ns``, or, with ``spin_max_ns`` above it, *learned*: the largest lateness of the
+    sleeps of the last one to two blocks of :data:`LATENESS_BLOCK` ticks (how much later than
+    asked the thread was awake again; ~ its 99.9th percentile), between ``spin_ns`` and
+    ``spin_max_ns``: it starts from :data:`CALIBRATION_SLEEPS` short sleeps, grows at the
+    first later wake-up, and forgets a block later.
+
+    **The idle share** :math:`s` (``idle_share``, real-time threads) is a budget on the thread's
+    CPU clock, a bucket of ``burst_ns``: it earns :math:`(1 - s)` ns of CPU per ns of wall time,
+    spends what ``cpu_clock`` says (read every :data:`BUDGET_STEP_NS`). While the bucket holds
+    more than half its size the margin is the learned one; below, the margin shrinks linearly
+    toward the least that lets a tick of the last one's cost, woken as late as learned, still end
+    a tenth of a period before the next deadline (longer sleeps each period; late starts, but no
+    overrun);
+    an empty bucket forces a sleep of what is owed, in whole slots (skipped: the next tick is on
+    the grid) and at most :data:`MAX_FORCED_NAP_NS` at a time (never a long gap). So the thread is on the CPU at most :math:`(1 - s) L` +
+    ``burst_ns`` + :data:`BUDGET_STEP_NS` of any span :math:`L`, whatever its step costs and
+    whatever its sleeps cost in system time; the kernel stops a real-time thread on the CPU
+    more than 95 % of a second (``sched_rt_runtime_us``).
+
+    A tick whose work ends after the next deadline is an *overrun*; deadlines that passed
+    entirely are *skipped* (the grid is kept: no burst of catch-up ticks; the next tick starts
+    at once). Statistics: :attr:`longest_gap` between two tick starts, :attr:`spin_max`,
+    :attr:`margin_max` (the largest margin used), :attr:`forced_naps`, the largest share of a
+    second awake (:attr:`awake_max`: everything but the sleeps here) and on the CPU
+    (:attr:`cpu_max`, from ``cpu_clock``).
 
     ``clock`` (ns, monotonic), ``sleep`` (s) and ``cpu_clock`` (ns) are injectable: tests drive
-    the pacer with a scripted clock, no timing involved.
+    the pacer with a scripted clock, no timing involved; ``trace`` (a :class:`TickTrace`)
+    records each tick's timeline.
 
     Examples
     --------
@@ -123,14 +156,16 @@ class Pacer:
     """
 
     def __init__(self, period_ns: int, spin_ns: int, idle_share: float = 0.0, burst_ns: int = 0, *,
-                 clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep,
-                 cpu_clock: Callable[[], int] = time.thread_time_ns, trace: "TickTrace | None" = None) -> None:
+                 spin_max_ns: int | None = None, clock: Callable[[], int] = time.perf_counter_ns,
+                 sleep: Callable[[float], Any] = time.sleep, cpu_clock: Callable[[], int] = time.thread_time_ns,
+                 trace: "TickTrace | None" = None) -> None:
         self.trace = trace
         self.period = int(period_ns)
         self.spin = int(spin_ns)
+        self.spin_cap = max(self.spin, int(spin_ns if spin_max_ns is None else spin_max_ns))
         if not 0.0 <= idle_share < 1.0:
             raise HapticsError(f"idle_share must be in [0, 1) (got {idle_share!r})")
-        self.idle_ratio = idle_share / (1.0 - idle_share)  # sleep owed per unit of time awake
+        self.share = float(idle_share)
         self.burst = int(burst_ns)
         self.clock, self.sleep, self.cpu_clock = clock, sleep, cpu_clock
         self.start(clock())
@@ -140,16 +175,30 @@ class Pacer:
         t0 = self.clock() if t0 is None else int(t0)
         self.t0 = self.deadline = self._awake_since = t0
         self._last_start = None
-        self.overruns = self.skipped = 0
+        self.overruns = self.skipped = self.forced_naps = 0
         self.longest_gap = 0          # ns between two tick starts
         self.spin_max = 0             # ns, the longest spin before a deadline
+        self.margin_max = 0           # ns, the largest wake margin used
         self.awake = 0                # ns awake, whole run
         self.awake_max = 0.0          # the largest share of a whole second spent awake
         self._window_end = t0 + _AWAKE_WINDOW_NS
         self._window_awake = 0
-        self._debt = 0.0              # ns of sleep owed
         self.cpu_max = 0.0            # the largest share of a second the thread spent on the CPU
-        self._cpu_mark = (t0, self.cpu_clock())
+        cpu = self.cpu_clock()
+        self._cpu_mark = (t0, cpu)
+        self._credit = float(self.burst)  # ns of CPU the budget allows ahead of the idle share
+        self._budget_mark = (t0, cpu)
+        # the learned wake-up lateness (ns), the largest of the previous and the current block
+        self._late_prev, self._late_cur, self._late_n = 0, 0, 0
+        if self.spin_cap > self.spin:  # a first guess from a few short sleeps (~1 ms at most)
+            for _ in range(CALIBRATION_SLEEPS):
+                a = self.clock()
+                self.sleep(self.spin * 1e-9)
+                self._late_cur = max(self._late_cur, self.clock() - a - self.spin)
+            t0 = self.deadline = self._awake_since = self.clock()
+            self._cpu_mark = self._budget_mark = (t0, self.cpu_clock())
+            self._window_end = t0 + _AWAKE_WINDOW_NS
+            self.t0 = t0
         return t0
 
     def begin(self) -> int:
@@ -187,6 +236,18 @@ class Pacer:
         span = self._awake_since - self.t0
         return self._window_awake / span if span > 0 else 0.0
 
+    def _refill(self, now: int) -> None:
+        """The budget: earn (1 - s) of the wall time since the last reading, spend the CPU time."""
+        cpu = self.cpu_clock()
+        t_prev, cpu_prev = self._budget_mark
+        self._credit = min(float(self.burst), self._credit + (1.0 - self.share) * (now - t_prev) - (cpu - cpu_prev))
+        self._budget_mark = (now, cpu)
+
+    def margin(self) -> int:
+        """The wake margin (ns) the next wait will use before the budget: the learned lateness
+        between ``spin_ns`` and ``spin_max_ns``."""
+        return min(self.spin_cap, max(self.spin, self._late_prev, self._late_cur))
+
     def wait(self) -> None:
         """The tick's work is done: count an overrun and skipped slots, then sleep and spin to
         the next deadline."""
@@ -202,16 +263,42 @@ class Pacer:
             if missed:  # whole periods lost: skip those slots, stay on the grid
                 self.skipped += int(missed)
                 self.deadline += missed * period
-        self._debt += self.idle_ratio * (now - self._awake_since)
-        nap = max(self.deadline - now - self.spin, int(self._debt) - self.burst)
+        margin = self.margin()
+        forced = False
+        if self.share:  # the real-time budget on the thread's CPU clock
+            if now - self._budget_mark[0] >= BUDGET_STEP_NS:
+                self._refill(now)
+            credit, half = self._credit, 0.5 * self.burst
+            if credit < half:  # running low: shorter margins, longer sleeps each period, as far as a
+                # wake-up as late as the learned one still lets a tick like this one end in its period
+                floor = max(self.spin, min(margin, margin + (now - self._last_start) - period + period // 10))
+                margin = floor + int((margin - floor) * max(0.0, credit) / half) if half > 0 else floor
+            owed = -credit / (1.0 - self.share)  # ns off the CPU that would empty the debt
+            if owed > self.deadline - now - margin:  # this period's sleep does not pay it: skip whole slots
+                slots = min(-(-(int(owed) - (self.deadline - now - margin)) // period),
+                            max(1, MAX_FORCED_NAP_NS // period))
+                self.deadline += slots * period
+                self.skipped += slots
+                self.forced_naps += 1
+                forced = True
+        nap = self.deadline - now - margin
+        if margin > self.margin_max:
+            self.margin_max = margin
         if nap > 0:
             self._count_awake(self._awake_since, now)
             self.sleep(nap * 1e-9)
             woke = clock()
             if trace is not None:
                 trace.slept(nap, woke)
-            self._debt = max(0.0, self._debt - (woke - now))
+            late = woke - now - nap  # learn how late the thread is awake again
+            if late > self._late_cur:
+                self._late_cur = late
+            if forced:
+                self._refill(woke)
             now = self._awake_since = woke
+        self._late_n += 1
+        if self._late_n == LATENESS_BLOCK:  # a block of ticks without a sleep forgets what it learned
+            self._late_prev, self._late_cur, self._late_n = self._late_cur, 0, 0
         spin_from = now
         while now < self.deadline:
             now = clock()
@@ -764,17 +851,19 @@ class Scheduler:
                   sleep: Callable[[float], Any] = time.sleep,
                   cpu_clock: Callable[[], int] = time.thread_time_ns) -> Pacer:
         """The :class:`Pacer` the loop thread keeps time with, under ``SCHED_FIFO`` when
-        ``realtime``: a spin of :data:`FIFO_SPIN` (at most a quarter of a period; a given
-        ``spin`` is kept) and a sleep of at least :data:`FIFO_IDLE_SHARE` of its time; under
-        the ordinary policy the ``spin`` margin and no least sleep (an ordinary thread is not
-        throttled, and the time-sharing scheduler preempts it anyway)."""
-        spin, idle = self._spin_ns, 0.0
+        ``realtime``: a wake margin learned between :data:`FIFO_SPIN` (at most a quarter of a
+        period) and the ordinary policy's margin (a given ``spin`` is kept as is), and an idle
+        share of :data:`FIFO_IDLE_SHARE` on the thread's CPU clock; under the ordinary policy
+        the ``spin`` margin and no idle share (an ordinary thread is not throttled, and the
+        time-sharing scheduler preempts it anyway)."""
+        spin = spin_max = self._spin_ns
+        idle = 0.0
         if realtime:
             if not self._spin_given:
                 spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)
             idle = FIFO_IDLE_SHARE
-        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep,
-                     cpu_clock=cpu_clock, trace=self.trace)
+        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, spin_max_ns=spin_max,
+                     clock=clock, sleep=sleep, cpu_clock=cpu_clock, trace=self.trace)
 
     def _run(self) -> None:
         _tight_timer_slack()
