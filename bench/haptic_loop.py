@@ -102,7 +102,7 @@ def tick_table(full: bool, ticks: int) -> dict:
 def _timing_row(d: dict, rate: float) -> dict:
     """A scheduler's TimingStats as the bench reports them: times in us, the fractions of the goals."""
     for k in list(d):
-        if k.startswith(("compute", "period", "jitter", "longest_gap", "spin_max")):
+        if k.startswith(("compute", "period", "jitter", "longest_gap", "spin_max", "margin_max")):
             d[k + "_us"] = d.pop(k) * 1e6
     nominal = rate * d["duration"]
     d["overrun_fraction"] = d["overruns"] / max(d["ticks"], 1)
@@ -136,7 +136,8 @@ def scheduler_runs(seconds: float, configs=None) -> dict:
     return out
 
 
-def diagnose(seconds: float, rate: float = 10000.0, policies=("ordinary", "fifo")) -> dict:
+def diagnose(seconds: float, rate: float = 10000.0, policies=("ordinary", "fifo"),
+             workloads=("empty_step", "tick_no_dent", "tick_dent")) -> dict:
     """Where the lost slots and the long gaps come from: for each policy, ``seconds`` at
     ``rate`` of an empty step (what the machine and the pacer cost), of the 512 x 512 tick with
     the dent off and with it on, each with a per-tick trace (:func:`explain_trace`: every lost
@@ -150,7 +151,7 @@ def diagnose(seconds: float, rate: float = 10000.0, policies=("ordinary", "fifo"
     n = int(seconds * rate) + 1000
     for policy in policies:
         priority = DEFAULT_REALTIME_PRIORITY if policy == "fifo" else 0
-        for what in ("empty_step", "tick_no_dent", "tick_dent"):
+        for what in workloads:
             if what == "empty_step":
                 sched = Scheduler(lambda s, i, d: None, None, rate=rate, priority=priority, trace=n)
             else:
@@ -224,9 +225,12 @@ def main() -> None:
     ap.add_argument("--diagnose", action="store_true", help="only the traced runs (diagnose()): an empty step, the "
                     "tick without and with the dent, both policies, --seconds each, at --rate")
     ap.add_argument("--rate", type=float, default=10000.0, help="the rate of --diagnose, Hz")
+    ap.add_argument("--policies", default="ordinary,fifo", help="the policies of --diagnose (ordinary, fifo)")
+    ap.add_argument("--workloads", default="empty_step,tick_no_dent,tick_dent", help="the steps of --diagnose")
     args = ap.parse_args()
     if args.diagnose:
-        emit("haptic_loop", {"diagnose": diagnose(args.seconds, args.rate)})
+        emit("haptic_loop", {"diagnose": diagnose(args.seconds, args.rate, args.policies.split(","),
+                                                  args.workloads.split(","))})
         return
     table = None if args.no_table else tick_table(args.full, args.ticks)
     dev, loop = build(1000.0)

@@ -15,10 +15,11 @@ errors do not accumulate. The wait before a deadline is hybrid: ``time.sleep`` u
 seconds before it (the OS wakes a sleeper tens of microseconds late), then a busy spin on the
 clock. A tick whose work ends after its own deadline is an *overrun*; deadlines that passed
 entirely are *skipped* (the grid is kept: the next tick starts at once, less than one period late,
-and there is no burst of catch-up ticks). Under ``SCHED_FIFO`` the spin is short
-(:data:`FIFO_SPIN`) and the thread sleeps at least :data:`FIFO_IDLE_SHARE` of its time, even
-after an overrun, so it is never awake long enough to meet the kernel's real-time throttling;
-:class:`Pacer` keeps this discipline, on an injectable clock. Statistics are kept in
+and there is no burst of catch-up ticks). Under ``SCHED_FIFO`` the spin's margin is learned from
+how late the sleeps end, and the thread keeps :data:`FIFO_IDLE_SHARE` of its time off the CPU
+over a window (a budget on its own CPU clock, what the kernel counts), so it never meets the
+kernel's real-time throttling; :class:`Pacer` keeps this discipline, on an injectable clock
+(docs/scheduler.rst). Statistics are kept in
 preallocated ring buffers: compute time per tick, start-to-start period, and jitter (period minus
 nominal).
 
@@ -369,7 +370,8 @@ def explain_trace(trace: TickTrace, period_ns: int) -> dict:
     - it started late (the work itself fitted): ``idle_share`` when the previous wait's sleep was
       asked to end after the deadline (the real-time idle share), ``late_wake_up`` when the
       sleep was asked to end before it but the thread woke after it, else
-      ``preempted_in_spin``.
+      ``preempted_in_spin``;
+    - it started late because the tick before it ended after its deadline: that tick's cause.
 
     The same causes are given to each gap between two tick starts longer than ``gap_ns``
     (1 ms), by the part of the gap that is longest. Returns the counts and the distributions
@@ -390,7 +392,10 @@ def explain_trace(trace: TickTrace, period_ns: int) -> dict:
     late = start - dl
 
     def cause(j: int) -> str:
-        """Why tick j ran past its slot (j >= 1: the wait before it is in the trace)."""
+        """Why tick j ran past its slot (j >= 1: the wait before it is in the trace); a tick that
+        started late because the one before it ended after its deadline has that one's cause."""
+        while j >= 2 and work[j] <= period_ns and work_end[j - 1] >= dl[j]:
+            j -= 1
         if work[j] > period_ns:
             return "step" if cpu[j] >= 0.5 * work[j] else "preempted_in_step"
         i = j - 1
@@ -461,7 +466,8 @@ class TimingStats:
     ``SCHED_FIFO`` the kernel throttles a thread above 0.95); ``cpu_max`` the largest share of
     a second it spent on the CPU (what the kernel counts: it includes the sleeps' own system
     time; 0 in runs shorter than a second); ``cpu_share`` its CPU time over the run's duration
-    (after the run).
+    (after the run); ``margin_max`` the largest wake margin the pacer used (learned under
+    ``SCHED_FIFO``), ``forced_naps`` how often its CPU budget made it skip slots.
     """
 
     ticks: int
@@ -484,6 +490,8 @@ class TimingStats:
     awake_max: float = 0.0
     cpu_max: float = 0.0
     cpu_share: float = 0.0
+    margin_max: float = 0.0
+    forced_naps: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         return dict(self.__dict__)
@@ -632,9 +640,10 @@ class Scheduler:
     spin : float, s, optional
         Busy-wait margin before each deadline (default: 2e-4 s, at most three quarters of a
         period, under the ordinary policy; :data:`FIFO_SPIN`, at most a quarter of a period,
-        when the thread got ``SCHED_FIFO``: a real-time sleeper is woken on time, and a thread
-        that spins most of each period meets Linux's real-time throttling - 950 ms of every
-        second by default - and stops for ~50 ms each second). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
+        when the thread got ``SCHED_FIFO``, the least of a margin learned from the sleeps'
+        lateness up to the ordinary one, within the CPU budget: a thread on the CPU most of
+        each second meets Linux's real-time throttling - 950 ms of every second by default -
+        and stops for ~50 ms each second). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
         missed 0.17-0.35 % of the deadlines and a three-quarter one 0.03-0.09 % (``bench/haptic_loop.py``).
         Spinning a whole period is counter-productive on a shared machine: the OS scheduler then
         preempts the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
@@ -656,8 +665,8 @@ class Scheduler:
         :attr:`TimingStats.realtime_priority`. A real-time loop thread keeps the machine's
         other work from delaying a tick, but it also runs before this process's other threads
         on its core: a device whose driver answers from a thread of this process (the simulated
-        Haply's reader) then went unanswered for 0.4 s. It sleeps at least
-        :data:`FIFO_IDLE_SHARE` of its time (:meth:`pacer_for`). At 10 kHz over 60 s on the
+        Haply's reader) then went unanswered for 0.4 s. It keeps
+        :data:`FIFO_IDLE_SHARE` of its time off the CPU (:meth:`pacer_for`). At 10 kHz over 60 s on the
         2-core machine shared by eight jobs (load 11) it kept 9,944 ticks/s, 0.56 % of the
         slots skipped and a 7.1 ms longest gap; the ordinary policy 2,806 ticks/s
         (``bench/haptic_loop.py`` times both).
@@ -953,4 +962,6 @@ class Scheduler:
             awake_max=p.awake_share() if p else 0.0,
             cpu_max=p.cpu_max if p else 0.0,
             cpu_share=(self.cpu_ns * 1e-9 / duration) if duration > 0 and not self.is_running else 0.0,
+            margin_max=p.margin_max * 1e-9 if p else 0.0,
+            forced_naps=p.forced_naps if p else 0,
         )
