@@ -463,3 +463,26 @@ def test_no_default_sched_fifo_when_the_kernel_does_not_throttle_it(monkeypatch,
     assert sched.choose_realtime(30).priority == 30
     knob.write_text("950000\n")
     assert sched.choose_realtime().priority == sched.DEFAULT_REALTIME_PRIORITY
+
+
+def test_the_trace_gives_each_lost_slot_its_cause():
+    """A scripted 10 kHz run with one step of 3.5 periods (on the CPU) and one sleep that ends
+    400 us late: the trace's explanation gives the step's overrun and the 2 slots it covered to
+    the step, and to the wake-up its overrun, its 2 slots and the overrun of the next tick (it
+    started at once, 90 us into its slot); nothing else is lost, no gap reaches 1 ms."""
+    from arsurf.haptics.scheduler import Pacer, TickTrace, explain_trace
+
+    def latency(k):
+        return 400_000 if k == 1000 else 5_000
+
+    clock = ScriptedTime(latency_ns=latency)
+    trace = TickTrace(5000)
+    pacer = Pacer(100_000, 30_000, clock=clock.clock, sleep=clock.sleep, cpu_clock=clock.cpu, trace=trace)
+    clock.run(pacer, lambda k: 350_000 if k == 2000 else 20_000, 3000)
+    e = explain_trace(trace, 100_000)
+    assert e["ticks"] == 3000
+    assert e["lost"]["step"] == 1 + 2 and e["lost"]["late_wake_up"] == 1 + 2 + 1
+    assert sum(e["lost"].values()) == pacer.overruns + pacer.skipped == 7
+    assert e["gaps_over_1ms"] == dict.fromkeys(e["gaps_over_1ms"], 0)  # both gaps are under 1 ms
+    assert e["work"]["max_us"] == pytest.approx(350.2, abs=1.0)
+    assert e["oversleep"]["max_us"] == pytest.approx(400.2, abs=1.0)
