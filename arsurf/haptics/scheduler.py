@@ -275,7 +275,8 @@ class Pacer:
                 floor = max(self.spin, min(margin, margin + (now - self._last_start) - period + period // 10))
                 margin = floor + int((margin - floor) * max(0.0, credit) / half) if half > 0 else floor
             owed = -credit / (1.0 - self.share)  # ns off the CPU that would empty the debt
-            if owed > self.deadline - now - margin:  # this period's sleep does not pay it: skip whole slots
+            if credit < 0.0 and owed > self.deadline - now - margin:  # this period's sleep does not pay
+                # the debt: skip whole slots
                 slots = min(-(-(int(owed) - (self.deadline - now - margin)) // period),
                             max(1, MAX_FORCED_NAP_NS // period))
                 self.deadline += slots * period

@@ -486,3 +486,16 @@ def test_the_trace_gives_each_lost_slot_its_cause():
     assert e["gaps_over_1ms"] == dict.fromkeys(e["gaps_over_1ms"], 0)  # both gaps are under 1 ms
     assert e["work"]["max_us"] == pytest.approx(350.2, abs=1.0)
     assert e["oversleep"]["max_us"] == pytest.approx(400.2, abs=1.0)
+
+
+def test_the_budget_skips_no_slot_while_it_holds_credit():
+    """A real-time pacer whose budget holds credit never skips a slot for it: a tick of 0.9
+    period after light ones, with a 50 us margin, simply spins to its deadline (a version that
+    compared a positive credit with the time left forced a skip here, spurious)."""
+    from arsurf.haptics.scheduler import Pacer
+
+    clock = ScriptedTime(latency_ns=lambda k: 5_000)
+    pacer = Pacer(100_000, 50_000, 0.1, 20_000, clock=clock.clock, sleep=clock.sleep, cpu_clock=clock.cpu)
+    clock.run(pacer, lambda k: 90_000 if k % 50 == 49 else 20_000, 2_000)
+    assert pacer._credit > 0.0
+    assert pacer.forced_naps == pacer.skipped == pacer.overruns == 0
