@@ -11,7 +11,10 @@ under SCHED_FIFO at the live loop's default priority (where granted: ``realtime_
 Overruns <= 0.1 % at 10 kHz is the target (issue #13); issue 28 adds skipped slots (with the
 overruns, <= 0.1 % of the nominal ticks) and the longest gap between two ticks (<= 1 ms).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
+--diagnose runs only traced scheduler runs (an empty step, the 512x512 tick without and with the
+dent, both policies) and gives every lost slot and every gap > 1 ms its cause (docs/scheduler.rst).
 Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--lockup-check]   (prints JSON)
+     .venv/bin/python bench/haptic_loop.py --diagnose [--seconds 8] [--policies fifo] [--workloads tick_dent]
 """
 from __future__ import annotations
 
