@@ -272,7 +272,8 @@ class Pacer:
             credit, half = self._credit, 0.5 * self.burst
             if credit < half:  # running low: shorter margins, longer sleeps each period, as far as a
                 # wake-up as late as the learned one still lets a tick like this one end in its period
-                floor = max(self.spin, min(margin, margin + (now - self._last_start) - period + period // 10))
+                work = now - (self._last_start if self._last_start is not None else now)
+                floor = max(self.spin, min(margin, margin + work - period + period // 10))
                 margin = floor + int((margin - floor) * max(0.0, credit) / half) if half > 0 else floor
             owed = -credit / (1.0 - self.share)  # ns off the CPU that would empty the debt
             if credit < 0.0 and owed > self.deadline - now - margin:  # this period's sleep does not pay
