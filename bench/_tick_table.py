@@ -63,11 +63,12 @@ def parse_cells(text: str | None, default: tuple) -> tuple:
     return values
 
 
-def traced(fn, ticks: int, deformer=None, warmup: int = 20) -> dict:
+def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
     """Time ``ticks`` calls of ``fn`` (a tick) with a per-tick trace, to tell where a slow tick's
     time went: wall and thread-CPU time of each tick (a tick whose CPU time is far below its
     wall time was preempted: the machine, not the tick's work), the ticks during which the
-    garbage collector ran (``gc.callbacks``), the ticks during which the thread was switched
+    garbage collector ran (``gc.callbacks``), the ticks whose collision rebuilt its warm list of
+    candidate cells (``model``'s collision output ``OUT_CACHED`` = 0: a pyramid walk), the ticks during which the thread was switched
     out involuntarily (``getrusage`` RUSAGE_THREAD ``ru_nivcsw``: another process took the core), the ticks that moved the net (``deformer``'s
     syncs: a read inside the tick, O((R/h)^2)) and the Python blocks allocated per tick.
 
@@ -88,6 +89,9 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20) -> dict:
     blocks = np.empty(ticks, dtype=np.int64)
     gc_in = np.zeros(ticks, dtype=bool)
     sync_in = np.zeros(ticks, dtype=bool)
+    uncached = np.zeros(ticks, dtype=bool)
+    coll = None if model is None else model._coll
+    from arsurf.contact.layout import OUT_CACHED
     state = {"gc": False, "sync": 0}
 
     def on_gc(phase, info):
@@ -120,6 +124,7 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20) -> dict:
             switched[k] = usage(thread_usage).ru_nivcsw > s0
             wall[k], cpu[k] = t1 - t0, c1 - c0
             gc_in[k], sync_in[k] = state["gc"], state["sync"] > 0
+            uncached[k] = coll is not None and coll[OUT_CACHED] == 0.0
     finally:
         gc.callbacks.remove(on_gc)
         if restore:
@@ -134,4 +139,6 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20) -> dict:
             "over_100us_cpu_over_100us": int((slow & (c > 100.0)).sum()),
             "over_100us_with_gc": int((slow & gc_in).sum()), "ticks_with_gc": int(gc_in.sum()),
             "ticks_with_net_sync": int(sync_in.sum()),
+            "over_100us_collision_rebuilt_list": int((slow & uncached).sum()),
+            "ticks_collision_rebuilt_list": int(uncached.sum()),
             "python_blocks_per_tick_median": float(np.median(blocks))}

@@ -57,7 +57,7 @@ def cell(surface, tip: float, depth: float, ticks: int) -> dict:
                 sync()
 
         n = ticks if not eager else max(ticks // 10, 50)
-        row[name] = tt.traced(one, n, model._deformer if name == "tick" else None)
+        row[name] = tt.traced(one, n, model._deformer if name == "tick" else None, model=model)
         if name == "tick":
             row["in_contact"] = bool(model.out[M_IN_CONTACT])
             row["dent_box_points"] = int(model.out[M_MOVED])
