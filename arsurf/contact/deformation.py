@@ -451,6 +451,12 @@ def _dent_point(ctrl, rest, i, j, dents, n_dents, profiles, n_prof, scales, old,
     return 1
 
 
+#: :func:`_dent_point` inlined into :func:`sync_dent_tiled_kernel`, the same code: a call with
+#: array arguments costs ~90 ns a point (reference counting), 1.5x the whole dent of a point
+#: (bench/deformation.py --read); the reference kernel keeps the call (it compiles faster)
+_dent_point_inlined = njit(cache=True, inline="always")(_dent_point.py_func)
+
+
 @njit(cache=True)
 def _dent_boxes(nu, nv, ku, kv, dent, profile):
     """The index boxes (n × :data:`DENT_PATCH`) of the recorded dents, each contact's profile
@@ -633,8 +639,8 @@ def sync_dent_tiled_kernel(ctrl, rest, ku, kv, dent, shown, profile, patch, zlo,
                         for j in range(j0, j1):
                             old = _in_boxes(patch, n_dents, i, j)
                             if _in_boxes(boxes, n_dents, i, j):
-                                moved += _dent_point(ctrl, rest, i, j, dent, n_dents, profile, n_prof, scales, old,
-                                                     axes)
+                                moved += _dent_point_inlined(ctrl, rest, i, j, dent, n_dents, profile, n_prof,
+                                                             scales, old, axes)
                             elif old:
                                 for c in range(3):
                                     ctrl[i, j, c] = rest[i, j, c]
