@@ -67,14 +67,18 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
     """Time ``ticks`` calls of ``fn`` (a tick) with a per-tick trace, to tell where a slow tick's
     time went: wall and thread-CPU time of each tick (a tick whose CPU time is far below its
     wall time was preempted: the machine, not the tick's work), the ticks during which the
-    garbage collector ran (``gc.callbacks``), the ticks whose collision rebuilt its warm list of
-    candidate cells (``model``'s collision output ``OUT_CACHED`` = 0: a pyramid walk), the ticks during which the thread was switched
-    out involuntarily (``getrusage`` RUSAGE_THREAD ``ru_nivcsw``: another process took the core), the ticks that moved the net (``deformer``'s
-    syncs: a read inside the tick, O((R/h)^2)) and the Python blocks allocated per tick.
+    garbage collector ran (``gc.callbacks``), the ticks whose collision rebuilt its warm list
+    of candidate cells (``model``'s collision output ``OUT_CACHED`` = 0: a pyramid walk), the
+    ticks during which the thread was switched out involuntarily (``getrusage`` RUSAGE_THREAD
+    ``ru_nivcsw``: another process took the core), the ticks that moved the net
+    (``deformer``'s syncs: a read inside the tick, O((R/h)^2)) and the Python blocks allocated
+    per tick.
 
     Returns median/p99 of wall and CPU time (us) and, over the ticks slower than 100 us wall,
-    how many were preempted (CPU < half the wall, or switched out), ran the GC, or synced the net."""
+    how many were preempted (CPU < half the wall, or switched out), ran the GC, rebuilt the
+    collision's list, or synced the net."""
     import gc
+    import sys
     import time
 
     for _ in range(warmup):
@@ -109,7 +113,7 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
         deformer.sync = counting_sync
         restore = lambda: deformer.__dict__.pop("sync", None)  # noqa: E731
     gc.callbacks.append(on_gc)
-    perf, thread, allocated = time.perf_counter_ns, time.thread_time_ns, __import__("sys").getallocatedblocks
+    perf, thread, allocated = time.perf_counter_ns, time.thread_time_ns, sys.getallocatedblocks
     try:
         for k in range(ticks):
             state["gc"], state["sync"] = False, 0

@@ -93,8 +93,9 @@ def tick_table(full: bool, ticks: int, pitches=None, tips=None, depths=None) -> 
                 x = rows[-1]
                 print(f"pitch {p} nm, R {r} nm, depth {d} nm: {x['median_us']:.1f} us, p99 {x['p99_us']:.0f} us "
                       f"(cpu p99 {x['cpu_p99_us']:.0f} us; >100 us: {x['ticks_over_100us']}, preempted "
-                      f"{x['over_100us_preempted']}, switched out {x['over_100us_switched_out']}, collision list rebuilt "
-                      f"{x['over_100us_collision_rebuilt_list']}, gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']})",
+                      f"{x['over_100us_preempted']}, switched out {x['over_100us_switched_out']}, "
+                      f"collision list rebuilt {x['over_100us_collision_rebuilt_list']}, "
+                      f"gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']})",
                       file=sys.stderr)
     med = [r["median_us"] for r in rows]
     p99 = [r["p99_us"] for r in rows]

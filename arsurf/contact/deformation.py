@@ -390,7 +390,8 @@ def _dent_point(ctrl, rest, i, j, dents, n_dents, profiles, n_prof, scales, old,
         if radius <= 0.0:
             continue
         px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
-        axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 3], axes[k, 4], axes[k, 5], axes[k, 6] = px, py, pz, rx, ry, rz, rho2
+        axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 3] = px, py, pz, rx
+        axes[k, 4], axes[k, 5], axes[k, 6] = ry, rz, rho2
         if rho2 < a * a:
             nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
             if a <= SPHERE_LIMIT * radius:
