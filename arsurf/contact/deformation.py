@@ -356,21 +356,6 @@ def _in_boxes(boxes, n, i, j):
 
 
 @njit(cache=True, inline="always")
-def _axis(rest, i, j, dents, b):
-    """Rest point (i, j) about the tip axis of the dent at ``dents[b:]``: (px, py, pz) = P₀ - C, the
-    radial part (rx, ry, rz) and ρ² (module docstring)."""
-    px = rest[i, j, 0] - dents[b + D_CX]
-    py = rest[i, j, 1] - dents[b + D_CY]
-    pz = rest[i, j, 2] - dents[b + D_CZ]
-    nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
-    s = px * nx + py * ny + pz * nz
-    rx = px - s * nx
-    ry = py - s * ny
-    rz = pz - s * nz
-    return px, py, pz, rx, ry, rz, rx * rx + ry * ry + rz * rz
-
-
-@njit(cache=True, inline="always")
 def _contact(dents, k):
     """Contact k of the recorded dents: (offset of its record, tip radius R, contact radius a >= 0);
     R <= 0 is no dent."""
@@ -379,91 +364,117 @@ def _contact(dents, k):
 
 
 @njit(cache=True)
-def _dent_point(ctrl, rest, i, j, dents, n_dents, profiles, n_prof, scales, old, axes):
-    """Write control point (i, j) under the recorded dents (the module docstring's rule; several
-    contacts of one tip superpose their elastic surfaces); returns 1 if it is dented, 0 if it is
-    at rest (written back only when ``old``: a previous dent may have moved it). ``axes`` is
-    (n_dents, 7) scratch: the point about each contact's axis (:func:`_axis`), found once."""
-    # 1. inside a contact disc: on the tip's cap (or the contact's paraboloid beyond SPHERE_LIMIT)
-    for k in range(n_dents):
-        b, radius, a = _contact(dents, k)
-        if radius <= 0.0:
-            continue
-        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
-        axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 3] = px, py, pz, rx
-        axes[k, 4], axes[k, 5], axes[k, 6] = ry, rz, rho2
-        if rho2 < a * a:
-            nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
-            if a <= SPHERE_LIMIT * radius:
-                cap = -math.sqrt(radius * radius - rho2)
-                ctrl[i, j, 0] = dents[b + D_CX] + rx + cap * nx
-                ctrl[i, j, 1] = dents[b + D_CY] + ry + cap * ny
-                ctrl[i, j, 2] = dents[b + D_CZ] + rz + cap * nz
-            else:
-                u = dents[b + D_DEPTH] - 0.5 * rho2 / radius
-                ctrl[i, j, 0] = rest[i, j, 0] - u * nx
-                ctrl[i, j, 1] = rest[i, j, 1] - u * ny
-                ctrl[i, j, 2] = rest[i, j, 2] - u * nz
-            return 1
-    # 2. the elastic surfaces outside the contacts, superposed (linear elasticity)
-    qx = rest[i, j, 0]
-    qy = rest[i, j, 1]
-    qz = rest[i, j, 2]
-    near = False
-    for k in range(n_dents):
-        b, radius, a = _contact(dents, k)
-        if radius <= 0.0:
-            continue
-        r_elastic = PATCH_PER_CONTACT * a
-        r_box = max(radius, r_elastic)
-        px, py, pz, rho2 = axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 6]
-        if rho2 >= r_box * r_box or (rho2 >= r_elastic * r_elastic and px * px + py * py + pz * pz >= radius * radius):
-            continue  # beyond this dent's elastic surface and outside its tip
-        near = True
-        if rho2 < r_elastic * r_elastic:
-            x = math.sqrt(rho2 - a * a) * scales[k]
-            m = int(x)
-            if m >= n_prof - 1:
-                m = n_prof - 2
-            f = x - m
-            p0 = k * n_prof + m
-            u = profiles[p0] + f * (profiles[p0 + 1] - profiles[p0])
-            qx -= u * dents[b + D_NX]
-            qy -= u * dents[b + D_NY]
-            qz -= u * dents[b + D_NZ]
-    if not near:  # at rest, bitwise
-        if old:
-            for c in range(3):
-                ctrl[i, j, c] = rest[i, j, c]
-        return 0
-    # 3. still inside the tip: onto the sphere
-    for k in range(n_dents):
-        b, radius, a = _contact(dents, k)
-        if radius <= 0.0:
-            continue
-        r2 = radius * radius
-        rx, ry, rz, rho2 = axes[k, 3], axes[k, 4], axes[k, 5], axes[k, 6]
-        if rho2 < r2:
-            cx, cy, cz = dents[b + D_CX], dents[b + D_CY], dents[b + D_CZ]
-            dx = qx - cx
-            dy = qy - cy
-            dz = qz - cz
-            if dx * dx + dy * dy + dz * dz < r2:
-                cap = -math.sqrt(r2 - rho2)
-                qx = cx + rx + cap * dents[b + D_NX]
-                qy = cy + ry + cap * dents[b + D_NY]
-                qz = cz + rz + cap * dents[b + D_NZ]
-                break
-    ctrl[i, j, 0] = qx
-    ctrl[i, j, 1] = qy
-    ctrl[i, j, 2] = qz
-    return 1
+def _dent_rows(ctrl, rest, i0, i1, j0, j1, dents, n_dents, profiles, n_prof, scales, boxes, skip, patch, axes):
+    """Write control points [i0, i1) x [j0, j1) under the recorded dents (the module docstring's
+    rule; several contacts of one tip superpose their elastic surfaces); returns how many are
+    dented. A point in one of the dents' index ``boxes`` is dented, or put back to rest if the
+    dent leaves it there and a previous box (``patch``) held it; a point outside every box goes
+    back to rest if a previous box held it; points in the first ``skip`` boxes are left alone
+    (written with an earlier box). ``axes`` is (n_dents, 7) scratch: the point about each
+    contact's axis, P₀ - C, its radial part and ρ², found once.
 
-
-#: :func:`_dent_point` inlined into :func:`sync_dent_tiled_kernel`, the same code: a call with
-#: array arguments costs ~90 ns a point (reference counting), 1.5x the whole dent of a point
-#: (bench/deformation.py --read); the reference kernel keeps the call (it compiles faster)
-_dent_point_inlined = njit(cache=True, inline="always")(_dent_point.py_func)
+    The rule is written in the loop, not in a function called per point: numba's per-point
+    call (inlined or not) cost 2.2x the whole rule (60 vs 27 ns a point, thread CPU time,
+    bench/deformation.py --read and the same-run A/B in docs/performance.rst)."""
+    moved = 0
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            if _in_boxes(boxes, skip, i, j):
+                continue   # written with an earlier box
+            old = _in_boxes(patch, n_dents, i, j)
+            if not _in_boxes(boxes, n_dents, i, j):
+                if old:
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
+                continue
+            # 1. inside a contact disc: on the tip's cap (or the contact's paraboloid beyond SPHERE_LIMIT)
+            on_cap = False
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                px = rest[i, j, 0] - dents[b + D_CX]
+                py = rest[i, j, 1] - dents[b + D_CY]
+                pz = rest[i, j, 2] - dents[b + D_CZ]
+                nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
+                s = px * nx + py * ny + pz * nz
+                rx = px - s * nx
+                ry = py - s * ny
+                rz = pz - s * nz
+                rho2 = rx * rx + ry * ry + rz * rz
+                axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 3] = px, py, pz, rx
+                axes[k, 4], axes[k, 5], axes[k, 6] = ry, rz, rho2
+                if rho2 < a * a:
+                    if a <= SPHERE_LIMIT * radius:
+                        cap = -math.sqrt(radius * radius - rho2)
+                        ctrl[i, j, 0] = dents[b + D_CX] + rx + cap * nx
+                        ctrl[i, j, 1] = dents[b + D_CY] + ry + cap * ny
+                        ctrl[i, j, 2] = dents[b + D_CZ] + rz + cap * nz
+                    else:
+                        u = dents[b + D_DEPTH] - 0.5 * rho2 / radius
+                        ctrl[i, j, 0] = rest[i, j, 0] - u * nx
+                        ctrl[i, j, 1] = rest[i, j, 1] - u * ny
+                        ctrl[i, j, 2] = rest[i, j, 2] - u * nz
+                    on_cap = True
+                    break
+            if on_cap:
+                moved += 1
+                continue
+            # 2. the elastic surfaces outside the contacts, superposed (linear elasticity)
+            qx = rest[i, j, 0]
+            qy = rest[i, j, 1]
+            qz = rest[i, j, 2]
+            near = False
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                r_elastic = PATCH_PER_CONTACT * a
+                r_box = max(radius, r_elastic)
+                px, py, pz, rho2 = axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 6]
+                if rho2 >= r_box * r_box or (rho2 >= r_elastic * r_elastic
+                                             and px * px + py * py + pz * pz >= radius * radius):
+                    continue  # beyond this dent's elastic surface and outside its tip
+                near = True
+                if rho2 < r_elastic * r_elastic:
+                    x = math.sqrt(rho2 - a * a) * scales[k]
+                    m = int(x)
+                    if m >= n_prof - 1:
+                        m = n_prof - 2
+                    f = x - m
+                    p0 = k * n_prof + m
+                    u = profiles[p0] + f * (profiles[p0 + 1] - profiles[p0])
+                    qx -= u * dents[b + D_NX]
+                    qy -= u * dents[b + D_NY]
+                    qz -= u * dents[b + D_NZ]
+            if not near:  # at rest, bitwise
+                if old:
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
+                continue
+            # 3. still inside the tip: onto the sphere
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                r2 = radius * radius
+                rx, ry, rz, rho2 = axes[k, 3], axes[k, 4], axes[k, 5], axes[k, 6]
+                if rho2 < r2:
+                    cx, cy, cz = dents[b + D_CX], dents[b + D_CY], dents[b + D_CZ]
+                    dx = qx - cx
+                    dy = qy - cy
+                    dz = qz - cz
+                    if dx * dx + dy * dy + dz * dz < r2:
+                        cap = -math.sqrt(r2 - rho2)
+                        qx = cx + rx + cap * dents[b + D_NX]
+                        qy = cy + ry + cap * dents[b + D_NY]
+                        qz = cz + rz + cap * dents[b + D_NZ]
+                        break
+            ctrl[i, j, 0] = qx
+            ctrl[i, j, 1] = qy
+            ctrl[i, j, 2] = qz
+            moved += 1
+    return moved
 
 
 @njit(cache=True)
@@ -524,12 +535,8 @@ def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
     moved = 0
     for k in range(n_dents):
         q = k * _PATCH
-        for i in range(boxes[q + _I0], boxes[q + _I1]):
-            for j in range(boxes[q + _J0], boxes[q + _J1]):
-                if _in_boxes(boxes, k, i, j):
-                    continue  # written with an earlier box
-                moved += _dent_point(ctrl, rest, i, j, dent, n_dents, profile, n_prof, scales,
-                                     _in_boxes(patch, n_dents, i, j), axes)
+        moved += _dent_rows(ctrl, rest, boxes[q + _I0], boxes[q + _I1], boxes[q + _J0], boxes[q + _J1], dent, n_dents,
+                            profile, n_prof, scales, boxes, k, patch, axes)
     for k in range(boxes.size):
         patch[k] = boxes[k]
     return moved
@@ -643,16 +650,9 @@ def sync_dent_tiled_kernel(ctrl, rest, ku, kv, dent, shown, profile, patch, zlo,
                 i1 = min(i0 + TILE, nu)
                 j0 = tj * TILE
                 j1 = min(j0 + TILE, nv)
-                if _tile_reached(rest, zlo, zhi, ti, tj, dent, n_dents):
-                    for i in range(i0, i1):   # as the reference: dent the new boxes, restore the old
-                        for j in range(j0, j1):
-                            old = _in_boxes(patch, n_dents, i, j)
-                            if _in_boxes(boxes, n_dents, i, j):
-                                moved += _dent_point_inlined(ctrl, rest, i, j, dent, n_dents, profile, n_prof,
-                                                             scales, old, axes)
-                            elif old:
-                                for c in range(3):
-                                    ctrl[i, j, c] = rest[i, j, c]
+                if _tile_reached(rest, zlo, zhi, ti, tj, dent, n_dents):   # as the reference
+                    moved += _dent_rows(ctrl, rest, i0, i1, j0, j1, dent, n_dents, profile, n_prof, scales, boxes, 0,
+                                        patch, axes)
                 elif _tile_reached(rest, zlo, zhi, ti, tj, shown, n_dents):
                     for i in range(i0, i1):   # no new dent here: the old boxes' points back to rest
                         for j in range(j0, j1):
