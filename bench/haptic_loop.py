@@ -11,9 +11,13 @@ under SCHED_FIFO at the live loop's default priority (where granted: ``realtime_
 Overruns <= 0.1 % at 10 kHz is the target (issue #13); issue 28 adds skipped slots (with the
 overruns, <= 0.1 % of the nominal ticks) and the longest gap between two ticks (<= 1 ms).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
+Each table cell traces its ticks (bench/_tick_table.py ``traced``): wall and thread-CPU time per
+tick, and for the ticks over 100 us whether they were preempted, ran the garbage collector or
+moved the net (a sync inside the tick).
 --diagnose runs only traced scheduler runs (an empty step, the 512x512 tick without and with the
 dent, both policies) and gives every lost slot and every gap > 1 ms its cause (docs/scheduler.rst).
-Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--lockup-check]   (prints JSON)
+Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--lockup-check]
+     [--table-only] [--pitches 0.25,2] [--tips 20] [--depths 1]   (prints JSON)
      .venv/bin/python bench/haptic_loop.py --diagnose [--seconds 8] [--policies fifo] [--workloads tick_dent]
 """
 from __future__ import annotations
@@ -75,21 +79,28 @@ def table_cell(surface, tip: float, depth: float, ticks: int) -> dict:
 
     for _ in range(300):  # the ramp-in and the contact settle
         tick()
-    row = stats(time_calls(tick, ticks))
+    row = tt.traced(tick, ticks, model._deformer, model=model)  # median, p99 and where the slow ticks' time went
     row["in_contact"] = bool(model.out[M_IN_CONTACT])
     dev.close()
     return row
 
 
-def tick_table(full: bool, ticks: int) -> dict:
-    """The tick over pitch x tip radius x depth (medians, p99), and the goals of issue 28."""
+def tick_table(full: bool, ticks: int, pitches=None, tips=None, depths=None) -> dict:
+    """The tick over pitch x tip radius x depth (medians, p99), and the goals of issue 28
+    (``pitches``, ``tips``, ``depths`` in nm: a subset of the cells; default the coarse or --full grid)."""
     rows = []
-    for p in tt.FULL_PITCHES_NM if full else tt.PITCHES_NM:
+    for p in pitches or (tt.FULL_PITCHES_NM if full else tt.PITCHES_NM):
         s = tt.rough_surface(p * 1e-9)
-        for r in tt.FULL_TIPS_NM if full else tt.TIPS_NM:
-            for d in tt.FULL_DEPTHS_NM if full else tt.DEPTHS_NM:
+        for r in tips or (tt.FULL_TIPS_NM if full else tt.TIPS_NM):
+            for d in depths or (tt.FULL_DEPTHS_NM if full else tt.DEPTHS_NM):
                 rows.append({"pitch_nm": p, "tip_radius_nm": r, "depth_nm": d, **table_cell(s, r * 1e-9, d * 1e-9, ticks)})
-                print(f"pitch {p} nm, R {r} nm, depth {d} nm: {rows[-1]['median_us']:.1f} us", file=sys.stderr)
+                x = rows[-1]
+                print(f"pitch {p} nm, R {r} nm, depth {d} nm: {x['median_us']:.1f} us, p99 {x['p99_us']:.0f} us "
+                      f"(cpu p99 {x['cpu_p99_us']:.0f} us; >100 us: {x['ticks_over_100us']}, preempted "
+                      f"{x['over_100us_preempted']}, switched out {x['over_100us_switched_out']}, "
+                      f"collision list rebuilt {x['over_100us_collision_rebuilt_list']}, "
+                      f"gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']})",
+                      file=sys.stderr)
     med = [r["median_us"] for r in rows]
     p99 = [r["p99_us"] for r in rows]
 
@@ -98,7 +109,10 @@ def tick_table(full: bool, ticks: int) -> dict:
 
     summary = {"cells": len(rows), "max_median_us": max(med), "max_p99_us": max(p99),
                "cells_over_40us_median": sum(m > 40 for m in med), "cells_over_100us_p99": sum(m > 100 for m in p99),
-               "R20_median_0.25nm_over_2nm": at(0.25, 20.0) / at(2.0, 20.0)}
+               "max_cpu_p99_us": max(r["cpu_p99_us"] for r in rows),
+               "ticks_with_net_sync": sum(r["ticks_with_net_sync"] for r in rows)}
+    if {0.25, 2.0} <= {r["pitch_nm"] for r in rows} and any(r["tip_radius_nm"] == 20.0 for r in rows):
+        summary["R20_median_0.25nm_over_2nm"] = at(0.25, 20.0) / at(2.0, 20.0)
     return {"summary": summary, "rows": rows}
 
 
@@ -223,6 +237,10 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="the whole pitch x tip x depth table (several minutes)")
     ap.add_argument("--no-table", action="store_true", help="skip the pitch x tip x depth table")
     ap.add_argument("--ticks", type=int, default=3000, help="ticks timed per table cell")
+    ap.add_argument("--pitches", help="table cells: pitches in nm, comma-separated (default the grid's)")
+    ap.add_argument("--tips", help="table cells: tip radii in nm, comma-separated")
+    ap.add_argument("--depths", help="table cells: depths in nm, comma-separated")
+    ap.add_argument("--table-only", action="store_true", help="only the pitch x tip x depth table")
     ap.add_argument("--lockup-check", action="store_true", help="also run a SCHED_FIFO loop whose step never fits "
                     "its period, pinned to one core, with and without the least sleep per period (2 x 3 s)")
     ap.add_argument("--diagnose", action="store_true", help="only the traced runs (diagnose()): an empty step, the "
@@ -235,7 +253,12 @@ def main() -> None:
         emit("haptic_loop", {"diagnose": diagnose(args.seconds, args.rate, args.policies.split(","),
                                                   args.workloads.split(","))})
         return
-    table = None if args.no_table else tick_table(args.full, args.ticks)
+    table = None if args.no_table else tick_table(
+        args.full, args.ticks, tt.parse_cells(args.pitches, ()), tt.parse_cells(args.tips, ()),
+        tt.parse_cells(args.depths, ()))
+    if args.table_only:
+        emit("haptic_loop", {"tick_table": table})
+        return
     dev, loop = build(1000.0)
     st = dev.read_state()
 
