@@ -454,7 +454,7 @@ def rate_difference(slow, fast, settle: float = 1.0, contact=None, probe=None,
 
 def rate_convergence(surface, motion: str, source: str = "simulated", seconds: float = 2.0, tip_radius=None,
                      seed: int = 7, heading: float = 0.0, room: float = math.inf, coupling_rate: float = 1000.0,
-                     **options) -> dict:
+                     records: bool = False, **options) -> dict:
     r"""Texture is not buzz: what the surface gives stays when the loop rate goes from 1 to 10 kHz,
     what the loop adds does not. Runs ``motion`` at 1 kHz (the default loop) and at 10 kHz with the
     same virtual coupling (the one the device gets at ``coupling_rate``, 1 kHz: the coupling is the
@@ -463,8 +463,9 @@ def rate_convergence(surface, motion: str, source: str = "simulated", seconds: f
     compares them by :func:`rate_difference`: ``rate_error`` (the 10 kHz record sampled where the
     1 kHz loop sampled the surface) and ``low_passed_error`` (the earlier low-passed reference).
     Also whether both runs kept the observed energy >= -E0 (``energy_ok``) and ``ok``
-    (``rate_error`` <= :data:`RATE_TOLERANCE` and the energy). ``options``: more
-    :func:`run_scenario` settings for both runs (e.g. ``coupling=False``)."""
+    (``rate_error`` <= :data:`RATE_TOLERANCE` and the energy); ``records``: also the two
+    :class:`FeelRun` (``runs``). ``options``: more :func:`run_scenario` settings for both runs
+    (e.g. ``coupling=False``)."""
     kw = dict(motion=motion, source=source, seconds=seconds, tip_radius=tip_radius, seed=seed, heading=heading,
               room=room, coupling_rate=coupling_rate, **options)
     slow = run_scenario(surface, rate=1000.0, **kw)
@@ -477,7 +478,7 @@ def rate_convergence(surface, motion: str, source: str = "simulated", seconds: f
             "min_energy_over_E0": [r.score.min_energy / r.energy_reserve if r.energy_reserve > 0 else math.nan
                                    for r in (slow, fast)],
             "min_energy_J": [slow.score.min_energy, fast.score.min_energy],
-            "ok": bool(err <= RATE_TOLERANCE and all(energy))}
+            "ok": bool(err <= RATE_TOLERANCE and all(energy)), **({"runs": (slow, fast)} if records else {})}
 
 
 #: the families' still or slow motions (a few pm per tick at most) and faster ones
