@@ -7,6 +7,7 @@ above 100 Hz <= 2 % of the mean normal force per axis after 1 s, no tick-to-tick
 converges in the loop rate."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -218,3 +219,49 @@ def test_a_still_tip_on_a_steep_power_law_surface_meets_the_family_criteria():
     r = judge_run(run, g.surface(), g.tip_radius)
     assert max(r["high_frequency_over_normal"]) <= 0.02 and not any(r["reversals"]), r
     assert r["energy_ok"] and r["ok"], r
+
+
+def _bench_feel():
+    """bench/feel.py as a module (a script, not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "bench" / "feel.py"
+    spec = importlib.util.spec_from_file_location("bench_feel", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_whole_table_streams_its_rows_and_resumes_where_it_stopped(tmp_path, monkeypatch):
+    """``bench/feel.py --families --out``: every judged run is one JSON line (no NaN, units in the
+    keys), a line cut short by a stopped run is skipped, and a second call judges only the runs not
+    yet in the file; the summary counts each run once per family, motion and rate."""
+    feel = _bench_feel()
+    runs, _ = feel.plan_table(4, 5, real=False, slow_runs=1, fast_runs=1)
+    assert len(runs) == 8 and len({r["key"] for r in runs}) == 8
+    judged = []
+
+    def judge(run):  # the orchestration only: each planned run "judged" as passing, with its NaNs
+        judged.append(run["key"])
+        keep = {k: v for k, v in run.items() if k not in ("generated", "scan")}
+        extra = ({"rate_error": 0.01, "low_passed_error": 0.02, "min_energy_over_E0": [-0.5, math.nan]}
+                 if run["kind"] == "fast" else
+                 {"high_frequency_over_normal": [0.0, 0.0, 0.0], "reversals": [0, 0, 0], "rest_error": math.nan,
+                  "min_energy_over_E0": -0.5})
+        return feel._jsonable({**keep, **extra, "energy_ok": True, "ok": run["key"] != runs[0]["key"], "wall_s": 0.1})
+
+    monkeypatch.setattr(feel, "judge_planned", judge)
+    out = tmp_path / "rows.jsonl"
+    out.write_text(json.dumps(judge(runs[2])) + "\n" + '{"key": "cut sh')  # one judged, one cut short
+    judged.clear()
+    s = feel.families(4, 5, real=False, slow_runs=1, fast_runs=1, out=str(out))["summary"]
+    assert judged == [r["key"] for r in runs if r["key"] != runs[2]["key"]]
+    rows = feel.read_rows(out)
+    assert sorted(r["key"] for r in rows) == sorted(r["key"] for r in runs)
+    assert "NaN" not in out.read_text() and all("tip_radius_m" in r and "room_m" in r for r in rows)
+    assert s["runs"] == 8 and s["pass"] == 7 and s["by_family"] == {"gaussian": "1/2", "power-law": "2/2",
+                                                                    "ridge": "2/2", "step": "2/2"}
+    judged.clear()
+    assert feel.families(4, 5, real=False, slow_runs=1, fast_runs=1, out=str(out))["summary"]["runs_judged_now"] == 0
+    assert judged == []
