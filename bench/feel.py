@@ -229,6 +229,9 @@ def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_
     if estimate_only:
         return {"estimate": estimate}
     rows, t0, complete, pool = [], time.perf_counter(), False, None
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a stopped table still stops its workers (below)
     sink = open(out, "a") if out else None  # noqa: SIM115 - closed below, appended to as rows come
     if sink and sink.tell() > 0 and not Path(out).read_bytes().endswith(b"\n"):
         sink.write("\n")  # a line cut short by a stopped run stays on its own line (skipped when read)
