@@ -334,17 +334,16 @@ def generated_surfaces(count: int, seed: int = 0, families=FAMILIES) -> list[Gen
 
 
 #: rate convergence (issue 27 §3): a faster motion's force at 1 kHz must match the same motion at
-#: 10 kHz (same virtual coupling), the 10 kHz one low-passed (zero phase) at :data:`RATE_CUTOFF`,
-#: compared at the 1 kHz ticks, within this rms fraction of its rms (:func:`rate_convergence`).
-#: Why 5 %: with one coupling a correct loop differs between the rates by the zero-order hold's
-#: half-tick delay inside the hand-device loop, about 2 pi f T/2 of the force's varying part at
-#: its frequency f: well below 1 % for slides and circles, whose force mostly holds (measured
-#: 0.01-1.3 %), but 2-2.5 % for a tap, whose whole force rises and falls at ~5-15 Hz (measured
-#: 1.9-2.4 %); 5 % is twice that, and a tick-to-tick zig-zag the 1 kHz loop adds counts in full
-#: (:func:`rate_difference`), so a loop artefact of more than 5 % of the force fails. With each
-#: rate's own coupling (k_vc = 2b/T: 67 vs 667 N/m) the same motion differed by 20-26 %: a
-#: different spring between hand and tip, not a sampling error, so the 10 kHz run takes the 1 kHz
-#: run's coupling
+#: 10 kHz (same virtual coupling), read where the 1 kHz loop sampled the surface, within this rms
+#: fraction of its rms (:func:`rate_convergence`, :func:`rate_difference`). Why 5 %: with one
+#: coupling and the hold's lag along the path matched out, a correct loop differs between the rates
+#: by the hold's effect inside the hand-device loop, about 2 pi f T/2 of the force's varying part at
+#: its frequency f: 0.01-1.3 % for slides and circles, whose force mostly holds, 2.1-2.2 % for taps,
+#: whose whole force rises and falls at ~5-15 Hz; 5 % is twice that, and whatever the 1 kHz loop
+#: adds (a zig-zag, a limit cycle) counts in full, so a loop artefact of more than 5 % of the force
+#: fails. With each rate's own coupling (k_vc = 2b/T: 67 vs 667 N/m) the same motion differed by
+#: 20-26 %: a different spring between hand and tip, not a sampling error, so the 10 kHz run takes
+#: the 1 kHz run's coupling
 RATE_TOLERANCE = 0.05
 #: steady state at rest (issue 27 §3): the device force within this fraction of K_f F (the probe
 #: force scaled), averaged over the last 0.2 s of a press
