@@ -240,7 +240,7 @@ def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_
             import multiprocessing
 
             pool = multiprocessing.get_context("spawn").Pool(jobs)
-            results = pool.imap(judge_planned, todo, chunksize=1)
+            results = pool.imap_unordered(judge_planned, todo, chunksize=1)  # streamed as judged
         else:
             pool, results = None, (judge_planned(r) for r in todo)
         for row in results:
