@@ -52,14 +52,15 @@ SUB_ENTRY = 18
 SUB_CAP = 3 * MAX_SUBDIVISION + 1
 #: the rows (of 3 floats) of the work array: Newton's evaluation block; S, S_u, S_v of the best
 #: point; the cache header (version, tree id, count), (C0), (R0, -, -); a Bézier net being split;
-#: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; then the pyramid
-#: search stack, one (level, i, j) per row
+#: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; scratch of its sort
+#: (closest_point.sort_candidates); then the pyramid search stack, one (level, i, j) per row
 COLLISION_WORK = Layout("collision work rows", [
     ("evaluation", EVALUATION_ROWS), ("best", 3), ("cache_header", 3), ("net", 16),
-    ("subdivision", SUB_ENTRY * SUB_CAP), ("cache_list", CACHE_CAP)])
+    ("subdivision", SUB_ENTRY * SUB_CAP), ("cache_list", CACHE_CAP), ("cache_sort", CACHE_CAP)])
 BEST_ROW = COLLISION_WORK.offset("best")
 CACHE_ROW = COLLISION_WORK.offset("cache_header")
 NET_TMP = COLLISION_WORK.offset("net")
 SUB_BASE = COLLISION_WORK.offset("subdivision")
 CACHE_LIST = COLLISION_WORK.offset("cache_list")
+CACHE_SORT = COLLISION_WORK.offset("cache_sort")
 STACK_ROWS = COLLISION_WORK.size

@@ -293,6 +293,42 @@ def test_trajectory_with_the_candidate_cache_matches_cold_queries(rng):
     assert cached > 250  # the cache is in use on a slow trajectory
 
 
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 480, pj.CACHE_CAP])
+def test_candidate_sort_is_the_stable_sort_by_distance(n, rng):
+    """The candidate list's bucket sort gives exactly the stable sort by distance (ties keep the
+    walk's order), with spread, clustered, tied and all-equal distances."""
+    first, scratch = 5, 5 + pj.CACHE_CAP + 3
+    for dist in (rng.uniform(19e-9, 19.05e-9, n), 19e-9 + 1e-12 * rng.integers(0, 4, n),
+                 np.full(n, 2e-8), np.concatenate([np.full(n // 2, 1e-9), rng.uniform(1e-9, 5e-8, n - n // 2)])):
+        rows = np.column_stack([rng.permutation(n).astype(float), dist, np.zeros(n)])
+        work = np.full((scratch + pj.CACHE_CAP + 2, 3), -7.0)
+        work[first:first + n] = rows
+        cp.sort_candidates(work, first, n, scratch)
+        np.testing.assert_array_equal(work[first:first + n, :2], rows[np.argsort(dist, kind="stable"), :2])
+        assert (work[:first] == -7.0).all() and (work[first + n:scratch] == -7.0).all()  # only its own rows
+
+
+def test_candidate_list_holds_every_cell_within_its_reach_sorted():
+    """After a warm query the list is every knot cell whose box is nearer than its reach R0 to the
+    query point, in increasing distance (the cells a later query may need: project_kernel, Notes)."""
+    s = fit_surface(rough_scan())
+    proj = projector(s)
+    ctrl, ku, kv, mu, mv, nodes, curv, levels, work = proj.kernel_args()
+    out = np.empty(pj.OUT_SIZE)
+    q = (20e-9, 21e-9, 4e-9)
+    pj.project_kernel(*proj.kernel_args(), *q, math.nan, math.nan, out)
+    pj.project_kernel(*proj.kernel_args(), *q, out[pj.OUT_U], out[pj.OUT_V], out)  # warm: builds the list
+    pj.project_kernel(*proj.kernel_args(), q[0] + 1e-12, *q[1:], out[pj.OUT_U], out[pj.OUT_V], out)
+    assert out[pj.OUT_CACHED] == 1.0
+    count, reach = int(work[pj.CACHE_ROW, 2]), work[pj.CACHE_ROW + 2, 0]
+    rows = work[pj.CACHE_LIST:pj.CACHE_LIST + count]
+    assert count > 1 and np.all(np.diff(rows[:, 1]) >= 0.0)
+    ncell = levels[0, 1] * levels[0, 2]
+    near2 = np.array([cd.node_bounds2(nodes, k, *q)[0] for k in range(ncell)])
+    assert set(rows[:, 0].astype(int)) == set(np.flatnonzero(near2 < reach * reach))
+    np.testing.assert_array_equal(rows[:, 1], np.sqrt(near2[rows[:, 0].astype(int)]))
+
+
 # --------------------------------------------------------------------------------------------
 # deformed surfaces and local refresh
 
