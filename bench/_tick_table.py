@@ -150,6 +150,8 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
             "ticks_with_net_sync": int(sync_in.sum()),
             "over_100us_collision_rebuilt_list": int((slow & uncached).sum()),
             "ticks_collision_rebuilt_list": int(uncached.sum()),
+            "collision_rebuilt_tick_median_us": float(np.median(w[uncached])) if uncached.any() else 0.0,
+            "collision_rebuilt_tick_p99_us": float(np.percentile(w[uncached], 99)) if uncached.any() else 0.0,
             "python_blocks_per_tick_median": float(np.median(blocks)),
             "collision_cells_median": float(np.median(cells)), "collision_cells_p99": float(np.percentile(cells, 99)),
             "collision_newton_iterations_median": float(np.median(newton)),
