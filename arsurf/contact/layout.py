@@ -47,6 +47,10 @@ MAX_SUBDIVISION = 3
 # CACHE_CAP cells) and reuse it while the tip stays inside that margin (project_kernel, Notes).
 CACHE_MARGIN = 0.5
 CACHE_CAP = 512
+#: after a wasted candidate list (overflowing CACHE_CAP, or never used), warm queries walk without
+#: gathering one for 1, 2, 4 ... up to this many queries (project_kernel, Notes); the cache header's
+#: third row holds (R0, queries left to wait, back-off)
+CACHE_BACKOFF = 256.0
 #: rows of a subdivision stack entry: the 16 net rows and (u0, u1, v0), (v1, depth, -)
 SUB_ENTRY = 18
 SUB_CAP = 3 * MAX_SUBDIVISION + 1
