@@ -40,7 +40,7 @@ of each criterion. ``--estimate`` prints the size and the time (from the table's
 ``--out`` has rows, else a calibration run).
 
 Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N [--runs 2 1] [--seed S] [--estimate]
-     [--out rows.jsonl] [--jobs 2] [--budget 600]] [--summarize rows.jsonl]
+     [--out rows.jsonl] [--jobs 2] [--budget 600]] [--summarize rows.jsonl] [--vtk-only [--parts] [--scans NAME ...]]
 (prints JSON)
 """
 from __future__ import annotations
@@ -363,6 +363,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="1 kHz only, three motions (a smoke run)")
     ap.add_argument("--no-vtk", action="store_true")
     ap.add_argument("--vtk-only", action="store_true", help="only the tick vs VTK closest point on the real scans")
+    ap.add_argument("--parts", action="store_true", help="with --vtk-only: also where each scan's tick goes "
+                    "(bench/_tick_parts.py: model tick, collision, contact behind the coupling, in compiled loops)")
+    ap.add_argument("--scans", nargs="+", metavar="NAME", help="with --vtk-only: only these scans of the folder")
     ap.add_argument("--motions", nargs="+", choices=MOTIONS, help="only these motions")
     ap.add_argument("--sources", nargs="+", choices=SOURCES, help="only these sources")
     ap.add_argument("--rates", nargs="+", type=float, help="only these loop rates, Hz")
@@ -409,6 +412,8 @@ def main() -> None:
     if args.vtk_only:  # every real scan of the folder, not only the feel table's three
         rows = {}
         for path in sorted(p for p in SCANS.iterdir() if p.suffix != ".md"):
+            if args.scans and path.name not in args.scans:
+                continue
             try:
                 s = surfaces.get(path.name) or prepared_surface(path)[1]
             except Exception as exc:  # noqa: BLE001 - a file the demo cannot prepare: said, not fatal
@@ -416,6 +421,12 @@ def main() -> None:
                 continue
             rows[path.name] = {"control_points": list(s.shape), **vtk_ratio(s)}
             r = rows[path.name]
+            if args.parts:
+                from _tick_parts import tick_parts
+
+                r["parts_us"] = tick_parts(s)
+                print(f"{path.name}: parts {json.dumps({k: round(v, 2) for k, v in r['parts_us'].items()})}",
+                      file=sys.stderr)
             print(f"{path.name}: tick {np.median(r['tick_median_us']):.2f} us, VTK {np.median(r['vtk_query_median_us']):.2f} "
                   f"us back to back, {np.median(r['vtk_interleaved_median_us']):.2f} us beside each tick; tick/VTK "
                   f"{r['tick_over_vtk_median']:.2f}, interleaved {r['tick_over_vtk_interleaved_median']:.2f}",

@@ -53,11 +53,15 @@ CACHE_CAP = 512
 # numbers of net_curvature and the two speeds (4 rows); the evaluation at the centre (6 rows).
 PIECE_MEMO = 256
 MEMO_ROWS = 11
+#: after a wasted candidate list (overflowing CACHE_CAP, or never used), warm queries walk without
+#: gathering one for 1, 2, 4 ... up to this many queries (project_kernel, Notes); the cache header's
+#: third row holds (R0, queries left to wait, back-off)
+CACHE_BACKOFF = 256.0
 #: rows of a subdivision stack entry: the 16 net rows and (u0, u1, v0), (v1, depth, piece id)
 SUB_ENTRY = 18
 SUB_CAP = 3 * MAX_SUBDIVISION + 1
 #: the rows (of 3 floats) of the work array: Newton's evaluation block; S, S_u, S_v of the best
-#: point; the cache header (version, tree id, count), (C0), (R0, -, -); a Bézier net being split;
+#: point; the cache header (version, tree id, count), (C0), (R0, queries left to wait, back-off); a Bézier net being split;
 #: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; scratch of its sort
 #: (closest_point.sort_candidates); the piece memo; then the pyramid search stack, one (level, i, j) per row
 COLLISION_WORK = Layout("collision work rows", [

@@ -107,6 +107,8 @@ __all__ = [
     "MDCriticalPoints",
     "MDState",
     "MaugisDugdale",
+    "T_RANGE",
+    "md_branch_parameter",
     "md_contact_from_depth_kernel",
     "md_contact_hysteresis_kernel",
     "md_critical_point_kernel",
@@ -139,6 +141,8 @@ A_LAMBDA, A_T_FOLD, A_DELTA_FOLD = (MD_ARGS.offset("maugis_parameter"), MD_ARGS.
 
 _T_MIN = -60.0      # s = e^-60: A ~ 1e39, far beyond any physical query
 _T_MAX = 60.0       # s = e^60:  A ~ 1e-26
+#: the range of the contact branch's parameter t = ln s the solvers search (s = sqrt(m^2 - 1))
+T_RANGE = (_T_MIN, _T_MAX)
 _MAXIT = 100
 _STEP_TOL = 1e-5    # Newton step in t = ln s at which the iteration stops (then error ~ step^2)
 _EPS = 1.1102230246251565e-16
@@ -345,6 +349,28 @@ def md_solve_depth(delta_bar, lam, t_fold, delta_fold):
             c = min(c, c0)
             return COHESIVE, 0.0, -0.5 * lam * math.pi * c * c, c
     return SEPARATED, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def md_branch_parameter(delta_bar, lam, t_fold, delta_fold):
+    """:math:`t = \\ln s` of the contact branch's point at depth :math:`\\bar\\Delta` (the solve of
+    :func:`md_solve_depth`), for a caller that walks the explicit curve :func:`md_curve` from there;
+    NaN where that depth is not on the contact branch (at or past its shallow end
+    :math:`\\bar\\Delta_f`, a fold not yet computed, a solve that did not converge).
+
+    Examples
+    --------
+    >>> md = MaugisDugdale(20e-9, 10e9, 0.1)
+    >>> ds, rs, ps, lam, t_fold, delta_fold = md.kernel_args
+    >>> t = md_branch_parameter(1e-9 / ds, lam, t_fold, delta_fold)
+    >>> A, P, D = md_curve(math.exp(t), lam)[:3]
+    >>> abs(D * ds - 1e-9) < 1e-18, abs(A * rs - md.contact_radius(depth=1e-9)) < 1e-17
+    (True, True)
+    """
+    if not (math.isfinite(delta_bar) and delta_bar > delta_fold) or math.isnan(t_fold):
+        return math.nan
+    st, A, P, D, t = _branch_solve(delta_bar, lam, 0, t_fold, delta_fold, math.isfinite(t_fold))
+    return t if st == CONTACT else math.nan
 
 
 @njit(cache=True)

@@ -24,6 +24,7 @@ from arsurf.contact import closest_point as cp
 from arsurf.contact import hull_tree as cd
 from arsurf import status
 from arsurf.contact import projection as pj
+from arsurf.contact.layout import CACHE_BACKOFF
 from arsurf.contact.newton import newton_box
 from arsurf.contact.projection import collide, collide_many, project, project_many, projector, refresh_region
 from arsurf.errors import ContactError, SurfaceError
@@ -846,3 +847,48 @@ def test_reset_refreshes_the_projection():
     fresh = s.copy()
     for q in rng.uniform((30e-9, 30e-9, -2e-9), (80e-9, 80e-9, 15e-9), (200, 3)):
         assert project(s, q).distance == project(fresh, q).distance
+
+
+def _gatherings(s, path):
+    """Chained warm kernel queries along ``path``: the answers' distances, how many were answered
+    from a candidate list, and how many gathered one (kept: its C0 is the query; or overflowing:
+    the back-off set at the query's end, the cache header's third row being (R0, queries left to
+    wait, back-off))."""
+    proj = projector(s)
+    args = proj.kernel_args()
+    origin, header = args[-1][pj.CACHE_ROW + 1], args[-1][pj.CACHE_ROW + 2]
+    out = np.empty(pj.OUT_SIZE)
+    hu = hv = math.nan
+    used = gathered = 0
+    dist = np.empty(len(path))
+    for k, q in enumerate(path):
+        backoff = header[2]
+        pj.project_kernel(*args, q[0], q[1], q[2], hu, hv, out)
+        hu, hv, dist[k] = out[pj.OUT_U], out[pj.OUT_V], abs(out[pj.OUT_DISTANCE])
+        used += bool(out[pj.OUT_CACHED])
+        kept = (origin == q).all() and not out[pj.OUT_CACHED]  # a list gathered here (its C0)
+        gathered += bool(kept or (header[2] > backoff and header[1] == header[2]))
+    return dist, used, gathered
+
+
+@pytest.mark.parametrize("case", ["never used", "overflowing"])
+def test_a_wasted_candidate_list_is_not_gathered_at_every_query(case, rng):
+    """A warm query gathers a candidate list only while lists serve: a tip jumping nanometres per
+    query on 1 nm pixels (farther than the list's margin: lists are dropped unused, but for a rare
+    query that lands within one's reach), and a tip 20 nm over a nearly flat 0.02 nm pixel scan
+    (thousands of cells within the reach: the list overflows CACHE_CAP) gather at 1, 2, 4 ...
+    CACHE_BACKOFF query intervals after each use of a list, not at every query; the answers stay
+    the cold queries'."""
+    if case == "never used":
+        s = fit_surface(rough_scan())
+        path = np.column_stack([rng.uniform(2e-9, 38e-9, (1500, 2)), np.full(1500, 6e-9)])  # a jump every query
+    else:
+        h = 0.02e-9
+        s = fit_surface(Scan(1e-12 * rng.normal(size=(100, 100)), h, h))
+        turn = np.linspace(0, 40, 1500)
+        path = np.column_stack([1e-9 + 0.3e-9 * np.cos(turn), 1e-9 + 0.3e-9 * np.sin(turn), np.full(1500, 20e-9)])
+    dist, used, gathered = _gatherings(s, path)
+    np.testing.assert_allclose(dist, np.abs(project_many(s, path).distance), rtol=0, atol=TOL)
+    doublings = math.log2(CACHE_BACKOFF) + 1
+    assert gathered <= (used + 1) * doublings + len(path) / CACHE_BACKOFF + 1  # 1, 2, ... 256 apart
+    assert used <= 0.01 * len(path) and gathered >= doublings                # the waste met, again and again
