@@ -11,7 +11,21 @@ tick time. Peer, same run: one bare VTK ``vtkStaticCellLocator.FindClosestPoint`
 surface's triangulation at the tip positions of a slide, timed in rounds interleaved with the
 loop's ticks at those positions.
 
-Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3]   (prints JSON)
+Generated families (issue 27 §3, ``--families N``; ``--quick`` runs a seeded sample): N surfaces
+drawn by the seeded generators of :func:`arsurf.feel_scenarios.generated_surfaces` (Gaussian and
+power-law rough surfaces, rms 0.5-20 nm x correlation length 2-200 nm x pixel 0.25-8 nm, steps and
+ridges, against tip radii 2-50 nm), plus every real scan of ../shared/scans-real the loader can
+prepare, each judged with the default loop (the virtual device, coupling and passivity on):
+
+* a still or slow tip (press; slides at 0.1, 1, 10 nm/s; a seeded source and rate of 1, 5,
+  10 kHz): content above 100 Hz <= 2 % of the mean normal force on each axis after 1 s, no
+  tick-to-tick reversal above 1 % of the peak, observed energy >= -E0 (``FeelScore.buzzes``);
+* a faster motion (circles at 100 and 1000 nm/s, strokes, taps): the same motion at 1 and 10
+  kHz, the 10 kHz force averaged over each 1 ms tick of the 1 kHz loop: their rms difference
+  over the rms 10 kHz force after 1 s <= :data:`RATE_TOLERANCE` (what the surface gives stays
+  when the rate changes; what the loop adds does not), and energy >= -E0 at both rates.
+
+Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N --seed S]   (prints JSON)
 """
 from __future__ import annotations
 
@@ -24,13 +38,75 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.feel_scenarios import MOTIONS, SOURCES, prepared_surface, run_scenario, synthetic_surface
+from arsurf.feel_scenarios import (MOTIONS, RATE_TOLERANCE, SOURCES, generated_surfaces, prepared_surface,
+                                   rate_convergence, run_scenario, synthetic_surface)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from collision import vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
 
 SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parents[2] / "shared" / "scans-real"))
 REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
+
+
+SLOW_MOTIONS = ("press", "slide-0.1", "slide-1", "slide-10")
+FAST_MOTIONS = ("circle-100", "circle-1000", "stroke", "tap")
+RATES = (1000.0, 5000.0, 10000.0)
+
+
+def judge_surface(name: str, surface, rng, seconds: float, tip_radius=None, slow_runs: int = 2,
+                  fast_runs: int = 1) -> list:
+    """The family criteria (module docstring) on one surface: ``slow_runs`` still/slow motions at a
+    seeded rate and source, ``fast_runs`` rate-convergence pairs; slides and strokes only where
+    the surface has room for them (a small scan's tip would leave it)."""
+    rows = []
+    (u0, u1), (v0, v1) = surface.domain
+    room = 0.5 * min(u1 - u0, v1 - v0) - (tip_radius or 20e-9) - 2e-9  # m the tip may travel from the middle
+    slow = [m for m in SLOW_MOTIONS if not m.startswith("slide-") or float(m[6:]) * 1e-9 * (seconds - 0.5) <= room]
+    fast = [m for m in FAST_MOTIONS if m != "stroke" or 150e-9 <= room]
+    for motion in rng.choice(slow, size=min(slow_runs, len(slow)), replace=False):
+        rate = float(rng.choice(RATES))
+        source = str(rng.choice(SOURCES))
+        run = run_scenario(surface, motion=str(motion), source=source, rate=rate, seconds=seconds,
+                           tip_radius=tip_radius)
+        rows.append({"surface": name, "kind": "slow", "motion": str(motion), "source": source, "rate_hz": rate,
+                     **run.score.as_dict(), "ok": not run.score.buzzes})
+    for motion in rng.choice(fast, size=min(fast_runs, len(fast)), replace=False):
+        source = str(rng.choice(SOURCES))
+        rows.append({"surface": name, "kind": "fast",
+                     **rate_convergence(surface, str(motion), source, seconds, tip_radius=tip_radius)})
+    for r in rows:
+        print(f"{name} {r['kind']} {r['motion']} {r['source']}: {'ok' if r['ok'] else 'FAIL'}"
+              + (f" rate error {100 * r['rate_error']:.1f} %" if r["kind"] == "fast" else
+                 f" hf {'/'.join(f'{100 * x:.2f}' for x in r['high_frequency_over_normal'])} %"
+                 f" rev {sum(r['reversals'])}"), file=sys.stderr)
+    return rows
+
+
+def families(count: int, seed: int, seconds: float, real: bool = True, slow_runs: int = 2,
+             fast_runs: int = 1) -> dict:
+    """The generated table (``count`` surfaces, seeded) and every real scan, judged."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for g in generated_surfaces(count, seed):
+        rows += judge_surface(g.name, g.surface(), rng, seconds, g.tip_radius, slow_runs, fast_runs)
+    if real:
+        for path in sorted(p for p in SCANS.iterdir() if p.suffix != ".md") if SCANS.exists() else []:
+            try:
+                s = prepared_surface(path)[1]
+            except Exception as exc:  # noqa: BLE001 - a file the demo cannot prepare: said, not fatal
+                rows.append({"surface": path.name, "kind": "unreadable", "ok": None,
+                             "error": f"{type(exc).__name__}: {exc}"[:200]})
+                continue
+            rows += judge_surface(path.name, s, rng, seconds, None, slow_runs, fast_runs)
+    judged = [r for r in rows if r["ok"] is not None]
+    failed = [r for r in judged if not r["ok"]]
+    fast = [r["rate_error"] for r in judged if r["kind"] == "fast"]
+    return {"summary": {"generated_surfaces": count, "seed": seed, "real_scans": len({r["surface"] for r in rows})
+                        - count, "runs": len(judged), "failed": len(failed),
+                        "failed_runs": [f"{r['surface']} {r['kind']} {r['motion']} {r['source']}" for r in failed],
+                        "rate_tolerance": RATE_TOLERANCE, "worst_rate_error": max(fast, default=math.nan),
+                        "unreadable": [r["surface"] for r in rows if r["ok"] is None]},
+            "rows": rows}
 
 
 def vtk_ratio(surface, rounds: int = 3) -> dict:
@@ -107,8 +183,15 @@ def main() -> None:
     ap.add_argument("--motions", nargs="+", choices=MOTIONS, help="only these motions")
     ap.add_argument("--sources", nargs="+", choices=SOURCES, help="only these sources")
     ap.add_argument("--rates", nargs="+", type=float, help="only these loop rates, Hz")
+    ap.add_argument("--families", type=int, metavar="N", help="only the generated families: N surfaces "
+                    "(and every real scan); --quick: 8 surfaces, no real scans")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the generated families")
     ap.add_argument("--bode", metavar="PNG", help="only the transparency estimate; write its Bode plot here")
     args = ap.parse_args()
+    if args.families is not None:
+        print(json.dumps({"families": families(args.families, args.seed, args.seconds, real=not args.quick)},
+                         indent=1))
+        return
     surfaces = {}
     for name in REAL:
         path = SCANS / name

@@ -400,11 +400,13 @@ def rough(
     *,
     rms: float = 1e-9,
     correlation_length: float = 20e-9,
+    spectrum: str = "gaussian",
+    hurst: float = 0.8,
     noise: float = 0.0,
     tilt: tuple[float, float] = (0.0, 0.0),
     seed: int | np.random.Generator | None = 0,
 ) -> Scan:
-    r"""Periodic Gaussian random roughness with a Gaussian autocorrelation.
+    r"""Periodic Gaussian random roughness with a Gaussian autocorrelation (or a power-law spectrum).
 
     White unit-variance noise :math:`w` is convolved (periodically, by FFT) with the sampled
     kernel :math:`g(\mathbf r) \propto \exp(-2|\mathbf r|^2/\xi^2)` normalised to
@@ -431,6 +433,14 @@ def rough(
     correlation_length : float, metres
         :math:`\xi`, where the autocorrelation falls to 1/e; at least one pixel and at most a
         quarter of the scan side along each axis of more than one pixel.
+    spectrum : ``"gaussian"`` or ``"power-law"``
+        ``"power-law"``: the self-affine spectrum rolled off at :math:`q_0 = 1/\xi`,
+        :math:`C(q) \propto (1 + q^2\xi^2)^{-(1 + H)}` (Persson et al. 2005, J. Phys.: Condens.
+        Matter 17 R1: the power spectrum of most rough surfaces, flat below the roll-off and
+        :math:`q^{-2(1+H)}` above it, down to the pixel), the same white noise filtered by
+        :math:`\sqrt{C}` normalised to the ensemble rms :math:`\sigma`.
+    hurst : float
+        The Hurst exponent H of the power-law spectrum, in (0, 1].
     noise, tilt, seed
         As in :func:`calibration_grating`; the seed also drives the roughness.
 
@@ -438,6 +448,9 @@ def rough(
     --------
     >>> s = rough((128, 128), 2e-9, rms=1e-9, correlation_length=10e-9, seed=3)
     >>> bool(0.8e-9 < np.sqrt(np.mean(s.heights**2)) < 1.2e-9)
+    True
+    >>> p = rough((128, 128), 2e-9, rms=1e-9, correlation_length=10e-9, spectrum="power-law", seed=3)
+    >>> bool(0.7e-9 < np.sqrt(np.mean(p.heights**2)) < 1.3e-9)
     True
     """
     ny, nx = _shape(shape)
@@ -456,8 +469,22 @@ def rough(
                 f"({0.25 * n * d:g} m): the periodic surface would not be random at that scale; use a "
                 "larger scan or a shorter length"
             )
+    if spectrum not in ("gaussian", "power-law"):
+        raise SyntheticError(f"`spectrum` must be 'gaussian' or 'power-law' (got {spectrum!r})")
+    H = _finite("hurst", hurst)
+    if not 0.0 < H <= 1.0:
+        raise SyntheticError(f"`hurst` must be in (0, 1] (got {H!r}): the Hurst exponent of a self-affine surface")
     rng = _rng(seed)
     white = rng.standard_normal((ny, nx))
+    if spectrum == "power-law":
+        qx = 2.0 * np.pi * np.fft.fftfreq(nx, dx)
+        qy = 2.0 * np.pi * np.fft.fftfreq(ny, dy)
+        amp = (1.0 + (qx[None, :] ** 2 + qy[:, None] ** 2) * xi * xi) ** (-0.5 * (1.0 + H))
+        amp /= math.sqrt(float(np.mean(amp * amp)))  # (1/N) sum |G|^2 = 1: ensemble rms sigma
+        z = sig * np.real(np.fft.ifft2(np.fft.fft2(white) * amp))
+        params = dict(rms=sig, correlation_length=xi, spectrum="power-law (1 + q^2 xi^2)^-(1+H)", hurst=H,
+                      periodic=True)
+        return _finish("rough", z, dx, dy, params, noise, tilt, seed, rng=rng)
     # periodic (minimum image) coordinates of the kernel
     kx = np.minimum(np.arange(nx), nx - np.arange(nx)) * dx
     ky = np.minimum(np.arange(ny), ny - np.arange(ny)) * dy

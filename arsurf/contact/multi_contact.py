@@ -1,0 +1,259 @@
+r"""Several contacts at once: the tip sphere resting on two, three or four asperities.
+
+A tip wider than a valley rests on both of its slopes. The closest point of the surface to the
+tip centre C then jumps from one slope to the other as C crosses the valley (it may alternate
+tick after tick while the hand holds still), and a force computed at the closest point alone
+flips with it. A rigid sphere there touches the surface at every *local* minimum of the
+distance :math:`d(u, v) = \lVert S(u, v) - C\rVert` inside the contact zone, and feels the sum of
+their loads: the closest point may jump, the force may not.
+
+This is the haptics field's classic problem of concave corners: the god-object keeps up to
+three active constraints at once (Zilles & Salisbury 1995, "A constraint-based god-object method
+for haptic display", IROS), and a sphere proxy finds the position where all its active contacts
+hold (Ruspini, Kolarov & Khatib 1997, "The haptic display of complex graphical environments",
+SIGGRAPH). Here each constraint is a Maugis-Dugdale contact instead of a rigid plane.
+
+**Finding the contacts** (:func:`find_contacts_kernel`, at most :data:`MAX_CONTACTS`). Row 0 is
+the global closest point of the collision query (exact: hull tree + Newton). Newton's method
+(:func:`~arsurf.contact.newton.newton_box`) is run from the contacts of the previous tick
+(tracking), from where the collision query's own Newton run from the previous closest point
+ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
+:data:`PROBES` starts a distance :data:`PROBE_REACH` R around the closest point (discovery; one
+of them per tick, in turn, after the first touch).
+Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal)
+is within the interaction range is a contact; ends within :data:`SAME_POINT` knot spacings of
+one already found are the same contact (found from two starts) and merged.
+
+**Weights: continuity across the hop and at birth/death.** A local minimum is born and dies at a
+fold of the distance function, where it merges with the saddle (or ridge) that separates it from
+its neighbour: its barrier :math:`b_i = s_i - d_i` goes to 0 there, :math:`s_i` the highest
+distance on the way from contact i to the closest point (sampled at :data:`PATH_SAMPLES`
+points of the straight (u, v) segment between them: a continuous lower bound of the pass that
+vanishes with the true barrier). With :math:`r(x) = \min(x/m, 1)`, m the margin
+(a fraction of the contact law's depth scale), contact i > 0 counts with the weight
+
+.. math:: w_i = \frac{r(s_i - d_i)}{r(s_i - d_1)} \in [0, 1], \qquad w_0 = 1,
+
+which is 0 at the fold (the contact appears and disappears with no step), 1 once its barrier
+exceeds m, and 1 when :math:`d_i = d_1`: when the closest point hops to contact i the two swap
+rows with equal weights, so the sum does not step. The total normal force is then
+
+.. math:: F_N = \sum_i w_i\,P(\delta_i)\,n_i ,
+
+each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip
+(:mod:`arsurf.model` moves the tip behind the virtual coupling along the total normal
+:math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`, :math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}`,
+the depth beyond the jump-out depth to the Hertz power: the direction of :math:`F_N` for similar
+compressive contacts, and continuous through every change of the set of contacts).
+
+Lipschitz bound: depths, normals and barriers are continuous in C (depths and distances are
+1-Lipschitz), so the force changes between ticks by at most
+:math:`\sum_i (k_i + P_i/\rho_i + 2 P_i/m)\,\lvert\Delta C\rvert` (k the contact stiffness
+:math:`dP/d\delta`, :math:`\rho` the distance over which the normal turns by a radian), with
+no step: halving the step halves the largest change (tests/contact/test_multi_contact.py).
+
+**Dent.** The tick records one dent, the tip sphere's (:func:`~arsurf.contact.deformation.record_dent_kernel`,
+O(1), applied when the net is read): the closest contact's zone and elastic surround along its own
+normal, and the sphere's no-interpenetration guard, which presses every control point within R
+of the tip axis that is inside the sphere onto it - the other contacts' zones included.
+
+The model keeps the contact table in its state (:data:`CONTACT_TABLE`: the tracked (u, v),
+point, normal, depth, weight of each contact, and their count).
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from arsurf._layout import Layout
+from arsurf.contact import layout as ly
+from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+from arsurf.spline.basis import surface_point
+
+#: the most contacts followed at once (the god-object's three, plus one being born or dying)
+MAX_CONTACTS = 4
+#: one contact: parameters (m), point (m), unit normal, depth along its own normal (m, > 0
+#: penetrating), weight in [0, 1]
+CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1)])
+C_U, C_PX, C_NX = CONTACT.offset("uv"), CONTACT.offset("point"), CONTACT.offset("normal")
+C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weight")
+C_SIZE = CONTACT.size
+#: the contact table (in the model state): the count, the contacts (row 0 the closest point), and
+#: the previous tick's (u, v) of each (the tracking starts)
+CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1)])
+T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
+                               CONTACT_TABLE.offset("previous_uv"))
+T_PROBE = CONTACT_TABLE.offset("probe")
+TABLE_SIZE = CONTACT_TABLE.size
+#: two converged Newton ends closer than this (in knot spacings) are the same contact
+SAME_POINT = 1e-6
+#: discovery starts on a circle of PROBE_REACH tip radii around the closest point: all of them at the
+#: first touch, then one per tick in turn (a contact is born with weight 0: found within PROBES
+#: ticks, it has gained next to nothing)
+PROBES = 4
+PROBE_REACH = 0.6
+#: points sampled on the (u, v) segment between a contact and the closest point for its barrier
+PATH_SAMPLES = 8
+
+
+@njit(cache=True)
+def _row(at, i):
+    return at + T_ROWS + i * C_SIZE
+
+
+@njit(cache=True)
+def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
+    """Run Newton from (u, v); add its end as a contact if it converged, is new and within reach
+    (depth >= ``floor``). Returns the new count."""
+    if not (math.isfinite(u) and math.isfinite(v)):
+        return count
+    nu = ku.shape[0]
+    nv = kv.shape[0]
+    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, ku[3], ku[nu - 4], kv[3], kv[nv - 4],
+                                    STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    if not conv:
+        return count
+    for i in range(count):
+        r = _row(at, i)
+        if math.hypot(u - tab[r + C_U], v - tab[r + C_V]) <= SAME_POINT * h:
+            return count  # found from another start: the same contact
+    ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
+    ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
+    az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
+    an = math.sqrt(ax * ax + ay * ay + az * az)
+    if not an > 0.0:
+        return count
+    r0 = _row(at, 0)
+    if ax * tab[r0 + C_NX] + ay * tab[r0 + C_NX + 1] + az * tab[r0 + C_NX + 2] < 0.0:
+        an = -an
+    ax /= an
+    ay /= an
+    az /= an
+    depth = radius - ((cx - ev[0, 0]) * ax + (cy - ev[0, 1]) * ay + (cz - ev[0, 2]) * az)
+    if not depth >= floor:
+        return count
+    slot = count
+    if count == MAX_CONTACTS:  # full: replace the shallowest if this one is deeper
+        slot = 1
+        for i in range(2, MAX_CONTACTS):
+            if tab[_row(at, i) + C_DEPTH] < tab[_row(at, slot) + C_DEPTH]:
+                slot = i
+        if not depth > tab[_row(at, slot) + C_DEPTH]:
+            return count
+    r = _row(at, slot)
+    tab[r + C_U] = u
+    tab[r + C_V] = v
+    tab[r + C_PX] = ev[0, 0]
+    tab[r + C_PX + 1] = ev[0, 1]
+    tab[r + C_PX + 2] = ev[0, 2]
+    tab[r + C_NX] = ax
+    tab[r + C_NX + 1] = ay
+    tab[r + C_NX + 2] = az
+    tab[r + C_DEPTH] = depth
+    tab[r + C_WEIGHT] = 0.0
+    return min(count + 1, MAX_CONTACTS)
+
+
+@njit(cache=True)
+def _barrier_weight(ctrl, ku, kv, ev, cx, cy, cz, d1, u1, v1, di, ui, vi, margin):
+    """w_i = r(s - d_i) / r(s - d_1), s the highest distance on the (u, v) segment (module docstring)."""
+    s = di
+    for k in range(1, PATH_SAMPLES + 1):
+        t = k / (PATH_SAMPLES + 1.0)
+        surface_point(ctrl, ku, kv, ui + t * (u1 - ui), vi + t * (v1 - vi), 0, ev)
+        dx = ev[0, 0] - cx
+        dy = ev[0, 1] - cy
+        dz = ev[0, 2] - cz
+        s = max(s, math.sqrt(dx * dx + dy * dy + dz * dz))
+    top = s - d1
+    if not top > 0.0:
+        return 0.0  # no pass between them higher than either: one contact
+    return min(max(s - di, 0.0) / margin, 1.0) / min(top / margin, 1.0)
+
+
+@njit(cache=True)
+def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, prev_u, prev_v, tab, at, coll):
+    """Fill the contact table ``tab[at:at + TABLE_SIZE]`` (:data:`CONTACT_TABLE`) for the tip
+    centre (cx, cy, cz) of radius ``radius`` (m): row 0 the collision answer ``coll``
+    (:data:`~arsurf.contact.layout.COLLISION_OUT`), then the other local minima of the distance
+    deeper than ``floor`` (m; the law's interaction floor), with their weights (module
+    docstring; ``margin`` m). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
+    ``prev_u, prev_v`` the previous closest point (NaN: none).
+
+    Returns ``(count, jumped)``: the number of contacts, and whether Newton from the previous
+    closest point ended at another local minimum than the closest point (the closest point
+    changed basins this tick: the friction proxy carries its anchor along)."""
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    u1 = coll[ly.OUT_U]
+    v1 = coll[ly.OUT_V]
+    old = int(tab[at + T_COUNT]) if tab[at + T_COUNT] == tab[at + T_COUNT] else 0
+    for i in range(MAX_CONTACTS):  # the tracking starts: last tick's contacts
+        r = _row(at, i)
+        tab[at + T_PREVIOUS + 2 * i] = tab[r + C_U] if i < old else math.nan
+        tab[at + T_PREVIOUS + 2 * i + 1] = tab[r + C_V] if i < old else math.nan
+    r0 = _row(at, 0)
+    tab[r0 + C_U] = u1
+    tab[r0 + C_V] = v1
+    for j in range(3):
+        tab[r0 + C_PX + j] = coll[ly.OUT_PX + j]
+        tab[r0 + C_NX + j] = coll[ly.OUT_NX + j]
+    tab[r0 + C_DEPTH] = coll[ly.OUT_DEPTH]
+    tab[r0 + C_WEIGHT] = 1.0
+    count = 1
+    # where Newton from the previous closest point ends (the collision query ran it over the same
+    # domain; NaN: not known, run it here)
+    wu = coll[ly.OUT_WARM_U]
+    wv = coll[ly.OUT_WARM_V]
+    if not (math.isfinite(wu) and math.isfinite(wv)):
+        wu = prev_u
+        wv = prev_v
+    jumped = False
+    if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
+        if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, h, tab, at, count)
+            jumped = count > 1  # Newton from there ended at another minimum than the closest point
+            if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
+                count = 1  # a jump, but the old point is out of reach
+    if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
+        for i in range(1, old):  # (row 0, the previous closest point: the run above)
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
+                         tab[at + T_PREVIOUS + 2 * i + 1], floor, h, tab, at, count)
+        k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
+        reach = PROBE_REACH * radius
+        for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
+            phi = 2.0 * math.pi * k / PROBES
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
+                         v1 + reach * math.sin(phi), floor, h, tab, at, count)
+            k = (k + 1) % PROBES
+        tab[at + T_PROBE] = k
+    d1 = radius - coll[ly.OUT_DEPTH]
+    for i in range(1, count):
+        r = _row(at, i)
+        tab[r + C_WEIGHT] = _barrier_weight(ctrl, ku, kv, ev, cx, cy, cz, d1, u1, v1, radius - tab[r + C_DEPTH],
+                                            tab[r + C_U], tab[r + C_V], margin)
+    for i in range(count, MAX_CONTACTS):
+        r = _row(at, i)
+        for j in range(C_SIZE):
+            tab[r + j] = math.nan
+    tab[at + T_COUNT] = count
+    return count, jumped
+
+
+@njit(cache=True)
+def total_normal_kernel(tab, at, count, jump_out, margin):
+    """The total normal n (unit) of the contacts in ``tab`` (module docstring): the weighted sum
+    of their normals with the weights :math:`w_i ((\delta_i - \delta_{out})_+ + 10^{-3} m)^{3/2}`
+    (the small floor keeps the direction continuous, and symmetric, where every contact is out of
+    reach)."""
+    floor = 1e-3 * margin
+    bx = by = bz = 0.0
+    for i in range(count):
+        r = _row(at, i)
+        q = tab[r + C_WEIGHT] * (max(tab[r + C_DEPTH] - jump_out, 0.0) + floor) ** 1.5
+        bx += q * tab[r + C_NX]
+        by += q * tab[r + C_NX + 1]
+        bz += q * tab[r + C_NX + 2]
+    bn = math.sqrt(bx * bx + by * by + bz * bz)
+    return bx / bn, by / bn, bz / bn

@@ -1,0 +1,230 @@
+"""Several contacts at once (arsurf.contact.multi_contact) in valleys narrower than the tip.
+
+A 20 nm tip over a sinusoid of 12 nm period (< 2R) rests on both slopes of each valley; the
+closest point hops from one slope to the other as the tip crosses the valley's middle. The force
+must not: it is continuous (halving the step halves the largest tick-to-tick change, the
+Lipschitz bound of the module docstring), its direction turns smoothly, and at the middle of a
+symmetric valley it is vertical. A surface with one contact is untouched by the mechanism.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.contact.projection import collide
+from arsurf.force.cantilever import Cantilever
+from arsurf.model import ARModel
+from arsurf.scan import synthetic
+from arsurf.spline.fit import fit_surface
+
+R = 20e-9  # tip radius, m
+PERIOD = 12e-9  # valleys 12 nm apart, narrower than the 40 nm tip
+PIXEL = 1e-9
+LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
+
+
+def _surface(kind: str):
+    if kind == "sinusoid":  # valleys (minima) at x = 9, 21, 33 ... nm (33: far from the fit's boundary effects)
+        scan = synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=2e-9, period=PERIOD)
+    else:  # two Gaussian bumps 14 nm apart, the valley between them at x = 36 nm
+        x = np.arange(72) * PIXEL
+        bumps = sum(3e-9 * np.exp(-((x - c) / 4e-9) ** 2) for c in (29e-9, 43e-9))
+        scan = _with_heights(synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=0.0, period=PERIOD), bumps)
+    return fit_surface(scan)
+
+
+def _with_heights(scan, profile):
+    import dataclasses
+
+    return dataclasses.replace(scan, heights=np.broadcast_to(profile, scan.heights.shape).copy())
+
+
+def _model(kind: str, coupling: float = math.inf) -> ARModel:
+    return ARModel(_surface(kind), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False,
+                   coupling_stiffness=coupling)
+
+
+def _sweep(kind: str, x0: float, x1: float, step: float, z: float, coupling: float = math.inf):
+    """Forces (N), closest points (m) and normals of a tip swept along x at height z over the valley."""
+    m = _model(kind, coupling)
+    xs = np.arange(x0, x1, step)
+    f = np.empty((xs.size, 3))
+    p = np.empty((xs.size, 3))
+    n = np.empty((xs.size, 3))
+    for k, x in enumerate(xs):
+        t = m.step((x, 24e-9, z))
+        f[k] = t.simulated_force
+        p[k] = t.point
+        n[k] = t.normal
+    return f, p, n
+
+
+def _turns(v):
+    """Angle (rad) between consecutive rows of v."""
+    u = v / np.linalg.norm(v, axis=1)[:, None]
+    return np.arccos(np.clip(np.sum(u[1:] * u[:-1], axis=1), -1.0, 1.0))
+
+
+# pressed so that, over the valley's middle, both slopes are ~0.4 nm deep
+CASES = [("sinusoid", 29.0e-9, 37.0e-9, 33e-9), ("bumps", 32.0e-9, 40.0e-9, 36e-9)]
+
+
+def _height_for(kind: str, x_mid: float, depth: float = 0.4e-9) -> float:
+    """The tip height (m) at which the tip over ``x_mid`` is ``depth`` into the surface (its
+    closest point, along the normal there: a few Newton steps on the collision)."""
+    s = _surface(kind)
+    z = 40e-9
+    for _ in range(6):
+        c = collide(s, (x_mid, 24e-9, z), R)
+        z -= (depth - c.depth) / c.normal[2]
+    return z
+
+
+@pytest.mark.parametrize("coupling", [math.inf, 5.0])
+@pytest.mark.parametrize("kind, x0, x1, x_mid", CASES)
+def test_the_force_is_continuous_across_the_hop(kind, x0, x1, x_mid, coupling):
+    z = _height_for(kind, x_mid)
+    step = 0.02e-9
+    f, p, n = _sweep(kind, x0, x1, step, z, coupling)
+    hops = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    assert hops.max() > 2e-9, "the closest point must hop between the slopes (else the case tests nothing)"
+    df = np.linalg.norm(np.diff(f, axis=0), axis=1)
+    f4, _, n4 = _sweep(kind, x0, x1, step / 4.0, z, coupling)
+    df4 = np.linalg.norm(np.diff(f4, axis=0), axis=1)
+    # continuity: a step in the force stays when the step shrinks; a Lipschitz force shrinks with it
+    assert df4.max() <= 0.4 * df.max(), (df.max(), df4.max())
+    # the Lipschitz bound (module docstring) with the law's stiffness at the deepest point: the
+    # normal stiffness k, P/rho with rho ~ the valley's radius of curvature (>= 1 nm here), and
+    # 2 P / m for the weights' ramps
+    md = MaugisDugdale(R, 50e9, 0.05)
+    depth = 0.4e-9 + 2 * step
+    k = (md.load(depth + 1e-12) - md.load(depth - 1e-12)) / 2e-12
+    peak = float(np.linalg.norm(f, axis=1).max())
+    m = 0.5 * md.depth_scale
+    bound = 2 * (k + peak / 1e-9 + 2 * peak / m) * step
+    assert df.max() <= bound, (df.max(), bound)
+    # the direction turns smoothly: the force's and the contact normal's (what the decoupling
+    # uses) turn less per tick as the ticks get shorter, and the normal by at most the step over
+    # the valley's ~1 nm radius of curvature
+    assert _turns(f4).max() <= 0.4 * _turns(f).max(), (_turns(f).max(), _turns(f4).max())
+    assert _turns(n4).max() <= 0.4 * _turns(n).max(), (_turns(n).max(), _turns(n4).max())
+    assert _turns(n).max() <= 2 * step / 1e-9, _turns(n).max()
+
+
+@pytest.mark.parametrize("kind, x0, x1, x_mid", CASES)
+def test_a_symmetric_valley_pushes_straight_up_at_its_middle(kind, x0, x1, x_mid):
+    z = _height_for(kind, x_mid)
+    m = _model(kind)
+    t = m.step((x_mid, 24e-9, z))
+    f = t.simulated_force
+    assert f[2] > 0.0 and t.load > 0.0
+    assert abs(f[0]) <= 1e-6 * f[2] and abs(f[1]) <= 1e-6 * f[2], f
+    from arsurf.contact import multi_contact as mc
+    from arsurf.model import S_CONTACTS
+
+    tab = m.state[S_CONTACTS:S_CONTACTS + mc.TABLE_SIZE]
+    assert tab[mc.T_COUNT] >= 2  # it rests on both slopes
+
+
+def test_one_contact_surfaces_take_the_single_contact_path():
+    """On a smooth bump wider than the tip there is one local minimum: one contact, and the
+    force is exactly the load along the collision normal (no sum, no residual)."""
+    from arsurf.contact import multi_contact as mc
+    from arsurf.model import S_CONTACTS
+
+    x = np.arange(72) * PIXEL
+    y = np.arange(48) * PIXEL
+    z = 6e-9 * np.exp(-(((x[None, :] - 36e-9) / 30e-9) ** 2 + ((y[:, None] - 24e-9) / 30e-9) ** 2))
+    scan = _with_heights(synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=0.0, period=PERIOD), z)
+    m = ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
+    rng = np.random.default_rng(2)
+    for cx, cy in rng.uniform(20e-9, 45e-9, (200, 2)):
+        t = m.step((cx, cy, 40e-9))  # out of contact, then pressed ~0.3 nm in
+        t = m.step((cx, cy, 40e-9 - t.distance + R - 0.3e-9))
+        assert t.load > 0.0
+        assert m.state[S_CONTACTS + mc.T_COUNT] == 1
+        assert np.array_equal(t.simulated_force, t.load * t.normal)
+
+
+# --- the warm-start record ----------------------------------------------------------------------
+def _grooves(n: int = 96, pixel: float = 1e-9):
+    """V grooves 8 nm apart: the 20 nm tip bridges each and rests on two slopes."""
+    from arsurf.spline.surface import BSplineSurface
+
+    x = np.arange(n) * pixel
+    z = 3e-9 * np.abs(np.sin(np.pi * x / 8e-9))[:, None] * np.ones(n)[None, :]
+    return BSplineSurface.from_heights(z, (0.0, x[-1]), (0.0, x[-1]))
+
+
+@pytest.mark.parametrize("kind", ["pyramid", "tiles"])
+def test_the_collision_s_warm_record_stands_for_newton_from_the_previous_point(kind):
+    """The contact search takes where the collision query's own Newton run from the previous
+    closest point ended (OUT_WARM_U/V) instead of running it again: with the record hidden
+    (NaN: the kernel runs Newton from the previous point itself) every answer - the contacts,
+    their weights, the jump flag - is the same, on one pyramid and on tiles."""
+    from arsurf.contact import layout as ly
+    from arsurf.contact import multi_contact as mc
+    from arsurf.contact.closest_point import collide_any
+    from arsurf.contact.projection import Projector, TiledProjector
+
+    s = _grooves()
+    proj = (Projector(s) if kind == "pyramid" else TiledProjector(s, tile=8)).kernel_args()
+    ctrl, ku, kv = s.net_arrays()
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    coll = np.empty(ly.OUT_SIZE)
+    ev = np.empty((6, 3))
+    fast, slow = np.full(mc.TABLE_SIZE, np.nan), np.full(mc.TABLE_SIZE, np.nan)
+    rng = np.random.default_rng(3)
+    walk = np.column_stack([40e-9 + np.cumsum(rng.normal(0.0, 0.15e-9, 600)),
+                            48e-9 + np.cumsum(rng.normal(0.0, 0.05e-9, 600)),
+                            R + 2.5e-9 + 0.3e-9 * np.sin(np.arange(600) / 17.0)])
+    pu = pv = np.nan
+    counts, jumps = [], 0
+    for cx, cy, cz in walk:
+        assert collide_any(proj, cx, cy, cz, R, pu, pv, coll) >= 0
+        hidden = coll.copy()
+        hidden[ly.OUT_WARM_U] = hidden[ly.OUT_WARM_V] = np.nan
+        a = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, fast, 0, coll)
+        b = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, slow, 0, hidden)
+        assert a == b
+        for i in range(a[0]):
+            r = mc.T_ROWS + i * mc.C_SIZE
+            metres = [r + mc.C_U, r + mc.C_V, r + mc.C_PX, r + mc.C_PX + 1, r + mc.C_PX + 2, r + mc.C_DEPTH]
+            np.testing.assert_allclose(fast[metres], slow[metres], rtol=0, atol=1e-6 * h)
+            unitless = [r + mc.C_NX, r + mc.C_NX + 1, r + mc.C_NX + 2, r + mc.C_WEIGHT]
+            np.testing.assert_allclose(fast[unitless], slow[unitless], rtol=0, atol=1e-9)
+        slow[:] = fast  # the same history for both
+        counts.append(a[0])
+        jumps += a[1]
+        pu, pv = coll[ly.OUT_U], coll[ly.OUT_V]
+    # the walk does rest on two slopes and hops between them
+    assert sum(c >= 2 for c in counts) >= 20 and jumps >= 1
+
+
+def test_the_warm_record_is_newtons_answer_from_the_hint():
+    """On one pyramid, OUT_WARM_U/V is what Newton over the whole domain from the hint gives
+    (the very run the contact search would make), and NaN for a cold query."""
+    from arsurf.contact import layout as ly
+    from arsurf.contact.closest_point import collide_any
+    from arsurf.contact.multi_contact import SAME_POINT
+    from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+    from arsurf.contact.projection import Projector
+
+    s = _grooves()
+    proj = Projector(s).kernel_args()
+    ctrl, ku, kv = s.net_arrays()
+    coll = np.empty(ly.OUT_SIZE)
+    ev = np.empty((6, 3))
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    collide_any(proj, 41e-9, 47e-9, R + 2e-9, R, np.nan, np.nan, coll)
+    assert np.isnan(coll[ly.OUT_WARM_U]) and np.isnan(coll[ly.OUT_WARM_V])
+    hint = (43.5e-9, 47e-9)
+    collide_any(proj, 41e-9, 47e-9, R + 2e-9, R, *hint, coll)
+    nu, nv = ku.shape[0], kv.shape[0]
+    u, v, _, _, conv = newton_box(ctrl, ku, kv, ev, 41e-9, 47e-9, R + 2e-9, *hint, ku[3], ku[nu - 4], kv[3],
+                                  kv[nv - 4], STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    assert conv
+    assert np.hypot(coll[ly.OUT_WARM_U] - u, coll[ly.OUT_WARM_V] - v) <= SAME_POINT * h
