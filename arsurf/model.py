@@ -50,7 +50,7 @@ from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, dee
                                          local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
-                                           A_T_FOLD, MaugisDugdale, md_contact_hysteresis_kernel, md_zone_radius)
+                                           A_T_FOLD, MaugisDugdale, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
 from arsurf.contact.proxy import coupled_depth_kernel
 from arsurf.errors import ContactError, PositionError
@@ -176,13 +176,15 @@ def model_tick_kernel(proj,                                              # Proje
         out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
                                                                    margin)
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
-    was_interacting = state[S_INTERACTING] > 0.5
     # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
-    md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
     rx = ry = rz = 0.0
-    if count > 1:  # each contact's own law at its own depth under the one rigid tip; the loads summed
-        md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, tip_radius, coll[pj.OUT_DEPTH] - depth, count,
-                                                          was_interacting, md_st, a, load, state, out)
+    if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
+        md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
+                                                          state, out)
+    else:
+        md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state,
+                                                   out)
+        state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
@@ -235,6 +237,7 @@ def _forget_contact(state):
     """No collision answer: no tip depth, no contacts to follow, no friction anchor."""
     state[S_TIP_DEPTH] = math.nan
     state[S_CONTACTS + mc.T_COUNT] = 0.0
+    state[S_CONTACTS + mc.T_LIFT] = math.nan
     fr.release(state, S_FRICTION)
 
 
@@ -296,44 +299,34 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
 
 
 @njit(cache=True)
-def _sum_contacts(md, tip_radius, lift, count, was_interacting, st0, a0, p0, state, out):
-    r"""Step 2 with several contacts (:mod:`arsurf.contact.multi_contact`): the tip sits ``lift``
-    out along the total normal n (``out``'s normal); contact i is then
-    :math:`\delta_i = \delta_{t,i} - \text{lift}\,(n\cdot n_i)` deep, under the law ``md`` with the tip's
-    hysteresis state (``st0, a0, p0``: the closest contact's answer without the lift, kept when the
-    tip is not lifted). Writes the closest contact's depth, radius and status, the total load
-    :math:`F_N\cdot n`; returns ``(status, a, load, depth)`` like :func:`_contact_mechanics` and the
-    part of :math:`F_N = \sum_i w_i P_i n_i` off n."""
+def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, out):
+    r"""Step 2 with several contacts (:mod:`arsurf.contact.multi_contact`): the one rigid tip sits
+    where the coupling balances the summed loads along the total normal n (``out``'s normal;
+    :func:`~arsurf.contact.multi_contact.coupled_lift_kernel`), contact i
+    :math:`\delta_i - \ell\,(n\cdot n_i)` deep with its weight and entry ramp. Writes the tip, the
+    closest contact's depth, radius and status, the total load :math:`F_N\cdot n`, the hysteresis
+    memory; returns ``(status, a, load, depth)`` like :func:`_contact_mechanics` and the part of
+    :math:`F_N = \sum_i w_i e_i P_i n_i` off n."""
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
-    fx = fy = fz = 0.0
-    d0 = state[S_CONTACTS + mc.T_ROWS + mc.C_DEPTH]
-    for i in range(count):
-        r = S_CONTACTS + mc.T_ROWS + i * mc.C_SIZE
-        w = state[r + mc.C_WEIGHT]
-        if not w > 0.0:
-            continue
-        mx, my, mz = state[r + mc.C_NX], state[r + mc.C_NX + 1], state[r + mc.C_NX + 2]
-        d = state[r + mc.C_DEPTH] - lift * (nx * mx + ny * my + nz * mz)
-        if i == 0 and lift == 0.0:
-            st, a, p = st0, a0, p0  # the tip is the target: the answer of step 2
-        else:
-            st, a, p = md_contact_hysteresis_kernel(d, was_interacting, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE],
-                                                    md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
-        if st < 0:
-            a = p = 0.0
-        fx += w * p * mx
-        fy += w * p * my
-        fz += w * p * mz
-        if i == 0:
-            st0, a0, d0 = st, a, d
-    load = fx * nx + fy * ny + fz * nz
+    t = S_CONTACTS
+    lift, coupled, fx, fy, fz, load, st0, a0, p0, d0 = mc.coupled_lift_kernel(
+        state, t, count, nx, ny, nz, friction[F_COUPLING], state[S_INTERACTING] > 0.5, state[t + mc.T_LIFT],
+        friction[F_JUMP_OUT], margin, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+        md[A_T_FOLD], md[A_DELTA_FOLD])
+    state[t + mc.T_LIFT] = lift
+    out[M_TIP] = cx + lift * nx
+    out[M_TIP + 1] = cy + lift * ny
+    out[M_TIP + 2] = cz + lift * nz
+    out[M_COUPLED] = 1.0 if coupled else 0.0
     out[M_DISTANCE] = tip_radius - d0
     out[M_DEPTH] = d0
     out[M_MD_STATUS] = st0
     out[M_RADIUS] = a0
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if st0 == CONTACT else 0.0
-    state[S_INTERACTING] = 1.0 if (st0 == CONTACT or st0 == COHESIVE) else 0.0
+    interacting = st0 == CONTACT or st0 == COHESIVE
+    state[S_INTERACTING] = 1.0 if interacting else 0.0
+    state[S_TIP_DEPTH] = d0 if interacting else math.nan
     return st0, a0, load, d0, fx - load * nx, fy - load * ny, fz - load * nz
 
 

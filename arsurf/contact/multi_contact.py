@@ -29,22 +29,53 @@ fold of the distance function, where it merges with the saddle (or ridge) that s
 its neighbour: its barrier :math:`b_i = s_i - d_i` goes to 0 there, :math:`s_i` the highest
 distance on the way from contact i to the closest point (sampled at :data:`PATH_SAMPLES`
 points of the straight (u, v) segment between them: a continuous lower bound of the pass that
-vanishes with the true barrier). With :math:`r(x) = \min(x/m, 1)`, m the margin
-(a fraction of the contact law's depth scale), contact i > 0 counts with the weight
+vanishes with the true barrier). On the same pass the closest point's barrier is
+:math:`b_i' = s_i - d_1 \ge b_i`. With :math:`r(x) = \min(x/m, 1)`, m the margin (a fraction of
+the contact law's depth scale), contact i > 0 and the closest point count with
 
-.. math:: w_i = \frac{r(s_i - d_i)}{r(s_i - d_1)} \in [0, 1], \qquad w_0 = 1,
+.. math:: w_i = \varphi(b_i, b_i'), \qquad w_1 = \prod_{i>1} \varphi(b_i', b_i), \qquad
+          \varphi(b, b') = r(b) + (1 - r(b))\,\frac{b}{b + b'} .
 
-which is 0 at the fold (the contact appears and disappears with no step), 1 once its barrier
-exceeds m, and 1 when :math:`d_i = d_1`: when the closest point hops to contact i the two swap
-rows with equal weights, so the sum does not step. The total normal force is then
+:math:`\varphi(0, b') = 0`: a contact is born and dies with no weight, and its neighbour keeps
+:math:`\varphi(b', 0) = 1`; two minima separated by a pass m high count fully (1 + 1); and
+:math:`\varphi` is symmetric in the pair, so when the closest point hops to contact i (equal
+depths) the two swap rows with equal weights and the sum does not step. Near a cusp, where two
+minima and their pass merge into one (a contact patch the tip touches along a flat or concave
+stretch), the two weights sum to :math:`1 + 2bb'/(m(b + b'))`, close to 1: one contact, not two
+full loads, and their sum changes by at most 2/m per unit of distance even where each weight
+changes quickly (a ratio of barriers, :math:`r(b_i)/r(b_i')`, was continuous too, but let a
+contact born next to the closest point just before a hop swing from 0.4 to 0.05 in three ticks,
+a spike of the summed load).
 
-.. math:: F_N = \sum_i w_i\,P(\delta_i)\,n_i ,
+**Entry at the edge.** A contact also enters and leaves the table through its depth: an
+asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
+ticks late may already be in reach. The law itself steps there: under an interacting tip, the
+Maugis-Dugdale load jumps from 0 to the adhesive :math:`P(\delta_{out}) \ne 0` at the jump-out
+depth. Each contact i > 0 therefore also carries an entry ramp on its depth at the tip,
 
-each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip
-(:mod:`arsurf.model` moves the tip behind the virtual coupling along the total normal
-:math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`, :math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}`,
-the depth beyond the jump-out depth to the Hertz power: the direction of :math:`F_N` for similar
-compressive contacts, and continuous through every change of the set of contacts).
+.. math:: e_i = \min\Big(\frac{r_d(\delta_i - \delta_{out})}{r_d(\delta_1 - \delta_{out})}, 1\Big),
+          \qquad r_d(x) = \min(\max(x/m, 0), 1),
+
+0 at the jump-out depth (where the law steps: the contact enters and leaves with no force), 1
+from m deeper on, and 1 when it is as deep as the closest contact (the hop swaps two equal rows
+again). The total normal force is then
+
+.. math:: F_N = \sum_i w_i\,e_i\,P(\delta_i)\,n_i ,
+
+each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip: a
+contact that grows in enters with no step, and a secondary contact's adhesion grows with its
+depth instead of snapping in (its own snap-in would be a step of the load every time the tip
+slides onto an asperity).
+
+**One tip behind the coupling.** The tip moves behind the virtual coupling along the total
+normal :math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`,
+:math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}` (the depth beyond the jump-out depth
+to the Hertz power: the direction of :math:`F_N` for similar compressive contacts, and continuous
+through every change of the set of contacts), by the lift :math:`\ell` at which the coupling
+balances the *summed* load, :math:`F_N(\ell)\cdot n = k_c\,\ell` (:func:`coupled_lift_kernel`):
+every contact is in series with the coupling, so the hand never feels more than :math:`k_c`
+however many asperities carry the tip (a contact outside the coupling would add its whole
+stiffness, :math:`K_f\,s\,dP/d\delta`, to what the device renders, and buzz).
 
 Lipschitz bound: depths, normals and barriers are continuous in C (depths and distances are
 1-Lipschitz), so the force changes between ticks by at most
@@ -68,8 +99,10 @@ from numba import njit
 
 from arsurf._layout import Layout
 from arsurf.contact import layout as ly
+from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
 from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
 from arsurf.spline.basis import surface_point
+from arsurf.status import SEPARATED
 
 #: the most contacts followed at once (the god-object's three, plus one being born or dying)
 MAX_CONTACTS = 4
@@ -79,13 +112,14 @@ CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1
 C_U, C_PX, C_NX = CONTACT.offset("uv"), CONTACT.offset("point"), CONTACT.offset("normal")
 C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weight")
 C_SIZE = CONTACT.size
-#: the contact table (in the model state): the count, the contacts (row 0 the closest point), and
-#: the previous tick's (u, v) of each (the tracking starts)
+#: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
+#: previous tick's (u, v) of each (the tracking starts), the next discovery probe, and the tip's
+#: last lift behind the coupling along the total normal (m; the start of the next solve)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
-                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1)])
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1), ("lift", 1)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
-T_PROBE = CONTACT_TABLE.offset("probe")
+T_PROBE, T_LIFT = CONTACT_TABLE.offset("probe"), CONTACT_TABLE.offset("lift")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
@@ -96,6 +130,8 @@ PROBES = 4
 PROBE_REACH = 0.6
 #: points sampled on the (u, v) segment between a contact and the closest point for its barrier
 PATH_SAMPLES = 8
+#: Newton iterations of the coupled lift (:func:`coupled_lift_kernel`; bisection bounds it anyway)
+_MAX_LIFT_ITER = 60
 
 
 @njit(cache=True)
@@ -157,8 +193,8 @@ def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
 
 
 @njit(cache=True)
-def _barrier_weight(ctrl, ku, kv, ev, cx, cy, cz, d1, u1, v1, di, ui, vi, margin):
-    """w_i = r(s - d_i) / r(s - d_1), s the highest distance on the (u, v) segment (module docstring)."""
+def _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, ui, vi):
+    """s: the highest distance (m) on the (u, v) segment from contact i to the closest point (module docstring)."""
     s = di
     for k in range(1, PATH_SAMPLES + 1):
         t = k / (PATH_SAMPLES + 1.0)
@@ -167,10 +203,17 @@ def _barrier_weight(ctrl, ku, kv, ev, cx, cy, cz, d1, u1, v1, di, ui, vi, margin
         dy = ev[0, 1] - cy
         dz = ev[0, 2] - cz
         s = max(s, math.sqrt(dx * dx + dy * dy + dz * dz))
-    top = s - d1
-    if not top > 0.0:
-        return 0.0  # no pass between them higher than either: one contact
-    return min(max(s - di, 0.0) / margin, 1.0) / min(top / margin, 1.0)
+    return s
+
+
+@njit(cache=True)
+def pair_weight(own, other, margin):
+    r"""The weight of a contact whose barrier is ``own`` (m) against a neighbour whose barrier on the
+    same pass is ``other`` (module docstring):
+    :math:`\varphi(b, b') = r(b) + (1 - r(b))\,b / (b + b')`, :math:`r(x) = \min(x/m, 1)`."""
+    r = min(max(own, 0.0) / margin, 1.0)
+    both = max(own, 0.0) + max(other, 0.0)
+    return r + (1.0 - r) * (max(own, 0.0) / both if both > 0.0 else 0.5)
 
 
 @njit(cache=True)
@@ -229,10 +272,14 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
             k = (k + 1) % PROBES
         tab[at + T_PROBE] = k
     d1 = radius - coll[ly.OUT_DEPTH]
+    w0 = 1.0
     for i in range(1, count):
         r = _row(at, i)
-        tab[r + C_WEIGHT] = _barrier_weight(ctrl, ku, kv, ev, cx, cy, cz, d1, u1, v1, radius - tab[r + C_DEPTH],
-                                            tab[r + C_U], tab[r + C_V], margin)
+        di = radius - tab[r + C_DEPTH]
+        s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
+        tab[r + C_WEIGHT] = pair_weight(s - di, s - d1, margin)
+        w0 *= pair_weight(s - d1, s - di, margin)
+    tab[r0 + C_WEIGHT] = w0
     for i in range(count, MAX_CONTACTS):
         r = _row(at, i)
         for j in range(C_SIZE):
@@ -257,3 +304,96 @@ def total_normal_kernel(tab, at, count, jump_out, margin):
         bz += q * tab[r + C_NX + 2]
     bn = math.sqrt(bx * bx + by * by + bz * bz)
     return bx / bn, by / bn, bz / bn
+
+
+@njit(cache=True)
+def _ramp(x, margin):
+    """r(x) = min(max(x / m, 0), 1)."""
+    return min(max(x / margin, 0.0), 1.0)
+
+
+@njit(cache=True)
+def sum_loads_kernel(tab, at, count, nx, ny, nz, lift, interacting, jump_out, margin, depth_scale, radius_scale,
+                     load_scale, lam, t_fold, delta_fold):
+    r"""The summed contact force with the tip ``lift`` (m) out along the total normal n (module
+    docstring, "Entry at the edge"): contact i is :math:`\delta_i - \ell\,(n\cdot n_i)` deep and
+    carries :math:`w_i\,e_i\,P(\delta_i - \ell\,n\cdot n_i)\,n_i`, P the Maugis-Dugdale law
+    (``MaugisDugdale.kernel_args``) under the tip's hysteresis state ``interacting``.
+
+    Returns ``(fx, fy, fz, F.n, status, a, load, depth)``: the force (N), its part along n, and
+    the closest contact's (row 0) answer at its depth (status, radius m, load N, depth m)."""
+    r0 = _row(at, 0)
+    d0 = tab[r0 + C_DEPTH] - lift * (nx * tab[r0 + C_NX] + ny * tab[r0 + C_NX + 1] + nz * tab[r0 + C_NX + 2])
+    e0 = _ramp(d0 - jump_out, margin)
+    fx = fy = fz = 0.0
+    st0 = SEPARATED
+    a0 = p0 = 0.0
+    for i in range(count):
+        r = _row(at, i)
+        w = tab[r + C_WEIGHT]
+        if not w > 0.0:
+            continue
+        mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
+        d = d0 if i == 0 else tab[r + C_DEPTH] - lift * (nx * mx + ny * my + nz * mz)
+        if i > 0:  # the entry ramp, relative to the closest contact's (1 where they are as deep)
+            e = _ramp(d - jump_out, margin)
+            if e < e0:
+                w *= e / e0
+        st, a, p = md_contact_hysteresis_kernel(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
+                                                delta_fold)
+        if st < 0 or st == SEPARATED:
+            a = p = 0.0
+        if i == 0:
+            st0, a0, p0 = st, a, p
+        fx += w * p * mx
+        fy += w * p * my
+        fz += w * p * mz
+    return fx, fy, fz, fx * nx + fy * ny + fz * nz, st0, a0, p0, d0
+
+
+@njit(cache=True)
+def coupled_lift_kernel(tab, at, count, nx, ny, nz, k_couple, interacting, start, jump_out, margin, depth_scale,
+                        radius_scale, load_scale, lam, t_fold, delta_fold):
+    r"""The lift :math:`\ell` (m) of the one rigid tip behind a virtual coupling of stiffness
+    ``k_couple`` (N/m; ``inf``: none) along the total normal n, resting on all the contacts of
+    ``tab``: the root of
+
+    .. math:: g(\ell) = F_N(\ell)\cdot n - k_c\,\ell, \qquad F_N(\ell) = \sum_i w_i e_i P_i(\delta_i - \ell\, n\cdot n_i)\, n_i
+
+    (:func:`sum_loads_kernel`), the several-contact form of
+    :func:`~arsurf.contact.proxy.coupled_depth_kernel`'s :math:`P(\delta) = k_c(\delta_t - \delta)`:
+    every contact is in series with the coupling, so the hand feels at most :math:`k_c` however
+    many contacts carry the tip. :math:`F_N\cdot n` falls as the tip lifts, so the root lies
+    between 0 and :math:`F_N(0)\cdot n / k_c`; Newton's method from ``start`` (the previous
+    tick's lift), bisection whenever a step leaves the bracket.
+
+    Returns ``(lift, coupled, fx, fy, fz, F.n, status, a, load, depth)``: the lift, whether the
+    coupling equation was solved (False, lift 0: no coupling, or the closest contact separated at
+    the target: the tip is at the target) and :func:`sum_loads_kernel`'s answer at that lift."""
+    fx, fy, fz, g0, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, 0.0, interacting, jump_out, margin,
+                                                   depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    if not (k_couple < math.inf) or st < 0 or st == SEPARATED:
+        return 0.0, False, fx, fy, fz, g0, st, a, p, d
+    top = g0 / k_couple
+    lo, hi = min(0.0, top), max(0.0, top)
+    lift = start if (math.isfinite(start) and lo < start < hi) else 0.5 * (lo + hi)
+    h = 1e-4 * depth_scale
+    tol = 1e-9 * load_scale
+    for _ in range(_MAX_LIFT_ITER):
+        fx, fy, fz, fn, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, lift, True, jump_out, margin,
+                                                       depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+        g = fn - k_couple * lift
+        if abs(g) <= tol or hi - lo <= 1e-9 * depth_scale:
+            return lift, st != SEPARATED, fx, fy, fz, fn, st, a, p, d
+        if g > 0.0:
+            lo = lift
+        else:
+            hi = lift
+        f2 = sum_loads_kernel(tab, at, count, nx, ny, nz, lift + h, True, jump_out, margin, depth_scale,
+                              radius_scale, load_scale, lam, t_fold, delta_fold)[3]
+        slope = (f2 - fn) / h - k_couple
+        step = lift - g / slope if slope < 0.0 else math.nan
+        lift = step if lo < step < hi else 0.5 * (lo + hi)
+    fx, fy, fz, fn, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, lift, True, jump_out, margin,
+                                                   depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    return lift, st != SEPARATED, fx, fy, fz, fn, st, a, p, d
