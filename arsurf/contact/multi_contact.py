@@ -114,12 +114,15 @@ C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weigh
 C_SIZE = CONTACT.size
 #: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
 #: previous tick's (u, v) of each (the tracking starts), the next discovery probe, and the tip's
-#: last lift behind the coupling along the total normal (m; the start of the next solve)
+#: last lift behind the coupling along the total normal (m; the start of the next solve) and the
+#: tip centre of the last search (m; the fold-hop test)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
-                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1), ("lift", 1)])
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1), ("lift", 1),
+                                         ("centre", 3)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
 T_PROBE, T_LIFT = CONTACT_TABLE.offset("probe"), CONTACT_TABLE.offset("lift")
+T_CENTRE = CONTACT_TABLE.offset("centre")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
@@ -225,9 +228,11 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     docstring; ``margin`` m). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
     ``prev_u, prev_v`` the previous closest point (NaN: none).
 
-    Returns ``(count, jumped)``: the number of contacts, and whether Newton from the previous
-    closest point ended at another local minimum than the closest point (the closest point
-    changed basins this tick: the friction proxy carries its anchor along)."""
+    Returns ``(count, jumped)``: the number of contacts, and whether the closest point changed
+    basins this tick (the friction proxy carries its anchor along): Newton from the previous
+    closest point ended at another local minimum than the closest point, or the previous minimum
+    vanished (a fold) and the closest point moved in (u, v) farther than the tip centre did plus
+    one knot spacing."""
     h = max(ku[4] - ku[3], kv[4] - kv[3])
     u1 = coll[ly.OUT_U]
     v1 = coll[ly.OUT_V]
@@ -259,6 +264,15 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
             jumped = count > 1  # Newton from there ended at another minimum than the closest point
             if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
                 count = 1  # a jump, but the old point is out of reach
+    c0 = at + T_CENTRE
+    if not jumped and math.isfinite(prev_u) and math.isfinite(prev_v) and math.isfinite(tab[c0]):
+        # a fold hop: the old minimum vanished this tick and Newton from it slid on to the closest
+        # point, farther than a minimum carried by the tip goes (the tip's move plus a knot spacing)
+        moved = math.sqrt((cx - tab[c0]) ** 2 + (cy - tab[c0 + 1]) ** 2 + (cz - tab[c0 + 2]) ** 2)
+        jumped = math.hypot(u1 - prev_u, v1 - prev_v) > moved + h
+    tab[c0] = cx
+    tab[c0 + 1] = cy
+    tab[c0 + 2] = cz
     if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
         for i in range(1, old):  # (row 0, the previous closest point: the run above)
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
@@ -290,7 +304,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
 
 @njit(cache=True)
 def total_normal_kernel(tab, at, count, jump_out, margin):
-    """The total normal n (unit) of the contacts in ``tab`` (module docstring): the weighted sum
+    r"""The total normal n (unit) of the contacts in ``tab`` (module docstring): the weighted sum
     of their normals with the weights :math:`w_i ((\delta_i - \delta_{out})_+ + 10^{-3} m)^{3/2}`
     (the small floor keeps the direction continuous, and symmetric, where every contact is out of
     reach)."""
