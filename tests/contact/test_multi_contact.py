@@ -228,3 +228,64 @@ def test_the_warm_record_is_newtons_answer_from_the_hint():
                                   kv[nv - 4], STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
     assert conv
     assert np.hypot(coll[ly.OUT_WARM_U] - u, coll[ly.OUT_WARM_V] - v) <= SAME_POINT * h
+
+
+# --- entry at the edge, and one tip behind the coupling -------------------------------------------
+def _press(kind: str, x: float, z0: float, z1: float, step: float, coupling: float = math.inf):
+    """Forces (N) and contact counts of a tip pressed from z0 down to z1 (m) over x."""
+    from arsurf.contact import multi_contact as mc
+    from arsurf.model import S_CONTACTS
+
+    m = _model(kind, coupling)
+    zs = np.arange(z0, z1, -step)
+    f = np.empty((zs.size, 3))
+    counts = np.empty(zs.size, int)
+    for k, z in enumerate(zs):
+        f[k] = m.step((x, 24e-9, z)).simulated_force
+        counts[k] = m.state[S_CONTACTS + mc.T_COUNT]
+    return f, counts
+
+
+def test_a_contact_entering_through_its_depth_does_not_step_the_force():
+    """Off the middle of the valley between two bumps the tip presses on the near bump first; the
+    far bump comes within reach as it goes down. Under the interacting tip the law's load steps
+    from 0 to the adhesive P(jump-out) there; the entry ramp takes it in from 0, so halving the
+    press step halves the largest tick-to-tick change (without the ramp the step of P(jump-out),
+    a few nN, stays whatever the step)."""
+    z_mid = _height_for("bumps", 36e-9)
+    step = 0.01e-9
+    f, counts = _press("bumps", 37.5e-9, z_mid + 0.5e-9, z_mid - 0.1e-9, step)
+    assert counts[0] == 1 and counts[-1] == 2  # the second contact does enter
+    f2, _ = _press("bumps", 37.5e-9, z_mid + 0.5e-9, z_mid - 0.1e-9, step / 4.0)
+    df = np.linalg.norm(np.diff(f, axis=0), axis=1)
+    df2 = np.linalg.norm(np.diff(f2, axis=0), axis=1)
+    assert df2.max() <= 0.4 * df.max(), (df.max(), df2.max())
+
+
+def test_every_contact_is_in_series_with_the_coupling():
+    """In the middle of the valley both slopes carry the tip. Behind a coupling of k_c = 5 N/m
+    (contacts of some 100 N/m each), pressing further in stiffens the force by at most k_c: the
+    one tip sits where the coupling balances the summed load. (Balancing the closest contact
+    alone left the other outside the coupling, adding its whole stiffness.)"""
+    k_c = 5.0
+    for kind, x_mid in (("sinusoid", 33e-9), ("bumps", 36e-9)):
+        z = _height_for(kind, x_mid)
+        f, counts = _press(kind, x_mid, z + 0.02e-9, z - 0.03e-9, 0.01e-9, coupling=k_c)
+        assert (counts[1:] >= 2).all()
+        stiffness = np.diff(f[:, 2]) / 0.01e-9  # N/m: dF_z per metre further in
+        assert stiffness.min() > 0.0 and stiffness.max() <= 1.01 * k_c, stiffness
+
+
+def test_pair_weights_vanish_at_a_fold_swap_symmetrically_and_sum_to_one_at_a_cusp():
+    from arsurf.contact.multi_contact import pair_weight
+
+    m = 1e-10
+    for b in (1e-13, 0.3 * m, 2 * m):
+        assert pair_weight(0.0, b, m) == 0.0 and pair_weight(b, 0.0, m) == 1.0  # born/dying: 0, its neighbour 1
+        assert pair_weight(b, b, m) == pytest.approx(0.5 + 0.5 * min(b / m, 1.0))  # equal: swap without a step
+    assert pair_weight(2 * m, 3 * m, m) == 1.0  # both barriers above the margin: two full contacts
+    # near a cusp the pair counts about once, and the sum is Lipschitz (2/m) however the barriers split
+    rng = np.random.default_rng(5)
+    b = rng.uniform(0.0, 1e-3 * m, (2000, 2))
+    total = np.array([pair_weight(x, y, m) + pair_weight(y, x, m) for x, y in b])
+    assert np.all(np.abs(total - 1.0) <= 2.0 * b.sum(axis=1) / m + 1e-12)
