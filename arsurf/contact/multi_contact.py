@@ -18,7 +18,7 @@ the global closest point of the collision query (exact: hull tree + Newton). New
 (:func:`~arsurf.contact.newton.newton_box`) is run from the contacts of the previous tick
 (tracking), from where the collision query's own Newton run from the previous closest point
 ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
-:data:`PROBES` starts a distance :data:`PROBE_REACH` R around the closest point (discovery; one
+:data:`PROBES` starts a distance :data:`PROBE_REACH` R or half of it around the closest point (discovery; one
 of them per tick, in turn, after the first touch).
 Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal)
 is within the interaction range is a contact; ends within :data:`SAME_POINT` knot spacings of
@@ -126,10 +126,11 @@ T_CENTRE = CONTACT_TABLE.offset("centre")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
-#: discovery starts on a circle of PROBE_REACH tip radii around the closest point: all of them at the
-#: first touch, then one per tick in turn (a contact is born with weight 0: found within PROBES
+#: discovery starts on circles of PROBE_REACH and PROBE_REACH / 2 tip radii around the closest point, in
+#: turn, in PROBES directions: all of them at the first touch, then one per tick in turn (a contact
+#: is born with weight 0: found within PROBES
 #: ticks, it has gained next to nothing)
-PROBES = 4
+PROBES = 8
 PROBE_REACH = 0.6
 #: points sampled on the (u, v) segment between a contact and the closest point for its barrier
 PATH_SAMPLES = 8
@@ -278,9 +279,9 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
                          tab[at + T_PREVIOUS + 2 * i + 1], floor, h, tab, at, count)
         k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
-        reach = PROBE_REACH * radius
         for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
-            phi = 2.0 * math.pi * k / PROBES
+            phi = 2.0 * math.pi * k / PROBES  # every other start on the inner circle, half as far
+            reach = (PROBE_REACH if k % 2 == 0 else 0.5 * PROBE_REACH) * radius
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
                          v1 + reach * math.sin(phi), floor, h, tab, at, count)
             k = (k + 1) % PROBES
