@@ -123,10 +123,11 @@ class Preset:
     sources: str = ""
 
 
-def _viewer_contact() -> tuple[float, float]:
+def _contact(tip: str, sample: str) -> tuple[float, float]:
+    """E* (Pa) and w (J/m^2) of two :data:`arsurf.contact.materials.MATERIALS` presets."""
     from arsurf.contact.materials import effective_modulus, work_of_adhesion
 
-    return effective_modulus("Si", "polystyrene"), work_of_adhesion("Si", "polystyrene")
+    return effective_modulus(tip, sample), work_of_adhesion(tip, sample)
 
 
 # no coupling_stiffness: the loop chooses the virtual coupling from the device it runs on and the rate
@@ -137,7 +138,8 @@ _DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_ga
 
 
 def _presets() -> dict[str, Preset]:
-    e_si_ps, w_si_ps = _viewer_contact()
+    e_si_ps, w_si_ps = _contact("Si", "polystyrene")
+    e_si_pc, w_si_pc = _contact("Si", "polycarbonate")
     demo = Preset(
         "demo", "the demo: a 20 nm silicon tip on a soft adhesive polymer-like film (lambda ~ 0.5, dents visibly)",
         tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER, friction=0.2,
@@ -150,10 +152,12 @@ def _presets() -> dict[str, Preset]:
             effective_modulus=e_si_ps, work_of_adhesion=w_si_ps, sigma=0.0,
             sources="E* and w from the Si and polystyrene presets of arsurf.contact.materials; the rest is the demo's"),
         "mwcnt-push": dataclasses.replace(
-            demo, name="mwcnt-push", description="MWCNT pushing with a calibrated contact lever ([MWCNT])",
+            demo, name="mwcnt-push", description="MWCNT pushing on polycarbonate with a calibrated lever ([MWCNT])",
+            effective_modulus=e_si_pc, work_of_adhesion=w_si_pc,
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=38.6, torsional_stiffness=8.56e-7)),
-            sources="[MWCNT] Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; tip, sample and lever geometry "
-                    "are not given there: the demo's"),
+            sources="[MWCNT] Sec. 2.3: k = 38.6 N/m, k_ct = 8.56e-7 N m/rad; Sec. 4.2: the tubes lie on "
+                    "polycarbonate (E* and w of the Si and polycarbonate presets of arsurf.contact.materials, "
+                    "the tip's material assumed); tip radius and lever geometry are not given there: the demo's"),
         "thesis-haptics": dataclasses.replace(
             demo, name="thesis-haptics", description="force-feedback haptic interface ([Alabdulmuhsin] thesis)",
             cantilever=MappingProxyType(dict(LEVER, normal_stiffness=0.3)), sigma=0.0,

@@ -3,16 +3,18 @@ simulated devices of the tests (tests/support/hardware_sim), with the virtual de
 
 For each backend the Scheduler runs at 1 kHz for ``--seconds`` with the device's ``read_state`` as
 source and ``command_force`` as sink (a constant 0.1 N, so every tick talks to the device both
-ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library or
-serial exchange), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
+ways). Per tick: ``io`` is the time spent in the adapter (read + command: the vendor library; for
+Haply the link thread's mailboxes, the serial exchange is that thread's), ``sample_age`` how old the sample was when the loop used it (the OpenHaptics
 servo thread samples on its own clock); then the scheduler's period jitter (|period - 1 ms|),
 overruns and achieved rate. Every device runs with its shipped defaults (no max_force: the
-first-connection 1 N; the Haply read timeout of one period; OpenHaptics' 5 ms sample timeout). A
-lost reply is injected halfway where the simulator models one (Haply: ``lose``): ``lost_reply``
-is the longest tick spent in the adapter after it, against the 1 ms period (Force Dimension: its
-SDK's calls are synchronous USB transfers whose timeout the vendor does not document and the
-simulator does not model; OpenHaptics: arsurf reads shared memory, the servo thread's misses never
-block the loop). The simulated devices are not the real ones: a real USB device adds
+first-connection 1 N; Haply's 1 ms read timeout and 5 ms sample timeout; OpenHaptics' 5 ms sample
+timeout). A lost reply is injected halfway where the simulator models one (Haply: ``lose``):
+``lost_reply`` is the longest tick spent in the adapter after it, against the 1 ms period, and
+for Haply the force of the command the device got after it (``retry_after_lost_reply_N``: zero)
+and its link thread's counts (exchanges per second, lost replies, zero retries). Force Dimension:
+not modelled (its SDK's calls are synchronous USB transfers whose timeout the vendor does not
+document); OpenHaptics: none (arsurf reads shared memory, the servo thread's misses never block
+the loop). The simulated devices are not the real ones: a real USB device adds
 its bus latency (~0.1-1 ms) to ``io``; what this measures is arsurf's side of the round trip.
 
 BENCHMARKS maps a section name to a function returning its JSON dict; the ``nanonis`` section is
@@ -49,7 +51,7 @@ WORK = Path(tempfile.mkdtemp(prefix="arsurf-bench-hw-"))
 
 def loop_through(dev, seconds: float, halfway=None) -> dict:
     """The 1 kHz Scheduler through ``dev`` (open): io and sample-age statistics, and the timing;
-    ``halfway()`` is called once in the tick at half the run (e.g. to lose a reply)."""
+    ``halfway()`` is called once, in the first tick at half the run's time (e.g. to lose a reply)."""
     n = int(seconds * 1000 * 1.2) + 100
     io = np.zeros(n)
     age = np.zeros(n)
@@ -58,10 +60,12 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
     clock = time.perf_counter_ns
     t_read = [0]
 
-    half = [int(seconds * 500)]
+    half = [n]  # the tick of halfway(): the first at half the run's time (a slow loop has fewer ticks)
+    t_half = [math.inf]
 
     def source():
-        if halfway is not None and k[0] == half[0]:
+        if halfway is not None and half[0] == n and time.perf_counter() >= t_half[0]:
+            half[0] = k[0]
             halfway()
         t0 = clock()
         s = dev.read_state()
@@ -84,6 +88,7 @@ def loop_through(dev, seconds: float, halfway=None) -> dict:
         dev.read_state()
         dev.command_force(FORCE)
     sched = Scheduler(lambda st, inputs, dt: FORCE, None, rate=1000.0, source=source, sink=sink)
+    t_half[0] = time.perf_counter() + seconds / 2
     st = sched.run_for(seconds)
     m = min(k[0], n)
     ok = np.isfinite(age[:m])
@@ -170,6 +175,10 @@ def _inverse3_child(conn) -> None:
             conn.send(pty.path)
         elif msg == "lose":
             pty.lose(1)
+        elif msg == "report":  # the forces (N) of the commands whose reply was lost, and of the one after each
+            log = list(pty.commands_log)
+            conn.send([(log[k][1].tolist(), log[k + 1][1].tolist() if k + 1 < len(log) else None)
+                       for k in pty.lost_at])
         else:
             break
     if pty is not None:
@@ -197,8 +206,16 @@ def bench_haply(seconds: float) -> dict:
             path = here.recv()
             try:
                 with HaplyDevice(path, workspace=(0.2, 0.12, 0.15), **kw) as dev:
+                    t0 = time.perf_counter()
                     out[name] = {"device": dev.info.name, "read_timeout_ms": dev.read_timeout * 1e3,
                                  **loop_through(dev, seconds, halfway=lambda: here.send("lose"))}
+                    link = dev.link
+                    out[name]["link"] = {"exchanges_per_s": link.exchanges / (time.perf_counter() - t0),
+                                         "lost_replies": link.lost_replies, "zero_retries": link.zero_retries,
+                                         "stale_commands": link.stale_commands}
+                here.send("report")
+                lost = here.recv()  # the injected loss (and any reply later than read_timeout)
+                out[name]["link"]["retry_after_lost_reply_N"] = [after for _, after in lost]
             except Exception as exc:  # noqa: BLE001 - reported in the JSON, the other cases still run
                 out[name] = {"error": f"{type(exc).__name__}: {exc}"}
         return out
@@ -261,6 +278,8 @@ def summary(results: dict) -> dict:
         out[name] = {"loop_rate_hz": r["achieved_rate_hz"], "period_p99_ms": r["period_p99_ms"],
                      "sample_age_p99_ms": r["sample_age"]["p99_us"] * 1e-3,
                      "lost_reply_worst_tick_ms": lost if lost is not None else _NO_LOST_REPLY.get(name)}
+        if "link" in r:
+            out[name]["retry_after_lost_reply_N"] = r["link"].get("retry_after_lost_reply_N")
     return out
 
 

@@ -20,8 +20,10 @@ over poses sent, the loop's ticks per second and the CPU time the loop thread an
 ``--pairs`` alternated pairs of a run without and a run with the flood, then the flood against
 the bridge with its kernel filter off (protocol version 2's behaviour). About 6 s per run.
 
-``--realtime-priority P`` runs the servo thread under ``SCHED_FIFO`` where the OS grants it, as
-``arsurf live --realtime-priority`` runs its loop.
+The servo loop is the live loop's :class:`~arsurf.haptics.scheduler.Scheduler`;
+``--realtime-priority P`` runs its thread under ``SCHED_FIFO`` where the OS grants it, as
+``arsurf live`` and ``arsurf view --bridge-port`` run theirs by default (priority 10; 0: the
+ordinary policy, their ``--no-realtime-priority``).
 
 Run: ``python bench/robustness_bridge.py [--n 200] [--seed 0] [--flood-seconds 3] [--pairs 2]
 [--realtime-priority 0]``
@@ -385,34 +387,28 @@ def _flooder(tmp: str) -> list[str]:
 
 
 def _serve(dev, stop, ticks, rate, reads, cpu, priority=0, granted=None):
-    """A 1 kHz servo loop on absolute deadlines (missed ones skipped): read the pose, command a spring
-    force. ``cpu`` gets the thread's CPU time at each tick (what the loop itself spent, whatever
-    else the machine runs). ``priority``: ``SCHED_FIFO`` for this thread where the OS grants it,
-    as ``arsurf live --realtime-priority`` gives its loop (the priority granted goes to ``granted``)."""
-    from arsurf.haptics.scheduler import _realtime_priority
+    """A 1 kHz servo loop, the live loop's :class:`~arsurf.haptics.scheduler.Scheduler` (its
+    pacing, policy and statistics): read the pose, command a spring force. ``cpu`` gets the
+    loop thread's CPU time at each tick (what the loop itself spent, whatever else the machine
+    runs). ``priority``: ``SCHED_FIFO`` for the loop thread where the OS grants it, as ``arsurf
+    live`` and ``arsurf view --bridge-port`` give their loop by default (the priority granted and
+    the loop's timing go to ``granted``)."""
+    from arsurf.haptics.scheduler import Scheduler
 
-    got = _realtime_priority(priority)
-    if granted is not None:
-        granted.append(got)
-    period = 1.0 / rate
-    k, t0 = 0, time.perf_counter()
-    while not stop.is_set():
+    def step(state, inputs, dt):
         cpu.append(time.thread_time())
         t_read, c_read = time.perf_counter(), time.thread_time()
         s = dev.read_state()  # the bridge's own work: drain the socket, parse, check
         reads.append((time.perf_counter() - t_read, time.thread_time() - c_read))
         dev.command_force(-100.0 * s.position)
         ticks.append(time.perf_counter())
-        k += 1
-        deadline = t0 + k * period
-        if time.perf_counter() > deadline + period:  # late: skip the missed ticks, never burst to catch up
-            t0 = time.perf_counter() - (k - 1) * period
-            deadline = t0 + k * period
-        while True:
-            left = deadline - time.perf_counter()
-            if left <= 0:
-                break
-            time.sleep(min(left, 5e-4) if left > 2e-4 else 0)
+
+    sched = Scheduler(step, None, rate=rate, priority=priority).start()
+    stop.wait()
+    stats = sched.stop()
+    if granted is not None:
+        granted.append(stats.realtime_priority)
+        granted.append(stats)
 
 
 def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000, rate: float = 1000.0,
@@ -486,6 +482,8 @@ def flood_run(flood: bool, seconds: float = 3.0, flood_packets: int = 3_000_000,
             "loop_tick_gap_max_ms": float(gaps.max()) * 1e3,
             "loop_cpu_per_tick_us": cpu_per_tick * 1e6,
             "loop_realtime_priority": granted[0] if granted else 0,
+            "loop_longest_gap_ms": granted[1].longest_gap * 1e3 if len(granted) > 1 else None,
+            "loop_awake_max": granted[1].awake_max if len(granted) > 1 else None,
             "bridge_read_state_median_us": float(np.median(in_window)) * 1e6,
             "bridge_read_state_p99_us": float(np.percentile(in_window, 99)) * 1e6,
             "bridge_read_state_cpu_mean_us": float(np.mean(read_cpu)) * 1e6,

@@ -3,7 +3,9 @@ r"""The 3D view of the live model: deformed surface, tip, contact, force arrow a
 :class:`SurfaceView` builds every actor once and :meth:`SurfaceView.update` changes them in
 place from a :class:`~arsurf_viewer.state.SceneState` (points and scalars written into the
 existing VTK arrays, actors moved with their ``user_matrix``, text set), so a frame costs the
-re-sampling of the changed part of the surface plus one render.
+re-sampling of the changed part of the surface (:mod:`arsurf_viewer.patch`: the patch of
+samples over the control points the dents moved, its deformed box and the dent's contour lines
+there) plus one render.
 
 **The scene is in nanometres**: the engine's metres are multiplied by 1e9 at this edge. VTK's
 camera, clipping planes and picking use absolute tolerances tuned for coordinates of order
@@ -16,7 +18,9 @@ What is drawn
       coloured by height z (nm, in the 2D figures' colour map, :data:`arsurf._figure_style.HEIGHT_CMAP`,
       between the 1st and 99th percentiles of the rest surface, computed once per scan: a scratch
       does not wash the sample out) or by deformation :math:`|S(u, v) - S_{rest}(u, v)|` (nm, from
-      a rest copy evaluated once).
+      a rest copy evaluated once; from 0 to a 1-2-5 value at or above the deepest dent seen, grown
+      only when a dent goes deeper). Frames never recompute the limits:
+      :meth:`SurfaceView.refresh_color_limits` does, on demand.
     * ``tip`` - the tip sphere (translucent, so the dent under it shows).
     * ``contact`` - the contact point and the normal there (green arrow, length 1.8 R).
     * ``force`` - the force on the tip, a magenta arrow from the tip surface along F, of length
@@ -44,7 +48,7 @@ PNG states (e.g. 2100 x 1500 px at 300 dpi: 7 x 5 in).
 Examples
 --------
 >>> import numpy as np
->>> from arsurf.spline.surface import BSplineSurface
+>>> from arsurf.spline.surface import BSplineSurface, merge_boxes
 >>> from arsurf_viewer import SceneState, SurfaceView
 >>> s = BSplineSurface.from_heights(np.zeros((8, 8)), (0.0, 100e-9), (0.0, 100e-9))
 >>> view = SurfaceView(s, off_screen=True, window_size=(320, 240))
@@ -60,40 +64,19 @@ import os
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 from arsurf._figure_style import HEIGHT_CMAP, robust_limits, round_ticks, scale_bar_length
 from arsurf._files import atomic_write
 from arsurf.contact.mechanics import SMALL_CONTACT_LIMIT
 from arsurf.errors import require
 from arsurf.status import BEYOND_MODEL, flag_names
-from arsurf.spline.surface import BSplineSurface
+from arsurf.spline.surface import BSplineSurface, merge_boxes
 
 from .backend import choose_backend
+from .patch import changed_box, contour_patch, dent_boxes, sample_patch
 from .state import SceneState
 from arsurf.errors import ViewerError
 
-
-@njit(cache=True)
-def _changed_box(ctrl, last):
-    """Index box (i0, i1, j0, j1) of the control points where ``ctrl`` differs from ``last``
-    (empty: i1 = i0 = 0), copied into ``last``: one pass, no temporaries."""
-    nu, nv = ctrl.shape[0], ctrl.shape[1]
-    i0, i1, j0, j1 = nu, -1, nv, -1
-    for i in range(nu):
-        for j in range(nv):
-            if ctrl[i, j, 0] != last[i, j, 0] or ctrl[i, j, 1] != last[i, j, 1] or ctrl[i, j, 2] != last[i, j, 2]:
-                i0 = min(i0, i)
-                i1 = max(i1, i)
-                j0 = min(j0, j)
-                j1 = max(j1, j)
-    if i1 < 0:
-        return 0, 0, 0, 0
-    for i in range(i0, i1 + 1):
-        for j in range(j0, j1 + 1):
-            for c in range(3):
-                last[i, j, c] = ctrl[i, j, c]
-    return i0, i1 + 1, j0, j1 + 1
 
 __all__ = ["SurfaceView", "LAYERS", "COLORS", "SCENE_SCALE"]
 
@@ -166,14 +149,40 @@ def _length_label(nm: float) -> str:
     return f"{nm / 1000:g} µm" if nm >= 1000 else f"{nm:g} nm"
 
 
-def _frame(direction: np.ndarray) -> np.ndarray:
-    """3x3 rotation whose first column is the unit vector ``direction``."""
-    d = direction / np.linalg.norm(direction)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    a = np.cross(d, helper)
-    a /= np.linalg.norm(a)
-    b = np.cross(d, a)
-    return np.column_stack([d, a, b])
+def _round_up(nm: float) -> float:
+    """The smallest 1, 2 or 5 x 10^k nm at or above ``nm`` (at least 0.5 nm): a colour limit."""
+    if nm <= 0.5:
+        return 0.5
+    k = math.floor(math.log10(nm))
+    return min(m * 10.0 ** k for m in (1.0, 2.0, 5.0, 10.0) if m * 10.0 ** k >= nm * (1 - 1e-12))
+
+
+def _frame(direction) -> np.ndarray:
+    """3x3 rotation whose first column is the unit vector along ``direction`` (3,), in plain
+    floats (numpy's cross product of two 3-vectors costs tens of µs: a frame places 3 frames)."""
+    dx, dy, dz = (float(c) for c in direction)
+    n = math.sqrt(dx * dx + dy * dy + dz * dz)
+    dx, dy, dz = dx / n, dy / n, dz / n
+    if abs(dz) < 0.9:  # a = d x (0, 0, 1)
+        ax, ay, az = dy, -dx, 0.0
+    else:  # a = d x (1, 0, 0)
+        ax, ay, az = 0.0, dz, -dy
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / n, ay / n, az / n
+    bx, by, bz = dy * az - dz * ay, dz * ax - dx * az, dx * ay - dy * ax  # b = d x a
+    return np.array(((dx, ax, bx), (dy, ay, by), (dz, az, bz)))
+
+
+def _set_user_matrix(actor, m: np.ndarray) -> None:
+    """Set an actor's user matrix to ``m`` (4, 4) by writing into its vtkMatrix4x4 (pyvista's
+    ``user_matrix`` setter validates and builds a new matrix each time)."""
+    mat = actor.GetUserMatrix()
+    if mat is None:
+        from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+        mat = vtkMatrix4x4()
+        actor.SetUserMatrix(mat)
+    mat.DeepCopy(m.ravel().tolist())
 
 
 class _Arrow:
@@ -198,11 +207,11 @@ class _Arrow:
         m = np.eye(4)
         m[:3, :3] = rot * np.array([shaft_len, width, width])
         m[:3, 3] = start
-        self.shaft.user_matrix = m
+        _set_user_matrix(self.shaft, m)
         m2 = np.eye(4)
         m2[:3, :3] = rot * np.array([head_len, 2.2 * width, 2.2 * width])
         m2[:3, 3] = start + rot[:, 0] * shaft_len
-        self.head.user_matrix = m2
+        _set_user_matrix(self.head, m2)
 
     def set_visible(self, on: bool) -> None:
         for a in self.actors:
@@ -323,8 +332,13 @@ class SurfaceView:
         self._ku, self._kv = ku, kv
         self._last_ctrl = np.array(ctrl, copy=True)
         uu, vv = np.meshgrid(self._u, self._v)
-        rest_surface = BSplineSurface.construct_fast(np.array(rest, copy=True), ku, kv)
-        self._rest_points = rest_surface.evaluate(uu, vv) * SCENE_SCALE  # (nv, nu, 3) nm
+        # the rest grid (nv, nu, 3) nm, by the frames' own kernel: a sample whose control points are at
+        # rest is then bitwise its rest point, its deformation exactly 0 (the dent box stays the dent's)
+        self._rest_points = np.zeros((nv, nu, 3))
+        normals, height = np.empty((nv, nu, 3)), np.empty((nv, nu))
+        sample_patch(rest, ku, kv, self._u, self._v, 0, nu, 0, nv, SCENE_SCALE, self._rest_points,
+                     self._rest_points, normals, height, height)
+        del normals, height
         grid = pv.StructuredGrid()
         grid.points = np.zeros((nu * nv, 3))
         grid.dimensions = (nu, nv, 1)
@@ -339,8 +353,8 @@ class SurfaceView:
         self._deform = grid.point_data["deformation_nm"].reshape(nv, nu)
         self._normals = grid.point_data["Normals"].reshape(nv, nu, 3)
         self._resample(0, nu, 0, nv)
-        self._dent_box = (0, nu, 0, nv)  # grid box (iu0, iu1, jv0, jv1) holding every deformed sample
-        self._find_dent(self._dent_box)
+        self._dent_found = np.empty((16, 5))  # dent_boxes' output: (iu0, iu1, jv0, jv1, top) per box
+        self._find_dent([(0, nu, 0, nv)])  # the grid boxes (iu0, iu1, jv0, jv1) of the deformed samples
         self._material_clim = {}
         if self.material is not None:  # the material fields on the rest grid (they move with the surface)
             for mode, (name, units, log) in _MATERIAL_MODES.items():
@@ -360,6 +374,7 @@ class SurfaceView:
         if hi - lo < 1e-3:
             lo, hi = lo - 1.0, hi + 1.0
         self._height_clim = (lo, hi)
+        self._deform_clim = _round_up(self._dent_top)  # nm; grows with a deeper dent (_follow_dent_clim)
         self._extent_nm = max(u1 - u0, v1 - v0) * SCENE_SCALE
         self.surface_actor = self.plotter.add_mesh(
             grid, scalars="height_nm", cmap=_SURFACE_CMAPS["height"], clim=self._height_clim,
@@ -387,76 +402,98 @@ class SurfaceView:
         self._build_legend()
         self._build_scale_bar()
         self.set_color_by(self.color_by)
-        from vtkmodules.vtkCommonDataModel import vtkImageData
-        from vtkmodules.vtkFiltersCore import vtkFlyingEdges2D
+        from vtkmodules.vtkCommonCore import vtkDoubleArray, vtkIdTypeArray, vtkPoints
+        from vtkmodules.vtkCommonDataModel import vtkCellArray
 
-        # the dent's lines: flying edges on the deformed part of the grid as an image in index
-        # space (built once, re-run per frame without pyvista's wrappers), the line points then
-        # put on the surface by bilinear interpolation; the actor sits 0.1 nm above the surface
-        self._dent_image = vtkImageData()
-        self._dent_contour = vtkFlyingEdges2D()
-        self._dent_contour.SetInputData(self._dent_image)
-        self._dent_contour.ComputeScalarsOff()
-        self._dent_lines = pv.PolyData(np.zeros((1, 3)))  # one point, no line: replaced in place
+        # the dent's lines: segments by marching squares on the deformed samples, their ends on
+        # the surface, written into buffers the VTK arrays view (grown when a dent needs more);
+        # the actor sits 0.1 nm above the surface
+        self._dent_xyz = np.zeros((4096, 3))
+        self._dent_ids = np.arange(4096, dtype=np.int64)  # a segment's two points, in order
+        self._dent_starts = np.arange(0, 4097, 2, dtype=np.int64)  # where segment k's points start
+        self._dent_coords = vtkDoubleArray()
+        self._dent_coords.SetNumberOfComponents(3)
+        self._dent_offsets, self._dent_connectivity = vtkIdTypeArray(), vtkIdTypeArray()
+        self._dent_points, self._dent_cells = vtkPoints(), vtkCellArray()
+        self._dent_points.SetData(self._dent_coords)
+        self._dent_lines = pv.PolyData()
+        self._dent_lines.SetPoints(self._dent_points)
+        self._dent_lines.SetLines(self._dent_cells)
+        self._set_dent_segments(0)
         self.dent_actor = self.plotter.add_mesh(self._dent_lines, color=COLORS["dent"], line_width=2.0, lighting=False,
                                                 reset_camera=False, pickable=False)
         self.dent_actor.SetPosition(0.0, 0.0, 0.1)
         self.dent_step_nm = 0.0
         self._update_dent()
 
-    def _find_dent(self, box) -> None:
-        """Shrink :attr:`_dent_box` to the deformed samples inside ``box`` (which holds them all)
-        and note their largest deformation: O(box), not O(grid)."""
-        iu0, iu1, jv0, jv1 = box
-        sub = self._deform[jv0:jv1, iu0:iu1]
-        dented = sub > 0.0
-        rows = np.flatnonzero(dented.any(axis=1))
-        if rows.size == 0:
-            self._dent_box, self._dent_top = (0, 0, 0, 0), 0.0
-            return
-        cols = np.flatnonzero(dented.any(axis=0))
-        self._dent_box = (iu0 + int(cols[0]), iu0 + int(cols[-1]) + 1, jv0 + int(rows[0]), jv0 + int(rows[-1]) + 1)
-        self._dent_top = float(sub.max())
+    def _find_dent(self, boxes) -> None:
+        """Shrink :attr:`_dent_boxes` to the deformed samples inside ``boxes`` (disjoint grid boxes
+        holding them all) and note their largest deformation: O(boxes), not O(grid)."""
+        found, top = [], 0.0
+        for box in boxes:
+            n = dent_boxes(self._deform, *box, self._dent_found)
+            if n > self._dent_found.shape[0]:
+                self._dent_found = np.empty((2 * n, 5))
+                n = dent_boxes(self._deform, *box, self._dent_found)
+            for a0, a1, b0, b1, t in self._dent_found[:n].tolist():
+                found.append((int(a0), int(a1), int(b0), int(b1)))
+                top = max(top, t)
+        self._dent_boxes, self._dent_top = found, top
+
+    @property
+    def _dent_box(self) -> tuple:
+        """The bounding box (iu0, iu1, jv0, jv1) of the deformed samples ((0, 0, 0, 0): none)."""
+        b = self._dent_boxes
+        if not b:
+            return (0, 0, 0, 0)
+        return (min(x[0] for x in b), max(x[1] for x in b), min(x[2] for x in b), max(x[3] for x in b))
 
     def _update_dent(self) -> None:
-        """Contour lines of the deformation (every :attr:`dent_step_nm` nm), lifted 0.1 nm off the
-        surface; computed on the part of the grid that is deformed (:attr:`_dent_box`) only."""
+        """Contour lines of the deformation (every :attr:`dent_step_nm` nm) on the surface, lifted
+        0.1 nm off it; computed on the deformed samples (:attr:`_dent_boxes`) only, written in place
+        into the lines' VTK arrays (:func:`~arsurf_viewer.patch.contour_patch`)."""
         top = self._dent_top
         if top < 0.02:  # nothing a reader could see: no lines
-            if self.dent_step_nm != 0.0 or self._dent_lines.n_points != 1:
-                self.dent_step_nm = 0.0
-                self._dent_lines.shallow_copy(self._pv.PolyData(np.zeros((1, 3))))
+            self.dent_step_nm = 0.0
+            if self._dent_segments:
+                self._set_dent_segments(0)
             return
         k = math.floor(math.log10(top / 4.0))
         step = max(m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= top / 4.0 * (1 + 1e-12))
         self.dent_step_nm = step
-        from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
-
-        iu0, iu1, jv0, jv1 = self._dent_box
-        # one sample of margin each side: the lines close where the deformation falls to 0
+        # one sample of margin each side: the lines close where the deformation falls to 0; boxes
+        # whose margins meet are contoured as one (no cell twice)
         nu, nv = self.resolution
-        a0, a1, b0, b1 = max(iu0 - 1, 0), min(iu1 + 1, nu), max(jv0 - 1, 0), min(jv1 + 1, nv)
-        self._dent_values = numpy_to_vtk(np.ascontiguousarray(self._deform[b0:b1, a0:a1]).ravel(), deep=1)
-        self._dent_image.SetDimensions(a1 - a0, b1 - b0, 1)
-        self._dent_image.GetPointData().SetScalars(self._dent_values)
+        boxes = merge_boxes([(max(a0 - 1, 0), min(a1 + 1, nu), max(b0 - 1, 0), min(b1 + 1, nv))
+                             for a0, a1, b0, b1 in self._dent_boxes])
         levels = np.arange(1, int(top / step) + 1) * step
-        contour = self._dent_contour
-        contour.SetNumberOfContours(levels.size)
-        for i, level in enumerate(levels):
-            contour.SetValue(i, float(level))
-        contour.Update()
-        out = contour.GetOutput()
-        if out.GetNumberOfPoints():
-            q = vtk_to_numpy(out.GetPoints().GetData())   # (x, y) = (column, row) inside the box
-            fi, fj = q[:, 0], q[:, 1]
-            i = np.clip(fi.astype(np.int64), 0, a1 - a0 - 2)
-            j = np.clip(fj.astype(np.int64), 0, b1 - b0 - 2)
-            tx, ty = (fi - i)[:, None], (fj - j)[:, None]
-            p = self._pts[b0:b1, a0:a1]
-            on_surface = ((1 - ty) * ((1 - tx) * p[j, i] + tx * p[j, i + 1])
-                          + ty * ((1 - tx) * p[j + 1, i] + tx * p[j + 1, i + 1]))
-            out.GetPoints().SetData(numpy_to_vtk(on_surface, deep=1))
-        self._dent_lines.ShallowCopy(out)
+        n = self._contour(boxes, levels)
+        if 2 * n > self._dent_xyz.shape[0]:  # more segments than ever before: room for twice as many
+            self._dent_xyz = np.empty((4 * n, 3))
+            self._dent_ids = np.arange(4 * n, dtype=np.int64)
+            self._dent_starts = np.arange(0, 4 * n + 1, 2, dtype=np.int64)
+            n = self._contour(boxes, levels)
+        self._set_dent_segments(n)
+
+    def _contour(self, boxes, levels) -> int:
+        """Segments of the deformation's ``levels`` in each grid box, one after another into
+        :attr:`_dent_xyz` (as far as it holds them); returns how many there are."""
+        n = 0
+        for a0, a1, b0, b1 in boxes:
+            n += contour_patch(self._deform, self._pts, a0, a1, b0, b1, levels, self._dent_xyz[2 * n:])
+        return n
+
+    def _set_dent_segments(self, n: int) -> None:
+        """Show the first ``n`` segments of :attr:`_dent_xyz` as the dent's lines: the VTK arrays
+        point into the buffers (``SetVoidArray``, no copy), which the view keeps alive."""
+        self._dent_segments = n
+        xyz, ids = self._dent_xyz, self._dent_ids
+        self._dent_coords.SetVoidArray(xyz, 3 * max(2 * n, 1), 1)  # a point even without lines (VTK needs one)
+        self._dent_offsets.SetVoidArray(self._dent_starts, n + 1, 1)
+        self._dent_connectivity.SetVoidArray(ids, 2 * n, 1)
+        self._dent_points.Modified()
+        self._dent_cells.SetData(self._dent_offsets, self._dent_connectivity)
+        self._dent_lines.Modified()
 
     def _build_scale_bar(self, width: float | None = None, origin=None) -> None:
         """The ``scalebar`` layer: a white bar of :func:`~arsurf._figure_style.scale_bar_length` of
@@ -670,8 +707,26 @@ class SurfaceView:
         elif self.color_by in _MATERIAL_MODES:
             self._mapper.scalar_range = self._material_clim[self.color_by]
         else:
-            self._mapper.scalar_range = (0.0, max(self._dent_top, 0.5))
+            self._mapper.scalar_range = (0.0, self._deform_clim)
         self._set_bar_ticks()
+
+    def _follow_dent_clim(self) -> None:
+        """Per frame: the deformation colours' upper limit grows (to the next 1-2-5 value) only when
+        the dent goes deeper than it; every other limit is fixed (:meth:`refresh_color_limits`)."""
+        if self._dent_top > self._deform_clim:
+            self._deform_clim = _round_up(self._dent_top)
+            if self.color_by == "deformation":
+                self._update_clim()
+
+    def refresh_color_limits(self) -> None:
+        """Recompute the colour limits from the surface as shown now (on demand, O(grid)): the
+        heights' 1st and 99th percentiles, and the deepest dent rounded up to a 1-2-5 value (at
+        least 0.5 nm). Frames never do this: the limits are the rest surface's (heights), and
+        the deformation's grow only when a dent goes deeper than them."""
+        lo, hi = robust_limits(self._height)
+        self._height_clim = (lo - 1.0, hi + 1.0) if hi - lo < 1e-3 else (lo, hi)
+        self._deform_clim = _round_up(self._dent_top)
+        self._update_clim()
 
     def _set_bar_ticks(self) -> None:
         """Colour-bar labels at round values (:func:`~arsurf._figure_style.round_ticks`), with the
@@ -784,14 +839,14 @@ class SurfaceView:
         c = state.tip_center * s
         m = np.diag([r, r, r, 1.0])
         m[:3, 3] = c
-        self.tip_actor.user_matrix = m
+        _set_user_matrix(self.tip_actor, m)
         self._tip_on = True
         if state.contact_point is not None:
             p = state.contact_point * s
             rc = 0.09 * r
             mc = np.diag([rc, rc, rc, 1.0])
             mc[:3, 3] = p
-            self.contact_actor.user_matrix = mc
+            _set_user_matrix(self.contact_actor, mc)
             if state.contact_normal is not None:
                 self.normal_arrow.place(p, state.contact_normal, 1.8 * r, 0.06 * r)
             self._contact_on = True
@@ -871,44 +926,40 @@ class SurfaceView:
 
     # -- per-frame work -----------------------------------------------------------------------
     def _sync_surface(self) -> None:
-        """Re-sample the part of the grid whose control points changed since the last frame."""
-        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dent first)
-        anything, box = self._watch.take()
+        """Re-sample the parts of the grid whose control points changed since the last frame (one
+        patch per box the deformers moved), find the deformed samples there and contour them."""
+        ctrl, ku, kv = self.surface.net_arrays()  # (moves the net to the loop's last dents first)
+        anything, boxes = self._watch.take()
         if anything:  # written from outside the deformers: compare the whole net
-            i0, i1, j0, j1 = _changed_box(ctrl, self._last_ctrl)
-        elif box is None:
-            return
-        else:  # only the deformers' boxes can differ
-            b0, b1, c0, c1 = box
-            i0, i1, j0, j1 = _changed_box(ctrl[b0:b1, c0:c1], self._last_ctrl[b0:b1, c0:c1])
+            boxes = [(0, ctrl.shape[0], 0, ctrl.shape[1])]
+        patches = []
+        for b0, b1, c0, c1 in boxes:  # only the deformers' boxes can differ
+            i0, i1, j0, j1 = changed_box(ctrl[b0:b1, c0:c1], self._last_ctrl[b0:b1, c0:c1])
+            if i1 <= i0:
+                continue
             i0, i1, j0, j1 = i0 + b0, i1 + b0, j0 + c0, j1 + c0
-        if i1 <= i0:
+            # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
+            patch = (int(np.searchsorted(self._u, ku[i0], side="left")),
+                     int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right")),
+                     int(np.searchsorted(self._v, kv[j0], side="left")),
+                     int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right")))
+            self._resample(*patch)
+            patches.append(patch)
+        if not patches:
             return
-        # control point i moves S only for u in [knots[i], knots[i + 4]] (local support)
-        iu0 = int(np.searchsorted(self._u, ku[i0], side="left"))
-        iu1 = int(np.searchsorted(self._u, ku[i1 - 1 + 4], side="right"))
-        jv0 = int(np.searchsorted(self._v, kv[j0], side="left"))
-        jv1 = int(np.searchsorted(self._v, kv[j1 - 1 + 4], side="right"))
-        self._resample(iu0, iu1, jv0, jv1)
-        # the deformed samples are in the old dent box or the re-sampled one
-        b = self._dent_box
-        self._find_dent((iu0, iu1, jv0, jv1) if b[1] <= b[0] else
-                        (min(b[0], iu0), max(b[1], iu1), min(b[2], jv0), max(b[3], jv1)))
-        self._update_clim()
+        # the deformed samples are in the old dent boxes or the re-sampled patches
+        self._find_dent(merge_boxes([*self._dent_boxes, *patches]))
+        self._follow_dent_clim()
         self._update_dent()
 
     def _resample(self, iu0: int, iu1: int, jv0: int, jv1: int) -> None:
+        """Re-sample the grid box [jv0, jv1) x [iu0, iu1) in place (points, normals, height,
+        deformation: :func:`~arsurf_viewer.patch.sample_patch`), O(box)."""
         if iu1 <= iu0 or jv1 <= jv0:
             return
-        uu, vv = np.meshgrid(self._u[iu0:iu1], self._v[jv0:jv1])
-        S, Su, Sv = self.surface.evaluate(uu, vv, 1)
-        n = np.cross(Su, Sv)
-        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
-        pts = S * SCENE_SCALE
-        self._pts[jv0:jv1, iu0:iu1] = pts
-        self._normals[jv0:jv1, iu0:iu1] = n
-        self._height[jv0:jv1, iu0:iu1] = pts[..., 2]
-        self._deform[jv0:jv1, iu0:iu1] = np.linalg.norm(pts - self._rest_points[jv0:jv1, iu0:iu1], axis=-1)
+        ctrl, ku, kv = self.surface.net_arrays()
+        sample_patch(ctrl, ku, kv, self._u, self._v, iu0, iu1, jv0, jv1, SCENE_SCALE, self._rest_points,
+                     self._pts, self._normals, self._height, self._deform)
         g = self.grid
         g.GetPoints().GetData().Modified()
         g.GetPoints().Modified()
@@ -938,7 +989,7 @@ class SurfaceView:
             m = np.eye(4)
             m[:3, :3] = _frame(tube.axis)
             m[:3, 3] = tube.centre * s
-            self._tubes[k][0].user_matrix = m
+            _set_user_matrix(self._tubes[k][0], m)
 
     def _update_probe(self, state: SceneState) -> None:
         if self._probe_radius != state.tip_radius:
@@ -946,7 +997,7 @@ class SurfaceView:
         m = np.eye(4)
         m[:3, 3] = state.tip_center * SCENE_SCALE
         for a in self._probe_actors:
-            a.user_matrix = m
+            _set_user_matrix(a, m)
 
     def _build_probe(self, tip_radius: float) -> None:
         from arsurf import meshes

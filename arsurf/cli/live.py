@@ -31,6 +31,24 @@ def _priority(text: str) -> int:
     return value
 
 
+#: devices whose driver answers from a thread of this process: a real-time loop thread would delay
+#: it on a busy core (the simulated Haply went unanswered for 0.4 s), so they, and an instrument
+#: (read by its link thread), keep the ordinary policy unless --realtime-priority N asks
+_DEVICE_THREADS = ("haply", "openhaptics")
+
+
+def _realtime_flags(s, what: str) -> None:
+    """``--realtime-priority N`` / ``--no-realtime-priority`` (dest ``realtime_priority``: None
+    is the default choice, :func:`arsurf.haptics.scheduler.choose_realtime`)."""
+    s.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
+                   help=f"run {what} under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
+                        "CAP_SYS_NICE or an rtprio limit). Default: SCHED_FIFO priority 10 where allowed, else the "
+                        "ordinary policy (what was chosen, and why, is printed and recorded in the session); "
+                        "haply, openhaptics and --instrument keep the ordinary policy unless asked (docs/bridge-safety.rst)")
+    s.add_argument("--no-realtime-priority", dest="realtime_priority", action="store_const", const=0,
+                   help=f"run {what} under the ordinary policy (recorded in the session)")
+
+
 def register(sub) -> None:
     from arsurf.haptics.backends import DEVICES
 
@@ -60,10 +78,7 @@ def register(sub) -> None:
     s.add_argument("--scale", type=_positive("probe m per stylus m"), default=1e-5,
                    help="probe metres per stylus metre (default 1e-5: 1 mm -> 10 nm)")
     s.add_argument("--seconds", type=_positive("seconds"), help="run this long (default: until Ctrl-C)")
-    s.add_argument("--realtime-priority", type=_priority, default=0, metavar="N",
-                   help="run the loop thread under SCHED_FIFO at priority N (1-99) where the OS allows it (root, "
-                        "CAP_SYS_NICE or an rtprio limit); 0, the default: the ordinary policy. Not with a device "
-                        "that answers from a thread of this process (haply, openhaptics): see docs/feel.rst")
+    _realtime_flags(s, "the loop thread")
     s.add_argument("--record", metavar="FILE", help="record the session to FILE (.h5, must not exist), replayable "
                    "with `arsurf replay FILE --scan SCAN`")
     _protection_flags(s)
@@ -157,6 +172,11 @@ def cmd_live(args) -> int:
             origin=[v * 1e-9 for v in (args.instrument_origin_nm or (0.0, 0.0, 0.0))],
             acquisition_period=None if args.acq_period_ms is None else args.acq_period_ms * 1e-3,
             on_link_loss=args.on_link_loss)
+    from arsurf.haptics.scheduler import choose_realtime
+
+    realtime = choose_realtime(args.realtime_priority,
+                               device_thread=args.device in _DEVICE_THREADS or args.instrument is not None)
+    meta["realtime"] = realtime.to_metadata()
     stop = threading.Event()
 
     def on_signal(signum, frame_):
@@ -173,9 +193,10 @@ def cmd_live(args) -> int:
               + (f" with {args.instrument} (measured force)" if args.instrument else "")
               + (f" for {args.seconds:g} s" if args.seconds else " until Ctrl-C")
               + (f"; recording to {record}" if record else ""), file=sys.stderr)
+        print(f"arsurf live: {realtime.describe()}", file=sys.stderr)
         result = run_live(meta, device, backend=args.device, instrument=instrument, photodiode=photodiode,
                           frame=frame, axes=args.instrument_axes, max_age=None if args.max_age_ms is None else args.max_age_ms * 1e-3, record=record,
-                          seconds=args.seconds, stop=stop, setup=setup, priority=args.realtime_priority)
+                          seconds=args.seconds, stop=stop, setup=setup, priority=realtime.priority)
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)

@@ -10,7 +10,7 @@ import time
 
 from arsurf.cli.args import (_count, _nm, _picture_size, _positive, _prepare, _processing_flags,
                               _protection_flags, _protections, _record_target)
-from arsurf.cli.live import _priority
+from arsurf.cli.live import _realtime_flags
 
 #: frames of the scripted offscreen path (approach, indent, slide, retract: one at least each);
 #: the same bound as :func:`arsurf_viewer.interactive.scripted_path`, which this module must not import
@@ -38,11 +38,7 @@ def register(sub) -> None:
     s.add_argument("--bridge-peer-timeout", type=_positive("seconds"), default=None, metavar="S",
                    help="let another client take over after the pinned one has been silent S seconds "
                         "(default: never during the session; the client's RELEASE always does)")
-    s.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
-                   help="with --bridge-port: run the haptic loop thread under SCHED_FIFO at priority N (1-99) where "
-                        "the OS allows it (root, CAP_SYS_NICE or an rtprio limit): the loop keeps its 1 kHz when "
-                        "other processes, a flood of the port among them, compete for the CPU (default: the "
-                        "ordinary policy)")
+    _realtime_flags(s, "the haptic loop thread of --bridge-port")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     _protection_flags(s)
     s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
@@ -86,7 +82,8 @@ def _bridge_setup(args):
         given = [f for f, v in (("--host", args.bridge_host), ("--bridge-key", args.bridge_key),
                                 ("--bridge-key-file", args.bridge_key_file),
                                 ("--bridge-peer-timeout", args.bridge_peer_timeout), ("--record", args.record),
-                                ("--realtime-priority", args.realtime_priority))
+                                ("--realtime-priority" if args.realtime_priority else "--no-realtime-priority",
+                                 args.realtime_priority))
                  if v is not None]
         given += [f for f, on in (("--no-virtual-coupling", args.virtual_coupling), ("--no-passivity", args.passivity))
                   if not on]
@@ -182,6 +179,7 @@ def _bridge_view(args, bridge, record) -> int:
     from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, build_model, loop_metadata, preset_metadata
     from arsurf.config import DeviceConfig
     from arsurf.errors import require
+    from arsurf.haptics.scheduler import choose_realtime
     from arsurf.haptics.udp_bridge import VERSION
     from arsurf.live import bridge_loop
     from arsurf.sessions.writer import SessionWriter, record_loop_tick
@@ -195,8 +193,10 @@ def _bridge_view(args, bridge, record) -> int:
                            sigma=args.sigma_nm * 1e-9, haptics={**BRIDGE_HAPTICS, "scale": args.scale, "virtual_coupling": True,
                                                                   "passivity": True, **_protections(args)})
     setup = build_model(meta)
+    realtime = choose_realtime(args.realtime_priority)
+    meta["realtime"] = realtime.to_metadata()
     live = bridge_loop(setup.model, setup.config.haptics, host=bridge.host, port=bridge.port, key=bridge.key,
-                       peer_timeout=bridge.peer_timeout, priority=args.realtime_priority or 0)
+                       peer_timeout=bridge.peer_timeout, priority=realtime.priority)
     dev = live.device
     try:
         dev.open()  # a busy port fails here, before a recording starts
@@ -213,6 +213,7 @@ def _bridge_view(args, bridge, record) -> int:
             print(f"arsurf view: haptic loop running at 1 kHz, listening for authenticated stylus poses on UDP "
                   f"{host}:{port} (`python -m arsurf.haptics.client` and examples/cpp are clients)"
                   + (f"; recording to {record}" if record else ""), file=sys.stderr)
+            print(f"arsurf view: {realtime.describe()}", file=sys.stderr)
             try:
                 if show and has_display():
                     from arsurf_viewer.interactive import run_interactive

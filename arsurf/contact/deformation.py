@@ -58,7 +58,7 @@ not know) is put on the sphere. Every other control point keeps its rest positio
 Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
 (+ one knot spacing) of the tip axis' foot can move: the kernel puts the previous box back to
 rest where the new one does not cover it and writes the new one, each point once, so a dent
-costs O((2 r_b/h)²) whatever the scan size (:func:`deform_kernel`). That is
+costs O((2 r_b/h)²) whatever the scan size (:func:`sync_dent_kernel`). That is
 :math:`(2r_b/h)^2`: 27,000 points for a 20 nm tip on a 0.25 nm net, 250,000 at 0.1 nm and
 50 nm. So the haptic tick does not dent: it *records* the dent (centre, normal, R, a, δ, c:
 :func:`record_dent_kernel`, O(1) whatever the pitch), and the net is moved to the recorded dent
@@ -67,8 +67,23 @@ when it is next read (:meth:`Deformer.sync`, called by
 the control points, the kernel arrays). A reader therefore sees exactly, bitwise, the full dent
 of the last tick - there is no approximation to state - and the work is done at the reader's
 rate (a 60 Hz view) instead of the tick's (10 kHz), once per read. (The compiled tick holds
-the GIL, so a reader in another thread never sees a half-recorded dent.)
+the GIL while it records, and the reader copies the record while it holds the GIL, so it never
+sees a half-recorded dent; the net is then written without the GIL - the tick never reads the
+live net - so a reader in another thread does not stall the haptic thread.)
 :meth:`Deformer.release` puts the box back to rest; ``surface.reset()`` restores everything.
+
+**Several contacts of one tip** (a groove, two asperities: contacts k = 1..n with their own
+normal n_k, contact radius a_k, depth δ_k and zone c_k) each record a dent, and the net is
+moved to all of them at once: a point inside contact k's disc goes onto the tip's cap along
+n_k; elsewhere the elastic displacements add,
+
+.. math:: P = P_0 - \sum_k u_k(ρ_k)\, n_k ,
+
+the half-space's response to the sum of the contacts' tractions (linear elasticity: Johnson
+1985 §3.2, superposition of Boussinesq's solution), each :math:`u_k` the single-contact
+profile above; a point still inside the tip then goes onto the sphere. The cost is that of
+the union of the contacts' boxes (each point written once), and one contact is the
+single-contact dent bit for bit.
 
 The rest net must be a height-field net on the Greville abscissae (what
 :func:`arsurf.fit_surface` builds), so the index box is found in O(1) from the knot spacing.
@@ -80,6 +95,7 @@ displacement outside the contact) and §3.8 (flat punch); D. Maugis, J. Colloid 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,6 +115,7 @@ PROFILE_SIZE = 32
 DENT_PATCH = Layout("dent patch", [("rows", 2), ("columns", 2)])
 _I0, _J0 = DENT_PATCH.offset("rows"), DENT_PATCH.offset("columns")
 _I1, _J1 = _I0 + 1, _J0 + 1
+_PATCH = DENT_PATCH.size
 #: the contact zone is put on the sphere up to a = SPHERE_LIMIT R; a wider contact (far beyond
 #: small strain, where the sphere turns vertical) follows the contact's own paraboloid
 SPHERE_LIMIT = 0.9
@@ -308,121 +325,203 @@ def _dent_box(nu, nv, ku, kv, cx, cy, radius, contact_radius):
     return i0, i1, j0, j1
 
 
-@njit(cache=True)
-def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
-                  profile, patch):
-    """Move the net from the dent in ``patch`` (i0, i1, j0, j1) to the dent of this tip; write
-    its index box to ``patch``. The full dent (the module docstring's rule), exact.
-
-    Incremental: the points of the previous box outside the new one go back to rest; inside the
-    new box every point is written (dented, or back to rest if the previous box held it), so
-    each point is touched once. ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface
-    outside the contact (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a
-    scratch array of :data:`PROFILE_SIZE` floats. Returns the number of control points dented
-    (>= 0). ``contact_radius`` <= 0 only pushes points out of the sphere (no contact zone, no
-    elastic surface); a ``radius`` <= 0 releases.
-    """
-    nu = ctrl.shape[0]
-    nv = ctrl.shape[1]
-    o0, o1, p0, p1 = patch[_I0], patch[_I1], patch[_J0], patch[_J1]
-    i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, cx, cy, radius, contact_radius)
-    # 1. the previous box outside the new one back to rest
-    for i in range(o0, o1):
-        inside_i = i0 <= i < i1
-        for j in range(p0, p1):
-            if inside_i and j0 <= j < j1:
-                continue
-            for c in range(3):
-                ctrl[i, j, c] = rest[i, j, c]
-    patch[_I0] = i0
-    patch[_I1] = i1
-    patch[_J0] = j0
-    patch[_J1] = j1
-    if i0 >= i1:
-        return 0
-    a = contact_radius if contact_radius > 0.0 else 0.0
-    r_elastic = PATCH_PER_CONTACT * a          # the elastic surface, faded over its outer half
-    r_box = max(radius, r_elastic)             # ... and the no-interpenetration guard out to R
-    n_prof = profile.size
-    scale = 0.0
-    if a > 0.0:
-        _fill_profile(profile, a, radius, depth, zone_radius, r_elastic)
-        scale = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
-    r2 = radius * radius
-    rb2 = r_box * r_box
-    re2 = r_elastic * r_elastic
-    a2 = a * a
-    sphere = a <= SPHERE_LIMIT * radius
-    moved = 0
-    for i in range(i0, i1):
-        old_i = o0 <= i < o1
-        for j in range(j0, j1):
-            old = old_i and p0 <= j < p1   # the previous dent may have moved this point
-            px = rest[i, j, 0] - cx
-            py = rest[i, j, 1] - cy
-            pz = rest[i, j, 2] - cz
-            s = px * nx + py * ny + pz * nz
-            rx = px - s * nx
-            ry = py - s * ny
-            rz = pz - s * nz
-            rho2 = rx * rx + ry * ry + rz * rz
-            if rho2 < a2:
-                if sphere:
-                    cap = -math.sqrt(r2 - rho2)
-                    ctrl[i, j, 0] = cx + rx + cap * nx
-                    ctrl[i, j, 1] = cy + ry + cap * ny
-                    ctrl[i, j, 2] = cz + rz + cap * nz
-                else:  # a > 0.9 R (far beyond small strain): the contact's own paraboloid
-                    u = depth - 0.5 * rho2 / radius
-                    ctrl[i, j, 0] = rest[i, j, 0] - u * nx
-                    ctrl[i, j, 1] = rest[i, j, 1] - u * ny
-                    ctrl[i, j, 2] = rest[i, j, 2] - u * nz
-                moved += 1
-                continue
-            if rho2 >= rb2 or (rho2 >= re2 and px * px + py * py + pz * pz >= r2):
-                # beyond the elastic surface and outside the tip: at rest, bitwise
-                if old:
-                    for c in range(3):
-                        ctrl[i, j, c] = rest[i, j, c]
-                continue
-            qx = rest[i, j, 0]
-            qy = rest[i, j, 1]
-            qz = rest[i, j, 2]
-            if rho2 < re2:  # the elastic surface outside the contact
-                x = math.sqrt(rho2 - a2) * scale
-                k = int(x)
-                if k >= n_prof - 1:
-                    k = n_prof - 2
-                f = x - k
-                u = profile[k] + f * (profile[k + 1] - profile[k])
-                qx -= u * nx
-                qy -= u * ny
-                qz -= u * nz
-            if rho2 < r2:
-                dx = qx - cx
-                dy = qy - cy
-                dz = qz - cz
-                if dx * dx + dy * dy + dz * dz < r2:  # still inside the tip: onto the sphere
-                    cap = -math.sqrt(r2 - rho2)
-                    qx = cx + rx + cap * nx
-                    qy = cy + ry + cap * ny
-                    qz = cz + rz + cap * nz
-            ctrl[i, j, 0] = qx
-            ctrl[i, j, 1] = qy
-            ctrl[i, j, 2] = qz
-            moved += 1
-    return moved
-
-
 # The dent as the tick records it (DENT vector, float64): the tick writes these numbers, O(1)
-# whatever the pitch, and the net is moved to them when it is read (Deformer.sync)
+# whatever the pitch, and the net is moved to them when it is read (Deformer.sync). A model with
+# several contacts records one DENT per contact, one after the other (sync_dent_kernel).
 DENT = Layout("recorded dent", [("seq", 1), ("center", 3), ("radius", 1), ("normal", 3), ("contact_radius", 1),
                                  ("depth", 1), ("zone_radius", 1)])
 D_SEQ, D_CX, D_RADIUS, D_NX = DENT.offset("seq"), DENT.offset("center"), DENT.offset("radius"), DENT.offset("normal")
 D_CY, D_CZ, D_NY, D_NZ = D_CX + 1, D_CX + 2, D_NX + 1, D_NX + 2
 D_A, D_DEPTH, D_ZONE = DENT.offset("contact_radius"), DENT.offset("depth"), DENT.offset("zone_radius")
-#: length of the recorded dent (:func:`record_dent_kernel`)
+#: length of the recorded dent of one contact (:func:`record_dent_kernel`)
 DENT_SIZE = DENT.size
+
+
+@njit(cache=True, inline="always")
+def _in_boxes(boxes, n, i, j):
+    """True if control point (i, j) lies in one of the first ``n`` index boxes (:data:`DENT_PATCH` each)."""
+    for k in range(n):
+        b = k * _PATCH
+        if boxes[b + _I0] <= i < boxes[b + _I1] and boxes[b + _J0] <= j < boxes[b + _J1]:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _axis(rest, i, j, dents, b):
+    """Rest point (i, j) about the tip axis of the dent at ``dents[b:]``: (px, py, pz) = P₀ - C, the
+    radial part (rx, ry, rz) and ρ² (module docstring)."""
+    px = rest[i, j, 0] - dents[b + D_CX]
+    py = rest[i, j, 1] - dents[b + D_CY]
+    pz = rest[i, j, 2] - dents[b + D_CZ]
+    nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
+    s = px * nx + py * ny + pz * nz
+    rx = px - s * nx
+    ry = py - s * ny
+    rz = pz - s * nz
+    return px, py, pz, rx, ry, rz, rx * rx + ry * ry + rz * rz
+
+
+@njit(cache=True)
+def _dent_point(ctrl, rest, i, j, dents, n_dents, profiles, n_prof, scales, old):
+    """Write control point (i, j) under the recorded dents (the module docstring's rule; several
+    contacts of one tip superpose their elastic surfaces); returns 1 if it is dented, 0 if it is
+    at rest (written back only when ``old``: a previous dent may have moved it)."""
+    # 1. inside a contact disc: on the tip's cap (or the contact's paraboloid beyond SPHERE_LIMIT)
+    for k in range(n_dents):
+        b = k * DENT_SIZE
+        radius = dents[b + D_RADIUS]
+        if radius <= 0.0:
+            continue
+        a = max(dents[b + D_A], 0.0)
+        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
+        if rho2 < a * a:
+            nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
+            if a <= SPHERE_LIMIT * radius:
+                cap = -math.sqrt(radius * radius - rho2)
+                ctrl[i, j, 0] = dents[b + D_CX] + rx + cap * nx
+                ctrl[i, j, 1] = dents[b + D_CY] + ry + cap * ny
+                ctrl[i, j, 2] = dents[b + D_CZ] + rz + cap * nz
+            else:
+                u = dents[b + D_DEPTH] - 0.5 * rho2 / radius
+                ctrl[i, j, 0] = rest[i, j, 0] - u * nx
+                ctrl[i, j, 1] = rest[i, j, 1] - u * ny
+                ctrl[i, j, 2] = rest[i, j, 2] - u * nz
+            return 1
+    # 2. the elastic surfaces outside the contacts, superposed (linear elasticity)
+    qx = rest[i, j, 0]
+    qy = rest[i, j, 1]
+    qz = rest[i, j, 2]
+    near = False
+    for k in range(n_dents):
+        b = k * DENT_SIZE
+        radius = dents[b + D_RADIUS]
+        if radius <= 0.0:
+            continue
+        a = max(dents[b + D_A], 0.0)
+        r_elastic = PATCH_PER_CONTACT * a
+        r_box = max(radius, r_elastic)
+        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
+        if rho2 >= r_box * r_box or (rho2 >= r_elastic * r_elastic and px * px + py * py + pz * pz >= radius * radius):
+            continue  # beyond this dent's elastic surface and outside its tip
+        near = True
+        if rho2 < r_elastic * r_elastic:
+            x = math.sqrt(rho2 - a * a) * scales[k]
+            m = int(x)
+            if m >= n_prof - 1:
+                m = n_prof - 2
+            f = x - m
+            p0 = k * n_prof + m
+            u = profiles[p0] + f * (profiles[p0 + 1] - profiles[p0])
+            qx -= u * dents[b + D_NX]
+            qy -= u * dents[b + D_NY]
+            qz -= u * dents[b + D_NZ]
+    if not near:  # at rest, bitwise
+        if old:
+            for c in range(3):
+                ctrl[i, j, c] = rest[i, j, c]
+        return 0
+    # 3. still inside the tip: onto the sphere
+    for k in range(n_dents):
+        b = k * DENT_SIZE
+        radius = dents[b + D_RADIUS]
+        if radius <= 0.0:
+            continue
+        r2 = radius * radius
+        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
+        if rho2 < r2:
+            cx, cy, cz = dents[b + D_CX], dents[b + D_CY], dents[b + D_CZ]
+            dx = qx - cx
+            dy = qy - cy
+            dz = qz - cz
+            if dx * dx + dy * dy + dz * dz < r2:
+                cap = -math.sqrt(r2 - rho2)
+                qx = cx + rx + cap * dents[b + D_NX]
+                qy = cy + ry + cap * dents[b + D_NY]
+                qz = cz + rz + cap * dents[b + D_NZ]
+                break
+    ctrl[i, j, 0] = qx
+    ctrl[i, j, 1] = qy
+    ctrl[i, j, 2] = qz
+    return 1
+
+
+@njit(cache=True, nogil=True)
+def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
+    """Move the net from the dents in ``patch`` to the dents recorded in ``dent``; write their
+    index boxes to ``patch``. The full dent (the module docstring's rule), exact.
+
+    ``dent`` holds one :data:`DENT` record per contact (n × :data:`DENT_SIZE` floats; a record
+    with R <= 0 is no dent), ``patch`` their index boxes (n × :data:`DENT_PATCH` int64),
+    ``profile`` n × :data:`PROFILE_SIZE` floats of scratch. The contacts of one tip superpose
+    their elastic surfaces (linear elasticity); a point inside a contact disc lies on the tip;
+    one contact is :func:`deform_kernel`'s dent, bit for bit.
+
+    Incremental: the points of the previous boxes outside every new one go back to rest; inside
+    the new boxes every point is written once (dented, or back to rest if a previous box held
+    it). Cost O(points in the boxes × n), whatever the net's size. Runs without the GIL: the
+    tick (which never reads the live net) goes on while a reader in another thread syncs.
+    Returns the number of control points dented (>= 0).
+    """
+    nu = ctrl.shape[0]
+    nv = ctrl.shape[1]
+    n_dents = dent.size // DENT_SIZE
+    n_prof = profile.size // n_dents
+    boxes = np.zeros(n_dents * _PATCH, dtype=np.int64)
+    scales = np.zeros(n_dents)
+    for k in range(n_dents):
+        b = k * DENT_SIZE
+        q = k * _PATCH
+        radius = dent[b + D_RADIUS]
+        i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, dent[b + D_CX], dent[b + D_CY], radius, dent[b + D_A])
+        boxes[q + _I0] = i0
+        boxes[q + _I1] = i1
+        boxes[q + _J0] = j0
+        boxes[q + _J1] = j1
+        a = max(dent[b + D_A], 0.0)
+        if i0 < i1 and a > 0.0:
+            r_elastic = PATCH_PER_CONTACT * a   # the elastic surface, faded over its outer half
+            _fill_profile(profile[k * n_prof:(k + 1) * n_prof], a, radius, dent[b + D_DEPTH], dent[b + D_ZONE],
+                          r_elastic)
+            scales[k] = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
+    # 1. the previous boxes outside every new one back to rest
+    for k in range(n_dents):
+        q = k * _PATCH
+        for i in range(patch[q + _I0], patch[q + _I1]):
+            for j in range(patch[q + _J0], patch[q + _J1]):
+                if not _in_boxes(boxes, n_dents, i, j):
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
+    # 2. the new boxes, each point once
+    moved = 0
+    for k in range(n_dents):
+        q = k * _PATCH
+        for i in range(boxes[q + _I0], boxes[q + _I1]):
+            for j in range(boxes[q + _J0], boxes[q + _J1]):
+                if _in_boxes(boxes, k, i, j):
+                    continue  # written with an earlier box
+                moved += _dent_point(ctrl, rest, i, j, dent, n_dents, profile, n_prof, scales,
+                                     _in_boxes(patch, n_dents, i, j))
+    for k in range(boxes.size):
+        patch[k] = boxes[k]
+    return moved
+
+
+@njit(cache=True)
+def deform_kernel(ctrl, rest, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius,
+                  profile, patch):
+    """Move the net from the dent in ``patch`` (i0, i1, j0, j1) to the dent of this tip; write
+    its index box to ``patch``: :func:`sync_dent_kernel` for one contact given by its numbers.
+
+    ``depth`` δ and ``zone_radius`` c (m) shape the elastic surface outside the contact
+    (:func:`elastic_displacement`; Hertz: δ = a²/R, c = a); ``profile`` is a scratch array of
+    :data:`PROFILE_SIZE` floats. Returns the number of control points dented (>= 0).
+    ``contact_radius`` <= 0 only pushes points out of the sphere (no contact zone, no elastic
+    surface); a ``radius`` <= 0 releases.
+    """
+    dent = np.zeros(DENT_SIZE)
+    record_dent_kernel(dent, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_radius, depth, zone_radius)
+    return sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch)
 
 
 @njit(cache=True)
@@ -431,7 +530,8 @@ def record_dent_kernel(dent, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_rad
 
     The arguments are those of :func:`deform_kernel` (``radius`` <= 0: no dent). The sequence
     number ``dent[D_SEQ]`` grows by one per record. Returns the number of control points in
-    the dent's index box (those the dent may move; 0 without a dent): the tick's ``moved``."""
+    the dent's index box (those the dent may move; 0 without a dent): the tick's ``moved``.
+    A model with several contacts records contact k in ``record[k * DENT_SIZE:]``."""
     dent[D_CX] = cx
     dent[D_CY] = cy
     dent[D_CZ] = cz
@@ -447,13 +547,6 @@ def record_dent_kernel(dent, ku, kv, cx, cy, cz, radius, nx, ny, nz, contact_rad
     return (i1 - i0) * (j1 - j0)
 
 
-@njit(cache=True)
-def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
-    """Move the net to the dent recorded in ``dent`` (:func:`deform_kernel`); returns the points dented."""
-    return deform_kernel(ctrl, rest, ku, kv, dent[D_CX], dent[D_CY], dent[D_CZ], dent[D_RADIUS], dent[D_NX],
-                         dent[D_NY], dent[D_NZ], dent[D_A], dent[D_DEPTH], dent[D_ZONE], profile, patch)
-
-
 @dataclass(frozen=True)
 class DeformationResult:
     """What one :meth:`Deformer.apply` did: points moved and the index box touched."""
@@ -463,25 +556,29 @@ class DeformationResult:
 
 
 class Deformer:
-    """Dents a surface's control net around the tip, one contact at a time, reversibly.
+    """Dents a surface's control net around the tip, one or several contacts, reversibly.
 
     :meth:`apply` dents the net at once. The compiled tick only *records* its dent in
     :attr:`dent` (:func:`record_dent_kernel`, O(1) whatever the pitch); the net is moved to the
     recorded dent when it is next read (:meth:`sync`, which the surface calls from
     :meth:`~arsurf.spline.surface.BSplineSurface.sync` before anything reads it), so a reader
-    always sees exactly the full dent of the last tick (:func:`deform_kernel`), and the tick
-    does not pay for control points nobody looks at.
+    always sees exactly the full dent of the last tick (:func:`sync_dent_kernel`), and the tick
+    does not pay for control points nobody looks at. A tip touching at several points records
+    one dent per contact (``contacts`` > 1; contact k at ``record[at + k * DENT_SIZE:]``): one
+    sync writes them all, superposed, in O(their boxes).
 
     Parameters
     ----------
     surface : BSplineSurface
         Its rest net must be a height-field net (as :func:`arsurf.fit_surface` makes).
     record : float64 array, optional
-        The vector the tick records its dent in (the model's contact vector), its
+        The vector the tick records its dents in (the model's contact vector), ``contacts`` ×
         :data:`DENT_SIZE` floats from offset ``at``; default a vector of its own. (Kept as the
         vector and an offset, not a view, so that a deep copy of a model stays connected.)
     at : int
-        Offset of the dent in ``record``.
+        Offset of the first contact's dent in ``record``.
+    contacts : int
+        How many contacts can dent at once (default 1).
 
     Examples
     --------
@@ -495,7 +592,7 @@ class Deformer:
     False
     """
 
-    def __init__(self, surface: BSplineSurface, record: np.ndarray | None = None, at: int = 0):
+    def __init__(self, surface: BSplineSurface, record: np.ndarray | None = None, at: int = 0, contacts: int = 1):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"Deformer needs a BSplineSurface (got {type(surface).__name__})")
         if not surface.is_height_field_net:
@@ -503,20 +600,35 @@ class Deformer:
                 "the surface's rest net is not a height-field net (x must depend on i only and y on j only); "
                 "build it with arsurf.fit_surface or BSplineSurface.from_heights"
             )
+        if isinstance(contacts, bool) or not isinstance(contacts, (int, np.integer)) or contacts < 1:
+            raise ContactError(f"`contacts` must be an integer >= 1 (got {contacts!r}); it is how many contacts dent")
         self.surface = surface
-        self.patch = np.zeros(DENT_PATCH.size, dtype=np.int64)
-        self.profile = np.zeros(PROFILE_SIZE)
-        self._record = np.zeros(DENT_SIZE) if record is None else record
+        self.contacts = int(contacts)
+        self.patch = np.zeros(_PATCH * self.contacts, dtype=np.int64)
+        self.profile = np.zeros(PROFILE_SIZE * self.contacts)
+        size = DENT_SIZE * self.contacts
+        self._record = np.zeros(size) if record is None else record
         self._at = int(at)
-        if self._record.ndim != 1 or self._record.dtype != np.float64 or not 0 <= self._at <= self._record.size - DENT_SIZE:
-            raise ContactError(f"`record` must be a float64 vector holding {DENT_SIZE} floats from offset {at} "
+        if self._record.ndim != 1 or self._record.dtype != np.float64 or not 0 <= self._at <= self._record.size - size:
+            raise ContactError(f"`record` must be a float64 vector holding {size} floats from offset {at} "
                                f"(got {self._record.dtype} {self._record.shape})")
-        self._applied = float(self._record[self._at + D_SEQ])  # the recorded dent the net shows
+        self._applied = self._seqs.copy()  # the recorded dents the net shows
+        self._lock = threading.Lock()      # one sync at a time (the kernel runs without the GIL)
         surface.attach_dent(self)
 
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        del state["_lock"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+
     def apply(self, center, radius: float, normal, contact_radius: float, *, depth: float | None = None,
-              zone_radius: float | None = None) -> DeformationResult:
-        """Release the previous dent and press the tip sphere (centre, radius) into the net.
+              zone_radius: float | None = None, contact: int = 0) -> DeformationResult:
+        """Press the tip sphere (centre, radius) into the net as contact ``contact`` (replacing
+        that contact's previous dent; the other contacts' stay).
 
         Parameters
         ----------
@@ -528,6 +640,8 @@ class Deformer:
             Indentation δ of the contact (default a²/R: Hertz).
         zone_radius : float, metres, optional
             Outer radius c >= a of the Dugdale zone (default a: no adhesive zone).
+        contact : int
+            Which of the ``contacts`` dents this is (default 0).
         """
         c = np.asarray(center, dtype=np.float64).reshape(3)
         n = np.asarray(normal, dtype=np.float64).reshape(3)
@@ -549,53 +663,78 @@ class Deformer:
         norm = float(np.linalg.norm(n))
         if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-6):
             raise ContactError(f"`normal` must be a unit vector (got {n}, |n| = {norm:.6g})")
+        k = self._contact_index(contact)
         _, _, ku, kv = self.surface.raw_arrays()
-        record_dent_kernel(self.dent, ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2], contact_radius, depth,
+        record_dent_kernel(self.slot(k), ku, kv, c[0], c[1], c[2], radius, n[0], n[1], n[2], contact_radius, depth,
                            zone_radius)
         moved = self.sync()
-        return DeformationResult(int(moved), tuple(int(p) for p in self.patch))
+        return DeformationResult(int(moved), tuple(int(p) for p in self.patch[k * _PATCH:(k + 1) * _PATCH]))
 
-    def release(self) -> None:
-        """Put the last dented patch back to its rest positions (bitwise)."""
+    def release(self, contact: int | None = None) -> None:
+        """Put the dented points back to their rest positions (bitwise): every contact's, or
+        only contact ``contact``'s."""
         _, _, ku, kv = self.surface.raw_arrays()
-        record_dent_kernel(self.dent, ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+        for k in range(self.contacts) if contact is None else (self._contact_index(contact),):
+            record_dent_kernel(self.slot(k), ku, kv, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
         self.sync()
+
+    def _contact_index(self, contact) -> int:
+        if isinstance(contact, bool) or not isinstance(contact, (int, np.integer)) or not 0 <= contact < self.contacts:
+            raise ContactError(f"`contact` must be an integer in [0, {self.contacts}) (got {contact!r}): "
+                               f"this deformer dents {self.contacts} contact(s)")
+        return int(contact)
 
     @property
     def dent(self) -> np.ndarray:
-        """The recorded dent (:data:`DENT_SIZE`,): a view into the record vector."""
-        return self._record[self._at:self._at + DENT_SIZE]
+        """The recorded dents (``contacts`` × :data:`DENT_SIZE`,): a view into the record vector."""
+        return self._record[self._at:self._at + DENT_SIZE * self.contacts]
+
+    def slot(self, contact: int) -> np.ndarray:
+        """The recorded dent of contact ``contact`` (:data:`DENT_SIZE`,): a view into the record vector."""
+        b = self._at + DENT_SIZE * contact
+        return self._record[b:b + DENT_SIZE]
+
+    @property
+    def _seqs(self) -> np.ndarray:
+        """The contacts' sequence numbers (a strided view)."""
+        return self._record[self._at + D_SEQ:self._at + DENT_SIZE * self.contacts:DENT_SIZE]
 
     @property
     def pending(self) -> bool:
         """True when a dent was recorded that the net does not show yet."""
-        return float(self._record[self._at + D_SEQ]) != self._applied
+        return not np.array_equal(self._seqs, self._applied)
 
     def sync(self) -> int:
-        """Move the net to the last recorded dent (nothing if it shows it already), O(dent box);
-        returns the number of control points dented. Tell the projection's hull boxes and the
-        surface's watchers which index boxes changed (the old and the new box)."""
-        seq = float(self._record[self._at + D_SEQ])
-        if seq == self._applied:
-            return -1
-        before = self.patch.copy()
-        ctrl, rest, ku, kv = self.surface.raw_arrays()
-        moved = sync_dent_kernel(ctrl, rest, ku, kv, self.dent, self.profile, self.patch)
-        self._applied = seq
-        self._refresh(before)
+        """Move the net to the last recorded dents (nothing if it shows them already), O(dent
+        boxes); returns the number of control points dented (-1: nothing to do). The dents are
+        copied while the GIL is held (the compiled tick, which records them, holds it), then
+        the net is written without the GIL, so the haptic thread ticks on meanwhile. Tells the
+        projection's hull boxes and the surface's watchers which index boxes changed."""
+        with self._lock:
+            seqs = self._seqs.copy()
+            if np.array_equal(seqs, self._applied):
+                return -1
+            dents = self.dent.copy()
+            before = self.patch.copy()
+            ctrl, rest, ku, kv = self.surface.raw_arrays()
+            moved = sync_dent_kernel(ctrl, rest, ku, kv, dents, self.profile, self.patch)
+            self._applied = seqs
+            self._refresh(before)
         return moved
 
     def forget(self) -> None:
         """The net was put back to rest by someone else (``surface.reset()``): no dent is shown."""
         self.patch[:] = 0
-        self._applied = float(self._record[self._at + D_SEQ])
+        self._applied = self._seqs.copy()
 
     def _refresh(self, before: np.ndarray) -> None:
         """Tell the projection's hull boxes and the surface's watchers which index boxes changed
-        (old and new patch), O(patch)."""
+        (old and new patches), O(patch)."""
         from arsurf.contact.projection import refresh_region
 
-        for box in (before, self.patch):
-            if box[1] > box[0] and box[3] > box[2]:
-                refresh_region(self.surface, int(box[0]), int(box[1]), int(box[2]), int(box[3]))
-                self.surface.touched(int(box[0]), int(box[1]), int(box[2]), int(box[3]))
+        for patch in (before, self.patch):
+            for box in patch.reshape(-1, _PATCH):
+                if box[_I1] > box[_I0] and box[_J1] > box[_J0]:
+                    i0, i1, j0, j1 = int(box[_I0]), int(box[_I1]), int(box[_J0]), int(box[_J1])
+                    refresh_region(self.surface, i0, i1, j0, j1)
+                    self.surface.touched(i0, i1, j0, j1)

@@ -203,7 +203,7 @@ class ForceDimensionDevice(HardwareDevice):
     Parameters
     ----------
     index : int, optional
-        Which connected device (``dhdOpenID``); None: the first available (``dhdOpen``).
+        Which connected device (``drdOpenID``); None: the first available (``drdOpen``).
     max_force : float, N, optional
         Cap below the device's limit (module docstring).
     workspace : (3,) float, m, optional

@@ -19,14 +19,34 @@ main button).
 **The package never raises on a dead link.** A read that times out prints a line on stderr and
 returns zeros (a wake-up even returns uninitialised memory as the device id). The adapter
 treats an all-zero state (a position at the base's origin, where the handle cannot be, and a
-velocity of exactly zero) as a missed sample, drains the input after a miss so a late reply
-cannot shift every later one, and checks that the wake-up answered with a non-zero UUID (1 s).
+velocity of exactly zero) as a missed sample, drains the input before every exchange so a late
+reply (which the package, reading whatever bytes come first, returns as the next exchange's) can
+answer at most one later command, and checks that the wake-up answered with a non-zero UUID (1 s).
 
-**A lost reply costs one period, and the retry carries zero.** Each tick makes one exchange (the
-force out, the state back: ``end_effector_force``), waiting at most ``read_timeout`` (default
-1 ms, one period of the 1 kHz loop). When the reply is lost, the next read is a missed sample
-*without* another exchange (no second wait in the tick, no re-sending of the held force): the
-safety layer then commands zero, and that zero is the retry's force.
+**The loop never waits on the serial port.** The package's exchange (``end_effector_force``: the
+force out, the state back) busy-polls the port for the reply's header, up to ``read_timeout``,
+then for its body, up to ``read_timeout`` again: a lost reply costs its caller two read timeouts
+(observed on 0.1.13). The Inverse3 answers only a command ("you must send a force value to the
+device" to read its position, Haply's Inverse Service documentation), so one exchange per loop
+tick. A thread of the adapter's own, :class:`Inverse3Link`, owns the port and makes every
+exchange; the loop swaps data with it through two mailboxes, each one immutable tuple replaced
+whole (an atomic reference swap in CPython, no lock):
+
+- *state* (link -> loop): a sequence number, the time the reply arrived, position and velocity.
+  ``read_state`` takes the latest and never blocks; a state older than ``sample_timeout`` (default
+  5 ms), or older than a lost reply, is a missed sample (timestamp :math:`-\infty`: the safety
+  layer flags it ``STALE`` and commands zero in that tick), and ``disconnect_after`` of them in a
+  row end the session;
+- *command* (loop -> link): the force, when it was commanded, and the sequence number of the state
+  it was computed from. ``command_force`` stores it and wakes the link, which sends it at once.
+
+**A lost reply: the retry carries zero.** When a reply is lost (the package returns zeros), the
+link retries at once with zero force, and keeps sending zero until a command
+computed from a state newer than the loss arrives: the held force is never sent again on a state
+the loop has not seen. Between commands the link exchanges every :data:`LINK_PERIOD` (1 ms, the
+period of Haply's own examples) so the state stays fresh when the loop commands nothing (the
+bring-up's reads); a command older than ``command_timeout`` (10 ms: the loop stalled) goes out as
+zero.
 
 **Frame.** The Inverse3's own, as Haply documents it ("Developing with Inverse3" and the Inverse
 Service's "Basis Permutation" page, docs.haply.co): right-handed, metres, origin on the flat face
@@ -51,7 +71,9 @@ Examples
 """
 from __future__ import annotations
 
+import atexit
 import logging
+import math
 import os
 import threading
 import time
@@ -63,7 +85,7 @@ from arsurf.errors import DeviceNotFound, HapticsError, MissingDependency
 from arsurf.haptics.device import BUTTON_1, DeviceInfo, _vec3
 from arsurf.haptics.hardware import AxisMap, BackendReport, HardwareDevice, device_limits
 
-__all__ = ["HaplyDevice", "probe"]
+__all__ = ["HaplyDevice", "Inverse3Link", "probe"]
 
 log = logging.getLogger(__name__)
 EXTRA = "haply"
@@ -101,8 +123,127 @@ def _api():
     return HaplyHardwareAPI
 
 
+#: s: the longest time between two exchanges of the link (module docstring)
+LINK_PERIOD = 1e-3
 #: zero-force exchanges ``open()`` tries for the first state, each waiting ``read_timeout``
 FIRST_EXCHANGES = 50
+
+
+def _lost(pos, vel) -> bool:
+    """The package's answer to a reply that never came: all zeros (module docstring)."""
+    return not any(pos) and not any(vel)
+
+
+class Inverse3Link:
+    """The thread that owns the Inverse3's port: every exchange, the loop's mailboxes (module
+    docstring).
+
+    Parameters
+    ----------
+    inv : HaplyHardwareAPI.Inverse3
+        The woken device (anything with ``end_effector_force(force) -> (position, velocity)`` and
+        ``flush_input()``).
+    clock : callable
+        Seconds, the clock of the states' timestamps and the commands' times.
+    command_timeout : float, s
+        A command older than this is sent as zero.
+    period : float, s
+        Longest time between two exchanges (the loop's commands come sooner).
+    keep : tuple
+        Objects the thread holds for as long as it runs (the binding's stream: freeing it under a
+        running exchange would crash).
+
+    Attributes
+    ----------
+    exchanges, lost_replies, zero_retries, stale_commands : int
+        Exchanges made; replies lost; exchanges sent as zero because of a lost reply, and because
+        the command was older than ``command_timeout``.
+    zero_below : int
+        States numbered below this are older than a lost reply: the commands computed from them go
+        out as zero, and the loop reads them as missed samples.
+    """
+
+    def __init__(self, inv, clock, command_timeout: float = 0.01, period: float = 1e-3, keep: tuple = ()) -> None:
+        self._inv = inv
+        self._clock = clock
+        self.command_timeout = float(command_timeout)
+        self.period = float(period)
+        self._keep = keep
+        self._state = None  # (seq, time s, position (3,) m, velocity (3,) m/s): replaced whole
+        self._command = (0.0, 0.0, 0.0, -math.inf, 0)  # (fx, fy, fz N, time s, seq of its state): replaced whole
+        self._seq = 0
+        self.zero_below = 0  # commands computed from a state older than this sequence number are sent as zero
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread = None
+        self.exchanges = self.lost_replies = self.zero_retries = self.stale_commands = 0
+
+    # -- the loop's side: never blocks --------------------------------------------------------------
+    def latest(self):
+        """``(seq, time s, position, velocity)`` of the latest state, or None before the first."""
+        return self._state
+
+    def command(self, fx: float, fy: float, fz: float, seq: int) -> None:
+        """Send this force (N, Inverse3 frame), computed from the state ``seq``, at the next exchange."""
+        self._command = (fx, fy, fz, self._clock(), seq)
+        self._wake.set()
+
+    # -- the link's side ------------------------------------------------------------------------------
+    def publish(self, pos, vel) -> None:
+        """A state that arrived now becomes the latest (``open()`` seeds the first)."""
+        self._seq += 1
+        self._state = (self._seq, self._clock(), tuple(pos), tuple(vel))
+
+    def exchange(self) -> bool:
+        """One exchange: the command (zero after a lost reply, or when it is too old) out, the state
+        back; False when the reply was lost."""
+        fx, fy, fz, t, seq = self._command
+        if seq < self.zero_below:
+            fx = fy = fz = 0.0
+            self.zero_retries += 1
+        elif not (self._clock() - t <= self.command_timeout):
+            fx = fy = fz = 0.0
+            self.stale_commands += 1
+        self.exchanges += 1
+        try:
+            self._inv.flush_input()  # a late reply (or its successor) must not answer this command
+            pos, vel = self._inv.end_effector_force([fx, fy, fz])
+        except Exception:  # noqa: BLE001 - the package does not raise on a dead link; treat it as a lost reply
+            pos = vel = (0.0, 0.0, 0.0)
+        if _lost(pos, vel):
+            self.lost_replies += 1
+            self.zero_below = self._seq + 1  # until a command computed from the next state: zero
+            return False
+        self.publish(pos, vel)
+        return True
+
+    def _run(self) -> None:
+        wake, stop = self._wake, self._stop
+        while not stop.is_set():
+            wake.wait(self.period)
+            wake.clear()
+            if stop.is_set():
+                break
+            if not self.exchange():
+                wake.set()  # the retry, with zero, at once
+        self._command = (0.0, 0.0, 0.0, -math.inf, 0)
+        self.exchange()  # the last command: zero
+
+    def start(self) -> None:
+        """Run the exchanges on the link's thread (a daemon; :meth:`stop` at the latest at exit)."""
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="arsurf-haply-link", daemon=True)
+        self._thread.start()
+        atexit.register(self.stop)
+
+    def stop(self, timeout: float = 1.0) -> None:
+        """Send zero, end the thread (waits at most ``timeout`` s; never raises)."""
+        atexit.unregister(self.stop)
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
 
 
 class HaplyDevice(HardwareDevice):
@@ -126,8 +267,12 @@ class HaplyDevice(HardwareDevice):
     axes : str
         Vendor axes behind arsurf x, y, z (:class:`~arsurf.haptics.hardware.AxisMap`).
     read_timeout : float, s
-        Longest wait for the device's reply in a tick (default 1 ms: one period at 1 kHz; a lost
-        reply blocks the loop this long, once).
+        The package's wait for each half of a reply, on the link's thread (default 1 ms; a lost
+        reply holds the link, never the loop, for twice this before the retry with zero).
+    sample_timeout : float, s
+        A state older than this is a missed sample for the loop (default 5 ms).
+    command_timeout : float, s
+        A command older than this is sent as zero (default 10 ms: the loop stalled).
     handle_timeout : float, s
         Silence of the handle that reads as disengaged.
     disconnect_after : float, s
@@ -136,7 +281,8 @@ class HaplyDevice(HardwareDevice):
 
     def __init__(self, port: str | None = None, *, max_force: float | None = None, workspace=None,
                  stiffness: float = 1000.0, handle_port: str | None = None, home=None, axes: str = "x,y,z",
-                 read_timeout: float = 0.001, handle_timeout: float = 0.1, disconnect_after: float = 0.05) -> None:
+                 read_timeout: float = 0.001, sample_timeout: float = 0.005, command_timeout: float = 0.01,
+                 handle_timeout: float = 0.1, disconnect_after: float = 0.05) -> None:
         super().__init__(AxisMap(axes), max_force=max_force, disconnect_after=disconnect_after)
         for name, v in (("port", port), ("handle_port", handle_port)):
             if v is not None and not (isinstance(v, str) and v):
@@ -149,14 +295,20 @@ class HaplyDevice(HardwareDevice):
             raise HapticsError(f"workspace extents must be positive metres (got {self.workspace.tolist()})")
         if not (isinstance(stiffness, (int, float)) and stiffness > 0):
             raise HapticsError(f"stiffness must be positive N/m (got {stiffness!r})")
-        for name, v in (("read_timeout", read_timeout), ("handle_timeout", handle_timeout)):
+        for name, v in (("read_timeout", read_timeout), ("handle_timeout", handle_timeout),
+                        ("command_timeout", command_timeout)):
             if not (isinstance(v, (int, float)) and 0.0 < v <= 1.0):
                 raise HapticsError(f"{name} must be in (0, 1] s (got {v!r})")
+        if not (isinstance(sample_timeout, (int, float)) and 0.0 < sample_timeout < self.disconnect_after):
+            raise HapticsError(f"sample_timeout must be positive and below disconnect_after "
+                               f"({self.disconnect_after:g} s) (got {sample_timeout!r} s)")
         self.port = port
         self.handle_port = handle_port
         self.given_home = None if home is None else _vec3(home, "home")
         self.stiffness = float(stiffness)
         self.read_timeout = float(read_timeout)
+        self.sample_timeout = float(sample_timeout)
+        self.command_timeout = float(command_timeout)
         self.handle_timeout = float(handle_timeout)
         self.device_id = None
         self._inv = None
@@ -167,11 +319,9 @@ class HaplyDevice(HardwareDevice):
         self._handle_stop = threading.Event()
         self._buttons = 0
         self._buttons_t = -np.inf
-        self._xpos = np.zeros(3)  # the state the last exchange brought back, Inverse3 frame
-        self._xvel = np.zeros(3)
-        self._xt = -np.inf
-        self._fresh = False
-        self._lost = False  # the last exchange's reply was lost: the next read is a miss, without I/O
+        self.link: Inverse3Link | None = None
+        self._xt = -math.inf  # when the state the loop read last arrived
+        self._xseq = 0  # and its sequence number: the basis of the next command
 
     # -- connection -------------------------------------------------------------------------------
     def _connect(self) -> DeviceInfo:
@@ -200,14 +350,16 @@ class HaplyDevice(HardwareDevice):
             # up to FIRST_EXCHANGES tries, about as long as the wake-up's own 1 s at most
             for _ in range(FIRST_EXCHANGES):
                 pos, vel = self._inv.end_effector_force([0.0, 0.0, 0.0])
-                if any(pos) or any(vel):
+                if not _lost(pos, vel):
                     break
             else:
                 raise DeviceNotFound(f"Haply: the Inverse3 on {port} woke up but sends no state "
                                      f"({FIRST_EXCHANGES} exchanges of {self.read_timeout * 1e3:g} ms)")
             self.home = np.array(pos, dtype=np.float64) if self.given_home is None else self.given_home
-            self._xpos[:], self._xvel[:], self._xt = pos, vel, self.now()
-            self._fresh, self._lost = True, False
+            self.link = Inverse3Link(self._inv, self.now, self.command_timeout, LINK_PERIOD, keep=(self._stream,))
+            self.link.publish(pos, vel)
+            self._xt, self._xseq = -math.inf, 0
+            self.link.start()
             if self.handle_port is not None:
                 self._start_handle(api)
             return device_limits(f"Haply Inverse3 {self.device_id[:8]}", MAX_FORCE_N, self.user_max_force,
@@ -249,33 +401,23 @@ class HaplyDevice(HardwareDevice):
                 time.sleep(0.01)
             time.sleep(0.002)
 
-    # -- the servo tick -------------------------------------------------------------------------
-    def _exchange(self, vforce) -> bool:
-        """One force out, one state in; False (input drained) when no state came back."""
-        pos, vel = self._inv.end_effector_force([float(vforce[0]), float(vforce[1]), float(vforce[2])])
-        if not any(pos) and not any(vel):
-            self._inv.flush_input()
-            self._fresh, self._lost, self._xt = False, True, -np.inf  # until a reply: any retry carries zero
-            return False
-        self._xpos[:] = pos
-        self._xvel[:] = vel
-        self._xt = self.now()
-        self._fresh, self._lost = True, False
-        return True
+    def safety_record(self) -> dict:
+        """The base record plus the link's timeouts (``read_timeout_s``, ``sample_timeout_s``,
+        ``command_timeout_s``) and ``workspace_source`` (always ``given``)."""
+        return {**super().safety_record(), "read_timeout_s": self.read_timeout, "sample_timeout_s": self.sample_timeout,
+                "command_timeout_s": self.command_timeout, "workspace_source": "given"}
 
+    # -- the servo tick: the link's mailboxes, never the port ----------------------------------------
     def _poll(self, vpos, vvel):
-        # the Inverse3 answers each force with its state: the state the last command brought back
-        # is this tick's sample. After a lost reply: a missed sample now, no second wait in this
-        # tick; the next command (zero, from the safety layer) is the retry. Read twice without a
-        # command in between: exchange the held force for a fresh state.
-        if self._lost:
-            self._lost = False
+        got = self.link.latest()
+        if got is None:
             return None
-        if not self._fresh and not self._exchange(self._vforce if self._xt > -np.inf else _ZERO):
-            return None
-        self._fresh = False
-        vpos[:] = self._xpos
-        vvel[:] = self._xvel
+        seq, t, pos, vel = got
+        if seq < self.link.zero_below or not (self.now() - t <= self.sample_timeout):
+            return None  # a reply lost since (the device is being sent zero), or none that recent: missed
+        self._xseq, self._xt = seq, t
+        vpos[:] = pos
+        vvel[:] = vel
         if self._handle is None:
             return 0
         if time.perf_counter() - self._buttons_t > self.handle_timeout:
@@ -286,7 +428,8 @@ class HaplyDevice(HardwareDevice):
         return self._xt
 
     def _send(self, vforce) -> bool:
-        return self._exchange(vforce)
+        self.link.command(float(vforce[0]), float(vforce[1]), float(vforce[2]), self._xseq)
+        return True
 
     def _release(self) -> None:
         self._handle_stop.set()
@@ -295,6 +438,10 @@ class HaplyDevice(HardwareDevice):
             self._handle_thread = None
         self._handle = None  # each binding object before the stream it reads
         self._handle_stream = None
+        if self.link is not None:
+            # its last exchange sends zero; a link stuck in a dead port's waits keeps the binding's
+            # objects until it ends (at most 2 read_timeout per exchange)
+            self.link.stop(timeout=4 * self.read_timeout + 0.5)
         self._inv = None
         self._stream = None
 

@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, types
+from numba import njit, typeof, types
 from numba.experimental import structref
 
 from arsurf._layout import Layout
@@ -51,7 +51,7 @@ from arsurf.haptics.gains import coupling_stiffness
 from arsurf.haptics.passivity import S_ALPHA, S_ENERGY, PassivityController, passivity_applied, passivity_observe_control
 from arsurf.haptics.safety import _P_DT as _SAFETY_P_DT
 from arsurf.haptics.safety import SafetyLayer, safety_step
-from arsurf.haptics.samples import SAMPLE_FAULTS, SampleCheck
+from arsurf.haptics.samples import SAMPLE_FAULTS, SAMPLE_STATE, SampleCheck, sample_check_step
 from arsurf.haptics.scaling import POSITION_PARAMS, POSITION_STATE, force_scale_step, position_map_step
 from arsurf.model import (M_BENDING, M_MEAS_FX, M_MODEL_FLAGS, M_NX, M_SIM_FX, M_TIP, M_TORSION, MODEL_ARGS,
                           SIGNALS_GIVEN, SIGNALS_NONE, SIGNALS_SYNTHESISED, ARModel, model_tick_kernel)
@@ -266,6 +266,54 @@ def loop_tick_kernel(a, buttons, now, age):
     return loop_output_kernel(a, buttons, now, age)
 
 
+#: where the sample check keeps its last good position (:data:`~arsurf.haptics.samples.SAMPLE_STATE`)
+_LAST_GOOD = SAMPLE_STATE.offset("position")
+#: what a sample vector that can go straight to the compiled tick is: a C-contiguous (3,) float64 array
+_NDARRAY, _F8, _SHAPE3, _C3 = np.ndarray, np.dtype(np.float64), (3,), (8,)
+#: sample stamps that go to it as they are (a float64)
+_STAMPS = frozenset((float, np.float64))
+
+
+@njit(cache=True)
+def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now, noise, row):
+    """A tick from a well-formed device sample in one compiled call: the sample check
+    (:func:`~arsurf.haptics.samples.sample_check_step`), the sample - or, for a sample that cannot
+    be real, the last good position held still - into ``a.x``, ``a.v``, the synthesised signals'
+    noise ``noise[row]`` into ``a.noise`` (``row`` < 0: none), then :func:`loop_tick_kernel` with
+    the sample's age ``now - stamp`` (0 for a bad sample). ``position``, ``velocity`` (3,) m, m/s;
+    ``stamp``, ``now`` s. Returns the sample's flags (0: a sample that can be real);
+    :meth:`HapticLoop.step` adds them to the tick."""
+    bad = sample_check_step(check_params, check_state, position, velocity, stamp, now)
+    x = a.x
+    v = a.v
+    if bad:
+        for j in range(3):
+            x[j] = check_state[_LAST_GOOD + j]
+            v[j] = 0.0
+        age = 0.0
+    else:
+        for j in range(3):
+            x[j] = position[j]
+            v[j] = velocity[j]
+        age = now - stamp
+    if row >= 0:
+        a.noise[0] = noise[row, 0]
+        a.noise[1] = noise[row, 1]
+    loop_tick_kernel(a, buttons, now, age)
+    return bad
+
+
+def _entry_point(dispatcher, args):
+    """The compiled entry point of ``dispatcher`` for the types of ``args`` (it must have run on
+    them), or the dispatcher itself if numba does not expose it. Calling the entry point skips
+    the dispatcher's type resolution - ~2 µs per call for a structref argument such as
+    :class:`LoopArrays` - so it may only be called with arguments of exactly these types."""
+    try:
+        return dispatcher.overloads[tuple(typeof(x) for x in args)].entry_point
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return dispatcher
+
+
 def _hand_per_probe_stiffness(coupling: DirectCoupling) -> float:
     """The largest hand stiffness per probe stiffness of a direct coupling, :math:`\\max_i |K_{f,i} s_i|`
     (a probe spring k is felt as :math:`K_f s k` at the handle)."""
@@ -452,6 +500,7 @@ class HapticLoop:
         self._scene_prev = np.full(3, np.nan)
         self._model_args = model.kernel_args()
         self._packed = self._pack()
+        self._fused = None  # loop_sample_tick_kernel's entry point for this loop's types (set at the first tick)
 
     def _pack(self) -> LoopArrays:
         """The tick's arrays and settings as one struct (:class:`LoopArrays`, :data:`LOOP_FIELDS`),
@@ -473,6 +522,7 @@ class HapticLoop:
         state = self.__dict__.copy()
         del state["_packed"]  # a numba struct does not pickle; rebuilt from the arrays
         del state["_device_force"]  # a view of out: a copy would be its own array
+        state["_fused"] = None  # the compiled entry point of the struct's types: found again at the first tick
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -532,6 +582,45 @@ class HapticLoop:
         once here (:mod:`arsurf.haptics.samples`): one that cannot be real gives zero force in
         this tick, its flag, and the model runs on the last good sample.
         """
+        if signals is not None:
+            self._ext[0], self._ext[1] = signals
+            self._ext_given = True
+        elif self._ext_given:
+            self._ext[:] = np.nan
+            self._ext_given = False
+        row = -1
+        if self.config.signal_noise > 0.0:  # drawn a block of ticks at a time: no allocation per tick
+            row = self._noise_i
+            if row == self._noise_block.shape[0]:
+                self._rng.standard_normal(out=self._noise_block)
+                self._noise_block *= self.config.signal_noise
+                row = 0
+            self._noise_i = row + 1
+        buttons = inputs.buttons
+        bad_buttons = False
+        if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
+            buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
+        p, v, stamp = inputs.position, inputs.velocity, inputs.timestamp
+        if (type(p) is _NDARRAY and type(v) is _NDARRAY and p.strides == _C3 and v.strides == _C3 and p.shape == _SHAPE3
+                and v.shape == _SHAPE3 and p.dtype is _F8 and v.dtype is _F8 and type(stamp) in _STAMPS
+                and self.scene is None):
+            # the usual tick (a C-contiguous float64 sample): check, sample, noise and tick in one
+            # compiled call, through its entry point
+            check = self.sample_check
+            fused = self._fused
+            if fused is None:
+                args = (self._packed, check.params, check.state, p, v, stamp, buttons, float(now), self._noise_block, row)
+                bad = loop_sample_tick_kernel(*args)
+                self._fused = _entry_point(loop_sample_tick_kernel, args)
+            else:
+                bad = fused(self._packed, check.params, check.state, p, v, stamp, buttons, float(now),
+                            self._noise_block, row)
+            if bad_buttons or bad:
+                self._flag_input(BAD_BUTTONS * bad_buttons | bad)
+            return self._device_force
+        if row >= 0:
+            self._noise[0] = self._noise_block[row, 0]
+            self._noise[1] = self._noise_block[row, 1]
         x, v = self._x, self._v
         bad = self.sample_check.step(inputs, now)
         if bad:
@@ -542,26 +631,6 @@ class HapticLoop:
             x[:] = inputs.position
             v[:] = inputs.velocity
             age = float(now - inputs.timestamp)
-        if signals is not None:
-            self._ext[0], self._ext[1] = signals
-            self._ext_given = True
-        elif self._ext_given:
-            self._ext[:] = np.nan
-            self._ext_given = False
-        if self.config.signal_noise > 0.0:  # drawn a block of ticks at a time: no allocation per tick
-            k = self._noise_i
-            if k == self._noise_block.shape[0]:
-                self._rng.standard_normal(out=self._noise_block)
-                self._noise_block *= self.config.signal_noise
-                k = 0
-            self._noise[0] = self._noise_block[k, 0]
-            self._noise[1] = self._noise_block[k, 1]
-            self._noise_i = k + 1
-        buttons = inputs.buttons
-        bad_buttons = False
-        if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
-            buttons, bad_buttons = _valid_buttons(buttons)              # flagged, never an exception
-
         if self.scene is None:
             loop_tick_kernel(self._packed, buttons, float(now), age)
             if bad_buttons or bad:

@@ -15,7 +15,10 @@ errors do not accumulate. The wait before a deadline is hybrid: ``time.sleep`` u
 seconds before it (the OS wakes a sleeper tens of microseconds late), then a busy spin on the
 clock. A tick whose work ends after its own deadline is an *overrun*; deadlines that passed
 entirely are *skipped* (the grid is kept: the next tick starts at once, less than one period late,
-and there is no burst of catch-up ticks). Statistics are kept in
+and there is no burst of catch-up ticks). Under ``SCHED_FIFO`` the spin is short
+(:data:`FIFO_SPIN`) and the thread sleeps at least :data:`FIFO_IDLE_SHARE` of its time, even
+after an overrun, so it is never awake long enough to meet the kernel's real-time throttling;
+:class:`Pacer` keeps this discipline, on an injectable clock. Statistics are kept in
 preallocated ring buffers: compute time per tick, start-to-start period, and jitter (period minus
 nominal).
 
@@ -58,13 +61,159 @@ import numpy as np
 
 from arsurf.errors import HapticsError, LoopError
 
-__all__ = ["LoopError", "Scheduler", "Snapshot", "TimingStats"]
+__all__ = ["DEFAULT_REALTIME_PRIORITY", "LoopError", "Pacer", "RealtimeChoice", "Scheduler", "Snapshot",
+           "TimingStats", "choose_realtime"]
 
 #: busy-wait margin (s) before each deadline when the loop thread runs under SCHED_FIFO: a
 #: real-time thread's sleep ends within tens of microseconds, and the short spin keeps the thread
 #: idle most of each period, below Linux's real-time throttling (sched_rt_runtime_us 950000 of
 #: every 1000000: a thread spinning ~all of each period was stopped ~50 ms each second)
 FIFO_SPIN = 3e-5
+
+#: least share of its time a real-time loop thread sleeps, whatever its step costs (after each
+#: tick it sleeps at least 1/9 of the time it was awake): it is then awake at most 90 % of any
+#: second, below the kernel's 95 % real-time budget, so the throttling (a ~50 ms stop of the
+#: thread) is never reached, and ordinary threads on its core always get 10 %
+FIFO_IDLE_SHARE = 0.1
+
+#: awake time (ns) a real-time loop may run ahead of :data:`FIFO_IDLE_SHARE` before it must
+#: sleep: a one-off stall of a few ms is not paid back at once (that would lengthen the gap),
+#: and the worst second stays at 90 % + 1 % awake
+FIFO_IDLE_BURST_NS = 10_000_000
+
+#: the window (ns) of :attr:`Pacer.awake_max`: the kernel's real-time period
+_AWAKE_WINDOW_NS = 1_000_000_000
+
+
+class Pacer:
+    """The loop's time-keeping: an absolute deadline grid, overruns and skipped slots, and the
+    wait before each deadline, a sleep then a spin of at most ``spin_ns``.
+
+    Deadlines are :math:`t_k = t_0 + k\\,T`. After the tick's work, :meth:`wait` sleeps until
+    ``spin_ns`` before the next deadline, then spins on the clock to the deadline. With an
+    ``idle_share`` :math:`s`, each time awake :math:`a` owes a sleep of :math:`a\\,s/(1-s)` and
+    each sleep pays its length back; when the debt exceeds ``burst_ns`` the thread sleeps it off
+    even after a late tick, so it is awake at most :math:`1 - s` of any second plus ``burst_ns``
+    (a step that never fits its period runs at the rate that allows). A tick whose work ends after the next deadline is an *overrun*; deadlines that
+    passed entirely are *skipped* (the grid is kept: no burst of catch-up ticks). It also counts
+    the time the thread is awake - running or runnable, everything but its sleeps here - per
+    second of the kernel's real-time accounting (:attr:`awake_max`), and the thread's CPU time
+    per second (:attr:`cpu_max`, from ``cpu_clock`` read once a second; it also counts the
+    kernel's work for the sleeps themselves): under ``SCHED_FIFO`` the kernel stops a thread that
+    ran more than 95 % of a second (``sched_rt_runtime_us``).
+
+    ``clock`` (ns, monotonic), ``sleep`` (s) and ``cpu_clock`` (ns) are injectable: tests drive
+    the pacer with a scripted clock, no timing involved.
+
+    Examples
+    --------
+    A 10 kHz grid on a scripted clock (each reading takes 1 us; each sleep wakes 5 us late):
+
+    >>> t = [0]
+    >>> def clock():
+    ...     t[0] += 1_000
+    ...     return t[0]
+    >>> def sleep(s):
+    ...     t[0] += round(s * 1e9) + 5_000
+    >>> p = Pacer(100_000, spin_ns=30_000, idle_share=0.1, burst_ns=1_000_000, clock=clock, sleep=sleep)
+    >>> for work in (20_000, 20_000, 250_000, 20_000):     # the third tick takes 2.5 periods
+    ...     _ = p.begin(); t[0] += work; p.wait()
+    >>> p.overruns, p.skipped, p.longest_gap, p.spin_max <= 30_000
+    (1, 1, 252000, True)
+    """
+
+    def __init__(self, period_ns: int, spin_ns: int, idle_share: float = 0.0, burst_ns: int = 0, *,
+                 clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep,
+                 cpu_clock: Callable[[], int] = time.thread_time_ns) -> None:
+        self.period = int(period_ns)
+        self.spin = int(spin_ns)
+        if not 0.0 <= idle_share < 1.0:
+            raise HapticsError(f"idle_share must be in [0, 1) (got {idle_share!r})")
+        self.idle_ratio = idle_share / (1.0 - idle_share)  # sleep owed per unit of time awake
+        self.burst = int(burst_ns)
+        self.clock, self.sleep, self.cpu_clock = clock, sleep, cpu_clock
+        self.start(clock())
+
+    def start(self, t0: int | None = None) -> int:
+        """Put the grid's origin at ``t0`` (default now) and clear the counts; returns ``t0``."""
+        t0 = self.clock() if t0 is None else int(t0)
+        self.t0 = self.deadline = self._awake_since = t0
+        self._last_start = None
+        self.overruns = self.skipped = 0
+        self.longest_gap = 0          # ns between two tick starts
+        self.spin_max = 0             # ns, the longest spin before a deadline
+        self.awake = 0                # ns awake, whole run
+        self.awake_max = 0.0          # the largest share of a whole second spent awake
+        self._window_end = t0 + _AWAKE_WINDOW_NS
+        self._window_awake = 0
+        self._debt = 0.0              # ns of sleep owed
+        self.cpu_max = 0.0            # the largest share of a second the thread spent on the CPU
+        self._cpu_mark = (t0, self.cpu_clock())
+        return t0
+
+    def begin(self) -> int:
+        """A tick starts now: returns the time, ns, and the gap since the previous start (0 first)."""
+        start = self.clock()
+        gap = 0 if self._last_start is None else start - self._last_start
+        if gap > self.longest_gap:
+            self.longest_gap = gap
+        self._last_start = start
+        self.last_gap = gap
+        return start
+
+    def _count_awake(self, a: int, b: int) -> None:
+        self.awake += b - a
+        if b > self._window_end:  # once a second: the thread's CPU time (what the kernel budgets)
+            t, c = b, self.cpu_clock()
+            self.cpu_max = max(self.cpu_max, (c - self._cpu_mark[1]) / max(1, t - self._cpu_mark[0]))
+            self._cpu_mark = (t, c)
+        while b > self._window_end:  # close the windows that ended, each with its own share
+            if a < self._window_end:
+                self._window_awake += self._window_end - a
+                a = self._window_end
+            self.awake_max = max(self.awake_max, self._window_awake / _AWAKE_WINDOW_NS)
+            self._window_awake = 0
+            self._window_end += _AWAKE_WINDOW_NS
+        self._window_awake += b - a
+
+    def awake_share(self) -> float:
+        """The largest share of a second the thread spent awake: :attr:`awake_max` over the
+        whole seconds so far, or the share of the run when it is shorter than one second."""
+        if self.awake_max > 0.0:
+            return self.awake_max
+        span = self._awake_since - self.t0
+        return self._window_awake / span if span > 0 else 0.0
+
+    def wait(self) -> None:
+        """The tick's work is done: count an overrun and skipped slots, then sleep and spin to
+        the next deadline."""
+        clock, period = self.clock, self.period
+        self.deadline += period
+        now = clock()
+        if now > self.deadline:  # this tick ended after the next one should have started
+            self.overruns += 1
+            missed = (now - self.deadline) // period
+            if missed:  # whole periods lost: skip those slots, stay on the grid
+                self.skipped += int(missed)
+                self.deadline += missed * period
+        self._debt += self.idle_ratio * (now - self._awake_since)
+        nap = max(self.deadline - now - self.spin, int(self._debt) - self.burst)
+        if nap > 0:
+            self._count_awake(self._awake_since, now)
+            self.sleep(nap * 1e-9)
+            woke = clock()
+            self._debt = max(0.0, self._debt - (woke - now))
+            now = self._awake_since = woke
+        spin_from = now
+        while now < self.deadline:
+            now = clock()
+        if now - spin_from > self.spin_max:
+            self.spin_max = now - spin_from
+
+    def finish(self) -> None:
+        """The loop ended: count its last time awake."""
+        self._count_awake(self._awake_since, self.clock())
+        self._awake_since = self.clock()
 
 
 @dataclass(frozen=True)
@@ -93,7 +242,13 @@ class TimingStats:
     Times in seconds. ``rate`` is the achieved tick rate over the whole run;
     ``realtime_priority`` the ``SCHED_FIFO`` priority the loop thread got (0: none);
     ``longest_gap`` the longest time between two tick starts over the whole run (the hand's
-    longest wait for a new force; the period distributions cover the last ``history`` ticks).
+    longest wait for a new force; the period distributions cover the last ``history`` ticks);
+    ``spin_max`` the longest busy wait before a deadline; ``awake_max`` the largest share of one
+    second the loop thread spent awake, running or runnable (:class:`Pacer`; under
+    ``SCHED_FIFO`` the kernel throttles a thread above 0.95); ``cpu_max`` the largest share of
+    a second it spent on the CPU (what the kernel counts: it includes the sleeps' own system
+    time; 0 in runs shorter than a second); ``cpu_share`` its CPU time over the run's duration
+    (after the run).
     """
 
     ticks: int
@@ -112,6 +267,10 @@ class TimingStats:
     snapshots_skipped: int
     realtime_priority: int = 0
     longest_gap: float = 0.0
+    spin_max: float = 0.0
+    awake_max: float = 0.0
+    cpu_max: float = 0.0
+    cpu_share: float = 0.0
 
     def as_dict(self) -> dict[str, float | int]:
         return dict(self.__dict__)
@@ -131,21 +290,105 @@ def _tight_timer_slack() -> None:
         pass
 
 
+def _try_realtime(priority: int) -> tuple[int, str]:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority``: (the priority granted, 0 when
+    refused or unavailable; why not, "" when granted)."""
+    if priority <= 0:
+        return 0, "not asked"
+    if not hasattr(os, "sched_setscheduler"):
+        return 0, "this OS has no SCHED_FIFO"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # 0: this thread
+    except (OSError, AttributeError) as exc:
+        return 0, f"SCHED_FIFO refused ({exc})"
+    return priority, ""
+
+
 def _realtime_priority(priority: int) -> int:
     """Put the calling thread under the real-time policy ``SCHED_FIFO`` at ``priority`` (1-99):
     it then preempts every ordinary thread at once when its sleep ends, instead of waiting for
     the time-sharing scheduler's turn (tens to hundreds of microseconds on a busy machine, a
     missed deadline at 10 kHz). Linux with CAP_SYS_NICE or an ``rtprio`` limit; best effort:
     returns the priority granted, 0 when refused or unavailable (the thread then keeps the
-    ordinary policy). The kernel's RT throttling (95 % of each second) keeps a runaway step from
-    freezing the machine; the thread's policy ends with the thread."""
-    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
-        return 0
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # 0: this thread
-    except (OSError, AttributeError):
-        return 0
-    return priority
+    ordinary policy). The :class:`Pacer` sleeps at least :data:`FIFO_IDLE_SHARE` of the time, and the kernel's RT throttling (95 % of each second) still bounds a step that never
+    returns; the thread's policy ends with the thread."""
+    return _try_realtime(priority)[0]
+
+
+#: the ``SCHED_FIFO`` priority the live loop and the bridge ask for by default: above every
+#: ordinary thread, below the 50 of Linux's interrupt threads (the device's and the network's)
+DEFAULT_REALTIME_PRIORITY = 10
+
+_RT_RUNTIME = "/proc/sys/kernel/sched_rt_runtime_us"
+
+
+@dataclass(frozen=True)
+class RealtimeChoice:
+    """The loop thread's scheduling policy, decided before the loop starts and recorded in the
+    session (``realtime`` of the metadata): ``asked`` the priority asked for (0: none, the
+    operator's ``--no-realtime-priority`` or a device that answers from a thread of this
+    process), ``priority`` the one this process may have (0: the ordinary policy), ``reason``
+    why it is what it is."""
+
+    asked: int
+    priority: int
+    reason: str
+
+    @property
+    def policy(self) -> str:
+        return "SCHED_FIFO" if self.priority else "ordinary"
+
+    def to_metadata(self) -> dict:
+        """The session's ``realtime`` record."""
+        return {"policy": self.policy, "priority": self.priority, "asked": self.asked, "reason": self.reason}
+
+    def describe(self) -> str:
+        """One line for the CLI."""
+        if self.priority:
+            return f"loop thread under SCHED_FIFO priority {self.priority} ({self.reason})"
+        return f"loop thread under the ordinary policy ({self.reason})"
+
+
+def choose_realtime(priority: int | None = None, *, device_thread: bool = False) -> RealtimeChoice:
+    """Decide the loop thread's policy: ``priority`` None is the default (SCHED_FIFO at
+    :data:`DEFAULT_REALTIME_PRIORITY` where the OS permits it and the kernel's real-time
+    throttling is on; else the ordinary policy, with the reason), 0 the ordinary policy (opted
+    out), N asks SCHED_FIFO at N. ``device_thread``: the device or the instrument answers from a
+    thread of this process (Haply, OpenHaptics, the instrument link), which a real-time loop
+    thread would delay on a busy core: the default is then the ordinary policy. Permission is tried in a short-lived thread (its
+    policy ends with it); the loop thread asks again and reports what it got
+    (:attr:`TimingStats.realtime_priority`).
+
+    Examples
+    --------
+    >>> choose_realtime(0).to_metadata()
+    {'policy': 'ordinary', 'priority': 0, 'asked': 0, 'reason': 'turned off (--no-realtime-priority)'}
+    """
+    if priority == 0:
+        return RealtimeChoice(0, 0, "turned off (--no-realtime-priority)")
+    if priority is None:
+        if device_thread:
+            return RealtimeChoice(0, 0, "the device or instrument answers from a thread of this process, which a "
+                                        "real-time loop would delay; ask with --realtime-priority N")
+        try:
+            with open(_RT_RUNTIME) as f:
+                unthrottled = f.read().strip() == "-1"
+        except OSError:
+            unthrottled = False
+        if unthrottled:
+            return RealtimeChoice(0, 0, f"the kernel's real-time throttling is off ({_RT_RUNTIME} = -1): a "
+                                        "stalled step could hold a core; ask with --realtime-priority N")
+        priority, how = DEFAULT_REALTIME_PRIORITY, "the default"
+    else:
+        how = "asked"
+    got: list[tuple[int, str]] = []
+    probe = threading.Thread(target=lambda: got.append(_try_realtime(priority)), name="arsurf-rt-probe")
+    probe.start()
+    probe.join()
+    granted, why = got[0] if got else (0, "the probe thread failed")
+    if granted:
+        return RealtimeChoice(priority, granted, how)
+    return RealtimeChoice(priority, 0, f"{why}; needs root, CAP_SYS_NICE or an rtprio limit")
 
 
 class Scheduler:
@@ -191,13 +434,17 @@ class Scheduler:
         (reference counting frees its temporaries); the collector is restored at the end.
     priority : int
         Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
-        (40 is below the 50 of Linux's interrupt threads), or 0 (default): the ordinary policy.
-        What was granted is :attr:`TimingStats.realtime_priority`. A real-time loop thread
-        keeps the machine's other work from delaying a tick, but it also runs before this
-        process's other threads on its core: a device whose driver answers from a thread of
-        this process (the simulated Haply's reader) then went unanswered for 0.4 s. At 10 kHz
-        over 60 s on the 2-core test machine it missed 0.048-0.085 % of the deadlines in three
-        runs, the ordinary policy 0.056-0.22 % (``bench/haptic_loop.py`` times both).
+        (:data:`DEFAULT_REALTIME_PRIORITY`, 10, is what ``arsurf live`` asks for; keep it below
+        the 50 of Linux's interrupt threads), or 0 (default here): the ordinary policy; the
+        CLI decides with :func:`choose_realtime`. What was granted is
+        :attr:`TimingStats.realtime_priority`. A real-time loop thread keeps the machine's
+        other work from delaying a tick, but it also runs before this process's other threads
+        on its core: a device whose driver answers from a thread of this process (the simulated
+        Haply's reader) then went unanswered for 0.4 s. It sleeps at least
+        :data:`FIFO_IDLE_SHARE` of its time (:meth:`pacer_for`). At 10 kHz over 60 s on the
+        2-core machine shared by eight jobs (load 11) it kept 9,944 ticks/s, 0.56 % of the
+        slots skipped and a 7.1 ms longest gap; the ordinary policy 2,806 ticks/s
+        (``bench/haptic_loop.py`` times both).
 
     Examples
     --------
@@ -264,9 +511,8 @@ class Scheduler:
 
     def _reset_counters(self) -> None:
         self.ticks = 0
-        self.longest_gap_ns = 0
-        self.overruns = 0
-        self.skipped = 0
+        self.pacer: Pacer | None = None
+        self.cpu_ns = 0
         self.snapshots_published = 0
         self.snapshots_skipped = 0
         self._t_start = 0
@@ -380,6 +626,22 @@ class Scheduler:
         """Seconds since the loop started (the loop's clock)."""
         return (time.perf_counter_ns() - self._t_start) * 1e-9
 
+    def pacer_for(self, realtime: bool, *, clock: Callable[[], int] = time.perf_counter_ns,
+                  sleep: Callable[[float], Any] = time.sleep,
+                  cpu_clock: Callable[[], int] = time.thread_time_ns) -> Pacer:
+        """The :class:`Pacer` the loop thread keeps time with, under ``SCHED_FIFO`` when
+        ``realtime``: a spin of :data:`FIFO_SPIN` (at most a quarter of a period; a given
+        ``spin`` is kept) and a sleep of at least :data:`FIFO_IDLE_SHARE` of its time; under
+        the ordinary policy the ``spin`` margin and no least sleep (an ordinary thread is not
+        throttled, and the time-sharing scheduler preempts it anyway)."""
+        spin, idle = self._spin_ns, 0.0
+        if realtime:
+            if not self._spin_given:
+                spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)
+            idle = FIFO_IDLE_SHARE
+        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep,
+                     cpu_clock=cpu_clock)
+
     def _run(self) -> None:
         _tight_timer_slack()
         self.realtime_priority = _realtime_priority(self.priority)
@@ -390,32 +652,21 @@ class Scheduler:
         old_switch = sys.getswitchinterval()
         sys.setswitchinterval(min(old_switch, max(1e-5, self.dt / 4.0)))
         clock = time.perf_counter_ns
-        sleep = time.sleep
-        period = self._period_ns
-        spin = self._spin_ns
-        if self.realtime_priority and not self._spin_given:
-            spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)  # sleep most of the period (no RT throttling)
-        longest = 0
+        pacer = self.pacer = self.pacer_for(bool(self.realtime_priority))
         step, dt, source, sink = self.step, self.dt, self.source, self.sink
         publish = self.snapshot_fn is not None
         hist = self._history
         compute, periods = self._compute, self._period
+        cpu0 = time.thread_time_ns()
         try:
-            t0 = clock()
+            t0 = pacer.start()
             self._t_start = t0
-            deadline = t0
-            last_start = None
             k = 0
             while not self._stop.is_set():
-                start = clock()
-                if last_start is not None:
-                    gap = start - last_start
-                    periods[self._n_period % hist] = gap
+                start = pacer.begin()
+                if k:
+                    periods[self._n_period % hist] = pacer.last_gap
                     self._n_period += 1
-                    if gap > longest:
-                        longest = gap
-                        self.longest_gap_ns = gap
-                last_start = start
                 inputs = source() if source is not None else None
                 out = step(self.state, inputs, dt)
                 if sink is not None:
@@ -427,24 +678,13 @@ class Scheduler:
                     self._last_snap_ns = end
                 k += 1
                 self.ticks = k
-                deadline += period
-                now = clock()
-                if now > deadline:  # this tick ended after the next one should have started
-                    self.overruns += 1
-                    missed = (now - deadline) // period
-                    if missed:  # whole periods lost: skip those slots, stay on the grid
-                        self.skipped += int(missed)
-                        deadline += missed * period
-                # hybrid wait: sleep most of it, spin the end
-                remaining = deadline - clock()
-                if remaining > spin:
-                    sleep((remaining - spin) * 1e-9)
-                while clock() < deadline:
-                    pass
+                pacer.wait()
         except BaseException as exc:  # reported by stop()
             self.error = exc
         finally:
+            pacer.finish()
             self._t_end = clock()
+            self.cpu_ns = time.thread_time_ns() - cpu0
             sys.setswitchinterval(old_switch)
             if self.pause_gc:
                 gc.unfreeze()
@@ -468,6 +708,7 @@ class Scheduler:
         comp = self._compute[:nc] * 1e-9 if nc else np.zeros(1)
         per = self._period[:npd] * 1e-9 if npd else np.full(1, self.dt)
         jit = np.abs(per - self.dt)
+        p = self.pacer
         return TimingStats(
             ticks=k,
             duration=duration,
@@ -479,10 +720,14 @@ class Scheduler:
             period_median=float(np.median(per)),
             jitter_p99=float(np.percentile(jit, 99)),
             jitter_max=float(jit.max()),
-            overruns=self.overruns,
-            skipped=self.skipped,
+            overruns=p.overruns if p else 0,
+            skipped=p.skipped if p else 0,
             snapshots_published=self.snapshots_published,
             snapshots_skipped=self.snapshots_skipped,
             realtime_priority=self.realtime_priority,
-            longest_gap=self.longest_gap_ns * 1e-9,
+            longest_gap=p.longest_gap * 1e-9 if p else 0.0,
+            spin_max=p.spin_max * 1e-9 if p else 0.0,
+            awake_max=p.awake_share() if p else 0.0,
+            cpu_max=p.cpu_max if p else 0.0,
+            cpu_share=(self.cpu_ns * 1e-9 / duration) if duration > 0 and not self.is_running else 0.0,
         )

@@ -44,6 +44,10 @@ follows from the frictionless contact: the force is along the 3D normal, so
 :math:`d_h` its horizontal distance to the axis), with :math:`d_h` floored at 10 % of
 :math:`R + r` (normals steeper than 84 deg: a tip on the crest would wedge the tube into the
 substrate, which the rigid-sliding model does not describe; the floor keeps the force bounded).
+This normal part is what a tip wider than the tube feels riding on its curved flank: with the
+tip on the substrate, :math:`F_z = |F|\,n_z` is upward, about 0.44 :math:`F_h` for a 20 nm tip
+against a 15 nm tube; [MWCNT] Fig. 10a's normal force (20-40 nN) is the total, substrate plus
+tube (docs/design.rst, "The normal force of a tube push"; :mod:`arsurf.demo.tube_push`).
 
 The tip-tube contact is compliant over a small depth, :data:`CONTACT_ALLOWANCE` of
 :math:`R + r`: the tube slides only once the tip is that far into it (the push moves the tube

@@ -28,27 +28,47 @@ def _fill_height_net(gu, gv, z, ctrl):
             ctrl[i, j, 2] = z[i, j]
 
 
+def merge_boxes(boxes) -> list:
+    """Disjoint index boxes covering ``boxes`` (each (i0, i1, j0, j1), half-open): boxes that
+    overlap or touch are replaced by their bounding box, until none do. For a handful of boxes
+    (one per contact): O(n^2)."""
+    out: list = []
+    for box in boxes:
+        b = tuple(int(k) for k in box)
+        k = 0
+        while k < len(out):
+            o = out[k]
+            if b[0] <= o[1] and o[0] <= b[1] and b[2] <= o[3] and o[2] <= b[3]:
+                b = (min(b[0], o[0]), max(b[1], o[1]), min(b[2], o[2]), max(b[3], o[3]))
+                out.pop(k)
+                k = 0  # the grown box may now meet one it missed
+            else:
+                k += 1
+        out.append(b)
+    return out
+
+
 class NetWatch:
     """What changed in a surface's net since its watcher last looked (:meth:`BSplineSurface.watch`).
 
-    ``box`` is the union (i0, i1, j0, j1) of the index boxes the deformers moved (None: none);
-    ``anything`` is True when the net may have changed anywhere (it was handed out writable by
+    ``boxes`` are disjoint index boxes (i0, i1, j0, j1) covering what the deformers moved (two
+    contacts far apart stay two small boxes: :func:`merge_boxes`); ``anything`` is True when the
+    net may have changed anywhere (it was handed out writable by
     :meth:`BSplineSurface.kernel_arrays`, or reset), so the watcher must compare it all.
     """
 
     def __init__(self):
-        self.box = None
+        self.boxes: list = []
         self.anything = True  # a new watcher has seen nothing yet
 
     def touch(self, i0: int, i1: int, j0: int, j1: int) -> None:
         """Add the index box [i0, i1) x [j0, j1) to what changed."""
-        b = self.box
-        self.box = (i0, i1, j0, j1) if b is None else (min(b[0], i0), max(b[1], i1), min(b[2], j0), max(b[3], j1))
+        self.boxes = merge_boxes([*self.boxes, (i0, i1, j0, j1)])
 
-    def take(self) -> tuple[bool, tuple | None]:
-        """(anything, box) since the last take, and start afresh."""
-        out = (self.anything, self.box)
-        self.anything, self.box = False, None
+    def take(self) -> tuple[bool, list]:
+        """(anything, boxes) since the last take, and start afresh."""
+        out = (self.anything, self.boxes)
+        self.anything, self.boxes = False, []
         return out
 
 

@@ -104,6 +104,8 @@ def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path
     assert inst["name"] == f"Nanonis at {host}:{port}" and inst["frame"]["origin"][0] == pytest.approx(4.49e-6)
     assert s.metadata["haptics"]["source"] == "measured"
     assert s.metadata["calibration"]["vertical_sensitivity"] == pytest.approx(1.5 * 1117e-9 / 450e-6)
+    # the instrument's link thread must run in time: the loop keeps the ordinary policy by default
+    assert s.metadata["realtime"]["policy"] == "ordinary" and "instrument" in s.metadata["realtime"]["reason"]
     # the controller measured the tip where the loop commanded it (scan frame)
     lag = np.abs(t["instrument_position"] - t["probe_position"])
     assert np.nanmedian(lag[:, 2]) < 2e-9
@@ -218,19 +220,61 @@ def test_make_device_and_parse_instrument():
             parse_instrument(bad)
 
 
-def test_the_realtime_priority_reaches_the_loop_thread(capsys, monkeypatch):
-    """--realtime-priority N asks the scheduler's loop thread for SCHED_FIFO at N (what the OS
-    grants is its business); without it the loop keeps the ordinary policy (asks for 0)."""
+def _fake_setscheduler(monkeypatch, refuse: bool):
+    """os.sched_setscheduler as an OS that grants SCHED_FIFO (recording who asked, changing
+    nothing) or refuses it as to an unprivileged user (EPERM)."""
     import arsurf.haptics.scheduler as sched
 
-    asked = []
-    real = sched._realtime_priority
-    monkeypatch.setattr(sched, "_realtime_priority", lambda p: asked.append(p) or real(p))
-    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.3", "--realtime-priority", "40")
+    calls = []
+
+    def fake(pid, policy, param):
+        calls.append((policy, param.sched_priority))
+        if refuse:
+            raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(sched.os, "sched_setscheduler", fake)
+    return calls
+
+
+@pytest.mark.parametrize("argv, refuse, policy, priority, reason", [
+    ((), False, "SCHED_FIFO", 10, "the default"),
+    (("--realtime-priority", "40"), False, "SCHED_FIFO", 40, "asked"),
+    ((), True, "ordinary", 0, "SCHED_FIFO refused ([Errno 1] Operation not permitted); needs root"),
+    (("--no-realtime-priority",), False, "ordinary", 0, "turned off (--no-realtime-priority)"),
+])
+def test_the_loop_policy_is_chosen_printed_and_recorded(capsys, monkeypatch, tmp_path, argv, refuse, policy,
+                                                        priority, reason):
+    """By default the loop thread asks SCHED_FIFO priority 10 where the OS permits it; refused
+    (an unprivileged user), it runs under the ordinary policy; --no-realtime-priority opts out.
+    Each choice, and why, is printed and recorded in the session, and the loop thread gets it."""
+    import os
+
+    import arsurf.haptics.scheduler as sched
+
+    calls = _fake_setscheduler(monkeypatch, refuse)
+    given = []
+    monkeypatch.setattr(sched, "_realtime_priority", lambda p: given.append(p) or 0)
+    path = tmp_path / "s.h5"
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.3", "--record", str(path), *argv)
     assert rc == 0, err
-    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.3")
-    assert rc == 0, err
-    assert asked == [40, 0]
+    rt = load_session(path).metadata["realtime"]
+    assert rt["policy"] == policy and rt["priority"] == priority and rt["reason"].startswith(reason), rt
+    assert f"arsurf live: loop thread under {'SCHED_FIFO priority' if priority else 'the ordinary policy'}" in err
+    assert reason in err
+    assert given == [priority]  # what the loop thread asks for
+    asked = 0 if "--no-realtime-priority" in argv else (40 if "40" in argv else 10)
+    assert calls == ([(os.SCHED_FIFO, asked)] if asked else [])  # the probe's one try
+
+
+def test_a_device_that_answers_from_a_thread_keeps_the_ordinary_policy_by_default():
+    """Haply and OpenHaptics answer from a thread of this process, which a real-time loop thread
+    would starve on a busy core: no SCHED_FIFO unless asked."""
+    from arsurf.cli.live import _DEVICE_THREADS
+    from arsurf.haptics.scheduler import choose_realtime
+
+    assert set(_DEVICE_THREADS) == {"haply", "openhaptics"}
+    c = choose_realtime(None, device_thread=True)
+    assert c.priority == 0 and "answers from a thread" in c.reason
 
 
 @pytest.mark.parametrize("bad", ["100", "-1", "high"])

@@ -350,3 +350,143 @@ def test_a_deep_copied_model_dents_its_own_surface(rng):
     assert twin.surface.is_deformed and not s.is_deformed
     _slide(s, model)
     assert np.array_equal(s.control_points, twin.surface.control_points)
+
+
+@pytest.mark.parametrize("pitch_nm", [0.1, 0.5, 2.0, 8.0])
+@pytest.mark.parametrize("tip_nm", [2.0, 20.0, 50.0])
+def test_the_tick_tables_dent_read_late_is_the_full_dent_over_pitch_and_tip(pitch_nm, tip_nm):
+    """On the tick table's surfaces (bench/_tick_table.py: 0.5 nm rms, correlated over max(6 nm, 3 px), at most a quarter of these 64 px)
+    at 0.1-8 nm pitch under 2-50 nm tips, the net read once after a slide is the full dent of the
+    last tick pressed from rest, bit for bit: the stated tolerance of the lazy dent is zero."""
+    from arsurf.contact.deformation import D_A, D_CX, D_CZ, D_DEPTH, D_NX, D_NZ, D_RADIUS, D_ZONE
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.force.cantilever import Cantilever
+    from arsurf.model import M_IN_CONTACT, ARModel
+    from arsurf.scan.synthetic import rough
+
+    pitch, tip = pitch_nm * 1e-9, tip_nm * 1e-9
+    s = fit_surface(rough((64, 64), pitch, rms=0.5e-9, correlation_length=min(max(6e-9, 3 * pitch), 16 * pitch), seed=2))
+    model = ARModel(s, tip, MaugisDugdale(tip, 5e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    inner = s.rest_control_points[16:-16, 16:-16]                    # over the highest inner point, 1 nm deep
+    i, j = np.unravel_index(np.argmax(inner[..., 2]), inner.shape[:2])
+    x, y, z = inner[i, j, 0], inner[i, j, 1], inner[i, j, 2] + tip - 1e-9
+    for k in range(30):
+        model.tick((x + 0.02 * pitch * k, y, z))
+    assert model.out[M_IN_CONTACT] == 1.0
+    d = model._deformer.dent
+    twin = BSplineSurface.construct_fast(s.rest_control_points.copy(), s.knots_u, s.knots_v)
+    twin._height_field = True
+    Deformer(twin).apply(d[D_CX:D_CZ + 1], d[D_RADIUS], d[D_NX:D_NZ + 1], d[D_A], depth=d[D_DEPTH],
+                         zone_radius=d[D_ZONE])
+    assert s.is_deformed and np.array_equal(s.control_points, twin.control_points)
+
+
+# ---------------------------------------------------------------------------------------------
+# several contacts of one tip, each recording its own dent (issue 28: the second and further contacts)
+
+_DENT_A = dict(center=(150e-9, 150e-9, 18e-9), radius=20e-9, normal=(0, 0, 1), contact_radius=9e-9,
+               depth=2e-9, zone_radius=12e-9)
+
+
+def _tilted(c, n, a=6e-9):
+    n = np.asarray(n, float) / np.linalg.norm(n)
+    return dict(center=c, radius=20e-9, normal=n, contact_radius=a, depth=a * a / 20e-9 - 0.3e-9, zone_radius=1.5 * a)
+
+
+def test_one_contact_of_several_dents_as_the_single_contact(flat):
+    """A three-contact deformer with only contact 1 pressed gives the one-contact dent, bit for
+    bit, with the same points moved and box."""
+    multi, single = Deformer(flat, contacts=3), Deformer(twin := flat.copy())
+    r3 = multi.apply(**_DENT_A, contact=1)
+    r1 = single.apply(**_DENT_A)
+    assert r3 == r1 and r1.moved > 100
+    assert np.array_equal(flat.control_points, twin.control_points)
+
+
+def test_contacts_far_apart_each_dent_as_alone_and_release_one_by_one(flat):
+    """Two contacts whose boxes do not meet: the net is each one's single dent in its own box
+    and rest elsewhere; releasing one leaves exactly the other; releasing all gives rest, bitwise."""
+    b = dict(_DENT_A, center=(300e-9, 100e-9, 18.5e-9))
+    alone_a, alone_b = flat.copy(), flat.copy()
+    d = Deformer(flat, contacts=2)
+    ra, rb = d.apply(**_DENT_A, contact=0), d.apply(**b, contact=1)
+    Deformer(alone_a).apply(**_DENT_A)
+    Deformer(alone_b).apply(**b)
+    net, rest = flat.control_points.copy(), flat.rest_control_points
+    expect = rest.copy()
+    i0, i1, j0, j1 = ra.patch
+    expect[i0:i1, j0:j1] = alone_a.control_points[i0:i1, j0:j1]
+    i0, i1, j0, j1 = rb.patch
+    expect[i0:i1, j0:j1] = alone_b.control_points[i0:i1, j0:j1]
+    assert np.array_equal(net, expect) and ra.moved > 100
+    d.release(contact=0)
+    assert np.array_equal(flat.control_points, alone_b.control_points)
+    d.apply(**_DENT_A, contact=0)
+    d.release()
+    assert np.array_equal(flat.control_points, rest) and not flat.is_deformed
+
+
+def test_two_contacts_of_one_tip_superpose_their_elastic_surfaces():
+    """A tip in a groove touches both flanks: the two contacts' elastic displacements add
+    (linear elasticity) where neither contact disc nor the tip is; each disc lies on the tip;
+    no control point is left inside the tip; the sync writes each point once (its moved count
+    is the union's)."""
+    h = 0.5e-9
+    x = np.arange(160) * h
+    z = 0.35 * np.abs(x - x.mean())[:, None] * np.ones((1, 160))   # a V groove along y, flanks at 19 deg
+    s = BSplineSurface.from_heights(z, (0.0, x[-1]), (0.0, x[-1]))
+    R = 20e-9
+    t = np.arctan(0.35)
+    c = np.array([x.mean(), x.mean(), R / np.cos(t) - 0.6e-9])      # pressed 0.6e-9 cos t into both flanks
+    n0, n1 = (-np.sin(t), 0.0, np.cos(t)), (np.sin(t), 0.0, np.cos(t))
+    dents = [_tilted(c, n0), _tilted(c, n1)]
+    both = Deformer(s, contacts=2)
+    for k, dent in enumerate(dents):
+        both.apply(**dent, contact=k)
+    alone, clear = [], np.ones(z.shape, bool)
+    for dent in dents:
+        one = BSplineSurface.from_heights(z, (0.0, x[-1]), (0.0, x[-1]))
+        Deformer(one).apply(**dent)
+        alone.append(one.control_points - one.rest_control_points)
+        clear &= np.linalg.norm(one.control_points - c, axis=-1) > R * (1 + 1e-6)   # not put on the tip alone
+    rest, net = s.rest_control_points, s.control_points
+    dist = np.linalg.norm(net - c, axis=-1)
+    assert dist.min() >= R * (1 - 1e-12)                              # nothing inside the tip
+    discs = np.zeros(z.shape, bool)
+    for dent in dents:
+        rho, _ = _rho(rest, c, np.asarray(dent["normal"]))
+        discs |= rho < dent["contact_radius"]
+    assert discs.sum() > 20 and np.allclose(dist[discs], R, rtol=1e-12)   # the discs on the tip
+    free = ~discs & clear & (np.linalg.norm(rest - c, axis=-1) > R) & (dist > R * (1 + 1e-6))
+    both_moved = (np.abs(alone[0]).max(-1) > 0) & (np.abs(alone[1]).max(-1) > 0) & free
+    assert both_moved.sum() > 100                                     # the elastic surfaces overlap
+    np.testing.assert_allclose((net - rest)[free], (alone[0] + alone[1])[free], rtol=0, atol=1e-21)
+
+
+def test_the_sync_kernel_leaves_the_gil_and_a_deformer_copies():
+    """The net is written without the GIL (the haptic thread ticks on while a reader syncs); the
+    deformer's lock is not copied: a deep copy makes its own."""
+    import copy
+    import pickle
+
+    from arsurf.contact.deformation import sync_dent_kernel
+
+    assert sync_dent_kernel.targetoptions.get("nogil") is True
+    s = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 39 * H), (0.0, 39 * H))
+    d = Deformer(s, contacts=2)
+    d.apply(center=(80e-9, 80e-9, 18e-9), radius=20e-9, normal=(0, 0, 1), contact_radius=9e-9, contact=1)
+    for twin in (copy.deepcopy(s), pickle.loads(pickle.dumps(s))):
+        assert np.array_equal(twin.control_points, s.control_points)
+        (dt,) = twin._dents
+        dt.release()
+        assert not twin.is_deformed and s.is_deformed and dt._lock is not d._lock
+
+
+@pytest.mark.parametrize("kwargs, match", [({"contacts": 0}, "contacts"), ({"contacts": 1.5}, "contacts"),
+                                           ({"record": np.zeros(20), "contacts": 2}, "record")])
+def test_bad_contact_counts(flat, kwargs, match):
+    with pytest.raises(ContactError, match=match):
+        Deformer(flat, **kwargs)
+    d = Deformer(flat, contacts=2)
+    with pytest.raises(ContactError, match="contact"):
+        d.apply(**_DENT_A, contact=2)

@@ -165,3 +165,30 @@ def test_a_contact_beyond_the_law_is_flagged_in_the_recorded_word():
         wide.append(model.out[M_RADIUS] > SMALL_CONTACT_LIMIT * R)
         flagged.append(bool(int(loop.out[L_SAFETY_FLAGS]) & BEYOND_MODEL))
     assert any(wide) and not all(wide) and flagged == wide
+
+
+def test_the_one_call_tick_is_the_checked_python_tick_bit_for_bit():
+    """A well-formed sample ticks in one compiled call (sample check, sample, tick:
+    loop_sample_tick_kernel through its entry point); a sample given as strided views takes the
+    Python path (check, copies, tick). Fed the same samples - a slide with noise, a NaN, a jump
+    no stylus makes and a stamp going backwards among them - the two give the same output every
+    tick, bit for bit."""
+    _, _, dev, loop = _setup(source="blended", noise=1e-8, seed=5)
+    twin = _setup(source="blended", noise=1e-8, seed=5)[3]
+    for k in range(1500):
+        st = dev.read_state()
+        p, v, t = st.position.copy(), st.velocity.copy(), st.timestamp
+        if k == 700:
+            p[1] = np.nan
+        elif k == 900:
+            p[0] += 0.5                                                 # 0.5 m in one tick
+        elif k == 1100:
+            t -= 0.01                                                   # stamped in the past
+        f = loop.step(DeviceState(p, v, st.buttons, t), st.timestamp)
+        ps, vs = np.empty(6)[::2], np.empty(6)[::2]
+        ps[:], vs[:] = p, v
+        twin.step(DeviceState(ps, vs, st.buttons, t), st.timestamp)
+        assert np.array_equal(loop.out, twin.out, equal_nan=True), k
+        dev.command_force(f)
+    assert loop._fused is not None and twin._fused is None              # each took its own path
+    assert loop.out[8:11].any()                                         # it touched

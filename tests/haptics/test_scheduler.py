@@ -223,3 +223,174 @@ def test_run_for_takes_a_finite_duration():
         with pytest.raises(HapticsError, match="seconds must be a"):
             sched.run_for(bad)
     assert not sched.is_running
+
+
+# -- the pacer on a scripted clock: the wait's logic, no timing ---------------------------------
+class ScriptedTime:
+    """A monotonic clock in ns that advances only when read (``read_ns`` per reading), by the
+    work the test scripts, and by each sleep plus a wake-up ``latency_ns(k)``; it records every
+    sleep. Its CPU clock counts all but the time asleep, and ``sleep_cpu_ns`` of each sleep (the
+    system call's own work)."""
+
+    def __init__(self, read_ns: int = 200, latency_ns=lambda k: 0, sleep_cpu_ns: int = 0):
+        self.t, self.read_ns, self.latency_ns, self.sleep_cpu_ns = 1_000_000, read_ns, latency_ns, sleep_cpu_ns
+        self.sleeps: list[int] = []
+        self.idle = 0
+
+    def cpu(self) -> int:
+        return self.t - self.idle
+
+    def clock(self) -> int:
+        self.t += self.read_ns
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        ns = round(seconds * 1e9)
+        self.sleeps.append(ns)
+        late = self.latency_ns(len(self.sleeps))
+        self.t += ns + late
+        self.idle += max(0, ns - self.sleep_cpu_ns) + late
+
+    def run(self, pacer, work_ns, ticks: int):
+        """``ticks`` ticks whose work takes ``work_ns(k)``; the sleeps of each tick's wait."""
+        per_tick = []
+        for k in range(ticks):
+            pacer.begin()
+            self.t += work_ns(k)
+            n = len(self.sleeps)
+            pacer.wait()
+            per_tick.append(self.sleeps[n:])
+        pacer.finish()
+        return per_tick
+
+
+def _fifo_pacer(rate, clock):
+    return Scheduler(lambda s, i, d: None, rate=rate).pacer_for(True, clock=clock.clock, sleep=clock.sleep,
+                                                                 cpu_clock=clock.cpu)
+
+
+@pytest.mark.parametrize("rate", [1000.0, 4000.0, 10000.0, 20000.0])
+@pytest.mark.parametrize("cost", [0.0, 0.2, 0.6, 0.95, 1.5, 4.0])
+def test_a_realtime_loop_sleeps_every_period_and_stays_under_the_kernels_budget(rate, cost):
+    """Under SCHED_FIFO the kernel stops a thread awake more than 950 ms of a second for the rest
+    of it (the ~50 ms without force the issue measured). Whatever the step costs (``cost``
+    periods, past the period too) and however late sleeps end, the real-time pacer spins at most
+    FIFO_SPIN before a deadline and sleeps at least 1/9 of the time it was awake
+    (FIFO_IDLE_SHARE 0.1) beyond a 10 ms burst, and so is awake at most 91 % of any second; a step that fits keeps every deadline, on the grid."""
+    from arsurf.haptics.scheduler import FIFO_IDLE_BURST_NS, FIFO_IDLE_SHARE, FIFO_SPIN
+
+    period = round(1e9 / rate)
+    rng = np.random.default_rng(7)
+    lat = rng.integers(0, 10_000, 200_000)  # a real-time sleeper wakes 0-10 us late
+    clock = ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]), sleep_cpu_ns=3_000)
+    pacer = _fifo_pacer(rate, clock)
+    ticks = int(2.5 * rate / max(cost, 1.0))  # 2.5 s of scripted time
+    per_tick = clock.run(pacer, lambda k: int(cost * period), ticks)
+    if cost <= 0.6:
+        assert all(per_tick)  # time was left: it slept after every tick
+    elapsed = clock.t - pacer.t0  # beyond the burst, it slept at least a tenth of the time
+    assert pacer.awake <= (1 - FIFO_IDLE_SHARE) * elapsed + FIFO_IDLE_BURST_NS
+    assert pacer.spin_max <= min(FIFO_SPIN, 0.25 / rate) * 1e9 + clock.read_ns
+    assert pacer.awake_max <= 1.0 - FIFO_IDLE_SHARE + FIFO_IDLE_BURST_NS * 1e-9 < 0.95
+    assert 0.0 < pacer.cpu_max < 0.95  # with 3 us of system time per sleep (what the kernel counts)
+    if cost <= 0.6:  # the step and the spin fit in the period, the wake-ups in the spin: no deadline missed
+        assert pacer.overruns == pacer.skipped == 0
+        assert pacer.longest_gap <= period + 10 * clock.read_ns
+
+
+def test_a_spinning_wait_is_what_meets_the_throttling():
+    """The same scripted run with the ordinary policy's margin (3/4 of a 10 kHz period spun) and
+    no least sleep is awake ~95 % of each second, what the kernel throttles under SCHED_FIFO:
+    the reason the real-time pacer differs (this is the wait the issue measured, 5 % of the
+    slots skipped and a 51.7 ms gap)."""
+    clock = ScriptedTime()
+    ordinary = Scheduler(lambda s, i, d: None, rate=10000.0).pacer_for(False, clock=clock.clock, sleep=clock.sleep)
+    clock.run(ordinary, lambda k: 20_000, 25_000)
+    assert ordinary.awake_max > 0.95
+    clock = ScriptedTime()
+    fifo = _fifo_pacer(10000.0, clock)
+    clock.run(fifo, lambda k: 20_000, 25_000)
+    assert fifo.awake_max < 0.6
+
+
+def test_a_stall_skips_its_slots_once_and_the_grid_is_kept():
+    """A 5 ms stall at 10 kHz: one overrun, the 49 slots it covered skipped (no burst of
+    catch-up ticks), the gap reported, and the next deadlines back on the grid t0 + k T."""
+    clock = ScriptedTime()
+    pacer = _fifo_pacer(10000.0, clock)
+    t0 = pacer.start()
+    starts = []
+
+    def work(k):
+        starts.append(clock.t)
+        return 5_000_000 if k == 100 else 20_000
+
+    clock.run(pacer, work, 300)
+    assert (pacer.overruns, pacer.skipped) == (1, 49)
+    assert 5_000_000 < pacer.longest_gap < 5_000_000 + 100_000
+    gaps = np.diff(starts)
+    assert np.sum(gaps > 150_000) == 1  # one long gap, then ticks a period apart again
+    assert (pacer.deadline - t0) % 100_000 == 0
+
+
+def test_the_awake_share_is_counted_per_second():
+    """The kernel budgets real-time time per second: 1 s awake 80 % of each period then 1 s at
+    20 % is a worst second of 80 %, not the run's mean of 50 %."""
+    clock = ScriptedTime(read_ns=0)
+    pacer = Scheduler(lambda s, i, d: None, rate=1000.0, spin=0.0).pacer_for(False, clock=clock.clock,
+                                                                            sleep=clock.sleep)
+    pacer.start()
+    clock.run(pacer, lambda k: 800_000 if k < 1000 else 200_000, 2000)
+    assert pacer.awake_max == pytest.approx(0.8, abs=1e-3)
+    assert pacer.awake == pytest.approx(1.0e9, rel=1e-3)
+
+
+# -- the real-time choice ------------------------------------------------------------------------
+def _os_answers(monkeypatch, refuse):
+    import arsurf.haptics.scheduler as sched
+
+    calls = []
+
+    def fake(pid, policy, param):
+        calls.append((threading.current_thread().name, policy, param.sched_priority))
+        if refuse:
+            raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(sched.os, "sched_setscheduler", fake)
+    return calls
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "SCHED_FIFO"), reason="POSIX scheduling policies")
+def test_the_default_is_sched_fifo_where_permitted_and_the_ordinary_policy_otherwise(monkeypatch):
+    import os
+
+    from arsurf.haptics.scheduler import DEFAULT_REALTIME_PRIORITY, choose_realtime
+
+    calls = _os_answers(monkeypatch, refuse=False)
+    c = choose_realtime()
+    assert (c.policy, c.priority, c.asked) == ("SCHED_FIFO", DEFAULT_REALTIME_PRIORITY, DEFAULT_REALTIME_PRIORITY)
+    assert calls == [("arsurf-rt-probe", os.SCHED_FIFO, DEFAULT_REALTIME_PRIORITY)]  # tried in a probe thread
+    calls = _os_answers(monkeypatch, refuse=True)
+    c = choose_realtime()
+    assert (c.policy, c.priority, c.asked) == ("ordinary", 0, DEFAULT_REALTIME_PRIORITY)
+    assert "SCHED_FIFO refused" in c.reason and "CAP_SYS_NICE" in c.reason
+    assert c.to_metadata() == {"policy": "ordinary", "priority": 0, "asked": DEFAULT_REALTIME_PRIORITY,
+                               "reason": c.reason}
+    assert choose_realtime(0).priority == 0 and len(calls) == 1  # opted out: not even tried
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "SCHED_FIFO"), reason="POSIX scheduling policies")
+def test_no_default_sched_fifo_when_the_kernel_does_not_throttle_it(monkeypatch, tmp_path):
+    """With sched_rt_runtime_us = -1 a real-time step that never returns would hold its core:
+    the default is then the ordinary policy; an explicit priority is still honoured."""
+    import arsurf.haptics.scheduler as sched
+
+    calls = _os_answers(monkeypatch, refuse=False)
+    knob = tmp_path / "sched_rt_runtime_us"
+    knob.write_text("-1\n")
+    monkeypatch.setattr(sched, "_RT_RUNTIME", str(knob))
+    c = sched.choose_realtime()
+    assert c.priority == 0 and "throttling is off" in c.reason and calls == []
+    assert sched.choose_realtime(30).priority == 30
+    knob.write_text("950000\n")
+    assert sched.choose_realtime().priority == sched.DEFAULT_REALTIME_PRIORITY

@@ -792,6 +792,7 @@ def test_the_cli_refuses_a_bad_recording_setup_before_anything_runs(capsys, tmp_
                          (["view", "--bridge-port", "0", "--record", str(tmp_path / "no" / "r.h5")], "folder"),
                          (["view", "--frames", "0"], "--frames 0"),
                          (["view", "--realtime-priority", "5"], "give --bridge-port"),
+                         (["view", "--no-realtime-priority"], "--no-realtime-priority set up the UDP bridge"),
                          (["view", "--bridge-port", "0", "--tubes"], "--tubes")):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()

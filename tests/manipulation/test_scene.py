@@ -471,3 +471,34 @@ def test_seed000_fig10_configuration_end_pushes_stay_in_its_0_30_nN():
         assert fh == pytest.approx(expected, rel=0.02)          # the tip just past the very end
         assert 10e-9 < fh < 30e-9
         assert F_LEN * tube.length > 30e-9                       # a middle push: beyond Fig. 10's range
+
+
+@pytest.mark.parametrize("tip_radius, diameter, along", [(20e-9, 15e-9, 0.5), (20e-9, 15e-9, 0.0),
+                                                         (10e-9, 30e-9, 0.5), (20e-9, 40e-9, 0.2)])
+def test_the_tube_normal_force_is_the_contact_force_along_the_3d_normal(tip_radius, diameter, along):
+    """A tip on the substrate (centre R - 1 nm above it) pushing a tube that lies on the substrate
+    meets the tube's curved flank: the frictionless contact force is along the normal from the axis
+    to the tip centre, so its normal (z) component is the total contact force times n_z, upward
+    when the tip is larger than the tube (R > r: it rides on the flank), downward when the flank
+    overhangs it (R < r), and zero once the tip leaves the tube."""
+    tube = Nanotube(L, diameter, x=0.0, y=0.0, angle=0.0)
+    scene = TubeScene([tube])
+    z = tip_radius - 1e-9                                   # the tip 1 nm into the substrate (base 0)
+    dz = z - tube.axis_height
+    reach = (tip_radius + tube.radius) * (1 - CONTACT_ALLOWANCE)
+    x = (along - 0.5) * L
+    y0 = -math.sqrt(reach**2 - dz**2)
+    step = scene.step((x, y0 - 1e-9, z), (x, y0 + 2e-9, z), tip_radius)    # push 2 nm past the slide point
+    assert step.touched[0]
+    after = scene.tubes[0]
+    t = np.clip((x - after.endpoints[0, 0]) * after.direction[0] + (y0 + 2e-9 - after.endpoints[0, 1])
+                * after.direction[1], 0.0, L)
+    n = np.array([x, y0 + 2e-9, z]) - after.point_at(t)     # axis point nearest the tip -> tip centre
+    n /= np.linalg.norm(n)
+    total = np.linalg.norm(step.force)
+    assert total > 1e-9
+    assert step.force == pytest.approx(total * n, rel=1e-9, abs=1e-9 * total)
+    assert step.force[2] == pytest.approx(total * n[2], rel=1e-9)
+    assert math.copysign(1.0, step.force[2]) == math.copysign(1.0, tip_radius - tube.radius - 1e-9)
+    gone = scene.step((x, y0 + 2e-9, z), (x, y0 - 5e-9, z), tip_radius)   # backing off: no contact, no force
+    assert not gone.touched[0] and (gone.force == 0.0).all()

@@ -1,9 +1,12 @@
 """A simulated Haply Inverse3 (and VerseGrip handle) on a pseudo-terminal.
 
-The serial protocol is the one ``HaplyHardwareAPI`` 0.1.x speaks (read off the package: the bytes
-it writes to a pty and the replies it accepts; see :mod:`arsurf.haptics.haply`): a command byte,
-then little-endian ``float32`` fields. The Inverse3 answers the wake-up ``0A`` with ``0B`` and its
-identity, each force command ``2A fx fy fz`` with ``2B`` and its position and velocity; the handle
+The serial protocol is the one ``HaplyHardwareAPI`` 0.1.x speaks, read off the package itself (the
+bytes it writes to a pty, traced, and the replies it accepts), not off arsurf's adapter: a command
+byte, then little-endian ``float32`` fields. The Inverse3 answers the wake-up ``0A`` with ``0B`` and
+its identity, each force command ``2A fx fy fz`` with ``2B`` and its position and velocity, and
+nothing unasked (Haply's Inverse Service documentation: to read the position "you must send a force
+value to the device", even zero); it answers as soon as its thread runs (Haply gives no latency
+figure; its service streams states at "multi-kHz" rates, so well under a 1 ms period); the handle
 answers ``0A`` with ``D0`` + 6 bytes and each status request ``DA`` with ``DA`` + status + user
 data (first byte: buttons). The handle's dynamics are those of ``sim_handle.h`` (mass, damping,
 a hand spring to a set point), advanced on the wall clock (5 kHz steps) by a thread of its own, in the Inverse3's
