@@ -11,21 +11,29 @@ tick time. Peer, same run: one bare VTK ``vtkStaticCellLocator.FindClosestPoint`
 surface's triangulation at the tip positions of a slide, timed in rounds interleaved with the
 loop's ticks at those positions.
 
-Generated families (issue 27 §3, ``--families N``; ``--quick`` runs a seeded sample): N surfaces
-drawn by the seeded generators of :func:`arsurf.feel_scenarios.generated_surfaces` (Gaussian and
-power-law rough surfaces, rms 0.5-20 nm x correlation length 2-200 nm x pixel 0.25-8 nm, steps and
-ridges, against tip radii 2-50 nm), plus every real scan of ../shared/scans-real the loader can
-prepare, each judged with the default loop (the virtual device, coupling and passivity on):
+Generated families (issue 27 §3, ``--families N``): N surfaces drawn by the seeded generators of
+:func:`arsurf.feel_scenarios.generated_surfaces` (Gaussian and power-law rough surfaces, rms
+0.5-20 nm x correlation length 2-200 nm x pixel 0.25-8 nm, steps and ridges, against tip radii
+2-50 nm), plus every real scan of ../shared/scans-real the project opens (not with ``--quick``),
+each surface with ``--runs SLOW FAST`` seeded runs (:func:`arsurf.feel_scenarios.plan_runs`: a
+drawn heading, source and, for a still/slow run, rate), judged with the default loop (the virtual
+device, coupling and passivity on) by :func:`arsurf.feel_scenarios.judge_run`:
 
-* a still or slow tip (press; slides at 0.1, 1, 10 nm/s; a seeded source and rate of 1, 5,
-  10 kHz): content above 100 Hz <= 2 % of the mean normal force on each axis after 1 s, no
-  tick-to-tick reversal above 1 % of the peak, observed energy >= -E0 (``FeelScore.buzzes``);
-* a faster motion (circles at 100 and 1000 nm/s, strokes, taps): the same motion at 1 and 10
-  kHz, the 10 kHz force averaged over each 1 ms tick of the 1 kHz loop: their rms difference
-  over the rms 10 kHz force after 1 s <= :data:`RATE_TOLERANCE` (what the surface gives stays
-  when the rate changes; what the loop adds does not), and energy >= -E0 at both rates.
+* a still or slow tip (press; slides at 0.1, 1, 10 nm/s): content above 100 Hz <= 2 % of the
+  mean normal force on each axis after 1 s, no tick-to-tick reversal above 1 % of the peak,
+  observed energy >= -E0, a press at rest within 1 % of K_f F;
+* a faster motion (slides at 100 and 1000 nm/s turning back at the scan's edge, circles, strokes,
+  taps): the same motion at 1 and 10 kHz through the same virtual coupling, the 10 kHz force
+  low-passed (zero phase) at 450 Hz, compared at the 1 kHz ticks (the 5 ms after a contact is
+  made or broken left out): rms difference <= 5 % of the rms force
+  (:data:`arsurf.feel_scenarios.RATE_TOLERANCE`), and energy >= -E0 at both rates.
 
-Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N --seed S]   (prints JSON)
+The full table is ``--families 240 --runs 4 2`` (240 generated surfaces and the real scans, 1440
+runs on the generated ones, 25.8 M loop ticks); it prints its size and a time estimate (from a
+calibration run on this machine, now) first, ``--estimate`` only that.
+
+Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N [--runs 2 1] [--seed S] [--estimate]]
+(prints JSON)
 """
 from __future__ import annotations
 
@@ -38,8 +46,10 @@ from pathlib import Path
 
 import numpy as np
 
-from arsurf.feel_scenarios import (MOTIONS, RATE_TOLERANCE, SOURCES, generated_surfaces, prepared_surface,
-                                   rate_convergence, run_scenario, synthetic_surface)
+from arsurf.assembly import PRESETS
+from arsurf.feel_scenarios import (GENERATED_PIXELS, MOTIONS, RATE_CUTOFF, RATE_TOLERANCE, SOURCES,
+                                   generated_surfaces, judge_run, plan_runs, prepared_surface, run_scenario,
+                                   synthetic_surface, ticks)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from collision import vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
@@ -48,65 +58,78 @@ SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parent
 REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
 
 
-SLOW_MOTIONS = ("press", "slide-0.1", "slide-1", "slide-10")
-FAST_MOTIONS = ("circle-100", "circle-1000", "stroke", "tap")
-RATES = (1000.0, 5000.0, 10000.0)
+def line(r: dict) -> str:
+    """One stderr line per judged run."""
+    head = f"{r['surface']} {r['motion']} {r['heading_deg']:.0f}deg {r['source']}"
+    if r["kind"] == "fast":
+        return (f"{head}: {'ok' if r['ok'] else 'FAIL'} rate error {100 * r['rate_error']:.2f} % (tick mean "
+                f"{100 * r['tick_mean_error']:.1f} %) E/E0 {min(r['min_energy_over_E0']):.2f}")
+    return (f"{head} {r['rate_hz'] / 1e3:.0f} kHz: {'ok' if r['ok'] else 'FAIL'} hf "
+            f"{'/'.join(f'{100 * x:.2f}' for x in r['high_frequency_over_normal'])} % rev {sum(r['reversals'])} "
+            f"E/E0 {r['min_energy_over_E0']:.2f} rest {100 * r['rest_error']:.3f} %")
 
 
-def judge_surface(name: str, surface, rng, seconds: float, tip_radius=None, slow_runs: int = 2,
-                  fast_runs: int = 1) -> list:
-    """The family criteria (module docstring) on one surface: ``slow_runs`` still/slow motions at a
-    seeded rate and source, ``fast_runs`` rate-convergence pairs; slides and strokes only where
-    the surface has room for them (a small scan's tip would leave it)."""
-    rows = []
-    (u0, u1), (v0, v1) = surface.domain
-    room = 0.5 * min(u1 - u0, v1 - v0) - (tip_radius or 20e-9) - 2e-9  # m the tip may travel from the middle
-    slow = [m for m in SLOW_MOTIONS if not m.startswith("slide-") or float(m[6:]) * 1e-9 * (seconds - 0.5) <= room]
-    fast = [m for m in FAST_MOTIONS if m != "stroke" or 150e-9 <= room]
-    for motion in rng.choice(slow, size=min(slow_runs, len(slow)), replace=False):
-        rate = float(rng.choice(RATES))
-        source = str(rng.choice(SOURCES))
-        run = run_scenario(surface, motion=str(motion), source=source, rate=rate, seconds=seconds,
-                           tip_radius=tip_radius)
-        rows.append({"surface": name, "kind": "slow", "motion": str(motion), "source": source, "rate_hz": rate,
-                     **run.score.as_dict(), "ok": not run.score.buzzes})
-    for motion in rng.choice(fast, size=min(fast_runs, len(fast)), replace=False):
-        source = str(rng.choice(SOURCES))
-        rows.append({"surface": name, "kind": "fast",
-                     **rate_convergence(surface, str(motion), source, seconds, tip_radius=tip_radius)})
-    for r in rows:
-        print(f"{name} {r['kind']} {r['motion']} {r['source']}: {'ok' if r['ok'] else 'FAIL'}"
-              + (f" rate error {100 * r['rate_error']:.1f} %" if r["kind"] == "fast" else
-                 f" hf {'/'.join(f'{100 * x:.2f}' for x in r['high_frequency_over_normal'])} %"
-                 f" rev {sum(r['reversals'])}"), file=sys.stderr)
-    return rows
-
-
-def families(count: int, seed: int, seconds: float, real: bool = True, slow_runs: int = 2,
-             fast_runs: int = 1) -> dict:
-    """The generated table (``count`` surfaces, seeded) and every real scan, judged."""
+def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
+             estimate_only: bool = False) -> dict:
+    """The generated table (``count`` surfaces, seeded) and every real scan the project opens, judged;
+    prints the time estimate (calibrated on a short run) before it starts."""
     rng = np.random.default_rng(seed)
-    rows = []
-    for g in generated_surfaces(count, seed):
-        rows += judge_surface(g.name, g.surface(), rng, seconds, g.tip_radius, slow_runs, fast_runs)
+    table = [(g.name, g.surface, g.tip_radius, GENERATED_PIXELS * g.pixel) for g in generated_surfaces(count, seed)]
+    unreadable = {}
     if real:
         for path in sorted(p for p in SCANS.iterdir() if p.suffix != ".md") if SCANS.exists() else []:
             try:
                 s = prepared_surface(path)[1]
-            except Exception as exc:  # noqa: BLE001 - a file the demo cannot prepare: said, not fatal
-                rows.append({"surface": path.name, "kind": "unreadable", "ok": None,
-                             "error": f"{type(exc).__name__}: {exc}"[:200]})
+            except Exception as exc:  # noqa: BLE001 - a file the project cannot open: said, not fatal
+                unreadable[path.name] = f"{type(exc).__name__}: {exc}"[:200]
                 continue
-            rows += judge_surface(path.name, s, rng, seconds, None, slow_runs, fast_runs)
-    judged = [r for r in rows if r["ok"] is not None]
-    failed = [r for r in judged if not r["ok"]]
-    fast = [r["rate_error"] for r in judged if r["kind"] == "fast"]
-    return {"summary": {"generated_surfaces": count, "seed": seed, "real_scans": len({r["surface"] for r in rows})
-                        - count, "runs": len(judged), "failed": len(failed),
-                        "failed_runs": [f"{r['surface']} {r['kind']} {r['motion']} {r['source']}" for r in failed],
-                        "rate_tolerance": RATE_TOLERANCE, "worst_rate_error": max(fast, default=math.nan),
-                        "unreadable": [r["surface"] for r in rows if r["ok"] is None]},
+            (u0, u1), (v0, v1) = s.domain
+            table.append((path.name, (lambda s=s: s), float(PRESETS["demo"].tip_radius), min(u1 - u0, v1 - v0)))
+    plan = [(make, tip, runs) for name, make, tip, side in table
+            for runs in [plan_runs(name, rng, tip, side, slow_runs, fast_runs)]]
+    total = sum(ticks(r) for _, _, runs in plan for r in runs)
+    per_tick = _tick_cost(table[0][1](), table[0][2]) if table else 0.0
+    estimate = {"surfaces": len(table), "generated_surfaces": count, "real_scans": len(table) - count,
+                "runs": sum(len(runs) for _, _, runs in plan), "loop_ticks": total,
+                "estimated_seconds": total * per_tick, "per_tick_us": per_tick * 1e6}
+    print(f"families: {estimate['surfaces']} surfaces, {estimate['runs']} runs, {total} ticks: about "
+          f"{estimate['estimated_seconds']:.0f} s at {per_tick * 1e6:.0f} us per tick (this machine, now)", file=sys.stderr)
+    if estimate_only:
+        return {"estimate": estimate}
+    rows = []
+    for make, tip, runs in plan:
+        surface = make()
+        for run in runs:
+            rows.append(judge_run(run, surface, tip))
+            print(line(rows[-1]), file=sys.stderr)
+    failed = [r for r in rows if not r["ok"]]
+    fast = [r["rate_error"] for r in rows if r["kind"] == "fast"]
+    slow = [r for r in rows if r["kind"] == "slow"]
+    return {"summary": {**estimate, "seed": seed, "failed": len(failed),
+                        "failed_runs": [line(r) for r in failed],
+                        "rate_tolerance": RATE_TOLERANCE, "rate_cutoff_hz": RATE_CUTOFF,
+                        "worst_rate_error": max(fast, default=math.nan),
+                        "worst_tick_mean_error": max((r["tick_mean_error"] for r in rows if r["kind"] == "fast"),
+                                                     default=math.nan),
+                        "worst_high_frequency_over_normal": max((max(r["high_frequency_over_normal"]) for r in slow),
+                                                                default=math.nan),
+                        "most_reversals": max((sum(r["reversals"]) for r in slow), default=0),
+                        "lowest_energy_over_E0": min((min(np.atleast_1d(r["min_energy_over_E0"])) for r in rows),
+                                                     default=math.nan),
+                        "worst_rest_error": max((r["rest_error"] for r in slow if not math.isnan(r["rest_error"])),
+                                                default=math.nan),
+                        "unreadable": unreadable},
             "rows": rows}
+
+
+def _tick_cost(surface, tip_radius) -> float:
+    """Seconds per loop tick of a scenario on ``surface`` (a 1.2 s press at 5 kHz, after a warm-up)."""
+    import time
+
+    run_scenario(surface, motion="press", rate=1000.0, seconds=1.2, tip_radius=tip_radius)
+    t0 = time.perf_counter()
+    run_scenario(surface, motion="press", rate=5000.0, seconds=1.2, tip_radius=tip_radius)
+    return (time.perf_counter() - t0) / 6000.0
 
 
 def vtk_ratio(surface, rounds: int = 3) -> dict:
@@ -184,13 +207,16 @@ def main() -> None:
     ap.add_argument("--sources", nargs="+", choices=SOURCES, help="only these sources")
     ap.add_argument("--rates", nargs="+", type=float, help="only these loop rates, Hz")
     ap.add_argument("--families", type=int, metavar="N", help="only the generated families: N surfaces "
-                    "(and every real scan); --quick: 8 surfaces, no real scans")
+                    "(and every real scan; --quick: no real scans); the full table is --families 240 --runs 4 2")
+    ap.add_argument("--runs", type=int, nargs=2, default=(2, 1), metavar=("SLOW", "FAST"),
+                    help="runs per surface of the families: still/slow motions, rate-convergence pairs")
+    ap.add_argument("--estimate", action="store_true", help="with --families: only the table size and time estimate")
     ap.add_argument("--seed", type=int, default=0, help="seed of the generated families")
     ap.add_argument("--bode", metavar="PNG", help="only the transparency estimate; write its Bode plot here")
     args = ap.parse_args()
     if args.families is not None:
-        print(json.dumps({"families": families(args.families, args.seed, args.seconds, real=not args.quick)},
-                         indent=1))
+        print(json.dumps({"families": families(args.families, args.seed, real=not args.quick, slow_runs=args.runs[0],
+                                               fast_runs=args.runs[1], estimate_only=args.estimate)}, indent=1))
         return
     surfaces = {}
     for name in REAL:

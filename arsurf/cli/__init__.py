@@ -13,7 +13,7 @@ hides the bars, ``-v``/``--verbose`` adds debug messages (before or after the su
 One module per command group: this one holds the parser, :func:`main` and the scan-file commands
 (``info``, ``formats``, ``fit``, ``synth``, ``export``, ``convert``); :mod:`arsurf.cli.view`,
 :mod:`arsurf.cli.live` and :mod:`arsurf.cli.batch` their commands; :mod:`arsurf.cli.args` the
-argument types and flags they share; ``demo``, ``replay`` and ``devices`` register themselves
+argument types and flags they share; ``demo``, ``replay``, ``devices``, ``verify`` and ``warmup`` register themselves
 (:data:`_EXTRA_COMMANDS`).
 """
 from __future__ import annotations
@@ -321,7 +321,8 @@ def _log_flags(parser, default) -> None:
 
 
 #: modules whose ``register(subparsers)`` adds a subcommand (higher pipeline stages)
-_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices", "arsurf.verify.command"]
+_EXTRA_COMMANDS = ["arsurf.demo", "arsurf.replay.replay", "arsurf.devices", "arsurf.verify.command",
+                   "arsurf.warmup"]
 
 
 def main(argv=None) -> int:

@@ -20,6 +20,7 @@ Examples
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -77,6 +78,19 @@ class TiledArrays(structref.StructRefProxy):
 structref.define_proxy(TiledArrays, _TiledArraysType,
                        ["ctrl", "ku", "kv", "mu", "mv", "pnodes", "pcurv", "plevels", "pwork", "prows", "bez", "grid",
                         "slack", "tile_slot", "slot_info", "tmp", "out"])
+
+
+@njit(cache=True)
+def _new_kernel_arrays(args):
+    """``KernelArrays(*args)`` by a cached kernel: the proxy's own constructor (numba's) is
+    compiled anew in every process, ~0.5 s of CPU at each start even on a warm cache."""
+    return KernelArrays(*args)
+
+
+@njit(cache=True)
+def _new_tiled_arrays(args):
+    """``TiledArrays(*args)``, cached like :func:`_new_kernel_arrays`."""
+    return TiledArrays(*args)
 
 
 def _project_struct(a, cx, cy, cz, hint_u, hint_v, out):
@@ -230,7 +244,21 @@ class ContactBatch(NamedTuple):
     cells: np.ndarray
 
 
-class Projector:
+class _Entries:
+    """The compiled single-query entries of a projector, compiled (or loaded from the cache) at
+    the first :func:`project` / :func:`collide` on it: a program that only runs the loop's
+    kernels (the demo, a session) never compiles them."""
+
+    @functools.cached_property
+    def _project(self):
+        return _entry_point(_project_packed, self._packed, 5)
+
+    @functools.cached_property
+    def _collide(self):
+        return _entry_point(_collide_packed, self._packed, 6)
+
+
+class Projector(_Entries):
     """Per-surface state of the projection: the hull-box pyramid and the kernel workspace.
 
     Created once per surface by :func:`projector` (kept on the surface as an instance attribute,
@@ -266,9 +294,7 @@ class Projector:
         self.work[CACHE_ROW, 0] = -1.0  # no candidate list yet
         self._args = (self.ctrl, self.ku, self.kv, self.tree.mu, self.tree.mv, self.tree.nodes, self.tree.curv,
                       self.tree.levels, self.work)
-        self._packed = KernelArrays(*self._args, np.empty(OUT_SIZE))
-        self._project = _entry_point(_project_packed, self._packed, 5)
-        self._collide = _entry_point(_collide_packed, self._packed, 6)
+        self._packed = _new_kernel_arrays((*self._args, np.empty(OUT_SIZE)))
 
     def __reduce__(self):
         # a pickled or deep-copied surface drops its projector (compiled entry points do not
@@ -303,7 +329,7 @@ TILE = 16
 POOL_BYTES = 64 << 20
 
 
-class TiledProjector:
+class TiledProjector(_Entries):
     """The projection state of a large surface: hull-box pyramids built per tile, on demand.
 
     The knot cells are cut into ``tile`` x ``tile`` tiles; a tile's pyramid is built the first
@@ -371,9 +397,7 @@ class TiledProjector:
         self.mv = bezier_matrices(kv)
         self._args = (ctrl, ku, kv, self.mu, self.mv, self.pnodes, self.pcurv, self.plevels, self.pwork, self.prows,
                       self.bez, self.grid, self.slack, self.tile_slot, self.slot_info, np.empty(OUT_SIZE))
-        self._packed = TiledArrays(*self._args, np.empty(OUT_SIZE))
-        self._project = _entry_point(_project_packed, self._packed, 5)
-        self._collide = _entry_point(_collide_packed, self._packed, 6)
+        self._packed = _new_tiled_arrays((*self._args, np.empty(OUT_SIZE)))
 
     def __reduce__(self):
         return _no_projector, ()

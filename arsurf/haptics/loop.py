@@ -120,6 +120,13 @@ structref.define_proxy(LoopArrays, _LoopArraysType, list(LOOP_FIELDS))
 
 
 @njit(cache=True)
+def _new_loop_arrays(values):
+    """``LoopArrays(*values)`` by a cached kernel: the proxy's own constructor (numba's) is
+    compiled anew in every process, ~1 s of CPU at each start even on a warm cache."""
+    return LoopArrays(*values)
+
+
+@njit(cache=True)
 def loop_model_kernel(a, buttons):
     """Steps 1-3 of a tick (module docstring): probe position, model, force on the probe; the
     first half of :func:`loop_tick_kernel`, for a loop with a scene. ``a`` is the loop's
@@ -516,7 +523,7 @@ class HapticLoop:
                   **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out}
         if set(values) != set(LOOP_FIELDS):
             raise HapticsError(f"the loop's arrays {sorted(set(values) ^ set(LOOP_FIELDS))} do not match LOOP_FIELDS")
-        return LoopArrays(*(values[name] for name in LOOP_FIELDS))
+        return _new_loop_arrays(tuple(values[name] for name in LOOP_FIELDS))
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
