@@ -47,6 +47,30 @@ changes quickly (a ratio of barriers, :math:`r(b_i)/r(b_i')`, was continuous too
 contact born next to the closest point just before a hop swing from 0.4 to 0.05 in three ticks,
 a spike of the summed load).
 
+**One contact of a rough tip.** Two minima whose contact discs overlap strongly are not two
+contacts: a scan's roughness at the scale of the contact leaves several minima of the distance
+inside one contact (on the PeakForce scan sample_0.spm under its 5 nm tip at 2 nN, four minima
+within 1.2 nm of each other under a contact of radius a = 2.7 nm on the stiff spot, 5.7 nm on the
+soft one), and the half-space under the tip carries one contact there: the Maugis-Dugdale
+traction, compressive inside a and adhesive out to the Dugdale zone's edge c, is spread over
+that disc, so a second minimum inside it adds no second load (counting every minimum took 1.83
+nN where one contact carries 2.0 nN; weighing by the disc of radius a alone still counted the
+adhesion of minima inside the zone at pull-off: -8.8 nN for the law's -7.1 nN). Contact i > 0,
+at distance :math:`s_i` from the closest point, is therefore weighed by
+
+.. math:: o_i = \min(\max(s_i/c - 1, 0), 1),
+
+c the closest contact's Dugdale-zone radius at its depth under the tip (the law's
+:math:`c(a, \delta_1 - \ell)` at the lift :math:`\ell` of the previous tick): 0 while each point
+lies inside the other's zone (:math:`s_i \le c`: one contact, exactly the single contact's load
+and depth), 1 once the two zones are apart (:math:`s_i \ge 2c`: two contacts), linear between so
+the force stays continuous as the separation changes: contact i counts with
+:math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+:math:`\prod_i (o_i\,\varphi(b_i', b_i) + 1 - o_i)`. Inside one zone the closest point may still
+hop between two minima; the force then turns by the angle between their normals, at most about
+:math:`c/R` (the single contact's behaviour there: the contact's centre moving within its own
+zone), never a step of the load.
+
 **Entry at the edge.** A contact also enters and leaves the table through its depth: an
 asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
 ticks late may already be in reach. The law itself steps there: under an interacting tip, the
@@ -225,8 +249,8 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     """Fill the contact table ``tab[at:at + TABLE_SIZE]`` (:data:`CONTACT_TABLE`) for the tip
     centre (cx, cy, cz) of radius ``radius`` (m): row 0 the collision answer ``coll``
     (:data:`~arsurf.contact.layout.COLLISION_OUT`), then the other local minima of the distance
-    deeper than ``floor`` (m; the law's interaction floor), with their weights (module
-    docstring; ``margin`` m). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
+    deeper than ``floor`` (m; the law's interaction floor), row 0 with weight 1 and the others 0
+    (their weights: :func:`weigh_contacts_kernel`; ``margin`` m is not used here). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
     ``prev_u, prev_v`` the previous closest point (NaN: none).
 
     Returns ``(count, jumped)``: the number of contacts, and whether the closest point changed
@@ -286,21 +310,47 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
                          v1 + reach * math.sin(phi), floor, h, tab, at, count)
             k = (k + 1) % PROBES
         tab[at + T_PROBE] = k
-    d1 = radius - coll[ly.OUT_DEPTH]
-    w0 = 1.0
-    for i in range(1, count):
-        r = _row(at, i)
-        di = radius - tab[r + C_DEPTH]
-        s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
-        tab[r + C_WEIGHT] = pair_weight(s - di, s - d1, margin)
-        w0 *= pair_weight(s - d1, s - di, margin)
-    tab[r0 + C_WEIGHT] = w0
     for i in range(count, MAX_CONTACTS):
         r = _row(at, i)
         for j in range(C_SIZE):
             tab[r + j] = math.nan
     tab[at + T_COUNT] = count
     return count, jumped
+
+
+@njit(cache=True)
+def merge_factor(separation, zone):
+    r"""How much a contact ``separation`` (m) from the closest point counts as a contact of its own,
+    against the closest contact's Dugdale-zone radius ``zone`` c (m; <= 0: none) (module docstring,
+    "One contact of a rough tip"): :math:`o = \min(\max(s/c - 1, 0), 1)`, 0 where each point lies
+    inside the other's zone (s <= c), 1 where the two zones are apart (s >= 2c)."""
+    if not zone > 0.0:
+        return 1.0
+    return min(max(separation / zone - 1.0, 0.0), 1.0)
+
+
+@njit(cache=True)
+def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, tab, at, count):
+    r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
+    centre (cx, cy, cz) (module docstring): contact i > 0 counts with
+    :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+    :math:`\prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
+    :func:`merge_factor` of its distance from the closest point against ``zone`` (m, the closest
+    contact's Dugdale-zone radius c at its depth under the tip). ``margin`` m, ``ev`` (>= 1, 3) scratch."""
+    r0 = _row(at, 0)
+    u1 = tab[r0 + C_U]
+    v1 = tab[r0 + C_V]
+    d1 = radius - tab[r0 + C_DEPTH]
+    w0 = 1.0
+    for i in range(1, count):
+        r = _row(at, i)
+        di = radius - tab[r + C_DEPTH]
+        s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
+        o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
+                                   + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
+        tab[r + C_WEIGHT] = o * pair_weight(s - di, s - d1, margin)
+        w0 *= o * pair_weight(s - d1, s - di, margin) + 1.0 - o
+    tab[r0 + C_WEIGHT] = w0
 
 
 @njit(cache=True)

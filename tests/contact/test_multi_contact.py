@@ -190,6 +190,8 @@ def test_the_collision_s_warm_record_stands_for_newton_from_the_previous_point(k
         a = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, fast, 0, coll)
         b = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, slow, 0, hidden)
         assert a == b
+        for tab in (fast, slow):
+            mc.weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, 0.1e-9, 0.0, tab, 0, a[0])
         for i in range(a[0]):
             r = mc.T_ROWS + i * mc.C_SIZE
             metres = [r + mc.C_U, r + mc.C_V, r + mc.C_PX, r + mc.C_PX + 1, r + mc.C_PX + 2, r + mc.C_DEPTH]
@@ -289,3 +291,41 @@ def test_pair_weights_vanish_at_a_fold_swap_symmetrically_and_sum_to_one_at_a_cu
     b = rng.uniform(0.0, 1e-3 * m, (2000, 2))
     total = np.array([pair_weight(x, y, m) + pair_weight(y, x, m) for x, y in b])
     assert np.all(np.abs(total - 1.0) <= 2.0 * b.sum(axis=1) / m + 1e-12)
+
+
+# --- one contact of a rough tip ----------------------------------------------------------------------
+def test_the_merge_factor_is_zero_inside_the_zone_one_outside_twice_it_and_continuous():
+    from arsurf.contact.multi_contact import merge_factor
+
+    c = 3e-9
+    s = np.linspace(0.0, 3 * c, 3001)
+    o = np.array([merge_factor(x, c) for x in s])
+    assert (o[s <= c] == 0.0).all() and (o[s >= 2 * c] == 1.0).all()
+    assert np.abs(np.diff(o)).max() <= (s[1] - s[0]) / c * (1 + 1e-9)  # Lipschitz 1/c: no step
+    assert merge_factor(1e-9, 0.0) == 1.0  # no zone (out of contact): every minimum its own contact
+
+
+def test_minima_inside_one_contact_zone_are_one_contact():
+    """A notch 0.1 nm deep and ~1 nm wide on top of a broad bump: the 20 nm tip pressed on it has two
+    minima of the distance ~1 nm apart, both inside its contact zone (c ~ 3 nm). They are one contact
+    of a rough tip: the load and depth are exactly one Maugis-Dugdale contact's (counting both
+    nearly doubled the load)."""
+    from arsurf.contact import multi_contact as mc
+    from arsurf.model import S_CONTACTS
+
+    x = np.arange(144) * 0.25e-9
+    profile = 3e-9 * np.exp(-((x - 18e-9) / 8e-9) ** 2) - 0.1e-9 * np.exp(-((x - 18e-9) / 0.5e-9) ** 2)
+    scan = _with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
+    law = MaugisDugdale(R, 50e9, 0.05)
+    m = ARModel(fit_surface(scan), R, law, LEVER, friction=0.0, deform=False)
+    top = float(m.surface.evaluate(18e-9, 6e-9)[2])
+    t = m.step((18.05e-9, 6e-9, top + R - 0.4e-9))
+    tab = m.state[S_CONTACTS:S_CONTACTS + mc.TABLE_SIZE]
+    count = int(tab[mc.T_COUNT])
+    points = np.array([tab[mc.T_ROWS + i * mc.C_SIZE + mc.C_PX:mc.T_ROWS + i * mc.C_SIZE + mc.C_PX + 3]
+                       for i in range(count)])
+    assert count >= 2 and 0.5e-9 < np.linalg.norm(points[1] - points[0]) < 2e-9, points  # two minima, ~1 nm apart
+    zone = law.contact_state(depth=t.depth).cohesive_radius
+    assert np.linalg.norm(points[1] - points[0]) < zone
+    assert all(tab[mc.T_ROWS + i * mc.C_SIZE + mc.C_WEIGHT] == 0.0 for i in range(1, count))
+    assert t.load == pytest.approx(law.contact_state(depth=t.depth).load, rel=1e-9)
