@@ -220,6 +220,9 @@ def model_tick_kernel(proj,                                              # Proje
         if md_st == SEPARATED or md_st < 0:
             ds = bending_only_kernel(bending, torsion, dec_params, scratch)
         else:  # decoupled with the contact normal and the proxy's friction direction
+            if count > 1:  # several contacts: the direction of their summed normal force
+                nx, ny, nz, share_x, share_z = _summed_normal(nx, ny, nz, load, rx, ry, rz, md[A_LOAD_SCALE],
+                                                              share_x, share_z)
             ds = blended_decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, strength, share_x, share_z,
                                          f_static, dec_params, scratch)
         out[M_DECOUPLE_STATUS] = ds
@@ -337,6 +340,24 @@ def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, ou
     state[S_INTERACTING] = 1.0 if interacting else 0.0
     state[S_TIP_DEPTH] = d0 if interacting else math.nan
     return st0, a0, load, d0, fx - load * nx, fy - load * ny, fz - load * nz
+
+
+@njit(cache=True)
+def _summed_normal(nx, ny, nz, load, rx, ry, rz, load_scale, share_x, share_z):
+    r"""The normal the decoupling takes with several contacts (docs/design.rst, "Several contacts
+    at once"): the direction of the summed normal force :math:`F_N = L n + r` (L the load along
+    the total normal n, r its part off n), on n's side,
+    :math:`m = (n + r L/(L^2 + P_s^2)) / \lVert\cdot\rVert` (:math:`P_s` the law's load scale:
+    :math:`F_N/L` once :math:`|L| \gg P_s`, n at zero load, continuous between), and the
+    fallback's friction shares per unit load along m, :math:`F_t/(F_N\cdot m)` (0 unless that
+    load is compressive). Returns ``(mx, my, mz, share_x, share_z)``."""
+    k = load / (load * load + load_scale * load_scale)
+    mx, my, mz = nx + k * rx, ny + k * ry, nz + k * rz
+    mn = math.sqrt(mx * mx + my * my + mz * mz)
+    mx, my, mz = mx / mn, my / mn, mz / mn
+    along = load * (nx * mx + ny * my + nz * mz) + rx * mx + ry * my + rz * mz  # F_N . m
+    scale = load / along if (load > 0.0 and along > 0.0) else 0.0
+    return mx, my, mz, share_x * scale, share_z * scale
 
 
 @njit(cache=True)
