@@ -155,6 +155,9 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
     out["vtk_closest_point"] = best_round(vtk_times)
     out["multi_over_one_contact"] = round_ratio(times["multi_contact"], times["one_contact"])
     out["multi_over_vtk"] = round_ratio(times["multi_contact"], vtk_times)
+    return out
+
+
 def _timing_row(d: dict, rate: float) -> dict:
     """A scheduler's TimingStats as the bench reports them: times in us, the fractions of the goals."""
     for k in list(d):
