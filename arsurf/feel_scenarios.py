@@ -178,7 +178,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                  static_friction: float | None = None, coupling: bool = True, passivity: bool = True,
                  signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None,
                  filter_cutoff: float | None | str = "preset", tip_radius: float | None = None,
-                 coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf) -> FeelRun:
+                 coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf,
+                 after_tick=None) -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
@@ -189,7 +190,9 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     gets at that loop rate (:func:`arsurf.haptics.gains.coupling_stiffness`) instead of at ``rate``
     (the rate convergence compares two rates through one coupling); ``heading`` rad from x: the
     direction of slides, strokes and circles; ``room`` m: a slide turns back this far from where
-    it started (a fast slide on a small scan). The surface is restored to rest afterwards."""
+    it started (a fast slide on a small scan); ``after_tick(tip)``: called after each tick, outside
+    its timing, with the tick's tip centre (3,) m (a benchmark times a peer's query there, under
+    the conditions the tick runs in). The surface is restored to rest afterwards."""
     p = _preset(preset)
     h = dict(p.haptics)
     scale, gain = float(h["scale"]), float(h["force_gain"])
@@ -241,6 +244,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
             contact[k] = model.out[M_IN_CONTACT] > 0.5
             tip_force[k] = get(out, "probe_force")
             tip[k] = get(out, "tip")
+            if after_tick is not None:
+                after_tick(tip[k])
     finally:
         dev.close()
         model.reset()

@@ -52,7 +52,7 @@ from arsurf.contact import multi_contact as mc
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_radius_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
-from arsurf.contact.proxy import coupled_depth_kernel
+from arsurf.contact.proxy import MD_MEMO, MEMO_SIZE, coupled_depth_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force import decoupling as dc
 from arsurf.force.cantilever import Cantilever
@@ -92,13 +92,16 @@ MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", 
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
 #: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the contact table
-#: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`)
+#: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
+#: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`)
 MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1),
-                                     ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE)])
+                                     ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE),
+                                     ("coupling_memo", MD_MEMO.size)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
 S_TIP_DEPTH, S_CONTACTS = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("contacts")
 S_FRICTION = MODEL_STATE.offset("friction")
+S_MEMO = MODEL_STATE.offset("coupling_memo")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
@@ -289,7 +292,7 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
     md_st, a, load, depth, coupled = coupled_depth_kernel(
         target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
         friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
-        md[A_DELTA_FOLD])
+        md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
     lift = target_depth - depth
     out[M_TIP] = cx + lift * out[M_NX]
     out[M_TIP + 1] = cy + lift * out[M_NY]

@@ -48,3 +48,101 @@ def start(surface, tip: float, depth: float) -> np.ndarray:
     z = surface.evaluate(x + dx[near], y + dy[near])[:, 2]
     top = np.max(z + np.sqrt(tip * tip - d2[near]))
     return np.array([x, y, top - depth])
+
+
+def parse_cells(text: str | None, default: tuple) -> tuple:
+    """A comma-separated list of numbers from the command line (``--pitches 0.1,2``), or ``default``."""
+    if not text:
+        return default
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise SystemExit(f"expected comma-separated numbers (got {text!r}), e.g. --pitches 0.25,2")
+    if not values or not all(v > 0 for v in values):
+        raise SystemExit(f"expected positive numbers (got {text!r})")
+    return values
+
+
+def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
+    """Time ``ticks`` calls of ``fn`` (a tick) with a per-tick trace, to tell where a slow tick's
+    time went: wall and thread-CPU time of each tick (a tick whose CPU time is far below its
+    wall time was preempted: the machine, not the tick's work), the ticks during which the
+    garbage collector ran (``gc.callbacks``), the ticks whose collision rebuilt its warm list
+    of candidate cells (``model``'s collision output ``OUT_CACHED`` = 0: a pyramid walk), the
+    ticks during which the thread was switched out involuntarily (``getrusage`` RUSAGE_THREAD
+    ``ru_nivcsw``: another process took the core), the ticks that moved the net
+    (``deformer``'s syncs: a read inside the tick, O((R/h)^2)) and the Python blocks allocated
+    per tick.
+
+    Returns median/p99 of wall and CPU time (us) and, over the ticks slower than 100 us wall,
+    how many were preempted (CPU < half the wall, or switched out), ran the GC, rebuilt the
+    collision's list, or synced the net."""
+    import gc
+    import sys
+    import time
+
+    for _ in range(warmup):
+        fn()
+    import resource
+
+    thread_usage = getattr(resource, "RUSAGE_THREAD", resource.RUSAGE_SELF)
+    usage = resource.getrusage
+    wall = np.empty(ticks, dtype=np.int64)
+    switched = np.zeros(ticks, dtype=bool)
+    cpu = np.empty(ticks, dtype=np.int64)
+    blocks = np.empty(ticks, dtype=np.int64)
+    gc_in = np.zeros(ticks, dtype=bool)
+    sync_in = np.zeros(ticks, dtype=bool)
+    uncached = np.zeros(ticks, dtype=bool)
+    coll = None if model is None else model._coll
+    from arsurf.contact.layout import OUT_CACHED
+    state = {"gc": False, "sync": 0}
+
+    def on_gc(phase, info):
+        state["gc"] = True
+
+    restore = None
+    if deformer is not None:  # count the syncs that moved the net (an instance attribute shadows the method)
+        inner = deformer.sync
+
+        def counting_sync():
+            moved = inner()
+            state["sync"] += moved >= 0
+            return moved
+
+        deformer.sync = counting_sync
+        restore = lambda: deformer.__dict__.pop("sync", None)  # noqa: E731
+    gc.callbacks.append(on_gc)
+    perf, thread, allocated = time.perf_counter_ns, time.thread_time_ns, sys.getallocatedblocks
+    try:
+        for k in range(ticks):
+            state["gc"], state["sync"] = False, 0
+            s0 = usage(thread_usage).ru_nivcsw
+            b0 = allocated()
+            c0 = thread()
+            t0 = perf()
+            fn()
+            t1 = perf()
+            c1 = thread()
+            blocks[k] = allocated() - b0
+            switched[k] = usage(thread_usage).ru_nivcsw > s0
+            wall[k], cpu[k] = t1 - t0, c1 - c0
+            gc_in[k], sync_in[k] = state["gc"], state["sync"] > 0
+            uncached[k] = coll is not None and coll[OUT_CACHED] == 0.0
+    finally:
+        gc.callbacks.remove(on_gc)
+        if restore:
+            restore()
+    w, c = wall * 1e-3, cpu * 1e-3
+    slow = w > 100.0
+    return {"median_us": float(np.median(w)), "p99_us": float(np.percentile(w, 99)), "max_us": float(w.max()),
+            "cpu_median_us": float(np.median(c)), "cpu_p99_us": float(np.percentile(c, 99)), "n": int(ticks),
+            "ticks_over_100us": int(slow.sum()),
+            "over_100us_preempted": int((slow & (c < 0.5 * w)).sum()),
+            "over_100us_switched_out": int((slow & switched).sum()), "ticks_switched_out": int(switched.sum()),
+            "over_100us_cpu_over_100us": int((slow & (c > 100.0)).sum()),
+            "over_100us_with_gc": int((slow & gc_in).sum()), "ticks_with_gc": int(gc_in.sum()),
+            "ticks_with_net_sync": int(sync_in.sum()),
+            "over_100us_collision_rebuilt_list": int((slow & uncached).sum()),
+            "ticks_collision_rebuilt_list": int(uncached.sum()),
+            "python_blocks_per_tick_median": float(np.median(blocks))}

@@ -173,7 +173,9 @@ def triangulated(s, z):
 
 
 def vtk_locator(verts, faces):
-    """``(build seconds, query(pts) -> (seconds per call, distances))`` for vtkStaticCellLocator."""
+    """``(build seconds, query(pts) -> (seconds per call, distances), one(p) -> seconds)`` for
+    vtkStaticCellLocator: ``query`` times the points back to back, ``one`` a single point (a tuple
+    of 3 floats) - for a bench that interleaves it with other work."""
     import vtk
     from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
 
@@ -207,7 +209,13 @@ def vtk_locator(verts, faces):
             dist[k] = math.sqrt(float(dist2))
         return times * 1e-9, dist
 
-    return build, query
+    def one(p):
+        clock = time.perf_counter_ns
+        t0 = clock()
+        loc.FindClosestPoint(p, closest, cell_id, sub_id, dist2)
+        return (clock() - t0) * 1e-9
+
+    return build, query, one
 
 
 def bench_open3d(verts, faces, pts):
@@ -316,7 +324,7 @@ def main() -> None:
         kw, ow = time_kernel(s, warm, True, hz)
         d_ours = np.abs(oc[:N_PEER, pj.OUT_DISTANCE])
         verts, faces = triangulated(s, z)
-        vb, vtk_query = vtk_locator(verts, faces)
+        vb, vtk_query, _ = vtk_locator(verts, faces)
         time_python(s, cold[:N_PY], False)  # warms the interpreter and the caches up
         py_cold, py_warm, vtk_rounds = [], [], []
         for _ in range(ROUNDS):

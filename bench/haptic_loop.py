@@ -15,7 +15,14 @@ Row ``multi_contact`` (issue 27): the model tick (``ARModel.tick``, dent on) of 
 same tick on a 160 nm sinusoid (one contact), and one bare VTK ``vtkStaticCellLocator``
 closest-point query at the same tip positions, in interleaved rounds (``--multi-only``: that row).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
-Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--multi-only] [--lockup-check]   (prints JSON)
+Each table cell traces its ticks (bench/_tick_table.py ``traced``): wall and thread-CPU time per
+tick, and for the ticks over 100 us whether they were preempted, ran the garbage collector or
+moved the net (a sync inside the tick).
+--diagnose runs only traced scheduler runs (an empty step, the 512x512 tick without and with the
+dent, both policies) and gives every lost slot and every gap > 1 ms its cause (docs/scheduler.rst).
+Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--multi-only] [--lockup-check]
+     [--table-only] [--pitches 0.25,2] [--tips 20] [--depths 1]   (prints JSON)
+     .venv/bin/python bench/haptic_loop.py --diagnose [--seconds 8] [--policies fifo] [--workloads tick_dent]
 """
 from __future__ import annotations
 
@@ -45,9 +52,10 @@ from arsurf.spline.fit import fit_surface  # noqa: E402
 R = 20e-9
 
 
-def build(rate: float):
+def build(rate: float, deform: bool = True):
     s = fit_surface(sinusoid((512, 512), 4e-9, 5e-9, 160e-9))
-    model = ARModel(s, R, MaugisDugdale(R, 50e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    model = ARModel(s, R, MaugisDugdale(R, 50e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27),
+                    deform=deform)
     c = (1000e-9, 1000e-9)
     origin = (*c, s.evaluate(*c)[2] + R + 3e-9)
     # the hand presses 8 nm in and slides 40 nm in circles: contact most of the time
@@ -77,21 +85,28 @@ def table_cell(surface, tip: float, depth: float, ticks: int) -> dict:
 
     for _ in range(300):  # the ramp-in and the contact settle
         tick()
-    row = stats(time_calls(tick, ticks))
+    row = tt.traced(tick, ticks, model._deformer, model=model)  # median, p99 and where the slow ticks' time went
     row["in_contact"] = bool(model.out[M_IN_CONTACT])
     dev.close()
     return row
 
 
-def tick_table(full: bool, ticks: int) -> dict:
-    """The tick over pitch x tip radius x depth (medians, p99), and the goals of issue 28."""
+def tick_table(full: bool, ticks: int, pitches=None, tips=None, depths=None) -> dict:
+    """The tick over pitch x tip radius x depth (medians, p99), and the goals of issue 28
+    (``pitches``, ``tips``, ``depths`` in nm: a subset of the cells; default the coarse or --full grid)."""
     rows = []
-    for p in tt.FULL_PITCHES_NM if full else tt.PITCHES_NM:
+    for p in pitches or (tt.FULL_PITCHES_NM if full else tt.PITCHES_NM):
         s = tt.rough_surface(p * 1e-9)
-        for r in tt.FULL_TIPS_NM if full else tt.TIPS_NM:
-            for d in tt.FULL_DEPTHS_NM if full else tt.DEPTHS_NM:
+        for r in tips or (tt.FULL_TIPS_NM if full else tt.TIPS_NM):
+            for d in depths or (tt.FULL_DEPTHS_NM if full else tt.DEPTHS_NM):
                 rows.append({"pitch_nm": p, "tip_radius_nm": r, "depth_nm": d, **table_cell(s, r * 1e-9, d * 1e-9, ticks)})
-                print(f"pitch {p} nm, R {r} nm, depth {d} nm: {rows[-1]['median_us']:.1f} us", file=sys.stderr)
+                x = rows[-1]
+                print(f"pitch {p} nm, R {r} nm, depth {d} nm: {x['median_us']:.1f} us, p99 {x['p99_us']:.0f} us "
+                      f"(cpu p99 {x['cpu_p99_us']:.0f} us; >100 us: {x['ticks_over_100us']}, preempted "
+                      f"{x['over_100us_preempted']}, switched out {x['over_100us_switched_out']}, "
+                      f"collision list rebuilt {x['over_100us_collision_rebuilt_list']}, "
+                      f"gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']})",
+                      file=sys.stderr)
     med = [r["median_us"] for r in rows]
     p99 = [r["p99_us"] for r in rows]
 
@@ -100,7 +115,10 @@ def tick_table(full: bool, ticks: int) -> dict:
 
     summary = {"cells": len(rows), "max_median_us": max(med), "max_p99_us": max(p99),
                "cells_over_40us_median": sum(m > 40 for m in med), "cells_over_100us_p99": sum(m > 100 for m in p99),
-               "R20_median_0.25nm_over_2nm": at(0.25, 20.0) / at(2.0, 20.0)}
+               "max_cpu_p99_us": max(r["cpu_p99_us"] for r in rows),
+               "ticks_with_net_sync": sum(r["ticks_with_net_sync"] for r in rows)}
+    if {0.25, 2.0} <= {r["pitch_nm"] for r in rows} and any(r["tip_radius_nm"] == 20.0 for r in rows):
+        summary["R20_median_0.25nm_over_2nm"] = at(0.25, 20.0) / at(2.0, 20.0)
     return {"summary": summary, "rows": rows}
 
 
@@ -161,7 +179,7 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
 def _timing_row(d: dict, rate: float) -> dict:
     """A scheduler's TimingStats as the bench reports them: times in us, the fractions of the goals."""
     for k in list(d):
-        if k.startswith(("compute", "period", "jitter", "longest_gap", "spin_max")):
+        if k.startswith(("compute", "period", "jitter", "longest_gap", "spin_max", "margin_max")):
             d[k + "_us"] = d.pop(k) * 1e6
     nominal = rate * d["duration"]
     d["overrun_fraction"] = d["overruns"] / max(d["ticks"], 1)
@@ -192,6 +210,44 @@ def scheduler_runs(seconds: float, configs=None) -> dict:
         print(f"{rate:g} Hz priority {priority}: overruns+skipped {100 * d['overruns_and_skipped_fraction_of_nominal']:.3f} %,"
               f" longest gap {d['longest_gap_us']:.0f} us, worst second awake {d['awake_max']:.2f}, on the CPU "
               f"{d['cpu_max']:.2f}", file=sys.stderr)
+    return out
+
+
+def diagnose(seconds: float, rate: float = 10000.0, policies=("ordinary", "fifo"),
+             workloads=("empty_step", "tick_no_dent", "tick_dent")) -> dict:
+    """Where the lost slots and the long gaps come from: for each policy, ``seconds`` at
+    ``rate`` of an empty step (what the machine and the pacer cost), of the 512 x 512 tick with
+    the dent off and with it on, each with a per-tick trace (:func:`explain_trace`: every lost
+    slot and every gap > 1 ms given one cause). Also checks that no cyclic garbage collection
+    ran in the loop (the scheduler pauses the collector)."""
+    import gc
+
+    from arsurf.haptics.scheduler import DEFAULT_REALTIME_PRIORITY, explain_trace
+
+    out = {}
+    n = int(seconds * rate) + 1000
+    for policy in policies:
+        priority = DEFAULT_REALTIME_PRIORITY if policy == "fifo" else 0
+        for what in workloads:
+            if what == "empty_step":
+                sched = Scheduler(lambda s, i, d: None, None, rate=rate, priority=priority, trace=n)
+            else:
+                dev, loop = build(rate, deform=what == "tick_dent")
+                loop.warm_up()
+                sched = Scheduler(loop.scheduler_step, loop, rate=rate, source=partial(dev.read_state, DeviceState()),
+                                  sink=dev.command_force, priority=priority, trace=n)
+            collections = sum(g["collections"] for g in gc.get_stats())
+            d = _timing_row(sched.run_for(seconds).as_dict(), rate)
+            row = {k: d[k] for k in ("realtime_priority", "ticks", "overruns", "skipped", "longest_gap_us",
+                                     "overruns_and_skipped_fraction_of_nominal", "awake_max", "cpu_max", "goal_met")}
+            row["gc_collections_during_run"] = sum(g["collections"] for g in gc.get_stats()) - collections
+            row["trace"] = explain_trace(sched.trace, sched.pacer.period)
+            out[f"{policy}_{what}"] = row
+            t = row["trace"]
+            print(f"{policy} {what}: lost {100 * d['overruns_and_skipped_fraction_of_nominal']:.3f} % {t['lost']}, "
+                  f"gaps>1ms {t['gaps_over_1ms']}, longest {d['longest_gap_us']:.0f} us, work p99 "
+                  f"{t['work']['p99_us']:.0f} us, oversleep p99 "
+                  f"{(t['oversleep'] or {}).get('p99_us', 0):.0f} us", file=sys.stderr)
     return out
 
 
@@ -242,13 +298,31 @@ def main() -> None:
     ap.add_argument("--no-table", action="store_true", help="skip the pitch x tip x depth table")
     ap.add_argument("--ticks", type=int, default=3000, help="ticks timed per table cell")
     ap.add_argument("--multi-only", action="store_true", help="only the multi-contact row (issue 27)")
+    ap.add_argument("--pitches", help="table cells: pitches in nm, comma-separated (default the grid's)")
+    ap.add_argument("--tips", help="table cells: tip radii in nm, comma-separated")
+    ap.add_argument("--depths", help="table cells: depths in nm, comma-separated")
+    ap.add_argument("--table-only", action="store_true", help="only the pitch x tip x depth table")
     ap.add_argument("--lockup-check", action="store_true", help="also run a SCHED_FIFO loop whose step never fits "
                     "its period, pinned to one core, with and without the least sleep per period (2 x 3 s)")
+    ap.add_argument("--diagnose", action="store_true", help="only the traced runs (diagnose()): an empty step, the "
+                    "tick without and with the dent, both policies, --seconds each, at --rate")
+    ap.add_argument("--rate", type=float, default=10000.0, help="the rate of --diagnose, Hz")
+    ap.add_argument("--policies", default="ordinary,fifo", help="the policies of --diagnose (ordinary, fifo)")
+    ap.add_argument("--workloads", default="empty_step,tick_no_dent,tick_dent", help="the steps of --diagnose")
     args = ap.parse_args()
     if args.multi_only:
         emit("haptic_loop", {"multi_contact": multi_contact_row()})
         return
-    table = None if args.no_table else tick_table(args.full, args.ticks)
+    if args.diagnose:
+        emit("haptic_loop", {"diagnose": diagnose(args.seconds, args.rate, args.policies.split(","),
+                                                  args.workloads.split(","))})
+        return
+    table = None if args.no_table else tick_table(
+        args.full, args.ticks, tt.parse_cells(args.pitches, ()), tt.parse_cells(args.tips, ()),
+        tt.parse_cells(args.depths, ()))
+    if args.table_only:
+        emit("haptic_loop", {"tick_table": table})
+        return
     dev, loop = build(1000.0)
     st = dev.read_state()
 

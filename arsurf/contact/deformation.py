@@ -56,11 +56,19 @@ point still inside the sphere (a rough patch under the tip, which the half-space
 not know) is put on the sphere. Every other control point keeps its rest position **bitwise**.
 
 Only the index box of control points whose rest (x, y) lies within :math:`r_b = \max(R, 3a)`
-(+ one knot spacing) of the tip axis' foot can move: the kernel puts the previous box back to
-rest where the new one does not cover it and writes the new one, each point once, so a dent
-costs O((2 r_b/h)²) whatever the scan size (:func:`sync_dent_kernel`). That is
+(+ one knot spacing) of the tip axis' foot can move: the reference kernel puts the previous box
+back to rest where the new one does not cover it and writes the new one, each point once, so a
+dent costs O((2 r_b/h)²) whatever the scan size (:func:`sync_dent_kernel`). That is
 :math:`(2r_b/h)^2`: 27,000 points for a 20 nm tip on a 0.25 nm net, 250,000 at 0.1 nm and
-50 nm. So the haptic tick does not dent: it *records* the dent (centre, normal, R, a, δ, c:
+50 nm. Most of that guard box is never moved: only the points within 3a of the axis (the
+contact and its elastic surface) and those a rough surface leaves inside the tip ball. The
+read therefore uses :func:`sync_dent_tiled_kernel`: the box is cut into 8 × 8 tiles, and a tile
+whose bounding sphere (from its rest heights) misses every contact's cylinder ρ < 3a and tip
+ball is skipped (or copied back to rest if the dent shown before reached it); the others are
+written point by point by the same rule. The net is the reference's bit for bit (tested over
+0.1-2 nm pitch × 2-50 nm tips, tilted, adhesive, wide, multi-contact dents and releases), and
+the read costs O(the points the dent moves), ~(6a/h)², not O((2R/h)²). So the haptic tick does
+not dent: it *records* the dent (centre, normal, R, a, δ, c:
 :func:`record_dent_kernel`, O(1) whatever the pitch), and the net is moved to the recorded dent
 when it is next read (:meth:`Deformer.sync`, called by
 :meth:`~arsurf.spline.surface.BSplineSurface.sync` before every read of the net: evaluation,
@@ -348,108 +356,156 @@ def _in_boxes(boxes, n, i, j):
 
 
 @njit(cache=True, inline="always")
-def _axis(rest, i, j, dents, b):
-    """Rest point (i, j) about the tip axis of the dent at ``dents[b:]``: (px, py, pz) = P₀ - C, the
-    radial part (rx, ry, rz) and ρ² (module docstring)."""
-    px = rest[i, j, 0] - dents[b + D_CX]
-    py = rest[i, j, 1] - dents[b + D_CY]
-    pz = rest[i, j, 2] - dents[b + D_CZ]
-    nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
-    s = px * nx + py * ny + pz * nz
-    rx = px - s * nx
-    ry = py - s * ny
-    rz = pz - s * nz
-    return px, py, pz, rx, ry, rz, rx * rx + ry * ry + rz * rz
+def _contact(dents, k):
+    """Contact k of the recorded dents: (offset of its record, tip radius R, contact radius a >= 0);
+    R <= 0 is no dent."""
+    b = k * DENT_SIZE
+    return b, dents[b + D_RADIUS], max(dents[b + D_A], 0.0)
 
 
 @njit(cache=True)
-def _dent_point(ctrl, rest, i, j, dents, n_dents, profiles, n_prof, scales, old):
-    """Write control point (i, j) under the recorded dents (the module docstring's rule; several
-    contacts of one tip superpose their elastic surfaces); returns 1 if it is dented, 0 if it is
-    at rest (written back only when ``old``: a previous dent may have moved it)."""
-    # 1. inside a contact disc: on the tip's cap (or the contact's paraboloid beyond SPHERE_LIMIT)
+def _dent_rows(ctrl, rest, i0, i1, j0, j1, dents, n_dents, profiles, n_prof, scales, boxes, skip, patch, axes):
+    """Write control points [i0, i1) x [j0, j1) under the recorded dents (the module docstring's
+    rule; several contacts of one tip superpose their elastic surfaces); returns how many are
+    dented. A point in one of the dents' index ``boxes`` is dented, or put back to rest if the
+    dent leaves it there and a previous box (``patch``) held it; a point outside every box goes
+    back to rest if a previous box held it; points in the first ``skip`` boxes are left alone
+    (written with an earlier box). ``axes`` is (n_dents, 7) scratch: the point about each
+    contact's axis, P₀ - C, its radial part and ρ², found once.
+
+    The rule is written in the loop, not in a function called per point: numba's per-point
+    call (inlined or not) cost 2.2x the whole rule (60 vs 27 ns a point, thread CPU time,
+    bench/deformation.py --read and the same-run A/B in docs/performance.rst)."""
+    moved = 0
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            if _in_boxes(boxes, skip, i, j):
+                continue   # written with an earlier box
+            old = _in_boxes(patch, n_dents, i, j)
+            if not _in_boxes(boxes, n_dents, i, j):
+                if old:
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
+                continue
+            # 1. inside a contact disc: on the tip's cap (or the contact's paraboloid beyond SPHERE_LIMIT)
+            on_cap = False
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                px = rest[i, j, 0] - dents[b + D_CX]
+                py = rest[i, j, 1] - dents[b + D_CY]
+                pz = rest[i, j, 2] - dents[b + D_CZ]
+                nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
+                s = px * nx + py * ny + pz * nz
+                rx = px - s * nx
+                ry = py - s * ny
+                rz = pz - s * nz
+                rho2 = rx * rx + ry * ry + rz * rz
+                axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 3] = px, py, pz, rx
+                axes[k, 4], axes[k, 5], axes[k, 6] = ry, rz, rho2
+                if rho2 < a * a:
+                    if a <= SPHERE_LIMIT * radius:
+                        cap = -math.sqrt(radius * radius - rho2)
+                        ctrl[i, j, 0] = dents[b + D_CX] + rx + cap * nx
+                        ctrl[i, j, 1] = dents[b + D_CY] + ry + cap * ny
+                        ctrl[i, j, 2] = dents[b + D_CZ] + rz + cap * nz
+                    else:
+                        u = dents[b + D_DEPTH] - 0.5 * rho2 / radius
+                        ctrl[i, j, 0] = rest[i, j, 0] - u * nx
+                        ctrl[i, j, 1] = rest[i, j, 1] - u * ny
+                        ctrl[i, j, 2] = rest[i, j, 2] - u * nz
+                    on_cap = True
+                    break
+            if on_cap:
+                moved += 1
+                continue
+            # 2. the elastic surfaces outside the contacts, superposed (linear elasticity)
+            qx = rest[i, j, 0]
+            qy = rest[i, j, 1]
+            qz = rest[i, j, 2]
+            near = False
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                r_elastic = PATCH_PER_CONTACT * a
+                r_box = max(radius, r_elastic)
+                px, py, pz, rho2 = axes[k, 0], axes[k, 1], axes[k, 2], axes[k, 6]
+                if rho2 >= r_box * r_box or (rho2 >= r_elastic * r_elastic
+                                             and px * px + py * py + pz * pz >= radius * radius):
+                    continue  # beyond this dent's elastic surface and outside its tip
+                near = True
+                if rho2 < r_elastic * r_elastic:
+                    x = math.sqrt(rho2 - a * a) * scales[k]
+                    m = int(x)
+                    if m >= n_prof - 1:
+                        m = n_prof - 2
+                    f = x - m
+                    p0 = k * n_prof + m
+                    u = profiles[p0] + f * (profiles[p0 + 1] - profiles[p0])
+                    qx -= u * dents[b + D_NX]
+                    qy -= u * dents[b + D_NY]
+                    qz -= u * dents[b + D_NZ]
+            if not near:  # at rest, bitwise
+                if old:
+                    for c in range(3):
+                        ctrl[i, j, c] = rest[i, j, c]
+                continue
+            # 3. still inside the tip: onto the sphere
+            for k in range(n_dents):
+                b, radius, a = _contact(dents, k)
+                if radius <= 0.0:
+                    continue
+                r2 = radius * radius
+                rx, ry, rz, rho2 = axes[k, 3], axes[k, 4], axes[k, 5], axes[k, 6]
+                if rho2 < r2:
+                    cx, cy, cz = dents[b + D_CX], dents[b + D_CY], dents[b + D_CZ]
+                    dx = qx - cx
+                    dy = qy - cy
+                    dz = qz - cz
+                    if dx * dx + dy * dy + dz * dz < r2:
+                        cap = -math.sqrt(r2 - rho2)
+                        qx = cx + rx + cap * dents[b + D_NX]
+                        qy = cy + ry + cap * dents[b + D_NY]
+                        qz = cz + rz + cap * dents[b + D_NZ]
+                        break
+            ctrl[i, j, 0] = qx
+            ctrl[i, j, 1] = qy
+            ctrl[i, j, 2] = qz
+            moved += 1
+    return moved
+
+
+@njit(cache=True)
+def _dent_boxes(nu, nv, ku, kv, dent, profile):
+    """The index boxes (n × :data:`DENT_PATCH`) of the recorded dents, each contact's profile
+    filled into ``profile`` and its scale (profile index per sqrt(ρ² - a²)) returned beside."""
+    n_dents = dent.size // DENT_SIZE
+    n_prof = profile.size // n_dents
+    boxes = np.zeros(n_dents * _PATCH, dtype=np.int64)
+    scales = np.zeros(n_dents)
     for k in range(n_dents):
-        b = k * DENT_SIZE
-        radius = dents[b + D_RADIUS]
-        if radius <= 0.0:
-            continue
-        a = max(dents[b + D_A], 0.0)
-        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
-        if rho2 < a * a:
-            nx, ny, nz = dents[b + D_NX], dents[b + D_NY], dents[b + D_NZ]
-            if a <= SPHERE_LIMIT * radius:
-                cap = -math.sqrt(radius * radius - rho2)
-                ctrl[i, j, 0] = dents[b + D_CX] + rx + cap * nx
-                ctrl[i, j, 1] = dents[b + D_CY] + ry + cap * ny
-                ctrl[i, j, 2] = dents[b + D_CZ] + rz + cap * nz
-            else:
-                u = dents[b + D_DEPTH] - 0.5 * rho2 / radius
-                ctrl[i, j, 0] = rest[i, j, 0] - u * nx
-                ctrl[i, j, 1] = rest[i, j, 1] - u * ny
-                ctrl[i, j, 2] = rest[i, j, 2] - u * nz
-            return 1
-    # 2. the elastic surfaces outside the contacts, superposed (linear elasticity)
-    qx = rest[i, j, 0]
-    qy = rest[i, j, 1]
-    qz = rest[i, j, 2]
-    near = False
-    for k in range(n_dents):
-        b = k * DENT_SIZE
-        radius = dents[b + D_RADIUS]
-        if radius <= 0.0:
-            continue
-        a = max(dents[b + D_A], 0.0)
-        r_elastic = PATCH_PER_CONTACT * a
-        r_box = max(radius, r_elastic)
-        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
-        if rho2 >= r_box * r_box or (rho2 >= r_elastic * r_elastic and px * px + py * py + pz * pz >= radius * radius):
-            continue  # beyond this dent's elastic surface and outside its tip
-        near = True
-        if rho2 < r_elastic * r_elastic:
-            x = math.sqrt(rho2 - a * a) * scales[k]
-            m = int(x)
-            if m >= n_prof - 1:
-                m = n_prof - 2
-            f = x - m
-            p0 = k * n_prof + m
-            u = profiles[p0] + f * (profiles[p0 + 1] - profiles[p0])
-            qx -= u * dents[b + D_NX]
-            qy -= u * dents[b + D_NY]
-            qz -= u * dents[b + D_NZ]
-    if not near:  # at rest, bitwise
-        if old:
-            for c in range(3):
-                ctrl[i, j, c] = rest[i, j, c]
-        return 0
-    # 3. still inside the tip: onto the sphere
-    for k in range(n_dents):
-        b = k * DENT_SIZE
-        radius = dents[b + D_RADIUS]
-        if radius <= 0.0:
-            continue
-        r2 = radius * radius
-        px, py, pz, rx, ry, rz, rho2 = _axis(rest, i, j, dents, b)
-        if rho2 < r2:
-            cx, cy, cz = dents[b + D_CX], dents[b + D_CY], dents[b + D_CZ]
-            dx = qx - cx
-            dy = qy - cy
-            dz = qz - cz
-            if dx * dx + dy * dy + dz * dz < r2:
-                cap = -math.sqrt(r2 - rho2)
-                qx = cx + rx + cap * dents[b + D_NX]
-                qy = cy + ry + cap * dents[b + D_NY]
-                qz = cz + rz + cap * dents[b + D_NZ]
-                break
-    ctrl[i, j, 0] = qx
-    ctrl[i, j, 1] = qy
-    ctrl[i, j, 2] = qz
-    return 1
+        b, radius, a = _contact(dent, k)
+        q = k * _PATCH
+        i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, dent[b + D_CX], dent[b + D_CY], radius, dent[b + D_A])
+        boxes[q + _I0] = i0
+        boxes[q + _I1] = i1
+        boxes[q + _J0] = j0
+        boxes[q + _J1] = j1
+        if i0 < i1 and a > 0.0:
+            r_elastic = PATCH_PER_CONTACT * a   # the elastic surface, faded over its outer half
+            _fill_profile(profile[k * n_prof:(k + 1) * n_prof], a, radius, dent[b + D_DEPTH], dent[b + D_ZONE],
+                          r_elastic)
+            scales[k] = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
+    return boxes, scales
 
 
 @njit(cache=True, nogil=True)
 def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
     """Move the net from the dents in ``patch`` to the dents recorded in ``dent``; write their
-    index boxes to ``patch``. The full dent (the module docstring's rule), exact.
+    index boxes to ``patch``. The full dent (the module docstring's rule), exact: the reference
+    of :func:`sync_dent_tiled_kernel`, which gives the same net doing only the tiles a dent reaches.
 
     ``dent`` holds one :data:`DENT` record per contact (n × :data:`DENT_SIZE` floats; a record
     with R <= 0 is no dent), ``patch`` their index boxes (n × :data:`DENT_PATCH` int64),
@@ -463,27 +519,10 @@ def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
     tick (which never reads the live net) goes on while a reader in another thread syncs.
     Returns the number of control points dented (>= 0).
     """
-    nu = ctrl.shape[0]
-    nv = ctrl.shape[1]
     n_dents = dent.size // DENT_SIZE
     n_prof = profile.size // n_dents
-    boxes = np.zeros(n_dents * _PATCH, dtype=np.int64)
-    scales = np.zeros(n_dents)
-    for k in range(n_dents):
-        b = k * DENT_SIZE
-        q = k * _PATCH
-        radius = dent[b + D_RADIUS]
-        i0, i1, j0, j1 = _dent_box(nu, nv, ku, kv, dent[b + D_CX], dent[b + D_CY], radius, dent[b + D_A])
-        boxes[q + _I0] = i0
-        boxes[q + _I1] = i1
-        boxes[q + _J0] = j0
-        boxes[q + _J1] = j1
-        a = max(dent[b + D_A], 0.0)
-        if i0 < i1 and a > 0.0:
-            r_elastic = PATCH_PER_CONTACT * a   # the elastic surface, faded over its outer half
-            _fill_profile(profile[k * n_prof:(k + 1) * n_prof], a, radius, dent[b + D_DEPTH], dent[b + D_ZONE],
-                          r_elastic)
-            scales[k] = (n_prof - 1) / math.sqrt(r_elastic * r_elastic - a * a)
+    boxes, scales = _dent_boxes(ctrl.shape[0], ctrl.shape[1], ku, kv, dent, profile)
+    axes = np.empty((n_dents, 7))
     # 1. the previous boxes outside every new one back to rest
     for k in range(n_dents):
         q = k * _PATCH
@@ -496,12 +535,135 @@ def sync_dent_kernel(ctrl, rest, ku, kv, dent, profile, patch):
     moved = 0
     for k in range(n_dents):
         q = k * _PATCH
-        for i in range(boxes[q + _I0], boxes[q + _I1]):
-            for j in range(boxes[q + _J0], boxes[q + _J1]):
-                if _in_boxes(boxes, k, i, j):
-                    continue  # written with an earlier box
-                moved += _dent_point(ctrl, rest, i, j, dent, n_dents, profile, n_prof, scales,
-                                     _in_boxes(patch, n_dents, i, j))
+        moved += _dent_rows(ctrl, rest, boxes[q + _I0], boxes[q + _I1], boxes[q + _J0], boxes[q + _J1], dent, n_dents,
+                            profile, n_prof, scales, boxes, k, patch, axes)
+    for k in range(boxes.size):
+        patch[k] = boxes[k]
+    return moved
+
+
+#: control points per side of the tiles :func:`sync_dent_tiled_kernel` culls by
+TILE = 8
+#: the tiles' bounding spheres are widened by this fraction (and TILE_SLACK_M) against rounding
+TILE_SLACK = 1e-6
+TILE_SLACK_M = 1e-15
+
+
+@njit(cache=True, nogil=True)
+def tile_heights_kernel(rest, zlo, zhi):
+    """Lowest and highest rest height (m) of each :data:`TILE` × :data:`TILE` tile of the net,
+    into ``zlo``, ``zhi`` (ceil(nu / TILE), ceil(nv / TILE)): once per deformer, O(N)."""
+    nu, nv = rest.shape[0], rest.shape[1]
+    for ti in range(zlo.shape[0]):
+        for tj in range(zlo.shape[1]):
+            lo = np.inf
+            hi = -np.inf
+            for i in range(ti * TILE, min((ti + 1) * TILE, nu)):
+                for j in range(tj * TILE, min((tj + 1) * TILE, nv)):
+                    z = rest[i, j, 2]
+                    lo = min(lo, z)
+                    hi = max(hi, z)
+            zlo[ti, tj] = lo
+            zhi[ti, tj] = hi
+
+
+@njit(cache=True, inline="always")
+def _tile_reached(rest, zlo, zhi, ti, tj, dents, n_dents):
+    """True if a dent of ``dents`` may move a rest point of tile (ti, tj): the bounding sphere of
+    the tile's rest points meets a contact's elastic cylinder (ρ < 3a about its axis: the
+    contact disc and the elastic surface) or its tip ball (the module docstring's rule moves no
+    point outside both). Conservative: a tile reached may still hold no moved point."""
+    nu, nv = rest.shape[0], rest.shape[1]
+    i0 = ti * TILE
+    i1 = min(i0 + TILE, nu) - 1
+    j0 = tj * TILE
+    j1 = min(j0 + TILE, nv) - 1
+    x0, x1 = rest[i0, j0, 0], rest[i1, j0, 0]   # a height-field net: x on i only, y on j only
+    y0, y1 = rest[i0, j0, 1], rest[i0, j1, 1]
+    z0, z1 = zlo[ti, tj], zhi[ti, tj]
+    qx, qy, qz = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
+    rt = 0.5 * math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2 + (z1 - z0) ** 2) * (1.0 + TILE_SLACK) + TILE_SLACK_M
+    for k in range(n_dents):
+        b, radius, a = _contact(dents, k)
+        if radius <= 0.0:
+            continue
+        px = qx - dents[b + D_CX]
+        py = qy - dents[b + D_CY]
+        pz = qz - dents[b + D_CZ]
+        d2 = px * px + py * py + pz * pz
+        if d2 < (radius + rt) * (radius + rt):
+            return True   # the tip ball
+        if a > 0.0:
+            s = px * dents[b + D_NX] + py * dents[b + D_NY] + pz * dents[b + D_NZ]
+            r_cyl = PATCH_PER_CONTACT * a + rt
+            if d2 - s * s < r_cyl * r_cyl:
+                return True   # the elastic cylinder (the distance to a line is 1-Lipschitz)
+    return False
+
+
+@njit(cache=True, inline="always")
+def _tile_done(boxes, n, ti, tj):
+    """True if tile (ti, tj) meets one of the first ``n`` boxes (it was done with that box)."""
+    for k in range(n):
+        b = k * _PATCH
+        if (boxes[b + _I0] < (ti + 1) * TILE and boxes[b + _I1] > ti * TILE
+                and boxes[b + _J0] < (tj + 1) * TILE and boxes[b + _J1] > tj * TILE):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def sync_dent_tiled_kernel(ctrl, rest, ku, kv, dent, shown, profile, patch, zlo, zhi, written):
+    """:func:`sync_dent_kernel`'s net, bit for bit, visiting point by point only the tiles a dent reaches.
+
+    The boxes are cut into :data:`TILE` × :data:`TILE` tiles of control points. A tile that no
+    recorded dent reaches (:func:`_tile_reached`: its bounding sphere, from the rest heights
+    ``zlo``/``zhi`` of :func:`tile_heights_kernel`, misses every contact's elastic cylinder
+    and tip ball) holds only points the full dent leaves at rest: it is skipped, or copied
+    back to rest when the dents the net shows (``shown``, with their boxes in ``patch``)
+    reached it. Every other tile of the boxes is written point by point, as the reference
+    does. So the cost is that of the points the dents move (the contact's elastic surface,
+    ~(6a/h)², and the rough patches inside the tip), not of the guard box (2 max(R, 3a)/h)².
+    ``written`` (2n × :data:`DENT_PATCH` int64, old boxes then new) receives, per box, the
+    index box of the tiles written (empty: i0 = i1 = 0). Returns the points dented (the
+    reference's count).
+    """
+    nu = ctrl.shape[0]
+    nv = ctrl.shape[1]
+    n_dents = dent.size // DENT_SIZE
+    n_prof = profile.size // n_dents
+    boxes, scales = _dent_boxes(nu, nv, ku, kv, dent, profile)
+    axes = np.empty((n_dents, 7))
+    both = np.concatenate((patch, boxes))   # the old boxes, then the new: a tile is done with the first it meets
+    written[:] = 0
+    moved = 0
+    for q in range(2 * n_dents):
+        b = q * _PATCH
+        if both[b + _I0] >= both[b + _I1] or both[b + _J0] >= both[b + _J1]:
+            continue
+        w0, w1, v0, v1 = nu, 0, nv, 0
+        for ti in range(both[b + _I0] // TILE, (both[b + _I1] - 1) // TILE + 1):
+            for tj in range(both[b + _J0] // TILE, (both[b + _J1] - 1) // TILE + 1):
+                if _tile_done(both, q, ti, tj):
+                    continue
+                i0 = ti * TILE
+                i1 = min(i0 + TILE, nu)
+                j0 = tj * TILE
+                j1 = min(j0 + TILE, nv)
+                if _tile_reached(rest, zlo, zhi, ti, tj, dent, n_dents):   # as the reference
+                    moved += _dent_rows(ctrl, rest, i0, i1, j0, j1, dent, n_dents, profile, n_prof, scales, boxes, 0,
+                                        patch, axes)
+                elif _tile_reached(rest, zlo, zhi, ti, tj, shown, n_dents):
+                    for i in range(i0, i1):   # no new dent here: the old boxes' points back to rest
+                        for j in range(j0, j1):
+                            if _in_boxes(patch, n_dents, i, j):
+                                for c in range(3):
+                                    ctrl[i, j, c] = rest[i, j, c]
+                else:
+                    continue   # at rest before and after
+                w0, w1, v0, v1 = min(w0, i0), max(w1, i1), min(v0, j0), max(v1, j1)
+        if w0 < w1:
+            written[b + _I0], written[b + _I1], written[b + _J0], written[b + _J1] = w0, w1, v0, v1
     for k in range(boxes.size):
         patch[k] = boxes[k]
     return moved
@@ -612,7 +774,10 @@ class Deformer:
         if self._record.ndim != 1 or self._record.dtype != np.float64 or not 0 <= self._at <= self._record.size - size:
             raise ContactError(f"`record` must be a float64 vector holding {size} floats from offset {at} "
                                f"(got {self._record.dtype} {self._record.shape})")
-        self._applied = self._seqs.copy()  # the recorded dents the net shows
+        self._applied = self._seqs.copy()  # the recorded dents the net shows ...
+        self.shown = np.zeros(size)        # ... their numbers (no dent yet)
+        self.written = np.zeros(2 * _PATCH * self.contacts, dtype=np.int64)  # what the last sync wrote
+        self._tiles = None                 # the rest net's tile heights, at the first sync
         self._lock = threading.Lock()      # one sync at a time (the kernel runs without the GIL)
         surface.attach_dent(self)
 
@@ -715,26 +880,31 @@ class Deformer:
             if np.array_equal(seqs, self._applied):
                 return -1
             dents = self.dent.copy()
-            before = self.patch.copy()
             ctrl, rest, ku, kv = self.surface.raw_arrays()
-            moved = sync_dent_kernel(ctrl, rest, ku, kv, dents, self.profile, self.patch)
+            if self._tiles is None:
+                shape = (-(-rest.shape[0] // TILE), -(-rest.shape[1] // TILE))
+                self._tiles = (np.empty(shape), np.empty(shape))
+                tile_heights_kernel(rest, *self._tiles)
+            moved = sync_dent_tiled_kernel(ctrl, rest, ku, kv, dents, self.shown, self.profile, self.patch,
+                                           *self._tiles, self.written)
+            self.shown[:] = dents
             self._applied = seqs
-            self._refresh(before)
+            self._refresh()
         return moved
 
     def forget(self) -> None:
         """The net was put back to rest by someone else (``surface.reset()``): no dent is shown."""
         self.patch[:] = 0
+        self.shown[:] = 0.0
         self._applied = self._seqs.copy()
 
-    def _refresh(self, before: np.ndarray) -> None:
-        """Tell the projection's hull boxes and the surface's watchers which index boxes changed
-        (old and new patches), O(patch)."""
+    def _refresh(self) -> None:
+        """Tell the projection's hull boxes and the surface's watchers which index boxes the last
+        sync wrote (:attr:`written`), O(those boxes)."""
         from arsurf.contact.projection import refresh_region
 
-        for patch in (before, self.patch):
-            for box in patch.reshape(-1, _PATCH):
-                if box[_I1] > box[_I0] and box[_J1] > box[_J0]:
-                    i0, i1, j0, j1 = int(box[_I0]), int(box[_I1]), int(box[_J0]), int(box[_J1])
-                    refresh_region(self.surface, i0, i1, j0, j1)
-                    self.surface.touched(i0, i1, j0, j1)
+        for box in self.written.reshape(-1, _PATCH):
+            if box[_I1] > box[_I0] and box[_J1] > box[_J0]:
+                i0, i1, j0, j1 = int(box[_I0]), int(box[_I1]), int(box[_J0]), int(box[_J1])
+                refresh_region(self.surface, i0, i1, j0, j1)
+                self.surface.touched(i0, i1, j0, j1)

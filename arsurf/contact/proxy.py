@@ -24,14 +24,45 @@ import math
 
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
 from arsurf.status import SEPARATED
 _MAX_ITER = 60
+#: the last Maugis-Dugdale answer of the coupling's Newton run: the depth (m) it was evaluated
+#: at, the answer (status, radius m, load N) and the law's ``kernel_args`` it was made with. The
+#: run ends on that depth and the next tick's run starts from it: looked up instead of solved
+#: again (one of the ~6 solves of a tick), the same bits as the solve
+MD_MEMO = Layout("coupling memo", [("depth", 1), ("answer", 3), ("law", 6)])
+_M_DEPTH, _M_ANSWER, _M_LAW = MD_MEMO.offset("depth"), MD_MEMO.offset("answer"), MD_MEMO.offset("law")
+MEMO_SIZE = MD_MEMO.size
+
+
+@njit(cache=True)
+def _md_interacting(depth, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold, memo):
+    """``md_contact_hysteresis_kernel(depth, True, law...)``, a pure function of its arguments,
+    looked up in ``memo`` (:data:`MD_MEMO`) when it holds exactly these arguments (never for NaN
+    ones), else solved and kept there."""
+    law = memo[_M_LAW:_M_LAW + 6]
+    if (memo[_M_DEPTH] == depth and law[0] == depth_scale and law[1] == radius_scale and law[2] == load_scale
+            and law[3] == lam and law[4] == t_fold and law[5] == delta_fold):
+        return int(memo[_M_ANSWER]), memo[_M_ANSWER + 1], memo[_M_ANSWER + 2]
+    s, r, p = md_contact_hysteresis_kernel(depth, True, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    memo[_M_DEPTH] = depth
+    memo[_M_ANSWER] = s
+    memo[_M_ANSWER + 1] = r
+    memo[_M_ANSWER + 2] = p
+    law[0] = depth_scale
+    law[1] = radius_scale
+    law[2] = load_scale
+    law[3] = lam
+    law[4] = t_fold
+    law[5] = delta_fold
+    return s, r, p
 
 
 @njit(cache=True)
 def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_out_depth, zero_load_depth,
-                         depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold):
+                         depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold, memo):
     r"""Depth of the tip behind a coupling of stiffness ``k_couple`` (N/m; ``inf``: none).
 
     ``target_depth`` δ_t (m), ``start_depth`` the previous tick's tip depth (NaN: none),
@@ -42,7 +73,9 @@ def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_
     :math:`[\delta_{out}, \delta_t]` when :math:`P(\delta_t) > 0` (g < 0 at the jump-out depth,
     where the load is tensile), else :math:`[\delta_t, \delta_0]` (g >= 0 at the zero-load
     depth) - and found by Newton's method from the previous depth, falling back to bisection
-    whenever a step leaves the bracket: it always converges.
+    whenever a step leaves the bracket: it always converges. ``memo`` (:data:`MD_MEMO`, kept
+    between ticks; NaN: empty) holds the last answer at a Newton iterate: the run that starts
+    where the last one ended finds its first answer there.
 
     Returns ``(status, radius, load, depth, coupled)``: the Maugis-Dugdale answer at the tip's
     depth (:func:`~arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`) and whether the
@@ -61,8 +94,7 @@ def coupled_depth_kernel(target_depth, start_depth, interacting, k_couple, jump_
     tol = 1e-9 * load_scale
     s, r, p = st, a, load
     for _ in range(_MAX_ITER):
-        s, r, p = md_contact_hysteresis_kernel(depth, True, depth_scale, radius_scale, load_scale,
-                                               lam, t_fold, delta_fold)
+        s, r, p = _md_interacting(depth, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold, memo)
         if s == SEPARATED:  # below the jump-out depth: the bracket's floor
             lo = depth
             depth = 0.5 * (lo + hi)

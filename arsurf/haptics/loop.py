@@ -97,11 +97,13 @@ SIGNALS = Layout("signals", [("bending", 1), ("torsion", 1)])
 #: (:mod:`~arsurf.haptics.scaling`), the force-position coupling (:mod:`~arsurf.haptics.coupling`;
 #: placeholders of its layouts when direct), the force scale, the filter's alpha and state
 #: (:data:`FILTER_CHANNELS`), the passivity controller and the safety layer; the model's arrays
-#: (:data:`arsurf.model.MODEL_ARGS`); the previous probe position and the output (:data:`LOOP_OUT`).
+#: (:data:`arsurf.model.MODEL_ARGS`); the previous probe position and the output (:data:`LOOP_OUT`);
+#: the sample check's parameters and memory (:mod:`~arsurf.haptics.samples`) and the block of
+#: noise rows drawn ahead (:data:`SIGNALS` per row), which the one-call tick reads.
 LOOP_FIELDS = ("x", "v", "dt", "ext", "noise", "source", "blend", "coupling_mode", "clutch_mask",
                "pos_params", "pos_state", "fp_params", "fp_phi", "fp_gamma", "fp_state",
                "gain", "alpha", "filt_state", "pc_params", "pc_state", "safety_params", "safety_state",
-               *MODEL_ARGS, "prev_probe", "out")
+               *MODEL_ARGS, "prev_probe", "out", "check_params", "check_state", "noise_block")
 
 
 @structref.register
@@ -113,7 +115,8 @@ class _LoopArraysType(types.StructRef):
 class LoopArrays(structref.StructRefProxy):
     """The compiled tick's arrays and settings (:data:`LOOP_FIELDS`) as one numba struct, built
     once per loop: a tick from Python passes one reference instead of the ~40 arrays and settings
-    (16 of them the projector's arrays; ~2 µs of unboxing per tick)."""
+    (16 of them the projector's arrays; ~2 µs of unboxing per tick), and with them the sample
+    check's and the noise block's, so that a tick passes only the sample's two arrays besides."""
 
 
 structref.define_proxy(LoopArrays, _LoopArraysType, list(LOOP_FIELDS))
@@ -277,20 +280,27 @@ def loop_tick_kernel(a, buttons, now, age):
 _LAST_GOOD = SAMPLE_STATE.offset("position")
 #: what a sample vector that can go straight to the compiled tick is: a C-contiguous (3,) float64 array
 _NDARRAY, _F8, _SHAPE3, _C3 = np.ndarray, np.dtype(np.float64), (3,), (8,)
-#: sample stamps that go to it as they are (a float64)
+#: sample stamps and clock readings that go to it as they are (a float64)
 _STAMPS = frozenset((float, np.float64))
+#: noise rows drawn at a time: one draw costs ~1.7 µs (1024 at once cost 22 µs in one tick, a
+#: missed deadline at 10 kHz); the sequence is the same whatever the block size
+_NOISE_ROWS = 64
 
 
 @njit(cache=True)
-def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, stamp, buttons, now, noise, row):
+def loop_sample_tick_kernel(a, position, velocity, stamp, buttons, now, row):
     """A tick from a well-formed device sample in one compiled call: the sample check
-    (:func:`~arsurf.haptics.samples.sample_check_step`), the sample - or, for a sample that cannot
-    be real, the last good position held still - into ``a.x``, ``a.v``, the synthesised signals'
-    noise ``noise[row]`` into ``a.noise`` (``row`` < 0: none), then :func:`loop_tick_kernel` with
-    the sample's age ``now - stamp`` (0 for a bad sample). ``position``, ``velocity`` (3,) m, m/s;
-    ``stamp``, ``now`` s. Returns the sample's flags (0: a sample that can be real);
-    :meth:`HapticLoop.step` adds them to the tick."""
-    bad = sample_check_step(check_params, check_state, position, velocity, stamp, now)
+    (:func:`~arsurf.haptics.samples.sample_check_step` on ``a.check_params``, ``a.check_state``),
+    the sample - or, for a sample that cannot be real, the last good position held still - into
+    ``a.x``, ``a.v``, the synthesised signals' noise ``a.noise_block[row]`` into ``a.noise``
+    (``row`` < 0: none), then :func:`loop_tick_kernel` with the sample's age ``now - stamp`` (0
+    for a bad sample). ``position``, ``velocity`` (3,) m, m/s; ``stamp``, ``now`` s. Returns the
+    sample's flags (0: a sample that can be real); :meth:`HapticLoop.step` adds them to the tick.
+
+    Two arrays and four numbers per call: each array argument costs ~0.1-0.2 µs to unbox from
+    Python, so everything that does not come with the sample lives in ``a``."""
+    check_state = a.check_state
+    bad = sample_check_step(a.check_params, check_state, position, velocity, stamp, now)
     x = a.x
     v = a.v
     if bad:
@@ -304,6 +314,7 @@ def loop_sample_tick_kernel(a, check_params, check_state, position, velocity, st
             v[j] = velocity[j]
         age = now - stamp
     if row >= 0:
+        noise = a.noise_block
         a.noise[0] = noise[row, 0]
         a.noise[1] = noise[row, 1]
     loop_tick_kernel(a, buttons, now, age)
@@ -488,10 +499,9 @@ class HapticLoop:
         self._filt_state = self.filter.state if self.filter else FILTER_CHANNELS.zeros()
         self._rng = np.random.default_rng(config.seed)
         self._noise = SIGNALS.zeros()
-        # 64 ticks at a time: one draw costs ~1.7 µs (1024 at once cost 22 µs in one tick, a
-        # missed deadline at 10 kHz); the sequence is the same whatever the block size
-        self._noise_block = np.empty((64, SIGNALS.size))
-        self._noise_i = self._noise_block.shape[0]  # empty: filled at the first tick
+        self._noise_block = np.empty((_NOISE_ROWS, SIGNALS.size))
+        self._noise_i = _NOISE_ROWS  # empty: filled at the first tick
+        self._noisy = config.signal_noise > 0.0
         self._ext = SIGNALS.full(np.nan)
         self._ext_given = False  # the last tick was given signals: clear them when the next is not
         self._x = np.zeros(3)
@@ -520,7 +530,9 @@ class HapticLoop:
                   "gain": self._gain, "alpha": float(self._alpha), "filt_state": self._filt_state,
                   "pc_params": self.passivity.params, "pc_state": self.passivity.state,
                   "safety_params": self.safety.params, "safety_state": self.safety.state,
-                  **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out}
+                  **dict(zip(MODEL_ARGS, self._model_args)), "prev_probe": self.prev_probe, "out": self.out,
+                  "check_params": self.sample_check.params, "check_state": self.sample_check.state,
+                  "noise_block": self._noise_block}
         if set(values) != set(LOOP_FIELDS):
             raise HapticsError(f"the loop's arrays {sorted(set(values) ^ set(LOOP_FIELDS))} do not match LOOP_FIELDS")
         return _new_loop_arrays(tuple(values[name] for name in LOOP_FIELDS))
@@ -588,21 +600,52 @@ class HapticLoop:
         measured (bending, torsion) in rad. Allocation-free: the hot path. The sample is checked
         once here (:mod:`arsurf.haptics.samples`): one that cannot be real gives zero force in
         this tick, its flag, and the model runs on the last good sample.
+
+        The usual tick - a C-contiguous (3,) float64 position and velocity, a float stamp and
+        clock, a button word in [0, 2^31), no scene - is one compiled call
+        (:func:`loop_sample_tick_kernel` through its entry point) after a few type tests; any other
+        input takes :meth:`_step_checked`, which gives the same outputs bit for bit.
         """
-        if signals is not None:
-            self._ext[0], self._ext[1] = signals
-            self._ext_given = True
-        elif self._ext_given:
-            self._ext[:] = np.nan
-            self._ext_given = False
+        if signals is not None or self._ext_given:
+            self._take_signals(signals)
         row = -1
-        if self.config.signal_noise > 0.0:  # drawn a block of ticks at a time: no allocation per tick
+        if self._noisy:  # drawn a block of ticks at a time: no allocation per tick
             row = self._noise_i
-            if row == self._noise_block.shape[0]:
+            if row == _NOISE_ROWS:
                 self._rng.standard_normal(out=self._noise_block)
                 self._noise_block *= self.config.signal_noise
                 row = 0
             self._noise_i = row + 1
+        buttons = inputs.buttons
+        p = inputs.position
+        v = inputs.velocity
+        stamp = inputs.timestamp
+        fused = self._fused
+        if (fused is not None and type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT
+                and type(p) is _NDARRAY and type(v) is _NDARRAY and p.dtype is _F8 and v.dtype is _F8
+                and p.shape == _SHAPE3 and v.shape == _SHAPE3 and p.strides == _C3 and v.strides == _C3
+                and type(stamp) in _STAMPS and type(now) in _STAMPS and self.scene is None):
+            bad = fused(self._packed, p, v, stamp, buttons, now, row)
+            if bad:
+                self._flag_input(bad)
+            return self._device_force
+        return self._step_checked(inputs, now, row)
+
+    def _take_signals(self, signals) -> None:
+        """The measured (bending, torsion) of this tick into the loop's, or NaN when none follow
+        a tick that had them."""
+        if signals is not None:
+            self._ext[0], self._ext[1] = signals
+            self._ext_given = True
+        else:
+            self._ext[:] = np.nan
+            self._ext_given = False
+
+    def _step_checked(self, inputs: DeviceState, now: float, row: int) -> np.ndarray:
+        """:meth:`step` for any input (the noise row ``row`` drawn, -1: none): buttons that are not
+        a button word count as none and are flagged; a well-formed sample without a scene ticks in
+        the one compiled call (the first such finds its entry point); any other sample is checked
+        in Python and ticks in :func:`loop_tick_kernel`, or around the scene in two halves."""
         buttons = inputs.buttons
         bad_buttons = False
         if not (type(buttons) is int and 0 <= buttons < _BUTTONS_LIMIT):  # NaN, None, 2**64...: no press,
@@ -611,17 +654,13 @@ class HapticLoop:
         if (type(p) is _NDARRAY and type(v) is _NDARRAY and p.strides == _C3 and v.strides == _C3 and p.shape == _SHAPE3
                 and v.shape == _SHAPE3 and p.dtype is _F8 and v.dtype is _F8 and type(stamp) in _STAMPS
                 and self.scene is None):
-            # the usual tick (a C-contiguous float64 sample): check, sample, noise and tick in one
-            # compiled call, through its entry point
-            check = self.sample_check
-            fused = self._fused
-            if fused is None:
-                args = (self._packed, check.params, check.state, p, v, stamp, buttons, float(now), self._noise_block, row)
+            # a C-contiguous float64 sample: check, sample, noise and tick in one compiled call
+            args = (self._packed, p, v, stamp, buttons, float(now), row)
+            if self._fused is None:
                 bad = loop_sample_tick_kernel(*args)
                 self._fused = _entry_point(loop_sample_tick_kernel, args)
             else:
-                bad = fused(self._packed, check.params, check.state, p, v, stamp, buttons, float(now),
-                            self._noise_block, row)
+                bad = self._fused(*args)
             if bad_buttons or bad:
                 self._flag_input(BAD_BUTTONS * bad_buttons | bad)
             return self._device_force

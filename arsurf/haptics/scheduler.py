@@ -15,10 +15,11 @@ errors do not accumulate. The wait before a deadline is hybrid: ``time.sleep`` u
 seconds before it (the OS wakes a sleeper tens of microseconds late), then a busy spin on the
 clock. A tick whose work ends after its own deadline is an *overrun*; deadlines that passed
 entirely are *skipped* (the grid is kept: the next tick starts at once, less than one period late,
-and there is no burst of catch-up ticks). Under ``SCHED_FIFO`` the spin is short
-(:data:`FIFO_SPIN`) and the thread sleeps at least :data:`FIFO_IDLE_SHARE` of its time, even
-after an overrun, so it is never awake long enough to meet the kernel's real-time throttling;
-:class:`Pacer` keeps this discipline, on an injectable clock. Statistics are kept in
+and there is no burst of catch-up ticks). Under ``SCHED_FIFO`` the spin's margin is learned from
+how late the sleeps end, and the thread keeps :data:`FIFO_IDLE_SHARE` of its time off the CPU
+over a window (a budget on its own CPU clock, what the kernel counts), so it never meets the
+kernel's real-time throttling; :class:`Pacer` keeps this discipline, on an injectable clock
+(docs/scheduler.rst). Statistics are kept in
 preallocated ring buffers: compute time per tick, start-to-start period, and jitter (period minus
 nominal).
 
@@ -62,48 +63,81 @@ import numpy as np
 from arsurf.errors import HapticsError, LoopError
 
 __all__ = ["DEFAULT_REALTIME_PRIORITY", "LoopError", "Pacer", "RealtimeChoice", "Scheduler", "Snapshot",
-           "TimingStats", "choose_realtime"]
+           "TickTrace", "TimingStats", "choose_realtime", "explain_trace"]
 
-#: busy-wait margin (s) before each deadline when the loop thread runs under SCHED_FIFO: a
-#: real-time thread's sleep ends within tens of microseconds, and the short spin keeps the thread
-#: idle most of each period, below Linux's real-time throttling (sched_rt_runtime_us 950000 of
-#: every 1000000: a thread spinning ~all of each period was stopped ~50 ms each second)
-FIFO_SPIN = 3e-5
+#: least wake margin (s) before each deadline when the loop thread runs under SCHED_FIFO: the
+#: margin is learned from how late the thread's sleeps end (a real-time sleeper on bare metal
+#: wakes within ~10 us, on the virtual machine of the benches 23-35 us late at the median and up
+#: to ~100 us, ``bench/haptic_loop.py --diagnose``), and shrinks toward this when the CPU
+#: budget runs low
+FIFO_SPIN = 5e-6
 
-#: least share of its time a real-time loop thread sleeps, whatever its step costs (after each
-#: tick it sleeps at least 1/9 of the time it was awake): it is then awake at most 90 % of any
-#: second, below the kernel's 95 % real-time budget, so the throttling (a ~50 ms stop of the
-#: thread) is never reached, and ordinary threads on its core always get 10 %
+#: least share of its time a real-time loop thread is off the CPU, whatever its step costs, on
+#: the thread's own CPU clock (what the kernel's real-time throttling counts; on a virtual
+#: machine each sleep's timer and context switch cost the thread ~25 us of CPU, so a thread
+#: that "sleeps" briefly every period can still be on the CPU 99 % of a second): it is then on
+#: the CPU at most 90 % of any second plus the bucket, below the kernel's 95 % budget, so the
+#: throttling (a ~50 ms stop of the thread) is never reached
 FIFO_IDLE_SHARE = 0.1
 
-#: awake time (ns) a real-time loop may run ahead of :data:`FIFO_IDLE_SHARE` before it must
-#: sleep: a one-off stall of a few ms is not paid back at once (that would lengthen the gap),
-#: and the worst second stays at 90 % + 1 % awake
+#: CPU time (ns) a real-time loop may run ahead of :data:`FIFO_IDLE_SHARE`, the size of its
+#: budget's bucket: a one-off stall of a few ms is not paid back at once, and the worst second
+#: stays at 90 % + 1 % on the CPU
 FIFO_IDLE_BURST_NS = 10_000_000
 
-#: the window (ns) of :attr:`Pacer.awake_max`: the kernel's real-time period
+#: wall time (ns) between two readings of the thread's CPU clock for the budget (a system call)
+BUDGET_STEP_NS = 1_000_000
+
+#: longest sleep (ns) the budget forces at once: the rest is owed to the next ticks, so the
+#: budget alone never makes a gap between two ticks longer than this plus two periods
+MAX_FORCED_NAP_NS = 500_000
+
+#: ticks per block of the learned wake-up lateness: the margin is the largest lateness of the
+#: sleeps of the last one to two blocks (~ its 99.9th percentile; 0.1-0.2 s at 10 kHz)
+LATENESS_BLOCK = 1024
+
+#: short sleeps :meth:`Pacer.start` takes to guess the wake-up lateness before the first tick
+CALIBRATION_SLEEPS = 16
+
+#: the window (ns) of :attr:`Pacer.awake_max` and :attr:`Pacer.cpu_max`: the kernel's real-time period
 _AWAKE_WINDOW_NS = 1_000_000_000
 
 
 class Pacer:
     """The loop's time-keeping: an absolute deadline grid, overruns and skipped slots, and the
-    wait before each deadline, a sleep then a spin of at most ``spin_ns``.
+    wait before each deadline, a sleep then a spin of a wake margin.
 
-    Deadlines are :math:`t_k = t_0 + k\\,T`. After the tick's work, :meth:`wait` sleeps until
-    ``spin_ns`` before the next deadline, then spins on the clock to the deadline. With an
-    ``idle_share`` :math:`s`, each time awake :math:`a` owes a sleep of :math:`a\\,s/(1-s)` and
-    each sleep pays its length back; when the debt exceeds ``burst_ns`` the thread sleeps it off
-    even after a late tick, so it is awake at most :math:`1 - s` of any second plus ``burst_ns``
-    (a step that never fits its period runs at the rate that allows). A tick whose work ends after the next deadline is an *overrun*; deadlines that
-    passed entirely are *skipped* (the grid is kept: no burst of catch-up ticks). It also counts
-    the time the thread is awake - running or runnable, everything but its sleeps here - per
-    second of the kernel's real-time accounting (:attr:`awake_max`), and the thread's CPU time
-    per second (:attr:`cpu_max`, from ``cpu_clock`` read once a second; it also counts the
-    kernel's work for the sleeps themselves): under ``SCHED_FIFO`` the kernel stops a thread that
-    ran more than 95 % of a second (``sched_rt_runtime_us``).
+    Deadlines are :math:`t_k = t_0 + k\\,T`. After the tick's work, :meth:`wait` sleeps until a
+    *wake margin* before the next deadline, then spins on the clock to the deadline. The margin
+    is ``spin_ns``, or, with ``spin_max_ns`` above it, *learned*: the largest lateness of the
+    sleeps of the last one to two blocks of :data:`LATENESS_BLOCK` ticks (how much later than
+    asked the thread was awake again; ~ its 99.9th percentile), between ``spin_ns`` and
+    ``spin_max_ns``: it starts from :data:`CALIBRATION_SLEEPS` short sleeps, grows at the
+    first later wake-up, and forgets a block later.
+
+    **The idle share** :math:`s` (``idle_share``, real-time threads) is a budget on the thread's
+    CPU clock, a bucket of ``burst_ns``: it earns :math:`(1 - s)` ns of CPU per ns of wall time,
+    spends what ``cpu_clock`` says (read every :data:`BUDGET_STEP_NS`). While the bucket holds
+    more than half its size the margin is the learned one; below, the margin shrinks linearly
+    toward the least that lets a tick of the last one's cost, woken as late as learned, still end
+    a tenth of a period before the next deadline (longer sleeps each period; late starts, but no
+    overrun);
+    an empty bucket forces a sleep of what is owed, in whole slots (skipped: the next tick is on
+    the grid) and at most :data:`MAX_FORCED_NAP_NS` at a time (never a long gap). So the thread is on the CPU at most :math:`(1 - s) L` +
+    ``burst_ns`` + :data:`BUDGET_STEP_NS` of any span :math:`L`, whatever its step costs and
+    whatever its sleeps cost in system time; the kernel stops a real-time thread on the CPU
+    more than 95 % of a second (``sched_rt_runtime_us``).
+
+    A tick whose work ends after the next deadline is an *overrun*; deadlines that passed
+    entirely are *skipped* (the grid is kept: no burst of catch-up ticks; the next tick starts
+    at once). Statistics: :attr:`longest_gap` between two tick starts, :attr:`spin_max`,
+    :attr:`margin_max` (the largest margin used), :attr:`forced_naps`, the largest share of a
+    second awake (:attr:`awake_max`: everything but the sleeps here) and on the CPU
+    (:attr:`cpu_max`, from ``cpu_clock``).
 
     ``clock`` (ns, monotonic), ``sleep`` (s) and ``cpu_clock`` (ns) are injectable: tests drive
-    the pacer with a scripted clock, no timing involved.
+    the pacer with a scripted clock, no timing involved; ``trace`` (a :class:`TickTrace`)
+    records each tick's timeline.
 
     Examples
     --------
@@ -123,13 +157,16 @@ class Pacer:
     """
 
     def __init__(self, period_ns: int, spin_ns: int, idle_share: float = 0.0, burst_ns: int = 0, *,
-                 clock: Callable[[], int] = time.perf_counter_ns, sleep: Callable[[float], Any] = time.sleep,
-                 cpu_clock: Callable[[], int] = time.thread_time_ns) -> None:
+                 spin_max_ns: int | None = None, clock: Callable[[], int] = time.perf_counter_ns,
+                 sleep: Callable[[float], Any] = time.sleep, cpu_clock: Callable[[], int] = time.thread_time_ns,
+                 trace: "TickTrace | None" = None) -> None:
+        self.trace = trace
         self.period = int(period_ns)
         self.spin = int(spin_ns)
+        self.spin_cap = max(self.spin, int(spin_ns if spin_max_ns is None else spin_max_ns))
         if not 0.0 <= idle_share < 1.0:
             raise HapticsError(f"idle_share must be in [0, 1) (got {idle_share!r})")
-        self.idle_ratio = idle_share / (1.0 - idle_share)  # sleep owed per unit of time awake
+        self.share = float(idle_share)
         self.burst = int(burst_ns)
         self.clock, self.sleep, self.cpu_clock = clock, sleep, cpu_clock
         self.start(clock())
@@ -139,21 +176,37 @@ class Pacer:
         t0 = self.clock() if t0 is None else int(t0)
         self.t0 = self.deadline = self._awake_since = t0
         self._last_start = None
-        self.overruns = self.skipped = 0
+        self.overruns = self.skipped = self.forced_naps = 0
         self.longest_gap = 0          # ns between two tick starts
         self.spin_max = 0             # ns, the longest spin before a deadline
+        self.margin_max = 0           # ns, the largest wake margin used
         self.awake = 0                # ns awake, whole run
         self.awake_max = 0.0          # the largest share of a whole second spent awake
         self._window_end = t0 + _AWAKE_WINDOW_NS
         self._window_awake = 0
-        self._debt = 0.0              # ns of sleep owed
         self.cpu_max = 0.0            # the largest share of a second the thread spent on the CPU
-        self._cpu_mark = (t0, self.cpu_clock())
+        cpu = self.cpu_clock()
+        self._cpu_mark = (t0, cpu)
+        self._credit = float(self.burst)  # ns of CPU the budget allows ahead of the idle share
+        self._budget_mark = (t0, cpu)
+        # the learned wake-up lateness (ns), the largest of the previous and the current block
+        self._late_prev, self._late_cur, self._late_n = 0, 0, 0
+        if self.spin_cap > self.spin:  # a first guess from a few short sleeps (~1 ms at most)
+            for _ in range(CALIBRATION_SLEEPS):
+                a = self.clock()
+                self.sleep(self.spin * 1e-9)
+                self._late_cur = max(self._late_cur, self.clock() - a - self.spin)
+            t0 = self.deadline = self._awake_since = self.clock()
+            self._cpu_mark = self._budget_mark = (t0, self.cpu_clock())
+            self._window_end = t0 + _AWAKE_WINDOW_NS
+            self.t0 = t0
         return t0
 
     def begin(self) -> int:
         """A tick starts now: returns the time, ns, and the gap since the previous start (0 first)."""
         start = self.clock()
+        if self.trace is not None:
+            self.trace.begin(self.deadline, start, self.cpu_clock())
         gap = 0 if self._last_start is None else start - self._last_start
         if gap > self.longest_gap:
             self.longest_gap = gap
@@ -184,26 +237,71 @@ class Pacer:
         span = self._awake_since - self.t0
         return self._window_awake / span if span > 0 else 0.0
 
+    def _refill(self, now: int) -> None:
+        """The budget: earn (1 - s) of the wall time since the last reading, spend the CPU time."""
+        cpu = self.cpu_clock()
+        t_prev, cpu_prev = self._budget_mark
+        self._credit = min(float(self.burst), self._credit + (1.0 - self.share) * (now - t_prev) - (cpu - cpu_prev))
+        self._budget_mark = (now, cpu)
+
+    def margin(self) -> int:
+        """The wake margin (ns) the next wait will use before the budget: the learned lateness
+        between ``spin_ns`` and ``spin_max_ns``."""
+        return min(self.spin_cap, max(self.spin, self._late_prev, self._late_cur))
+
     def wait(self) -> None:
         """The tick's work is done: count an overrun and skipped slots, then sleep and spin to
         the next deadline."""
         clock, period = self.clock, self.period
         self.deadline += period
         now = clock()
+        trace = self.trace
+        if trace is not None:
+            trace.work_done(now, self.cpu_clock())
         if now > self.deadline:  # this tick ended after the next one should have started
             self.overruns += 1
             missed = (now - self.deadline) // period
             if missed:  # whole periods lost: skip those slots, stay on the grid
                 self.skipped += int(missed)
                 self.deadline += missed * period
-        self._debt += self.idle_ratio * (now - self._awake_since)
-        nap = max(self.deadline - now - self.spin, int(self._debt) - self.burst)
+        margin = self.margin()
+        forced = False
+        if self.share:  # the real-time budget on the thread's CPU clock
+            if now - self._budget_mark[0] >= BUDGET_STEP_NS:
+                self._refill(now)
+            credit, half = self._credit, 0.5 * self.burst
+            if credit < half:  # running low: shorter margins, longer sleeps each period, as far as a
+                # wake-up as late as the learned one still lets a tick like this one end in its period
+                work = now - (self._last_start if self._last_start is not None else now)
+                floor = max(self.spin, min(margin, margin + work - period + period // 10))
+                margin = floor + int((margin - floor) * max(0.0, credit) / half) if half > 0 else floor
+            owed = -credit / (1.0 - self.share)  # ns off the CPU that would empty the debt
+            if credit < 0.0 and owed > self.deadline - now - margin:  # this period's sleep does not pay
+                # the debt: skip whole slots
+                slots = min(-(-(int(owed) - (self.deadline - now - margin)) // period),
+                            max(1, MAX_FORCED_NAP_NS // period))
+                self.deadline += slots * period
+                self.skipped += slots
+                self.forced_naps += 1
+                forced = True
+        nap = self.deadline - now - margin
+        if margin > self.margin_max:
+            self.margin_max = margin
         if nap > 0:
             self._count_awake(self._awake_since, now)
             self.sleep(nap * 1e-9)
             woke = clock()
-            self._debt = max(0.0, self._debt - (woke - now))
+            if trace is not None:
+                trace.slept(nap, woke)
+            late = woke - now - nap  # learn how late the thread is awake again
+            if late > self._late_cur:
+                self._late_cur = late
+            if forced:
+                self._refill(woke)
             now = self._awake_since = woke
+        self._late_n += 1
+        if self._late_n == LATENESS_BLOCK:  # a block of ticks without a sleep forgets what it learned
+            self._late_prev, self._late_cur, self._late_n = self._late_cur, 0, 0
         spin_from = now
         while now < self.deadline:
             now = clock()
@@ -214,6 +312,128 @@ class Pacer:
         """The loop ended: count its last time awake."""
         self._count_awake(self._awake_since, self.clock())
         self._awake_since = self.clock()
+
+
+class TickTrace:
+    """The timeline of the last ``n`` ticks of a :class:`Pacer` (ns), to find where slots are lost.
+
+    Per tick (:data:`TRACE_FIELDS`): the deadline it was due at, its start, the thread's CPU
+    clock at its start, the end of its work (when :meth:`Pacer.wait` was called) and the CPU clock
+    then, the sleep the wait asked for (0: none) and when the thread was awake again (the end of
+    its work when it did not sleep). Preallocated; recording costs two reads of the thread's CPU
+    clock per tick (~1 us), so it is off unless asked (``Scheduler(trace=n)``).
+    """
+
+    def __init__(self, n: int) -> None:
+        if not isinstance(n, int) or n < 1:
+            raise HapticsError(f"a trace keeps n >= 1 ticks (got {n!r})")
+        self.rows = np.zeros((n, len(TRACE_FIELDS)), dtype=np.int64)
+        self.n = n
+        self.ticks = 0
+        self._row = self.rows[0]
+
+    def begin(self, deadline: int, start: int, cpu: int) -> None:
+        row = self._row = self.rows[self.ticks % self.n]
+        row[0], row[1], row[2] = deadline, start, cpu
+        self.ticks += 1
+
+    def work_done(self, now: int, cpu: int) -> None:
+        row = self._row
+        row[3], row[4], row[5], row[6] = now, cpu, 0, now
+
+    def slept(self, nap: int, woke: int) -> None:
+        row = self._row
+        row[5], row[6] = nap, woke
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The recorded ticks in order, oldest first, one array per field."""
+        k = min(self.ticks, self.n)
+        first = self.ticks % self.n if self.ticks > self.n else 0
+        ordered = np.roll(self.rows, -first, axis=0)[:k]
+        return {name: ordered[:, i].copy() for i, name in enumerate(TRACE_FIELDS)}
+
+
+#: the fields of a :class:`TickTrace` row, ns
+TRACE_FIELDS = ("deadline", "start", "cpu_start", "work_end", "cpu_end", "nap", "woke")
+
+#: the causes :func:`explain_trace` gives a lost slot
+LOST_CAUSES = ("step", "preempted_in_step", "idle_share", "late_wake_up", "preempted_in_spin")
+
+
+def explain_trace(trace: TickTrace, period_ns: int) -> dict:
+    """Where a run's lost slots and long gaps come from, from its :class:`TickTrace`.
+
+    A tick :math:`j` *overruns* when its work ends after :math:`d_j + T` (its deadline plus one
+    period); with the whole periods it also covered (skipped) those are the lost slots, each
+    given one cause (:data:`LOST_CAUSES`):
+
+    - its work took more than a period: ``step`` when the thread was on the CPU at least half of
+      that time, else ``preempted_in_step`` (another thread or process ran);
+    - it started late (the work itself fitted): ``idle_share`` when the previous wait's sleep was
+      asked to end after the deadline (the real-time idle share), ``late_wake_up`` when the
+      sleep was asked to end before it but the thread woke after it, else
+      ``preempted_in_spin``;
+    - it started late because the tick before it ended after its deadline: that tick's cause.
+
+    The same causes are given to each gap between two tick starts longer than ``gap_ns``
+    (1 ms), by the part of the gap that is longest. Returns the counts and the distributions
+    (us): work, its CPU share, lateness of the starts, and oversleep (woke minus asked).
+    """
+    c = trace.columns()
+    dl, start, work_end = c["deadline"], c["start"], c["work_end"]
+    work = work_end - start
+    cpu = c["cpu_end"] - c["cpu_start"]
+    nap, woke = c["nap"], c["woke"]
+    asked_end = work_end + nap
+    oversleep = np.where(nap > 0, woke - asked_end, 0)
+    n = dl.size
+    lost = {name: 0 for name in LOST_CAUSES}
+    gaps = {name: 0 for name in LOST_CAUSES}
+    if n < 2:
+        return {"ticks": int(n), "lost": lost, "gaps_over_1ms": gaps}
+    late = start - dl
+
+    def cause(j: int) -> str:
+        """Why tick j ran past its slot (j >= 1: the wait before it is in the trace); a tick that
+        started late because the one before it ended after its deadline has that one's cause."""
+        while j >= 2 and work[j] <= period_ns and work_end[j - 1] >= dl[j]:
+            j -= 1
+        if work[j] > period_ns:
+            return "step" if cpu[j] >= 0.5 * work[j] else "preempted_in_step"
+        i = j - 1
+        if nap[i] > 0 and asked_end[i] > dl[j]:
+            return "idle_share"
+        if nap[i] > 0 and woke[i] > dl[j]:
+            return "late_wake_up"
+        return "preempted_in_spin"
+
+    overran = np.flatnonzero(work_end[:-1] > dl[:-1] + period_ns)
+    for j in overran:
+        skipped = max(0, int((dl[j + 1] - dl[j]) // period_ns) - 1)
+        if j >= 1:
+            lost[cause(int(j))] += 1 + skipped
+    gap = np.diff(start)
+    for k in np.flatnonzero(gap > 1_000_000) + 1:  # tick k started > 1 ms after tick k-1
+        i = k - 1
+        if work[i] >= gap[k - 1] / 2:
+            gaps["step" if cpu[i] >= 0.5 * work[i] else "preempted_in_step"] += 1
+        elif nap[i] > 0 and asked_end[i] > dl[k]:
+            gaps["idle_share"] += 1
+        elif nap[i] > 0 and oversleep[i] >= gap[k - 1] / 2:
+            gaps["late_wake_up"] += 1
+        else:
+            gaps["preempted_in_spin"] += 1
+
+    def q(x) -> dict:
+        x = np.asarray(x, dtype=float) * 1e-3
+        return {"median_us": float(np.median(x)), "p99_us": float(np.percentile(x, 99)),
+                "p999_us": float(np.percentile(x, 99.9)), "max_us": float(x.max())}
+
+    slept = nap > 0
+    return {"ticks": int(n), "overruns": int(overran.size), "lost": lost, "gaps_over_1ms": gaps,
+            "work": q(work), "work_cpu_share_p1": float(np.percentile(cpu / np.maximum(work, 1), 1)),
+            "start_late": q(late), "oversleep": q(oversleep[slept]) if slept.any() else None,
+            "slept_share_of_ticks": float(slept.mean())}
 
 
 @dataclass(frozen=True)
@@ -248,7 +468,8 @@ class TimingStats:
     ``SCHED_FIFO`` the kernel throttles a thread above 0.95); ``cpu_max`` the largest share of
     a second it spent on the CPU (what the kernel counts: it includes the sleeps' own system
     time; 0 in runs shorter than a second); ``cpu_share`` its CPU time over the run's duration
-    (after the run).
+    (after the run); ``margin_max`` the largest wake margin the pacer used (learned under
+    ``SCHED_FIFO``), ``forced_naps`` how often its CPU budget made it skip slots.
     """
 
     ticks: int
@@ -271,6 +492,8 @@ class TimingStats:
     awake_max: float = 0.0
     cpu_max: float = 0.0
     cpu_share: float = 0.0
+    margin_max: float = 0.0
+    forced_naps: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         return dict(self.__dict__)
@@ -419,9 +642,10 @@ class Scheduler:
     spin : float, s, optional
         Busy-wait margin before each deadline (default: 2e-4 s, at most three quarters of a
         period, under the ordinary policy; :data:`FIFO_SPIN`, at most a quarter of a period,
-        when the thread got ``SCHED_FIFO``: a real-time sleeper is woken on time, and a thread
-        that spins most of each period meets Linux's real-time throttling - 950 ms of every
-        second by default - and stops for ~50 ms each second). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
+        when the thread got ``SCHED_FIFO``, the least of a margin learned from the sleeps'
+        lateness up to the ordinary one, within the CPU budget: a thread on the CPU most of
+        each second meets Linux's real-time throttling - 950 ms of every second by default -
+        and stops for ~50 ms each second). A sleep here ends up to ~50-100 µs late, so at 10 kHz a half-period margin
         missed 0.17-0.35 % of the deadlines and a three-quarter one 0.03-0.09 % (``bench/haptic_loop.py``).
         Spinning a whole period is counter-productive on a shared machine: the OS scheduler then
         preempts the spinner for milliseconds (measured in ``bench/haptic_blocks.py``).
@@ -432,6 +656,9 @@ class Scheduler:
         collector off while the loop runs (default True): a full collection stops every thread
         for milliseconds, a missed deadline at 10 kHz. The tick allocates nothing that needs it
         (reference counting frees its temporaries); the collector is restored at the end.
+    trace : int
+        Keep the timeline of the last ``trace`` ticks (:class:`TickTrace`, :attr:`trace`; read it
+        with :func:`explain_trace`); 0 (default): none.
     priority : int
         Real-time priority of the loop thread, ``SCHED_FIFO`` 1-99 where the OS grants it
         (:data:`DEFAULT_REALTIME_PRIORITY`, 10, is what ``arsurf live`` asks for; keep it below
@@ -440,8 +667,8 @@ class Scheduler:
         :attr:`TimingStats.realtime_priority`. A real-time loop thread keeps the machine's
         other work from delaying a tick, but it also runs before this process's other threads
         on its core: a device whose driver answers from a thread of this process (the simulated
-        Haply's reader) then went unanswered for 0.4 s. It sleeps at least
-        :data:`FIFO_IDLE_SHARE` of its time (:meth:`pacer_for`). At 10 kHz over 60 s on the
+        Haply's reader) then went unanswered for 0.4 s. It keeps
+        :data:`FIFO_IDLE_SHARE` of its time off the CPU (:meth:`pacer_for`). At 10 kHz over 60 s on the
         2-core machine shared by eight jobs (load 11) it kept 9,944 ticks/s, 0.56 % of the
         slots skipped and a 7.1 ms longest gap; the ordinary policy 2,806 ticks/s
         (``bench/haptic_loop.py`` times both).
@@ -459,7 +686,7 @@ class Scheduler:
                  snapshot: Callable[[Any, Any, Any], Mapping[str, Any]] | None = None,
                  snapshot_rate: float = 240.0, on_stop: Callable[[], Any] | None = None,
                  spin: float | None = None, history: int = 65536, pause_gc: bool = True,
-                 priority: int = 0) -> None:
+                 priority: int = 0, trace: int = 0) -> None:
         if not callable(step):
             raise HapticsError(f"step must be a callable step(state, inputs, dt) (got {type(step).__name__})")
         for name, f in (("source", source), ("sink", sink), ("snapshot", snapshot), ("on_stop", on_stop)):
@@ -487,6 +714,10 @@ class Scheduler:
             raise HapticsError(f"history must be an integer >= 16 (got {history!r})")
         if not isinstance(priority, int) or isinstance(priority, bool) or not 0 <= priority <= 99:
             raise HapticsError(f"priority must be an integer in [0, 99] (got {priority!r}); 0: no real-time policy")
+        if not isinstance(trace, int) or isinstance(trace, bool) or trace < 0:
+            raise HapticsError(f"trace must be a number of ticks >= 0 (got {trace!r}); 0: no trace")
+        self._trace_n = trace
+        self.trace: TickTrace | None = None
         self.priority = priority
         self.realtime_priority = 0
         self.step, self.state = step, state
@@ -512,6 +743,7 @@ class Scheduler:
     def _reset_counters(self) -> None:
         self.ticks = 0
         self.pacer: Pacer | None = None
+        self.trace = TickTrace(self._trace_n) if self._trace_n else None
         self.cpu_ns = 0
         self.snapshots_published = 0
         self.snapshots_skipped = 0
@@ -630,17 +862,19 @@ class Scheduler:
                   sleep: Callable[[float], Any] = time.sleep,
                   cpu_clock: Callable[[], int] = time.thread_time_ns) -> Pacer:
         """The :class:`Pacer` the loop thread keeps time with, under ``SCHED_FIFO`` when
-        ``realtime``: a spin of :data:`FIFO_SPIN` (at most a quarter of a period; a given
-        ``spin`` is kept) and a sleep of at least :data:`FIFO_IDLE_SHARE` of its time; under
-        the ordinary policy the ``spin`` margin and no least sleep (an ordinary thread is not
-        throttled, and the time-sharing scheduler preempts it anyway)."""
-        spin, idle = self._spin_ns, 0.0
+        ``realtime``: a wake margin learned between :data:`FIFO_SPIN` (at most a quarter of a
+        period) and the ordinary policy's margin (a given ``spin`` is kept as is), and an idle
+        share of :data:`FIFO_IDLE_SHARE` on the thread's CPU clock; under the ordinary policy
+        the ``spin`` margin and no idle share (an ordinary thread is not throttled, and the
+        time-sharing scheduler preempts it anyway)."""
+        spin = spin_max = self._spin_ns
+        idle = 0.0
         if realtime:
             if not self._spin_given:
                 spin = int(min(FIFO_SPIN, 0.25 * self.dt) * 1e9)
             idle = FIFO_IDLE_SHARE
-        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, clock=clock, sleep=sleep,
-                     cpu_clock=cpu_clock)
+        return Pacer(self._period_ns, spin, idle, FIFO_IDLE_BURST_NS if realtime else 0, spin_max_ns=spin_max,
+                     clock=clock, sleep=sleep, cpu_clock=cpu_clock, trace=self.trace)
 
     def _run(self) -> None:
         _tight_timer_slack()
@@ -730,4 +964,6 @@ class Scheduler:
             awake_max=p.awake_share() if p else 0.0,
             cpu_max=p.cpu_max if p else 0.0,
             cpu_share=(self.cpu_ns * 1e-9 / duration) if duration > 0 and not self.is_running else 0.0,
+            margin_max=p.margin_max * 1e-9 if p else 0.0,
+            forced_naps=p.forced_naps if p else 0,
         )

@@ -192,3 +192,38 @@ def test_the_one_call_tick_is_the_checked_python_tick_bit_for_bit():
         dev.command_force(f)
     assert loop._fused is not None and twin._fused is None              # each took its own path
     assert loop.out[8:11].any()                                         # it touched
+
+
+def test_the_one_call_tick_takes_any_input_the_checked_tick_takes_bit_for_bit():
+    """The one-call tick's type tests send every input they do not pass to the checked tick:
+    numpy float stamps and clocks (passed as they are), a button word that is not one (flagged,
+    no press), measured signals on some ticks and not on the next (cleared), a sample of int64
+    arrays. Fed to a loop whose samples are strided views (the Python path throughout), the
+    outputs agree every tick, bit for bit, and the well-formed ticks ran in the compiled call."""
+    from arsurf.haptics.loop import L_SAFETY_FLAGS
+    from arsurf.status import BAD_BUTTONS
+
+    _, _, dev, loop = _setup(source="blended", noise=1e-8, seed=11)
+    twin = _setup(source="blended", noise=1e-8, seed=11)[3]
+    checked, step_checked = [], loop._step_checked
+    loop._step_checked = lambda *args: checked.append(args[0].timestamp) or step_checked(*args)
+    for k in range(1200):
+        st = dev.read_state()
+        p, v, t, now, buttons, signals = st.position.copy(), st.velocity.copy(), st.timestamp, st.timestamp, st.buttons, None
+        if k % 7 == 3:
+            t, now = np.float64(t), np.float64(now)
+        if k in (300, 301, 640):
+            buttons = -1 if k != 640 else 2 ** 64                       # not a button word
+        if 500 <= k < 520 or k == 800:
+            signals = (1e-4 * math.sin(k), -2e-5)                       # measured angles on these ticks
+        sample = DeviceState(p.astype(np.int64) if k == 900 else p, v, buttons, t)
+        f = loop.step(sample, now, signals)
+        ps, vs = np.empty(6)[::2], np.empty(6)[::2]
+        ps[:], vs[:] = p, v
+        twin.step(sample if k == 900 else DeviceState(ps, vs, buttons, t), now, signals)  # 900: both refuse it
+        assert np.array_equal(loop.out, twin.out, equal_nan=True), k
+        if k in (300, 640):
+            assert int(loop.out[L_SAFETY_FLAGS]) & BAD_BUTTONS
+        dev.command_force(f)
+    assert twin._fused is None and loop._fused is not None
+    assert len(checked) == 5                                            # the first tick, 300, 301, 640, 900

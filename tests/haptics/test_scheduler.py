@@ -230,10 +230,14 @@ class ScriptedTime:
     """A monotonic clock in ns that advances only when read (``read_ns`` per reading), by the
     work the test scripts, and by each sleep plus a wake-up ``latency_ns(k)``; it records every
     sleep. Its CPU clock counts all but the time asleep, and ``sleep_cpu_ns`` of each sleep (the
-    system call's own work)."""
+    system call's own work); with ``latency_on_cpu`` the wake-up latency is CPU time too (what
+    ``bench/haptic_loop.py --diagnose`` measured on a virtual machine: a sleep of n us took
+    n + 23-30 us of wall time, of which ~25 us on the thread's CPU clock)."""
 
-    def __init__(self, read_ns: int = 200, latency_ns=lambda k: 0, sleep_cpu_ns: int = 0):
+    def __init__(self, read_ns: int = 200, latency_ns=lambda k: 0, sleep_cpu_ns: int = 0,
+                 latency_on_cpu: bool = False):
         self.t, self.read_ns, self.latency_ns, self.sleep_cpu_ns = 1_000_000, read_ns, latency_ns, sleep_cpu_ns
+        self.latency_on_cpu = latency_on_cpu
         self.sleeps: list[int] = []
         self.idle = 0
 
@@ -249,7 +253,7 @@ class ScriptedTime:
         self.sleeps.append(ns)
         late = self.latency_ns(len(self.sleeps))
         self.t += ns + late
-        self.idle += max(0, ns - self.sleep_cpu_ns) + late
+        self.idle += max(0, ns - self.sleep_cpu_ns) + (0 if self.latency_on_cpu else late)
 
     def run(self, pacer, work_ns, ticks: int):
         """``ticks`` ticks whose work takes ``work_ns(k)``; the sleeps of each tick's wait."""
@@ -269,33 +273,98 @@ def _fifo_pacer(rate, clock):
                                                                  cpu_clock=clock.cpu)
 
 
+#: how late a sleeper is awake again: on bare metal 0-10 us, off the CPU, 3 us of system time per
+#: sleep; on the virtual machine the benches ran on 20-35 us, all of it on the thread's CPU clock
+MACHINES = {"bare": dict(lat=(0, 10_000), sleep_cpu_ns=3_000, latency_on_cpu=False),
+            "virtual": dict(lat=(20_000, 35_000), sleep_cpu_ns=0, latency_on_cpu=True)}
+
+
+def _machine(name, seed=7):
+    m = MACHINES[name]
+    lat = np.random.default_rng(seed).integers(*m["lat"], 200_000)
+    return ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]), sleep_cpu_ns=m["sleep_cpu_ns"],
+                        latency_on_cpu=m["latency_on_cpu"])
+
+
+@pytest.mark.parametrize("machine", sorted(MACHINES))
 @pytest.mark.parametrize("rate", [1000.0, 4000.0, 10000.0, 20000.0])
-@pytest.mark.parametrize("cost", [0.0, 0.2, 0.6, 0.95, 1.5, 4.0])
-def test_a_realtime_loop_sleeps_every_period_and_stays_under_the_kernels_budget(rate, cost):
-    """Under SCHED_FIFO the kernel stops a thread awake more than 950 ms of a second for the rest
-    of it (the ~50 ms without force the issue measured). Whatever the step costs (``cost``
-    periods, past the period too) and however late sleeps end, the real-time pacer spins at most
-    FIFO_SPIN before a deadline and sleeps at least 1/9 of the time it was awake
-    (FIFO_IDLE_SHARE 0.1) beyond a 10 ms burst, and so is awake at most 91 % of any second; a step that fits keeps every deadline, on the grid."""
-    from arsurf.haptics.scheduler import FIFO_IDLE_BURST_NS, FIFO_IDLE_SHARE, FIFO_SPIN
+@pytest.mark.parametrize("cost", [0.0, 0.2, 0.6, 0.7, 0.95, 1.5, 4.0])
+def test_a_realtime_loop_stays_under_the_kernels_budget_on_its_cpu_clock(rate, cost, machine):
+    """Under SCHED_FIFO the kernel stops a thread on the CPU more than 950 ms of a second for the
+    rest of it (the ~50 ms without force the issue measured). Whatever the step costs (``cost``
+    periods, past the period too), however late sleeps end and whatever a sleep costs in CPU
+    time, the real-time pacer is on the CPU at most 90 % of any span plus its 10 ms bucket (its
+    own CPU clock, what the kernel counts), never waits a gap longer than the step plus a forced
+    sleep (<= 0.5 ms) and two periods, and spins at most its largest margin; a step that fits
+    with its wake-ups keeps every deadline, on the grid. (Before the budget was kept on the CPU
+    clock, the "virtual" machine's sleeps put a thread whose step took 0.7-1.5 periods at 10 kHz
+    on the CPU 0.93-0.99 of a second.)"""
+    from arsurf.haptics.scheduler import BUDGET_STEP_NS, FIFO_IDLE_BURST_NS, FIFO_IDLE_SHARE, MAX_FORCED_NAP_NS
 
     period = round(1e9 / rate)
-    rng = np.random.default_rng(7)
-    lat = rng.integers(0, 10_000, 200_000)  # a real-time sleeper wakes 0-10 us late
-    clock = ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]), sleep_cpu_ns=3_000)
+    clock = _machine(machine)
     pacer = _fifo_pacer(rate, clock)
+    cpu0 = clock.cpu()
     ticks = int(2.5 * rate / max(cost, 1.0))  # 2.5 s of scripted time
-    per_tick = clock.run(pacer, lambda k: int(cost * period), ticks)
-    if cost <= 0.6:
-        assert all(per_tick)  # time was left: it slept after every tick
-    elapsed = clock.t - pacer.t0  # beyond the burst, it slept at least a tenth of the time
-    assert pacer.awake <= (1 - FIFO_IDLE_SHARE) * elapsed + FIFO_IDLE_BURST_NS
-    assert pacer.spin_max <= min(FIFO_SPIN, 0.25 / rate) * 1e9 + clock.read_ns
-    assert pacer.awake_max <= 1.0 - FIFO_IDLE_SHARE + FIFO_IDLE_BURST_NS * 1e-9 < 0.95
-    assert 0.0 < pacer.cpu_max < 0.95  # with 3 us of system time per sleep (what the kernel counts)
-    if cost <= 0.6:  # the step and the spin fit in the period, the wake-ups in the spin: no deadline missed
+    clock.run(pacer, lambda k: int(cost * period), ticks)
+    elapsed = clock.t - pacer.t0
+    assert clock.cpu() - cpu0 <= (1 - FIFO_IDLE_SHARE) * elapsed + FIFO_IDLE_BURST_NS + BUDGET_STEP_NS + period
+    assert 0.0 < pacer.cpu_max < 0.95
+    assert pacer.longest_gap <= max(cost, 1.0) * period + MAX_FORCED_NAP_NS + 2 * period
+    assert pacer.spin_max <= pacer.spin_cap + clock.read_ns and pacer.spin_cap <= 0.75 * period
+    lat_max = MACHINES[machine]["lat"][1]
+    if cost * period + 2 * lat_max + FIFO_IDLE_SHARE * period <= period:  # the step, a sleep, its wake-up fit
         assert pacer.overruns == pacer.skipped == 0
         assert pacer.longest_gap <= period + 10 * clock.read_ns
+
+
+def test_the_realtime_wake_margin_is_learned():
+    """A sleeper woken 40-60 us late (a busy virtual machine) at 10 kHz, a step of 30 us: the
+    pacer learns the lateness and wakes early enough, every tick starts on its deadline; with the
+    margin fixed at 30 us (the pacer before) most ticks started 10-30 us late."""
+    from arsurf.haptics.scheduler import Pacer
+
+    lat = np.random.default_rng(3).integers(40_000, 60_000, 200_000)
+    for learned in (True, False):
+        clock = ScriptedTime(latency_ns=lambda k: int(lat[k % lat.size]))
+        pacer = (_fifo_pacer(10000.0, clock) if learned else
+                 Pacer(100_000, 30_000, 0.1, 10_000_000, clock=clock.clock, sleep=clock.sleep, cpu_clock=clock.cpu))
+        t0 = pacer.start()
+        starts = []
+
+        def work(k):
+            starts.append(clock.t)
+            return 30_000
+
+        clock.run(pacer, work, 20_000)
+        late = (np.asarray(starts[1:]) - t0) % 100_000
+        if learned:
+            assert pacer.overruns == pacer.skipped == 0
+            assert late.max() <= 1_000  # on the grid
+            assert 55_000 <= pacer.margin() <= 75_000  # the largest lateness seen, at most 3/4 of the period
+        else:
+            assert np.mean(late > 5_000) > 0.5
+
+
+def test_an_empty_budget_skips_whole_slots_and_keeps_the_grid():
+    """A step of 0.8 period at 10 kHz on the virtual machine (a sleep costs ~25 us of CPU): the
+    idle share cannot be slept within the periods, so the pacer skips whole slots, a few in a
+    row at most, and the ticks in between are on time: ~1 slot in 8 lost (the budget's price),
+    not every tick late by a few microseconds."""
+    clock = _machine("virtual")
+    pacer = _fifo_pacer(10000.0, clock)
+    starts = []
+
+    def work(k):
+        starts.append(clock.t)
+        return 80_000
+
+    clock.run(pacer, work, 25_000)
+    assert pacer.forced_naps > 0 and pacer.overruns < 0.01 * 25_000
+    assert pacer.skipped < 0.15 * 25_000
+    late = (np.asarray(starts) - pacer.t0) % 100_000  # how far past its slot each tick started
+    assert np.percentile(late, 90) < 10_000  # on the grid
+    assert pacer.longest_gap <= 400_000
 
 
 def test_a_spinning_wait_is_what_meets_the_throttling():
@@ -394,3 +463,39 @@ def test_no_default_sched_fifo_when_the_kernel_does_not_throttle_it(monkeypatch,
     assert sched.choose_realtime(30).priority == 30
     knob.write_text("950000\n")
     assert sched.choose_realtime().priority == sched.DEFAULT_REALTIME_PRIORITY
+
+
+def test_the_trace_gives_each_lost_slot_its_cause():
+    """A scripted 10 kHz run with one step of 3.5 periods (on the CPU) and one sleep that ends
+    400 us late: the trace's explanation gives the step's overrun and the 2 slots it covered to
+    the step, and to the wake-up its overrun, its 2 slots and the overrun of the next tick (it
+    started at once, 90 us into its slot); nothing else is lost, no gap reaches 1 ms."""
+    from arsurf.haptics.scheduler import Pacer, TickTrace, explain_trace
+
+    def latency(k):
+        return 400_000 if k == 1000 else 5_000
+
+    clock = ScriptedTime(latency_ns=latency)
+    trace = TickTrace(5000)
+    pacer = Pacer(100_000, 30_000, clock=clock.clock, sleep=clock.sleep, cpu_clock=clock.cpu, trace=trace)
+    clock.run(pacer, lambda k: 350_000 if k == 2000 else 20_000, 3000)
+    e = explain_trace(trace, 100_000)
+    assert e["ticks"] == 3000
+    assert e["lost"]["step"] == 1 + 2 and e["lost"]["late_wake_up"] == 1 + 2 + 1
+    assert sum(e["lost"].values()) == pacer.overruns + pacer.skipped == 7
+    assert e["gaps_over_1ms"] == dict.fromkeys(e["gaps_over_1ms"], 0)  # both gaps are under 1 ms
+    assert e["work"]["max_us"] == pytest.approx(350.2, abs=1.0)
+    assert e["oversleep"]["max_us"] == pytest.approx(400.2, abs=1.0)
+
+
+def test_the_budget_skips_no_slot_while_it_holds_credit():
+    """A real-time pacer whose budget holds credit never skips a slot for it: a tick of 0.9
+    period after light ones, with a 50 us margin, simply spins to its deadline (a version that
+    compared a positive credit with the time left forced a skip here, spurious)."""
+    from arsurf.haptics.scheduler import Pacer
+
+    clock = ScriptedTime(latency_ns=lambda k: 5_000)
+    pacer = Pacer(100_000, 50_000, 0.1, 20_000, clock=clock.clock, sleep=clock.sleep, cpu_clock=clock.cpu)
+    clock.run(pacer, lambda k: 90_000 if k % 50 == 49 else 20_000, 2_000)
+    assert pacer._credit > 0.0
+    assert pacer.forced_naps == pacer.skipped == pacer.overruns == 0
