@@ -70,17 +70,12 @@ c the closest contact's Dugdale-zone radius at its depth under the tip (the law'
 :math:`c(a, \delta_1 - \ell)` at the lift :math:`\ell` of the previous tick): 0 while each point
 lies inside the other's zone (:math:`s_i \le c`: one contact, exactly the single contact's load
 and depth), 1 once the two zones are apart (:math:`s_i \ge 2c`: two contacts), linear between so
-the force stays continuous as the separation changes. Inside one zone the closest point may
-still hop between two minima as their depths cross; taking the closest one alone, the force
-would turn in one tick by the angle between their normals (on the JPK scan, two minima 2.3 nm
-apart under a 6.5 nm contact: a 0.9 mN lateral step, 1 reversal in a 10 nm/s slide). The pair
-inside one zone therefore shares one contact's load by depth, :math:`h_i = \tfrac12\max(1 -
-(\delta_1 - \delta_i)/m_h, 0)` to contact i and :math:`1 - h_i` to the closest point,
-:math:`m_h = m/10` (:data:`SHARE_RAMP`): all on the closest point once the other is :math:`m_h`
-shallower (exactly the single contact: on sample_0.spm the other minima are 0.1-0.24 nm
-shallower), half each at equal depths, so the hop swaps two equal rows. Contact i counts with
-:math:`o_i\,\varphi(b_i, b_i') + (1 - o_i)\,h_i`, the closest point with
-:math:`\prod_i (o_i\,\varphi(b_i', b_i) + (1 - o_i)(1 - h_i))`.
+the force stays continuous as the separation changes: contact i counts with
+:math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+:math:`\prod_i (o_i\,\varphi(b_i', b_i) + 1 - o_i)`. Inside one zone the closest point may still
+hop between two minima; the force then turns by the angle between their normals, at most about
+:math:`c/R` (the single contact's behaviour there: the contact's centre moving within its own
+zone), never a step of the load.
 
 **Entry at the edge.** A contact also enters and leaves the table through its depth: an
 asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
@@ -169,10 +164,6 @@ PROBES = 8
 PROBE_REACH = 0.6
 #: points sampled on the (u, v) segment between a contact and the closest point for its barrier
 PATH_SAMPLES = 8
-#: inside one contact zone the load moves between two minima as their depths differ by 0 to this
-#: fraction of the margin m (:func:`weigh_contacts_kernel`): narrow, so a minimum 0.1 nm shallower
-#: adds nothing (the zone's load is the deepest point's), wide enough that a hop at 10 nm/s takes ~10 ticks
-SHARE_RAMP = 0.1
 #: Newton iterations of the coupled lift (:func:`coupled_lift_kernel`; bisection bounds it anyway)
 _MAX_LIFT_ITER = 60
 
@@ -345,9 +336,8 @@ def merge_factor(separation, zone):
 def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, tab, at, count):
     r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
     centre (cx, cy, cz) (module docstring): contact i > 0 counts with
-    :math:`o_i\,\varphi(b_i, b_i') + (1 - o_i)\,h_i`, the closest point with
-    :math:`\prod_{i>0} (o_i\,\varphi(b_i', b_i) + (1 - o_i)(1 - h_i))`,
-    :math:`h_i = \tfrac12 \max(1 - (\delta_1 - \delta_i)/(m/10), 0)` (:data:`SHARE_RAMP`), :math:`o_i` the
+    :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+    :math:`\prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
     :func:`merge_factor` of its distance from the closest point against ``zone`` (m, the closest
     contact's Dugdale-zone radius c at its depth under the tip). ``margin`` m, ``ev`` (>= 1, 3) scratch."""
     r0 = _row(at, 0)
@@ -361,9 +351,8 @@ def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, ta
         s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
         o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
                                    + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
-        share = 0.5 * max(1.0 - (di - d1) / (SHARE_RAMP * margin), 0.0)  # in one zone: 1/2 each at equal depths
-        tab[r + C_WEIGHT] = o * pair_weight(s - di, s - d1, margin) + (1.0 - o) * share
-        w0 *= o * pair_weight(s - d1, s - di, margin) + (1.0 - o) * (1.0 - share)
+        tab[r + C_WEIGHT] = o * pair_weight(s - di, s - d1, margin)
+        w0 *= o * pair_weight(s - d1, s - di, margin) + 1.0 - o
     tab[r0 + C_WEIGHT] = w0
 
 
