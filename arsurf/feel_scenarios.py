@@ -46,7 +46,7 @@ from arsurf.haptics.feel import FeelScore, score_force
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 
-__all__ = ["FAMILIES", "MOTIONS", "RATE_CUTOFF", "clearance_height", "RATE_TOLERANCE", "REST_TOLERANCE", "SOURCES", "FeelRun", "GeneratedSurface", "energy_ok",
+__all__ = ["FAMILIES", "MOTIONS", "RATE_CUTOFF", "RATE_FLOOR", "clearance_height", "RATE_TOLERANCE", "REST_TOLERANCE", "SOURCES", "FeelRun", "GeneratedSurface", "energy_ok",
            "generated_surfaces", "judge_run", "plan_runs", "prepared_surface", "rate_convergence", "rate_difference",
            "run_scenario",
            "synthetic_surface"]
@@ -68,7 +68,8 @@ class FeelRun:
     (n,) bool, passivity-controller ticks, the per-tick compute time (n,) ns, the loop's
     steady-state transparency (|device force| / (K_f |tip force|) over the last 0.2 s) and the tip
     centre (n, 3) m and the force on the probe (n, 3) N of every tick; ``energy_reserve`` J the
-    passive store E0 of the loop's passivity controller."""
+    passive store E0 of the loop's passivity controller; ``probe`` (n, 3) m the probe (the scaled
+    stylus, before the virtual coupling) of every tick."""
 
     score: FeelScore
     force: np.ndarray
@@ -80,6 +81,7 @@ class FeelRun:
     tip: np.ndarray
     probe_force: np.ndarray
     energy_reserve: float = 0.0
+    probe: np.ndarray | None = None
 
 
 def prepared_surface(path, preset: str = "demo"):
@@ -179,7 +181,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                  signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None,
                  filter_cutoff: float | None | str = "preset", tip_radius: float | None = None,
                  coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf,
-                 after_tick=None) -> FeelRun:
+                 force_gain: float | None = None, after_tick=None) -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
@@ -190,11 +192,14 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     gets at that loop rate (:func:`arsurf.haptics.gains.coupling_stiffness`) instead of at ``rate``
     (the rate convergence compares two rates through one coupling); ``heading`` rad from x: the
     direction of slides, strokes and circles; ``room`` m: a slide turns back this far from where
-    it started (a fast slide on a small scan); ``after_tick(tip)``: called after each tick, outside
-    its timing, with the tick's tip centre (3,) m (a benchmark times a peer's query there, under
-    the conditions the tick runs in). The surface is restored to rest afterwards."""
+    it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
+    preset's); ``after_tick(tip)``: called after each tick, outside its timing, with the tick's tip
+    centre (3,) m (a benchmark times a peer's query there, under the conditions the tick runs in).
+    The surface is restored to rest afterwards."""
     p = _preset(preset)
     h = dict(p.haptics)
+    if force_gain is not None:
+        h["force_gain"] = float(force_gain)
     scale, gain = float(h["scale"]), float(h["force_gain"])
     dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(_trajectory(motion, scale, heading, room))).open()
     radius = p.tip_radius if tip_radius is None else float(tip_radius)
@@ -224,6 +229,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     contact = np.empty(n, bool)
     tip_force = np.empty((n, 3))
     tip = np.empty((n, 3))
+    probe = np.empty((n, 3))
     tick_ns = np.empty(n)
     pc = 0
     clock = time.perf_counter_ns
@@ -244,6 +250,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
             contact[k] = model.out[M_IN_CONTACT] > 0.5
             tip_force[k] = get(out, "probe_force")
             tip[k] = get(out, "tip")
+            probe[k] = get(out, "probe")
             if after_tick is not None:
                 after_tick(tip[k])
     finally:
@@ -254,7 +261,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     transparency = float(np.linalg.norm(force[tail].mean(axis=0)) / scaled) if scaled > 0 else math.nan
     score = score_force(force, 1.0 / rate, energy=energy, contact=contact, energy_reserve=loop.passivity.reserve)
     return FeelRun(score, force, energy, contact, int(pc), tick_ns, transparency, tip, tip_force,
-                   float(loop.passivity.reserve))
+                   float(loop.passivity.reserve), probe)
 
 
 #: the generated surface families (issue 27 §3): random rough surfaces of a Gaussian or power-law
@@ -331,25 +338,29 @@ def generated_surfaces(count: int, seed: int = 0, families=FAMILIES) -> list[Gen
 
 
 #: rate convergence (issue 27 §3): a faster motion's force at 1 kHz must match the same motion at
-#: 10 kHz (same virtual coupling), the 10 kHz one low-passed (zero phase) at :data:`RATE_CUTOFF`,
-#: compared at the 1 kHz ticks, within this rms fraction of its rms (:func:`rate_convergence`).
-#: Why 5 %: with one coupling a correct loop differs between the rates by the zero-order hold's
-#: half-tick delay inside the hand-device loop, about 2 pi f T/2 of the force's varying part at
-#: its frequency f: well below 1 % for slides and circles, whose force mostly holds (measured
-#: 0.01-1.3 %), but 2-2.5 % for a tap, whose whole force rises and falls at ~5-15 Hz (measured
-#: 1.9-2.4 %); 5 % is twice that, and a tick-to-tick zig-zag the 1 kHz loop adds counts in full
-#: (:func:`rate_difference`), so a loop artefact of more than 5 % of the force fails. With each
-#: rate's own coupling (k_vc = 2b/T: 67 vs 667 N/m) the same motion differed by 20-26 %: a
-#: different spring between hand and tip, not a sampling error, so the 10 kHz run takes the 1 kHz
-#: run's coupling
+#: 10 kHz (same virtual coupling), read where the 1 kHz loop sampled the surface, within this rms
+#: fraction of its rms (:func:`rate_convergence`, :func:`rate_difference`). Why 5 %: with one
+#: coupling and the hold's lag along the path matched out, a correct loop differs between the rates
+#: by the hold's effect inside the hand-device loop, about 2 pi f T/2 of the force's varying part at
+#: its frequency f: 0.01-1.3 % for slides and circles, whose force mostly holds, 2.1-2.2 % for taps,
+#: whose whole force rises and falls at ~5-15 Hz; 5 % is twice that, and whatever the 1 kHz loop
+#: adds (a zig-zag, a limit cycle) counts in full, so a loop artefact of more than 5 % of the force
+#: fails. With each rate's own coupling (k_vc = 2b/T: 67 vs 667 N/m) the same motion differed by
+#: 20-26 %: a different spring between hand and tip, not a sampling error, so the 10 kHz run takes
+#: the 1 kHz run's coupling
 RATE_TOLERANCE = 0.05
 #: steady state at rest (issue 27 §3): the device force within this fraction of K_f F (the probe
 #: force scaled), averaged over the last 0.2 s of a press
 REST_TOLERANCE = 0.01
 #: s after a contact is made or broken that the rate comparison leaves out (:func:`rate_difference`)
 ONSET_WINDOW = 0.005
-#: Hz, where the rate comparison low-passes the 10 kHz record: below the 1 kHz loop's Nyquist frequency
+#: Hz, where the earlier rate comparison low-passed the 10 kHz record (``low_passed_error`` of
+#: :func:`rate_difference`, reported beside the criterion): below the 1 kHz loop's Nyquist frequency
 RATE_CUTOFF = 450.0
+#: the rate comparison's force scale is at least this fraction of the peak force (the reversal
+#: count's threshold, :data:`arsurf.haptics.feel.REVERSAL_FRACTION`): a tip in flight is not compared
+#: as if its noise were a force
+RATE_FLOOR = 0.01
 
 
 def energy_ok(run: FeelRun) -> bool:
@@ -369,15 +380,47 @@ def _low_passed_at_ticks(force, rate: float, cutoff: float, step: int) -> np.nda
     return sosfiltfilt(butter(4, cutoff, fs=rate, output="sos"), force, axis=0)[::step]
 
 
-def rate_difference(slow, fast, cutoff: float = RATE_CUTOFF, settle: float = 1.0, contact=None) -> tuple[float, float]:
+def _at_matched_instants(force, probe, slow_probe, step: int) -> np.ndarray:
+    r"""``force`` (m, 3) of the fast record read where its probe ``probe`` (m, 3) m passes the slow
+    record's probe ``slow_probe`` (n, 3) m, near every ``step``-th tick: the fast tick index
+    :math:`j = k\,\mathrm{step} + s_k`, :math:`s_k = (p^{slow}_k - p^{fast}_{k\,\mathrm{step}})\cdot v / v\cdot v`
+    (:math:`v` the fast probe's move per tick there, central difference), clipped to one slow tick
+    either way (and 0 where the probe holds still), the force interpolated linearly at ``j``."""
+    n = slow_probe.shape[0]
+    at = np.arange(n) * step
+    nxt, prv = np.minimum(at + 1, force.shape[0] - 1), np.maximum(at - 1, 0)
+    v = 0.5 * (probe[nxt] - probe[prv])
+    vv = np.sum(v * v, axis=1)
+    moving = vv > 0.0
+    shift = np.zeros(n)
+    shift[moving] = np.sum((slow_probe[moving] - probe[at[moving]]) * v[moving], axis=1) / vv[moving]
+    j = np.clip(at + np.clip(shift, -step, step), 0, force.shape[0] - 1)
+    i0 = np.minimum(np.floor(j).astype(int), force.shape[0] - 2)
+    w = (j - i0)[:, None]
+    return (1.0 - w) * force[i0] + w * force[i0 + 1]
+
+
+def rate_difference(slow, fast, settle: float = 1.0, contact=None, probe=None,
+                    cutoff: float = RATE_CUTOFF) -> tuple[float, float]:
     r"""How far a 1 kHz force record ``slow`` (n, 3) N is from the 10 kHz record ``fast`` (10 n, 3)
-    of the same motion, after ``settle`` s: ``(rate_error, tick_mean_error)``, each an rms
-    difference over the rms of the 10 kHz force. ``rate_error`` compares at the 1 kHz ticks the
-    force each loop computed from the handle at that instant, the 10 kHz record low-passed with
-    zero phase at ``cutoff`` Hz (what a 1 kHz record can carry, below its 500 Hz Nyquist
-    frequency) and the 1 kHz record as it is (a zig-zag the 1 kHz loop adds counts in full);
-    ``tick_mean_error`` the 10 kHz force averaged over each 1 ms tick against the 1 kHz force
-    held over it (this one also counts the hold's half-tick delay, 2 pi f T/2 of a part at f).
+    of the same motion, after ``settle`` s: ``(rate_error, low_passed_error)``, each an rms
+    difference over a force scale: the rms of the 10 kHz force there, but at least
+    :data:`RATE_FLOOR` of its peak (where the tip is in flight the force is the free lever's
+    reading, noise drawn anew at each rate: below the 1 % of the peak the reversal count already
+    calls unfelt, it is not compared as if it were a force).
+
+    ``rate_error`` (the criterion): the 1 kHz record as it is against the 10 kHz record *sampled
+    where the 1 kHz loop sampled the surface*: at the 1 kHz ticks, each read at the instant its
+    probe (the scaled stylus, ``probe``: the two records' (n, 3) and (10 n, 3) m) passes the 1 kHz
+    probe there (:func:`_at_matched_instants`; without ``probe``, at the same instants). A fast
+    slide samples the texture at the loop rate: what lies above 500 Hz folds into the 1 kHz record,
+    and the same samples of the 10 kHz record fold it the same way, so texture compares equal
+    however fine; the hold's lag (the 1 kHz probe half a tick behind) is a shift along the path,
+    taken out by the matching. What the 1 kHz loop adds - a zig-zag, a limit cycle, a coupling
+    too stiff for its rate - is not in the 10 kHz record and counts in full.
+    ``low_passed_error``: the earlier metric, for comparison: the 10 kHz record low-passed with zero
+    phase at ``cutoff`` Hz against the 1 kHz one at the same instants; it fails a fine texture by
+    construction (what the 1 kHz record folds down, the filter removes from the reference).
     ``contact``: the two records' contact flags ((n,) and (10 n,) bool): the ticks within
     :data:`ONSET_WINDOW` after a contact is made or broken in either are left out (a 1 kHz loop
     makes contact up to a tick later: a tap's snap-in, timed, not a texture; its energy is judged).
@@ -387,7 +430,7 @@ def rate_difference(slow, fast, cutoff: float = RATE_CUTOFF, settle: float = 1.0
     >>> t = np.arange(20000) * 1e-4                                   # 2 s at 10 kHz
     >>> f = np.column_stack([2e-3 * np.sin(2 * np.pi * 20 * t), 0 * t, 0.02 + 0 * t])  # 20 Hz texture
     >>> [round(e, 4) for e in rate_difference(f[::10], f)]            # sampled at 1 kHz: the same force
-    [0.0, 0.004]
+    [0.0, 0.0]
     >>> buzz = f[::10].copy(); buzz[:, 0] += 4e-4 * (-1.0) ** np.arange(2000)  # + a 500 Hz zig-zag, 2 %
     >>> round(rate_difference(buzz, f)[0], 3)
     0.02
@@ -400,45 +443,45 @@ def rate_difference(slow, fast, cutoff: float = RATE_CUTOFF, settle: float = 1.0
         change = np.r_[False, c1[1:] != c1[:-1]] | np.r_[False, c10[1:] != c10[:-1]].reshape(n, 10).any(axis=1)
         after = np.convolve(change.astype(float), np.ones(int(round(ONSET_WINDOW * 1000.0))))[:n]
         w &= after == 0.0
-    ref = _low_passed_at_ticks(fast[:10 * n], 10000.0, cutoff, 10)
+    fast = fast[:10 * n]
+    matched = fast[::10] if probe is None else _at_matched_instants(fast, np.asarray(probe[1])[:10 * n],
+                                                                      np.asarray(probe[0])[:n], 10)
+    peak = float(np.max(np.linalg.norm(fast, axis=1), initial=0.0))
 
     def relative(f, r):
-        scale = float(np.sqrt(np.mean(np.sum(r[w] ** 2, axis=1))))
+        scale = max(float(np.sqrt(np.mean(np.sum(r[w] ** 2, axis=1)))) if w.any() else 0.0, RATE_FLOOR * peak)
         return float(np.sqrt(np.mean(np.sum((f[w] - r[w]) ** 2, axis=1)))) / scale if scale > 0 else 0.0
 
-    return relative(slow[:n], ref), relative(slow[:n], fast[:10 * n].reshape(n, 10, 3).mean(axis=1))
+    return relative(slow[:n], matched), relative(slow[:n], _low_passed_at_ticks(fast, 10000.0, cutoff, 10))
 
 
 def rate_convergence(surface, motion: str, source: str = "simulated", seconds: float = 2.0, tip_radius=None,
-                     seed: int = 7, heading: float = 0.0, room: float = math.inf, cutoff: float = RATE_CUTOFF,
-                     **options) -> dict:
+                     seed: int = 7, heading: float = 0.0, room: float = math.inf, coupling_rate: float = 1000.0,
+                     records: bool = False, **options) -> dict:
     r"""Texture is not buzz: what the surface gives stays when the loop rate goes from 1 to 10 kHz,
     what the loop adds does not. Runs ``motion`` at 1 kHz (the default loop) and at 10 kHz with the
-    same virtual coupling (the one the device gets at 1 kHz: the coupling is the loop's choice
-    for its rate, :func:`arsurf.haptics.gains.coupling_stiffness`, and a stiffer one is a
-    different spring between hand and tip, not a finer sampling of the same loop).
-
-    ``rate_error``: the rms of :math:`\tilde F_{1k}(t_k) - \tilde F_{10k}(t_k)` over the rms of
-    :math:`\tilde F_{10k}(t_k)` after 1 s, :math:`\tilde F` each record low-passed with zero
-    phase at ``cutoff`` Hz and :math:`t_k` the 1 kHz ticks (the force each loop computed from the
-    handle at the same instant; the 10 kHz record without its content above what 1 kHz can
-    carry). ``tick_mean_error``: the same with the 10 kHz force averaged over each 1 ms tick
-    against the 1 kHz force held over it, unfiltered (the held force lags by half a tick, so
-    this one also counts the zero-order hold's delay). Also whether both runs kept the observed
-    energy >= -E0 (``energy_ok``) and ``ok`` (``rate_error`` <= :data:`RATE_TOLERANCE` and the energy).
-    ``options``: more :func:`run_scenario` settings for both runs (e.g. ``coupling=False``)."""
+    same virtual coupling (the one the device gets at ``coupling_rate``, 1 kHz: the coupling is the
+    loop's choice for its rate, :func:`arsurf.haptics.gains.coupling_stiffness`, and a stiffer one
+    is a different spring between hand and tip, not a finer sampling of the same loop) and
+    compares them by :func:`rate_difference`: ``rate_error`` (the 10 kHz record sampled where the
+    1 kHz loop sampled the surface) and ``low_passed_error`` (the earlier low-passed reference).
+    Also whether both runs kept the observed energy >= -E0 (``energy_ok``) and ``ok``
+    (``rate_error`` <= :data:`RATE_TOLERANCE` and the energy); ``records``: also the two
+    :class:`FeelRun` (``runs``). ``options``: more :func:`run_scenario` settings for both runs
+    (e.g. ``coupling=False``)."""
     kw = dict(motion=motion, source=source, seconds=seconds, tip_radius=tip_radius, seed=seed, heading=heading,
-              room=room, **options)
+              room=room, coupling_rate=coupling_rate, **options)
     slow = run_scenario(surface, rate=1000.0, **kw)
-    fast = run_scenario(surface, rate=10000.0, coupling_rate=1000.0, **kw)
-    err, mean = rate_difference(slow.force, fast.force, cutoff, contact=(slow.contact, fast.contact))
+    fast = run_scenario(surface, rate=10000.0, **kw)
+    err, low = rate_difference(slow.force, fast.force, contact=(slow.contact, fast.contact),
+                               probe=(slow.probe, fast.probe))
     energy = [energy_ok(r) for r in (slow, fast)]
     return {"motion": motion, "source": source, "heading_deg": math.degrees(heading), "rate_error": err,
-            "tick_mean_error": mean, "energy_ok": all(energy),
+            "low_passed_error": low, "energy_ok": all(energy),
             "min_energy_over_E0": [r.score.min_energy / r.energy_reserve if r.energy_reserve > 0 else math.nan
                                    for r in (slow, fast)],
             "min_energy_J": [slow.score.min_energy, fast.score.min_energy],
-            "ok": bool(err <= RATE_TOLERANCE and all(energy))}
+            "ok": bool(err <= RATE_TOLERANCE and all(energy)), **({"runs": (slow, fast)} if records else {})}
 
 
 #: the families' still or slow motions (a few pm per tick at most) and faster ones

@@ -25,21 +25,28 @@ device, coupling and passivity on) by :func:`arsurf.feel_scenarios.judge_run`:
   mean normal force on each axis after 1 s, no tick-to-tick reversal above 1 % of the peak,
   observed energy >= -E0, a press at rest within 1 % of K_f F;
 * a faster motion (slides at 100 and 1000 nm/s turning back at the scan's edge, circles, strokes,
-  taps): the same motion at 1 and 10 kHz through the same virtual coupling, the 10 kHz force
-  low-passed (zero phase) at 450 Hz, compared at the 1 kHz ticks (the 5 ms after a contact is
-  made or broken left out): rms difference <= 5 % of the rms force
-  (:data:`arsurf.feel_scenarios.RATE_TOLERANCE`), and energy >= -E0 at both rates.
+  taps): the same motion at 1 and 10 kHz through the same virtual coupling, the 10 kHz force read
+  where the 1 kHz loop sampled the surface (its probe matched along the path), compared at the
+  1 kHz ticks (the 5 ms after a contact is made or broken left out; the scale at least 1 % of the
+  peak force): rms difference <= 5 % (:data:`arsurf.feel_scenarios.RATE_TOLERANCE`), and energy
+  >= -E0 at both rates.
 
 The full table is ``--families 240 --runs 4 2`` (240 generated surfaces and the real scans, 1440
-runs on the generated ones, 25.8 M loop ticks); it prints its size and a time estimate (from a
-calibration run on this machine, now) first, ``--estimate`` only that.
+runs on the generated ones, 25.8 M loop ticks). ``--jobs 2`` judges in two processes, ``--out
+FILE`` appends each judged run to a JSON-lines file as it comes (units in the keys) and skips the
+runs already there (a stopped table resumes), ``--budget S`` starts no run after S seconds,
+``--summarize FILE`` prints the pass counts per family, motion, rate and source and the worst runs
+of each criterion. ``--estimate`` prints the size and the time (from the table's own pace when
+``--out`` has rows, else a calibration run).
 
-Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N [--runs 2 1] [--seed S] [--estimate]]
+Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N [--runs 2 1] [--seed S] [--estimate]
+     [--out rows.jsonl] [--jobs 2] [--budget 600]] [--summarize rows.jsonl]
 (prints JSON)
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -49,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.assembly import PRESETS
-from arsurf.feel_scenarios import (GENERATED_PIXELS, MOTIONS, RATE_CUTOFF, RATE_TOLERANCE, SOURCES,
+from arsurf.feel_scenarios import (GENERATED_PIXELS, MOTIONS, RATE_TOLERANCE, SOURCES, GeneratedSurface,
                                    generated_surfaces, judge_run, plan_runs, prepared_surface, run_scenario,
                                    synthetic_surface, ticks)
 
@@ -64,19 +71,41 @@ def line(r: dict) -> str:
     """One stderr line per judged run."""
     head = f"{r['surface']} {r['motion']} {r['heading_deg']:.0f}deg {r['source']}"
     if r["kind"] == "fast":
-        return (f"{head}: {'ok' if r['ok'] else 'FAIL'} rate error {100 * r['rate_error']:.2f} % (tick mean "
-                f"{100 * r['tick_mean_error']:.1f} %) E/E0 {min(r['min_energy_over_E0']):.2f}")
+        return (f"{head}: {'ok' if r['ok'] else 'FAIL'} rate error {100 * r['rate_error']:.2f} % (low-passed "
+                f"reference {100 * r['low_passed_error']:.1f} %) E/E0 {min(_num(x) for x in r['min_energy_over_E0']):.2f}")
     return (f"{head} {r['rate_hz'] / 1e3:.0f} kHz: {'ok' if r['ok'] else 'FAIL'} hf "
             f"{'/'.join(f'{100 * x:.2f}' for x in r['high_frequency_over_normal'])} % rev {sum(r['reversals'])} "
-            f"E/E0 {r['min_energy_over_E0']:.2f} rest {100 * r['rest_error']:.3f} %")
+            f"E/E0 {_num(r['min_energy_over_E0']):.2f} rest {100 * _num(r['rest_error']):.3f} %")
 
 
-def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
-             estimate_only: bool = False) -> dict:
-    """The generated table (``count`` surfaces, seeded) and every real scan the project opens, judged;
-    prints the time estimate (calibrated on a short run) before it starts."""
+def _num(x) -> float:
+    """A number of a row (None, as JSON lines hold NaN, back to NaN)."""
+    return math.nan if x is None else float(x)
+
+
+def _jsonable(v):
+    """A row's value for a JSON line: numpy scalars and arrays as Python numbers and lists, NaN as null."""
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.bool_, bool)):
+        return bool(v)
+    if isinstance(v, (np.integer, int)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return None if math.isnan(v) else float(v)
+    return v
+
+
+def plan_table(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1):
+    """(runs, unreadable): every planned run of the generated table (``count`` surfaces, seeded) and
+    of every real scan the project opens, each with its ``key`` (unique, stable: what a resumed run
+    skips), ``family`` (the generator's, or ``real``), ``tip_radius_m`` and how to make its surface
+    (``generated``: the generator's parameters, or ``scan``: the file's name)."""
     rng = np.random.default_rng(seed)
-    table = [(g.name, g.surface, g.tip_radius, GENERATED_PIXELS * g.pixel) for g in generated_surfaces(count, seed)]
+    table = [(g.name, g.family, {"generated": dataclasses.asdict(g)}, g.tip_radius, GENERATED_PIXELS * g.pixel)
+             for g in generated_surfaces(count, seed)]
     unreadable = {}
     if real:
         for path in sorted(p for p in SCANS.iterdir() if p.suffix != ".md") if SCANS.exists() else []:
@@ -86,42 +115,160 @@ def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_
                 unreadable[path.name] = f"{type(exc).__name__}: {exc}"[:200]
                 continue
             (u0, u1), (v0, v1) = s.domain
-            table.append((path.name, (lambda s=s: s), float(PRESETS["demo"].tip_radius), min(u1 - u0, v1 - v0)))
-    plan = [(make, tip, runs) for name, make, tip, side in table
-            for runs in [plan_runs(name, rng, tip, side, slow_runs, fast_runs)]]
-    total = sum(ticks(r) for _, _, runs in plan for r in runs)
-    per_tick = _tick_cost(table[0][1](), table[0][2]) if table else 0.0
-    estimate = {"surfaces": len(table), "generated_surfaces": count, "real_scans": len(table) - count,
-                "runs": sum(len(runs) for _, _, runs in plan), "loop_ticks": total,
-                "estimated_seconds": total * per_tick, "per_tick_us": per_tick * 1e6}
-    print(f"families: {estimate['surfaces']} surfaces, {estimate['runs']} runs, {total} ticks: about "
-          f"{estimate['estimated_seconds']:.0f} s at {per_tick * 1e6:.0f} us per tick (this machine, now)", file=sys.stderr)
+            table.append((path.name, "real", {"scan": path.name}, float(PRESETS["demo"].tip_radius),
+                          min(u1 - u0, v1 - v0)))
+    runs = []
+    for i, (name, family, make, tip, side) in enumerate(table):
+        for j, run in enumerate(plan_runs(name, rng, tip, side, slow_runs, fast_runs)):
+            runs.append({"key": f"{seed}:{i}:{j}:{name}", "family": family, "tip_radius_m": tip, **make, **run})
+    return runs, unreadable
+
+
+_SURFACES: dict = {}
+
+
+def _surface(run: dict):
+    """The surface of a planned run, fitted once per worker process (the last two kept)."""
+    key = run.get("scan") or run["surface"]
+    if key not in _SURFACES:
+        if len(_SURFACES) >= 2:
+            _SURFACES.pop(next(iter(_SURFACES)))
+        _SURFACES[key] = (prepared_surface(SCANS / run["scan"])[1] if "scan" in run
+                          else GeneratedSurface(**run["generated"]).surface())
+    return _SURFACES[key]
+
+
+def judge_planned(run: dict) -> dict:
+    """One planned run judged (:func:`arsurf.feel_scenarios.judge_run`), as a JSON-line row (units in
+    the names; ``wall_s`` its wall time)."""
+    import time
+
+    t0 = time.perf_counter()
+    keep = {k: v for k, v in run.items() if k not in ("generated", "scan")}
+    row = judge_run(keep, _surface(run), run["tip_radius_m"])
+    return _jsonable({**row, "wall_s": time.perf_counter() - t0})
+
+
+def read_rows(path) -> list[dict]:
+    """The rows of a JSON-lines table (a line cut short by a stopped run is skipped)."""
+    rows = []
+    if path and Path(path).exists():
+        for text in Path(path).read_text().splitlines():
+            try:
+                rows.append(json.loads(text))
+            except json.JSONDecodeError:
+                continue
+    return rows
+
+
+def summarize(rows: list[dict], worst: int = 8) -> dict:
+    """Pass counts (``"passed/runs"``) per family, motion, loop rate (a rate pair counts as
+    ``1+10 kHz``) and source, and the worst runs of each criterion."""
+    def count(key):  # "passed/runs" per group
+        out = {}
+        for r in rows:
+            c = out.setdefault(key(r), [0, 0])
+            c[0] += bool(r["ok"])
+            c[1] += 1
+        return {k: f"{a}/{b}" for k, (a, b) in sorted(out.items())}
+
+    slow = [r for r in rows if r["kind"] == "slow"]
+    fast = [r for r in rows if r["kind"] == "fast"]
+
+    def top(rs, measure):
+        return [line(r) for r in sorted(rs, key=measure, reverse=True)[:worst]]
+
+    return {"runs": len(rows), "pass": sum(bool(r["ok"]) for r in rows),
+            "surfaces": len({r["surface"] for r in rows}),
+            "by_family": count(lambda r: r["family"]), "by_motion": count(lambda r: r["motion"]),
+            "by_rate": count(lambda r: "1+10 kHz" if r["kind"] == "fast" else f"{r['rate_hz'] / 1e3:.0f} kHz"),
+            "by_source": count(lambda r: r["source"]),
+            "rate_tolerance": RATE_TOLERANCE,
+            "worst_rate_error": top(fast, lambda r: r["rate_error"]),
+            "worst_high_frequency": top(slow, lambda r: max(r["high_frequency_over_normal"])),
+            "most_reversals": top([r for r in slow if sum(r["reversals"])], lambda r: sum(r["reversals"])),
+            "lowest_energy": top([r for r in rows if not r["energy_ok"]],
+                                 lambda r: -min(_num(x) for x in np.atleast_1d(r["min_energy_over_E0"]))),
+            "worst_rest_error": top([r for r in slow if r["rest_error"] is not None], lambda r: r["rest_error"]),
+            "failed": [line(r) for r in rows if not r["ok"]]}
+
+
+def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
+             estimate_only: bool = False, out=None, jobs: int = 1, budget: float = math.inf) -> dict:
+    """The generated table (``count`` surfaces, seeded) and every real scan the project opens, judged
+    in ``jobs`` processes, each row appended to the JSON-lines file ``out`` as it is judged; the
+    runs already in ``out`` are skipped (a stopped table resumes where it was). No new run starts
+    after ``budget`` s of wall time (the runs under way are dropped, to be done on resuming).
+    Prints the size and a time estimate (calibrated on a short run, over ``jobs`` processes)
+    first; returns the summary of every row in ``out`` (:func:`summarize`) or of this run's."""
+    import time
+
+    runs, unreadable = plan_table(count, seed, real, slow_runs, fast_runs)
+    planned = {r["key"]: r for r in runs}
+    judged = [r for r in read_rows(out) if r.get("key") in planned]
+    done = {r["key"] for r in judged}
+    todo = [r for r in runs if r["key"] not in done]
+    total, left = sum(ticks(r) for r in runs), sum(ticks(r) for r in todo)
+    if judged:  # the table's own pace so far: wall time per tick of a run, set-up and fits included
+        per_tick = sum(r["wall_s"] for r in judged) / sum(ticks(planned[r["key"]]) for r in judged)
+    elif todo and estimate_only:  # a short calibration run on the table's first generated surface
+        g = generated_surfaces(1, seed)[0]
+        per_tick = _tick_cost(g.surface(), g.tip_radius)
+    else:
+        per_tick = 0.0
+    estimate = {"surfaces": len({r["surface"] for r in runs}), "generated_surfaces": count,
+                "real_scans": len({r["surface"] for r in runs if r["family"] == "real"}),
+                "runs": len(runs), "runs_done": len(runs) - len(todo), "loop_ticks": total, "loop_ticks_left": left,
+                "jobs": jobs, "per_tick_us": per_tick * 1e6, "estimated_seconds": left * per_tick / max(jobs, 1)}
+    if not per_tick:
+        print(f"families: {estimate['surfaces']} surfaces, {len(runs)} runs, {total} ticks (the time: --estimate, or"
+              f" a resumed --out)", file=sys.stderr)
+    else:
+        print(f"families: {estimate['surfaces']} surfaces, {len(runs)} runs ({len(runs) - len(todo)} done), {left} "
+              f"of {total} ticks left: about {estimate['estimated_seconds']:.0f} s in {jobs} process(es) at "
+              f"{per_tick * 1e6:.0f} us of wall time per tick and process "
+              f"({'the judged runs' if judged else 'a calibration run'} on this machine, now)", file=sys.stderr)
     if estimate_only:
         return {"estimate": estimate}
-    rows = []
-    for make, tip, runs in plan:
-        surface = make()
-        for run in runs:
-            rows.append(judge_run(run, surface, tip))
-            print(line(rows[-1]), file=sys.stderr)
-    failed = [r for r in rows if not r["ok"]]
-    fast = [r["rate_error"] for r in rows if r["kind"] == "fast"]
-    slow = [r for r in rows if r["kind"] == "slow"]
-    return {"summary": {**estimate, "seed": seed, "failed": len(failed),
-                        "failed_runs": [line(r) for r in failed],
-                        "rate_tolerance": RATE_TOLERANCE, "rate_cutoff_hz": RATE_CUTOFF,
-                        "worst_rate_error": max(fast, default=math.nan),
-                        "worst_tick_mean_error": max((r["tick_mean_error"] for r in rows if r["kind"] == "fast"),
-                                                     default=math.nan),
-                        "worst_high_frequency_over_normal": max((max(r["high_frequency_over_normal"]) for r in slow),
-                                                                default=math.nan),
-                        "most_reversals": max((sum(r["reversals"]) for r in slow), default=0),
-                        "lowest_energy_over_E0": min((min(np.atleast_1d(r["min_energy_over_E0"])) for r in rows),
-                                                     default=math.nan),
-                        "worst_rest_error": max((r["rest_error"] for r in slow if not math.isnan(r["rest_error"])),
-                                                default=math.nan),
-                        "unreadable": unreadable},
-            "rows": rows}
+    rows, t0, complete, pool = [], time.perf_counter(), False, None
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a stopped table still stops its workers (below)
+    sink = open(out, "a") if out else None  # noqa: SIM115 - closed below, appended to as rows come
+    if sink and sink.tell() > 0 and not Path(out).read_bytes().endswith(b"\n"):
+        sink.write("\n")  # a line cut short by a stopped run stays on its own line (skipped when read)
+    try:
+        if jobs > 1:
+            import multiprocessing
+
+            pool = multiprocessing.get_context("spawn").Pool(jobs)
+            results = pool.imap_unordered(judge_planned, todo, chunksize=1)  # streamed as judged
+        else:
+            pool, results = None, (judge_planned(r) for r in todo)
+        for row in results:
+            rows.append(row)
+            print(line(row), file=sys.stderr)
+            if sink:
+                sink.write(json.dumps(row) + "\n")
+                sink.flush()
+            if time.perf_counter() - t0 > budget:
+                print(f"families: stopped after {budget:.0f} s ({len(rows)} runs judged); run again to resume",
+                      file=sys.stderr)
+                break
+        else:
+            complete = True
+    finally:
+        if pool is not None:
+            if complete:
+                pool.close()  # every run done: the workers end on their own
+            else:
+                pool.terminate()  # stopped (budget, fault, interrupt): the runs under way are dropped
+            pool.join()
+        if sink:
+            sink.close()
+    table = [r for r in read_rows(out) if r.get("key") in planned] if out else rows
+    return {"summary": {**estimate, "seed": seed, "runs_judged_now": len(rows), "unreadable": unreadable,
+                        **summarize(table)}, "rows": rows}
 
 
 def _tick_cost(surface, tip_radius) -> float:
@@ -225,11 +372,27 @@ def main() -> None:
                     help="runs per surface of the families: still/slow motions, rate-convergence pairs")
     ap.add_argument("--estimate", action="store_true", help="with --families: only the table size and time estimate")
     ap.add_argument("--seed", type=int, default=0, help="seed of the generated families")
+    ap.add_argument("--out", metavar="JSONL", help="with --families: append each judged run here as a JSON line; "
+                    "the runs already in it are skipped (resume)")
+    ap.add_argument("--jobs", type=int, default=1, help="with --families: processes judging runs (default 1)")
+    ap.add_argument("--budget", type=float, default=math.inf, metavar="SECONDS",
+                    help="with --families: start no new run after this wall time (resume later with --out)")
+    ap.add_argument("--summarize", metavar="JSONL", help="only the pass counts and worst runs of a table written by --out")
     ap.add_argument("--bode", metavar="PNG", help="only the transparency estimate; write its Bode plot here")
     args = ap.parse_args()
+    if args.summarize:
+        rows = read_rows(args.summarize)
+        if not rows:
+            ap.error(f"--summarize: no judged runs in {args.summarize!r} (write them with --families N --out FILE)")
+        print(json.dumps({"families": {"summary": summarize(rows)}}, indent=1))
+        return
     if args.families is not None:
+        if args.families < 0 or args.jobs < 1 or not args.budget > 0:
+            ap.error(f"--families must be >= 0, --jobs >= 1 and --budget > 0 s (got {args.families}, {args.jobs}, "
+                     f"{args.budget})")
         print(json.dumps({"families": families(args.families, args.seed, real=not args.quick, slow_runs=args.runs[0],
-                                               fast_runs=args.runs[1], estimate_only=args.estimate)}, indent=1))
+                                               fast_runs=args.runs[1], estimate_only=args.estimate, out=args.out,
+                                               jobs=args.jobs, budget=args.budget)}, indent=1))
         return
     surfaces = {}
     for name in REAL:

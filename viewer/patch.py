@@ -108,6 +108,18 @@ def dent_extent(deform, iu0, iu1, jv0, jv1):
     return a0, a1 + 1, b0, b1 + 1, top
 
 
+@njit(cache=True, inline="always")
+def _next_run(flags, k, stop, first):
+    """The next run of set flags at index k or after: (start, end) with ``flags[start - first:end -
+    first]`` all set; start == stop when there is none."""
+    while k < stop and not flags[k - first]:
+        k += 1
+    start = k
+    while k < stop and flags[k - first]:
+        k += 1
+    return start, k
+
+
 @njit(cache=True)
 def dent_boxes(deform, iu0, iu1, jv0, jv1, out):
     """The deformed samples (``deform`` > 0) of the given box as separate boxes: the box is cut
@@ -123,27 +135,15 @@ def dent_boxes(deform, iu0, iu1, jv0, jv1, out):
                 rows[j - jv0] = True
                 break
     cols = np.zeros(max(iu1 - iu0, 0), np.bool_)
-    j = jv0
-    while j < jv1:
-        if not rows[j - jv0]:
-            j += 1
-            continue
-        r0 = j
-        while j < jv1 and rows[j - jv0]:
-            j += 1
+    r0, j = _next_run(rows, jv0, jv1, jv0)
+    while r0 < jv1:
         cols[:] = False
         for jj in range(r0, j):
             for i in range(iu0, iu1):
                 if deform[jj, i] > 0.0:
                     cols[i - iu0] = True
-        i = iu0
-        while i < iu1:
-            if not cols[i - iu0]:
-                i += 1
-                continue
-            c0 = i
-            while i < iu1 and cols[i - iu0]:
-                i += 1
+        c0, i = _next_run(cols, iu0, iu1, iu0)
+        while c0 < iu1:
             a0, a1, b0, b1, top = dent_extent(deform, c0, i, r0, j)
             if n < out.shape[0]:
                 out[n, 0] = a0
@@ -152,6 +152,8 @@ def dent_boxes(deform, iu0, iu1, jv0, jv1, out):
                 out[n, 3] = b1
                 out[n, 4] = top
             n += 1
+            c0, i = _next_run(cols, i, iu1, iu0)
+        r0, j = _next_run(rows, j, jv1, jv0)
     return n
 
 
