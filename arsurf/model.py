@@ -183,8 +183,8 @@ def model_tick_kernel(proj,                                              # Proje
                                            md[A_T_FOLD], md[A_DELTA_FOLD])
         zone = md_zone_radius(md_a[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
             if md_a[0] == CONTACT else 0.0
-        mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, state, S_CONTACTS,
-                                 count)
+        mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
+                                 state, S_CONTACTS, count)
         out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
                                                                    margin)
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]

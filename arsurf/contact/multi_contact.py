@@ -72,10 +72,31 @@ lies inside the other's zone (:math:`s_i \le c`: one contact, exactly the single
 and depth), 1 once the two zones are apart (:math:`s_i \ge 2c`: two contacts), linear between so
 the force stays continuous as the separation changes: contact i counts with
 :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
-:math:`\prod_i (o_i\,\varphi(b_i', b_i) + 1 - o_i)`. Inside one zone the closest point may still
-hop between two minima; the force then turns by the angle between their normals, at most about
-:math:`c/R` (the single contact's behaviour there: the contact's centre moving within its own
-zone), never a step of the load.
+:math:`\prod_i (o_i\,\varphi(b_i', b_i) + 1 - o_i)`.
+
+**A hop inside one zone.** The closest point may still hop between two minima inside one zone
+(sample_0.jpk: two minima 2.3 nm apart under one 6.5 nm contact). The merged contact keeps the
+single contact's load :math:`P(\delta_1)` (continuous through the swap: the largest depth) and
+shares only its direction, with the same symmetric pair weights and each point's Hertz share
+:math:`q_i` (:func:`hertz_share`): the closest contact pushes :math:`P(\delta_1)\,V_1`,
+
+.. math:: V_1 = w_1\,\mathrm{unit}\Big(w_1 n_1 + \sum_{i>1} (1 - o_i)(m_i - n_1)\Big), \qquad
+          m_i = \mathrm{unit}\big(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i\big):
+
+for o = 0 the force is :math:`P(\delta_1)\,m_2`, symmetric in the pair, so the swap changes
+nothing; a minimum born or dying at a fold turns nothing (:math:`\varphi(0, b') = 0`); a
+shallower minimum's share fades over the Hertz share, a ramp of the order of the contact's own
+depth (a depth ramp of m/10 was crossed within one tick at 150 nm/s). Between c and 2c the swap
+is symmetric to second order in the angle between the normals.
+
+**Found late.** A minimum may be found a few ticks after it was born (by one discovery start per
+tick), already separated by a barrier; its weight must not appear at once. Like the god-object
+and the sphere proxy, which keep their active constraints from tick to tick and activate a new
+one only as the proxy's motion reaches it, each contact keeps its identity (re-found from its own
+last (u, v)) and a barrier credit :math:`\beta_i \leftarrow \min(b_i, \beta_i^{prev} + \lvert\Delta C\rvert)`
+used in its weights for :math:`b_i`: 0 when a discovery start finds it (unlimited at the first
+touch and for the previous closest point), so a contact followed since birth has
+:math:`\beta_i = b_i`, one found late grows in no faster than the tip moves.
 
 **Entry at the edge.** A contact also enters and leaves the table through its depth: an
 asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
@@ -90,7 +111,7 @@ depth. Each contact i > 0 therefore also carries an entry ramp on its depth at t
 from m deeper on, and 1 when it is as deep as the closest contact (the hop swaps two equal rows
 again). The total normal force is then
 
-.. math:: F_N = \sum_i w_i\,e_i\,P(\delta_i)\,n_i ,
+.. math:: F_N = P(\delta_1)\,V_1 + \sum_{i>1} w_i\,e_i\,P(\delta_i)\,n_i ,
 
 each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip: a
 contact that grows in enters with no step, and a secondary contact's adhesion grows with its
@@ -98,7 +119,7 @@ depth instead of snapping in (its own snap-in would be a step of the load every 
 slides onto an asperity).
 
 **One tip behind the coupling.** The tip moves behind the virtual coupling along the total
-normal :math:`n = \sum_i w_i q_i n_i / \lVert\cdot\rVert`,
+normal :math:`n = (q_1 V_1 + \sum_{i>1} w_i q_i n_i) / \lVert\cdot\rVert`,
 :math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}` (the depth beyond the jump-out depth
 to the Hertz power: the direction of :math:`F_N` for similar compressive contacts, and continuous
 through every change of the set of contacts), by the lift :math:`\ell` at which the coupling
@@ -137,22 +158,27 @@ from arsurf.status import SEPARATED
 #: the most contacts followed at once (the god-object's three, plus one being born or dying)
 MAX_CONTACTS = 4
 #: one contact: parameters (m), point (m), unit normal, depth along its own normal (m, > 0
-#: penetrating), weight in [0, 1]
-CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1)])
+#: penetrating), weight in [0, 1], barrier credit (m: the most barrier its weight may use, module
+#: docstring, "Found late")
+CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1), ("credit", 1)])
 C_U, C_PX, C_NX = CONTACT.offset("uv"), CONTACT.offset("point"), CONTACT.offset("normal")
 C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weight")
+C_CREDIT = CONTACT.offset("credit")
 C_SIZE = CONTACT.size
 #: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
 #: previous tick's (u, v) of each (the tracking starts), the next discovery probe, and the tip's
 #: last lift behind the coupling along the total normal (m; the start of the next solve) and the
-#: tip centre of the last search (m; the fold-hop test)
+#: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
+#: load (its weight times the direction it pushes, turned towards the minima inside its zone)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
-                                         ("previous_uv", 2 * MAX_CONTACTS), ("probe", 1), ("lift", 1),
-                                         ("centre", 3)])
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("previous_credit", MAX_CONTACTS),
+                                         ("probe", 1), ("lift", 1),
+                                         ("centre", 3), ("closest_force", 3)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
 T_PROBE, T_LIFT = CONTACT_TABLE.offset("probe"), CONTACT_TABLE.offset("lift")
-T_CENTRE = CONTACT_TABLE.offset("centre")
+T_PREVIOUS_CREDIT = CONTACT_TABLE.offset("previous_credit")
+T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
@@ -174,9 +200,9 @@ def _row(at, i):
 
 
 @njit(cache=True)
-def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
+def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, credit, h, tab, at, count):
     """Run Newton from (u, v); add its end as a contact if it converged, is new and within reach
-    (depth >= ``floor``). Returns the new count."""
+    (depth >= ``floor``), with the barrier ``credit`` (m). Returns the new count."""
     if not (math.isfinite(u) and math.isfinite(v)):
         return count
     nu = ku.shape[0]
@@ -220,6 +246,7 @@ def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
     tab[r + C_NX + 2] = az
     tab[r + C_DEPTH] = depth
     tab[r + C_WEIGHT] = 0.0
+    tab[r + C_CREDIT] = credit
     return min(count + 1, MAX_CONTACTS)
 
 
@@ -269,6 +296,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         r = _row(at, i)
         tab[at + T_PREVIOUS + 2 * i] = tab[r + C_U] if i < old else math.nan
         tab[at + T_PREVIOUS + 2 * i + 1] = tab[r + C_V] if i < old else math.nan
+        tab[at + T_PREVIOUS_CREDIT + i] = tab[r + C_CREDIT] if i < old else 0.0
     r0 = _row(at, 0)
     tab[r0 + C_U] = u1
     tab[r0 + C_V] = v1
@@ -277,6 +305,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         tab[r0 + C_NX + j] = coll[ly.OUT_NX + j]
     tab[r0 + C_DEPTH] = coll[ly.OUT_DEPTH]
     tab[r0 + C_WEIGHT] = 1.0
+    tab[r0 + C_CREDIT] = math.inf
     count = 1
     # where Newton from the previous closest point ends (the collision query ran it over the same
     # domain; NaN: not known, run it here)
@@ -288,15 +317,17 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     jumped = False
     if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
         if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
-            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, h, tab, at, count)
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, math.inf, h, tab, at, count)
             jumped = count > 1  # Newton from there ended at another minimum than the closest point
             if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
                 count = 1  # a jump, but the old point is out of reach
     c0 = at + T_CENTRE
+    moved = math.sqrt((cx - tab[c0]) ** 2 + (cy - tab[c0 + 1]) ** 2 + (cz - tab[c0 + 2]) ** 2)
+    if not math.isfinite(moved):
+        moved = 0.0
     if not jumped and math.isfinite(prev_u) and math.isfinite(prev_v) and math.isfinite(tab[c0]):
         # a fold hop: the old minimum vanished this tick and Newton from it slid on to the closest
         # point, farther than a minimum carried by the tip goes (the tip's move plus a knot spacing)
-        moved = math.sqrt((cx - tab[c0]) ** 2 + (cy - tab[c0 + 1]) ** 2 + (cz - tab[c0 + 2]) ** 2)
         jumped = math.hypot(u1 - prev_u, v1 - prev_v) > moved + h
     tab[c0] = cx
     tab[c0 + 1] = cy
@@ -304,13 +335,14 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
         for i in range(1, old):  # (row 0, the previous closest point: the run above)
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
-                         tab[at + T_PREVIOUS + 2 * i + 1], floor, h, tab, at, count)
+                         tab[at + T_PREVIOUS + 2 * i + 1], floor, tab[at + T_PREVIOUS_CREDIT + i] + moved, h, tab,
+                         at, count)
         k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
         for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
             phi = 2.0 * math.pi * k / PROBES  # every other start on the inner circle, half as far
             reach = (PROBE_REACH if k % 2 == 0 else 0.5 * PROBE_REACH) * radius
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
-                         v1 + reach * math.sin(phi), floor, h, tab, at, count)
+                         v1 + reach * math.sin(phi), floor, 0.0 if old > 0 else math.inf, h, tab, at, count)
             k = (k + 1) % PROBES
         tab[at + T_PROBE] = k
     for i in range(count, MAX_CONTACTS):
@@ -333,40 +365,79 @@ def merge_factor(separation, zone):
 
 
 @njit(cache=True)
-def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, tab, at, count):
+def hertz_share(depth, jump_out, margin):
+    r""":math:`q = ((\delta - \delta_{out})_+ + 10^{-3} m)^{3/2}`: how much a contact ``depth`` (m)
+    deep pushes, relatively (the depth beyond the jump-out depth ``jump_out`` to the Hertz power;
+    the small floor keeps directions continuous, and symmetric, where every contact is out of reach)."""
+    return (max(depth - jump_out, 0.0) + 1e-3 * margin) ** 1.5
+
+
+@njit(cache=True)
+def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count):
     r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
     centre (cx, cy, cz) (module docstring): contact i > 0 counts with
     :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
-    :math:`\prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
+    :math:`w_1 = \prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
     :func:`merge_factor` of its distance from the closest point against ``zone`` (m, the closest
-    contact's Dugdale-zone radius c at its depth under the tip). ``margin`` m, ``ev`` (>= 1, 3) scratch."""
+    contact's Dugdale-zone radius c at its depth under the tip), and the closest contact pushes
+    along (per unit load, ``T_CLOSEST_FORCE``)
+    :math:`V_1 = w_1\,\mathrm{unit}(w_1 n_1 + \sum_{i>0} (1 - o_i)(m_i - n_1))`,
+    :math:`m_i = \mathrm{unit}(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i)`
+    (module docstring, "A hop inside one zone"; q: :func:`hertz_share` at ``jump_out`` m).
+    ``margin`` m, ``ev`` (>= 1, 3) scratch."""
     r0 = _row(at, 0)
     u1 = tab[r0 + C_U]
     v1 = tab[r0 + C_V]
     d1 = radius - tab[r0 + C_DEPTH]
+    n1x, n1y, n1z = tab[r0 + C_NX], tab[r0 + C_NX + 1], tab[r0 + C_NX + 2]
+    q1 = hertz_share(tab[r0 + C_DEPTH], jump_out, margin)
     w0 = 1.0
+    vx = vy = vz = 0.0  # the turn of the closest contact's direction towards the minima in its zone
     for i in range(1, count):
         r = _row(at, i)
         di = radius - tab[r + C_DEPTH]
         s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
         o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
                                    + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
-        tab[r + C_WEIGHT] = o * pair_weight(s - di, s - d1, margin)
-        w0 *= o * pair_weight(s - d1, s - di, margin) + 1.0 - o
+        b = min(s - di, tab[r + C_CREDIT])  # found late: the barrier grows in no faster than the tip moves
+        tab[r + C_CREDIT] = max(b, 0.0)
+        own = pair_weight(b, s - d1, margin)
+        other = pair_weight(s - d1, b, margin)
+        tab[r + C_WEIGHT] = o * own
+        w0 *= o * other + 1.0 - o
+        if o < 1.0:  # partly inside the closest contact's zone: one contact, whose direction it shares
+            qi = own * hertz_share(tab[r + C_DEPTH], jump_out, margin)
+            q0 = other * q1
+            mx = q0 * n1x + qi * tab[r + C_NX]
+            my = q0 * n1y + qi * tab[r + C_NX + 1]
+            mz = q0 * n1z + qi * tab[r + C_NX + 2]
+            mn = math.sqrt(mx * mx + my * my + mz * mz)
+            if mn > 0.0:
+                vx += (1.0 - o) * (mx / mn - n1x)
+                vy += (1.0 - o) * (my / mn - n1y)
+                vz += (1.0 - o) * (mz / mn - n1z)
     tab[r0 + C_WEIGHT] = w0
+    vx += w0 * n1x
+    vy += w0 * n1y
+    vz += w0 * n1z
+    vn = w0 / math.sqrt(vx * vx + vy * vy + vz * vz)  # the closest contact's load, w_1 P_1, turned
+    f = at + T_CLOSEST_FORCE
+    tab[f] = vn * vx
+    tab[f + 1] = vn * vy
+    tab[f + 2] = vn * vz
 
 
 @njit(cache=True)
 def total_normal_kernel(tab, at, count, jump_out, margin):
-    r"""The total normal n (unit) of the contacts in ``tab`` (module docstring): the weighted sum
-    of their normals with the weights :math:`w_i ((\delta_i - \delta_{out})_+ + 10^{-3} m)^{3/2}`
-    (the small floor keeps the direction continuous, and symmetric, where every contact is out of
-    reach)."""
-    floor = 1e-3 * margin
-    bx = by = bz = 0.0
-    for i in range(count):
+    r"""The total normal n (unit) of the contacts in ``tab`` (module docstring): the sum of the
+    closest contact's force per unit load :math:`V_1` (``T_CLOSEST_FORCE``) and of the other
+    contacts' weighted normals :math:`w_i n_i`, each times its :func:`hertz_share` q."""
+    f = at + T_CLOSEST_FORCE
+    q = hertz_share(tab[_row(at, 0) + C_DEPTH], jump_out, margin)
+    bx, by, bz = q * tab[f], q * tab[f + 1], q * tab[f + 2]
+    for i in range(1, count):
         r = _row(at, i)
-        q = tab[r + C_WEIGHT] * (max(tab[r + C_DEPTH] - jump_out, 0.0) + floor) ** 1.5
+        q = tab[r + C_WEIGHT] * hertz_share(tab[r + C_DEPTH], jump_out, margin)
         bx += q * tab[r + C_NX]
         by += q * tab[r + C_NX + 1]
         bz += q * tab[r + C_NX + 2]
@@ -385,7 +456,8 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, lift, interacting, jump_out, ma
                      load_scale, lam, t_fold, delta_fold):
     r"""The summed contact force with the tip ``lift`` (m) out along the total normal n (module
     docstring, "Entry at the edge"): contact i is :math:`\delta_i - \ell\,(n\cdot n_i)` deep and
-    carries :math:`w_i\,e_i\,P(\delta_i - \ell\,n\cdot n_i)\,n_i`, P the Maugis-Dugdale law
+    carries :math:`w_i\,e_i\,P(\delta_i - \ell\,n\cdot n_i)\,n_i`, the closest one
+    :math:`P(\delta_1 - \ell\,n\cdot n_1)\,V_1` ("A hop inside one zone"), P the Maugis-Dugdale law
     (``MaugisDugdale.kernel_args``) under the tip's hysteresis state ``interacting``.
 
     Returns ``(fx, fy, fz, F.n, status, a, load, depth)``: the force (N), its part along n, and
@@ -411,8 +483,13 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, lift, interacting, jump_out, ma
                                                 delta_fold)
         if st < 0 or st == SEPARATED:
             a = p = 0.0
-        if i == 0:
+        if i == 0:  # the closest contact pushes along V_1 (its weight included)
             st0, a0, p0 = st, a, p
+            f = at + T_CLOSEST_FORCE
+            fx += p * tab[f]
+            fy += p * tab[f + 1]
+            fz += p * tab[f + 2]
+            continue
         fx += w * p * mx
         fy += w * p * my
         fz += w * p * mz
