@@ -157,7 +157,7 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
     verts = s.evaluate(uu.ravel(), vv.ravel())
     idx = np.arange(nu * nv).reshape(nu, nv)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    _build, query = vtk_locator(verts, np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])]))
+    _build, query, _one = vtk_locator(verts, np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])]))
     clock = __import__("time").perf_counter_ns
     for _ in range(rounds):
         for name, (_, model, p) in cases.items():
