@@ -48,11 +48,11 @@ from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
                                          local_contact_kernel, local_pull_off_kernel)
+from arsurf.contact import multi_contact as mc
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
-                                           A_T_FOLD, MaugisDugdale, md_zone_radius)
+                                           A_T_FOLD, MaugisDugdale, md_radius_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
 from arsurf.contact.proxy import MD_MEMO, MEMO_SIZE, coupled_depth_kernel
-from arsurf.contact.second_contact import second_contact_kernel
 from arsurf.errors import ContactError, PositionError
 from arsurf.force import decoupling as dc
 from arsurf.force.cantilever import Cantilever
@@ -91,14 +91,15 @@ MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", 
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
-#: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the second contact's (u, v)
-#: (:mod:`arsurf.contact.second_contact`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
+#: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the contact table
+#: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
 #: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`)
-MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("second_uv", 2),
-                                     ("friction", fr.STATE_SIZE), ("coupling_memo", MD_MEMO.size)])
+MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1),
+                                     ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE),
+                                     ("coupling_memo", MD_MEMO.size)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
-S_TIP_DEPTH, S_SECOND = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("second_uv")
+S_TIP_DEPTH, S_CONTACTS = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("contacts")
 S_FRICTION = MODEL_STATE.offset("friction")
 S_MEMO = MODEL_STATE.offset("coupling_memo")
 S_SIZE = MODEL_STATE.size
@@ -120,9 +121,10 @@ F_SHEAR = PROXY_PARAMS.offset("shear_strength")
 #: the blend, a decoupling output)
 SCRATCH_SIZE = max(fr.FRICTION_OUT.size, MEASURED_SCRATCH.size)
 _MEASURED = MEASURED_SCRATCH.offset("blend")
-#: a second contact counts while its depth is within this many Maugis-Dugdale depth scales of the
-#: deepest (:mod:`arsurf.contact.second_contact`)
-SECOND_CONTACT_MARGIN = 0.5
+#: the margin m of the contacts' weights, in Maugis-Dugdale depth scales: a contact counts fully once the
+#: pass between it and the closest point is m higher than it (:mod:`arsurf.contact.multi_contact`); contacts
+#: are followed down to m below the jump-out depth
+CONTACT_MARGIN = 0.5
 #: the slip direction is a unit vector: its horizontal part must be at least this long to give the
 #: decoupling a friction direction (a slip straight down a wall gives none)
 MIN_SLIP_HORIZONTAL = 1e-3
@@ -168,24 +170,49 @@ def model_tick_kernel(proj,                                              # Proje
     if local:
         friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
                                        local_pull_off_kernel(md_args, md))
-    # a valley narrower than the tip: blend in the slope it also rests on
-    w2, jumped = second_contact_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v,
-                                       SECOND_CONTACT_MARGIN * md[A_DEPTH_SCALE], state, S_SECOND, coll)
+    # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
+    margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
+    count, jumped = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, friction[F_JUMP_OUT] - margin,
+                                            margin, prev_u, prev_v, state, S_CONTACTS, coll)
     _copy_collision(coll, out)
+    if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
+        # behind the coupling along the total normal
+        lift = state[S_CONTACTS + mc.T_LIFT]
+        d1 = coll[pj.OUT_DEPTH] - (lift if math.isfinite(lift) else 0.0)  # the closest contact's, last lift
+        md_a = md_radius_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                           md[A_T_FOLD], md[A_DELTA_FOLD])
+        zone = md_zone_radius(md_a[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
+            if md_a[0] == CONTACT else 0.0
+        mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
+                                 state, S_CONTACTS, count)
+        out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
+                                                                   margin)
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
-    md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
+    rx = ry = rz = 0.0
+    if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
+        md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
+                                                          state, out)
+    else:
+        md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state,
+                                                   out)
+        state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
+        # the tip sphere's dent: the closest contact's zone along its own normal; the sphere's
+        # no-interpenetration guard (out to R around the axis) presses the other contacts onto it
         zone = md_zone_radius(a, depth, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA])
         d0 = int(md_args[H_DENT])
         out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, out[M_TIP], out[M_TIP + 1],
-                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, nx, ny, nz, a,
-                                          depth, zone)
+                                          out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, coll[pj.OUT_NX],
+                                          coll[pj.OUT_NY], coll[pj.OUT_NZ], a, depth, zone)
     # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
     sx, sy, strength, share_x, share_z, f_static = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction,
                                                                     state, scratch, out)
+    out[M_SIM_FX] += rx  # the part of the summed normal force off the total normal (0 for one contact)
+    out[M_SIM_FY] += ry
+    out[M_SIM_FZ] += rz
     if signal_mode != SIGNALS_NONE:  # 4. measured force from the two angles
         if signal_mode == SIGNALS_SYNTHESISED:  # the simulated force's angles (cantilever model) plus noise
             bending = dec_params[P_BENDING_COMPLIANCE] * (out[M_SIM_FZ] + dec_params[P_COUPLING] * out[M_SIM_FX]) \
@@ -196,6 +223,9 @@ def model_tick_kernel(proj,                                              # Proje
         if md_st == SEPARATED or md_st < 0:
             ds = bending_only_kernel(bending, torsion, dec_params, scratch)
         else:  # decoupled with the contact normal and the proxy's friction direction
+            if count > 1:  # several contacts: the direction of their summed normal force
+                nx, ny, nz, share_x, share_z = _summed_normal(nx, ny, nz, load, rx, ry, rz, md[A_LOAD_SCALE],
+                                                              share_x, share_z)
             ds = blended_decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, strength, share_x, share_z,
                                          f_static, dec_params, scratch)
         out[M_DECOUPLE_STATUS] = ds
@@ -219,10 +249,10 @@ def _clear_output(out, cx, cy, cz):
 
 @njit(cache=True)
 def _forget_contact(state):
-    """No collision answer: no tip depth, no second contact, no friction anchor."""
+    """No collision answer: no tip depth, no contacts to follow, no friction anchor."""
     state[S_TIP_DEPTH] = math.nan
-    state[S_SECOND] = math.nan
-    state[S_SECOND + 1] = math.nan
+    state[S_CONTACTS + mc.T_COUNT] = 0.0
+    state[S_CONTACTS + mc.T_LIFT] = math.nan
     fr.release(state, S_FRICTION)
 
 
@@ -281,6 +311,56 @@ def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
     return md_st, a, load, depth
+
+
+@njit(cache=True)
+def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, out):
+    r"""Step 2 with several contacts (:mod:`arsurf.contact.multi_contact`): the one rigid tip sits
+    where the coupling balances the summed loads along the total normal n (``out``'s normal;
+    :func:`~arsurf.contact.multi_contact.coupled_lift_kernel`), contact i
+    :math:`\delta_i - \ell\,(n\cdot n_i)` deep with its weight and entry ramp. Writes the tip, the
+    closest contact's depth, radius and status, the total load :math:`F_N\cdot n`, the hysteresis
+    memory; returns ``(status, a, load, depth)`` like :func:`_contact_mechanics` and the part of
+    :math:`F_N = \sum_i w_i e_i P_i n_i` off n."""
+    nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
+    t = S_CONTACTS
+    lift, coupled, fx, fy, fz, load, st0, a0, p0, d0 = mc.coupled_lift_kernel(
+        state, t, count, nx, ny, nz, friction[F_COUPLING], state[S_INTERACTING] > 0.5, state[t + mc.T_LIFT],
+        friction[F_JUMP_OUT], margin, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+        md[A_T_FOLD], md[A_DELTA_FOLD])
+    state[t + mc.T_LIFT] = lift
+    out[M_TIP] = cx + lift * nx
+    out[M_TIP + 1] = cy + lift * ny
+    out[M_TIP + 2] = cz + lift * nz
+    out[M_COUPLED] = 1.0 if coupled else 0.0
+    out[M_DISTANCE] = tip_radius - d0
+    out[M_DEPTH] = d0
+    out[M_MD_STATUS] = st0
+    out[M_RADIUS] = a0
+    out[M_LOAD] = load
+    out[M_IN_CONTACT] = 1.0 if st0 == CONTACT else 0.0
+    interacting = st0 == CONTACT or st0 == COHESIVE
+    state[S_INTERACTING] = 1.0 if interacting else 0.0
+    state[S_TIP_DEPTH] = d0 if interacting else math.nan
+    return st0, a0, load, d0, fx - load * nx, fy - load * ny, fz - load * nz
+
+
+@njit(cache=True)
+def _summed_normal(nx, ny, nz, load, rx, ry, rz, load_scale, share_x, share_z):
+    r"""The normal the decoupling takes with several contacts (docs/design.rst, "Several contacts
+    at once"): the direction of the summed normal force :math:`F_N = L n + r` (L the load along
+    the total normal n, r its part off n), on n's side,
+    :math:`m = (n + r L/(L^2 + P_s^2)) / \lVert\cdot\rVert` (:math:`P_s` the law's load scale:
+    :math:`F_N/L` once :math:`|L| \gg P_s`, n at zero load, continuous between), and the
+    fallback's friction shares per unit load along m, :math:`F_t/(F_N\cdot m)` (0 unless that
+    load is compressive). Returns ``(mx, my, mz, share_x, share_z)``."""
+    k = load / (load * load + load_scale * load_scale)
+    mx, my, mz = nx + k * rx, ny + k * ry, nz + k * rz
+    mn = math.sqrt(mx * mx + my * my + mz * mz)
+    mx, my, mz = mx / mn, my / mn, mz / mn
+    along = load * (nx * mx + ny * my + nz * mz) + rx * mx + ry * my + rz * mz  # F_N . m
+    scale = load / along if (load > 0.0 and along > 0.0) else 0.0
+    return mx, my, mz, share_x * scale, share_z * scale
 
 
 @njit(cache=True)

@@ -10,13 +10,17 @@ at 1 kHz and 10 kHz under the ordinary policy (the default), and at 10 kHz with 
 under SCHED_FIFO at the live loop's default priority (where granted: ``realtime_priority`` says).
 Overruns <= 0.1 % at 10 kHz is the target (issue #13); issue 28 adds skipped slots (with the
 overruns, <= 0.1 % of the nominal ticks) and the longest gap between two ticks (<= 1 ms).
+Row ``multi_contact`` (issue 27): the model tick (``ARModel.tick``, dent on) of a 20 nm tip sliding
+0.01 nm per tick through valleys narrower than itself (a 12 nm sinusoid: two contacts) against the
+same tick on a 160 nm sinusoid (one contact), and one bare VTK ``vtkStaticCellLocator``
+closest-point query at the same tip positions, in interleaved rounds (``--multi-only``: that row).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
 Each table cell traces its ticks (bench/_tick_table.py ``traced``): wall and thread-CPU time per
 tick, and for the ticks over 100 us whether they were preempted, ran the garbage collector or
 moved the net (a sync inside the tick).
 --diagnose runs only traced scheduler runs (an empty step, the 512x512 tick without and with the
 dent, both policies) and gives every lost slot and every gap > 1 ms its cause (docs/scheduler.rst).
-Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--lockup-check]
+Run: .venv/bin/python bench/haptic_loop.py [--seconds 10] [--full] [--no-table] [--multi-only] [--lockup-check]
      [--table-only] [--pitches 0.25,2] [--tips 20] [--depths 1]   (prints JSON)
      .venv/bin/python bench/haptic_loop.py --diagnose [--seconds 8] [--policies fifo] [--workloads tick_dent]
 """
@@ -31,7 +35,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _tick_table as tt  # noqa: E402
-from _timing import emit, stats, time_calls  # noqa: E402
+from _timing import best_round, emit, round_ratio, stats, time_calls  # noqa: E402
+from collision import vtk_locator  # noqa: E402
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
@@ -39,7 +44,8 @@ from arsurf.haptics.device import DeviceState  # noqa: E402
 from arsurf.haptics.loop import L_F_PROBE, HapticLoop, LoopConfig  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice  # noqa: E402
-from arsurf.model import M_IN_CONTACT, ARModel  # noqa: E402
+from arsurf.contact import multi_contact as mc  # noqa: E402
+from arsurf.model import M_IN_CONTACT, S_CONTACTS, ARModel  # noqa: E402
 from arsurf.scan.synthetic import sinusoid  # noqa: E402
 from arsurf.spline.fit import fit_surface  # noqa: E402
 
@@ -117,6 +123,60 @@ def tick_table(full: bool, ticks: int, pitches=None, tips=None, depths=None) -> 
     if {0.25, 2.0} <= {r["pitch_nm"] for r in rows} and any(r["tip_radius_nm"] == 20.0 for r in rows):
         summary["R20_median_0.25nm_over_2nm"] = at(0.25, 20.0) / at(2.0, 20.0)
     return {"summary": summary, "rows": rows}
+
+
+def _slide(period: float, ticks: int):
+    """A model on a sinusoid of ``period`` (1 nm pixels, 2 nm amplitude) and the tip centres of a
+    slide 0.01 nm per tick along x, pressed 0.4 nm into the valley bottom's slopes."""
+    s = fit_surface(sinusoid((96, 96), 1e-9, 2e-9, period))
+    model = ARModel(s, R, MaugisDugdale(R, 50e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27))
+    x0, y0 = 3.0 * period / 4.0 + (2 * period if period < 40e-9 else 0.0), 48e-9  # a valley bottom
+    t = model.step((x0, y0, 40e-9))
+    z = 40e-9 - t.distance + R - 0.4e-9
+    model.reset()
+    x = x0 + 0.01e-9 * (np.arange(ticks) % 400 - 200)
+    return s, model, np.column_stack([x, np.full(ticks, y0), np.full(ticks, z)])
+
+
+def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
+    """The model tick with several contacts vs one, and one VTK closest-point query, interleaved."""
+    out = {}
+    cases = {"one_contact": _slide(160e-9, ticks), "multi_contact": _slide(12e-9, ticks)}
+    times = {k: [] for k in cases}
+    vtk_times = []
+    counts = {}
+    for name, (s, model, pts) in cases.items():
+        for p in pts[:50]:  # warm-up: compile, settle the contact
+            model.tick(p)
+        c = []
+        for p in pts:
+            model.tick(p)
+            c.append(model.state[S_CONTACTS + mc.T_COUNT])
+        counts[name] = {"mean_contacts": float(np.mean(c)), "max_contacts": int(np.max(c))}
+    s, _, pts = cases["multi_contact"]
+    (u0, u1), (v0, v1) = s.domain
+    nu, nv = s.shape
+    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+    verts = s.evaluate(uu.ravel(), vv.ravel())
+    idx = np.arange(nu * nv).reshape(nu, nv)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    _build, query, _one = vtk_locator(verts, np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])]))
+    clock = __import__("time").perf_counter_ns
+    for _ in range(rounds):
+        for name, (_, model, p) in cases.items():
+            dt = np.empty(len(p))
+            for k, q in enumerate(p):
+                t0 = clock()
+                model.tick(q)
+                dt[k] = clock() - t0
+            times[name].append(dt * 1e-9)
+        vtk_times.append(query(pts)[0])
+    for name in cases:
+        out[name] = {**best_round(times[name]), **counts[name]}
+    out["vtk_closest_point"] = best_round(vtk_times)
+    out["multi_over_one_contact"] = round_ratio(times["multi_contact"], times["one_contact"])
+    out["multi_over_vtk"] = round_ratio(times["multi_contact"], vtk_times)
+    return out
 
 
 def _timing_row(d: dict, rate: float) -> dict:
@@ -240,6 +300,7 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="the whole pitch x tip x depth table (several minutes)")
     ap.add_argument("--no-table", action="store_true", help="skip the pitch x tip x depth table")
     ap.add_argument("--ticks", type=int, default=3000, help="ticks timed per table cell")
+    ap.add_argument("--multi-only", action="store_true", help="only the multi-contact row (issue 27)")
     ap.add_argument("--pitches", help="table cells: pitches in nm, comma-separated (default the grid's)")
     ap.add_argument("--tips", help="table cells: tip radii in nm, comma-separated")
     ap.add_argument("--depths", help="table cells: depths in nm, comma-separated")
@@ -252,6 +313,9 @@ def main() -> None:
     ap.add_argument("--policies", default="ordinary,fifo", help="the policies of --diagnose (ordinary, fifo)")
     ap.add_argument("--workloads", default="empty_step,tick_no_dent,tick_dent", help="the steps of --diagnose")
     args = ap.parse_args()
+    if args.multi_only:
+        emit("haptic_loop", {"multi_contact": multi_contact_row()})
+        return
     if args.diagnose:
         emit("haptic_loop", {"diagnose": diagnose(args.seconds, args.rate, args.policies.split(","),
                                                   args.workloads.split(","))})
@@ -272,7 +336,7 @@ def main() -> None:
         s = dev.read_state()
         dev.command_force(loop.step(s, s.timestamp))
     st = dev.read_state()
-    results = {"tick_table": table, "tick_512x512_python_call": stats(time_calls(tick, 20000)),
+    results = {"tick_table": table, "multi_contact": multi_contact_row(), "tick_512x512_python_call": stats(time_calls(tick, 20000)),
                "in_contact_during_timing": bool(loop.out[L_F_PROBE + 2] > 0)}
     results.update(scheduler_runs(args.seconds))
     if args.lockup_check:

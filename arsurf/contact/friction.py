@@ -71,7 +71,7 @@ the contact, which the jump does not undo (a tip sliding across two asperities k
 same way). Without it the stretch to the old anchor pointed backwards after the jump and the
 friction reversed in one tick (+-f_k: a 7 mN step at the hand on a real scan). A jump is a
 change of basin of the closest point (Newton from the previous closest point ends at another
-local minimum, :mod:`arsurf.contact.second_contact`; the model passes it as ``jumped``) or a
+local minimum, :mod:`arsurf.contact.multi_contact`; the model passes it as ``jumped``) or a
 contact-point move larger than :data:`JUMP_RATIO` times the tip's move plus :data:`JUMP_FLOOR`.
 The ratio alone misses a jump that is short against a fast tip's move: a 1.6 nm hop across a
 valley while a 150 nm/s stroke moves the tip 0.15-0.19 nm per 1 ms tick (a friction reversal of

@@ -1,0 +1,544 @@
+r"""Several contacts at once: the tip sphere resting on two, three or four asperities.
+
+A tip wider than a valley rests on both of its slopes. The closest point of the surface to the
+tip centre C then jumps from one slope to the other as C crosses the valley (it may alternate
+tick after tick while the hand holds still), and a force computed at the closest point alone
+flips with it. A rigid sphere there touches the surface at every *local* minimum of the
+distance :math:`d(u, v) = \lVert S(u, v) - C\rVert` inside the contact zone, and feels the sum of
+their loads: the closest point may jump, the force may not.
+
+This is the haptics field's classic problem of concave corners: the god-object keeps up to
+three active constraints at once (Zilles & Salisbury 1995, "A constraint-based god-object method
+for haptic display", IROS), and a sphere proxy finds the position where all its active contacts
+hold (Ruspini, Kolarov & Khatib 1997, "The haptic display of complex graphical environments",
+SIGGRAPH). Here each constraint is a Maugis-Dugdale contact instead of a rigid plane.
+
+**Finding the contacts** (:func:`find_contacts_kernel`, at most :data:`MAX_CONTACTS`). Row 0 is
+the global closest point of the collision query (exact: hull tree + Newton). Newton's method
+(:func:`~arsurf.contact.newton.newton_box`) is run from the contacts of the previous tick
+(tracking), from where the collision query's own Newton run from the previous closest point
+ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
+:data:`PROBES` starts a distance :data:`PROBE_REACH` R or half of it around the closest point (discovery; one
+of them per tick, in turn, after the first touch).
+Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal
+:math:`n_i`, out of the sample) is within the interaction range and at most R is a contact (a
+minimum with :math:`(C - S_i)\cdot n_i < 0` has the centre behind its patch, inside the
+material there: a steep wall the target passed behind when a soft coupling lets the hand press
+deeper than the tip radius - not a point the sphere rests on from outside; on a steep
+power-law surface such a "contact" 9.6 nm deep under a 5.6 nm tip drove the press to -54 E0;
+the sign of :math:`(C - S_i)\cdot n_i = \pm d_i` changes only where :math:`d_i`, and so the
+closest distance, is 0); ends within :data:`SAME_POINT` knot spacings of
+one already found are the same contact (found from two starts) and merged.
+
+**Weights: continuity across the hop and at birth/death.** A local minimum is born and dies at a
+fold of the distance function, where it merges with the saddle (or ridge) that separates it from
+its neighbour: its barrier :math:`b_i = s_i - d_i` goes to 0 there, :math:`s_i` the highest
+distance on the way from contact i to the closest point (sampled at :data:`PATH_SAMPLES`
+points of the straight (u, v) segment between them: a continuous lower bound of the pass that
+vanishes with the true barrier). On the same pass the closest point's barrier is
+:math:`b_i' = s_i - d_1 \ge b_i`. With :math:`r(x) = \min(x/m, 1)`, m the margin (a fraction of
+the contact law's depth scale), contact i > 0 and the closest point count with
+
+.. math:: w_i = \varphi(b_i, b_i'), \qquad w_1 = \prod_{i>1} \varphi(b_i', b_i), \qquad
+          \varphi(b, b') = r(b) + (1 - r(b))\,\frac{b}{b + b'} .
+
+:math:`\varphi(0, b') = 0`: a contact is born and dies with no weight, and its neighbour keeps
+:math:`\varphi(b', 0) = 1`; two minima separated by a pass m high count fully (1 + 1); and
+:math:`\varphi` is symmetric in the pair, so when the closest point hops to contact i (equal
+depths) the two swap rows with equal weights and the sum does not step. Near a cusp, where two
+minima and their pass merge into one (a contact patch the tip touches along a flat or concave
+stretch), the two weights sum to :math:`1 + 2bb'/(m(b + b'))`, close to 1: one contact, not two
+full loads, and their sum changes by at most 2/m per unit of distance even where each weight
+changes quickly (a ratio of barriers, :math:`r(b_i)/r(b_i')`, was continuous too, but let a
+contact born next to the closest point just before a hop swing from 0.4 to 0.05 in three ticks,
+a spike of the summed load).
+
+**One contact of a rough tip.** Two minima whose contact discs overlap strongly are not two
+contacts: a scan's roughness at the scale of the contact leaves several minima of the distance
+inside one contact (on the PeakForce scan sample_0.spm under its 5 nm tip at 2 nN, four minima
+within 1.2 nm of each other under a contact of radius a = 2.7 nm on the stiff spot, 5.7 nm on the
+soft one), and the half-space under the tip carries one contact there: the Maugis-Dugdale
+traction, compressive inside a and adhesive out to the Dugdale zone's edge c, is spread over
+that disc, so a second minimum inside it adds no second load (counting every minimum took 1.83
+nN where one contact carries 2.0 nN; weighing by the disc of radius a alone still counted the
+adhesion of minima inside the zone at pull-off: -8.8 nN for the law's -7.1 nN). Contact i > 0,
+at distance :math:`s_i` from the closest point, is therefore weighed by
+
+.. math:: o_i = \min(\max(s_i/c - 1, 0), 1),
+
+c the closest contact's Dugdale-zone radius at its depth under the tip (the law's
+:math:`c(a, \delta_1 - \ell)` at the lift :math:`\ell` of the previous tick): 0 while each point
+lies inside the other's zone (:math:`s_i \le c`: one contact, exactly the single contact's load
+and depth), 1 once the two zones are apart (:math:`s_i \ge 2c`: two contacts), linear between so
+the force stays continuous as the separation changes: contact i counts with
+:math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+:math:`\prod_i (o_i\,\varphi(b_i', b_i) + 1 - o_i)`.
+
+**A hop inside one zone.** The closest point may still hop between two minima inside one zone
+(sample_0.jpk: two minima 2.3 nm apart under one 6.5 nm contact). The merged contact keeps the
+single contact's load :math:`P(\delta_1)` (continuous through the swap: the largest depth) and
+shares only its direction, with the same symmetric pair weights and each point's Hertz share
+:math:`q_i` (:func:`hertz_share`): the closest contact pushes :math:`P(\delta_1)\,V_1`,
+
+.. math:: V_1 = w_1\,\mathrm{unit}\Big(w_1 n_1 + \sum_{i>1} (1 - o_i)(m_i - n_1)\Big), \qquad
+          m_i = \mathrm{unit}\big(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i\big):
+
+for o = 0 the force is :math:`P(\delta_1)\,m_2`, symmetric in the pair, so the swap changes
+nothing; a minimum born or dying at a fold turns nothing (:math:`\varphi(0, b') = 0`); a
+shallower minimum's share fades over the Hertz share, a ramp of the order of the contact's own
+depth (a depth ramp of m/10 was crossed within one tick at 150 nm/s). Between c and 2c the swap
+is symmetric to second order in the angle between the normals.
+
+**Found late.** A minimum may be found a few ticks after it was born (by one discovery start per
+tick), already separated by a barrier; its weight must not appear at once. Like the god-object
+and the sphere proxy, which keep their active constraints from tick to tick and activate a new
+one only as the proxy's motion reaches it, each contact keeps its identity (re-found from its own
+last (u, v)) and a barrier credit :math:`\beta_i \leftarrow \min(b_i, \beta_i^{prev} + \lvert\Delta C\rvert)`
+used in its weights for :math:`b_i`: 0 when a discovery start finds it (unlimited at the first
+touch and for the previous closest point), so a contact followed since birth has
+:math:`\beta_i = b_i`, one found late grows in no faster than the tip moves.
+
+**Entry at the edge.** A contact also enters and leaves the table through its depth: an
+asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
+ticks late may already be in reach. The law itself steps there: under an interacting tip, the
+Maugis-Dugdale load jumps from 0 to the adhesive :math:`P(\delta_{out}) \ne 0` at the jump-out
+depth. Each contact i > 0 therefore also carries an entry ramp on its depth at the tip,
+
+.. math:: e_i = \min\Big(\frac{r_d(\delta_i - \delta_{out})}{r_d(\delta_1 - \delta_{out})}, 1\Big),
+          \qquad r_d(x) = \min(\max(x/m, 0), 1),
+
+0 at the jump-out depth (where the law steps: the contact enters and leaves with no force), 1
+from m deeper on, and 1 when it is as deep as the closest contact (the hop swaps two equal rows
+again). The total normal force is then
+
+.. math:: F_N = P(\delta_1)\,V_1 + \sum_{i>1} w_i\,e_i\,P(\delta_i)\,n_i ,
+
+each :math:`P` the Maugis-Dugdale load at the contact's own depth, all under one rigid tip: a
+contact that grows in enters with no step, and a secondary contact's adhesion grows with its
+depth instead of snapping in (its own snap-in would be a step of the load every time the tip
+slides onto an asperity).
+
+**One tip behind the coupling.** The tip moves behind the virtual coupling along the total
+normal :math:`n = (q_1 V_1 + \sum_{i>1} w_i q_i n_i) / \lVert\cdot\rVert`,
+:math:`q_i = ((\delta_i - \delta_{out})_+ + 10^{-3}m)^{3/2}` (the depth beyond the jump-out depth
+to the Hertz power: the direction of :math:`F_N` for similar compressive contacts, and continuous
+through every change of the set of contacts), by the lift :math:`\ell` at which the coupling
+balances the *summed* load, :math:`F_N(\ell)\cdot n = k_c\,\ell` (:func:`coupled_lift_kernel`):
+every contact is in series with the coupling, so the hand never feels more than :math:`k_c`
+however many asperities carry the tip (a contact outside the coupling would add its whole
+stiffness, :math:`K_f\,s\,dP/d\delta`, to what the device renders, and buzz).
+
+Lipschitz bound: depths, normals and barriers are continuous in C (depths and distances are
+1-Lipschitz), so the force changes between ticks by at most
+:math:`\sum_i (k_i + P_i/\rho_i + 2 P_i/m)\,\lvert\Delta C\rvert` (k the contact stiffness
+:math:`dP/d\delta`, :math:`\rho` the distance over which the normal turns by a radian), with
+no step: halving the step halves the largest change (tests/contact/test_multi_contact.py).
+
+**Dent.** The tick records one dent, the tip sphere's (:func:`~arsurf.contact.deformation.record_dent_kernel`,
+O(1), applied when the net is read): the closest contact's zone and elastic surround along its own
+normal, and the sphere's no-interpenetration guard, which presses every control point within R
+of the tip axis that is inside the sphere onto it - the other contacts' zones included.
+
+The model keeps the contact table in its state (:data:`CONTACT_TABLE`: the tracked (u, v),
+point, normal, depth, weight of each contact, and their count).
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from arsurf._layout import Layout
+from arsurf.contact import layout as ly
+from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
+from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+from arsurf.spline.basis import surface_point
+from arsurf.status import SEPARATED
+
+#: the most contacts followed at once (the god-object's three, plus one being born or dying)
+MAX_CONTACTS = 4
+#: one contact: parameters (m), point (m), unit normal, depth along its own normal (m, > 0
+#: penetrating), weight in [0, 1], barrier credit (m: the most barrier its weight may use, module
+#: docstring, "Found late")
+CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1), ("credit", 1)])
+C_U, C_PX, C_NX = CONTACT.offset("uv"), CONTACT.offset("point"), CONTACT.offset("normal")
+C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weight")
+C_CREDIT = CONTACT.offset("credit")
+C_SIZE = CONTACT.size
+#: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
+#: previous tick's (u, v) of each (the tracking starts), the next discovery probe, and the tip's
+#: last lift behind the coupling along the total normal (m; the start of the next solve) and the
+#: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
+#: load (its weight times the direction it pushes, turned towards the minima inside its zone)
+CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
+                                         ("previous_uv", 2 * MAX_CONTACTS), ("previous_credit", MAX_CONTACTS),
+                                         ("probe", 1), ("lift", 1),
+                                         ("centre", 3), ("closest_force", 3)])
+T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
+                               CONTACT_TABLE.offset("previous_uv"))
+T_PROBE, T_LIFT = CONTACT_TABLE.offset("probe"), CONTACT_TABLE.offset("lift")
+T_PREVIOUS_CREDIT = CONTACT_TABLE.offset("previous_credit")
+T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
+TABLE_SIZE = CONTACT_TABLE.size
+#: two converged Newton ends closer than this (in knot spacings) are the same contact
+SAME_POINT = 1e-6
+#: discovery starts on circles of PROBE_REACH and PROBE_REACH / 2 tip radii around the closest point, in
+#: turn, in PROBES directions: all of them at the first touch, then one per tick in turn (a contact
+#: is born with weight 0: found within PROBES
+#: ticks, it has gained next to nothing)
+PROBES = 8
+PROBE_REACH = 0.6
+#: points sampled on the (u, v) segment between a contact and the closest point for its barrier
+PATH_SAMPLES = 8
+#: Newton iterations of the coupled lift (:func:`coupled_lift_kernel`; bisection bounds it anyway)
+_MAX_LIFT_ITER = 60
+
+
+@njit(cache=True)
+def _row(at, i):
+    return at + T_ROWS + i * C_SIZE
+
+
+@njit(cache=True)
+def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, credit, h, tab, at, count):
+    """Run Newton from (u, v); add its end as a contact if it converged, is new and within reach
+    (depth >= ``floor``), with the barrier ``credit`` (m). Returns the new count."""
+    if not (math.isfinite(u) and math.isfinite(v)):
+        return count
+    nu = ku.shape[0]
+    nv = kv.shape[0]
+    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, ku[3], ku[nu - 4], kv[3], kv[nv - 4],
+                                    STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    if not conv:
+        return count
+    for i in range(count):
+        r = _row(at, i)
+        if math.hypot(u - tab[r + C_U], v - tab[r + C_V]) <= SAME_POINT * h:
+            return count  # found from another start: the same contact
+    ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
+    ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
+    az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
+    an = math.sqrt(ax * ax + ay * ay + az * az)
+    if not an > 0.0:
+        return count
+    ax /= an  # out of the sample (S_u x S_v), as the collision's normal
+    ay /= an
+    az /= an
+    depth = radius - ((cx - ev[0, 0]) * ax + (cy - ev[0, 1]) * ay + (cz - ev[0, 2]) * az)
+    if not floor <= depth <= radius:  # out of reach, or the centre behind the patch (module docstring)
+        return count
+    slot = count
+    if count == MAX_CONTACTS:  # full: replace the shallowest if this one is deeper
+        slot = 1
+        for i in range(2, MAX_CONTACTS):
+            if tab[_row(at, i) + C_DEPTH] < tab[_row(at, slot) + C_DEPTH]:
+                slot = i
+        if not depth > tab[_row(at, slot) + C_DEPTH]:
+            return count
+    r = _row(at, slot)
+    tab[r + C_U] = u
+    tab[r + C_V] = v
+    tab[r + C_PX] = ev[0, 0]
+    tab[r + C_PX + 1] = ev[0, 1]
+    tab[r + C_PX + 2] = ev[0, 2]
+    tab[r + C_NX] = ax
+    tab[r + C_NX + 1] = ay
+    tab[r + C_NX + 2] = az
+    tab[r + C_DEPTH] = depth
+    tab[r + C_WEIGHT] = 0.0
+    tab[r + C_CREDIT] = credit
+    return min(count + 1, MAX_CONTACTS)
+
+
+@njit(cache=True)
+def _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, ui, vi):
+    """s: the highest distance (m) on the (u, v) segment from contact i to the closest point (module docstring)."""
+    s = di
+    for k in range(1, PATH_SAMPLES + 1):
+        t = k / (PATH_SAMPLES + 1.0)
+        surface_point(ctrl, ku, kv, ui + t * (u1 - ui), vi + t * (v1 - vi), 0, ev)
+        dx = ev[0, 0] - cx
+        dy = ev[0, 1] - cy
+        dz = ev[0, 2] - cz
+        s = max(s, math.sqrt(dx * dx + dy * dy + dz * dz))
+    return s
+
+
+@njit(cache=True)
+def pair_weight(own, other, margin):
+    r"""The weight of a contact whose barrier is ``own`` (m) against a neighbour whose barrier on the
+    same pass is ``other`` (module docstring):
+    :math:`\varphi(b, b') = r(b) + (1 - r(b))\,b / (b + b')`, :math:`r(x) = \min(x/m, 1)`."""
+    r = min(max(own, 0.0) / margin, 1.0)
+    both = max(own, 0.0) + max(other, 0.0)
+    return r + (1.0 - r) * (max(own, 0.0) / both if both > 0.0 else 0.5)
+
+
+@njit(cache=True)
+def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, prev_u, prev_v, tab, at, coll):
+    """Fill the contact table ``tab[at:at + TABLE_SIZE]`` (:data:`CONTACT_TABLE`) for the tip
+    centre (cx, cy, cz) of radius ``radius`` (m): row 0 the collision answer ``coll``
+    (:data:`~arsurf.contact.layout.COLLISION_OUT`), then the other local minima of the distance
+    deeper than ``floor`` (m; the law's interaction floor), row 0 with weight 1 and the others 0
+    (their weights: :func:`weigh_contacts_kernel`; ``margin`` m is not used here). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
+    ``prev_u, prev_v`` the previous closest point (NaN: none).
+
+    Returns ``(count, jumped)``: the number of contacts, and whether the closest point changed
+    basins this tick (the friction proxy carries its anchor along): Newton from the previous
+    closest point ended at another local minimum than the closest point, or the previous minimum
+    vanished (a fold) and the closest point moved in (u, v) farther than the tip centre did plus
+    one knot spacing."""
+    h = max(ku[4] - ku[3], kv[4] - kv[3])
+    u1 = coll[ly.OUT_U]
+    v1 = coll[ly.OUT_V]
+    old = int(tab[at + T_COUNT]) if tab[at + T_COUNT] == tab[at + T_COUNT] else 0
+    for i in range(MAX_CONTACTS):  # the tracking starts: last tick's contacts
+        r = _row(at, i)
+        tab[at + T_PREVIOUS + 2 * i] = tab[r + C_U] if i < old else math.nan
+        tab[at + T_PREVIOUS + 2 * i + 1] = tab[r + C_V] if i < old else math.nan
+        tab[at + T_PREVIOUS_CREDIT + i] = tab[r + C_CREDIT] if i < old else 0.0
+    r0 = _row(at, 0)
+    tab[r0 + C_U] = u1
+    tab[r0 + C_V] = v1
+    for j in range(3):
+        tab[r0 + C_PX + j] = coll[ly.OUT_PX + j]
+        tab[r0 + C_NX + j] = coll[ly.OUT_NX + j]
+    tab[r0 + C_DEPTH] = coll[ly.OUT_DEPTH]
+    tab[r0 + C_WEIGHT] = 1.0
+    tab[r0 + C_CREDIT] = math.inf
+    count = 1
+    # where Newton from the previous closest point ends (the collision query ran it over the same
+    # domain; NaN: not known, run it here)
+    wu = coll[ly.OUT_WARM_U]
+    wv = coll[ly.OUT_WARM_V]
+    if not (math.isfinite(wu) and math.isfinite(wv)):
+        wu = prev_u
+        wv = prev_v
+    jumped = False
+    if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
+        if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, math.inf, h, tab, at, count)
+            jumped = count > 1  # Newton from there ended at another minimum than the closest point
+            if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
+                count = 1  # a jump, but the old point is out of reach
+    c0 = at + T_CENTRE
+    moved = math.sqrt((cx - tab[c0]) ** 2 + (cy - tab[c0 + 1]) ** 2 + (cz - tab[c0 + 2]) ** 2)
+    if not math.isfinite(moved):
+        moved = 0.0
+    if not jumped and math.isfinite(prev_u) and math.isfinite(prev_v) and math.isfinite(tab[c0]):
+        # a fold hop: the old minimum vanished this tick and Newton from it slid on to the closest
+        # point, farther than a minimum carried by the tip goes (the tip's move plus a knot spacing)
+        jumped = math.hypot(u1 - prev_u, v1 - prev_v) > moved + h
+    tab[c0] = cx
+    tab[c0 + 1] = cy
+    tab[c0 + 2] = cz
+    if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
+        for i in range(1, old):  # (row 0, the previous closest point: the run above)
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
+                         tab[at + T_PREVIOUS + 2 * i + 1], floor, tab[at + T_PREVIOUS_CREDIT + i] + moved, h, tab,
+                         at, count)
+        k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
+        for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
+            phi = 2.0 * math.pi * k / PROBES  # every other start on the inner circle, half as far
+            reach = (PROBE_REACH if k % 2 == 0 else 0.5 * PROBE_REACH) * radius
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
+                         v1 + reach * math.sin(phi), floor, 0.0 if old > 0 else math.inf, h, tab, at, count)
+            k = (k + 1) % PROBES
+        tab[at + T_PROBE] = k
+    for i in range(count, MAX_CONTACTS):
+        r = _row(at, i)
+        for j in range(C_SIZE):
+            tab[r + j] = math.nan
+    tab[at + T_COUNT] = count
+    return count, jumped
+
+
+@njit(cache=True)
+def merge_factor(separation, zone):
+    r"""How much a contact ``separation`` (m) from the closest point counts as a contact of its own,
+    against the closest contact's Dugdale-zone radius ``zone`` c (m; <= 0: none) (module docstring,
+    "One contact of a rough tip"): :math:`o = \min(\max(s/c - 1, 0), 1)`, 0 where each point lies
+    inside the other's zone (s <= c), 1 where the two zones are apart (s >= 2c)."""
+    if not zone > 0.0:
+        return 1.0
+    return min(max(separation / zone - 1.0, 0.0), 1.0)
+
+
+@njit(cache=True)
+def hertz_share(depth, jump_out, margin):
+    r""":math:`q = ((\delta - \delta_{out})_+ + 10^{-3} m)^{3/2}`: how much a contact ``depth`` (m)
+    deep pushes, relatively (the depth beyond the jump-out depth ``jump_out`` to the Hertz power;
+    the small floor keeps directions continuous, and symmetric, where every contact is out of reach)."""
+    return (max(depth - jump_out, 0.0) + 1e-3 * margin) ** 1.5
+
+
+@njit(cache=True)
+def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count):
+    r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
+    centre (cx, cy, cz) (module docstring): contact i > 0 counts with
+    :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
+    :math:`w_1 = \prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
+    :func:`merge_factor` of its distance from the closest point against ``zone`` (m, the closest
+    contact's Dugdale-zone radius c at its depth under the tip), and the closest contact pushes
+    along (per unit load, ``T_CLOSEST_FORCE``)
+    :math:`V_1 = w_1\,\mathrm{unit}(w_1 n_1 + \sum_{i>0} (1 - o_i)(m_i - n_1))`,
+    :math:`m_i = \mathrm{unit}(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i)`
+    (module docstring, "A hop inside one zone"; q: :func:`hertz_share` at ``jump_out`` m).
+    ``margin`` m, ``ev`` (>= 1, 3) scratch."""
+    r0 = _row(at, 0)
+    u1 = tab[r0 + C_U]
+    v1 = tab[r0 + C_V]
+    d1 = radius - tab[r0 + C_DEPTH]
+    n1x, n1y, n1z = tab[r0 + C_NX], tab[r0 + C_NX + 1], tab[r0 + C_NX + 2]
+    q1 = hertz_share(tab[r0 + C_DEPTH], jump_out, margin)
+    w0 = 1.0
+    vx = vy = vz = 0.0  # the turn of the closest contact's direction towards the minima in its zone
+    for i in range(1, count):
+        r = _row(at, i)
+        di = radius - tab[r + C_DEPTH]
+        s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
+        o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
+                                   + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
+        b = min(s - di, tab[r + C_CREDIT])  # found late: the barrier grows in no faster than the tip moves
+        tab[r + C_CREDIT] = max(b, 0.0)
+        own = pair_weight(b, s - d1, margin)
+        other = pair_weight(s - d1, b, margin)
+        tab[r + C_WEIGHT] = o * own
+        w0 *= o * other + 1.0 - o
+        if o < 1.0:  # partly inside the closest contact's zone: one contact, whose direction it shares
+            qi = own * hertz_share(tab[r + C_DEPTH], jump_out, margin)
+            q0 = other * q1
+            mx = q0 * n1x + qi * tab[r + C_NX]
+            my = q0 * n1y + qi * tab[r + C_NX + 1]
+            mz = q0 * n1z + qi * tab[r + C_NX + 2]
+            mn = math.sqrt(mx * mx + my * my + mz * mz)
+            if mn > 0.0:
+                vx += (1.0 - o) * (mx / mn - n1x)
+                vy += (1.0 - o) * (my / mn - n1y)
+                vz += (1.0 - o) * (mz / mn - n1z)
+    tab[r0 + C_WEIGHT] = w0
+    vx += w0 * n1x
+    vy += w0 * n1y
+    vz += w0 * n1z
+    vn = w0 / math.sqrt(vx * vx + vy * vy + vz * vz)  # the closest contact's load, w_1 P_1, turned
+    f = at + T_CLOSEST_FORCE
+    tab[f] = vn * vx
+    tab[f + 1] = vn * vy
+    tab[f + 2] = vn * vz
+
+
+@njit(cache=True)
+def total_normal_kernel(tab, at, count, jump_out, margin):
+    r"""The total normal n (unit) of the contacts in ``tab`` (module docstring): the sum of the
+    closest contact's force per unit load :math:`V_1` (``T_CLOSEST_FORCE``) and of the other
+    contacts' weighted normals :math:`w_i n_i`, each times its :func:`hertz_share` q."""
+    f = at + T_CLOSEST_FORCE
+    q = hertz_share(tab[_row(at, 0) + C_DEPTH], jump_out, margin)
+    bx, by, bz = q * tab[f], q * tab[f + 1], q * tab[f + 2]
+    for i in range(1, count):
+        r = _row(at, i)
+        q = tab[r + C_WEIGHT] * hertz_share(tab[r + C_DEPTH], jump_out, margin)
+        bx += q * tab[r + C_NX]
+        by += q * tab[r + C_NX + 1]
+        bz += q * tab[r + C_NX + 2]
+    bn = math.sqrt(bx * bx + by * by + bz * bz)
+    return bx / bn, by / bn, bz / bn
+
+
+@njit(cache=True)
+def _ramp(x, margin):
+    """r(x) = min(max(x / m, 0), 1)."""
+    return min(max(x / margin, 0.0), 1.0)
+
+
+@njit(cache=True)
+def sum_loads_kernel(tab, at, count, nx, ny, nz, lift, interacting, jump_out, margin, depth_scale, radius_scale,
+                     load_scale, lam, t_fold, delta_fold):
+    r"""The summed contact force with the tip ``lift`` (m) out along the total normal n (module
+    docstring, "Entry at the edge"): contact i is :math:`\delta_i - \ell\,(n\cdot n_i)` deep and
+    carries :math:`w_i\,e_i\,P(\delta_i - \ell\,n\cdot n_i)\,n_i`, the closest one
+    :math:`P(\delta_1 - \ell\,n\cdot n_1)\,V_1` ("A hop inside one zone"), P the Maugis-Dugdale law
+    (``MaugisDugdale.kernel_args``) under the tip's hysteresis state ``interacting``.
+
+    Returns ``(fx, fy, fz, F.n, status, a, load, depth)``: the force (N), its part along n, and
+    the closest contact's (row 0) answer at its depth (status, radius m, load N, depth m)."""
+    r0 = _row(at, 0)
+    d0 = tab[r0 + C_DEPTH] - lift * (nx * tab[r0 + C_NX] + ny * tab[r0 + C_NX + 1] + nz * tab[r0 + C_NX + 2])
+    e0 = _ramp(d0 - jump_out, margin)
+    fx = fy = fz = 0.0
+    st0 = SEPARATED
+    a0 = p0 = 0.0
+    for i in range(count):
+        r = _row(at, i)
+        w = tab[r + C_WEIGHT]
+        if not w > 0.0:
+            continue
+        mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
+        d = d0 if i == 0 else tab[r + C_DEPTH] - lift * (nx * mx + ny * my + nz * mz)
+        if i > 0:  # the entry ramp, relative to the closest contact's (1 where they are as deep)
+            e = _ramp(d - jump_out, margin)
+            if e < e0:
+                w *= e / e0
+        st, a, p = md_contact_hysteresis_kernel(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
+                                                delta_fold)
+        if st < 0 or st == SEPARATED:
+            a = p = 0.0
+        if i == 0:  # the closest contact pushes along V_1 (its weight included)
+            st0, a0, p0 = st, a, p
+            f = at + T_CLOSEST_FORCE
+            fx += p * tab[f]
+            fy += p * tab[f + 1]
+            fz += p * tab[f + 2]
+            continue
+        fx += w * p * mx
+        fy += w * p * my
+        fz += w * p * mz
+    return fx, fy, fz, fx * nx + fy * ny + fz * nz, st0, a0, p0, d0
+
+
+@njit(cache=True)
+def coupled_lift_kernel(tab, at, count, nx, ny, nz, k_couple, interacting, start, jump_out, margin, depth_scale,
+                        radius_scale, load_scale, lam, t_fold, delta_fold):
+    r"""The lift :math:`\ell` (m) of the one rigid tip behind a virtual coupling of stiffness
+    ``k_couple`` (N/m; ``inf``: none) along the total normal n, resting on all the contacts of
+    ``tab``: the root of
+
+    .. math:: g(\ell) = F_N(\ell)\cdot n - k_c\,\ell, \qquad F_N(\ell) = \sum_i w_i e_i P_i(\delta_i - \ell\, n\cdot n_i)\, n_i
+
+    (:func:`sum_loads_kernel`), the several-contact form of
+    :func:`~arsurf.contact.proxy.coupled_depth_kernel`'s :math:`P(\delta) = k_c(\delta_t - \delta)`:
+    every contact is in series with the coupling, so the hand feels at most :math:`k_c` however
+    many contacts carry the tip. :math:`F_N\cdot n` falls as the tip lifts, so the root lies
+    between 0 and :math:`F_N(0)\cdot n / k_c`; Newton's method from ``start`` (the previous
+    tick's lift), bisection whenever a step leaves the bracket.
+
+    Returns ``(lift, coupled, fx, fy, fz, F.n, status, a, load, depth)``: the lift, whether the
+    coupling equation was solved (False, lift 0: no coupling, or the closest contact separated at
+    the target: the tip is at the target) and :func:`sum_loads_kernel`'s answer at that lift."""
+    fx, fy, fz, g0, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, 0.0, interacting, jump_out, margin,
+                                                   depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    if not (k_couple < math.inf) or st < 0 or st == SEPARATED:
+        return 0.0, False, fx, fy, fz, g0, st, a, p, d
+    top = g0 / k_couple
+    lo, hi = min(0.0, top), max(0.0, top)
+    lift = start if (math.isfinite(start) and lo < start < hi) else 0.5 * (lo + hi)
+    h = 1e-4 * depth_scale
+    tol = 1e-9 * load_scale
+    for _ in range(_MAX_LIFT_ITER):
+        fx, fy, fz, fn, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, lift, True, jump_out, margin,
+                                                       depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+        g = fn - k_couple * lift
+        if abs(g) <= tol or hi - lo <= 1e-9 * depth_scale:
+            return lift, st != SEPARATED, fx, fy, fz, fn, st, a, p, d
+        if g > 0.0:
+            lo = lift
+        else:
+            hi = lift
+        f2 = sum_loads_kernel(tab, at, count, nx, ny, nz, lift + h, True, jump_out, margin, depth_scale,
+                              radius_scale, load_scale, lam, t_fold, delta_fold)[3]
+        slope = (f2 - fn) / h - k_couple
+        step = lift - g / slope if slope < 0.0 else math.nan
+        lift = step if lo < step < hi else 0.5 * (lo + hi)
+    fx, fy, fz, fn, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, lift, True, jump_out, margin,
+                                                   depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    return lift, st != SEPARATED, fx, fy, fz, fn, st, a, p, d
