@@ -21,7 +21,7 @@ system:
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[all,test,docs]"
+	$(PY) -m pip install -q --no-compile -e ".[all,test,docs]"  # no .pyc for the ~11000 installed modules: each compiles at first import (docs/testing.rst)
 	$(PY) -m arsurf.warmup --quiet  # numba's cache, built once here: the first demo does not wait on the compiler
 	touch $(STAMP)
 
