@@ -136,8 +136,11 @@ def test_the_full_loop_records_positions_and_forces(inv, tmp_path):
     t = r.ticks
     z, fz = t["stylus_position"][:, 2], t["device_force"][:, 2]
     assert -0.003 < z[-1] < -0.0005
-    rest = slice(-100, None)
-    np.testing.assert_allclose(fz[rest].mean(), 200.0 * (z[rest].mean() + 0.003), rtol=0.05)
+    # at rest the coupling's spring law holds, tick by tick; the simulated device is a Python thread
+    # that a loaded machine can stall for tens of ms, kicking the handle, so the law is judged by the
+    # median over the last half second (a mean over 100 ticks was 5.3 % off after one such kick)
+    rest = slice(-500, None)
+    np.testing.assert_allclose(np.median(fz[rest] / (200.0 * (z[rest] + 0.003))), 1.0, rtol=0.02)
     assert np.linalg.norm(t["device_force"], axis=1).max() <= 4.0 * (1 + 1e-12)
     assert inv.max_force_seen <= 4.0 * (1 + 1e-6)  # float32 on the wire
     np.testing.assert_allclose(t["probe_position"][:, 2], 25e-9 + z * 1e-5, atol=1e-15)
