@@ -71,8 +71,9 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
     of candidate cells (``model``'s collision output ``OUT_CACHED`` = 0: a pyramid walk), the
     ticks during which the thread was switched out involuntarily (``getrusage`` RUSAGE_THREAD
     ``ru_nivcsw``: another process took the core), the ticks that moved the net
-    (``deformer``'s syncs: a read inside the tick, O((R/h)^2)) and the Python blocks allocated
-    per tick.
+    (``deformer``'s syncs: a read inside the tick, O((R/h)^2)), the Python blocks allocated
+    per tick, and the collision's work (``OUT_CELLS``: knot cells whose box beat the bound, each
+    a certificate, a Newton run or a Bézier subdivision; ``OUT_ITERATIONS``: Newton iterations).
 
     Returns median/p99 of wall and CPU time (us) and, over the ticks slower than 100 us wall,
     how many were preempted (CPU < half the wall, or switched out), ran the GC, rebuilt the
@@ -94,8 +95,10 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
     gc_in = np.zeros(ticks, dtype=bool)
     sync_in = np.zeros(ticks, dtype=bool)
     uncached = np.zeros(ticks, dtype=bool)
+    cells = np.zeros(ticks)
+    newton = np.zeros(ticks)
     coll = None if model is None else model._coll
-    from arsurf.contact.layout import OUT_CACHED
+    from arsurf.contact.layout import OUT_CACHED, OUT_CELLS, OUT_ITERATIONS
     state = {"gc": False, "sync": 0}
 
     def on_gc(phase, info):
@@ -128,7 +131,9 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
             switched[k] = usage(thread_usage).ru_nivcsw > s0
             wall[k], cpu[k] = t1 - t0, c1 - c0
             gc_in[k], sync_in[k] = state["gc"], state["sync"] > 0
-            uncached[k] = coll is not None and coll[OUT_CACHED] == 0.0
+            if coll is not None:
+                uncached[k] = coll[OUT_CACHED] == 0.0
+                cells[k], newton[k] = coll[OUT_CELLS], coll[OUT_ITERATIONS]
     finally:
         gc.callbacks.remove(on_gc)
         if restore:
@@ -145,4 +150,10 @@ def traced(fn, ticks: int, deformer=None, warmup: int = 20, model=None) -> dict:
             "ticks_with_net_sync": int(sync_in.sum()),
             "over_100us_collision_rebuilt_list": int((slow & uncached).sum()),
             "ticks_collision_rebuilt_list": int(uncached.sum()),
-            "python_blocks_per_tick_median": float(np.median(blocks))}
+            "collision_rebuilt_tick_median_us": float(np.median(w[uncached])) if uncached.any() else 0.0,
+            "collision_rebuilt_tick_p99_us": float(np.percentile(w[uncached], 99)) if uncached.any() else 0.0,
+            "python_blocks_per_tick_median": float(np.median(blocks)),
+            "collision_cells_median": float(np.median(cells)), "collision_cells_p99": float(np.percentile(cells, 99)),
+            "collision_newton_iterations_median": float(np.median(newton)),
+            "collision_newton_iterations_p99": float(np.percentile(newton, 99)),
+            "over_100us_collision_cells_median": float(np.median(cells[slow])) if slow.any() else 0.0}

@@ -98,8 +98,11 @@ def tick_table(full: bool, ticks: int, pitches=None, tips=None, depths=None) -> 
                 print(f"pitch {p} nm, R {r} nm, depth {d} nm: {x['median_us']:.1f} us, p99 {x['p99_us']:.0f} us "
                       f"(cpu p99 {x['cpu_p99_us']:.0f} us; >100 us: {x['ticks_over_100us']}, preempted "
                       f"{x['over_100us_preempted']}, switched out {x['over_100us_switched_out']}, "
-                      f"collision list rebuilt {x['over_100us_collision_rebuilt_list']}, "
-                      f"gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']})",
+                      f"collision list rebuilt {x['over_100us_collision_rebuilt_list']} (of {x['ticks_collision_rebuilt_list']} "
+                      f"rebuilds, median {x['collision_rebuilt_tick_median_us']:.0f} us), "
+                      f"gc {x['over_100us_with_gc']}, syncs {x['ticks_with_net_sync']}; collision cells median "
+                      f"{x['collision_cells_median']:.0f} / p99 {x['collision_cells_p99']:.0f}, Newton iterations "
+                      f"{x['collision_newton_iterations_median']:.0f} / {x['collision_newton_iterations_p99']:.0f})",
                       file=sys.stderr)
     med = [r["median_us"] for r in rows]
     p99 = [r["p99_us"] for r in rows]

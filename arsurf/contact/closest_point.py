@@ -46,6 +46,10 @@ Warm start. A warm query also keeps in its work array the list of cells within
 :math:`d^* + h/2` of C (sorted by distance); later queries reuse it, without walking the
 pyramid, while :math:`|C - C_0| + d^*(C) \le R_0` guarantees it still holds every candidate
 (:func:`project_kernel`, Notes). A refresh of the pyramid (deformation) invalidates it.
+The subdivided search also keeps, per Bézier piece it met, what does not depend on C (curvature
+bounds, speed bounds, the surface at the piece's centre) in a small memo (:func:`_piece_memo`),
+so the next queries near C read them back instead of recomputing: the same numbers, the same
+answers bit for bit.
 
 Cost (bench/collision.py). In contact, warm: one Newton run (2-3 iterations), a short list
 scan and 1-2 certified cells, ~1 us in a kernel loop. Cold: the pyramid walk (~4 box tests per
@@ -77,7 +81,7 @@ from arsurf.contact.hull_tree import (
     extents_bounds2, net_curvature, net_extents, net_split, node_bounds2, node_distance2, signed_convex,
 )
 from arsurf.contact.layout import (
-    BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
+    BEST_ROW, CACHE_CAP, CACHE_LIST, CACHE_MARGIN, CACHE_ROW, CACHE_SORT, MEMO_BASE, MEMO_ROWS, PIECE_MEMO, MAX_SUBDIVISION, NET_TMP, OUT_BOUNDARY,
     OUT_CACHED, OUT_CELLS, OUT_CONVERGED, OUT_DEPTH, OUT_DISTANCE, OUT_ITERATIONS, OUT_NX, OUT_NY, OUT_NZ,
     OUT_PX, OUT_PY, OUT_PZ, OUT_SIZE, OUT_STATUS, OUT_U, OUT_V, OUT_WARM_U, OUT_WARM_V, STACK_ROWS, SUB_BASE,
     SUB_CAP, SUB_ENTRY,
@@ -146,8 +150,16 @@ def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0
     oriented box. A piece inside the domain without a local minimum cannot hold the global one
     (an interior minimum has g = 0 and H ⪰ 0), not even on its edges: it is pruned.
     """
-    du = u1 - u0
-    dv = v1 - v0
+    su, sv = _piece_speeds(net, e, u1 - u0, v1 - v0)
+    surface_point(ctrl, ku, kv, 0.5 * (u0 + u1), 0.5 * (v0 + v1), 2, ev)
+    return _no_local_minimum_at(ev, su, sv, u1 - u0, v1 - v0, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv,
+                                lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz)
+
+
+@njit(cache=True, inline="always")
+def _piece_speeds(net, e, du, dv):
+    """Bounds of |S_u| and |S_v| on a piece from its Bézier net ``net[e:e+16]`` (the largest
+    difference of neighbouring control points, times 3 over the piece's width), widened 1e-9."""
     su2 = 0.0
     sv2 = 0.0
     for k in range(3):
@@ -160,13 +172,18 @@ def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0
             qy = net[e + m * 4 + k + 1, 1] - net[e + m * 4 + k, 1]
             qz = net[e + m * 4 + k + 1, 2] - net[e + m * 4 + k, 2]
             sv2 = max(sv2, qx * qx + qy * qy + qz * qz)
-    su = 3.0 * math.sqrt(su2) / du * (1.0 + 1e-9)
-    sv = 3.0 * math.sqrt(sv2) / dv * (1.0 + 1e-9)
+    return 3.0 * math.sqrt(su2) / du * (1.0 + 1e-9), 3.0 * math.sqrt(sv2) / dv * (1.0 + 1e-9)
+
+
+@njit(cache=True)
+def _no_local_minimum_at(ev, su, sv, du, dv, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv,
+                         lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+    """:func:`_no_local_minimum` from its parts that do not depend on C: ``ev`` the evaluation
+    (order 2) at the piece's centre, ``su``, ``sv`` of :func:`_piece_speeds`, the piece's widths."""
     suu = math.sqrt(max(kuu0 * kuu0, kuu1 * kuu1) + tuu * tuu)
     svv = math.sqrt(max(kvv0 * kvv0, kvv1 * kvv1) + tvv * tvv)
     suv = math.sqrt(max(kuv0 * kuv0, kuv1 * kuv1) + tuv * tuv)
     rmax = math.sqrt(far2)
-    surface_point(ctrl, ku, kv, 0.5 * (u0 + u1), 0.5 * (v0 + v1), 2, ev)
     rx = ev[0, 0] - cx
     ry = ev[0, 1] - cy
     rz = ev[0, 2] - cz
@@ -208,6 +225,34 @@ def _no_local_minimum(ctrl, ku, kv, ev, net, e, u0, u1, v0, v1, kuu0, kuu1, kuv0
 
 
 @njit(cache=True)
+def _piece_memo(ctrl, ku, kv, work, e, node, pid, version, tree_id, nx, ny, nz, u0, u1, v0, v1):
+    """The row of piece ``pid`` of cell ``node`` in the piece memo of ``work`` (layout.py), filled
+    first if absent: :func:`net_curvature` of its net ``work[e:e+16]`` along the cell normal n,
+    :func:`_piece_speeds`, and the surface (order 2) at its centre. None of it depends on the tip
+    centre, so the same piece met by the next ticks' searches reads it back: the same numbers,
+    hence the same decisions, as computing them again. The key carries the pyramid's version and
+    tree id (a refreshed net or another tile's pyramid never reads a stale entry)."""
+    piece = node * 85 + pid  # pid < 85: one number per piece of the pyramid's cells
+    key = float(piece + 1)  # never 0, the value of an empty row
+    # Fibonacci hashing: neighbouring cells and pieces spread over the whole memo
+    m = MEMO_BASE + (((piece * 2654435761) & 0xFFFFFFFF) * PIECE_MEMO >> 32) * MEMO_ROWS
+    if work[m, 0] == key and work[m, 1] == version and work[m, 2] == tree_id:
+        return m
+    kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2 = net_curvature(work[e:e + 16], u1 - u0, v1 - v0,
+                                                                            nx, ny, nz)
+    su, sv = _piece_speeds(work, e, u1 - u0, v1 - v0)
+    surface_point(ctrl, ku, kv, 0.5 * (u0 + u1), 0.5 * (v0 + v1), 2, work[m + 5:m + 11])
+    work[m, 0] = key
+    work[m, 1] = version
+    work[m, 2] = tree_id
+    work[m + 1, 0], work[m + 1, 1], work[m + 1, 2] = kuu0, kuu1, kuv0
+    work[m + 2, 0], work[m + 2, 1], work[m + 2, 2] = kuv1, kvv0, kvv1
+    work[m + 3, 0], work[m + 3, 1], work[m + 3, 2] = tuu, tuv, tvv
+    work[m + 4, 0], work[m + 4, 1], work[m + 4, 2] = sig2, su, sv
+    return m
+
+
+@njit(cache=True)
 def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz, bu, bv, bd2, bconv,
                        lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Closest point in knot cell (a, b) when D is not certified convex there.
@@ -227,6 +272,10 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
     work[e + 16, 2] = kv[b + 3]
     work[e + 17, 0] = kv[b + 4]
     work[e + 17, 1] = 0.0
+    work[e + 17, 2] = 0.0  # piece id: the cell 0, the children of piece p 4p + 1 .. 4p + 4
+    vrow = nodes.shape[0] - 1
+    version = nodes[vrow, VERSION]
+    tree_id = nodes[vrow, TREE_ID]
     sp = 1
     iters = 0
     nonfinite = False
@@ -242,16 +291,20 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
         near2, far2, lift = extents_bounds2(lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, cx, cy, cz)
         if not (near2 < bd2 * TIE):
             continue
-        kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2 = net_curvature(work[e:e + 16], u1 - u0, v1 - v0,
-                                                                                nx, ny, nz)
+        m = _piece_memo(ctrl, ku, kv, work, e, node, int(work[e + 17, 2]), version, tree_id, nx, ny, nz,
+                        u0, u1, v0, v1)
+        kuu0, kuu1, kuv0 = work[m + 1, 0], work[m + 1, 1], work[m + 1, 2]
+        kuv1, kvv0, kvv1 = work[m + 2, 0], work[m + 2, 1], work[m + 2, 2]
+        tuu, tuv, tvv = work[m + 3, 0], work[m + 3, 1], work[m + 3, 2]
+        sig2 = work[m + 4, 0]
         # unsigned radius (Gershgorin with norms) or the signed test along the cell's normal
         rho = curvature_radius(kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2)
         convex = far2 < rho * rho or signed_convex(
             kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv, sig2, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz,
             cx, cy, cz)
-        if not convex and lo_u < u0 and u1 < hi_u and lo_v < v0 and v1 < hi_v and _no_local_minimum(
-                ctrl, ku, kv, ev, work, e, u0, u1, v0, v1, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1, tuu, tuv, tvv,
-                lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
+        if not convex and lo_u < u0 and u1 < hi_u and lo_v < v0 and v1 < hi_v and _no_local_minimum_at(
+                work[m + 5:m + 11], work[m + 4, 1], work[m + 4, 2], u1 - u0, v1 - v0, kuu0, kuu1, kuv0, kuv1,
+                kvv0, kvv1, tuu, tuv, tvv, lt, ht, ls, hs, ln, hn, nx, ny, nz, tx, ty, tz, far2, cx, cy, cz):
             continue  # inside the domain and provably no local minimum of D on the piece
         if convex or depth >= MAX_SUBDIVISION or sp + 4 > SUB_CAP:
             if convex and u0 <= bu <= u1 and v0 <= bv <= v1:
@@ -273,6 +326,7 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
                     _keep(work)
             continue
         # split into quarters: the parent's slot becomes the first child
+        pid = work[e + 17, 2]
         for r in range(16):
             for c in range(3):
                 work[NET_TMP + r, c] = work[e + r, c]
@@ -290,6 +344,7 @@ def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz
             work[eq + 16, 2] = v0 if q < 2 else vm
             work[eq + 17, 0] = vm if q < 2 else v1
             work[eq + 17, 1] = depth + 1
+            work[eq + 17, 2] = 4.0 * pid + 1.0 + q
         sp += 4
     return bu, bv, bd2, bconv, iters, nonfinite
 
@@ -403,6 +458,58 @@ def _pop(work, sp):
     """Pop the search stack: (new stack pointer, level, i, j)."""
     sp -= 1
     return sp, int(work[sp, 0]), int(work[sp, 1]), int(work[sp, 2])
+
+
+@njit(cache=True)
+def sort_candidates(work, first, n, scratch):
+    """Sort rows ``first .. first + n - 1`` of ``work`` (cell, distance, -) by distance, ties in
+    their present order (a stable sort), in O(n) for spread distances: a counting sort into n
+    buckets of equal width between the least and the largest distance (rows from ``scratch``
+    of ``work`` hold the buckets' counts and the sorted rows, n <= CACHE_CAP), then an insertion
+    sort, which only meets the few rows sharing a bucket.
+
+    The candidate list of a warm query is rebuilt every few ticks, inside a tick, and its walk
+    emits the cells depth-first, far from sorted: an insertion sort alone of the ~480 cells at
+    0.1 nm pitch under a 50 nm tip cost ~45 us (bench/haptic_loop.py's table)."""
+    if n < 2:
+        return
+    lo = work[first, 1]
+    hi = lo
+    for r in range(first + 1, first + n):
+        lo = min(lo, work[r, 1])
+        hi = max(hi, work[r, 1])
+    if hi > lo:
+        scale = n / (hi - lo)  # bucket = int((d - lo) scale): non-decreasing in d
+        for k in range(n):
+            scratch_row = scratch + k
+            work[scratch_row, 2] = 0.0
+        for r in range(first, first + n):
+            k = min(int((work[r, 1] - lo) * scale), n - 1)
+            work[scratch + k, 2] += 1.0
+        start = 0.0
+        for k in range(n):  # counts -> first row of each bucket
+            c = work[scratch + k, 2]
+            work[scratch + k, 2] = start
+            start += c
+        for r in range(first, first + n):  # stable placement, then back
+            k = min(int((work[r, 1] - lo) * scale), n - 1)
+            at = scratch + int(work[scratch + k, 2])
+            work[scratch + k, 2] += 1.0
+            work[at, 0] = work[r, 0]
+            work[at, 1] = work[r, 1]
+        for k in range(n):
+            work[first + k, 0] = work[scratch + k, 0]
+            work[first + k, 1] = work[scratch + k, 1]
+    for a in range(first + 1, first + n):  # insertion sort: stable, ~O(n) after the buckets
+        kn = work[a, 0]
+        kd = work[a, 1]
+        b = a - 1
+        while b >= first and work[b, 1] > kd:
+            work[b + 1, 0] = work[b, 0]
+            work[b + 1, 1] = work[b, 1]
+            b -= 1
+        work[b + 1, 0] = kn
+        work[b + 1, 1] = kd
 
 
 @njit(cache=True)
@@ -570,17 +677,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
                 if kk >= 0 and sp < cap:
                     sp = _push(work, sp, clev, 2 * i + (kk >> 1), 2 * j + (kk & 1))
         if build and not overflow and count > 0:
-            # insertion sort of the list by distance (short lists; rebuilt every ~m/|step| ticks)
-            for a in range(CACHE_LIST + 1, CACHE_LIST + count):
-                kn = work[a, 0]
-                kd = work[a, 1]
-                b = a - 1
-                while b >= CACHE_LIST and work[b, 1] > kd:
-                    work[b + 1, 0] = work[b, 0]
-                    work[b + 1, 1] = work[b, 1]
-                    b -= 1
-                work[b + 1, 0] = kn
-                work[b + 1, 1] = kd
+            sort_candidates(work, CACHE_LIST, count, CACHE_SORT)
             work[CACHE_ROW, 0] = version
             work[CACHE_ROW, 1] = tree_id
             work[CACHE_ROW, 2] = count

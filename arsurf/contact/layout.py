@@ -47,19 +47,28 @@ MAX_SUBDIVISION = 3
 # CACHE_CAP cells) and reuse it while the tip stays inside that margin (project_kernel, Notes).
 CACHE_MARGIN = 0.5
 CACHE_CAP = 512
-#: rows of a subdivision stack entry: the 16 net rows and (u0, u1, v0), (v1, depth, -)
+# The subdivided search keeps what it learnt of a Bézier piece that does not depend on the tip
+# centre (the piece's curvature bounds, |S_u| and |S_v| bounds, and the surface at its centre) in a
+# direct-mapped memo of PIECE_MEMO entries of MEMO_ROWS rows: (key, version, tree id); the 10
+# numbers of net_curvature and the two speeds (4 rows); the evaluation at the centre (6 rows).
+PIECE_MEMO = 256
+MEMO_ROWS = 11
+#: rows of a subdivision stack entry: the 16 net rows and (u0, u1, v0), (v1, depth, piece id)
 SUB_ENTRY = 18
 SUB_CAP = 3 * MAX_SUBDIVISION + 1
 #: the rows (of 3 floats) of the work array: Newton's evaluation block; S, S_u, S_v of the best
 #: point; the cache header (version, tree id, count), (C0), (R0, -, -); a Bézier net being split;
-#: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; then the pyramid
-#: search stack, one (level, i, j) per row
+#: the subdivision stack; the cache list, one (cell, distance from C0, -) per row; scratch of its sort
+#: (closest_point.sort_candidates); the piece memo; then the pyramid search stack, one (level, i, j) per row
 COLLISION_WORK = Layout("collision work rows", [
     ("evaluation", EVALUATION_ROWS), ("best", 3), ("cache_header", 3), ("net", 16),
-    ("subdivision", SUB_ENTRY * SUB_CAP), ("cache_list", CACHE_CAP)])
+    ("subdivision", SUB_ENTRY * SUB_CAP), ("cache_list", CACHE_CAP), ("cache_sort", CACHE_CAP),
+    ("piece_memo", PIECE_MEMO * MEMO_ROWS)])
 BEST_ROW = COLLISION_WORK.offset("best")
 CACHE_ROW = COLLISION_WORK.offset("cache_header")
 NET_TMP = COLLISION_WORK.offset("net")
 SUB_BASE = COLLISION_WORK.offset("subdivision")
 CACHE_LIST = COLLISION_WORK.offset("cache_list")
+CACHE_SORT = COLLISION_WORK.offset("cache_sort")
+MEMO_BASE = COLLISION_WORK.offset("piece_memo")
 STACK_ROWS = COLLISION_WORK.size

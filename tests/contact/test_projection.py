@@ -293,6 +293,100 @@ def test_trajectory_with_the_candidate_cache_matches_cold_queries(rng):
     assert cached > 250  # the cache is in use on a slow trajectory
 
 
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 480, pj.CACHE_CAP])
+def test_candidate_sort_is_the_stable_sort_by_distance(n, rng):
+    """The candidate list's bucket sort gives exactly the stable sort by distance (ties keep the
+    walk's order), with spread, clustered, tied and all-equal distances."""
+    first, scratch = 5, 5 + pj.CACHE_CAP + 3
+    for dist in (rng.uniform(19e-9, 19.05e-9, n), 19e-9 + 1e-12 * rng.integers(0, 4, n),
+                 np.full(n, 2e-8), np.concatenate([np.full(n // 2, 1e-9), rng.uniform(1e-9, 5e-8, n - n // 2)])):
+        rows = np.column_stack([rng.permutation(n).astype(float), dist, np.zeros(n)])
+        work = np.full((scratch + pj.CACHE_CAP + 2, 3), -7.0)
+        work[first:first + n] = rows
+        cp.sort_candidates(work, first, n, scratch)
+        np.testing.assert_array_equal(work[first:first + n, :2], rows[np.argsort(dist, kind="stable"), :2])
+        assert (work[:first] == -7.0).all() and (work[first + n:scratch] == -7.0).all()  # only its own rows
+
+
+def _memo_rows(work):
+    return work[cp.MEMO_BASE:cp.MEMO_BASE + cp.PIECE_MEMO * cp.MEMO_ROWS]
+
+
+def _trajectory(surface, centres, radius, forget_memo):
+    """Chained collide_kernel answers along ``centres`` on a fresh projector's work array,
+    forgetting the piece memo before every query or not."""
+    proj = projector(surface)
+    work = proj.kernel_args()[8]
+    work[:] = 0.0
+    work[pj.CACHE_ROW, 0] = -1.0
+    out = np.empty((len(centres), pj.OUT_SIZE))
+    hu = hv = math.nan
+    for k, c in enumerate(centres):
+        if forget_memo:
+            _memo_rows(work)[:] = 0.0
+        cp.collide_kernel(*proj.kernel_args(), *c, radius, hu, hv, out[k])
+        hu, hv = out[k, pj.OUT_U], out[k, pj.OUT_V]
+    return out, int((_memo_rows(work)[::cp.MEMO_ROWS, 0] > 0).sum())
+
+
+def test_piece_memo_changes_no_answer_bit_for_bit(rng):
+    """The subdivided search reads a piece's curvature bounds, speeds and centre evaluation back
+    from the memo: a slow slide of a 20 nm tip over rough valleys (most cells near it not
+    certified convex, so subdivided) gives the same output vector - answer, iterations, cells -
+    with the memo kept as with it forgotten before every query, and the memo is in use."""
+    s = fit_surface(rough_scan(48, seed=3))
+    z0 = float(s.evaluate(24e-9, 24e-9)[2])
+    t = np.linspace(0.0, 1.0, 400)[:, None]
+    centres = np.array([14e-9, 18e-9, z0 + 19e-9]) + t * [20e-9, 8e-9, -2e-9] + rng.normal(scale=2e-11, size=(400, 3))
+    kept, used = _trajectory(s, centres, 20e-9, False)
+    fresh, _ = _trajectory(s, centres, 20e-9, True)
+    np.testing.assert_array_equal(kept, fresh)
+    assert used > 10 and kept[:, pj.OUT_CELLS].max() > 1
+    check_against(s, centres[::40], project_many(s, centres[::40]))
+
+
+def test_piece_memo_is_not_read_after_the_net_moved(rng):
+    """Memo entries carry the pyramid's version: after control points move and refresh_region,
+    the same queries on the same work array equal those of a projector built on the moved net."""
+    s = fit_surface(rough_scan(48, seed=3))
+    z0 = float(s.evaluate(24e-9, 24e-9)[2])
+    centres = np.array([20e-9, 22e-9, z0 + 19e-9]) + rng.normal(scale=1e-9, size=(60, 3))
+    _trajectory(s, centres, 20e-9, False)  # fills the memo for the rest net
+    ctrl = s.kernel_arrays()[0]
+    ctrl[16:30, 16:30, 2] += 0.8e-9 * rng.standard_normal((14, 14))  # valleys change their curvature
+    refresh_region(s, 16, 30, 16, 30)
+    proj = projector(s)
+    out = np.empty((len(centres), pj.OUT_SIZE))
+    hu = hv = math.nan
+    for k, c in enumerate(centres):
+        cp.collide_kernel(*proj.kernel_args(), *c, 20e-9, hu, hv, out[k])
+        hu, hv = out[k, pj.OUT_U], out[k, pj.OUT_V]
+    moved = BSplineSurface.construct_fast(ctrl.copy(), *s.kernel_arrays()[2:])
+    ref, _ = _trajectory(moved, centres, 20e-9, True)
+    np.testing.assert_array_equal(out, ref)
+
+
+def test_candidate_list_holds_every_cell_within_its_reach_sorted():
+    """After a warm query the list is every knot cell whose box is nearer than its reach R0 to the
+    query point, in increasing distance (the cells a later query may need: project_kernel, Notes)."""
+    s = fit_surface(rough_scan())
+    proj = projector(s)
+    ctrl, ku, kv, mu, mv, nodes, curv, levels, work = proj.kernel_args()
+    out = np.empty(pj.OUT_SIZE)
+    q = (20e-9, 21e-9, 4e-9)
+    pj.project_kernel(*proj.kernel_args(), *q, math.nan, math.nan, out)
+    pj.project_kernel(*proj.kernel_args(), *q, out[pj.OUT_U], out[pj.OUT_V], out)  # warm: builds the list
+    pj.project_kernel(*proj.kernel_args(), q[0] + 1e-12, *q[1:], out[pj.OUT_U], out[pj.OUT_V], out)
+    assert out[pj.OUT_CACHED] == 1.0
+    count, reach = int(work[pj.CACHE_ROW, 2]), work[pj.CACHE_ROW + 2, 0]
+    rows = work[pj.CACHE_LIST:pj.CACHE_LIST + count]
+    assert count > 1 and np.all(np.diff(rows[:, 1]) >= 0.0)
+    ncell = levels[0, 1] * levels[0, 2]
+    near2 = np.array([cd.node_bounds2(nodes, k, *q)[0] for k in range(ncell)])
+    assert set(rows[:, 0].astype(int)) == set(np.flatnonzero(near2 < reach * reach))
+    np.testing.assert_array_equal(rows[:, 1], np.sqrt(near2[rows[:, 0].astype(int)]))
+
+
 # --------------------------------------------------------------------------------------------
 # deformed surfaces and local refresh
 
