@@ -21,7 +21,7 @@ system:
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[all,test,docs]"
+	$(PY) -m pip install -q --no-compile -e ".[all,test,docs]"  # no .pyc for the ~11000 installed modules: each compiles at first import (docs/testing.rst)
 	$(PY) -m arsurf.warmup --quiet  # numba's cache, built once here: the first demo does not wait on the compiler
 	touch $(STAMP)
 
@@ -36,8 +36,11 @@ demo-material: setup
 	$(VENV)/bin/arsurf demo --material $(QNM) --out out/demo-material --tip-radius-nm 5 \
 		--modulus-scale 1.7e10 --deflection-sensitivity-nm-per-v 50 --spring-constant 40
 
+# the suite on every core (pytest-xdist: one worker per CPU, whole files, the slow ones first:
+# docs/testing.rst); PYTEST_WORKERS=0 runs it in this one process, PYTEST_ARGS adds pytest's own
+PYTEST_WORKERS ?= logical
 test: setup
-	$(PY) -m pytest -q -p no:cacheprovider $(PYTEST_ARGS)
+	$(PY) -m pytest -q -p no:cacheprovider -n $(PYTEST_WORKERS) $(PYTEST_ARGS)
 
 bench: setup
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -3,18 +3,23 @@
 Every test that reads them (through :func:`real_scan_path`, :data:`REAL_SCANS` or the
 ``real_scans_dir`` fixture, in its own body or in a fixture it uses) carries the ``realscan``
 marker, applied here at collection (:func:`pytest_collection_modifyitems`), so ``-m 'not realscan'``
-leaves out exactly those.
+leaves out exactly those. The same hook moves the files holding a ``slow`` test to the front
+(:func:`tests.support.scheduling.slow_files_first`: the order ``make test`` hands files to its workers),
+and in a parallel run a test marked ``realtime`` runs alone (:func:`tests.support.scheduling.machine_share`).
 """
 from __future__ import annotations
 
 import functools
 import inspect
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from tests.support.real_scans import REAL_SCANS
+from tests.support.scheduling import machine_share, slow_files_first
 
 #: what a test's (or its fixtures') source names when it reads the real scans
 REAL_SCAN_USES = ("real_scan_path(", "REAL_SCANS", "real_scans_dir")
@@ -41,10 +46,31 @@ def uses_real_scans(item) -> bool:
 
 
 def pytest_collection_modifyitems(config, items):
-    """The ``realscan`` marker on every test that reads the real scans (:func:`uses_real_scans`)."""
+    """The ``realscan`` marker on every test that reads the real scans (:func:`uses_real_scans`); the
+    files holding a ``slow`` test first (:func:`slow_files_first`)."""
     for item in items:
         if item.get_closest_marker("realscan") is None and uses_real_scans(item):
             item.add_marker(pytest.mark.realscan)
+    items[:] = slow_files_first(items)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    """pytest-xdist's controller, for each worker it starts: the folder of the run's lock (made once,
+    removed when the run ends)."""
+    config = node.config
+    if not hasattr(config, "arsurf_lock_folder"):
+        config.arsurf_lock_folder = tempfile.mkdtemp(prefix="arsurf-test-lock-")
+        config.add_cleanup(functools.partial(shutil.rmtree, config.arsurf_lock_folder, ignore_errors=True))
+    node.workerinput["arsurf_lock_folder"] = config.arsurf_lock_folder
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Setup, call and teardown of each test under the run's lock: a ``realtime`` test alone."""
+    folder = getattr(item.config, "workerinput", {}).get("arsurf_lock_folder")
+    with machine_share(folder, alone=item.get_closest_marker("realtime") is not None):
+        return (yield)
 
 
 @pytest.fixture

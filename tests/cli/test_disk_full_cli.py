@@ -23,6 +23,9 @@ from arsurf.haptics.udp_bridge import generate_key, save_key
 from arsurf.sessions.journal import JOURNAL_SUFFIX
 from arsurf.sessions.reader import load_session
 
+# a warning within a second of the failed write: alone under xdist (docs/testing.rst)
+pytestmark = pytest.mark.realtime
+
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 
 

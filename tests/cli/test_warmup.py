@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 _DEMO_COUNTING_COMPILES = r"""
 import json, sys
 from numba.core import event
@@ -35,6 +37,7 @@ print("##" + json.dumps({"code": code, "compiled": compiled}))
 """
 
 
+@pytest.mark.slow
 def test_the_demo_after_the_warmup_compiles_nothing(tmp_path):
     env = dict(os.environ)  # the cache folder arsurf chooses (keyed on its sources), or the one set
     warm = subprocess.run([sys.executable, "-m", "arsurf", "warmup"], capture_output=True, text=True, env=env,

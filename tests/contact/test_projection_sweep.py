@@ -68,6 +68,7 @@ def _sweep(name, surface, rng, scale):
           f"mean Newton iterations {res.iterations.mean():.1f}, on boundary {res.on_boundary.mean():.2f}")
 
 
+@pytest.mark.slow
 def test_sweep_synthetic_and_deformed():
     rng = np.random.default_rng(SEED)
     for name, s in _surfaces().items():

@@ -35,6 +35,7 @@ def summary(qnm, tmp_path_factory):
                                        "dissipation": None}, units={"modulus": "Pa", "adhesion": "N"})
 
 
+@pytest.mark.slow  # builds the module fixture
 def test_the_spots_are_where_the_map_says(summary):
     s = summary["spots"]
     assert s["soft"]["x_m"] < 58e-9 and s["stiff"]["x_m"] > 62e-9

@@ -137,6 +137,7 @@ def _files(root: Path, suffix: str) -> dict[str, Path]:
     return {p.relative_to(root).as_posix(): p for p in sorted(root.rglob(f"*{suffix}"))}
 
 
+@pytest.mark.slow
 def test_the_outputs_hold_every_kind_of_file(outputs):
     found = {*_files(outputs, ".json"), *_files(outputs, ".csv"), *_files(outputs, ".h5")}
     assert {"demo/summary.json", "demo/session.h5", "demo/replay/summary.json", "demo/replay/forces.csv",
@@ -148,6 +149,7 @@ def test_the_outputs_hold_every_kind_of_file(outputs):
     assert any(name.startswith("verify/") for name in found), sorted(found)
 
 
+@pytest.mark.slow
 def test_every_json_is_strict_and_names_the_unit_of_every_number(outputs):
     files = _files(outputs, ".json")
     assert len(files) >= 14
@@ -167,6 +169,7 @@ def _number(cell: str) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_every_csv_column_of_numbers_names_its_unit(outputs):
     files = _files(outputs, ".csv")
     assert len(files) >= 5
@@ -181,6 +184,7 @@ def test_every_csv_column_of_numbers_names_its_unit(outputs):
         assert fh.readline().startswith("t_s,F_recorded_x_N,")
 
 
+@pytest.mark.slow
 def test_every_hdf5_dataset_carries_its_unit(outputs):
     files = _files(outputs, ".h5")
     files = {k: v for k, v in files.items() if v.is_file()}

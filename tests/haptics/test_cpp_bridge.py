@@ -358,6 +358,7 @@ def test_the_header_refuses_key_files_someone_else_could_have_planted(tool, tmp_
         assert line.startswith("error ") and (needle in line or "cannot read" in line), (path, line)
 
 
+@pytest.mark.realtime
 def test_tampered_forces_never_reach_the_hand_on_the_wire(client_exe, tmp_path):
     """A stand-in server answers every POSE with one good FORCE and eleven bad ones (and a
     stranger sends one too): the client applies the good ones only and counts every bad one by
@@ -496,6 +497,7 @@ def _read_log(path):
     return pos, vel, force
 
 
+@pytest.mark.realtime
 def test_same_poses_same_forces_as_the_python_client(client_exe, tmp_path):
     """The C++ client in lockstep presses into a wavy surface and slides: the forces it receives
     are bit for bit those the loop sent, and the Python client sending the same poses to a fresh
@@ -575,6 +577,7 @@ def _lan_address() -> str | None:
     return None if addr.startswith("127.") or addr == "0.0.0.0" else addr
 
 
+@pytest.mark.realtime
 def test_beyond_loopback_only_with_the_key(client_exe, tmp_path, capsys):
     """--host beyond loopback: refused without a key given by the operator; with one, the C++
     client reaching the bridge over the machine's network address is served, a client with
@@ -619,6 +622,7 @@ def test_cmake_builds_the_example(cxx, tmp_path):
 # ---------------------------------------------------------------------------------------------
 # end to end: a recorded session, replayed
 # ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_cpp_client_drives_a_recorded_session_that_replays_bit_for_bit(client_exe, tmp_path):
     """`arsurf view --bridge-port 0 --record FILE --frames 0` serves the C++ client until its
     RELEASE; the session holds the poses it sent, and `arsurf replay` gives back its forces

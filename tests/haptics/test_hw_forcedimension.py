@@ -24,6 +24,9 @@ from tests.support.hardware_sim.session import run  # noqa: E402
 from arsurf.errors import DeviceDisconnected, DeviceNotFound, HapticsError, MissingDependency  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 
+# the simulated SDK's watchdog and 1 kHz loop run on wall-clock time: alone under xdist (docs/testing.rst)
+pytestmark = pytest.mark.realtime
+
 OMEGA3, FALCON = 33, 60
 
 

@@ -20,6 +20,9 @@ from arsurf.haptics.device import BUTTON_1  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 from tests.support.waiting import wait_until  # noqa: E402
 
+# the simulated Inverse3 answers from a thread within its timeouts: alone under xdist (docs/testing.rst)
+pytestmark = pytest.mark.realtime
+
 WS = (0.20, 0.12, 0.15)
 
 

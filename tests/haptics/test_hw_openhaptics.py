@@ -23,6 +23,9 @@ from tests.support.hardware_sim.session import run  # noqa: E402
 from arsurf.errors import DeviceDisconnected, HapticsError  # noqa: E402
 from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 
+# the simulated servo thread keeps its 1 kHz within the sample timeout: alone under xdist (docs/testing.rst)
+pytestmark = pytest.mark.realtime
+
 OK, NEEDS_UPDATE, NEEDS_MANUAL = 0x5000, 0x5001, 0x5002
 ENCODER_RESET, AUTO, INKWELL = 1, 2, 4
 

@@ -189,6 +189,7 @@ tick = st.tuples(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(
     ticks=st.lists(tick, min_size=1, max_size=60),

@@ -158,6 +158,7 @@ def check_engage(result, afm, setpoint=SETPOINT, fine_step=1e-9):
     assert np.all((np.abs(micro_moves - 0.15e-6) < 1e-12) | (np.abs(micro_moves - 0.2e-6) < 1e-12))
 
 
+@pytest.mark.slow
 def test_engage_from_5_um_above_a_flat_sample():
     afm = VirtualAFM(surface=30e-9, probe_height=30e-9 + 5e-6, signal_offset=0.1, seed=11)
     result = engage(afm, setpoint=SETPOINT, force_limit=FORCE_LIMIT)
@@ -169,6 +170,7 @@ def test_engage_from_5_um_above_a_flat_sample():
     assert first_contact > last_coarse_move  # the tip touches only during the last fine sweep
 
 
+@pytest.mark.slow
 def test_engage_from_5_um_above_a_real_scan():
     from arsurf.scan.io import load_scan
 

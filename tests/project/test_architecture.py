@@ -260,6 +260,7 @@ finally:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv", [["live", "--seconds", "2"], ["demo", "--no-images", "--out", "{tmp}"]],
                          ids=["live", "demo"])
 def test_headless_commands_run_where_pyvista_and_vtk_cannot_be_imported(argv, tmp_path):

@@ -33,6 +33,7 @@ def test_the_python_blocks_run(block, monkeypatch):
     exec(compile(block.code, f"docs/{block.source}", "exec"), {})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("block", [b for b in BLOCKS if b.lang == "sh" and b.skip is None],
                          ids=lambda b: f"{b.source}:{b.code.splitlines()[0][:40]}")
 def test_the_shell_blocks_run(block, tmp_path):

@@ -27,6 +27,7 @@ def site(tmp_path_factory):
     return out / "html"
 
 
+@pytest.mark.slow  # builds the module fixture
 def test_the_site_has_its_pages(site):
     for page in ("index.html", "pipeline.html", "equations.html", "units.html", "notebook.html", "api/index.html",
                  "auto_examples/index.html", "auto_examples/plot_contact_mechanics.html", "install.html", "cli.html",

@@ -47,6 +47,7 @@ def _data(cell_outputs, mime):
     return [o["data"][mime] for o in cell_outputs if o.get("output_type") == "execute_result" and mime in o["data"]]
 
 
+@pytest.mark.slow  # builds the module fixture
 def test_every_cell_runs_and_no_cell_writes_an_error(executed):
     for outs in _outputs(executed):
         assert not [o for o in outs if o.get("output_type") == "error"]

@@ -49,6 +49,7 @@ def test_the_python_blocks_run(capsys, tmp_path, monkeypatch):
     assert re.fullmatch(r"depth \d+\.\d\d nm, normal \[.*\]\n", printed, re.S), printed
 
 
+@pytest.mark.slow
 def test_the_shell_blocks_run(tmp_path):
     work = shell_workdir(tmp_path)
     lines = [ln for b in markdown_blocks(README) if b.lang == "sh" and b.skip is None

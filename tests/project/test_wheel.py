@@ -187,6 +187,7 @@ def _compare(a, b, where="summary"):
         assert a == b, (where, a, b)
 
 
+@pytest.mark.slow
 def test_demo_from_the_wheel_writes_what_the_sources_write(wheel_venv, tmp_path):
     _, bindir, _ = wheel_venv
     run_dir = tmp_path / "cwd"

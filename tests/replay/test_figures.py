@@ -132,6 +132,7 @@ def _forces(n=3000, dt=1e-3):
     return t, f, flags
 
 
+@pytest.mark.slow
 def test_functions_return_figures_that_save_as_vector(scene, tmp_path):
     s = scene
     t, f, word = _forces()
@@ -306,6 +307,7 @@ def demo_figures(tmp_path_factory):
     return saved, summary, out
 
 
+@pytest.mark.slow
 def test_every_demo_figure_passes_the_checks(demo_figures, tmp_path):
     saved, summary, out = demo_figures
     saved = {k: v for k, v in saved.items() if k != "given"}

@@ -272,6 +272,7 @@ def test_existing_output_needs_overwrite(recording, replayed, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
+@pytest.mark.slow
 def test_overwrite_deletes_only_what_its_manifest_lists(recording, replayed, tmp_path):
     """replay --overwrite keeps a user's files: a foreign file, one in a subfolder, one that has
     the name of an output the new run does not write, and refuses to replace a foreign file that
@@ -365,6 +366,7 @@ def test_frames_without_the_viewer_are_refused_before_any_work(recording, tmp_pa
     assert len(err) == 1 and "arsurf[viewer]" in err[0] and not (tmp_path / "cli").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.viewer
 def test_frames_render_offscreen_and_are_reproducible(recording, tmp_path):
     viewer = pytest.importorskip("arsurf_viewer")
@@ -431,6 +433,7 @@ def test_a_failing_renderer_stops_the_replay_saying_what_to_install(recording, t
     assert not (tmp_path / "out2").exists()
 
 
+@pytest.mark.slow
 def test_cli_writes_the_figures_as_pdf_or_svg(recording, tmp_path):
     """--format pdf: the same figures as vector PDFs (no PNG); --format svg --dpi: SVG XML."""
     import xml.etree.ElementTree as ET
@@ -516,6 +519,7 @@ def test_a_replay_result_whose_folder_is_gone_still_shows_its_numbers(replayed, 
     assert dataclasses.replace(replayed.result, out_dir=damaged)._repr_png_() is None
 
 
+@pytest.mark.slow
 def test_the_scan_defaults_to_the_one_the_session_names(recording, replayed, tmp_path, monkeypatch, capsys):
     """#30: ``arsurf replay SESSION --out DIR`` without ``--scan`` takes the scan the session records
     (absolute, or relative from here or the session's folder), refusing it on a hash mismatch as with --scan."""

@@ -219,6 +219,7 @@ def read_mutant(path, original: Scan, kind: str, changed: int) -> tuple[str, str
     return (*classify(original, scan, kind, changed), peak)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FILES + DATA_FILES)
 def test_damaged_copies_are_refused_or_read_right(tmp_path, name):
     src = DATA / name if name in DATA_FILES else real_scan_path(name)

@@ -222,6 +222,7 @@ def _record(bench, path, afm, faults=None, ticks=1600, max_age=None, **kw):
     return result, dev, pd
 
 
+@pytest.mark.slow
 def test_a_session_through_the_simulated_nanonis_records_and_replays_the_measured_signals(bench):
     d, scan_path, meta, setup, lever, zs = bench
     afm = _afm(setup, lever, zs)

@@ -105,6 +105,7 @@ def _check_prefix(s, logged):
     np.testing.assert_array_equal(s.ticks["t"][have], [logged[i] for i in have])
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("trial", range(4))
 def test_sigkill_at_a_random_moment_keeps_every_tick_older_than_100_ms(tmp_path, trial):
     rng = random.Random(1000 + trial)

@@ -95,6 +95,7 @@ def test_the_c_key_cycles_through_the_material_colourings(gl):
         view.close()
 
 
+@pytest.mark.slow
 @pytest.mark.viewer
 def test_arsurf_view_material_renders_the_qnm_file_by_modulus(gl, tmp_path):
     from arsurf.cli import main
