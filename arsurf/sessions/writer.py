@@ -557,6 +557,8 @@ class SessionWriter:
             error = st.error
             if error is not None:
                 complete, reason = False, f"the journal could not be written: {error}"
+                if not self.failed:  # the write failed after the last append (a slow fsync, a fast loop)
+                    self._flag_failure()
             self._end = {"complete": bool(complete), "reason": reason or "", "n_ticks": st.written,
                          "dropped_ticks": st.dropped,
                          "created": self._created if self._created is not None else _utc_now()}

@@ -173,6 +173,30 @@ def test_a_full_disk_is_flagged_at_the_next_append(tmp_path, caplog):
         w.close()
 
 
+def test_a_write_that_fails_after_the_last_append_is_still_warned_once(tmp_path, caplog):
+    """The loop may end before the writer thread meets the full disk (a demo faster than real time, a
+    slow fsync of the previous record): close then gives the same one warning an append would have,
+    before its error, so the command line says it as every other recording does."""
+    p = tmp_path / "run.h5"
+    w = SessionWriter(p, _meta(), flush_interval=1.0)  # nothing written before close
+    real = w._file.write
+
+    def full(kind, parts):
+        if kind == _journal.TICKS:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(kind, parts)
+
+    w._file.write = full
+    for k in range(5):
+        w.append(t=k * 1e-3, probe_position=[0, 0, 1e-8])
+    assert w.write_error is None and not w.failed
+    with caplog.at_level(logging.WARNING, logger="arsurf.sessions.writer"):
+        with pytest.raises(SessionError, match="the 5 appended after them were not recorded"):
+            w.close()
+    warnings = [r for r in caplog.records if "No space left" in r.getMessage()]
+    assert w.failed and len(warnings) == 1 and "nothing more is recorded" in warnings[0].getMessage()
+
+
 def test_a_planted_link_where_the_session_goes_is_never_written(tmp_path):
     """A second user plants the session's name (or the old run.h5.part) as a link to a victim."""
     shared = tmp_path / "shared"
