@@ -124,9 +124,15 @@ normal :math:`n = (q_1 V_1 + \sum_{i>1} w_i q_i n_i) / \lVert\cdot\rVert`,
 to the Hertz power: the direction of :math:`F_N` for similar compressive contacts, and continuous
 through every change of the set of contacts), by the lift :math:`\ell` at which the coupling
 balances the *summed* load, :math:`F_N(\ell)\cdot n = k_c\,\ell` (:func:`coupled_lift_kernel`):
-every contact is in series with the coupling, so the hand never feels more than :math:`k_c`
-however many asperities carry the tip (a contact outside the coupling would add its whole
-stiffness, :math:`K_f\,s\,dP/d\delta`, to what the device renders, and buzz).
+along n every contact is in series with the coupling, so the hand never feels more than
+:math:`k_c` along it however many asperities carry the tip (a contact outside the coupling would
+add its whole stiffness, :math:`K_f\,s\,dP/d\delta`, to what the device renders, and buzz).
+Sideways it is not: the part of :math:`F_N` off n reaches the hand as it is, and the two walls of
+a valley push back like a wedge (up to 18-22 N/m sideways behind a 5 N/m coupling in
+tests/contact/test_multi_contact.py's valleys). A tip held by the coupling in all three
+directions would bound that by :math:`k_c`, but where the wedge is stiffer than the coupling it
+sticks in the valley and snaps across it (Prandtl-Tomlinson; jumps of 3.3-3.6 nN in the same
+valleys, where this force is continuous), so it is not done.
 
 Lipschitz bound: depths, normals and barriers are continuous in C (depths and distances are
 1-Lipschitz), so the force changes between ticks by at most
@@ -507,8 +513,8 @@ def coupled_lift_kernel(tab, at, count, nx, ny, nz, k_couple, interacting, start
 
     (:func:`sum_loads_kernel`), the several-contact form of
     :func:`~arsurf.contact.proxy.coupled_depth_kernel`'s :math:`P(\delta) = k_c(\delta_t - \delta)`:
-    every contact is in series with the coupling, so the hand feels at most :math:`k_c` however
-    many contacts carry the tip. :math:`F_N\cdot n` falls as the tip lifts, so the root lies
+    along n every contact is in series with the coupling, so the hand feels at most :math:`k_c`
+    along n however many contacts carry the tip (sideways: module docstring). :math:`F_N\cdot n` falls as the tip lifts, so the root lies
     between 0 and :math:`F_N(0)\cdot n / k_c`; Newton's method from ``start`` (the previous
     tick's lift), bisection whenever a step leaves the bracket.
 
