@@ -144,11 +144,8 @@ def test_a_killed_recordings_journal_is_checked_too(tmp_path):
         load_session(p, allow_incomplete=True)
 
 
-def test_a_full_disk_is_flagged_at_the_next_append(tmp_path, caplog):
-    """The journal's write fails with ENOSPC in the writer thread: the next append flags it
-    (failed, unrecorded ticks counted, one warning) without raising; close says it again."""
-    p = tmp_path / "run.h5"
-    w = SessionWriter(p, _meta(), flush_interval=0.01)
+def _fill_disk(w):
+    """Every tick record the writer ``w`` writes from now on fails with ENOSPC (a full disk)."""
     real = w._file.write
 
     def full(kind, parts):
@@ -157,6 +154,14 @@ def test_a_full_disk_is_flagged_at_the_next_append(tmp_path, caplog):
         return real(kind, parts)
 
     w._file.write = full
+
+
+def test_a_full_disk_is_flagged_at_the_next_append(tmp_path, caplog):
+    """The journal's write fails with ENOSPC in the writer thread: the next append flags it
+    (failed, unrecorded ticks counted, one warning) without raising; close says it again."""
+    p = tmp_path / "run.h5"
+    w = SessionWriter(p, _meta(), flush_interval=0.01)
+    _fill_disk(w)
     w.append(t=0.0, probe_position=[0, 0, 1e-8])
     st = w._stream
     with st.lock:  # the writer thread notifies after each write attempt (every flush_interval)
@@ -179,14 +184,7 @@ def test_a_write_that_fails_after_the_last_append_is_still_warned_once(tmp_path,
     before its error, so the command line says it as every other recording does."""
     p = tmp_path / "run.h5"
     w = SessionWriter(p, _meta(), flush_interval=1.0)  # nothing written before close
-    real = w._file.write
-
-    def full(kind, parts):
-        if kind == _journal.TICKS:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return real(kind, parts)
-
-    w._file.write = full
+    _fill_disk(w)
     for k in range(5):
         w.append(t=k * 1e-3, probe_position=[0, 0, 1e-8])
     assert w.write_error is None and not w.failed
