@@ -201,7 +201,9 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     if force_gain is not None:
         h["force_gain"] = float(force_gain)
     scale, gain = float(h["scale"]), float(h["force_gain"])
-    dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(_trajectory(motion, scale, heading, room))).open()
+    hand = _trajectory(motion, scale, heading, room)
+    # the stylus starts where the hand does (a stroke 150 nm before the middle, a tap 3 nm up)
+    dev = VirtualDevice(dt=1.0 / rate, hand=HandModel(hand), initial_position=hand(0.0)).open()
     radius = p.tip_radius if tip_radius is None else float(tip_radius)
     model = make_model(surface, tip_radius=radius, effective_modulus=p.effective_modulus,
                        work_of_adhesion=p.work_of_adhesion, cantilever=p.cantilever,

@@ -194,6 +194,23 @@ def test_the_tip_starts_clear_of_the_asperities_beside_it():
     assert clearance_height(s, 20e-9, 50e-9, r) == pytest.approx(r, abs=1e-12)  # out of its reach: the flat
 
 
+def test_a_stroke_starts_where_it_comes_down_not_over_the_middle():
+    """A stroke comes down 150 nm before the middle of its scan: the stylus starts there, clear of
+    the surface, even where the middle stands higher. (It started over the middle, at the height
+    cleared for the start point: on the nanoFTIR scan, whose middle is 100 nm above that point, the
+    tip began 60 nm deep, at 205 mN on the hand and -993 E0.)"""
+    from arsurf.feel_scenarios import run_scenario
+    from arsurf.spline.surface import BSplineSurface
+
+    x = np.linspace(0.0, 600e-9, 121)
+    ramp = np.broadcast_to((0.2 * x)[:, None], (121, 121)).copy()  # rises 20 nm per 100 nm along x
+    s = BSplineSurface.from_heights(ramp, (0.0, 600e-9), (0.0, 600e-9))
+    r = run_scenario(s, motion="stroke", rate=1000.0, seconds=1.5, tip_radius=10e-9)
+    assert not r.contact[0] and np.linalg.norm(r.force[0]) == 0.0, (r.contact[:3], r.force[:3])
+    assert r.probe[0][0] == pytest.approx(300e-9 - 150e-9, abs=1e-9)  # 150 nm before the middle along x
+    assert r.energy.min() >= -r.energy_reserve, (r.energy.min(), r.energy_reserve)
+
+
 def test_a_slow_slide_in_valleys_narrower_than_the_tip_meets_the_family_criteria():
     g = NARROW
     assert g.family == "gaussian" and g.length < g.tip_radius
