@@ -159,17 +159,27 @@ def time_kernel(s, pts, warm, hz):
 
 
 # --- peers ------------------------------------------------------------------------------------
+def _grid_faces(rows, cols):
+    """Two triangles per cell of a rows x cols grid of points numbered row by row."""
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    return np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+
+
 def triangulated(s, z):
     """The surface's values at the pixel centres (= the knots) as a triangle mesh."""
     ny, nx = z.shape
-    x = np.arange(nx) * PIXEL
-    y = np.arange(ny) * PIXEL
-    uu, vv = np.meshgrid(x, y)
-    pts = s.evaluate(uu.ravel(), vv.ravel())
-    idx = np.arange(nx * ny).reshape(ny, nx)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
-    return pts, faces
+    uu, vv = np.meshgrid(np.arange(nx) * PIXEL, np.arange(ny) * PIXEL)
+    return s.evaluate(uu.ravel(), vv.ravel()), _grid_faces(ny, nx)
+
+
+def surface_mesh(s):
+    """A fitted surface at its ``shape`` of points spread evenly over its domain, as a triangle
+    mesh ``(verts (n, 3) m, faces (m, 3))``: the peers' geometry in the tick benches."""
+    (u0, u1), (v0, v1) = s.domain
+    nu, nv = s.shape
+    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+    return s.evaluate(uu.ravel(), vv.ravel()), _grid_faces(nu, nv)
 
 
 def vtk_locator(verts, faces):

@@ -61,7 +61,7 @@ from arsurf.feel_scenarios import (GENERATED_PIXELS, MOTIONS, RATE_TOLERANCE, SO
                                    synthetic_surface, ticks)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from collision import vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
+from collision import surface_mesh, vtk_locator  # noqa: E402  (the VTK peer, built the same way in every bench)
 
 SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parents[2] / "shared" / "scans-real"))
 REAL = ("Veeco_20160622.003", "sample_0.spm", "sample_0.jpk")
@@ -288,13 +288,7 @@ def vtk_ratio(surface, rounds: int = 3) -> dict:
     back to back after the round (the peer alone in a tight loop: its locator stays in the CPU's
     caches), ``vtk_interleaved_median_us`` times one query right after each tick at that tick's
     tip, inside the loop's own iteration (device, recording), as the tick itself is timed."""
-    (u0, u1), (v0, v1) = surface.domain
-    nu, nv = surface.shape
-    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
-    pts = surface.evaluate(uu.ravel(), vv.ravel())
-    idx = np.arange(nu * nv).reshape(nu, nv)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+    pts, faces = surface_mesh(surface)
     _build, query, one = vtk_locator(pts, faces)
     ticks, queries, inter = [], [], []
     for _ in range(rounds):

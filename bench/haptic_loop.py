@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _tick_table as tt  # noqa: E402
 from _timing import best_round, emit, round_ratio, stats, time_calls  # noqa: E402
-from collision import vtk_locator  # noqa: E402
+from collision import surface_mesh, vtk_locator  # noqa: E402
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
@@ -154,13 +154,7 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
             c.append(model.state[S_CONTACTS + mc.T_COUNT])
         counts[name] = {"mean_contacts": float(np.mean(c)), "max_contacts": int(np.max(c))}
     s, _, pts = cases["multi_contact"]
-    (u0, u1), (v0, v1) = s.domain
-    nu, nv = s.shape
-    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
-    verts = s.evaluate(uu.ravel(), vv.ravel())
-    idx = np.arange(nu * nv).reshape(nu, nv)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    _build, query, _one = vtk_locator(verts, np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])]))
+    _build, query, _one = vtk_locator(*surface_mesh(s))
     clock = __import__("time").perf_counter_ns
     for _ in range(rounds):
         for name, (_, model, p) in cases.items():
