@@ -71,6 +71,7 @@ JOURNAL_SUFFIX = ".journal"
 MAGIC = b"ASJ1"
 HEADER, TICKS, END = 1, 2, 3
 _HEAD = struct.Struct("<4sIQ")
+_WRITEV = hasattr(os, "writev")  # not on Windows
 _TICKS = struct.Struct("<3Q")
 _DIGEST = 32
 #: the most ticks one record holds, and the largest payload a reader accepts
@@ -107,13 +108,15 @@ class Layout:
 # records
 
 
-def _record(kind: int, parts: list[bytes]) -> bytes:
-    length = sum(len(p) for p in parts)
-    head = _HEAD.pack(MAGIC, kind, length)
+def _record(kind: int, parts: list) -> list[memoryview]:
+    """A record as buffers to write in order: head, the parts (bytes or C-contiguous arrays, not
+    copied) and the SHA-256 of everything before it."""
+    views = [memoryview(p).cast("B") for p in parts]
+    head = _HEAD.pack(MAGIC, kind, sum(v.nbytes for v in views))
     h = hashlib.sha256(head)
-    for p in parts:
-        h.update(p)
-    return b"".join([head, *parts, h.digest()])
+    for v in views:
+        h.update(v)
+    return [memoryview(head), *views, memoryview(h.digest())]
 
 
 class JournalFile:
@@ -143,10 +146,13 @@ class JournalFile:
         _fsync_dir(self.path.parent)
 
     def write(self, kind: int, parts) -> None:
-        data = memoryview(_record(kind, parts))
-        while data:
-            done = os.write(self._fd, data)
-            data = data[done:]
+        buffers = _record(kind, parts)
+        while buffers:  # one system call per record where there is writev; a short write goes on
+            done = os.writev(self._fd, buffers) if _WRITEV else os.write(self._fd, buffers[0])
+            while buffers and done >= buffers[0].nbytes:
+                done -= buffers.pop(0).nbytes
+            if buffers:
+                buffers[0] = buffers[0][done:]
 
     def sync(self) -> None:
         if self._fsync:
@@ -485,7 +491,7 @@ class TickStreamer:
 
     def _write(self, c: _Chunk) -> None:
         n = c.n
-        parts = [_TICKS.pack(self._seq, c.first, n)] + [a[:n].tobytes() for a in c.arrays]
+        parts = [_TICKS.pack(self._seq, c.first, n)] + [a[:n] for a in c.arrays]
         self._journal.write(TICKS, parts)
         self._seq += 1
         self.written += n

@@ -3,7 +3,7 @@ end: ``arsurf live --record``, ``arsurf view --record`` and ``arsurf demo`` each
 line within a second of the failed write (the writer thread's error, flagged at the next append),
 then end with a one-line error counting the ticks not recorded, exit 2, and keep the journal's
 ticks for ``recover_session``. The full disk is ENOSPC from ``os.write`` on the journal's file
-descriptor (the only write of a recording), injected in the same process."""
+descriptor (the only writes of a recording), injected in the same process."""
 from __future__ import annotations
 
 import errno
@@ -31,14 +31,16 @@ ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 
 
 class FullDisk:
-    """``os.write`` on a ``*.journal`` descriptor fails with ENOSPC from its ``after``-th call on
+    """``os.write`` or ``os.writev`` on a ``*.journal`` descriptor fails with ENOSPC from its ``after``-th call on
     (the first is the journal's header, then one per chunk of ticks, at least every 50 ms); the
     wall time of the first failure is kept."""
 
     def __init__(self, monkeypatch, after: int):
         self.after, self.calls, self.failed_at = after, 0, None
-        real = os.write
+        for name in ("write", "writev"):
+            monkeypatch.setattr(os, name, self._failing(getattr(os, name)))
 
+    def _failing(self, real):
         def write(fd, data):
             if os.readlink(f"/proc/self/fd/{fd}").endswith(JOURNAL_SUFFIX):
                 self.calls += 1
@@ -47,7 +49,7 @@ class FullDisk:
                     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
             return real(fd, data)
 
-        monkeypatch.setattr(os, "write", write)
+        return write
 
 
 class Heard(logging.Handler):

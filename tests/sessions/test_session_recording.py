@@ -268,6 +268,39 @@ def test_a_stalled_disk_drops_ticks_and_never_blocks_append(tmp_path, monkeypatc
     np.testing.assert_array_equal(s.ticks["probe_position"], [position(k) for k in kept])
 
 
+def test_a_journal_record_is_written_without_copying_its_ticks(tmp_path):
+    """The writer thread hands the chunk's own arrays to the disk: a 1 MB record allocates no 1 MB copy
+    (so nothing transient the size of a chunk is in memory while it is written; CI saw 173 kB of it)."""
+    file = journal_mod.JournalFile(tmp_path / "j", {"what": "test"}, fsync=False)
+    block = np.arange(131072, dtype=np.float64)  # 1 MiB
+    tracemalloc.start()
+    file.write(journal_mod.TICKS, [b"head", block[:100000]])
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    file.close()
+    assert peak < 50_000, peak
+    raw = (tmp_path / "j").read_bytes()
+    assert block[:100000].tobytes() in raw  # and the bytes on disk are the block's
+
+
+@pytest.mark.parametrize("call", ["write", "writev"])
+def test_short_writes_still_put_the_whole_record_on_disk(tmp_path, monkeypatch, call):
+    """The system may write fewer bytes than asked (a signal, a pipe, a full quota): the rest follows."""
+    real = getattr(os, call)
+    short = (lambda fd, data: real(fd, data[:7])) if call == "write" else (lambda fd, bufs: real(fd, [bufs[0][:7]]))
+    monkeypatch.setattr(os, call, short)
+    if call == "write":
+        monkeypatch.delattr(os, "writev", raising=False)
+        monkeypatch.setattr(journal_mod, "_WRITEV", False)
+    block = np.arange(1000, dtype=np.float64)
+    file = journal_mod.JournalFile(tmp_path / "j", {"what": "test"}, fsync=False)
+    file.write(journal_mod.TICKS, [b"head", block])
+    file.close()
+    monkeypatch.undo()
+    expected = b"".join(bytes(b) for b in journal_mod._record(journal_mod.TICKS, [b"head", block]))
+    assert (tmp_path / "j").read_bytes().endswith(expected)
+
+
 def test_memory_stays_flat_however_long_the_recording(tmp_path):
     w = SessionWriter(tmp_path / "s.h5", meta(), when_full="wait")
     fields = dict(probe_velocity=(1e-6, 0.0, 0.0), force=(0.0, 0.0, 1e-9), depth=1e-9, md_status=0)
