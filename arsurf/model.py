@@ -659,6 +659,40 @@ class ARModel:
                           self._scratch, self._ev, self.out)
         return self.out
 
+    def force_jacobian(self, center, step: float = 1e-12) -> np.ndarray:
+        r"""The force field's Jacobian :math:`J_{ij} = \partial F_i / \partial C_j` (N/m, (3, 3)) at
+        the target tip centre ``center`` (m): the simulated force of :meth:`tick` differentiated by
+        central differences of ``step`` m, every probe run from the model's present state, which is
+        restored afterwards (contact history, friction anchor and recorded dent unchanged).
+
+        :math:`-\tfrac12(J + J^T)` is the stiffness the tip meets (the hand feels it times the
+        loop's force gain over its scale). A skew-symmetric part means the force is not the
+        gradient of any potential: moved around a small loop of area A in the (i, j) plane the tip
+        is given the work :math:`(J_{ji} - J_{ij})\,A` per turn (Stokes), energy that the haptic
+        loop's passivity controller then has to take out (docs/feel.rst, "Where the rough runs'
+        energy comes from")."""
+        c = np.asarray(center, dtype=np.float64).reshape(-1)
+        step = float(step)
+        if c.shape != (3,) or not np.isfinite(c).all():
+            raise PositionError(f"center must be 3 finite coordinates in metres (got {center!r})")
+        if not (math.isfinite(step) and step > 0.0):
+            raise ContactError(f"`step` must be a positive distance in metres (got {step!r})")
+        patch = self._live[4]
+        saved = (self.state.copy(), self._md_args.copy(), patch.copy())
+        jac = np.empty((3, 3))
+        try:
+            for j in range(3):
+                for sign in (1.0, -1.0):
+                    self.state[:], self._md_args[:], patch[:] = saved
+                    probe = c.copy()
+                    probe[j] += sign * step
+                    f = self.tick(probe)[M_SIM_FX:M_SIM_FX + 3]
+                    jac[:, j] = f if sign > 0 else (jac[:, j] - f)
+                jac[:, j] /= 2.0 * step
+        finally:
+            self.state[:], self._md_args[:], patch[:] = saved
+        return jac
+
     def step(self, center, signals=None) -> ModelTick:
         """Validated tick: target tip centre (3,) m, optional measured (bending, torsion) rad."""
         c = np.asarray(center, dtype=np.float64).reshape(-1)

@@ -14,42 +14,15 @@ import numpy as np
 import pytest
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.projection import collide
-from arsurf.force.cantilever import Cantilever
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
-
-R = 20e-9  # tip radius, m
-PERIOD = 12e-9  # valleys 12 nm apart, narrower than the 40 nm tip
-PIXEL = 1e-9
-LEVER = Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27)
-
-
-def _surface(kind: str):
-    if kind == "sinusoid":  # valleys (minima) at x = 9, 21, 33 ... nm (33: far from the fit's boundary effects)
-        scan = synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=2e-9, period=PERIOD)
-    else:  # two Gaussian bumps 14 nm apart, the valley between them at x = 36 nm
-        x = np.arange(72) * PIXEL
-        bumps = sum(3e-9 * np.exp(-((x - c) / 4e-9) ** 2) for c in (29e-9, 43e-9))
-        scan = _with_heights(synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=0.0, period=PERIOD), bumps)
-    return fit_surface(scan)
-
-
-def _with_heights(scan, profile):
-    import dataclasses
-
-    return dataclasses.replace(scan, heights=np.broadcast_to(profile, scan.heights.shape).copy())
-
-
-def _model(kind: str, coupling: float = math.inf) -> ARModel:
-    return ARModel(_surface(kind), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False,
-                   coupling_stiffness=coupling)
+from tests.support.valleys import LEVER, PERIOD, PIXEL, R, height_for, valley_model, valley_surface, with_heights
 
 
 def _sweep(kind: str, x0: float, x1: float, step: float, z: float, coupling: float = math.inf):
     """Forces (N), closest points (m) and normals of a tip swept along x at height z over the valley."""
-    m = _model(kind, coupling)
+    m = valley_model(kind, coupling)
     xs = np.arange(x0, x1, step)
     f = np.empty((xs.size, 3))
     p = np.empty((xs.size, 3))
@@ -72,21 +45,10 @@ def _turns(v):
 CASES = [("sinusoid", 29.0e-9, 37.0e-9, 33e-9), ("bumps", 32.0e-9, 40.0e-9, 36e-9)]
 
 
-def _height_for(kind: str, x_mid: float, depth: float = 0.4e-9) -> float:
-    """The tip height (m) at which the tip over ``x_mid`` is ``depth`` into the surface (its
-    closest point, along the normal there: a few Newton steps on the collision)."""
-    s = _surface(kind)
-    z = 40e-9
-    for _ in range(6):
-        c = collide(s, (x_mid, 24e-9, z), R)
-        z -= (depth - c.depth) / c.normal[2]
-    return z
-
-
 @pytest.mark.parametrize("coupling", [math.inf, 5.0])
 @pytest.mark.parametrize("kind, x0, x1, x_mid", CASES)
 def test_the_force_is_continuous_across_the_hop(kind, x0, x1, x_mid, coupling):
-    z = _height_for(kind, x_mid)
+    z = height_for(kind, x_mid)
     step = 0.02e-9
     f, p, n = _sweep(kind, x0, x1, step, z, coupling)
     hops = np.linalg.norm(np.diff(p, axis=0), axis=1)
@@ -116,8 +78,8 @@ def test_the_force_is_continuous_across_the_hop(kind, x0, x1, x_mid, coupling):
 
 @pytest.mark.parametrize("kind, x0, x1, x_mid", CASES)
 def test_a_symmetric_valley_pushes_straight_up_at_its_middle(kind, x0, x1, x_mid):
-    z = _height_for(kind, x_mid)
-    m = _model(kind)
+    z = height_for(kind, x_mid)
+    m = valley_model(kind)
     t = m.step((x_mid, 24e-9, z))
     f = t.simulated_force
     assert f[2] > 0.0 and t.load > 0.0
@@ -138,7 +100,7 @@ def test_one_contact_surfaces_take_the_single_contact_path():
     x = np.arange(72) * PIXEL
     y = np.arange(48) * PIXEL
     z = 6e-9 * np.exp(-(((x[None, :] - 36e-9) / 30e-9) ** 2 + ((y[:, None] - 24e-9) / 30e-9) ** 2))
-    scan = _with_heights(synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=0.0, period=PERIOD), z)
+    scan = with_heights(synthetic.sinusoid(shape=(48, 72), pixel=PIXEL, amplitude=0.0, period=PERIOD), z)
     m = ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
     rng = np.random.default_rng(2)
     for cx, cy in rng.uniform(20e-9, 45e-9, (200, 2)):
@@ -238,7 +200,7 @@ def _press(kind: str, x: float, z0: float, z1: float, step: float, coupling: flo
     from arsurf.contact import multi_contact as mc
     from arsurf.model import S_CONTACTS
 
-    m = _model(kind, coupling)
+    m = valley_model(kind, coupling)
     zs = np.arange(z0, z1, -step)
     f = np.empty((zs.size, 3))
     counts = np.empty(zs.size, int)
@@ -254,7 +216,7 @@ def test_a_contact_entering_through_its_depth_does_not_step_the_force():
     from 0 to the adhesive P(jump-out) there; the entry ramp takes it in from 0, so halving the
     press step halves the largest tick-to-tick change (without the ramp the step of P(jump-out),
     a few nN, stays whatever the step)."""
-    z_mid = _height_for("bumps", 36e-9)
+    z_mid = height_for("bumps", 36e-9)
     step = 0.01e-9
     f, counts = _press("bumps", 37.5e-9, z_mid + 0.5e-9, z_mid - 0.1e-9, step)
     assert counts[0] == 1 and counts[-1] == 2  # the second contact does enter
@@ -271,7 +233,7 @@ def test_every_contact_is_in_series_with_the_coupling():
     alone left the other outside the coupling, adding its whole stiffness.)"""
     k_c = 5.0
     for kind, x_mid in (("sinusoid", 33e-9), ("bumps", 36e-9)):
-        z = _height_for(kind, x_mid)
+        z = height_for(kind, x_mid)
         f, counts = _press(kind, x_mid, z + 0.02e-9, z - 0.03e-9, 0.01e-9, coupling=k_c)
         assert (counts[1:] >= 2).all()
         stiffness = np.diff(f[:, 2]) / 0.01e-9  # N/m: dF_z per metre further in
@@ -315,7 +277,7 @@ def test_minima_inside_one_contact_zone_are_one_contact():
 
     x = np.arange(144) * 0.25e-9
     profile = 3e-9 * np.exp(-((x - 18e-9) / 8e-9) ** 2) - 0.1e-9 * np.exp(-((x - 18e-9) / 0.5e-9) ** 2)
-    scan = _with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
+    scan = with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
     law = MaugisDugdale(R, 50e9, 0.05)
     m = ARModel(fit_surface(scan), R, law, LEVER, friction=0.0, deform=False)
     top = float(m.surface.evaluate(18e-9, 6e-9)[2])
@@ -339,8 +301,8 @@ def test_the_decoupling_reads_the_summed_normal_force_as_normal_not_as_friction(
     from arsurf import model as mdl
     from arsurf.contact import multi_contact as mc
 
-    m = ARModel(_surface("sinusoid"), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.3, deform=False)
-    z = _height_for("sinusoid", 33e-9)
+    m = ARModel(valley_surface("sinusoid"), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.3, deform=False)
+    z = height_for("sinusoid", 33e-9)
     live_ctrl, live_rest, ku, kv, patch = m._live
     errors = []
     for k, x in enumerate(np.linspace(30e-9, 36e-9, 600)):
@@ -362,7 +324,7 @@ def _notch_slide(step: float):
 
     x = np.arange(144) * 0.25e-9
     profile = 3e-9 * np.exp(-((x - 18e-9) / 8e-9) ** 2) - 0.1e-9 * np.exp(-((x - 18e-9) / 0.5e-9) ** 2)
-    scan = _with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
+    scan = with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
     m = ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
     z = float(m.surface.evaluate(18e-9, 6e-9)[2]) + R - 0.4e-9
     xs = np.arange(17.0e-9, 19.0e-9, step)
