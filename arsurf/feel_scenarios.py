@@ -193,8 +193,9 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     (the rate convergence compares two rates through one coupling); ``heading`` rad from x: the
     direction of slides, strokes and circles; ``room`` m: a slide turns back this far from where
     it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
-    preset's); ``after_tick(tip)``: called after each tick, outside its timing, with the tick's tip
-    centre (3,) m (a benchmark times a peer's query there, under the conditions the tick runs in).
+    preset's); ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
+    tick's tip centre and its target (the scaled stylus) (3,) m and the model (a benchmark times a
+    peer's query at the tip, under the conditions the tick runs in, or reads the force field there).
     The surface is restored to rest afterwards."""
     p = _preset(preset)
     h = dict(p.haptics)
@@ -254,7 +255,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
             tip[k] = get(out, "tip")
             probe[k] = get(out, "probe")
             if after_tick is not None:
-                after_tick(tip[k])
+                after_tick(tip[k], probe[k], model)
     finally:
         dev.close()
         model.reset()

@@ -294,7 +294,7 @@ def vtk_ratio(surface, rounds: int = 3) -> dict:
     for _ in range(rounds):
         beside = []
         run = run_scenario(surface, motion="slide-100", source="blended", seconds=2.0,
-                           after_tick=lambda tip: beside.append(one((float(tip[0]), float(tip[1]), float(tip[2])))))
+                           after_tick=lambda tip, probe, model: beside.append(one((float(tip[0]), float(tip[1]), float(tip[2])))))
         ticks.append(float(np.median(run.tick_ns)) * 1e-3)
         queries.append(float(np.median(query(run.tip)[0])) * 1e6)
         inter.append(float(np.median(beside)) * 1e6)
