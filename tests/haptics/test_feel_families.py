@@ -282,3 +282,29 @@ def test_the_whole_table_streams_its_rows_and_resumes_where_it_stopped(tmp_path,
     judged.clear()
     assert feel.families(4, 5, real=False, slow_runs=1, fast_runs=1, out=str(out))["summary"]["runs_judged_now"] == 0
     assert judged == []
+
+
+def test_the_field_bench_reads_a_single_contact_as_a_gradient_behind_the_coupling(tmp_path):
+    """``bench/feel_field.py``: a failing run of a table repeated and its force field read. A press on
+    a step (one smooth contact) without friction meets a gradient (no skew part) that is stiffer
+    than nothing and, the contact in series with the coupling, softer than the coupling; a key the
+    plan does not hold is refused in one line."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "bench" / "feel_field.py"
+    key = "5:2:0:step#606100190 h=18.2nm l=83nm px=7.98nm R=4.25nm"  # plan_table(4, 5, runs 1 1): a press
+    table = tmp_path / "rows.jsonl"
+    table.write_text(json.dumps({"key": key, "kind": "slow", "ok": False}) + "\n")
+    args = [sys.executable, str(script), str(table), "--families", "4", "--runs", "1", "1", "--seed", "5"]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (run,) = json.loads(done.stdout)["runs"]
+    assert run["key"] == key and [v["friction"] for v in run["runs"]] == ["preset", 0.0]
+    for field in run["runs"][1]["fields"]:
+        assert len(field["contacts"]) == 1 and field["skew_over_k_c"] <= 1e-3
+        assert 0.05 < max(field["stiffness_over_k_c"]) < 1.0
+    table.write_text(json.dumps({"key": "5:9:9:none", "kind": "slow", "ok": False}) + "\n")
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1 and "not in the plan" in done.stderr
