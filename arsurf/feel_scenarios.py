@@ -46,7 +46,7 @@ from arsurf.haptics.feel import FeelScore, score_force
 from arsurf.haptics.loop import LOOP_OUT
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 
-__all__ = ["FAMILIES", "MOTIONS", "RATE_CUTOFF", "RATE_FLOOR", "clearance_height", "RATE_TOLERANCE", "REST_TOLERANCE", "SOURCES", "FeelRun", "GeneratedSurface", "energy_ok",
+__all__ = ["FAMILIES", "MOTIONS", "RATE_CUTOFF", "RATE_FLOOR", "clearance_height", "RATE_TOLERANCE", "REST_TOLERANCE", "SOURCES", "FeelRun", "run_slow", "GeneratedSurface", "energy_ok",
            "generated_surfaces", "judge_run", "plan_runs", "prepared_surface", "rate_convergence", "rate_difference",
            "run_scenario",
            "synthetic_surface"]
@@ -526,6 +526,14 @@ def ticks(run: dict) -> int:
     return int(SLOW_SECONDS * run["rate_hz"]) if run["kind"] == "slow" else int(FAST_SECONDS * 11000.0)
 
 
+def run_slow(run: dict, surface, tip_radius, **options) -> FeelRun:
+    """A planned still or slow run (:func:`plan_runs`) with the default loop, for SLOW_SECONDS;
+    ``options``: more of :func:`run_scenario`'s (``friction``, ``after_tick``...)."""
+    return run_scenario(surface, motion=run["motion"], source=run["source"], rate=run["rate_hz"],
+                        seconds=SLOW_SECONDS, tip_radius=tip_radius, heading=math.radians(run["heading_deg"]),
+                        room=run["room_m"], **options)
+
+
 def judge_run(run: dict, surface, tip_radius) -> dict:
     """One planned run (:func:`plan_runs`) with the default loop, judged by the family criteria
     (issue 27 §3). A still or slow run: content above 100 Hz <= 2 % of the mean normal force on
@@ -537,8 +545,7 @@ def judge_run(run: dict, surface, tip_radius) -> dict:
         r = rate_convergence(surface, run["motion"], run["source"], FAST_SECONDS, tip_radius=tip_radius,
                              heading=heading, room=run["room_m"])
         return {**run, **r}
-    res = run_scenario(surface, motion=run["motion"], source=run["source"], rate=run["rate_hz"],
-                       seconds=SLOW_SECONDS, tip_radius=tip_radius, heading=heading, room=run["room_m"])
+    res = run_slow(run, surface, tip_radius)
     s = res.score
     tail = slice(-max(1, int(0.2 * run["rate_hz"])), None)
     gain = float(_preset("demo").haptics["force_gain"])

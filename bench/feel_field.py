@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -29,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from feel import _surface, plan_table, read_rows  # noqa: E402  (the table's own runs and surfaces)
 
 from arsurf.contact import multi_contact as mc  # noqa: E402
-from arsurf.feel_scenarios import SLOW_SECONDS, run_scenario  # noqa: E402
+from arsurf.feel_scenarios import SLOW_SECONDS, run_slow  # noqa: E402
 from arsurf.model import S_CONTACTS  # noqa: E402
 
 
@@ -56,9 +55,7 @@ def diagnose(run: dict, friction: float | None) -> dict:
         if tick[0] - 1 in at:
             seen.append({"tick": tick[0] - 1, "k_c_N_per_m": model.coupling_stiffness, **field_at(model, probe)})
 
-    res = run_scenario(_surface(run), motion=run["motion"], source=run["source"], rate=run["rate_hz"],
-                       seconds=SLOW_SECONDS, tip_radius=run["tip_radius_m"], heading=math.radians(run["heading_deg"]),
-                       room=run["room_m"], friction=friction, after_tick=after)
+    res = run_slow(run, _surface(run), run["tip_radius_m"], friction=friction, after_tick=after)
     for s in seen:
         k = s["k_c_N_per_m"]
         s["stiffness_over_k_c"] = [round(e / k, 3) for e in s.pop("stiffness_eigenvalues_N_per_m")]
