@@ -18,8 +18,19 @@ the global closest point of the collision query (exact: hull tree + Newton). New
 (:func:`~arsurf.contact.newton.newton_box`) is run from the contacts of the previous tick
 (tracking), from where the collision query's own Newton run from the previous closest point
 ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
-:data:`PROBES` starts a distance :data:`PROBE_REACH` R or half of it around the closest point (discovery; one
-of them per tick, in turn, after the first touch).
+every local minimum of the control net's distance to C within reach (*discovery*,
+:func:`_discover`: the control points within R plus the interaction range and two knot
+spacings of C, each compared with its eight neighbours; the :data:`DISCOVERY_STARTS` closest
+such minima are Newton starts; beyond :data:`DISCOVERY_NODES` points in reach the net is read at a
+coarser stride). The net is scanned at the first touch and again whenever the tip centre has
+moved :data:`SCAN_EVERY` weight margins m (below) since the last scan - a minimum that comes
+within reach or is born between two scans is followed from then on by tracking - so the contacts
+found depend on where the tip is, not on how it got there: the force is the same whether the
+hand's path was sampled at 1 or at 10 kHz (a single discovery start per tick, in turn, which this replaced,
+found a minimum one tick and missed it the next depending on the step: the same point reached
+by steps of 0.01 or 1 nm felt forces up to 35 % apart on rough Gaussian surfaces, and a 1 kHz
+slide at 1000 nm/s differed from the same slide at 10 kHz by 39 %;
+tests/contact/test_multi_contact.py, docs/feel.rst).
 Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal
 :math:`n_i`, out of the sample) is within the interaction range and at most R is a contact (a
 minimum with :math:`(C - S_i)\cdot n_i < 0` has the centre behind its patch, inside the
@@ -89,18 +100,17 @@ shallower minimum's share fades over the Hertz share, a ramp of the order of the
 depth (a depth ramp of m/10 was crossed within one tick at 150 nm/s). Between c and 2c the swap
 is symmetric to second order in the angle between the normals.
 
-**Found late.** A minimum may be found a few ticks after it was born (by one discovery start per
-tick), already separated by a barrier; its weight must not appear at once. Like the god-object
-and the sphere proxy, which keep their active constraints from tick to tick and activate a new
-one only as the proxy's motion reaches it, each contact keeps its identity (re-found from its own
-last (u, v)) and a barrier credit :math:`\beta_i \leftarrow \min(b_i, \beta_i^{prev} + \lvert\Delta C\rvert)`
-used in its weights for :math:`b_i`: 0 when a discovery start finds it (unlimited at the first
-touch and for the previous closest point), so a contact followed since birth has
-:math:`\beta_i = b_i`, one found late grows in no faster than the tip moves.
+**Followed from birth.** Like the god-object and the sphere proxy, which keep their active
+constraints from tick to tick, each contact is re-found from its own last (u, v) (tracking):
+a minimum born at a fold between two scans is followed from there, with the barrier 0 it was
+born with, so its weight grows from 0. (Earlier, a minimum found late by a discovery start got
+a barrier credit that grew no faster than the tip moved; with the whole net scanned the credit
+only made the force depend on the path - a contact lost by tracking at a large step and found
+again started from 0 - and it was removed.)
 
 **Entry at the edge.** A contact also enters and leaves the table through its depth: an
-asperity comes within reach as the tip approaches it, and one found by a discovery probe a few
-ticks late may already be in reach. The law itself steps there: under an interacting tip, the
+asperity comes within reach as the tip approaches it, and one found by a scan may already be
+in reach. The law itself steps there: under an interacting tip, the
 Maugis-Dugdale load jumps from 0 to the adhesive :math:`P(\delta_{out}) \ne 0` at the jump-out
 depth. Each contact i > 0 therefore also carries an entry ramp on its depth at the tip,
 
@@ -152,6 +162,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from arsurf._layout import Layout
@@ -161,39 +172,31 @@ from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
 from arsurf.spline.basis import surface_point
 from arsurf.status import SEPARATED
 
-#: the most contacts followed at once (the god-object's three, plus one being born or dying)
-MAX_CONTACTS = 4
+#: the most contacts followed at once (the god-object's three, and the minima a rough patch puts
+#: inside one contact zone: on power-law surfaces under a 5 nm tip, six to eight within reach)
+MAX_CONTACTS = 8
 #: one contact: parameters (m), point (m), unit normal, depth along its own normal (m, > 0
-#: penetrating), weight in [0, 1], barrier credit (m: the most barrier its weight may use, module
-#: docstring, "Found late")
-CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1), ("credit", 1)])
+#: penetrating), weight in [0, 1]
+CONTACT = Layout("contact", [("uv", 2), ("point", 3), ("normal", 3), ("depth", 1), ("weight", 1)])
 C_U, C_PX, C_NX = CONTACT.offset("uv"), CONTACT.offset("point"), CONTACT.offset("normal")
 C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weight")
-C_CREDIT = CONTACT.offset("credit")
 C_SIZE = CONTACT.size
 #: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
-#: previous tick's (u, v) of each (the tracking starts), the next discovery probe, and the tip's
-#: last lift behind the coupling along the total normal (m; the start of the next solve) and the
+#: previous tick's (u, v) of each (the tracking starts), the tip centre (m) of the last scan of the
+#: net, and the tip's last lift behind the coupling along the total normal (m; the start of the next solve) and the
 #: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
 #: load (its weight times the direction it pushes, turned towards the minima inside its zone)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
-                                         ("previous_uv", 2 * MAX_CONTACTS), ("previous_credit", MAX_CONTACTS),
-                                         ("probe", 1), ("lift", 1),
+                                         ("previous_uv", 2 * MAX_CONTACTS),
+                                         ("scanned", 3), ("lift", 1),
                                          ("centre", 3), ("closest_force", 3)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
-T_PROBE, T_LIFT = CONTACT_TABLE.offset("probe"), CONTACT_TABLE.offset("lift")
-T_PREVIOUS_CREDIT = CONTACT_TABLE.offset("previous_credit")
+T_SCANNED, T_LIFT = CONTACT_TABLE.offset("scanned"), CONTACT_TABLE.offset("lift")
 T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
-#: discovery starts on circles of PROBE_REACH and PROBE_REACH / 2 tip radii around the closest point, in
-#: turn, in PROBES directions: all of them at the first touch, then one per tick in turn (a contact
-#: is born with weight 0: found within PROBES
-#: ticks, it has gained next to nothing)
-PROBES = 8
-PROBE_REACH = 0.6
 #: points sampled on the (u, v) segment between a contact and the closest point for its barrier
 PATH_SAMPLES = 8
 #: Newton iterations of the coupled lift (:func:`coupled_lift_kernel`; bisection bounds it anyway)
@@ -206,9 +209,9 @@ def _row(at, i):
 
 
 @njit(cache=True)
-def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, credit, h, tab, at, count):
+def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
     """Run Newton from (u, v); add its end as a contact if it converged, is new and within reach
-    (depth >= ``floor``), with the barrier ``credit`` (m). Returns the new count."""
+    (depth >= ``floor``). Returns the new count."""
     if not (math.isfinite(u) and math.isfinite(v)):
         return count
     nu = ku.shape[0]
@@ -252,8 +255,95 @@ def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, credit, h, tab, at, 
     tab[r + C_NX + 2] = az
     tab[r + C_DEPTH] = depth
     tab[r + C_WEIGHT] = 0.0
-    tab[r + C_CREDIT] = credit
     return min(count + 1, MAX_CONTACTS)
+
+
+#: discovery: the control points within reach are scanned for local minima of their distance to the
+#: tip centre; at most DISCOVERY_NODES of them (a coarser stride beyond), at most DISCOVERY_STARTS
+#: Newton starts (the closest minima of the net)
+DISCOVERY_NODES = 4096
+DISCOVERY_STARTS = 12
+#: the net is scanned again once the tip centre has moved this many weight margins since the last scan
+#: (between scans, tracking follows what was found; at 4 m the valley tests' largest force step still
+#: halves with the tip's step, tests/contact/test_multi_contact.py)
+SCAN_EVERY = 4.0
+
+
+@njit(cache=True)
+def _greville(knots, i):
+    return (knots[i + 1] + knots[i + 2] + knots[i + 3]) / 3.0
+
+
+@njit(cache=True)
+def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
+    """Add the contacts Newton finds from the local minima of the control net's distance to the tip
+    centre within reach (module docstring, "Finding the contacts"): control point (i, j) stands
+    at its Greville abscissae, where the undeformed surface passes near it; the
+    :data:`DISCOVERY_STARTS` closest of those minima are run (a function of C, not of the path).
+    Returns the new count."""
+    nu = ctrl.shape[0]
+    nv = ctrl.shape[1]
+    reach = radius - floor + 2.0 * h
+    hu = ku[4] - ku[3]
+    hv = kv[4] - kv[3]
+    i0 = max(int(math.floor((cx - reach - ku[3]) / hu)), 0)
+    i1 = min(int(math.ceil((cx + reach - ku[3]) / hu)) + 2, nu - 1)
+    j0 = max(int(math.floor((cy - reach - kv[3]) / hv)), 0)
+    j1 = min(int(math.ceil((cy + reach - kv[3]) / hv)) + 2, nv - 1)
+    if i1 < i0 or j1 < j0:
+        return count
+    stride = 1
+    while ((i1 - i0) // stride + 1) * ((j1 - j0) // stride + 1) > DISCOVERY_NODES:
+        stride += 1
+    ni = (i1 - i0) // stride + 1
+    nj = (j1 - j0) // stride + 1
+    d2 = np.empty((ni, nj))
+    for a in range(ni):
+        for b in range(nj):
+            i = i0 + a * stride
+            j = j0 + b * stride
+            dx = ctrl[i, j, 0] - cx
+            dy = ctrl[i, j, 1] - cy
+            dz = ctrl[i, j, 2] - cz
+            d2[a, b] = dx * dx + dy * dy + dz * dz
+    best_d = np.full(DISCOVERY_STARTS, np.inf)
+    best_a = np.zeros(DISCOVERY_STARTS, np.int64)
+    best_b = np.zeros(DISCOVERY_STARTS, np.int64)
+    r2 = reach * reach
+    for a in range(ni):
+        for b in range(nj):
+            d = d2[a, b]
+            if not d <= r2:
+                continue
+            low = True
+            for da in range(-1, 2):
+                for db in range(-1, 2):
+                    if (da == 0 and db == 0) or not (0 <= a + da < ni and 0 <= b + db < nj):
+                        continue
+                    e = d2[a + da, b + db]
+                    if e < d or (e == d and (da < 0 or (da == 0 and db < 0))):
+                        low = False
+            if not low:
+                continue
+            k = DISCOVERY_STARTS - 1
+            if not d < best_d[k]:
+                continue
+            while k > 0 and best_d[k - 1] > d:
+                best_d[k] = best_d[k - 1]
+                best_a[k] = best_a[k - 1]
+                best_b[k] = best_b[k - 1]
+                k -= 1
+            best_d[k] = d
+            best_a[k] = a
+            best_b[k] = b
+    for k in range(DISCOVERY_STARTS):
+        if not math.isfinite(best_d[k]):
+            break
+        u = _greville(ku, i0 + best_a[k] * stride)
+        v = _greville(kv, j0 + best_b[k] * stride)
+        count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count)
+    return count
+
 
 
 @njit(cache=True)
@@ -286,7 +376,8 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     centre (cx, cy, cz) of radius ``radius`` (m): row 0 the collision answer ``coll``
     (:data:`~arsurf.contact.layout.COLLISION_OUT`), then the other local minima of the distance
     deeper than ``floor`` (m; the law's interaction floor), row 0 with weight 1 and the others 0
-    (their weights: :func:`weigh_contacts_kernel`; ``margin`` m is not used here). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
+    (their weights: :func:`weigh_contacts_kernel`; ``margin`` m sets how often the net is
+    scanned, :data:`SCAN_EVERY`). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
     ``prev_u, prev_v`` the previous closest point (NaN: none).
 
     Returns ``(count, jumped)``: the number of contacts, and whether the closest point changed
@@ -302,7 +393,6 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         r = _row(at, i)
         tab[at + T_PREVIOUS + 2 * i] = tab[r + C_U] if i < old else math.nan
         tab[at + T_PREVIOUS + 2 * i + 1] = tab[r + C_V] if i < old else math.nan
-        tab[at + T_PREVIOUS_CREDIT + i] = tab[r + C_CREDIT] if i < old else 0.0
     r0 = _row(at, 0)
     tab[r0 + C_U] = u1
     tab[r0 + C_V] = v1
@@ -311,7 +401,6 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         tab[r0 + C_NX + j] = coll[ly.OUT_NX + j]
     tab[r0 + C_DEPTH] = coll[ly.OUT_DEPTH]
     tab[r0 + C_WEIGHT] = 1.0
-    tab[r0 + C_CREDIT] = math.inf
     count = 1
     # where Newton from the previous closest point ends (the collision query ran it over the same
     # domain; NaN: not known, run it here)
@@ -323,7 +412,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     jumped = False
     if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
         if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
-            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, math.inf, h, tab, at, count)
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, h, tab, at, count)
             jumped = count > 1  # Newton from there ended at another minimum than the closest point
             if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
                 count = 1  # a jump, but the old point is out of reach
@@ -341,16 +430,14 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
         for i in range(1, old):  # (row 0, the previous closest point: the run above)
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
-                         tab[at + T_PREVIOUS + 2 * i + 1], floor, tab[at + T_PREVIOUS_CREDIT + i] + moved, h, tab,
-                         at, count)
-        k = int(tab[at + T_PROBE]) % PROBES if tab[at + T_PROBE] == tab[at + T_PROBE] else 0
-        for _ in range(PROBES if old == 0 else 1):  # all at the first touch, then one per tick in turn
-            phi = 2.0 * math.pi * k / PROBES  # every other start on the inner circle, half as far
-            reach = (PROBE_REACH if k % 2 == 0 else 0.5 * PROBE_REACH) * radius
-            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u1 + reach * math.cos(phi),
-                         v1 + reach * math.sin(phi), floor, 0.0 if old > 0 else math.inf, h, tab, at, count)
-            k = (k + 1) % PROBES
-        tab[at + T_PROBE] = k
+                         tab[at + T_PREVIOUS + 2 * i + 1], floor, h, tab, at, count)
+        s0 = at + T_SCANNED
+        since = math.sqrt((cx - tab[s0]) ** 2 + (cy - tab[s0 + 1]) ** 2 + (cz - tab[s0 + 2]) ** 2)
+        if old == 0 or not since < SCAN_EVERY * margin:
+            count = _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count)
+            tab[s0] = cx
+            tab[s0 + 1] = cy
+            tab[s0 + 2] = cz
     for i in range(count, MAX_CONTACTS):
         r = _row(at, i)
         for j in range(C_SIZE):
@@ -405,8 +492,7 @@ def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, ju
         s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
         o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
                                    + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
-        b = min(s - di, tab[r + C_CREDIT])  # found late: the barrier grows in no faster than the tip moves
-        tab[r + C_CREDIT] = max(b, 0.0)
+        b = s - di
         own = pair_weight(b, s - d1, margin)
         other = pair_weight(s - d1, b, margin)
         tab[r + C_WEIGHT] = o * own
