@@ -170,6 +170,7 @@ from arsurf.contact import layout as ly
 from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
 from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
 from arsurf.spline.basis import surface_point
+from arsurf.spline.knots import greville_at
 from arsurf.status import SEPARATED
 
 #: the most contacts followed at once (the god-object's three, and the minima a rough patch puts
@@ -270,11 +271,6 @@ SCAN_EVERY = 4.0
 
 
 @njit(cache=True)
-def _greville(knots, i):
-    return (knots[i + 1] + knots[i + 2] + knots[i + 3]) / 3.0
-
-
-@njit(cache=True)
 def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
     """Add the contacts Newton finds from the local minima of the control net's distance to the tip
     centre within reach (module docstring, "Finding the contacts"): control point (i, j) stands
@@ -339,8 +335,8 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
     for k in range(DISCOVERY_STARTS):
         if not math.isfinite(best_d[k]):
             break
-        u = _greville(ku, i0 + best_a[k] * stride)
-        v = _greville(kv, j0 + best_b[k] * stride)
+        u = greville_at(ku, i0 + best_a[k] * stride)
+        v = greville_at(kv, j0 + best_b[k] * stride)
         count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count)
     return count
 

@@ -47,6 +47,7 @@ from arsurf.status import BAD_INPUT, NON_FINITE, TEXT
 PN_SIZE = COLLISION_OUT.width("point") + COLLISION_OUT.width("normal")
 _N = COLLISION_OUT.width("point")
 from arsurf.errors import ContactError, PositionError, SurfaceError
+from arsurf.spline.knots import greville
 from arsurf.spline.surface import BSplineSurface
 
 # --- the single-query entries of the Python API --------------------------------------------------
@@ -389,7 +390,7 @@ class TiledProjector(_Entries):
         self.slot_info = np.zeros((slots, SLOT_INFO.size), dtype=np.int64)
         self.slot_info[:, SI_USED] = -1
         self.slack = np.zeros(1)
-        self._greville = (np.convolve(ku[1:-1], np.ones(3) / 3.0, "valid"), np.convolve(kv[1:-1], np.ones(3) / 3.0, "valid"))
+        self._greville = (greville(ku), greville(kv))
         self._surface_at_rest = surface.at_rest
         if not self._surface_at_rest:
             self._widen_slack(0, nu, 0, nv)

@@ -13,6 +13,7 @@ undeformed surface (Piegl & Tiller, *The NURBS Book*, 2nd ed., §2.2; de Boor 19
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from arsurf.errors import SurfaceError
 
@@ -48,6 +49,13 @@ def clamped_uniform_knots(n: int, a: float, b: float) -> np.ndarray:
         raise SurfaceError(f"the knot domain must satisfy a < b, both finite (got a={a!r}, b={b!r})")
     interior = np.linspace(a, b, n - DEGREE + 1)
     return np.concatenate([np.full(DEGREE, a), interior, np.full(DEGREE, b)]).astype(np.float64)
+
+
+@njit(cache=True)
+def greville_at(knots, i):
+    """The Greville abscissa of control point ``i`` of a cubic knot vector (:func:`greville`), for
+    kernels."""
+    return (knots[i + 1] + knots[i + 2] + knots[i + 3]) / 3.0
 
 
 def greville(knots: np.ndarray) -> np.ndarray:
