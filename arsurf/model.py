@@ -50,7 +50,7 @@ from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, dee
                                          local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
-                                           A_T_FOLD, MaugisDugdale, md_radius_from_depth_kernel, md_zone_radius)
+                                           A_T_FOLD, MaugisDugdale, md_zone_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
 from arsurf.contact.proxy import MD_MEMO, MEMO_SIZE, coupled_depth_kernel
 from arsurf.errors import ContactError, PositionError
@@ -179,10 +179,11 @@ def model_tick_kernel(proj,                                              # Proje
         # behind the coupling along the total normal
         lift = state[S_CONTACTS + mc.T_LIFT]
         d1 = coll[pj.OUT_DEPTH] - (lift if math.isfinite(lift) else 0.0)  # the closest contact's, last lift
-        md_a = md_radius_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
-                                           md[A_T_FOLD], md[A_DELTA_FOLD])
-        zone = md_zone_radius(md_a[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
-            if md_a[0] == CONTACT else 0.0
+        # the zone, continuous where the contact radius reaches 0 (the cohesive zone holds the tip down to
+        # the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima inside
+        # it, and the force, every tick as the lift moved d1 by pm: 927 reversals in a 3 s slide)
+        zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                         md[A_T_FOLD], md[A_DELTA_FOLD])
         mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
                                  state, S_CONTACTS, count)
         out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],

@@ -110,6 +110,7 @@ __all__ = [
     "T_RANGE",
     "md_branch_parameter",
     "md_contact_from_depth_kernel",
+    "md_zone_from_depth_kernel",
     "md_contact_hysteresis_kernel",
     "md_critical_point_kernel",
     "md_curve",
@@ -459,6 +460,30 @@ def md_radius_from_depth_kernel(depth, depth_scale, radius_scale, load_scale, la
     """
     st, A, P, c = md_solve_depth(depth / depth_scale, lam, t_fold, delta_fold)
     return st, A * radius_scale
+
+
+@njit(cache=True)
+def md_zone_from_depth_kernel(depth, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold):
+    r"""Outer radius *c* (m) of the Dugdale zone at depth (m) on the branch connected to contact
+    (:func:`md_solve_depth`: in contact and in the cohesive state, where A = 0 but the adhesive
+    zone is still loaded; 0 once separated). Continuous where the contact radius reaches 0: *c*
+    follows the cohesive zone down to the fold (:func:`md_zone_radius` of a contact radius gives 0
+    there, a step of the zone from ~ :math:`3|\bar\Delta| / 4\lambda` radius scales to 0).
+
+    Examples
+    --------
+    >>> md = MaugisDugdale(20e-9, 50e9, 0.1, 1e9)
+    >>> ka = md.kernel_args
+    >>> st = md.contact_state(depth=1e-9)
+    >>> round(md_zone_from_depth_kernel(1e-9, *ka) / st.cohesive_radius, 9)
+    1.0
+    >>> d0 = md.at_radius(1e-12).depth                    # where the contact radius reaches 0
+    >>> below, above = md_zone_from_depth_kernel(d0 - 1e-13, *ka), md_zone_from_depth_kernel(d0 + 1e-13, *ka)
+    >>> below > 0.0 and abs(above - below) < 1e-2 * above
+    True
+    """
+    st, A, P, c = md_solve_depth(depth / depth_scale, lam, t_fold, delta_fold)
+    return c * radius_scale if st == CONTACT or st == COHESIVE else 0.0
 
 
 @njit(cache=True)

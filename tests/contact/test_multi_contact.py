@@ -354,6 +354,38 @@ def test_a_swap_of_the_closest_point_between_two_minima_inside_one_zone_does_not
     assert _turns(f2).max() <= 0.4 * _turns(f).max()
 
 
+def _notch_pull(step: float):
+    """Forces (N) and in-contact flags of the 20 nm tip over the notch of :func:`_notch_slide`, 0.3 nm
+    off its axis, pulled straight up from 0.4 nm into its top through the adhesive neck to release."""
+    x = np.arange(144) * 0.25e-9
+    profile = 3e-9 * np.exp(-((x - 18e-9) / 8e-9) ** 2) - 0.1e-9 * np.exp(-((x - 18e-9) / 0.5e-9) ** 2)
+    scan = with_heights(synthetic.sinusoid(shape=(48, 144), pixel=0.25e-9, amplitude=0.0, period=PERIOD), profile)
+    m = ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
+    z0 = float(m.surface.evaluate(18e-9, 6e-9)[2]) + R - 0.4e-9
+    ticks = [m.step((17.7e-9, 6e-9, z)) for z in np.arange(z0, z0 + 1.2e-9, step)]
+    return np.array([t.simulated_force for t in ticks]), np.array([t.in_contact for t in ticks])
+
+
+def test_pulling_off_two_minima_in_one_zone_does_not_step_where_the_contact_radius_reaches_zero():
+    """The minima inside the closest contact's Dugdale zone are one contact. Pulled off, the contact
+    radius reaches 0 before the tip lets go (the cohesive zone still holds it, down to the jump-out
+    depth); the zone that merges them must not vanish there. It did (the zone of a contact radius
+    of 0): the second minimum counted as a contact of its own from one pm to the next, the force
+    stepped by ~6 nN here whatever the step, and on the feel families a tip held there by its
+    coupling flipped between the two every tick (927 reversals in 3 s on a power-law surface).
+    Halving the step must halve the largest change until the law's own jump-out."""
+    f, touching = _notch_pull(1e-12)
+    f4, _ = _notch_pull(0.25e-12)
+    assert touching[0] and not touching[-1]
+
+    def largest_change(f):  # while the tip interacts (the jump-out, to 0, is the law's own step)
+        held = np.linalg.norm(f, axis=1) > 0.0
+        return np.linalg.norm(np.diff(f, axis=0), axis=1)[held[1:] & held[:-1]].max()
+
+    assert ((np.linalg.norm(f, axis=1) > 0.0) & ~touching).sum() > 50  # the cohesive neck is crossed
+    assert largest_change(f4) <= 0.4 * largest_change(f), (largest_change(f), largest_change(f4))
+
+
 def test_the_force_depends_on_where_the_tip_is_not_on_the_path_to_it():
     """The same tip positions reached by steps of 0.01 nm or of 1 nm (a 10 kHz and a 1 kHz loop on
     a fast slide) give the same force: the contacts are found by scanning the net, not by one
