@@ -181,7 +181,7 @@ def model_tick_kernel(proj,                                              # Proje
         d1 = coll[pj.OUT_DEPTH] - (lift if math.isfinite(lift) else 0.0)  # the closest contact's, last lift
         # the zone, continuous where the contact radius reaches 0 (the cohesive zone holds the tip down to
         # the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima inside
-        # it, and the force, every tick as the lift moved d1 by pm: 927 reversals in a 3 s slide)
+        # it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
         zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
                                          md[A_T_FOLD], md[A_DELTA_FOLD])
         mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],

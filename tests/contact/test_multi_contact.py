@@ -372,7 +372,7 @@ def test_pulling_off_two_minima_in_one_zone_does_not_step_where_the_contact_radi
     depth); the zone that merges them must not vanish there. It did (the zone of a contact radius
     of 0): the second minimum counted as a contact of its own from one pm to the next, the force
     stepped by ~6 nN here whatever the step, and on the feel families a tip held there by its
-    coupling flipped between the two every tick (927 reversals in 3 s on a power-law surface).
+    coupling flipped between the two every tick (2781 reversals in 3 s on a power-law surface).
     Halving the step must halve the largest change until the law's own jump-out."""
     f, touching = _notch_pull(1e-12)
     f4, _ = _notch_pull(0.25e-12)
