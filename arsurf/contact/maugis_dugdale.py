@@ -110,7 +110,6 @@ __all__ = [
     "T_RANGE",
     "md_branch_parameter",
     "md_contact_from_depth_kernel",
-    "md_zone_from_depth_kernel",
     "md_contact_hysteresis_kernel",
     "md_critical_point_kernel",
     "md_curve",
@@ -119,6 +118,7 @@ __all__ = [
     "md_solve_depth",
     "md_solve_load",
     "md_zero_radius_limit",
+    "md_zone_from_depth_kernel",
     "md_zone_radius",
 ]
 
