@@ -8,9 +8,13 @@ the device gets. In order:
    NaN never reaches a device.
 2. **Watchdog**: the loop's clock ``now`` must advance by about one period ``dt`` per call. A gap
    longer than ``miss_factor * dt`` counts :math:`\\mathrm{round}(gap/dt) - 1` missed deadlines (a
-   non-advancing or non-finite clock counts too); when ``max_misses`` accumulate without
-   ``recover_ticks`` on-time ticks in between, the watchdog trips (:data:`WATCHDOG`) and stays
-   tripped until ``recover_ticks`` consecutive on-time ticks.
+   non-advancing or non-finite clock counts too). The misses fill a leaky bucket (the meter of
+   J. S. Turner, *New directions in communications*, IEEE Communications Magazine, October 1986)
+   that each on-time tick drains by ``max_misses / recover_ticks``: when it holds ``max_misses``
+   the watchdog trips (:data:`WATCHDOG`), and it re-arms when the bucket is empty again
+   (``recover_ticks`` on-time ticks after a trip). A burst of misses or one stall of
+   ``max_misses + 1`` periods trips at once; a steady share of late ticks below
+   :math:`r/(1+r)`, :math:`r` = ``max_misses / recover_ticks`` (9 % by default), never does.
 3. **Stale sensor data**: the device sample is older than ``stale_after`` (or its age is not
    finite): :data:`STALE`.
 4. **Disengage button**: a button in ``disengage_mask`` is held: :data:`DISENGAGED`.
@@ -89,17 +93,16 @@ SAFETY_PARAMS = Layout("safety parameters", [
     ("max_force", 1), ("max_rate", 1), ("ramp_time", 1), ("stop_time", 1), ("stale_after", 1), ("dt", 1),
     ("miss_factor", 1), ("max_misses", 1), ("recover_ticks", 1), ("disengage_mask", 1), ("free_force", 1)])
 #: its state: the last output and the output frozen at a fault (N), the engagement gain, the last
-#: clock reading (s; NaN: none), missed deadlines, on-time ticks, watchdog tripped, in a fault (0
+#: clock reading (s; NaN: none), the bucket of missed deadlines, watchdog tripped, in a fault (0
 #: or 1), then one counter per flag bit (:data:`FLAG_NAMES`)
 SAFETY_STATE = Layout("safety state", [
-    ("force", 3), ("held", 3), ("gain", 1), ("last_now", 1), ("misses", 1), ("on_time", 1), ("tripped", 1),
+    ("force", 3), ("held", 3), ("gain", 1), ("last_now", 1), ("misses", 1), ("tripped", 1),
     ("fault", 1), ("counts", len(FLAG_NAMES))])
 # the offsets as the kernel uses them
 _P_FMAX, _P_RATE, _P_RAMP, _P_STOP, _P_STALE, _P_DT, _P_MISSF, _P_MAXMISS, _P_RECOVER, _P_MASK, _P_FREE = (
     SAFETY_PARAMS.offset(f) for f in SAFETY_PARAMS.fields)
 _S_F, _S_HOLD, _S_GAIN = SAFETY_STATE.offset("force"), SAFETY_STATE.offset("held"), SAFETY_STATE.offset("gain")
 _S_LAST_NOW, _S_MISS = SAFETY_STATE.offset("last_now"), SAFETY_STATE.offset("misses")
-_S_ONTIME = SAFETY_STATE.offset("on_time")
 _S_WD, _S_FAULT, _S_COUNT = SAFETY_STATE.offset("tripped"), SAFETY_STATE.offset("fault"), SAFETY_STATE.offset("counts")
 _N_COUNTS = SAFETY_STATE.width("counts")
 _FAULTS = STALE | WATCHDOG | DISENGAGED
@@ -116,10 +119,10 @@ def safety_step(params, state, force, now, age, buttons, out):
     fmax = params[_P_FMAX]
     dt = params[_P_DT]
     flags = 0
-    # 2. watchdog on the loop clock
+    # 2. watchdog on the loop clock: a leaky bucket of missed deadlines
+    missed = 0.0
     if not math.isfinite(now):
-        state[_S_MISS] += 1.0
-        state[_S_ONTIME] = 0.0
+        missed = 1.0
     else:
         last = state[_S_LAST_NOW]
         if math.isfinite(last):
@@ -128,16 +131,18 @@ def safety_step(params, state, force, now, age, buttons, out):
                 missed = 1.0
                 if gap > 0.0:
                     missed = max(1.0, math.floor(gap / dt + 0.5) - 1.0)
-                state[_S_MISS] += missed
-                state[_S_ONTIME] = 0.0
-            else:
-                state[_S_ONTIME] += 1.0
-                if state[_S_ONTIME] >= params[_P_RECOVER]:
-                    state[_S_MISS] = 0.0
-                    state[_S_WD] = 0.0
         state[_S_LAST_NOW] = now
-    if state[_S_MISS] >= params[_P_MAXMISS]:
-        state[_S_WD] = 1.0
+    # the bucket in units of 1/recover_ticks of a miss (integers: exact): a miss adds recover_ticks,
+    # an on-time tick drains max_misses; full (max_misses misses) trips, empty re-arms
+    full = params[_P_MAXMISS] * params[_P_RECOVER]
+    if missed > 0.0:
+        state[_S_MISS] = min(full, state[_S_MISS] + missed * params[_P_RECOVER])
+        if state[_S_MISS] >= full:
+            state[_S_WD] = 1.0
+    else:
+        state[_S_MISS] = max(0.0, state[_S_MISS] - params[_P_MAXMISS])
+        if state[_S_MISS] <= 0.0:
+            state[_S_WD] = 0.0
     if state[_S_WD] != 0.0:
         flags |= WATCHDOG
     # 3. stale sample (NaN age is stale, and so is a sample from the future: its clock is wrong)
@@ -270,9 +275,10 @@ class SafetyLayer:
     miss_factor : float
         A clock gap above ``miss_factor * dt`` is a missed deadline (default 1.5).
     max_misses : int
-        Missed deadlines that trip the watchdog (default 10).
+        Missed deadlines in the watchdog's bucket that trip it (default 10).
     recover_ticks : int
-        On-time ticks that clear the miss count and re-arm a tripped watchdog (default 100).
+        On-time ticks that empty a full bucket and re-arm a tripped watchdog (default 100); each
+        drains ``max_misses / recover_ticks`` misses.
     disengage_mask : int
         Buttons that disengage the force (default :data:`~arsurf.haptics.device.BUTTON_1`, seed
         001: "pressing the stylus button temporarily disables the force"); 0: none.

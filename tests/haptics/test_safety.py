@@ -120,6 +120,39 @@ def test_watchdog_trips_on_repeated_deadline_misses_and_recovers():
     assert s.counts["WATCHDOG"] == 20
 
 
+def test_a_steady_few_late_ticks_never_trip_the_watchdog_a_burst_does():
+    """The watchdog is a leaky bucket: each missed deadline adds one, each on-time tick drains
+    max_misses / recover_ticks. A loop late one tick in 20 (5 %, what a shared virtual machine's
+    wake-ups give a 1 kHz loop) keeps its force for 10 s; a burst of max_misses late ticks among
+    on-time ones trips at once. (The rule before, which cleared the count only after
+    recover_ticks consecutive on-time ticks, tripped the first loop after 200 ticks and held it
+    tripped: the hand got zero force for good.)"""
+    s = instant(stop_time=0.0)  # the defaults: 10 misses, 100 ticks
+    t, times = 0.0, []
+    for k in range(10_000):
+        t += 2 * DT if k % 20 == 19 else DT
+        times.append(t)
+    out, flags = run(s, [np.array([1.0, 0, 0])] * len(times), times=times)
+    assert not (flags & WATCHDOG).any() and np.all(out[:, 0] == 1.0)
+    # one late tick in 8 (12.5 %) is more than the bucket drains: it trips
+    s = instant(stop_time=0.0)
+    t, times = 0.0, []
+    for k in range(2_000):
+        t += 2 * DT if k % 8 == 7 else DT
+        times.append(t)
+    out, flags = run(s, [np.array([1.0, 0, 0])] * len(times), times=times)
+    first = int(np.argmax(flags & WATCHDOG))
+    assert (flags & WATCHDOG).any() and 100 < first < 1000 and np.all(out[first] == 0.0)
+    # a burst: 12 late ticks out of 18 after a long on-time run trips within the burst
+    s = instant(stop_time=0.0)
+    t, times = 0.0, []
+    for k in range(600):
+        t += 2 * DT if 500 <= k < 518 and k % 3 else DT
+        times.append(t)
+    out, flags = run(s, [np.array([1.0, 0, 0])] * len(times), times=times)
+    assert not (flags[:500] & WATCHDOG).any() and (flags[500:518] & WATCHDOG).any()
+
+
 def test_one_long_stall_counts_every_missed_period():
     s = instant(max_misses=10, stop_time=0.0)
     s.step([1.0, 0, 0], now=0.0)
