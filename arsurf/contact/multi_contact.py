@@ -94,14 +94,32 @@ single contact's load :math:`P(\delta_1)` (continuous through the swap: the larg
 shares only its direction, with the same symmetric pair weights and each point's Hertz share
 :math:`q_i` (:func:`hertz_share`): the closest contact pushes :math:`P(\delta_1)\,V_1`,
 
-.. math:: V_1 = w_1\,\mathrm{unit}\Big(w_1 n_1 + \sum_{i>1} (1 - o_i)(m_i - n_1)\Big), \qquad
-          m_i = \mathrm{unit}\big(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i\big):
+.. math:: V_1 = w_1\,\mathrm{unit}\Big(w_1\,q_1 n_1 + \sum_{i>1} (1 - o_i)\,\varphi(b_i, b_i')\,q_i n_i\Big):
 
-for o = 0 the force is :math:`P(\delta_1)\,m_2`, symmetric in the pair, so the swap changes
-nothing; a minimum born or dying at a fold turns nothing (:math:`\varphi(0, b') = 0`); a
-shallower minimum's share fades over the Hertz share, a ramp of the order of the contact's own
-depth (a depth ramp of m/10 was crossed within one tick at 150 nm/s). Between c and 2c the swap
-is symmetric to second order in the angle between the normals.
+the mean of the members' normals, each by its Hertz share. For a pair with o = 0 it is
+:math:`\mathrm{unit}(\varphi(b_2', b_2)\,q_1 n_1 + \varphi(b_2, b_2')\,q_2 n_2)`, symmetric, so
+the swap changes nothing; a minimum born or dying at a fold turns nothing
+(:math:`\varphi(0, b') = 0`); a shallower minimum's share fades over the Hertz share, a ramp of
+the order of the contact's own depth (a depth ramp of m/10 was crossed within one tick at 150
+nm/s); a member leaving the zone (:math:`o_i \to 1`) leaves the mean as it becomes a contact of
+its own. With more than two members the mean is the same from any member, up to the barriers of
+minima being born. (The first form turned the closest normal pair by pair,
+:math:`\mathrm{unit}(n_1 + \sum_i (m_i - n_1))` with :math:`m_i` each pair's mean: with N
+members that subtracts the closest point's normal N - 2 times, so six minima of one rough contact
+pushed along a direction that swung by tens of degrees whenever the closest point hopped among
+them, or the second reference below took over: 3 reversals in a 0.1 nm/s slide on a 0.5 nm
+power-law surface under a 5.8 nm tip, now 0.)
+
+**A hop between two contacts.** Every weight above is measured from the closest point. When it
+hops between two minima as deep as each other, a third minimum's distance and pass to it jump
+(on a power-law surface under a 6.9 nm tip, three minima 5-8 nm from one of two equal contacts
+and 13-15 nm from the other went from partly merged to apart within 0.4 pm of travel, and the
+force doubled; the loop then crossed that hop every three or four ticks: 453 reversals in a 1
+nm/s slide). So the answers measured from the closest contact and from the deepest other one are
+averaged, weighted 1 and :math:`\pi`, 1 when the two are as deep and 0 from one margin m
+shallower (:func:`weigh_contacts_kernel`): symmetric in the two at the hop, so it changes nothing.
+Where a third contact is within a margin as deep as the second, :math:`\pi` fades to 0 (the
+second reference is then not one contact): a hop among three equally deep minima still steps.
 
 **Followed from birth.** Like the god-object and the sphere proxy, which keep their active
 constraints from tick to tick, each contact is re-found from its own last (u, v) (tracking):
@@ -189,15 +207,18 @@ C_SIZE = CONTACT.size
 #: previous tick's (u, v) of each (the tracking starts), the tip centre (m) of the last scan of the
 #: net, and the tip's last lift behind the coupling along the total normal (m; the start of the next solve) and the
 #: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
-#: load (its weight times the direction it pushes, turned towards the minima inside its zone)
+#: load (its weight times the direction it pushes, turned towards the minima inside its zone), and
+#: the row of the second reference (-1: none) and its force per unit load (:func:`weigh_contacts_kernel`)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
                                          ("previous_uv", 2 * MAX_CONTACTS),
                                          ("scanned", 3), ("lift", 1),
-                                         ("centre", 3), ("closest_force", 3)])
+                                         ("centre", 3), ("closest_force", 3), ("second", 1),
+                                         ("second_force", 3)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
 T_SCANNED, T_LIFT = CONTACT_TABLE.offset("scanned"), CONTACT_TABLE.offset("lift")
 T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
+T_SECOND, T_SECOND_FORCE = CONTACT_TABLE.offset("second"), CONTACT_TABLE.offset("second_force")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
@@ -465,57 +486,155 @@ def hertz_share(depth, jump_out, margin):
 
 
 @njit(cache=True)
-def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count):
-    r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
-    centre (cx, cy, cz) (module docstring): contact i > 0 counts with
-    :math:`o_i\,\varphi(b_i, b_i')`, the closest point with
-    :math:`w_1 = \prod_{i>0} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
-    :func:`merge_factor` of its distance from the closest point against ``zone`` (m, the closest
-    contact's Dugdale-zone radius c at its depth under the tip), and the closest contact pushes
-    along (per unit load, ``T_CLOSEST_FORCE``)
-    :math:`V_1 = w_1\,\mathrm{unit}(w_1 n_1 + \sum_{i>0} (1 - o_i)(m_i - n_1))`,
-    :math:`m_i = \mathrm{unit}(\varphi(b_i', b_i)\,q_1 n_1 + \varphi(b_i, b_i')\,q_i n_i)`
-    (module docstring, "A hop inside one zone"; q: :func:`hertz_share` at ``jump_out`` m).
-    ``margin`` m, ``ev`` (>= 1, 3) scratch."""
-    r0 = _row(at, 0)
+def _apart(tab, ra, rb):
+    """The distance (m) between the points of the table rows starting at ``ra`` and ``rb``."""
+    return math.sqrt((tab[ra + C_PX] - tab[rb + C_PX]) ** 2 + (tab[ra + C_PX + 1] - tab[rb + C_PX + 1]) ** 2
+                     + (tab[ra + C_PX + 2] - tab[rb + C_PX + 2]) ** 2)
+
+
+@njit(cache=True)
+def _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, ref, w):
+    """The weights ``w`` (count,) of the contacts of ``tab`` against reference contact ``ref`` (the
+    formulas of :func:`weigh_contacts_kernel` with ``ref`` as the closest point); returns the
+    reference's force per unit load (3 floats)."""
+    r0 = _row(at, ref)
     u1 = tab[r0 + C_U]
     v1 = tab[r0 + C_V]
     d1 = radius - tab[r0 + C_DEPTH]
     n1x, n1y, n1z = tab[r0 + C_NX], tab[r0 + C_NX + 1], tab[r0 + C_NX + 2]
     q1 = hertz_share(tab[r0 + C_DEPTH], jump_out, margin)
     w0 = 1.0
-    vx = vy = vz = 0.0  # the turn of the closest contact's direction towards the minima in its zone
-    for i in range(1, count):
+    vx = vy = vz = 0.0  # the normals of the minima in the reference's zone, by their Hertz shares
+    for i in range(count):
+        if i == ref:
+            continue
         r = _row(at, i)
         di = radius - tab[r + C_DEPTH]
         s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, u1, v1, di, tab[r + C_U], tab[r + C_V])
-        o = merge_factor(math.sqrt((tab[r + C_PX] - tab[r0 + C_PX]) ** 2 + (tab[r + C_PX + 1] - tab[r0 + C_PX + 1]) ** 2
-                                   + (tab[r + C_PX + 2] - tab[r0 + C_PX + 2]) ** 2), zone)
+        o = merge_factor(_apart(tab, r, r0), zone)
         b = s - di
         own = pair_weight(b, s - d1, margin)
         other = pair_weight(s - d1, b, margin)
-        tab[r + C_WEIGHT] = o * own
+        w[i] = o * own
         w0 *= o * other + 1.0 - o
-        if o < 1.0:  # partly inside the closest contact's zone: one contact, whose direction it shares
-            qi = own * hertz_share(tab[r + C_DEPTH], jump_out, margin)
-            q0 = other * q1
-            mx = q0 * n1x + qi * tab[r + C_NX]
-            my = q0 * n1y + qi * tab[r + C_NX + 1]
-            mz = q0 * n1z + qi * tab[r + C_NX + 2]
-            mn = math.sqrt(mx * mx + my * my + mz * mz)
-            if mn > 0.0:
-                vx += (1.0 - o) * (mx / mn - n1x)
-                vy += (1.0 - o) * (my / mn - n1y)
-                vz += (1.0 - o) * (mz / mn - n1z)
-    tab[r0 + C_WEIGHT] = w0
-    vx += w0 * n1x
-    vy += w0 * n1y
-    vz += w0 * n1z
-    vn = w0 / math.sqrt(vx * vx + vy * vy + vz * vz)  # the closest contact's load, w_1 P_1, turned
+        if o < 1.0:  # partly inside the reference's zone: one contact, whose direction it shares
+            qi = (1.0 - o) * own * hertz_share(tab[r + C_DEPTH], jump_out, margin)
+            vx += qi * tab[r + C_NX]
+            vy += qi * tab[r + C_NX + 1]
+            vz += qi * tab[r + C_NX + 2]
+    w[ref] = w0
+    vx += w0 * q1 * n1x
+    vy += w0 * q1 * n1y
+    vz += w0 * q1 * n1z
+    vn = w0 / math.sqrt(vx * vx + vy * vy + vz * vz)  # the reference's load, w_1 P_1, turned
+    return vn * vx, vn * vy, vn * vz
+
+
+@njit(cache=True)
+def _blend(ax, ay, az, bx, by, bz, beta):
+    """(1 - beta) a + beta b with the length blended the same way: the mean of the two lengths
+    along the direction of the mean vector (3 floats)."""
+    mx = (1.0 - beta) * ax + beta * bx
+    my = (1.0 - beta) * ay + beta * by
+    mz = (1.0 - beta) * az + beta * bz
+    mn = math.sqrt(mx * mx + my * my + mz * mz)
+    if mn <= 0.0:
+        return mx, my, mz
+    s = ((1.0 - beta) * math.sqrt(ax * ax + ay * ay + az * az) + beta * math.sqrt(bx * bx + by * by + bz * bz)) / mn
+    return s * mx, s * my, s * mz
+
+
+@njit(cache=True)
+def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count):
+    r"""The weights of the ``count`` contacts of ``tab`` (:func:`find_contacts_kernel`) for the tip
+    centre (cx, cy, cz) (module docstring): against a reference contact (the closest point), contact
+    i counts with :math:`o_i\,\varphi(b_i, b_i')`, the reference with
+    :math:`w_1 = \prod_{i} (o_i\,\varphi(b_i', b_i) + 1 - o_i)`, :math:`o_i` the
+    :func:`merge_factor` of its distance from the reference against ``zone`` (m, the closest
+    contact's Dugdale-zone radius c at its depth under the tip), and the reference pushes along
+    (per unit load) :math:`V_1 = w_1\,\mathrm{unit}(w_1 q_1 n_1 + \sum_{i} (1 - o_i)\,\varphi(b_i, b_i')\,q_i n_i)`
+    (module docstring, "A hop inside one zone"; q: :func:`hertz_share` at ``jump_out`` m).
+
+    **Two references.** Every term is measured from the reference, and the closest point hops
+    between two minima as deep as each other: the third contacts' distances and passes to it
+    jump there (minima 6-8 nm from one and 13-15 nm from the other merged by 0.3-0.9 of a zone,
+    then by none: the force doubled within 0.4 pm of travel, and the loop cycled across the hop
+    every three or four ticks). So the deepest other contact k is a second reference, with
+    :math:`\pi = r(m - (\delta_1 - \delta_k))\,r(\delta_k - \delta_l)\,\varphi(b_k, b_k')` (0 from
+    one margin m shallower than the closest, 0 where the next deepest contact l is as deep as k -
+    where the choice of k changes - and 0 where k is born, with its pair weight; the same at the
+    hop seen from either side): each contact's force per unit load is the mean of the two references' answers
+    with weights 1 and :math:`\pi` (the closest's :math:`V_1` with its weight as a contact of
+    k; k's weight times its normal with its :math:`V_k`, whose part inside the closest contact's
+    zone, :math:`1 - o_k`, is pushed by that contact's load: two minima of one contact stay one
+    contact, of the deepest one's load), symmetric in the two when they are as deep, so a hop
+    between them changes nothing. Written: the weights (``C_WEIGHT``: for the two
+    references the length of their force per unit load), ``T_CLOSEST_FORCE`` (row 0's),
+    ``T_SECOND`` (k's row, -1: none) and ``T_SECOND_FORCE`` (k's force per unit load).
+    ``margin`` m, ``ev`` (>= 1, 3) scratch."""
+    w = np.empty(count)
+    vx, vy, vz = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, 0, w)
+    r0 = _row(at, 0)
+    alt = -1  # the deepest other contact, and the depth of the next (the choice of alt changes there)
+    next_depth = -math.inf
+    for i in range(1, count):
+        d = tab[_row(at, i) + C_DEPTH]
+        if alt < 0 or d > tab[_row(at, alt) + C_DEPTH]:
+            if alt > 0:
+                next_depth = tab[_row(at, alt) + C_DEPTH]
+            alt = i
+        elif d > next_depth:
+            next_depth = d
+    pi = 0.0
+    if alt > 0:
+        da = tab[_row(at, alt) + C_DEPTH]
+        pi = _ramp(margin - (tab[r0 + C_DEPTH] - da), margin) * _ramp(da - next_depth, margin)
+        if pi > 0.0:  # and its weight as a minimum of its own against the closest (0 at birth)
+            ra = _row(at, alt)
+            d0, dk = radius - tab[r0 + C_DEPTH], radius - da
+            s = _pass_height(ctrl, ku, kv, ev, cx, cy, cz, tab[r0 + C_U], tab[r0 + C_V], dk, tab[ra + C_U], tab[ra + C_V])
+            pi *= pair_weight(s - dk, s - d0, margin)
+    tab[at + T_SECOND] = -1.0
+    if pi > 0.0:
+        w2 = np.empty(count)
+        ax, ay, az = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, alt, w2)
+        beta = pi / (1.0 + pi)
+        ra = _row(at, alt)
+        # the part of k's own answer inside the closest contact's zone is that contact's: its load P_1
+        o = merge_factor(_apart(tab, ra, r0), zone)
+        # each blended with its length and its direction apart: two unit pushes of one merged
+        # contact, seen from either reference, average to a unit push (a plain mean is shorter)
+        vx, vy, vz = _blend(vx, vy, vz, w2[0] * tab[r0 + C_NX] + (1.0 - o) * ax,
+                            w2[0] * tab[r0 + C_NX + 1] + (1.0 - o) * ay, w2[0] * tab[r0 + C_NX + 2] + (1.0 - o) * az,
+                            beta)
+        ax, ay, az = _blend(w[alt] * tab[ra + C_NX], w[alt] * tab[ra + C_NX + 1], w[alt] * tab[ra + C_NX + 2],
+                            o * ax, o * ay, o * az, beta)
+        for i in range(1, count):
+            w[i] = (1.0 - beta) * w[i] + beta * w2[i]
+        w[alt] = math.sqrt(ax * ax + ay * ay + az * az)
+        tab[at + T_SECOND] = alt
+        tab[at + T_SECOND_FORCE] = ax
+        tab[at + T_SECOND_FORCE + 1] = ay
+        tab[at + T_SECOND_FORCE + 2] = az
+    w[0] = math.sqrt(vx * vx + vy * vy + vz * vz)
+    for i in range(count):
+        tab[_row(at, i) + C_WEIGHT] = w[i]
     f = at + T_CLOSEST_FORCE
-    tab[f] = vn * vx
-    tab[f + 1] = vn * vy
-    tab[f + 2] = vn * vz
+    tab[f] = vx
+    tab[f + 1] = vy
+    tab[f + 2] = vz
+
+
+@njit(cache=True)
+def _pushes(tab, at, i):
+    """Contact i's force per unit load (3 floats; i > 0): its weight times its normal, or the second
+    reference's own (:func:`weigh_contacts_kernel`)."""
+    if i == tab[at + T_SECOND]:
+        f = at + T_SECOND_FORCE
+        return tab[f], tab[f + 1], tab[f + 2]
+    r = _row(at, i)
+    w = tab[r + C_WEIGHT]
+    return w * tab[r + C_NX], w * tab[r + C_NX + 1], w * tab[r + C_NX + 2]
 
 
 @njit(cache=True)
@@ -527,11 +646,11 @@ def total_normal_kernel(tab, at, count, jump_out, margin):
     q = hertz_share(tab[_row(at, 0) + C_DEPTH], jump_out, margin)
     bx, by, bz = q * tab[f], q * tab[f + 1], q * tab[f + 2]
     for i in range(1, count):
-        r = _row(at, i)
-        q = tab[r + C_WEIGHT] * hertz_share(tab[r + C_DEPTH], jump_out, margin)
-        bx += q * tab[r + C_NX]
-        by += q * tab[r + C_NX + 1]
-        bz += q * tab[r + C_NX + 2]
+        q = hertz_share(tab[_row(at, i) + C_DEPTH], jump_out, margin)
+        px, py, pz = _pushes(tab, at, i)
+        bx += q * px
+        by += q * py
+        bz += q * pz
     bn = math.sqrt(bx * bx + by * by + bz * bz)
     return bx / bn, by / bn, bz / bn
 
@@ -581,9 +700,11 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, lift, interacting, jump_out, ma
             fy += p * tab[f + 1]
             fz += p * tab[f + 2]
             continue
-        fx += w * p * mx
-        fy += w * p * my
-        fz += w * p * mz
+        px, py, pz = _pushes(tab, at, i)
+        ramp = w / tab[r + C_WEIGHT]  # the entry ramp
+        fx += ramp * p * px
+        fy += ramp * p * py
+        fz += ramp * p * pz
     return fx, fy, fz, fx * nx + fy * ny + fz * nz, st0, a0, p0, d0
 
 
