@@ -208,17 +208,19 @@ C_SIZE = CONTACT.size
 #: net, and the tip's last lift behind the coupling along the total normal (m; the start of the next solve) and the
 #: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
 #: load (its weight times the direction it pushes, turned towards the minima inside its zone), and
-#: the row of the second reference (-1: none) and its force per unit load (:func:`weigh_contacts_kernel`)
+#: the row of the second reference (-1: none), its force per unit load and the weights measured from
+#: it (:func:`weigh_contacts_kernel`)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
                                          ("previous_uv", 2 * MAX_CONTACTS),
                                          ("scanned", 3), ("lift", 1),
                                          ("centre", 3), ("closest_force", 3), ("second", 1),
-                                         ("second_force", 3)])
+                                         ("second_force", 3), ("second_weights", MAX_CONTACTS)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
 T_SCANNED, T_LIFT = CONTACT_TABLE.offset("scanned"), CONTACT_TABLE.offset("lift")
 T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
 T_SECOND, T_SECOND_FORCE = CONTACT_TABLE.offset("second"), CONTACT_TABLE.offset("second_force")
+T_SECOND_WEIGHTS = CONTACT_TABLE.offset("second_weights")
 TABLE_SIZE = CONTACT_TABLE.size
 #: two converged Newton ends closer than this (in knot spacings) are the same contact
 SAME_POINT = 1e-6
@@ -493,10 +495,10 @@ def _apart(tab, ra, rb):
 
 
 @njit(cache=True)
-def _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, ref, w):
-    """The weights ``w`` (count,) of the contacts of ``tab`` against reference contact ``ref`` (the
-    formulas of :func:`weigh_contacts_kernel` with ``ref`` as the closest point); returns the
-    reference's force per unit load (3 floats)."""
+def _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, ref, out, stride):
+    """The weights of the contacts of ``tab`` against reference contact ``ref`` (the formulas of
+    :func:`weigh_contacts_kernel` with ``ref`` as the closest point), contact i's written to
+    ``tab[out + i * stride]``; returns the reference's force per unit load (3 floats)."""
     r0 = _row(at, ref)
     u1 = tab[r0 + C_U]
     v1 = tab[r0 + C_V]
@@ -515,14 +517,14 @@ def _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, ta
         b = s - di
         own = pair_weight(b, s - d1, margin)
         other = pair_weight(s - d1, b, margin)
-        w[i] = o * own
+        tab[out + i * stride] = o * own
         w0 *= o * other + 1.0 - o
         if o < 1.0:  # partly inside the reference's zone: one contact, whose direction it shares
             qi = (1.0 - o) * own * hertz_share(tab[r + C_DEPTH], jump_out, margin)
             vx += qi * tab[r + C_NX]
             vy += qi * tab[r + C_NX + 1]
             vz += qi * tab[r + C_NX + 2]
-    w[ref] = w0
+    tab[out + ref * stride] = w0
     vx += w0 * q1 * n1x
     vy += w0 * q1 * n1y
     vz += w0 * q1 * n1z
@@ -570,10 +572,12 @@ def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, ju
     contact, of the deepest one's load), symmetric in the two when they are as deep, so a hop
     between them changes nothing. Written: the weights (``C_WEIGHT``: for the two
     references the length of their force per unit load), ``T_CLOSEST_FORCE`` (row 0's),
-    ``T_SECOND`` (k's row, -1: none) and ``T_SECOND_FORCE`` (k's force per unit load).
+    ``T_SECOND`` (k's row, -1: none), ``T_SECOND_FORCE`` (k's force per unit load) and
+    ``T_SECOND_WEIGHTS`` (the weights measured from k).
     ``margin`` m, ``ev`` (>= 1, 3) scratch."""
-    w = np.empty(count)
-    vx, vy, vz = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, 0, w)
+    wt = at + T_ROWS + C_WEIGHT  # the weights from the closest point, in place in the rows
+    vx, vy, vz = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, 0,
+                             wt, C_SIZE)
     r0 = _row(at, 0)
     alt = -1  # the deepest other contact, and the depth of the next (the choice of alt changes there)
     next_depth = -math.inf
@@ -596,29 +600,31 @@ def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, ju
             pi *= pair_weight(s - dk, s - d0, margin)
     tab[at + T_SECOND] = -1.0
     if pi > 0.0:
-        w2 = np.empty(count)
-        ax, ay, az = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, alt, w2)
+        w2 = at + T_SECOND_WEIGHTS
+        ax, ay, az = _weigh_from(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, jump_out, tab, at, count, alt,
+                                 w2, 1)
         beta = pi / (1.0 + pi)
         ra = _row(at, alt)
         # the part of k's own answer inside the closest contact's zone is that contact's: its load P_1
         o = merge_factor(_apart(tab, ra, r0), zone)
         # each blended with its length and its direction apart: two unit pushes of one merged
         # contact, seen from either reference, average to a unit push (a plain mean is shorter)
-        vx, vy, vz = _blend(vx, vy, vz, w2[0] * tab[r0 + C_NX] + (1.0 - o) * ax,
-                            w2[0] * tab[r0 + C_NX + 1] + (1.0 - o) * ay, w2[0] * tab[r0 + C_NX + 2] + (1.0 - o) * az,
+        c0 = tab[w2]  # the closest point's weight as a contact of k
+        vx, vy, vz = _blend(vx, vy, vz, c0 * tab[r0 + C_NX] + (1.0 - o) * ax,
+                            c0 * tab[r0 + C_NX + 1] + (1.0 - o) * ay, c0 * tab[r0 + C_NX + 2] + (1.0 - o) * az,
                             beta)
-        ax, ay, az = _blend(w[alt] * tab[ra + C_NX], w[alt] * tab[ra + C_NX + 1], w[alt] * tab[ra + C_NX + 2],
+        wk = tab[ra + C_WEIGHT]
+        ax, ay, az = _blend(wk * tab[ra + C_NX], wk * tab[ra + C_NX + 1], wk * tab[ra + C_NX + 2],
                             o * ax, o * ay, o * az, beta)
         for i in range(1, count):
-            w[i] = (1.0 - beta) * w[i] + beta * w2[i]
-        w[alt] = math.sqrt(ax * ax + ay * ay + az * az)
+            r = _row(at, i)
+            tab[r + C_WEIGHT] = (1.0 - beta) * tab[r + C_WEIGHT] + beta * tab[w2 + i]
+        tab[ra + C_WEIGHT] = math.sqrt(ax * ax + ay * ay + az * az)
         tab[at + T_SECOND] = alt
         tab[at + T_SECOND_FORCE] = ax
         tab[at + T_SECOND_FORCE + 1] = ay
         tab[at + T_SECOND_FORCE + 2] = az
-    w[0] = math.sqrt(vx * vx + vy * vy + vz * vz)
-    for i in range(count):
-        tab[_row(at, i) + C_WEIGHT] = w[i]
+    tab[r0 + C_WEIGHT] = math.sqrt(vx * vx + vy * vy + vz * vz)
     f = at + T_CLOSEST_FORCE
     tab[f] = vx
     tab[f + 1] = vy
