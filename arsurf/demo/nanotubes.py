@@ -273,6 +273,8 @@ def run_demo(out_dir, scan_path=BUNDLED_SCAN, seconds: float = 6.0, images: bool
     if feel is not None:
         progress(feel.summary() + (" - the hand felt a buzz: see the feel scores in summary.json" if feel.buzzes
                                    else ""))
+    else:
+        progress("feel: not scored (the tip never touched the surface, or the record is shorter than 0.1 s)")
     pngs = _render(viewer, views, out, dpi) if viewer is not None else []
     from arsurf.sessions.reader import load_session
 

@@ -222,13 +222,24 @@ def score_session(force, dt: float, *, contact=None, energy=None, energy_reserve
     The one score of a session: the demo prints it and writes it in its summary, the replay
     writes it in its summary and draws it over its flag strip (:mod:`arsurf.replay.plots`).
     Returns None for a record that cannot be scored (wrong shape, non-finite forces, shorter
-    than :data:`MIN_WINDOW`); ``energy`` of the wrong shape is left out.
+    than :data:`MIN_WINDOW`) and for one whose ``contact`` holds no contact tick: the criteria are
+    shares of the mean normal force, which without contact is only the free lever's noise (in the
+    short session of ``arsurf warmup``, ~2 uN at the hand: 232 % "above 100 Hz" of nothing);
+    ``energy`` of the wrong shape is left out.
+
+    Examples
+    --------
+    >>> f = np.zeros((2000, 3)); f[:, 2] = 1e-6 * np.random.default_rng(0).standard_normal(2000)
+    >>> score_session(f, 1e-3, contact=np.zeros(2000, bool)) is None
+    True
     """
     f = np.asarray(force, dtype=np.float64)
     dt = float(dt)
     n = f.shape[0] if f.ndim == 2 else 0
     if f.ndim != 2 or f.shape[1] != 3 or n < 3 or not np.isfinite(f).all() or not (math.isfinite(dt) and dt > 0.0):
         return None
+    if contact is not None and not np.asarray(contact, dtype=bool).any():
+        return None  # nothing touched: no normal force to score against
     settle = session_window_start(n, dt, contact)
     if (n - round(settle / dt)) * dt < MIN_WINDOW:
         return None

@@ -83,6 +83,22 @@ def test_energy_below_zero_and_bad_records():
         score_force(_steady(1050), DT)
 
 
+def test_a_session_that_never_touched_is_not_scored_one_that_touched_late_is():
+    """Free flight carries only the lever's noise (uN at the hand): no normal force to take shares of.
+    ``arsurf warmup``'s 1.5 s demo, which ends before the tip lands, reported "BUZZES, 232 %"."""
+    from arsurf.haptics.feel import score_session
+
+    rng = np.random.default_rng(3)
+    noise = 2e-6 * rng.standard_normal((1500, 3))
+    assert score_session(noise, DT, contact=np.zeros(1500, bool)) is None
+    assert score_session(noise, DT).buzzes  # no contact record: scored as given
+    f = noise.copy()
+    f[1200:, 2] += 0.02  # lands at 1.2 s and presses 20 mN: scored from the landing
+    contact = np.arange(1500) >= 1200
+    score = score_session(f, DT, contact=contact)
+    assert score is not None and math.isclose(score.start, 1.2) and score.mean_normal == pytest.approx(0.02, rel=0.01)
+
+
 # --- the loop on real scans (issue #13's buzz scenarios) ---------------------------------------
 @pytest.fixture(scope="module")
 def spm_surface():
