@@ -7,7 +7,8 @@ attached or a session is replayed, the measured bending and torsion angles),
 1. **collide** C (radius R) with the *rest* surface (Newton projection, :mod:`arsurf.contact.projection`):
    closest point, normal n, indentation depth δ = R − d. The rest surface is used because the
    dent is the model's own answer to δ: measuring δ on the dented net would feed the dent back
-   into itself;
+   into itself. A target pressed behind a thin wall's face keeps that face (:mod:`arsurf.contact.side`:
+   no pop-through to the other face);
 2. **contact mechanics**: Maugis-Dugdale with approach/retract hysteresis under displacement
    control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
    and load P (> 0 compressive); with a material map (:mod:`arsurf.contact.material_map`) the law
@@ -49,6 +50,7 @@ from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
                                          local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
+from arsurf.contact.side import keep_side_kernel
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
@@ -91,16 +93,18 @@ MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", 
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
-#: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the contact table
+#: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the normal of the face the
+#: target centre is behind (NaN: none; :mod:`arsurf.contact.side`), the contact table
 #: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
 #: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`)
-MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1),
+MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("side", 3),
                                      ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE),
                                      ("coupling_memo", MD_MEMO.size)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
 S_TIP_DEPTH, S_CONTACTS = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("contacts")
 S_FRICTION = MODEL_STATE.offset("friction")
+S_SIDE = MODEL_STATE.offset("side")
 S_MEMO = MODEL_STATE.offset("coupling_memo")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
@@ -164,6 +168,8 @@ def model_tick_kernel(proj,                                              # Proje
     if st < 0:
         _forget_contact(state)
         return st
+    # a target pressed through a thin wall stays on the side it came from (the god-object's memory)
+    keep_side_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v, state, S_SIDE, coll)
     state[S_HINT_U], state[S_HINT_V] = coll[pj.OUT_U], coll[pj.OUT_V]
     # the contact law where the tip touches: a material map's local E* and w, else the reference
     md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
@@ -252,6 +258,8 @@ def _clear_output(out, cx, cy, cz):
 def _forget_contact(state):
     """No collision answer: no tip depth, no contacts to follow, no friction anchor."""
     state[S_TIP_DEPTH] = math.nan
+    for j in range(3):
+        state[S_SIDE + j] = math.nan
     state[S_CONTACTS + mc.T_COUNT] = 0.0
     state[S_CONTACTS + mc.T_LIFT] = math.nan
     fr.release(state, S_FRICTION)
