@@ -189,7 +189,7 @@ from numba import njit
 from arsurf._layout import Layout
 from arsurf.contact import layout as ly
 from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
-from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+from arsurf.contact.newton import newton_foot
 from arsurf.spline.basis import surface_point
 from arsurf.spline.knots import greville_at
 from arsurf.status import SEPARATED
@@ -241,26 +241,14 @@ def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count):
     (depth >= ``floor``). Returns the new count."""
     if not (math.isfinite(u) and math.isfinite(v)):
         return count
-    nu = ku.shape[0]
-    nv = kv.shape[0]
-    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, ku[3], ku[nu - 4], kv[3], kv[nv - 4],
-                                    STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
-    if not conv:
+    u, v, ax, ay, az, signed, ok = newton_foot(ctrl, ku, kv, ev, cx, cy, cz, u, v, h)
+    if not ok:
         return count
     for i in range(count):
         r = _row(at, i)
         if math.hypot(u - tab[r + C_U], v - tab[r + C_V]) <= SAME_POINT * h:
             return count  # found from another start: the same contact
-    ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
-    ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
-    az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
-    an = math.sqrt(ax * ax + ay * ay + az * az)
-    if not an > 0.0:
-        return count
-    ax /= an  # out of the sample (S_u x S_v), as the collision's normal
-    ay /= an
-    az /= an
-    depth = radius - ((cx - ev[0, 0]) * ax + (cy - ev[0, 1]) * ay + (cz - ev[0, 2]) * az)
+    depth = radius - signed  # along its own normal, out of the sample as the collision's
     if not floor <= depth <= radius:  # out of reach, or the centre behind the patch (module docstring)
         return count
     slot = count

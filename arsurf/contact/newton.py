@@ -164,3 +164,28 @@ def newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, lo_u, hi_u, lo_v, hi_v, tol_u
             converged = True
             break
     return u, v, d2, it, converged
+
+
+@njit(cache=True)
+def newton_foot(ctrl, ku, kv, ev, cx, cy, cz, u, v, h):
+    r"""The local minimum of the distance to C = (cx, cy, cz) that Newton's method reaches from
+    (u, v) over the whole domain (:func:`newton_box`, knot spacing ``h`` m), with its unit normal
+    :math:`n = S_u \times S_v / \lVert\cdot\rVert` (out of the sample) and the signed distance
+    :math:`d = (C - S)\cdot n` (< 0: C behind the patch).
+
+    Returns ``(u, v, nx, ny, nz, d, ok)``; ``ok`` False when Newton did not converge or the normal
+    is degenerate (the other values are then meaningless). ``ev[0]`` holds the point S."""
+    nu = ku.shape[0]
+    nv = kv.shape[0]
+    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, ku[3], ku[nu - 4], kv[3], kv[nv - 4],
+                                    STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
+    ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
+    az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
+    an = math.sqrt(ax * ax + ay * ay + az * az)
+    if not (conv and an > 0.0):
+        return u, v, 0.0, 0.0, 1.0, math.nan, False
+    ax /= an
+    ay /= an
+    az /= an
+    return u, v, ax, ay, az, (cx - ev[0, 0]) * ax + (cy - ev[0, 1]) * ay + (cz - ev[0, 2]) * az, True

@@ -30,7 +30,7 @@ import math
 from numba import njit
 
 from arsurf.contact import layout as ly
-from arsurf.contact.newton import MAX_ITER_DOMAIN, STEP_TOL, newton_box
+from arsurf.contact.newton import newton_foot
 
 __all__ = ["keep_side_kernel"]
 
@@ -46,30 +46,21 @@ def keep_side_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, prev_u, prev_v, side,
     kept = False
     if (math.isfinite(n0x) and math.isfinite(prev_u) and math.isfinite(prev_v)
             and coll[ly.OUT_NX] * n0x + coll[ly.OUT_NY] * n0y + coll[ly.OUT_NZ] * n0z < 0.0):
-        nu, nv = ku.shape[0], kv.shape[0]
         h = max(ku[4] - ku[3], kv[4] - kv[3])
-        u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, prev_u, prev_v, ku[3], ku[nu - 4], kv[3],
-                                        kv[nv - 4], STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
-        ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]  # S_u x S_v: out of the sample
-        ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
-        az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
-        an = math.sqrt(ax * ax + ay * ay + az * az)
-        if conv and an > 0.0:
-            ax, ay, az = ax / an, ay / an, az / an
-            signed = (cx - ev[0, 0]) * ax + (cy - ev[0, 1]) * ay + (cz - ev[0, 2]) * az
-            if signed < 0.0 and ax * n0x + ay * n0y + az * n0z > 0.0:  # still behind a face of that side
-                coll[ly.OUT_U] = u
-                coll[ly.OUT_V] = v
-                coll[ly.OUT_WARM_U] = u  # where Newton from the previous point ends: no jump
-                coll[ly.OUT_WARM_V] = v
-                for j in range(3):
-                    coll[ly.OUT_PX + j] = ev[0, j]
-                coll[ly.OUT_NX] = ax
-                coll[ly.OUT_NY] = ay
-                coll[ly.OUT_NZ] = az
-                coll[ly.OUT_DISTANCE] = signed
-                coll[ly.OUT_DEPTH] = radius - signed
-                kept = True
+        u, v, ax, ay, az, signed, ok = newton_foot(ctrl, ku, kv, ev, cx, cy, cz, prev_u, prev_v, h)
+        if ok and signed < 0.0 and ax * n0x + ay * n0y + az * n0z > 0.0:  # still behind a face of that side
+            coll[ly.OUT_U] = u
+            coll[ly.OUT_V] = v
+            coll[ly.OUT_WARM_U] = u  # where Newton from the previous point ends: no jump
+            coll[ly.OUT_WARM_V] = v
+            for j in range(3):
+                coll[ly.OUT_PX + j] = ev[0, j]
+            coll[ly.OUT_NX] = ax
+            coll[ly.OUT_NY] = ay
+            coll[ly.OUT_NZ] = az
+            coll[ly.OUT_DISTANCE] = signed
+            coll[ly.OUT_DEPTH] = radius - signed
+            kept = True
     inside = coll[ly.OUT_DISTANCE] < 0.0
     for j in range(3):
         side[at + j] = coll[ly.OUT_NX + j] if inside else math.nan
