@@ -36,14 +36,13 @@ __all__ = ["keep_side_kernel"]
 
 
 @njit(cache=True)
-def keep_side_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, prev_u, prev_v, side, at, coll) -> bool:
+def keep_side_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, prev_u, prev_v, side, at, coll) -> None:
     """Keep the collision answer ``coll`` (:data:`~arsurf.contact.layout.COLLISION_OUT`, the global
     closest point of the rest net ``ctrl, ku, kv`` to the tip centre (cx, cy, cz) m, of radius
     ``radius`` m) on the side the tip came from (module docstring); ``prev_u, prev_v`` the previous
     tick's closest point (NaN: none), ``side[at:at + 3]`` the remembered normal (NaN: none; updated
-    here), ``ev`` (>= 6, 3) scratch. Returns True when the answer was replaced."""
+    here), ``ev`` (>= 6, 3) scratch."""
     n0x, n0y, n0z = side[at], side[at + 1], side[at + 2]
-    kept = False
     if (math.isfinite(n0x) and math.isfinite(prev_u) and math.isfinite(prev_v)
             and coll[ly.OUT_NX] * n0x + coll[ly.OUT_NY] * n0y + coll[ly.OUT_NZ] * n0z < 0.0):
         h = max(ku[4] - ku[3], kv[4] - kv[3])
@@ -60,8 +59,6 @@ def keep_side_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, prev_u, prev_v, side,
             coll[ly.OUT_NZ] = az
             coll[ly.OUT_DISTANCE] = signed
             coll[ly.OUT_DEPTH] = radius - signed
-            kept = True
     inside = coll[ly.OUT_DISTANCE] < 0.0
     for j in range(3):
         side[at + j] = coll[ly.OUT_NX + j] if inside else math.nan
-    return kept

@@ -238,12 +238,12 @@ def score_session(force, dt: float, *, contact=None, energy=None, energy_reserve
     n = f.shape[0] if f.ndim == 2 else 0
     if f.ndim != 2 or f.shape[1] != 3 or n < 3 or not np.isfinite(f).all() or not (math.isfinite(dt) and dt > 0.0):
         return None
-    if contact is not None and not np.asarray(contact, dtype=bool).any():
+    c = None if contact is None else np.asarray(contact, dtype=bool)
+    if c is not None and not c.any():
         return None  # nothing touched: no normal force to score against
-    settle = session_window_start(n, dt, contact)
+    settle = session_window_start(n, dt, c)
     if (n - round(settle / dt)) * dt < MIN_WINDOW:
         return None
     e = None if energy is None else np.asarray(energy, dtype=np.float64)
-    c = None if contact is None else np.asarray(contact, dtype=bool)
     return score_force(f, dt, settle=settle, contact=c if c is not None and c.shape == (n,) else None,
                        energy=e if e is not None and e.shape == (n,) else None, energy_reserve=energy_reserve)
