@@ -183,11 +183,18 @@ def model_tick_kernel(proj,                                              # Proje
     _copy_collision(coll, out)
     if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
         # behind the coupling along the total normal
-        lift = state[S_CONTACTS + mc.T_LIFT]
-        d1 = coll[pj.OUT_DEPTH] - (lift if math.isfinite(lift) else 0.0)  # the closest contact's, last lift
-        # the zone, continuous where the contact radius reaches 0 (the cohesive zone holds the tip down to
-        # the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima inside
-        # it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
+        # the closest contact's depth under the tip: the one contact's behind the coupling at this target
+        # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
+        # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
+        d1 = coupled_depth_kernel(
+            coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
+            friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
+            md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])[3]
+        if not math.isfinite(d1):
+            d1 = coll[pj.OUT_DEPTH]
+        # the zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the tip
+        # down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
+        # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
         zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
                                          md[A_T_FOLD], md[A_DELTA_FOLD])
         mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],

@@ -77,11 +77,14 @@ at distance :math:`s_i` from the closest point, is therefore weighed by
 
 .. math:: o_i = \min(\max(s_i/c - 1, 0), 1),
 
-c the closest contact's Dugdale-zone radius at its depth under the tip (the law's
-:math:`c(\delta_1 - \ell)` at the lift :math:`\ell` of the previous tick, on the branch connected
-to contact: the cohesive zone still holds the tip where the contact radius has reached 0, so c does
-not vanish there - it did, and a tip held at that depth flipped between one and two contacts every
-tick; c is 0 only once the tip has let go): 0 while each point
+c the closest contact's Dugdale-zone radius at its depth under the tip: the law's :math:`c(\delta_c)`
+at the depth :math:`\delta_c` the closest contact alone takes behind the coupling at this target
+(:func:`~arsurf.contact.proxy.coupled_depth_kernel`; a function of where the target is - the depth at
+the previous tick's lift, used first, fed the zone back through the weights into the next lift, and
+a target held still got forces up to 1.5 times apart from one tick to the next), on the branch
+connected to contact: the cohesive zone still holds the tip where the contact radius has reached 0,
+so c does not vanish there - it did, and a tip held at that depth flipped between one and two
+contacts every tick; c is 0 only once the tip has let go: 0 while each point
 lies inside the other's zone (:math:`s_i \le c`: one contact, exactly the single contact's load
 and depth), 1 once the two zones are apart (:math:`s_i \ge 2c`: two contacts), linear between so
 the force stays continuous as the separation changes: contact i counts with
