@@ -345,9 +345,14 @@ def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, ou
         friction[F_JUMP_OUT], margin, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
         md[A_T_FOLD], md[A_DELTA_FOLD])
     state[t + mc.T_LIFT] = lift
-    out[M_TIP] = cx + lift * nx
-    out[M_TIP + 1] = cy + lift * ny
-    out[M_TIP + 2] = cz + lift * nz
+    ox, oy, oz = lift * nx, lift * ny, lift * nz
+    if coupled:  # held by the coupling sideways too
+        ox, oy, oz, fx, fy, fz, load, st0, a0, p0, d0 = mc.coupled_offset_kernel(
+            state, t, count, nx, ny, nz, friction[F_COUPLING], lift, friction[F_JUMP_OUT], margin, md[A_DEPTH_SCALE],
+            md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
+    out[M_TIP] = cx + ox
+    out[M_TIP + 1] = cy + oy
+    out[M_TIP + 2] = cz + oz
     out[M_COUPLED] = 1.0 if coupled else 0.0
     out[M_DISTANCE] = tip_radius - d0
     out[M_DEPTH] = d0

@@ -5,7 +5,8 @@ Jacobian is symmetric and its normal stiffness is the coupling in series with th
 k_c k/(k_c + k), k = dP/d(delta) of the Maugis-Dugdale law at the tip's depth. In a valley
 narrower than the tip the several-contact force (arsurf.contact.multi_contact) is not a gradient:
 its skew part is what makes the pressing hand gain energy on rough surfaces (issue 27; strict
-xfail until the force is made conservative).
+xfail until the force is made conservative). Sideways as along the normal, the hand feels the
+coupling in series with the valley's walls, not the walls' own stiffness.
 """
 from __future__ import annotations
 
@@ -67,3 +68,20 @@ def test_in_a_valley_narrower_than_the_tip_the_force_is_a_gradient(offset):
     jac = m.force_jacobian(c)
     skew, sym = 0.5 * (jac - jac.T), 0.5 * (jac + jac.T)
     assert np.linalg.norm(skew) <= 0.01 * np.linalg.norm(sym)
+
+
+@pytest.mark.parametrize("kind, x_mid", [("sinusoid", 33e-9), ("bumps", 36e-9)])
+def test_sideways_the_hand_feels_about_the_coupling_not_the_valley_s_walls(kind, x_mid):
+    """A tip resting on both walls of a valley narrower than it, behind a 5 N/m coupling: the
+    walls are each some 100 N/m stiff, and the part of their summed force off the total normal
+    reached the hand unfiltered (14 N/m sideways, 2.8 k_c). Passed through the coupling sideways
+    too (arsurf.contact.multi_contact.coupled_offset_kernel), the stiffest direction of the field
+    is about k_c (what is left: the contact normals turning as the target moves)."""
+    k_c = 5.0
+    m = valley_model(kind, coupling=k_c)
+    c = np.array([x_mid + 0.3e-9, 24e-9, height_for(kind, x_mid, 2e-9)])  # both walls ~2 nm deep
+    _pressed(m, c)
+    jac = m.force_jacobian(c)
+    stiffness = np.linalg.eigvalsh(-0.5 * (jac + jac.T))  # N/m, along the field's principal directions
+    assert stiffness.max() <= 1.15 * k_c, stiffness
+    assert stiffness.max() >= 0.9 * k_c  # pressed into the valley, the coupling itself is felt
