@@ -668,38 +668,18 @@ def _ramp(x, margin):
 
 
 @njit(cache=True)
-def _closest_axis(tab, at):
-    """The unit direction the closest contact pushes, :math:`V_1/\lVert V_1\rVert` (``T_CLOSEST_FORCE``;
-    its normal where that is 0): its depth changes along it as the tip moves (:func:`sum_loads_kernel`),
-    so it pushes along the direction its depth falls and the tip's balance against the coupling is a
-    symmetric system. Measured with the sideways coupling on the feel table's 81 failing runs and 120
-    passing ones: the energy the hands gained beyond -E0, summed, 477 E0 against 676 E0 with its own
-    normal (the worst run -110 against -175 E0), though not everywhere (a still blended press -32
-    against -4.4 E0; docs/feel.rst)."""
-    f = at + T_CLOSEST_FORCE
-    vx, vy, vz = tab[f], tab[f + 1], tab[f + 2]
-    vn = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if not vn > 0.0:
-        r0 = _row(at, 0)
-        return tab[r0 + C_NX], tab[r0 + C_NX + 1], tab[r0 + C_NX + 2]
-    return vx / vn, vy / vn, vz / vn
-
-
-@njit(cache=True)
 def sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, interacting, jump_out, margin, depth_scale,
                      radius_scale, load_scale, lam, t_fold, delta_fold):
     r"""The summed contact force with the tip moved by :math:`\Delta` = (``ox, oy, oz``) m from the
     target (module docstring, "Entry at the edge"): contact i is :math:`\delta_i - \Delta\cdot n_i`
     deep and carries :math:`w_i\,e_i\,P(\delta_i - \Delta\cdot n_i)\,n_i`, the closest one
-    :math:`P(\delta_1 - \Delta\cdot \hat V_1)\,V_1` ("A hop inside one zone"; :func:`_closest_axis`),
-    P the Maugis-Dugdale law
+    :math:`P(\delta_1 - \Delta\cdot n_1)\,V_1` ("A hop inside one zone"), P the Maugis-Dugdale law
     (``MaugisDugdale.kernel_args``) under the tip's hysteresis state ``interacting``.
 
     Returns ``(fx, fy, fz, F.n, status, a, load, depth)``: the force (N), its part along the total
     normal n, and the closest contact's (row 0) answer at its depth (status, radius m, load N, depth m)."""
     r0 = _row(at, 0)
-    ux, uy, uz = _closest_axis(tab, at)
-    d0 = tab[r0 + C_DEPTH] - (ox * ux + oy * uy + oz * uz)
+    d0 = tab[r0 + C_DEPTH] - (ox * tab[r0 + C_NX] + oy * tab[r0 + C_NX + 1] + oz * tab[r0 + C_NX + 2])
     e0 = _ramp(d0 - jump_out, margin)
     fx = fy = fz = 0.0
     st0 = SEPARATED
@@ -798,21 +778,19 @@ def _sideways_stiffness(tab, at, count, ox, oy, oz, t1x, t1y, t1z, t2x, t2y, t2z
     direction along which its depth changes (:func:`sum_loads_kernel`)."""
     h = margin
     r0 = _row(at, 0)
-    ux, uy, uz = _closest_axis(tab, at)
-    d0 = tab[r0 + C_DEPTH] - (ox * ux + oy * uy + oz * uz)
+    d0 = tab[r0 + C_DEPTH] - (ox * tab[r0 + C_NX] + oy * tab[r0 + C_NX + 1] + oz * tab[r0 + C_NX + 2])
     e0 = _ramp(d0 - jump_out, margin)
     k11 = k12 = k22 = 0.0
     for i in range(count):
         r = _row(at, i)
         if not tab[r + C_WEIGHT] > 0.0:
             continue
+        mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
         if i == 0:
-            mx, my, mz = ux, uy, uz
             f = at + T_CLOSEST_FORCE
             px, py, pz = tab[f], tab[f + 1], tab[f + 2]
             e = 1.0
         else:
-            mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
             px, py, pz = _pushes(tab, at, i)
         d = tab[r + C_DEPTH] - (ox * mx + oy * my + oz * mz)
         if i > 0:
