@@ -347,9 +347,9 @@ def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, ou
     state[t + mc.T_LIFT] = lift
     ox, oy, oz = lift * nx, lift * ny, lift * nz
     if coupled:  # held by the coupling sideways too
-        ox, oy, oz, fx, fy, fz, load, st0, a0, p0, d0 = mc.coupled_offset_kernel(
-            state, t, count, nx, ny, nz, friction[F_COUPLING], lift, friction[F_JUMP_OUT], margin, md[A_DEPTH_SCALE],
-            md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
+        ox, oy, oz, fx, fy, fz = mc.coupled_offset_kernel(
+            state, t, count, nx, ny, nz, friction[F_COUPLING], lift, fx, fy, fz, friction[F_JUMP_OUT], margin,
+            md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
     out[M_TIP] = cx + ox
     out[M_TIP + 1] = cy + oy
     out[M_TIP + 2] = cz + oz

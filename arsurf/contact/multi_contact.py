@@ -811,23 +811,22 @@ def _sideways_stiffness(tab, at, count, ox, oy, oz, t1x, t1y, t1z, t2x, t2y, t2z
 
 
 @njit(cache=True)
-def coupled_offset_kernel(tab, at, count, nx, ny, nz, k_couple, lift, jump_out, margin, depth_scale, radius_scale,
-                          load_scale, lam, t_fold, delta_fold):
+def coupled_offset_kernel(tab, at, count, nx, ny, nz, k_couple, lift, fx, fy, fz, jump_out, margin, depth_scale,
+                          radius_scale, load_scale, lam, t_fold, delta_fold):
     r"""The one rigid tip behind a virtual coupling of stiffness ``k_couple`` (N/m) sideways too.
-    :func:`coupled_lift_kernel` balances the coupling against the summed force along the total
-    normal n (lift ``lift`` m); the part r of the force off n is then passed through the coupling
+    :func:`coupled_lift_kernel` balances the coupling against the summed force (``fx, fy, fz`` N
+    there) along the total normal n (lift ``lift`` m); the part r of the force off n is then passed
+    through the coupling
     in series with the contacts' sideways stiffness: the tip moves by
     :math:`s = (k_c I + K_t)^{-1} r` in the plane normal to n, :math:`K_t` the symmetric part of
     the summed stiffness (:func:`_sideways_stiffness`) in that plane, its eigenvalues held >= 0, and
     the hand gets :math:`k_c s` there - one Newton step of the balance :math:`k_c\Delta = F_N(\Delta)`
     from the lift, continuous in its inputs. Sideways the walls of a valley then push the hand
-    back with at most :math:`k_c` (they pushed back unfiltered, 18-22 N/m behind a 5 N/m coupling).
+    back with about :math:`k_c` (module docstring, "One tip behind the coupling").
 
-    Returns ``(ox, oy, oz, fx, fy, fz, F.n, status, a, load, depth)``: the tip's offset from the
-    target (m), the force (N), its part along n and the closest contact's answer."""
+    Returns ``(ox, oy, oz, fx, fy, fz)``: the tip's offset from the target (m) and the force (N)."""
     ox, oy, oz = lift * nx, lift * ny, lift * nz
-    fx, fy, fz, fn, st, a, p, d = sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, True, jump_out, margin,
-                                                   depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
+    fn = fx * nx + fy * ny + fz * nz
     rx, ry, rz = fx - fn * nx, fy - fn * ny, fz - fn * nz
     # an orthonormal basis (t1, t2) of the plane normal to n
     if abs(nx) < 0.9:
@@ -856,5 +855,4 @@ def coupled_offset_kernel(tab, at, count, nx, ny, nz, k_couple, lift, jump_out, 
     e2 = (-sn * r1 + c * r2) / (k_couple + l2)
     s1, s2 = c * e1 - sn * e2, sn * e1 + c * e2
     sx, sy, sz = s1 * t1x + s2 * t2x, s1 * t1y + s2 * t2y, s1 * t1z + s2 * t2z
-    return (ox + sx, oy + sy, oz + sz, fn * nx + k_couple * sx, fn * ny + k_couple * sy, fn * nz + k_couple * sz,
-            fn, st, a, p, d)
+    return ox + sx, oy + sy, oz + sz, fn * nx + k_couple * sx, fn * ny + k_couple * sy, fn * nz + k_couple * sz
