@@ -633,8 +633,11 @@ def weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, margin, zone, ju
 
 @njit(cache=True)
 def _pushes(tab, at, i):
-    """Contact i's force per unit load (3 floats; i > 0): its weight times its normal, or the second
-    reference's own (:func:`weigh_contacts_kernel`)."""
+    """Contact i's force per unit load (3 floats): the closest contact's (i = 0, ``T_CLOSEST_FORCE``),
+    the second reference's own (:func:`weigh_contacts_kernel`), or its weight times its normal."""
+    if i == 0:
+        f = at + T_CLOSEST_FORCE
+        return tab[f], tab[f + 1], tab[f + 2]
     if i == tab[at + T_SECOND]:
         f = at + T_SECOND_FORCE
         return tab[f], tab[f + 1], tab[f + 2]
@@ -648,10 +651,8 @@ def total_normal_kernel(tab, at, count, jump_out, margin):
     r"""The total normal n (unit) of the contacts in ``tab`` (module docstring): the sum of the
     closest contact's force per unit load :math:`V_1` (``T_CLOSEST_FORCE``) and of the other
     contacts' weighted normals :math:`w_i n_i`, each times its :func:`hertz_share` q."""
-    f = at + T_CLOSEST_FORCE
-    q = hertz_share(tab[_row(at, 0) + C_DEPTH], jump_out, margin)
-    bx, by, bz = q * tab[f], q * tab[f + 1], q * tab[f + 2]
-    for i in range(1, count):
+    bx = by = bz = 0.0
+    for i in range(count):
         q = hertz_share(tab[_row(at, i) + C_DEPTH], jump_out, margin)
         px, py, pz = _pushes(tab, at, i)
         bx += q * px
@@ -665,6 +666,15 @@ def total_normal_kernel(tab, at, count, jump_out, margin):
 def _ramp(x, margin):
     """r(x) = min(max(x / m, 0), 1)."""
     return min(max(x / margin, 0.0), 1.0)
+
+
+@njit(cache=True)
+def _entry_ramp(depth, closest, jump_out, margin):
+    r"""A secondary contact's entry ramp at ``depth`` (m; module docstring, "Entry at the edge"):
+    :math:`\min(r_d(\delta_i - \delta_{out}) / r_d(\delta_1 - \delta_{out}), 1)`, ``closest`` the closest
+    contact's :math:`r_d(\delta_1 - \delta_{out})`."""
+    e = _ramp(depth - jump_out, margin)
+    return e / closest if e < closest else 1.0
 
 
 @njit(cache=True)
@@ -686,28 +696,20 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, interacting, jump_o
     a0 = p0 = 0.0
     for i in range(count):
         r = _row(at, i)
-        w = tab[r + C_WEIGHT]
-        if not w > 0.0:
+        if not tab[r + C_WEIGHT] > 0.0:
             continue
         mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
         d = d0 if i == 0 else tab[r + C_DEPTH] - (ox * mx + oy * my + oz * mz)
-        if i > 0:  # the entry ramp, relative to the closest contact's (1 where they are as deep)
-            e = _ramp(d - jump_out, margin)
-            if e < e0:
-                w *= e / e0
         st, a, p = md_contact_hysteresis_kernel(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
                                                 delta_fold)
         if st < 0 or st == SEPARATED:
             a = p = 0.0
+        ramp = 1.0
         if i == 0:  # the closest contact pushes along V_1 (its weight included)
             st0, a0, p0 = st, a, p
-            f = at + T_CLOSEST_FORCE
-            fx += p * tab[f]
-            fy += p * tab[f + 1]
-            fz += p * tab[f + 2]
-            continue
+        else:
+            ramp = _entry_ramp(d, e0, jump_out, margin)
         px, py, pz = _pushes(tab, at, i)
-        ramp = w / tab[r + C_WEIGHT]  # the entry ramp
         fx += ramp * p * px
         fy += ramp * p * py
         fz += ramp * p * pz
@@ -786,15 +788,9 @@ def _sideways_stiffness(tab, at, count, ox, oy, oz, t1x, t1y, t1z, t2x, t2y, t2z
         if not tab[r + C_WEIGHT] > 0.0:
             continue
         mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
-        if i == 0:
-            f = at + T_CLOSEST_FORCE
-            px, py, pz = tab[f], tab[f + 1], tab[f + 2]
-            e = 1.0
-        else:
-            px, py, pz = _pushes(tab, at, i)
+        px, py, pz = _pushes(tab, at, i)
         d = tab[r + C_DEPTH] - (ox * mx + oy * my + oz * mz)
-        if i > 0:
-            e = min(_ramp(d - jump_out, margin) / e0, 1.0) if e0 > 0.0 else 1.0
+        e = 1.0 if i == 0 else _entry_ramp(d, e0, jump_out, margin)
         st, a, p = md_contact_hysteresis_kernel(d, True, depth_scale, radius_scale, load_scale, lam, t_fold,
                                                 delta_fold)
         st2, a2, p2 = md_contact_hysteresis_kernel(d + h, True, depth_scale, radius_scale, load_scale, lam, t_fold,
