@@ -13,7 +13,8 @@ overruns, <= 0.1 % of the nominal ticks) and the longest gap between two ticks (
 Row ``multi_contact`` (issue 27): the model tick (``ARModel.tick``, dent on) of a 20 nm tip sliding
 0.01 nm per tick through valleys narrower than itself (a 12 nm sinusoid: two contacts) against the
 same tick on a 160 nm sinusoid (one contact), and one bare VTK ``vtkStaticCellLocator``
-closest-point query at the same tip positions, in interleaved rounds (``--multi-only``: that row).
+closest-point query at the same tip positions, in interleaved rounds (``--multi-only``: that row),
+and the tick of a 6 nm tip on a rough power-law patch with ~10 contacts (``many_contacts``).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
 Each table cell traces its ticks (bench/_tick_table.py ``traced``): wall and thread-CPU time per
 tick, and for the ticks over 100 us whether they were preempted, ran the garbage collector or
@@ -46,7 +47,7 @@ from arsurf.haptics.scheduler import Scheduler  # noqa: E402
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice  # noqa: E402
 from arsurf.contact import multi_contact as mc  # noqa: E402
 from arsurf.model import M_IN_CONTACT, S_CONTACTS, ARModel  # noqa: E402
-from arsurf.scan.synthetic import sinusoid  # noqa: E402
+from arsurf.scan.synthetic import rough, sinusoid  # noqa: E402
 from arsurf.spline.fit import fit_surface  # noqa: E402
 
 R = 20e-9
@@ -138,10 +139,27 @@ def _slide(period: float, ticks: int):
     return s, model, np.column_stack([x, np.full(ticks, y0), np.full(ticks, z)])
 
 
+def _rough_patch(ticks: int):
+    """A 6 nm tip pressed 4 nm into a seeded power-law surface (0.5 nm rms, 2.8 nm correlation
+    length, 0.28 nm pixels: the feel table's small-tip families) behind a 5 N/m coupling, sliding
+    0.004 nm per tick: seven to eleven minima in reach."""
+    r = 6e-9
+    scan = rough((72, 72), 0.28e-9, rms=0.5e-9, correlation_length=2.8e-9, spectrum="power-law", seed=3)
+    s = fit_surface(scan)
+    model = ARModel(s, r, MaugisDugdale(r, 50e9, 0.05), Cantilever(450e-6, 50e-6, 2.5e-6, 15e-6, 169e9, 0.27),
+                    coupling_stiffness=5.0)
+    c = 36 * 0.28e-9
+    z = float(scan.heights[28:44, 28:44].max()) + r - 4e-9
+    x = c + 0.004e-9 * (np.arange(ticks) % 400 - 200)
+    return s, model, np.column_stack([x, c + 0.3 * (x - c), np.full(ticks, z)])
+
+
 def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
-    """The model tick with several contacts vs one, and one VTK closest-point query, interleaved."""
+    """The model tick with several contacts vs one, and one VTK closest-point query, interleaved;
+    and a tip resting on a rough patch's many minima (``many_contacts``)."""
     out = {}
-    cases = {"one_contact": _slide(160e-9, ticks), "multi_contact": _slide(12e-9, ticks)}
+    cases = {"one_contact": _slide(160e-9, ticks), "multi_contact": _slide(12e-9, ticks),
+             "many_contacts": _rough_patch(ticks)}
     times = {k: [] for k in cases}
     vtk_times = []
     counts = {}
@@ -170,6 +188,7 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
     out["vtk_closest_point"] = best_round(vtk_times)
     out["multi_over_one_contact"] = round_ratio(times["multi_contact"], times["one_contact"])
     out["multi_over_vtk"] = round_ratio(times["multi_contact"], vtk_times)
+    out["many_over_one_contact"] = round_ratio(times["many_contacts"], times["one_contact"])
     return out
 
 

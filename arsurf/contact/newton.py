@@ -167,18 +167,24 @@ def newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, lo_u, hi_u, lo_v, hi_v, tol_u
 
 
 @njit(cache=True)
-def newton_foot(ctrl, ku, kv, ev, cx, cy, cz, u, v, h):
+def newton_foot(ctrl, ku, kv, ev, cx, cy, cz, u, v, h, reach=math.inf):
     r"""The local minimum of the distance to C = (cx, cy, cz) that Newton's method reaches from
     (u, v) over the whole domain (:func:`newton_box`, knot spacing ``h`` m), with its unit normal
     :math:`n = S_u \times S_v / \lVert\cdot\rVert` (out of the sample) and the signed distance
-    :math:`d = (C - S)\cdot n` (< 0: C behind the patch).
+    :math:`d = (C - S)\cdot n` (< 0: C behind the patch). With a finite ``reach`` (m) only within
+    ``reach`` of the start in u and in v: a minimum farther away is not this start's (``ok`` False).
 
     Returns ``(u, v, nx, ny, nz, d, ok)``; ``ok`` False when Newton did not converge or the normal
     is degenerate (the other values are then meaningless). ``ev[0]`` holds the point S."""
     nu = ku.shape[0]
     nv = kv.shape[0]
-    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, ku[3], ku[nu - 4], kv[3], kv[nv - 4],
+    lo_u, hi_u = max(ku[3], u - reach), min(ku[nu - 4], u + reach)
+    lo_v, hi_v = max(kv[3], v - reach), min(kv[nv - 4], v + reach)
+    u, v, d2, it, conv = newton_box(ctrl, ku, kv, ev, cx, cy, cz, u, v, lo_u, hi_u, lo_v, hi_v,
                                     STEP_TOL * h, STEP_TOL * h, h, MAX_ITER_DOMAIN)
+    if (u <= lo_u and lo_u > ku[3]) or (u >= hi_u and hi_u < ku[nu - 4]) or \
+            (v <= lo_v and lo_v > kv[3]) or (v >= hi_v and hi_v < kv[nv - 4]):
+        return u, v, 0.0, 0.0, 1.0, math.nan, False  # held at the edge of the reach: a minimum beyond it
     ax = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
     ay = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
     az = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]

@@ -176,8 +176,8 @@ def _pull_off(model, x, y, z0):
 def test_the_stiffest_and_the_softest_decile_feel_different(spm):
     """On a 256-pixel window smoothed over R/2 (as the demo): at one load the soft spot indents
     several times deeper, each spot's indentation is Maugis-Dugdale's of the local E* and w at the
-    contact point, and its pull-off that law's, or up to a tenth more where neighbouring asperities
-    are within the adhesion range."""
+    contact point (to within what neighbouring asperities carry: 1 %), and its pull-off that law's,
+    or up to a tenth more where neighbouring asperities are within the adhesion range."""
     from arsurf.demo import pick_spots
 
     rows, cols = slice(384, 640), slice(384, 640)
@@ -201,13 +201,17 @@ def test_the_stiffest_and_the_softest_decile_feel_different(spm):
         ex, wx = m.reduced_modulus(*t.point[:2]), m.work_of_adhesion(*t.point[:2])
         md = MaugisDugdale(R, ex, wx, wx / conv.dugdale_range)
         assert t.load == pytest.approx(load, rel=1e-6)
-        assert t.depth == pytest.approx(md.depth(load), rel=1e-6)       # MD of the local law
-        # and Maugis' equations as printed (tests/support/reference.py), at the local E*, w: the tick's load
+        # MD of the local law, to within what the asperities next to the spot carry (the stiff spot
+        # has nine minima in reach, merged into its contact or held by adhesion: 0.7 % of the load)
+        assert t.depth == pytest.approx(md.depth(load), rel=2e-3)
+        assert t.load == pytest.approx(float(md.load(t.depth)), rel=0.01)
+        # and Maugis' equations as printed (tests/support/reference.py), at the local E*, w: the law's
+        # load at the tick's depth
         k = 4.0 * ex / 3.0
         lam = 2.0 * (wx / conv.dugdale_range) * (R / (math.pi * wx * k * k)) ** (1.0 / 3.0)
         depth_scale = (math.pi ** 2 * wx ** 2 * R / k ** 2) ** (1.0 / 3.0)
         a_bar = ref_radius_from_depth(t.depth / depth_scale, lam)
-        assert t.load == pytest.approx(ref_load_depth(a_bar, lam)[0] * math.pi * wx * R, rel=1e-6)
+        assert float(md.load(t.depth)) == pytest.approx(ref_load_depth(a_bar, lam)[0] * math.pi * wx * R, rel=1e-6)
         p, point = _pull_off(model, x, y, z0)
         ep, wp = m.reduced_modulus(*point[:2]), m.work_of_adhesion(*point[:2])
         single = MaugisDugdale(R, ep, wp, wp / conv.dugdale_range).pull_off_force()  # < 0

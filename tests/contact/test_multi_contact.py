@@ -499,3 +499,62 @@ def test_a_target_held_still_feels_a_steady_force_behind_the_coupling():
             worst = max(worst, np.linalg.norm(held[2:] - held[-1], axis=1).max() / np.linalg.norm(held[-1]))
     assert several >= 40  # most of the 48 targets rest on several contacts
     assert worst < 1e-9, worst
+
+
+
+def _ring_model(count: int):
+    """A 20 nm tip over ``count`` Gaussian bumps (14 nm high, 2 nm wide) spaced around a ring of
+    17 nm radius centred at (24, 24) nm: the tip above the centre rests on every bump at once."""
+    x = np.arange(96) * 0.5e-9
+    z = np.zeros((96, 96))
+    for k in range(count):
+        a = 2.0 * math.pi * k / count
+        bx, by = 24e-9 + 17e-9 * math.cos(a), 24e-9 + 17e-9 * math.sin(a)
+        z += 14e-9 * np.exp(-((x[None, :] - bx) ** 2 + (x[:, None] - by) ** 2) / (2 * (2e-9) ** 2))
+    scan = with_heights(synthetic.sinusoid(shape=(96, 96), pixel=0.5e-9, amplitude=0.0, period=PERIOD), z)
+    return ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
+
+
+def test_a_tip_resting_on_ten_asperities_carries_all_ten():
+    """Ten like contacts carry ten times one: the sum of a ring of ten bumps (contacts 9 nm apart,
+    twice the Dugdale zone: ten contacts, not merged) under a tip above its centre is, along z, ten
+    times the force of one of them alone at the same tip (sideways the ring cancels). The table once
+    held eight contacts, a deeper ninth replacing the shallowest: a tip on a rough patch - nine to
+    fourteen minima in reach of 2-6 nm tips on the feel table's power-law surfaces - carried eight
+    tenths of the ring here."""
+    ring, one = _ring_model(10), _ring_model(1)
+    # the tip height at which the bump at angle 0 is 0.2 nm deep (a few Newton steps on its depth)
+    z = 40e-9
+    for _ in range(8):
+        one.reset()
+        t = one.step((24e-9, 24e-9, z))
+        z -= (0.2e-9 - t.depth) / t.normal[2]
+    one.reset()
+    for zz in np.linspace(z + 1e-9, z, 11):  # pressed in over ticks, as a hand does
+        f1 = one.step((24e-9, 24e-9, zz)).simulated_force
+        f10 = ring.step((24e-9, 24e-9, zz)).simulated_force
+    assert f1[2] > 0.0 and abs(f1[0]) > 0.1 * f1[2]  # one bump pushes inwards and up
+    assert f10[2] == pytest.approx(10.0 * f1[2], rel=0.02), (f10, f1)
+    assert ring.state[S_CONTACTS + mc.T_COUNT] == 10
+    assert np.hypot(f10[0], f10[1]) <= 0.02 * f10[2], f10
+
+
+def test_a_discovery_start_finds_the_minimum_next_to_it_not_one_beyond_its_reach():
+    """Newton bounded to START_REACH knot spacings of its start ends at the minimum next to it,
+    exactly where the unbounded run does, and reports none where the nearest minimum lies farther
+    (the unbounded run slides there: on a real scan such runs made a first touch's contacts
+    change with a picometre of height)."""
+    from arsurf.contact.newton import EVALUATION_ROWS, newton_foot
+
+    s = valley_surface("sinusoid")
+    ctrl, rest, ku, kv = s.kernel_arrays()
+    h = float(ku[4] - ku[3])
+    ev = np.empty((EVALUATION_ROWS, 3))
+    c = (33e-9, 24e-9, 19e-9)
+    reach = mc.START_REACH * h
+    free = newton_foot(rest, ku, kv, ev, *c, 32.4e-9, 24e-9, h)  # slides to the minimum ~5 nm away
+    assert free[6] and abs(free[0] - 32.4e-9) > 2.0 * reach
+    assert not newton_foot(rest, ku, kv, ev, *c, 32.4e-9, 24e-9, h, reach)[6]
+    near = newton_foot(rest, ku, kv, ev, *c, free[0] + 0.5 * h, 24e-9, h, reach)
+    assert near[6]
+    assert near[:6] == pytest.approx(free[:6], rel=1e-9, abs=1e-15)
