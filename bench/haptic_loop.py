@@ -142,7 +142,7 @@ def _slide(period: float, ticks: int):
 def _rough_patch(ticks: int):
     """A 6 nm tip pressed 4 nm into a seeded power-law surface (0.5 nm rms, 2.8 nm correlation
     length, 0.28 nm pixels: the feel table's small-tip families) behind a 5 N/m coupling, sliding
-    0.004 nm per tick: seven to eleven minima in reach."""
+    0.004 nm per tick: about ten minima in reach (9.6 on average, up to 11)."""
     r = 6e-9
     scan = rough((72, 72), 0.28e-9, rms=0.5e-9, correlation_length=2.8e-9, spectrum="power-law", seed=3)
     s = fit_surface(scan)
