@@ -14,7 +14,8 @@ Row ``multi_contact`` (issue 27): the model tick (``ARModel.tick``, dent on) of 
 0.01 nm per tick through valleys narrower than itself (a 12 nm sinusoid: two contacts) against the
 same tick on a 160 nm sinusoid (one contact), and one bare VTK ``vtkStaticCellLocator``
 closest-point query at the same tip positions, in interleaved rounds (``--multi-only``: that row),
-and the tick of a 6 nm tip on a rough power-law patch with ~10 contacts (``many_contacts``).
+and the tick of a 6 nm tip on a rough power-law patch with ~10 contacts (``many_contacts``, and
+where its time goes: ``many_contacts_parts_us``).
 --lockup-check adds a SCHED_FIFO loop whose step never fits its period, pinned to one core.
 Each table cell traces its ticks (bench/_tick_table.py ``traced``): wall and thread-CPU time per
 tick, and for the ticks over 100 us whether they were preempted, ran the garbage collector or
@@ -154,6 +155,50 @@ def _rough_patch(ticks: int):
     return s, model, np.column_stack([x, c + 0.3 * (x - c), np.full(ticks, z)])
 
 
+def tick_parts(model: ARModel, points) -> dict:
+    """Where a several-contact tick goes (medians, us): after each whole tick at a point, its parts
+    called one by one from Python on a copy of the state the tick started from (each adds ~0.2 us of
+    call): the collision (the global closest point), finding the contacts, weighing them, the lift
+    behind the coupling and the sideways step."""
+    from time import perf_counter_ns as clock
+
+    from arsurf import model as am
+    from arsurf.contact import projection as pj
+    from arsurf.contact.maugis_dugdale import md_zone_from_depth_kernel
+
+    a = dict(zip(am.MODEL_ARGS, model.kernel_args()))
+    state, coll, ev, fr = a["model_state"], a["coll"], a["ev"], a["friction"]
+    rest, ku, kv, law, r = a["live_rest"], a["ku"], a["kv"], model.contact.kernel_args, model.tip_radius
+    m = am.CONTACT_MARGIN * law[0]
+    t = {k: [] for k in ("tick", "collision", "find_contacts", "weigh_contacts", "lift", "sideways_step")}
+
+    def timed(name, f, *args):
+        t0 = clock()
+        out = f(*args)
+        t[name].append((clock() - t0) * 1e-3)
+        return out
+
+    for p in points:
+        before = state.copy()
+        timed("tick", model.tick, p)
+        after = state.copy()
+        state[:] = before
+        x, y, z = (float(v) for v in p)
+        timed("collision", pj.collide_any, a["proj"], x, y, z, r, state[am.S_HINT_U], state[am.S_HINT_V], coll)
+        n = timed("find_contacts", mc.find_contacts_kernel, rest, ku, kv, ev, x, y, z, r, fr[am.F_JUMP_OUT] - m, m,
+                  state[am.S_HINT_U], state[am.S_HINT_V], state, S_CONTACTS, coll)[0]
+        zone = md_zone_from_depth_kernel(coll[pj.OUT_DEPTH], *law)
+        timed("weigh_contacts", mc.weigh_contacts_kernel, rest, ku, kv, ev, x, y, z, r, m, zone, fr[am.F_JUMP_OUT],
+              state, S_CONTACTS, n)
+        nx, ny, nz = mc.total_normal_kernel(state, S_CONTACTS, n, fr[am.F_JUMP_OUT], m)
+        lift, _, fx, fy, fz = timed("lift", mc.coupled_lift_kernel, state, S_CONTACTS, n, nx, ny, nz, fr[am.F_COUPLING],
+                                    True, state[S_CONTACTS + mc.T_LIFT], fr[am.F_JUMP_OUT], m, *law)[:5]
+        timed("sideways_step", mc.coupled_offset_kernel, state, S_CONTACTS, n, nx, ny, nz, fr[am.F_COUPLING], lift,
+              fx, fy, fz, fr[am.F_JUMP_OUT], m, *law)
+        state[:] = after
+    return {k: float(np.median(v)) for k, v in t.items()}
+
+
 def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
     """The model tick with several contacts vs one, and one VTK closest-point query, interleaved;
     and a tip resting on a rough patch's many minima (``many_contacts``)."""
@@ -189,6 +234,8 @@ def multi_contact_row(rounds: int = 7, ticks: int = 2000) -> dict:
     out["multi_over_one_contact"] = round_ratio(times["multi_contact"], times["one_contact"])
     out["multi_over_vtk"] = round_ratio(times["multi_contact"], vtk_times)
     out["many_over_one_contact"] = round_ratio(times["many_contacts"], times["one_contact"])
+    _, model, pts = cases["many_contacts"]
+    out["many_contacts_parts_us"] = tick_parts(model, pts)
     return out
 
 
