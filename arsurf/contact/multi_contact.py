@@ -688,6 +688,24 @@ def _entry_ramp(depth, closest, jump_out, margin):
 
 
 @njit(cache=True)
+def _depth_at(tab, r, ox, oy, oz):
+    """The depth (m) of the contact in row ``r`` under the tip moved by (ox, oy, oz) m from the
+    target: :math:`\delta_i - \Delta\cdot n_i`."""
+    return tab[r + C_DEPTH] - (ox * tab[r + C_NX] + oy * tab[r + C_NX + 1] + oz * tab[r + C_NX + 2])
+
+
+@njit(cache=True)
+def _law_at(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold):
+    """The Maugis-Dugdale answer ``(status, a, P)`` at depth ``d`` m, a = P = 0 where the solve failed or
+    the tip is separated."""
+    st, a, p = md_contact_hysteresis_kernel(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
+                                            delta_fold)
+    if st < 0 or st == SEPARATED:
+        return st, 0.0, 0.0
+    return st, a, p
+
+
+@njit(cache=True)
 def sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, interacting, jump_out, margin, depth_scale,
                      radius_scale, load_scale, lam, t_fold, delta_fold):
     r"""The summed contact force with the tip moved by :math:`\Delta` = (``ox, oy, oz``) m from the
@@ -698,8 +716,7 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, interacting, jump_o
 
     Returns ``(fx, fy, fz, F.n, status, a, load, depth)``: the force (N), its part along the total
     normal n, and the closest contact's (row 0) answer at its depth (status, radius m, load N, depth m)."""
-    r0 = _row(at, 0)
-    d0 = tab[r0 + C_DEPTH] - (ox * tab[r0 + C_NX] + oy * tab[r0 + C_NX + 1] + oz * tab[r0 + C_NX + 2])
+    d0 = _depth_at(tab, _row(at, 0), ox, oy, oz)
     e0 = _ramp(d0 - jump_out, margin)
     fx = fy = fz = 0.0
     st0 = SEPARATED
@@ -708,12 +725,8 @@ def sum_loads_kernel(tab, at, count, nx, ny, nz, ox, oy, oz, interacting, jump_o
         r = _row(at, i)
         if not tab[r + C_WEIGHT] > 0.0:
             continue
-        mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
-        d = d0 if i == 0 else tab[r + C_DEPTH] - (ox * mx + oy * my + oz * mz)
-        st, a, p = md_contact_hysteresis_kernel(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold,
-                                                delta_fold)
-        if st < 0 or st == SEPARATED:
-            a = p = 0.0
+        d = d0 if i == 0 else _depth_at(tab, r, ox, oy, oz)
+        st, a, p = _law_at(d, interacting, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)
         ramp = 1.0
         if i == 0:  # the closest contact pushes along V_1 (its weight included)
             st0, a0, p0 = st, a, p
@@ -789,9 +802,7 @@ def _sideways_stiffness(tab, at, count, ox, oy, oz, t1x, t1y, t1z, t2x, t2y, t2z
     valley narrower than the tip); :math:`p_i` the force it pushes per unit load, :math:`m_i` the
     direction along which its depth changes (:func:`sum_loads_kernel`)."""
     h = margin
-    r0 = _row(at, 0)
-    d0 = tab[r0 + C_DEPTH] - (ox * tab[r0 + C_NX] + oy * tab[r0 + C_NX + 1] + oz * tab[r0 + C_NX + 2])
-    e0 = _ramp(d0 - jump_out, margin)
+    e0 = _ramp(_depth_at(tab, _row(at, 0), ox, oy, oz) - jump_out, margin)
     k11 = k12 = k22 = 0.0
     for i in range(count):
         r = _row(at, i)
@@ -799,14 +810,10 @@ def _sideways_stiffness(tab, at, count, ox, oy, oz, t1x, t1y, t1z, t2x, t2y, t2z
             continue
         mx, my, mz = tab[r + C_NX], tab[r + C_NX + 1], tab[r + C_NX + 2]
         px, py, pz = _pushes(tab, at, i)
-        d = tab[r + C_DEPTH] - (ox * mx + oy * my + oz * mz)
+        d = _depth_at(tab, r, ox, oy, oz)
         e = 1.0 if i == 0 else _entry_ramp(d, e0, jump_out, margin)
-        st, a, p = md_contact_hysteresis_kernel(d, True, depth_scale, radius_scale, load_scale, lam, t_fold,
-                                                delta_fold)
-        st2, a2, p2 = md_contact_hysteresis_kernel(d + h, True, depth_scale, radius_scale, load_scale, lam, t_fold,
-                                                   delta_fold)
-        p = p if st >= 0 and st != SEPARATED else 0.0
-        p2 = p2 if st2 >= 0 and st2 != SEPARATED else 0.0
+        p = _law_at(d, True, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)[2]
+        p2 = _law_at(d + h, True, depth_scale, radius_scale, load_scale, lam, t_fold, delta_fold)[2]
         k = e * (p2 - p) / h
         p1, p2_, m1, m2 = (px * t1x + py * t1y + pz * t1z, px * t2x + py * t2y + pz * t2z,
                            mx * t1x + my * t1y + mz * t1z, mx * t2x + my * t2y + mz * t2z)
