@@ -689,7 +689,7 @@ def _entry_ramp(depth, closest, jump_out, margin):
 
 @njit(cache=True)
 def _depth_at(tab, r, ox, oy, oz):
-    """The depth (m) of the contact in row ``r`` under the tip moved by (ox, oy, oz) m from the
+    r"""The depth (m) of the contact in row ``r`` under the tip moved by (ox, oy, oz) m from the
     target: :math:`\delta_i - \Delta\cdot n_i`."""
     return tab[r + C_DEPTH] - (ox * tab[r + C_NX] + oy * tab[r + C_NX + 1] + oz * tab[r + C_NX + 2])
 
