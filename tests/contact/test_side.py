@@ -74,3 +74,22 @@ def test_a_target_coming_from_the_other_side_is_pushed_back_west(ridge):
     fx = _push(m, xs)
     inside = xs > X0 - 1.0e-9
     assert (fx[inside] < 0.0).all()
+
+
+def test_a_target_pushed_through_a_flat_topped_wall_is_not_handed_from_face_to_face():
+    """A flat-topped ridge (10 nm high, flanks exp(-(x/4 nm)^8)) pushed through 2 nm below its top:
+    C crosses the bisector of the east flank and the top, where the global closest point jumps to the
+    top (a face whose normal does not oppose the flank's), then the one between the top and the west
+    flank. Handed on face by face, the memory let the target through: the hand pushed west by as much
+    as it had been pushed east (-126 nN after +126 nN). Followed from the face it came in by, the target
+    keeps the east flank until that face ends at the corner, then the top: pushed up, never west."""
+    height, width = 10e-9, 4e-9
+    x = np.arange(N) * PIXEL
+    z = height * np.exp(-(np.abs((x - X0) / width) ** 8))
+    wall = BSplineSurface.from_heights(np.tile(z, (N, 1)).T, (0.0, x[-1]), (0.0, x[-1]))
+    m = _model(wall)
+    xs = np.linspace(X0 + R + 2 * width, X0 - 1.5e-9, 1201)
+    f = np.array([m.step((xx, X0, z.max() - 2e-9)).simulated_force for xx in xs])
+    pressed = np.argmax(f[:, 0] > 0.1 * f[:, 0].max())
+    assert f[pressed:, 0].min() > -0.05 * f[:, 0].max()  # never pushed west (it was -1.0 of the push)
+    assert f[-1, 2] > 0.9 * np.linalg.norm(f[-1])  # on the top: pushed up
