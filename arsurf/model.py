@@ -241,7 +241,7 @@ def model_tick_kernel(proj,                                              # Proje
                 nx, ny, nz, share_x, share_z = _summed_normal(nx, ny, nz, load, rx, ry, rz, md[A_LOAD_SCALE],
                                                               share_x, share_z)
             ds = blended_decouple_kernel(bending, torsion, nx, ny, nz, sx, sy, strength, share_x, share_z,
-                                         f_static, dec_params, scratch)
+                                         f_static, out[M_SIM_FX], out[M_SIM_FY], out[M_SIM_FZ], dec_params, scratch)
         out[M_DECOUPLE_STATUS] = ds
         for j in range(3):
             out[M_MEAS_FX + j] = scratch[_MEASURED + dc.O_FORCE + j]

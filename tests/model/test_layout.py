@@ -142,7 +142,7 @@ def test_the_small_kernels_write_exactly_their_layouts():
     params = np.append(dc.decoupling_parameters(LEVER), 1e-7)
     d_p, d = padded(dc.MEASURED_SCRATCH)
     b, t = LEVER.angles([1e-9, 2e-9, 5e-9])
-    dc.blended_decouple_kernel(b, t, 0.0, 0.0, 1.0, 0.3, 1.0, 0.1, 0.05, 0.0, 1e-9, params, d)
+    dc.blended_decouple_kernel(b, t, 0.0, 0.0, 1.0, 0.3, 1.0, 0.1, 0.05, 0.0, 1e-9, 0.0, 0.0, 0.0, params, d)
     assert not np.any(d == SENTINEL) and untouched(d_p, dc.MEASURED_SCRATCH.size)
     d_p, d = padded(dc.DECOUPLING_OUT)
     assert dc.bending_only_kernel(b, t, params, d) == dc.DecouplingFlag.FALLBACK_DEGENERATE
