@@ -379,9 +379,10 @@ def blended_decouple_kernel(bending, torsion, nx, ny, nz, fx, fy, strength, shar
             out[_BLEND + O_CONDITION] = fb[O_CONDITION]
         elif flag:
             ds |= _NO_MOTION
-    out[_BLEND + O_FORCE] += mx
-    out[_BLEND + O_FORCE + 1] += my
-    out[_BLEND + O_FORCE + 2] += mz
+    if not ds & _INVALID_INPUT:  # (invalid input: a zero force, as the plain decoupling's)
+        out[_BLEND + O_FORCE] += mx
+        out[_BLEND + O_FORCE + 1] += my
+        out[_BLEND + O_FORCE + 2] += mz
     return ds
 
 

@@ -287,6 +287,18 @@ def test_kernel_status_on_invalid_input():
     assert decouple_kernel(1e-4, 1e-4, 0.0, 0.0, 1.0, 0.0, 1e-6, params, out) == 0
 
 
+def test_the_blend_relative_to_a_model_force_keeps_a_zero_force_on_invalid_input():
+    """Decoupled relative to the model's force (the measured force of a contact), invalid signals
+    still give INVALID_INPUT and a zero force, not the model's force passed off as measured."""
+    from arsurf.force.decoupling import MEASURED_SCRATCH, blended_decouple_kernel
+
+    params = np.append(decoupling_parameters(LEVERS[0]), 1e-7)
+    out = np.full(MEASURED_SCRATCH.size, 7.0)
+    st = blended_decouple_kernel(np.nan, 0.0, 0.0, 0.0, 1.0, 0.3, 1.0, 1.0, 0.0, 0.0, 1e-9, 1e-9, 2e-9, 5e-9,
+                                 params, out)
+    assert st & DecouplingFlag.INVALID_INPUT and np.array_equal(out[:3], [0.0, 0.0, 0.0])
+
+
 # ---- decoupling by the motion direction ([MWCNT], [Alabdulmuhsin]) ------------------------------------------
 def seed000_eq6(s_v, s_h, k, k_v, k_h, k_ct, h_t, b, l_c, alpha):
     """[MWCNT] Eq. 6 in its own frame (x lateral, y along the beam), 'c tan' read as cot."""
