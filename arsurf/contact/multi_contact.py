@@ -20,8 +20,11 @@ the global closest point of the collision query (exact: hull tree + Newton). New
 ended (``OUT_WARM_U``/``OUT_WARM_V``: the old basin when the closest point jumped), and from
 every local minimum of the control net's distance to C within reach (*discovery*,
 :func:`_discover`: the control points within R plus the interaction range and two knot
-spacings of C, each compared with its eight neighbours; the :data:`DISCOVERY_STARTS` closest
-such minima are Newton starts, each kept within :data:`START_REACH` knot spacings of its start, so
+spacings of C, each compared with its eight neighbours; the closest such minima are Newton starts,
+:data:`DISCOVERY_STARTS` runs at most, passing over a minimum next to a contact already in the
+table (it is that contact's: with more minima in reach than runs, the runs went to the same
+closest ones at every scan and a contact beyond them was never found - 13 of a ring of 14 bumps,
+tests/contact/test_multi_contact.py), each kept within :data:`START_REACH` knot spacings of its start, so
 that it finds the surface's minimum next to the net's and not one its path reaches nanometres away:
 unbounded, which minima a first touch found changed with a picometre of height - on the PeakForce
 scan sample_0.spm under its 5 nm tip a minimum 0.59 nm deep came and went, and the load with it by
@@ -297,6 +300,9 @@ def _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count, s
 #: Newton starts (the closest minima of the net)
 DISCOVERY_NODES = 4096
 DISCOVERY_STARTS = 12
+#: ... taken in order of distance from this many of the closest minima, passing over those next to a
+#: contact already in the table
+DISCOVERY_CANDIDATES = 48
 #: a discovery start's Newton stays within this many knot spacings of it (in u and v): the net's
 #: minimum stands for the surface's minimum next to it, not for one Newton's path reaches farther away
 START_REACH = 2.0
@@ -310,9 +316,9 @@ SCAN_EVERY = 4.0
 def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
     """Add the contacts Newton finds from the local minima of the control net's distance to the tip
     centre within reach (module docstring, "Finding the contacts"): control point (i, j) stands
-    at its Greville abscissae, where the undeformed surface passes near it; the
-    :data:`DISCOVERY_STARTS` closest of those minima are run (a function of C, not of the path).
-    Returns the new count."""
+    at its Greville abscissae, where the undeformed surface passes near it; of the
+    :data:`DISCOVERY_CANDIDATES` closest of those minima, in order, those not next to a contact in
+    the table (within one node) are run, :data:`DISCOVERY_STARTS` at most. Returns the new count."""
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
     reach = radius - floor + 2.0 * h
@@ -338,9 +344,9 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
             dy = ctrl[i, j, 1] - cy
             dz = ctrl[i, j, 2] - cz
             d2[a, b] = dx * dx + dy * dy + dz * dz
-    best_d = np.full(DISCOVERY_STARTS, np.inf)
-    best_a = np.zeros(DISCOVERY_STARTS, np.int64)
-    best_b = np.zeros(DISCOVERY_STARTS, np.int64)
+    best_d = np.full(DISCOVERY_CANDIDATES, np.inf)
+    best_a = np.zeros(DISCOVERY_CANDIDATES, np.int64)
+    best_b = np.zeros(DISCOVERY_CANDIDATES, np.int64)
     r2 = reach * reach
     for a in range(ni):
         for b in range(nj):
@@ -357,7 +363,7 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
                         low = False
             if not low:
                 continue
-            k = DISCOVERY_STARTS - 1
+            k = DISCOVERY_CANDIDATES - 1
             if not d < best_d[k]:
                 continue
             while k > 0 and best_d[k - 1] > d:
@@ -368,12 +374,21 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
             best_d[k] = d
             best_a[k] = a
             best_b[k] = b
-    for k in range(DISCOVERY_STARTS):
-        if not math.isfinite(best_d[k]):
+    runs = 0
+    for k in range(DISCOVERY_CANDIDATES):
+        if runs == DISCOVERY_STARTS or not math.isfinite(best_d[k]):
             break
         u = greville_at(ku, i0 + best_a[k] * stride)
         v = greville_at(kv, j0 + best_b[k] * stride)
-        count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count, START_REACH * h)
+        followed = False
+        for i in range(count):  # a node next to a contact in the table is that contact's: no run
+            r = _row(at, i)
+            if abs(u - tab[r + C_U]) <= hu * stride and abs(v - tab[r + C_V]) <= hv * stride:
+                followed = True
+                break
+        if not followed:
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, u, v, floor, h, tab, at, count, START_REACH * h)
+            runs += 1
     return count
 
 

@@ -173,10 +173,26 @@ def _pull_off(model, x, y, z0):
     return loads[i], points[i]
 
 
+def _others_bound(model, m, conv):
+    """The most the contacts of the table other than the closest can carry (N): each its weight
+    times the larger of its own local law's load at its depth and that law's pull-off force."""
+    from arsurf.contact import multi_contact as mc
+    from arsurf.model import S_CONTACTS
+
+    st, total = model.state, 0.0
+    for i in range(1, int(st[S_CONTACTS + mc.T_COUNT])):
+        r = S_CONTACTS + mc.T_ROWS + i * mc.C_SIZE
+        x, y = st[r + mc.C_PX], st[r + mc.C_PX + 1]
+        w = m.work_of_adhesion(x, y)
+        law = MaugisDugdale(R, m.reduced_modulus(x, y), w, w / conv.dugdale_range)
+        total += st[r + mc.C_WEIGHT] * max(abs(float(law.load(st[r + mc.C_DEPTH]))), abs(law.pull_off_force()))
+    return total
+
+
 def test_the_stiffest_and_the_softest_decile_feel_different(spm):
     """On a 256-pixel window smoothed over R/2 (as the demo): at one load the soft spot indents
     several times deeper, each spot's indentation is Maugis-Dugdale's of the local E* and w at the
-    contact point (to within what neighbouring asperities carry: 1 %), and its pull-off that law's,
+    contact point (to within what the other contacts under the tip can carry), and its pull-off that law's,
     or up to a tenth more where neighbouring asperities are within the adhesion range."""
     from arsurf.demo import pick_spots
 
@@ -201,10 +217,13 @@ def test_the_stiffest_and_the_softest_decile_feel_different(spm):
         ex, wx = m.reduced_modulus(*t.point[:2]), m.work_of_adhesion(*t.point[:2])
         md = MaugisDugdale(R, ex, wx, wx / conv.dugdale_range)
         assert t.load == pytest.approx(load, rel=1e-6)
-        # MD of the local law, to within what the asperities next to the spot carry (the stiff spot
-        # has nine minima in reach, merged into its contact or held by adhesion: 0.7 % of the load)
-        assert t.depth == pytest.approx(md.depth(load), rel=2e-3)
-        assert t.load == pytest.approx(float(md.load(t.depth)), rel=0.01)
+        # MD of the local law, to within what the other contacts under the tip carry: each counts with
+        # at most its weight times its own local law's load at its depth (or pull-off, in tension). The
+        # stiff spot has ten minima in reach, merged into its contact or held by adhesion: one, 0.14 nm
+        # short of touching, pulls 0.9 nN at weight 0.2, and the spot's own contact carries 2.9 nN
+        others = _others_bound(model, m, conv)
+        assert abs(float(md.load(t.depth)) - load) <= others + 1e-3 * load
+        assert others <= 0.5 * load  # the spot's own law still carries the most of it
         # and Maugis' equations as printed (tests/support/reference.py), at the local E*, w: the law's
         # load at the tick's depth
         k = 4.0 * ex / 3.0

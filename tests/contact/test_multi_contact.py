@@ -539,6 +539,44 @@ def test_a_tip_resting_on_ten_asperities_carries_all_ten():
     assert np.hypot(f10[0], f10[1]) <= 0.02 * f10[2], f10
 
 
+def test_a_tip_on_more_minima_than_a_scan_has_runs_finds_them_all_over_the_next_scans():
+    """Fourteen like bumps around a ring of 24 nm radius under a 28 nm tip (contacts 9.4 nm apart,
+    as the ring of ten): more minima in reach than a discovery scan's DISCOVERY_STARTS Newton runs.
+    The first scan runs the twelve closest; each later scan passes over the net minima next to a
+    contact already in the table and runs the next, so the press ends on all fourteen: fourteen
+    times one bump along z, nothing sideways. When every scan ran the same twelve closest minima,
+    the thirteenth bump was never found while the tip held still (13 of 14 contacts, 13.0 times
+    one bump, a sideways pull of 12 % of the load towards the missing bump; under a
+    17.6 nm tip on a feel-table power-law surface four contacts in reach all along entered at once
+    when the ranking changed, and the force's y part halved in one tick)."""
+    n, radius, c0 = 128, 28e-9, 127 * 0.25e-9
+
+    def ring(count):
+        x = np.arange(n) * 0.5e-9
+        z = np.zeros((n, n))
+        for k in range(count):
+            a = 2.0 * math.pi * k / count
+            bx, by = c0 + 24e-9 * math.cos(a), c0 + 24e-9 * math.sin(a)
+            z += 14e-9 * np.exp(-((x[None, :] - bx) ** 2 + (x[:, None] - by) ** 2) / (2 * (2e-9) ** 2))
+        scan = with_heights(synthetic.sinusoid(shape=(n, n), pixel=0.5e-9, amplitude=0.0, period=PERIOD), z)
+        return ARModel(fit_surface(scan), radius, MaugisDugdale(radius, 50e9, 0.05), LEVER, friction=0.0,
+                       deform=False)
+
+    many, one = ring(14), ring(1)
+    z = 60e-9
+    for _ in range(8):  # the tip height at which the bump at angle 0 is 0.2 nm deep
+        one.reset()
+        t = one.step((c0, c0, z))
+        z -= (0.2e-9 - t.depth) / t.normal[2]
+    one.reset()
+    for zz in np.linspace(z + 1e-9, z, 11):  # pressed in over ticks, as a hand does
+        f1 = one.step((c0, c0, zz)).simulated_force
+        f14 = many.step((c0, c0, zz)).simulated_force
+    assert many.state[S_CONTACTS + mc.T_COUNT] == 14
+    assert f14[2] == pytest.approx(14.0 * f1[2], rel=0.01), (f14, f1)
+    assert np.hypot(f14[0], f14[1]) <= 0.01 * f14[2], f14
+
+
 def test_a_discovery_start_finds_the_minimum_next_to_it_not_one_beyond_its_reach():
     """Newton bounded to START_REACH knot spacings of its start ends at the minimum next to it,
     exactly where the unbounded run does, and reports none where the nearest minimum lies farther
