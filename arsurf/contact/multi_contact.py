@@ -23,7 +23,7 @@ every local minimum of the control net's distance to C within reach (*discovery*
 spacings of C, each compared with its eight neighbours; the closest such minima are Newton starts,
 :data:`DISCOVERY_STARTS` runs at most, passing over a minimum next to a contact already in the
 table (it is that contact's: with more minima in reach than runs, the runs went to the same
-closest ones at every scan and a contact beyond them was never found - 13 of a ring of 14 bumps,
+closest ones at every scan and a contact beyond them was never found - 12 of a ring of 14 bumps,
 tests/contact/test_multi_contact.py), each kept within :data:`START_REACH` knot spacings of its start, so
 that it finds the surface's minimum next to the net's and not one its path reaches nanometres away:
 unbounded, which minima a first touch found changed with a picometre of height - on the PeakForce

@@ -502,17 +502,19 @@ def test_a_target_held_still_feels_a_steady_force_behind_the_coupling():
 
 
 
-def _ring_model(count: int):
-    """A 20 nm tip over ``count`` Gaussian bumps (14 nm high, 2 nm wide) spaced around a ring of
-    17 nm radius centred at (24, 24) nm: the tip above the centre rests on every bump at once."""
-    x = np.arange(96) * 0.5e-9
-    z = np.zeros((96, 96))
+def _ring_model(count: int, tip: float = R, ring: float = 17e-9, pixels: int = 96):
+    """A ``tip`` m tip (20 nm) over ``count`` Gaussian bumps (14 nm high, 2 nm wide) spaced around a
+    ring of ``ring`` m radius (17 nm) centred at ``pixels`` / 4 nm in x and y on a scan of ``pixels``
+    0.5 nm pixels (96: at (24, 24) nm): the tip above the centre rests on every bump at once."""
+    x = np.arange(pixels) * 0.5e-9
+    c0 = pixels * 0.25e-9
+    z = np.zeros((pixels, pixels))
     for k in range(count):
         a = 2.0 * math.pi * k / count
-        bx, by = 24e-9 + 17e-9 * math.cos(a), 24e-9 + 17e-9 * math.sin(a)
+        bx, by = c0 + ring * math.cos(a), c0 + ring * math.sin(a)
         z += 14e-9 * np.exp(-((x[None, :] - bx) ** 2 + (x[:, None] - by) ** 2) / (2 * (2e-9) ** 2))
-    scan = with_heights(synthetic.sinusoid(shape=(96, 96), pixel=0.5e-9, amplitude=0.0, period=PERIOD), z)
-    return ARModel(fit_surface(scan), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False)
+    scan = with_heights(synthetic.sinusoid(shape=(pixels, pixels), pixel=0.5e-9, amplitude=0.0, period=PERIOD), z)
+    return ARModel(fit_surface(scan), tip, MaugisDugdale(tip, 50e9, 0.05), LEVER, friction=0.0, deform=False)
 
 
 def test_a_tip_resting_on_ten_asperities_carries_all_ten():
@@ -545,24 +547,12 @@ def test_a_tip_on_more_minima_than_a_scan_has_runs_finds_them_all_over_the_next_
     The first scan runs the twelve closest; each later scan passes over the net minima next to a
     contact already in the table and runs the next, so the press ends on all fourteen: fourteen
     times one bump along z, nothing sideways. When every scan ran the same twelve closest minima,
-    the thirteenth bump was never found while the tip held still (13 of 14 contacts, 13.0 times
-    one bump, a sideways pull of 12 % of the load towards the missing bump; under a
+    the last bumps were never found while the tip held still (12 of 14 contacts, 12.0 times
+    one bump, a sideways pull of 17 % of the load towards the missing ones; under a
     17.6 nm tip on a feel-table power-law surface four contacts in reach all along entered at once
     when the ranking changed, and the force's y part halved in one tick)."""
-    n, radius, c0 = 128, 28e-9, 127 * 0.25e-9
-
-    def ring(count):
-        x = np.arange(n) * 0.5e-9
-        z = np.zeros((n, n))
-        for k in range(count):
-            a = 2.0 * math.pi * k / count
-            bx, by = c0 + 24e-9 * math.cos(a), c0 + 24e-9 * math.sin(a)
-            z += 14e-9 * np.exp(-((x[None, :] - bx) ** 2 + (x[:, None] - by) ** 2) / (2 * (2e-9) ** 2))
-        scan = with_heights(synthetic.sinusoid(shape=(n, n), pixel=0.5e-9, amplitude=0.0, period=PERIOD), z)
-        return ARModel(fit_surface(scan), radius, MaugisDugdale(radius, 50e9, 0.05), LEVER, friction=0.0,
-                       deform=False)
-
-    many, one = ring(14), ring(1)
+    c0 = 32e-9  # the ring's centre on a 128-pixel scan
+    many, one = (_ring_model(k, tip=28e-9, ring=24e-9, pixels=128) for k in (14, 1))
     z = 60e-9
     for _ in range(8):  # the tip height at which the bump at angle 0 is 0.2 nm deep
         one.reset()
