@@ -12,14 +12,13 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    classical reading, see :func:`arsurf.model.model_tick_kernel`) or ``"blended"``
    :math:`F = w F_{meas} + (1 - w) F_{sim}` ([SplineAR]'s augmented reality);
 4. **filter**: first-order low-pass, exact ZOH discretisation (:mod:`arsurf.haptics.filters`), of
-   what is noisy or jumps, never of the contact spring's magnitude (a lagging spring returns more
-   energy than it took: a 200 Hz low-pass on the whole force gave the hand ~35 nJ per 2 Hz tap,
-   which the passivity controller then had to take back at every pull-off). The measured part
-   :math:`F_m = w (F_{meas} - F_{sim})` (photodiode noise) is low-passed; the rest turns with a
-   low-passed contact normal, :math:`F_f = R(n \to \bar n)(F - F_m) + \mathrm{LP}(F_m)`,
-   :math:`\bar n = \mathrm{LP}(n)/\lVert\mathrm{LP}(n)\rVert` (where the closest point jumps
-   between two slopes of a rough scan the force direction turns over a few ticks instead of one,
-   while a press or a tap, whose normal stays, gets its force at once);
+   the measured part of the force only, :math:`F_m = w (F_{meas} - F_{sim})` (photodiode noise):
+   :math:`F_f = (F - F_m) + \mathrm{LP}(F_m)`. The contact's force is never delayed, neither its
+   magnitude nor its direction: a lagging spring returns more energy than it took (a 200 Hz
+   low-pass on the whole force gave the hand ~35 nJ per 2 Hz tap), and so does a lagging
+   direction - the force once turned with a 50 Hz low-passed contact normal, and a tip pressed
+   into a valley narrower than itself, whose walls turn the normal within a fraction of a
+   nanometre, swung across it at ~10 Hz and gave the hand 5-9 times the passive store (docs/feel.rst);
 5. **coupling**: direct, :math:`F_h = K_f \odot F` ([Alabdulmuhsin] Eq. 9-10), or force-position with the
    PI controller :math:`C(s) = B_{fp} + K_{fp}/s` and P slave controller ([Bolopion]);
 6. **safety**: saturation, ramp, rate limit, watchdog, disengage (:mod:`arsurf.haptics.safety`).
@@ -83,9 +82,9 @@ L_COLLIDE_STATUS = LOOP_OUT.offset("collide_status")
 L_TIP, L_ENERGY, L_PC_DAMPING = LOOP_OUT.offset("tip"), LOOP_OUT.offset("energy"), LOOP_OUT.offset("passivity_damping")
 L_MEAS_PART, L_NORMAL = LOOP_OUT.offset("measured_part"), LOOP_OUT.offset("normal")
 L_SIZE = LOOP_OUT.size
-#: the filter's channels (step 4): the measured part of the probe force and the contact normal
-FILTER_CHANNELS = Layout("loop filter channels", [("measured_part", 3), ("normal", 3)])
-_F_PART, _F_NORMAL = FILTER_CHANNELS.offset("measured_part"), FILTER_CHANNELS.offset("normal")
+#: the filter's channels (step 4): the measured part of the probe force
+FILTER_CHANNELS = Layout("loop filter channels", [("measured_part", 3)])
+_F_PART = FILTER_CHANNELS.offset("measured_part")
 #: the measured angles given to a tick or the noise added to synthesised ones (rad)
 SIGNALS = Layout("signals", [("bending", 1), ("torsion", 1)])
 
@@ -181,42 +180,6 @@ def loop_model_kernel(a, buttons):
     return st
 
 
-@njit(cache=True)
-def turn_with_smoothed_normal(alpha, nbar, n, f, part, out) -> None:
-    """Step 4's turn: low-pass the unit normal ``n`` into ``nbar`` (updated; a zero ``n``, no
-    contact answer, leaves it) and add :math:`R(n \\to \\bar n)(f - part)` to ``out`` (Rodrigues:
-    :math:`Rx = x + v \\times x + v \\times (v \\times x)/(1 + c)`, :math:`v = n \\times \\bar n`,
-    :math:`c = n \\cdot \\bar n`; unturned when the two are more than 150 degrees apart)."""
-    nn = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
-    x0 = f[0] - part[0]
-    x1 = f[1] - part[1]
-    x2 = f[2] - part[2]
-    if nn > 0.0:
-        for j in range(3):
-            nbar[j] += alpha * (n[j] - nbar[j])
-    bn = math.sqrt(nbar[0] * nbar[0] + nbar[1] * nbar[1] + nbar[2] * nbar[2])
-    if nn > 0.0 and bn > 0.0:
-        b0 = nbar[0] / bn
-        b1 = nbar[1] / bn
-        b2 = nbar[2] / bn
-        c = n[0] * b0 + n[1] * b1 + n[2] * b2
-        if c > -0.866:
-            v0 = n[1] * b2 - n[2] * b1
-            v1 = n[2] * b0 - n[0] * b2
-            v2 = n[0] * b1 - n[1] * b0
-            w0 = v1 * x2 - v2 * x1
-            w1 = v2 * x0 - v0 * x2
-            w2 = v0 * x1 - v1 * x0
-            k = 1.0 / (1.0 + c)
-            y0 = x0 + w0 + k * (v1 * w2 - v2 * w1)
-            y1 = x1 + w1 + k * (v2 * w0 - v0 * w2)
-            y2 = x2 + w2 + k * (v0 * w1 - v1 * w0)
-            x0, x1, x2 = y0, y1, y2
-    out[0] += x0
-    out[1] += x1
-    out[2] += x2
-
-
 @njit(cache=True, inline="always")
 def loop_output_kernel(a, buttons, now, age):
     """Steps 4-6 of a tick: filter the probe force ``a.out[L_F_PROBE:]``, couple, keep the port
@@ -236,7 +199,8 @@ def loop_output_kernel(a, buttons, now, age):
     filt = out[L_F_FILT:L_F_FILT + 3]
     part = out[L_MEAS_PART:L_MEAS_PART + 3]
     lowpass1_step(alpha, filt_state[_F_PART:_F_PART + 3], part, filt)  # the measured part (module docstring, step 4)
-    turn_with_smoothed_normal(alpha, filt_state[_F_NORMAL:_F_NORMAL + 3], out[L_NORMAL:L_NORMAL + 3], f, part, filt)
+    for j in range(3):
+        filt[j] += f[j] - part[j]
     hand = out[L_F_HAND:L_F_HAND + 3]
     cflags = 0
     if a.coupling_mode == 0:
@@ -492,7 +456,7 @@ class HapticLoop:
                            if self._mode == 0 else None)
         self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity,
                                              reserve=model.adhesion_energy() * coupling.energy_gain())
-        # the measured part and the contact normal (FILTER_CHANNELS; module docstring, step 4)
+        # the measured part (FILTER_CHANNELS; module docstring, step 4)
         self.filter = (LowPass(config.filter_cutoff, self.dt, channels=FILTER_CHANNELS.size) if config.filter_cutoff
                        else None)
         self._alpha = self.filter.alpha if self.filter else 1.0

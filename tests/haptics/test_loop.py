@@ -71,6 +71,25 @@ def test_probe_follows_the_scaled_master_and_the_hand_feels_the_scaled_force():
     np.testing.assert_allclose(out[k, 14:17], 1e5 * out[k, 11:14], rtol=1e-12)  # hand = K_f x filtered
 
 
+def test_the_filter_delays_the_measured_part_only_never_the_contact_s_force():
+    """With the simulated source there is no measured part: the filtered force is the probe force
+    on every tick, its direction included, while the contact normal turns as the tip slides over
+    the sinusoid. (The force once turned with a 50 Hz low-passed normal; a lagging direction is an
+    active element: pressed into a valley narrower than the tip the hand swung across it at ~10 Hz
+    and gained 5-9 times the passive store, docs/feel.rst.)"""
+    from arsurf.haptics.loop import LOOP_OUT
+
+    s, model, dev, loop = _setup()
+    assert loop.config.filter_cutoff == 50.0                                # the filter is on
+    out = _run(dev, loop, 8000)
+    probe, filtered = out[:, LOOP_OUT.slice("probe_force")], out[:, LOOP_OUT.slice("filtered_force")]
+    normal = out[:, LOOP_OUT.slice("normal")]
+    touching = np.linalg.norm(normal, axis=1) > 0.5
+    turn = np.arccos(np.clip(normal[touching] @ normal[touching][0], -1.0, 1.0))
+    assert turn.max() > 0.1                                                 # the normal turned by > 0.1 rad
+    np.testing.assert_array_equal(filtered, probe)
+
+
 def test_measured_source_recovers_the_simulated_force_without_noise():
     from arsurf.model import M_DECOUPLE_STATUS, M_SIM_FX
 
