@@ -8,7 +8,9 @@ attached or a session is replayed, the measured bending and torsion angles),
    closest point, normal n, indentation depth δ = R − d. The rest surface is used because the
    dent is the model's own answer to δ: measuring δ on the dented net would feed the dent back
    into itself. A target pressed behind a thin wall's face keeps that face (:mod:`arsurf.contact.side`:
-   no pop-through to the other face);
+   no pop-through to the other face). The contact pushes along the resultant over its zone
+   (:mod:`arsurf.contact.zone_normal`), the normal n from here on; several contacts in reach are
+   each found and weighed (:mod:`arsurf.contact.multi_contact`);
 2. **contact mechanics**: Maugis-Dugdale with approach/retract hysteresis under displacement
    control (:func:`arsurf.contact.maugis_dugdale.md_contact_hysteresis_kernel`): contact radius a
    and load P (> 0 compressive); with a material map (:mod:`arsurf.contact.material_map`) the law
@@ -51,6 +53,7 @@ from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, dee
                                          local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact.side import keep_side_kernel
+from arsurf.contact.zone_normal import zone_normal_kernel
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
@@ -176,27 +179,33 @@ def model_tick_kernel(proj,                                              # Proje
     if local:
         friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
                                        local_pull_off_kernel(md_args, md))
-    # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
-    count, jumped = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, friction[F_JUMP_OUT] - margin,
-                                            margin, prev_u, prev_v, state, S_CONTACTS, coll)
+    floor = friction[F_JUMP_OUT] - margin
+    # the closest contact's depth under the tip: the one contact's behind the coupling at this target
+    # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
+    # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
+    coupled = coupled_depth_kernel(
+        coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
+        friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
+        md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
+    d1 = coupled[3] if math.isfinite(coupled[3]) else coll[pj.OUT_DEPTH]
+    # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
+    # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
+    # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
+    zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                     md[A_T_FOLD], md[A_DELTA_FOLD])
+    # the contact pushes along the resultant over its zone, not the normal at the closest point alone
+    zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
+                       coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
+    # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
+    count, jumped = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u,
+                                            prev_v, state, S_CONTACTS, coll)
     _copy_collision(coll, out)
     if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
-        # behind the coupling along the total normal
-        # the closest contact's depth under the tip: the one contact's behind the coupling at this target
-        # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
-        # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
-        d1 = coupled_depth_kernel(
-            coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
-            friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
-            md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])[3]
-        if not math.isfinite(d1):
-            d1 = coll[pj.OUT_DEPTH]
-        # the zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the tip
-        # down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
-        # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
-        zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
-                                         md[A_T_FOLD], md[A_DELTA_FOLD])
+        # behind the coupling along the total normal; each contact pushes along the resultant over its zone
+        mc.zone_normals_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH] - d1,
+                               md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
+                               md[A_DELTA_FOLD], state, S_CONTACTS, count)
         mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
                                  state, S_CONTACTS, count)
         out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
@@ -208,8 +217,7 @@ def model_tick_kernel(proj,                                              # Proje
         md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
                                                           state, out)
     else:
-        md_st, a, load, depth = _contact_mechanics(md, friction, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state,
-                                                   out)
+        md_st, a, load, depth = _contact_mechanics(coupled, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
         state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
@@ -300,15 +308,13 @@ def _copy_collision(coll, out):
 
 
 @njit(cache=True)
-def _contact_mechanics(md, friction, target_depth, tip_radius, cx, cy, cz, state, out):
-    """Step 2: the Maugis-Dugdale contact of the tip behind the coupling, which sits
+def _contact_mechanics(answer, target_depth, tip_radius, cx, cy, cz, state, out):
+    """Step 2: the Maugis-Dugdale contact of the tip behind the coupling, ``answer`` (that of
+    :func:`~arsurf.contact.proxy.coupled_depth_kernel` at ``target_depth``), which sits
     ``target_depth - depth`` out along the normal from the target; updates the hysteresis memory
     and writes the tip, depth, radius, load and status. Returns ``(status, a, load, depth)``
     (a = load = 0 for a failed solve)."""
-    md_st, a, load, depth, coupled = coupled_depth_kernel(
-        target_depth, state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING], friction[F_JUMP_OUT],
-        friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
-        md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
+    md_st, a, load, depth, coupled = answer
     lift = target_depth - depth
     out[M_TIP] = cx + lift * out[M_NX]
     out[M_TIP + 1] = cy + lift * out[M_NY]

@@ -207,8 +207,9 @@ from numba import njit
 
 from arsurf._layout import Layout
 from arsurf.contact import layout as ly
-from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
+from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel, md_zone_from_depth_kernel
 from arsurf.contact.newton import newton_foot
+from arsurf.contact.zone_normal import zone_normal_kernel
 from arsurf.spline.basis import surface_point
 from arsurf.spline.knots import greville_at
 from arsurf.status import SEPARATED
@@ -491,6 +492,21 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
             tab[r + j] = math.nan
     tab[at + T_COUNT] = count
     return count, jumped
+
+
+@njit(cache=True)
+def zone_normals_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, lift, depth_scale, radius_scale, load_scale, lam,
+                        t_fold, delta_fold, tab, at, count):
+    """Turn the normal of each contact i > 0 of ``tab`` into the resultant over its zone
+    (:func:`~arsurf.contact.zone_normal.zone_normal_kernel`, as the model does for the closest
+    point): the law's Dugdale zone (``MaugisDugdale.kernel_args``) at the contact's depth under the
+    tip, its depth less the closest contact's ``lift`` (m) behind the coupling."""
+    for i in range(1, count):
+        r = _row(at, i)
+        zone = md_zone_from_depth_kernel(tab[r + C_DEPTH] - lift, depth_scale, radius_scale, load_scale, lam, t_fold,
+                                         delta_fold)
+        zone_normal_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, tab[r + C_DEPTH], zone, tab[r + C_U],
+                           tab[r + C_V], tab[r + C_NX:r + C_NX + 3])
 
 
 @njit(cache=True)

@@ -238,6 +238,39 @@ def test_a_still_tip_on_a_steep_power_law_surface_meets_the_family_criteria():
     assert r["energy_ok"] and r["ok"], r
 
 
+#: from the whole table (``bench/feel.py --families 240 --runs 4 2``, seed 0): a power-law surface of
+#: 2.1 nm rms and 11 nm correlation length under a 4.6 nm tip, and one of 0.8 nm rms and 30 nm
+#: correlation length under a 7.0 nm tip
+VALLEY, HOLLOW = (generated_surfaces(240, seed=0)[k] for k in (9, 237))
+
+
+def test_a_still_press_in_a_valley_narrower_than_the_tip_gives_the_hand_no_energy():
+    """Pressed into a valley whose walls turn the contact normal within a fraction of a nanometre,
+    the hand held still must not gain energy. With the force turned by a 50 Hz low-passed normal
+    (a lagging direction) the hand swung across the valley at ~10 Hz and gained 6 times the
+    passive store (-6.0 E0), beyond what the passivity controller could take back."""
+    g = VALLEY
+    run = {"surface": g.name, "kind": "slow", "motion": "press", "source": "blended", "rate_hz": 10000.0,
+           "heading_deg": 3.58, "room_m": 6.66e-08}
+    r = judge_run(run, g.surface(), g.tip_radius)
+    assert r["energy_ok"] and r["min_energy_over_E0"] >= -1.0, r
+    assert r["ok"], r
+
+
+def test_a_slow_slide_through_hollows_that_fit_the_tip_does_not_buzz():
+    """Where the distance to the surface is nearly the same over a patch the closest point wanders
+    across it, and its normal with it: pushed along the closest point's normal a 1 nm/s slide here
+    stepped the force by 15 nN of 120 (2.2 % above 100 Hz, 3 reversals); along the resultant over
+    the contact's zone (arsurf.contact.zone_normal) it is smooth."""
+    g = HOLLOW
+    run = {"surface": g.name, "kind": "slow", "motion": "slide-1", "source": "simulated", "rate_hz": 1000.0,
+           "heading_deg": 157.79, "room_m": 8.58e-08}
+    r = judge_run(run, g.surface(), g.tip_radius)
+    assert r["in_contact"], r
+    assert max(r["high_frequency_over_normal"]) <= 0.02 and not any(r["reversals"]), r
+    assert r["ok"], r
+
+
 def _bench_feel():
     """bench/feel.py as a module (a script, not a package)."""
     import importlib.util

@@ -39,7 +39,8 @@ def test_model_tick_equals_the_chained_references(seed):
         foot = surface.evaluate(x, y)
         centre = foot + np.array([0.0, 0.0, R - depth])
         velocity = np.array([*rng.normal(scale=1e-6, size=2), 0.0])
-        ref = reference_model_tick(surface, centre, R, e_star, w, model.contact.dugdale_stress, lever, velocity)
+        ref = reference_model_tick(surface, centre, R, e_star, w, model.contact.dugdale_stress, lever, velocity,
+                                   model.contact.jump_out_depth())
         tick = model.step(centre, signals=(ref["bending"], ref["torsion"]))  # first touch: stuck, no direction
         assert tick.md_status == 0 and tick.in_contact
         np.testing.assert_allclose(tick.point, ref["point"], rtol=0, atol=1e-15)

@@ -239,8 +239,41 @@ def reference_condition(n, v, lever):
 # the model tick
 
 
+def ref_zone_normal(surface, center, u, v, normal, tip_radius, floor, depth, zone):
+    """The direction a contact at (u, v) pushes (:mod:`arsurf.contact.zone_normal`), written out: the
+    point's normal weighed by the interference R - floor - d, plus the area-weighted normals of a
+    square stencil of ZONE_NODES^2 samples over +-ZONE_HALF_WIDTH R in u and v, each weighed by its
+    interference R - floor - |S - C| (> 0), the cosine between its normal and C - S (> 0) and the
+    window 1 - r^2/zone^2 (> 0) of its distance r from (u, v); turned back towards the point's normal
+    over the last ZONE_FADE R of the centre's distance d to the surface."""
+    from arsurf.contact.zone_normal import ZONE_FADE, ZONE_HALF_WIDTH, ZONE_NODES
+
+    c = np.asarray(center, dtype=float)
+    reach, d = tip_radius - floor, tip_radius - depth
+    if not (reach > 0.0 and 0.0 < d < reach and zone > 0.0):
+        return normal
+    (u0, u1), (v0, v1) = surface.domain
+    total = (reach - d) * np.asarray(normal, dtype=float)
+    offsets = np.linspace(-ZONE_HALF_WIDTH * tip_radius, ZONE_HALF_WIDTH * tip_radius, ZONE_NODES)
+    for du in offsets:
+        for dv in offsets:
+            window = 1.0 - (du * du + dv * dv) / zone ** 2
+            if window <= 0.0:
+                continue
+            s, su, sv = surface.evaluate(min(max(u + du, u0), u1), min(max(v + dv, v0), v1), 1)
+            r = c - s
+            dist = float(np.linalg.norm(r))
+            area = np.cross(su, sv)
+            cos = float(r @ area) / (dist * float(np.linalg.norm(area)))
+            if reach - dist > 0.0 and cos > 0.0:
+                total = total + (reach - dist) * window * cos * area
+    t = min(d / (ZONE_FADE * tip_radius), 1.0)
+    m = (1.0 - t) * np.asarray(normal, dtype=float) + t * total / np.linalg.norm(total)
+    return m / np.linalg.norm(m)
+
+
 def reference_model_tick(surface, center, tip_radius, effective_modulus, work_of_adhesion, dugdale_stress,
-                         lever, velocity):
+                         lever, velocity, jump_out):
     """One rigid, frictionless tick of the AR model from the references alone (first touch).
 
     Closest point by brute force; signed distance along the normal :math:`n = S_u \\times S_v /
@@ -248,7 +281,9 @@ def reference_model_tick(surface, center, tip_radius, effective_modulus, work_of
     depth (stable branch, :func:`ref_radius_from_depth`, then :func:`ref_load_depth`) when the tip
     penetrates; simulated force :math:`P n`; the two angles it bends and twists the lever by
     (docs/design.rst, "Force from the two angles": :math:`\\Delta\\theta = c F_y`, :math:`\\Delta\\alpha = g (F_z +
-    \\kappa F_x)`), decoupled again with :func:`reference_decouple`.
+    \\kappa F_x)`), decoupled again with :func:`reference_decouple`. The normal is the contact's
+    direction over its zone (:func:`ref_zone_normal`, the Dugdale radius c as the zone, the
+    interaction floor the law's ``jump_out`` depth (m) less the model's contact margin).
 
     Returns a dict: ``point``, ``normal``, ``depth``, ``radius``, ``load``, ``force``,
     ``bending``, ``torsion``, ``measured`` (the decoupled force; NaN when the tip stands still).
@@ -272,6 +307,10 @@ def reference_model_tick(surface, center, tip_radius, effective_modulus, work_of
         A = ref_radius_from_depth(depth / depth_scale, lam)
         radius = A * radius_scale
         load = ref_load_depth(A, lam)[0] * load_scale
+        from arsurf.model import CONTACT_MARGIN
+
+        floor = jump_out - CONTACT_MARGIN * depth_scale
+        n = ref_zone_normal(surface, c, u[0], v[0], n, tip_radius, floor, depth, ref_m(A, lam) * radius)
     force = load * n
     g, tc = lever.bending_compliance, lever.torsion_compliance
     kappa = 2 * lever.lever_arm / lever.length
