@@ -192,8 +192,11 @@ def model_tick_kernel(proj,                                              # Proje
     # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
     # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
     # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
-    zone = md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
-                                     md[A_T_FOLD], md[A_DELTA_FOLD])
+    # (in contact, in closed form from the contact radius there; on the cohesive branch by a solve)
+    zone = md_zone_radius(coupled[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
+        if coupled[1] > 0.0 and d1 == coupled[3] else \
+        md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                  md[A_T_FOLD], md[A_DELTA_FOLD])
     # the contact pushes along the resultant over its zone, not the normal at the closest point alone
     zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
                        coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])

@@ -219,7 +219,7 @@ def test_the_stiffest_and_the_softest_decile_feel_different(spm):
         # at most its weight times the law's load at its depth (or pull-off, in tension). The stiff spot
         # has ten minima in reach, merged into its contact or held by adhesion: one, 0.13 nm short of
         # touching, pulls at weight 0.2 (the others can carry 1.4 nN at most), and the spot's own
-        # contact carries 3.2 nN of the 2
+        # contact carries 3.1 nN of the 2
         others = _others_bound(model, md)
         assert abs(float(md.load(t.depth)) - load) <= others + 1e-3 * load
         assert others <= 0.75 * load  # the spot's own law still carries the most of it

@@ -241,8 +241,8 @@ def reference_condition(n, v, lever):
 
 def ref_zone_normal(surface, center, u, v, normal, tip_radius, floor, depth, zone):
     """The direction a contact at (u, v) pushes (:mod:`arsurf.contact.zone_normal`), written out: the
-    point's normal weighed by the interference R - floor - d, plus the area-weighted normals of a
-    square stencil of ZONE_NODES^2 samples over +-ZONE_HALF_WIDTH R in u and v, each weighed by its
+    point's normal weighed by the interference R - floor - d, plus the area-weighted normals of the
+    other samples of a square stencil of ZONE_NODES^2 over +-ZONE_HALF_WIDTH R in u and v, each weighed by its
     interference R - floor - |S - C| (> 0), the cosine between its normal and C - S (> 0) and the
     window 1 - r^2/zone^2 (> 0) of its distance r from (u, v); turned back towards the point's normal
     over the last ZONE_FADE R of the centre's distance d to the surface."""
@@ -255,10 +255,10 @@ def ref_zone_normal(surface, center, u, v, normal, tip_radius, floor, depth, zon
     (u0, u1), (v0, v1) = surface.domain
     total = (reach - d) * np.asarray(normal, dtype=float)
     offsets = np.linspace(-ZONE_HALF_WIDTH * tip_radius, ZONE_HALF_WIDTH * tip_radius, ZONE_NODES)
-    for du in offsets:
-        for dv in offsets:
+    for i, du in enumerate(offsets):
+        for j, dv in enumerate(offsets):
             window = 1.0 - (du * du + dv * dv) / zone ** 2
-            if window <= 0.0:
+            if window <= 0.0 or i == j == ZONE_NODES // 2:  # the centre: the point's own term above
                 continue
             s, su, sv = surface.evaluate(min(max(u + du, u0), u1), min(max(v + dv, v0), v1), 1)
             r = c - s
