@@ -20,7 +20,8 @@ attached or a session is replayed, the measured bending and torsion angles),
    the dent (O(1), whatever the pitch); the net is moved to it when it is read
    (:meth:`~arsurf.spline.surface.BSplineSurface.sync`);
 4. **force on the tip**: *simulated* F = P n + F_t, F_t the stick-slip friction of a proxy
-   anchored on the surface (:mod:`arsurf.contact.friction`: stuck inside the static cone
+   anchored where the tip stuck (:mod:`arsurf.contact.friction`: the tip's own tangential
+   displacement, not the closest point's; stuck inside the static cone
    :math:`\mu_s N`, slipping to the kinetic cone :math:`\mu_k N` and sticking there again, with
    :math:`N = P + |P_c|` by default; no velocity in the law);
    *measured* F from the two angles by the contact-normal decoupling ([SplineAR];
@@ -201,7 +202,7 @@ def model_tick_kernel(proj,                                              # Proje
     zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
                        coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
     # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
-    count, jumped = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u,
+    count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u,
                                             prev_v, state, S_CONTACTS, coll)
     _copy_collision(coll, out)
     if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
@@ -232,8 +233,8 @@ def model_tick_kernel(proj,                                              # Proje
         out[M_MOVED] = record_dent_kernel(md_args[d0:d0 + DENT_SIZE], ku, kv, out[M_TIP], out[M_TIP + 1],
                                           out[M_TIP + 2], tip_radius if md_st == CONTACT else 0.0, coll[pj.OUT_NX],
                                           coll[pj.OUT_NY], coll[pj.OUT_NZ], a, depth, zone)
-    # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored on the surface
-    sx, sy, strength, share_x, share_z, f_static = _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction,
+    # 4. simulated force: normal load plus the stick-slip friction of the proxy anchored where the tip stuck
+    sx, sy, strength, share_x, share_z, f_static = _simulated_force(md_st, a, load, cx, cy, cz, friction,
                                                                     state, scratch, out)
     out[M_SIM_FX] += rx  # the part of the summed normal force off the total normal (0 for one contact)
     out[M_SIM_FY] += ry
@@ -394,7 +395,7 @@ def _summed_normal(nx, ny, nz, load, rx, ry, rz, load_scale, share_x, share_z):
 
 
 @njit(cache=True)
-def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratch, out):
+def _simulated_force(md_st, a, load, cx, cy, cz, friction, state, scratch, out):
     """Step 4, simulated: F = P n + F_t, the friction of the stick-slip proxy
     (:func:`~arsurf.contact.friction.stick_slip_kernel`) within the limits of the friction law
     (:func:`~arsurf.contact.friction.friction_limits`: by default ``mu (P + |P_c|)``, so an adhesive
@@ -412,9 +413,8 @@ def _simulated_force(md_st, a, load, jumped, cx, cy, cz, friction, state, scratc
         kc = friction[F_COUPLING]
         if kc < math.inf:
             k_t = k_t * kc / (k_t + kc)  # the tangential contact in series with the coupling
-        out[M_SLIPPING] = fr.stick_slip_kernel(out[M_PX], out[M_PY], out[M_PZ], out[M_NX], out[M_NY], out[M_NZ],
-                                               cx, cy, cz, jumped, f_static, f_kinetic, k_t, state, S_FRICTION,
-                                               scratch)
+        out[M_SLIPPING] = fr.stick_slip_kernel(cx, cy, cz, out[M_NX], out[M_NY], out[M_NZ], f_static, f_kinetic, k_t,
+                                               state, S_FRICTION, scratch)
         fx += scratch[fr.O_FORCE]
         fy += scratch[fr.O_FORCE + 1]
         fz += scratch[fr.O_FORCE + 2]

@@ -1,4 +1,4 @@
-r"""Stick-slip friction with a proxy: the contact point stays stuck inside the friction cone.
+r"""Stick-slip friction with a proxy: the tip stays stuck inside the friction cone.
 
 Haptic rendering represents friction with a proxy (god-object) that sticks to the surface while
 the tangential force stays inside the static friction cone and slides along the cone's edge
@@ -6,15 +6,15 @@ when pushed out of it (Zilles & Salisbury 1995; Ruspini, Kolarov & Khatib 1997; 
 algorithm; the elasto-plastic "bristle" of Hayward & Armstrong 2000). No velocity appears in
 the law, so nothing is differentiated from a position that the rendered force itself moves.
 
-The proxy is an *anchor* point :math:`A` on the surface. With the contact point :math:`p`,
-the unit normal :math:`n` and the tangential offset
-:math:`d = (p - A) - ((p - A)\cdot n)\,n`, a tangential spring of stiffness :math:`k_t` holds
+The proxy is an *anchor* :math:`A`: where the tip centre would be with the tangential spring
+relaxed. With the tip centre :math:`c`, the unit normal :math:`n` and the tangential offset
+:math:`d = (c - A) - ((c - A)\cdot n)\,n`, a tangential spring of stiffness :math:`k_t` holds
 the tip:
 
 .. math::
 
     F_t = -k_t\,d \quad \text{(stuck, } k_t\lVert d\rVert \le f_s\text{)}, \qquad
-    F_t = -f_k\,\hat d,\quad A \leftarrow p - \frac{f_k}{k_t}\,\hat d
+    F_t = -f_k\,\hat d,\quad A \leftarrow c - \frac{f_k}{k_t}\,\hat d
     \quad \text{(slipping)},
 
 with the static and kinetic limits :math:`f_s = \mu_s N \ge f_k = \mu_k N` of the friction law
@@ -28,7 +28,7 @@ pushed out; Hayward & Armstrong 2000). :math:`k_t` is the tangential contact sti
 :math:`k_t = \frac{2(1-\nu)}{2-\nu}\,2 E^* a` (Johnson, *Contact Mechanics*, 1985, Sec. 7.2),
 in series with the virtual coupling's stiffness when there is one.
 
-*Saw-tooth.* With :math:`\mu_s > \mu_k` a contact point sliding at speed :math:`v` (ticks of
+*Saw-tooth.* With :math:`\mu_s > \mu_k` a tip sliding at speed :math:`v` (ticks of
 :math:`\Delta t`) sticks right after each slip with the stretch at the kinetic cone; the friction
 then grows by :math:`k_t v \Delta t` per tick until it would leave the static cone, where it slips
 back to :math:`f_k`. The stuck ticks after a slip number :math:`\lfloor (f_s - f_k) / (k_t v \Delta t)\rfloor`,
@@ -64,21 +64,22 @@ no-motion fallback to the directional solution as :math:`s` grows (:mod:`arsurf.
 standing still - whose offset from the anchor is tiny and points anywhere as it jitters - gets
 the no-motion answer steadily, and nothing jumps when the hand starts or stops pushing sideways.
 
-Where the closest point *jumps* - on a rough scan the sphere's contact can pass from one
-asperity to the next between two ticks, the contact point moving far more than the tip did - the
-anchor is carried along by the same jump: the tangential stretch, hence the friction, is that of
-the contact, which the jump does not undo (a tip sliding across two asperities keeps resisting the
-same way). Without it the stretch to the old anchor pointed backwards after the jump and the
-friction reversed in one tick (+-f_k: a 7 mN step at the hand on a real scan). A jump is a
-change of basin of the closest point (Newton from the previous closest point ends at another
-local minimum, :mod:`arsurf.contact.multi_contact`; the model passes it as ``jumped``) or a
-contact-point move larger than :data:`JUMP_RATIO` times the tip's move plus :data:`JUMP_FLOOR`.
-The ratio alone misses a jump that is short against a fast tip's move: a 1.6 nm hop across a
-valley while a 150 nm/s stroke moves the tip 0.15-0.19 nm per 1 ms tick (a friction reversal of
-about 6 mN at the hand on a real scan).
+*The tip's displacement, not the closest point's.* Mindlin's :math:`k_t` relates the tangential
+force to the rigid tangential displacement of the indenter against the substrate (Johnson 1985,
+Sec. 7.2): the stretch is how far the tip itself has moved along the surface since it stuck. The
+closest point of the surface is a geometric point, not a material one, and was measured instead
+until 2026-11-28: it jumps from asperity to asperity while the tip moves a picometre (the anchor
+had to be carried along each jump, found by a basin test), and in a hollow about as wide as the
+tip it runs ahead of the tip (by :math:`\rho/(\rho - R)` on a curvature radius :math:`\rho`), so the
+same stuck contact felt stiffer and turned with the hollow's normals. The spring it made was
+not a gradient: sliding at 1 nm/s through a 7 nm rough patch under a 3.4 nm tip the hand got
+11 times the passive store back (tests/haptics/test_feel_families.py). The anchor also follows
+the tip along the normal every tick - the spring stretches only tangentially - so a press since
+the stick began does not turn into a tangential stretch when the normal turns (without it, a tip
+pressed 7 nm into a slope and held there rocked across it: 320 force reversals).
 
-State (10 floats, part of the model state): anchor x, y, z (NaN: none, set at the first contact
-tick), the slip flag (1: the contact slipped on the last tick), the previous contact point and tip centre (NaN: none).
+State (4 floats, part of the model state): the anchor x, y, z (m; NaN: none, set at the first
+contact tick) and the slip flag (1: the contact slipped on the last tick).
 """
 from __future__ import annotations
 
@@ -90,21 +91,16 @@ from arsurf._layout import Layout
 
 #: the proxy's state (m; the slip flag 0 or 1), part of the state vector given to
 #: :func:`stick_slip_kernel` (at an offset)
-FRICTION_STATE = Layout("friction state", [("anchor", 3), ("slipping", 1), ("last_point", 3), ("last_center", 3)])
+FRICTION_STATE = Layout("friction state", [("anchor", 3), ("slipping", 1)])
 #: what :func:`stick_slip_kernel` writes: the friction force on the tip (N), the friction direction
 #: (unit: the tip's motion over the surface; zeros: none), the strength |F_t| / f_k (the kinetic limit)
 FRICTION_OUT = Layout("friction output", [("force", 3), ("direction", 3), ("strength", 1)])
 # the offsets as the kernel uses them
 ANCHOR, SLIPPING = FRICTION_STATE.offset("anchor"), FRICTION_STATE.offset("slipping")
-LAST_POINT, LAST_CENTER = FRICTION_STATE.offset("last_point"), FRICTION_STATE.offset("last_center")
 STATE_SIZE = FRICTION_STATE.size
 O_FORCE, O_DIRECTION, O_STRENGTH = (FRICTION_OUT.offset("force"), FRICTION_OUT.offset("direction"),
                                     FRICTION_OUT.offset("strength"))
 OUT_SIZE = FRICTION_OUT.size
-#: the contact point jumped when it moved more than this many times the tip centre's move ...
-JUMP_RATIO = 10.0
-#: ... plus this (m): far below the moves of a contact point sliding with the tip
-JUMP_FLOOR = 1e-11
 #: the friction laws (module docstring): their codes in the proxy parameters, by name
 LAW_COMPRESSIVE, LAW_ADHESIVE, LAW_AREA = 0, 1, 2
 LAW_NAMES = {"compressive": LAW_COMPRESSIVE, "adhesive": LAW_ADHESIVE, "area": LAW_AREA}
@@ -139,50 +135,34 @@ def release(state, at) -> None:
 
 
 @njit(cache=True)
-def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, f_static, f_kinetic, k_t, state, at, out):
+def stick_slip_kernel(cx, cy, cz, nx, ny, nz, f_static, f_kinetic, k_t, state, at, out):
     r"""One tick of the stick-slip proxy (module docstring).
 
-    ``p`` contact point (m), ``n`` unit normal, ``c`` the tip centre (m; for the jump test),
-    ``jumped`` True when the closest point is known to have changed basins this tick (a jump
-    whatever the two moves), the static and kinetic friction limits ``f_static >= f_kinetic >= 0``
-    (N: :math:`\mu_s N`, :math:`\mu_k N` of the friction law, :func:`friction_limits`), ``k_t``
-    the tangential stiffness (N/m, > 0); ``state[at:at + STATE_SIZE]`` (updated).
-    Writes ``out`` (:data:`FRICTION_OUT`): the friction force on the tip (N), the friction direction
-    (unit: the tip's motion over the surface, opposite to the friction; zeros: none) and the
-    strength :math:`\lVert F_t\rVert / f_k` (1 when slipping). Returns 1 when the contact
-    slipped this tick, else 0."""
+    ``c`` the tip centre (m), ``n`` the unit contact normal, the static and kinetic friction limits
+    ``f_static >= f_kinetic >= 0`` (N: :math:`\mu_s N`, :math:`\mu_k N` of the friction law,
+    :func:`friction_limits`), ``k_t`` the tangential stiffness (N/m, > 0);
+    ``state[at:at + STATE_SIZE]`` (updated). Writes ``out`` (:data:`FRICTION_OUT`): the friction
+    force on the tip (N), the friction direction (unit: the tip's motion over the surface, opposite
+    to the friction; zeros: none) and the strength :math:`\lVert F_t\rVert / f_k` (1 when
+    slipping). Returns 1 when the contact slipped this tick, else 0."""
     for j in range(OUT_SIZE):
         out[j] = 0.0
-    lp = at + LAST_POINT
-    lc = at + LAST_CENTER
-    if math.isfinite(state[at + ANCHOR]) and math.isfinite(state[lp]) and math.isfinite(state[lc]):
-        jx = px - state[lp]
-        jy = py - state[lp + 1]
-        jz = pz - state[lp + 2]
-        moved = math.sqrt((cx - state[lc]) ** 2 + (cy - state[lc + 1]) ** 2 + (cz - state[lc + 2]) ** 2)
-        if jumped or math.sqrt(jx * jx + jy * jy + jz * jz) > JUMP_RATIO * moved + JUMP_FLOOR:
-            state[at + ANCHOR] += jx  # carried along by the jump (module docstring)
-            state[at + ANCHOR + 1] += jy
-            state[at + ANCHOR + 2] += jz
-    state[lp] = px
-    state[lp + 1] = py
-    state[lp + 2] = pz
-    state[lc] = cx
-    state[lc + 1] = cy
-    state[lc + 2] = cz
     if not math.isfinite(state[at + ANCHOR]):
-        state[at + ANCHOR] = px
-        state[at + ANCHOR + 1] = py
-        state[at + ANCHOR + 2] = pz
+        state[at + ANCHOR] = cx
+        state[at + ANCHOR + 1] = cy
+        state[at + ANCHOR + 2] = cz
         state[at + SLIPPING] = 0.0
         return 0
-    dx = px - state[at + ANCHOR]
-    dy = py - state[at + ANCHOR + 1]
-    dz = pz - state[at + ANCHOR + 2]
+    dx = cx - state[at + ANCHOR]
+    dy = cy - state[at + ANCHOR + 1]
+    dz = cz - state[at + ANCHOR + 2]
     dn = dx * nx + dy * ny + dz * nz
     dx -= dn * nx
     dy -= dn * ny
     dz -= dn * nz
+    state[at + ANCHOR] += dn * nx  # the anchor follows the tip along the normal (module docstring)
+    state[at + ANCHOR + 1] += dn * ny
+    state[at + ANCHOR + 2] += dn * nz
     d = math.sqrt(dx * dx + dy * dy + dz * dz)
     if k_t * d <= f_static or d == 0.0:  # stuck: inside the static cone
         out[O_FORCE] = -k_t * dx
@@ -201,9 +181,9 @@ def stick_slip_kernel(px, py, pz, nx, ny, nz, cx, cy, cz, jumped, f_static, f_ki
     # the massless proxy slips at once: the anchor slides until the stretch has relaxed to the
     # kinetic cone, where the contact sticks again (re-sticking: the saw-tooth when mu_s > mu_k)
     back = f_kinetic / k_t
-    state[at + ANCHOR] = px - back * ux
-    state[at + ANCHOR + 1] = py - back * uy
-    state[at + ANCHOR + 2] = pz - back * uz
+    state[at + ANCHOR] = cx - back * ux
+    state[at + ANCHOR + 1] = cy - back * uy
+    state[at + ANCHOR + 2] = cz - back * uz
     state[at + SLIPPING] = 1.0
     out[O_FORCE] = -f_kinetic * ux
     out[O_FORCE + 1] = -f_kinetic * uy

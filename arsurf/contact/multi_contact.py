@@ -228,20 +228,20 @@ C_V, C_DEPTH, C_WEIGHT = C_U + 1, CONTACT.offset("depth"), CONTACT.offset("weigh
 C_SIZE = CONTACT.size
 #: the contact table (in the model state): the count, the contacts (row 0 the closest point), the
 #: previous tick's (u, v) of each (the tracking starts), the tip centre (m) of the last scan of the
-#: net, and the tip's last lift behind the coupling along the total normal (m; the start of the next solve) and the
-#: tip centre of the last search (m; the fold-hop test), and the closest contact's force per unit
-#: load (its weight times the direction it pushes, turned towards the minima inside its zone), and
+#: net, the tip's last lift behind the coupling along the total normal (m; the start of the next solve),
+#: the closest contact's force per unit load (its weight times the direction it pushes, turned towards
+#: the minima inside its zone), and
 #: the row of the second reference (-1: none), its force per unit load and the weights measured from
 #: it (:func:`weigh_contacts_kernel`)
 CONTACT_TABLE = Layout("contact table", [("count", 1), ("rows", MAX_CONTACTS * CONTACT.size),
                                          ("previous_uv", 2 * MAX_CONTACTS),
                                          ("scanned", 3), ("lift", 1),
-                                         ("centre", 3), ("closest_force", 3), ("second", 1),
+                                         ("closest_force", 3), ("second", 1),
                                          ("second_force", 3), ("second_weights", MAX_CONTACTS)])
 T_COUNT, T_ROWS, T_PREVIOUS = (CONTACT_TABLE.offset("count"), CONTACT_TABLE.offset("rows"),
                                CONTACT_TABLE.offset("previous_uv"))
 T_SCANNED, T_LIFT = CONTACT_TABLE.offset("scanned"), CONTACT_TABLE.offset("lift")
-T_CENTRE, T_CLOSEST_FORCE = CONTACT_TABLE.offset("centre"), CONTACT_TABLE.offset("closest_force")
+T_CLOSEST_FORCE = CONTACT_TABLE.offset("closest_force")
 T_SECOND, T_SECOND_FORCE = CONTACT_TABLE.offset("second"), CONTACT_TABLE.offset("second_force")
 T_SECOND_WEIGHTS = CONTACT_TABLE.offset("second_weights")
 TABLE_SIZE = CONTACT_TABLE.size
@@ -428,11 +428,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     scanned, :data:`SCAN_EVERY`). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
     ``prev_u, prev_v`` the previous closest point (NaN: none).
 
-    Returns ``(count, jumped)``: the number of contacts, and whether the closest point changed
-    basins this tick (the friction proxy carries its anchor along): Newton from the previous
-    closest point ended at another local minimum than the closest point, or the previous minimum
-    vanished (a fold) and the closest point moved in (u, v) farther than the tip centre did plus
-    one knot spacing."""
+    Returns the number of contacts."""
     h = max(ku[4] - ku[3], kv[4] - kv[3])
     u1 = coll[ly.OUT_U]
     v1 = coll[ly.OUT_V]
@@ -457,24 +453,9 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
     if not (math.isfinite(wu) and math.isfinite(wv)):
         wu = prev_u
         wv = prev_v
-    jumped = False
     if math.isfinite(wu) and math.isfinite(wv) and math.isfinite(prev_u) and math.isfinite(prev_v):
-        if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:
-            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, -math.inf, h, tab, at, count)
-            jumped = count > 1  # Newton from there ended at another minimum than the closest point
-            if jumped and tab[_row(at, 1) + C_DEPTH] < floor:
-                count = 1  # a jump, but the old point is out of reach
-    c0 = at + T_CENTRE
-    moved = math.sqrt((cx - tab[c0]) ** 2 + (cy - tab[c0 + 1]) ** 2 + (cz - tab[c0 + 2]) ** 2)
-    if not math.isfinite(moved):
-        moved = 0.0
-    if not jumped and math.isfinite(prev_u) and math.isfinite(prev_v) and math.isfinite(tab[c0]):
-        # a fold hop: the old minimum vanished this tick and Newton from it slid on to the closest
-        # point, farther than a minimum carried by the tip goes (the tip's move plus a knot spacing)
-        jumped = math.hypot(u1 - prev_u, v1 - prev_v) > moved + h
-    tab[c0] = cx
-    tab[c0 + 1] = cy
-    tab[c0 + 2] = cz
+        if math.hypot(wu - u1, wv - v1) > SAME_POINT * h:  # the closest point changed basins: the old one
+            count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, wu, wv, floor, h, tab, at, count)
     if coll[ly.OUT_DEPTH] >= floor:  # near the surface: follow and look for the other contacts
         for i in range(1, old):  # (row 0, the previous closest point: the run above)
             count = _add(ctrl, ku, kv, ev, cx, cy, cz, radius, tab[at + T_PREVIOUS + 2 * i],
@@ -491,7 +472,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         for j in range(C_SIZE):
             tab[r + j] = math.nan
     tab[at + T_COUNT] = count
-    return count, jumped
+    return count
 
 
 @njit(cache=True)

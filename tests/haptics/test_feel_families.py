@@ -271,6 +271,26 @@ def test_a_slow_slide_through_hollows_that_fit_the_tip_does_not_buzz():
     assert r["ok"], r
 
 
+#: from the seed-1 table (``bench/feel.py --families 120 --runs 4 2 --seed 1``): a power-law surface
+#: of 7.0 nm rms and 4.3 nm correlation length under a 3.4 nm tip
+ROUGH_PIT = generated_surfaces(120, seed=1)[113]
+
+
+def test_a_slow_slide_through_a_rough_pit_gives_the_hand_no_energy_through_friction():
+    """Sliding at 1 nm/s through a patch where the 3.4 nm tip rests on some fifteen minima, the
+    friction's spring was stretched by the closest point, which ran ahead of the tip and hopped
+    among the minima: not a gradient, it gave the hand 11 times the passive store (-11.3 E0) with
+    the passivity controller acting on 9 688 of 15 000 ticks, and 5 reversals. Stretched by the
+    tip's own tangential move (arsurf.contact.friction) it gives back what the hand put in."""
+    g = ROUGH_PIT
+    run = {"surface": g.name, "kind": "slow", "motion": "slide-1", "source": "blended", "rate_hz": 5000.0,
+           "heading_deg": 206.22, "room_m": 2.71e-08}
+    r = judge_run(run, g.surface(), g.tip_radius)
+    assert r["in_contact"], r
+    assert r["energy_ok"] and r["min_energy_over_E0"] >= -1.1 and r["passivity_ticks"] <= 150, r
+    assert max(r["high_frequency_over_normal"]) <= 0.02 and not any(r["reversals"]), r
+
+
 def _bench_feel():
     """bench/feel.py as a module (a script, not a package)."""
     import importlib.util

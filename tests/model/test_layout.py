@@ -135,7 +135,7 @@ def test_the_small_kernels_write_exactly_their_layouts():
     state[fr.SLIPPING] = 0.0
     o_p, out = padded(fr.FRICTION_OUT)
     for x in (0.0, 1e-10, 5e-9):
-        fr.stick_slip_kernel(x, 0.0, 0.0, 0.0, 0.0, 1.0, x, 0.0, 20e-9, False, 0.3e-7, 0.2e-7, 10.0, state, 0, out)
+        fr.stick_slip_kernel(x, 0.0, 20e-9, 0.0, 0.0, 1.0, 0.3e-7, 0.2e-7, 10.0, state, 0, out)
     assert out[fr.O_STRENGTH] == 1.0 and untouched(st_p, fr.STATE_SIZE) and untouched(o_p, fr.OUT_SIZE)
     assert not np.any(out == SENTINEL)
     # decoupling and its blend
