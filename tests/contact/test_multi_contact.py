@@ -343,6 +343,41 @@ def test_a_swap_of_the_closest_point_between_two_minima_inside_one_zone_does_not
     assert _turns(f2).max() <= 0.4 * _turns(f).max()
 
 
+def test_two_equally_deep_minima_of_one_contact_push_the_same_whichever_is_closest():
+    """Two minima inside one contact zone, as deep as each other, with a pass between them lower
+    than the margin (pair weights phi < 1): the merged contact pushes along the same direction
+    whichever of them is row 0. The reference's own normal entered the mean with weight 1 and the
+    other's with phi: on the scan sample_0.spm under its 5 nm tip two such minima 2.4 nm apart
+    (normals 0.13 rad apart) split 55/45 towards the closest, and the hop between them turned the
+    147 nN force by 0.015 rad in one tick (a reversal in a 10 nm/s slide)."""
+    from arsurf.spline.surface import BSplineSurface
+
+    flat = BSplineSurface.from_heights(np.zeros((40, 40)), (0.0, 39e-9), (0.0, 39e-9))
+    ctrl, ku, kv = flat.net_arrays()
+    ev = np.empty((6, 3))
+    c, x0, margin = np.array([20e-9, 20e-9, 4e-9]), 1.2e-9, 0.1e-9
+    d = math.hypot(c[2], x0)  # each minimum's distance; the straight pass between them is no farther
+    normals = [np.array([0.13, 0.0, 1.0]) / math.hypot(0.13, 1.0), np.array([0.0, 0.0, 1.0])]
+    pushes = []
+    for barrier in (0.02e-9, 0.05e-9):
+        for order in ((0, 1), (1, 0)):
+            tab = np.full(mc.TABLE_SIZE, np.nan)
+            for row, k in enumerate(order):
+                r = mc.T_ROWS + row * mc.C_SIZE
+                x = c[0] + (x0 if k == 0 else -x0)
+                tab[r + mc.C_U], tab[r + mc.C_V] = x, c[1]
+                tab[r + mc.C_PX:r + mc.C_PX + 3] = (x, c[1], 0.0)
+                tab[r + mc.C_NX:r + mc.C_NX + 3] = normals[k]
+                tab[r + mc.C_DEPTH] = R - (d - barrier)  # as if each were a minimum ``barrier`` below its pass
+            mc.weigh_contacts_kernel(ctrl, ku, kv, ev, *c, R, margin, 5e-9, -1e-9, tab, 0, 2)
+            pushes.append(tab[mc.T_CLOSEST_FORCE:mc.T_CLOSEST_FORCE + 3].copy())
+    for a, b in (pushes[:2], pushes[2:]):
+        assert np.linalg.norm(a) == pytest.approx(1.0)  # one contact: the closest's whole load
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+        mean = normals[0] + normals[1]
+        np.testing.assert_allclose(a, mean / np.linalg.norm(mean), rtol=0, atol=1e-9)
+
+
 def _notch_pull(step: float):
     """Forces (N) and in-contact flags of the 20 nm tip over the notch of :func:`_notch_slide`, 0.3 nm
     off its axis, pulled straight up from 0.4 nm into its top through the adhesive neck to release."""
