@@ -160,7 +160,7 @@ def test_measured_force_keeps_its_friction_where_the_directional_decoupling_turn
         cx = 60e-9 + 0.25e-9 * k
         cz = float(surf.evaluate(cx, 128e-9)[2]) + 20e-9 - 1.5e-9
         model_tick_kernel(proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
-                          128e-9 + 2e-12 * (k - 200) ** 2, cz, 0.0, 0.0, SIGNALS_SYNTHESISED, state, coll, decout,
+                          128e-9 + 1e-12 * (k - 200) ** 2, cz, 0.0, 0.0, SIGNALS_SYNTHESISED, state, coll, decout,
                           ev, out)
         if out[M_IN_CONTACT] > 0.5 and k > 5:
             err = np.abs(out[M_MEAS_FX:M_MEAS_FX + 3] - out[M_SIM_FX:M_SIM_FX + 3]).max() / abs(out[M_LOAD])
@@ -196,7 +196,7 @@ def test_photodiode_noise_is_not_amplified_where_the_friction_direction_sweeps_t
         cx = 60e-9 + 0.25e-9 * k
         cz = float(surf.evaluate(cx, 128e-9)[2]) + 20e-9 - 1.5e-9
         model_tick_kernel(proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
-                          128e-9 + 2e-12 * (k - 200) ** 2, cz, noise[k, 0], noise[k, 1], SIGNALS_SYNTHESISED, state,
+                          128e-9 + 1e-12 * (k - 200) ** 2, cz, noise[k, 0], noise[k, 1], SIGNALS_SYNTHESISED, state,
                           coll, decout, ev, out)
         if out[M_IN_CONTACT] > 0.5 and k > 5:
             err.append(out[M_MEAS_FX] - out[M_SIM_FX])
@@ -214,8 +214,8 @@ def test_photodiode_noise_is_not_amplified_where_the_friction_direction_sweeps_t
 @pytest.mark.parametrize("motion, source", [("stroke", "simulated"), ("slide-10", "measured")])
 def test_a_contact_hopping_between_two_slopes_of_the_real_jpk_scan_does_not_buzz(motion, source):
     """sample_0.jpk at 1 kHz: the closest point hops between two slopes of a valley. In the
-    stroke the hop (1.6 nm) was shorter than 10 tip moves, the friction anchor stayed behind and
-    the friction reversed (2 reversals, ~6 mN at the hand); in the 10 nm/s slide the closest point
+    stroke the hop (1.6 nm) reversed the friction while its spring was stretched by the closest
+    point (2 reversals, ~6 mN at the hand; it is now stretched by the tip's own move); in the 10 nm/s slide the closest point
     jumped back into the basin of the second contact being followed, which was then dropped
     instead of swapped, and the normal stepped back for a tick (1 reversal of 0.16 mN)."""
     from tests.support.real_scans import real_scan_path
