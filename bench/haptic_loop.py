@@ -186,7 +186,7 @@ def tick_parts(model: ARModel, points) -> dict:
         x, y, z = (float(v) for v in p)
         timed("collision", pj.collide_any, a["proj"], x, y, z, r, state[am.S_HINT_U], state[am.S_HINT_V], coll)
         n = timed("find_contacts", mc.find_contacts_kernel, rest, ku, kv, ev, x, y, z, r, fr[am.F_JUMP_OUT] - m, m,
-                  state[am.S_HINT_U], state[am.S_HINT_V], state, S_CONTACTS, coll)[0]
+                  state[am.S_HINT_U], state[am.S_HINT_V], state, S_CONTACTS, coll)
         zone = md_zone_from_depth_kernel(coll[pj.OUT_DEPTH], *law)
         timed("weigh_contacts", mc.weigh_contacts_kernel, rest, ku, kv, ev, x, y, z, r, m, zone, fr[am.F_JUMP_OUT],
               state, S_CONTACTS, n)

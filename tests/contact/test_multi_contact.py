@@ -621,3 +621,26 @@ def test_a_discovery_start_finds_the_minimum_next_to_it_not_one_beyond_its_reach
     near = newton_foot(rest, ku, kv, ev, *c, free[0] + 0.5 * h, 24e-9, h, reach)
     assert near[6]
     assert near[:6] == pytest.approx(free[:6], rel=1e-9, abs=1e-15)
+
+
+def test_the_benchmark_s_rough_patch_rests_on_many_contacts_and_its_parts_call_today_s_kernels():
+    """bench/haptic_loop.py --multi-only times a tick on a rough patch and its parts called one by
+    one (the collision, finding and weighing the contacts, the lift, the sideways step): the patch
+    must rest the tip on several minima (the row's premise) and the parts must drive the kernels
+    as they are (a changed kernel signature broke the row unseen). No timing is asserted."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "bench" / "haptic_loop.py"
+    spec = importlib.util.spec_from_file_location("bench_haptic_loop", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    _, model, points = bench._rough_patch(60)
+    counts = []
+    for p in points:
+        model.tick(p)
+        counts.append(model.state[S_CONTACTS + mc.T_COUNT])
+    assert np.mean(counts[10:]) >= 5
+    parts = bench.tick_parts(model, points[-5:])
+    assert set(parts) == {"tick", "collision", "find_contacts", "weigh_contacts", "lift", "sideways_step"}
+    assert all(v > 0.0 for v in parts.values())
