@@ -202,8 +202,8 @@ def model_tick_kernel(proj,                                              # Proje
     zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
                        coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
     # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
-    count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u,
-                                            prev_v, state, S_CONTACTS, coll)
+    count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
+                                    state, S_CONTACTS, coll)
     _copy_collision(coll, out)
     if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
         # behind the coupling along the total normal; each contact pushes along the resultant over its zone
