@@ -39,7 +39,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from arsurf._files import sha256_file
-from arsurf.config import UNSET, CantileverConfig, ContactConfig, HapticsConfig, SessionConfig
+from arsurf.config import UNSET, CantileverConfig, ContactConfig, HapticsConfig, SessionConfig, _is_number
+from arsurf.contact.jump_blend import BLEND_TIME
 from arsurf.data import bundled_scan
 from arsurf.errors import ArsurfError, ScanFileNotFound, SessionError
 
@@ -76,7 +77,7 @@ LEGACY_FRICTION_LAW = "compressive"
 _CANTILEVER_ARGS = ("length", "width", "thickness", "tip_height", "youngs_modulus", "poisson_ratio",
                     "normal_stiffness", "torsional_stiffness", "beta")
 _HAPTIC_KEYS = ("coupling", "scale", "force_gain", "rate", "source", "blend", "filter_cutoff", "signal_noise",
-                "seed", "ramp_time", "coupling_stiffness", "virtual_coupling", "passivity", "max_rate")
+                "seed", "ramp_time", "coupling_stiffness", "virtual_coupling", "passivity", "max_rate", "jump_blend")
 
 
 @dataclass(frozen=True)
@@ -134,7 +135,7 @@ def _contact(tip: str, sample: str) -> tuple[float, float]:
 # (arsurf.haptics.gains.coupling_stiffness; 2 b / T = 66.7 N/m for the demo's VirtualDevice at 1 kHz)
 _DEMO_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
                                   "source": "blended", "filter_cutoff": 50.0, "signal_noise": 2e-7,
-                                  "virtual_coupling": True, "passivity": True})
+                                  "virtual_coupling": True, "passivity": True, "jump_blend": BLEND_TIME})
 
 
 def _presets() -> dict[str, Preset]:
@@ -190,12 +191,13 @@ PRESET_ALIASES: Mapping[str, str] = MappingProxyType({
 
 #: the haptic settings of the bridge loop (``metadata["haptics"]`` of its sessions; ``scale``
 #: is the command line's ``--scale``): the direct coupling, the simulated force (MD load +
-#: friction, no synthesised signals), a 200 Hz low-pass, the passivity controller, and the
+#: friction, no synthesised signals), a 200 Hz low-pass, the passivity controller, the tip's jumps
+#: blended over :data:`~arsurf.contact.jump_blend.BLEND_TIME`, and the
 #: virtual coupling the loop chooses from the device and the rate (recorded with the session:
 #: :func:`loop_metadata`)
 BRIDGE_HAPTICS = MappingProxyType({"coupling": "direct", "scale": 1e-5, "force_gain": 1e5, "rate": 1000.0,
                                    "source": "simulated", "filter_cutoff": 200.0, "signal_noise": 0.0,
-                                   "passivity": True})
+                                   "passivity": True, "jump_blend": BLEND_TIME})
 
 
 def preset(name: str | Preset) -> Preset:
@@ -623,7 +625,32 @@ def build_model(metadata: Mapping | SessionConfig, scan_path: str | os.PathLike 
         if material is None:
             raise
         raise SessionError(f"the session's material map does not fit its contact law: {exc}") from exc
+    blend = _recorded_jump_blend(config.haptics)
+    if blend is not None:  # the loop's blend of the tip's jumps, which the recorded forces have
+        model.set_jump_blend(*blend)
     return ModelSetup(scan, surface, model, scene, metadata, config)
+
+
+def _number_or(value, name: str) -> float:
+    """``value`` as a finite float, else a SessionError naming the metadata key ``name``."""
+    if not (_is_number(value) and math.isfinite(value)):
+        raise SessionError(f"metadata {name} must be a finite number (got {value!r})")
+    return float(value)
+
+
+def _recorded_jump_blend(haptics: HapticsConfig):
+    """``(blend time s, tick period s)`` of a recorded ``haptics.jump_blend`` and ``rate``
+    (:meth:`~arsurf.model.ARModel.set_jump_blend`), None when none is recorded: a session recorded
+    before the blend existed rendered its jumps in one tick, and is replayed that way."""
+    blend = haptics.get("jump_blend")
+    if blend is None:
+        return None
+    blend = _number_or(blend, "haptics.jump_blend")
+    rate = _number_or(haptics.get("rate", _DEMO_HAPTICS["rate"]), "haptics.rate")
+    if not (blend >= 0.0 and rate > 0.0):
+        raise SessionError(f"metadata haptics.jump_blend must be >= 0 s and haptics.rate > 0 Hz (got {blend!r} s, "
+                           f"{rate!r} Hz)")
+    return blend, 1.0 / rate
 
 
 def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origin, *, scene=None, seed: int = 0, **safety_kwargs):
@@ -663,7 +690,8 @@ def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origi
                            "force-position loop with arsurf.haptics.coupling.ForcePositionCoupling and HapticLoop")
     config = LoopConfig(rate=float(h["rate"]), source=h["source"], blend=float(h.get("blend", 0.5)),
                         filter_cutoff=h["filter_cutoff"], signal_noise=float(h["signal_noise"]),
-                        seed=int(h.get("seed", seed)), passivity=bool(h.get("passivity", True)))
+                        seed=int(h.get("seed", seed)), passivity=bool(h.get("passivity", True)),
+                        jump_blend=_number_or(h["jump_blend"], "haptics.jump_blend"))
     if "max_rate" in h and "max_rate" not in safety_kwargs:
         safety_kwargs["max_rate"] = float(h["max_rate"])
     vc = h.get("virtual_coupling", True)
@@ -677,9 +705,9 @@ def build_loop(model, haptics: Mapping | HapticsConfig, device_info, probe_origi
 def loop_metadata(metadata: Mapping, loop) -> dict:
     """``metadata`` with the haptic protections ``loop`` runs with, as a session records them:
     ``haptics.virtual_coupling`` (bool), ``haptics.coupling_stiffness`` (N/m at the handle, the
-    one the loop chose from the device when none was recorded; absent without a coupling) and
-    ``haptics.passivity`` (bool). :func:`build_model` on the result rebuilds the model the loop
-    ticks, bit for bit (the replay's guarantee).
+    one the loop chose from the device when none was recorded; absent without a coupling),
+    ``haptics.passivity`` (bool) and ``haptics.jump_blend`` (s). :func:`build_model` on the
+    result rebuilds the model the loop ticks, bit for bit (the replay's guarantee).
 
     Examples
     --------
@@ -690,8 +718,8 @@ def loop_metadata(metadata: Mapping, loop) -> dict:
     >>> m = make_model(s, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1)
     >>> loop = build_loop(m, BRIDGE_HAPTICS, VirtualDevice().info, (50e-9, 50e-9, 30e-9))
     >>> h = loop_metadata({"haptics": dict(BRIDGE_HAPTICS)}, loop)["haptics"]
-    >>> h["virtual_coupling"], round(h["coupling_stiffness"], 2), h["passivity"]
-    (True, 66.67, True)
+    >>> h["virtual_coupling"], round(h["coupling_stiffness"], 2), h["passivity"], h["jump_blend"]
+    (True, 66.67, True, 0.015)
     """
     h = dict(metadata.get("haptics") or {})
     k_vc = loop.virtual_coupling
@@ -701,6 +729,7 @@ def loop_metadata(metadata: Mapping, loop) -> dict:
     elif h.get("coupling_stiffness") is None:
         h["coupling_stiffness"] = float(k_vc)
     h["passivity"] = bool(loop.config.passivity)
+    h["jump_blend"] = float(loop.config.jump_blend)
     return dict(metadata, haptics=h)
 
 

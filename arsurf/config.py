@@ -235,7 +235,9 @@ class HapticsConfig:
     off), ``signal_noise`` (rad), ``seed``, ``ramp_time`` (s), ``coupling_stiffness`` (N/m at the
     handle), ``virtual_coupling`` (False: the direct loop runs without one; UNSET or True: with
     ``coupling_stiffness``, else one chosen from the device and the rate), ``passivity``,
-    ``max_rate`` (N/s), and the force-position coupling's ``K_fp`` (N/m),
+    ``max_rate`` (N/s), ``jump_blend`` (s over which a jump of the coupled tip reaches the hand,
+    :mod:`arsurf.contact.jump_blend`; 0: in one tick; UNSET in a recorded session: recorded before the
+    blend existed, replayed in one tick), and the force-position coupling's ``K_fp`` (N/m),
     ``B_fp`` (N s/m), ``G_n``.
     """
 
@@ -253,6 +255,7 @@ class HapticsConfig:
     virtual_coupling: bool = UNSET
     passivity: bool = UNSET
     max_rate: float = UNSET
+    jump_blend: float = UNSET
     K_fp: float = UNSET
     B_fp: float = UNSET
     G_n: float = UNSET

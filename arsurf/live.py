@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from arsurf.assembly import BRIDGE_HAPTICS, build_loop, build_model, loop_metadata, preset_metadata
+from arsurf.contact.jump_blend import BLEND_TIME
 from arsurf.errors import InstrumentError, LoopError
 
 __all__ = ["Z_MARGIN", "LiveResult", "bridge_loop", "live_metadata", "open_instrument", "parse_instrument",
@@ -82,15 +83,16 @@ def parse_instrument(spec: str) -> tuple:
 
 
 def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool,
-                  virtual_coupling: bool = True, passivity: bool = True) -> dict:
+                  virtual_coupling: bool = True, passivity: bool = True, jump_blend: float = BLEND_TIME) -> dict:
     """Session metadata of a live session: the viewer preset (Si tip on polystyrene) with the
     bridge loop's haptic settings (:data:`arsurf.assembly.BRIDGE_HAPTICS`) at ``scale`` probe m
     per stylus m; ``measured``: the force read from the instrument's signals. The virtual
-    coupling and the passivity controller are on unless turned off here (recorded either way;
+    coupling, the passivity controller and the blend of the tip's jumps (``jump_blend`` s,
+    :mod:`arsurf.contact.jump_blend`) are on unless turned off here (recorded either way;
     the coupling's stiffness is the one the loop chooses from the device,
     :func:`arsurf.assembly.loop_metadata`)."""
     haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated",
-                   virtual_coupling=bool(virtual_coupling), passivity=bool(passivity))
+                   virtual_coupling=bool(virtual_coupling), passivity=bool(passivity), jump_blend=float(jump_blend))
     return preset_metadata(scan, "viewer", tip_radius=tip_radius, level=level, sigma=sigma, haptics=haptics)
 
 

@@ -32,7 +32,10 @@ attached or a session is replayed, the measured bending and torsion angles),
 
 With a virtual coupling (``coupling_stiffness`` finite, :mod:`arsurf.contact.proxy`) the tip
 centre is not the target C itself but the point on C's normal line where the contact load
-balances the coupling spring; steps 2-4 use that tip, which the model reports (``tip``).
+balances the coupling spring; steps 2-4 use that tip, which the model reports (``tip``). Where
+that balance jumps while the hand moves slowly (a snap over an asperity), the reported tip and
+the simulated force follow the jump over the loop's blend time (:mod:`arsurf.contact.jump_blend`;
+only once a loop has given the model its tick, :meth:`ARModel.set_jump_blend`).
 
 All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
 arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
@@ -48,6 +51,7 @@ from numba import njit
 from arsurf import _validation
 from arsurf._layout import Layout
 from arsurf.contact import friction as fr
+from arsurf.contact import jump_blend as jb
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
@@ -100,30 +104,36 @@ SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: hysteresis memory (1: interacting), the tip's depth (m; NaN: none), the normal of the face the
 #: target centre is behind (NaN: none; :mod:`arsurf.contact.side`), the contact table
 #: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
-#: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`)
+#: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`), the jump blend's
+#: (:data:`arsurf.contact.jump_blend.JUMP_STATE`)
 MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("side", 3),
                                      ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE),
-                                     ("coupling_memo", MD_MEMO.size)])
+                                     ("coupling_memo", MD_MEMO.size), ("jumps", jb.STATE_SIZE)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
 S_TIP_DEPTH, S_CONTACTS = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("contacts")
 S_FRICTION = MODEL_STATE.offset("friction")
 S_SIDE = MODEL_STATE.offset("side")
 S_MEMO = MODEL_STATE.offset("coupling_memo")
+S_JUMPS = MODEL_STATE.offset("jumps")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
 #: zero-load depths (m), the friction law (a code of :data:`arsurf.contact.friction.LAW_NAMES`),
-#: the law's pull-off force magnitude ``|P_c|`` (N) and the interfacial shear strength (Pa, area law)
+#: the law's pull-off force magnitude ``|P_c|`` (N), the interfacial shear strength (Pa, area law), and
+#: the jump blend's time (s; 0: off) and hand speed (m/s) with the loop's tick (s; NaN: none,
+#: :mod:`arsurf.contact.jump_blend`)
 PROXY_PARAMS = Layout("proxy parameters", [
     ("static_friction", 1), ("kinetic_friction", 1), ("stiffness_per_radius", 1), ("coupling_stiffness", 1),
     ("jump_out_depth", 1), ("zero_load_depth", 1), ("friction_law", 1), ("pull_off_force", 1),
-    ("shear_strength", 1)])
+    ("shear_strength", 1), ("blend_time", 1), ("blend_speed", 1), ("tick_period", 1)])
 F_MU_S, F_MU_K = PROXY_PARAMS.offset("static_friction"), PROXY_PARAMS.offset("kinetic_friction")
 F_KT_PER_A, F_COUPLING = PROXY_PARAMS.offset("stiffness_per_radius"), PROXY_PARAMS.offset("coupling_stiffness")
 F_JUMP_OUT, F_ZERO_LOAD = PROXY_PARAMS.offset("jump_out_depth"), PROXY_PARAMS.offset("zero_load_depth")
 F_LAW, F_PULL_OFF = PROXY_PARAMS.offset("friction_law"), PROXY_PARAMS.offset("pull_off_force")
 F_SHEAR = PROXY_PARAMS.offset("shear_strength")
+F_BLEND_TIME, F_BLEND_SPEED = PROXY_PARAMS.offset("blend_time"), PROXY_PARAMS.offset("blend_speed")
+F_PERIOD = PROXY_PARAMS.offset("tick_period")
 #: the tick's scratch vector: the friction proxy's output (:data:`arsurf.contact.friction.FRICTION_OUT`),
 #: then the measured force's (:data:`arsurf.force.decoupling.MEASURED_SCRATCH`, whose first field is
 #: the blend, a decoupling output)
@@ -239,6 +249,8 @@ def model_tick_kernel(proj,                                              # Proje
     out[M_SIM_FX] += rx  # the part of the summed normal force off the total normal (0 for one contact)
     out[M_SIM_FY] += ry
     out[M_SIM_FZ] += rz
+    if friction[F_COUPLING] < math.inf:  # a jump of the tip behind the coupling and of its force, spread over
+        _blend_jumps(friction, cx, cy, cz, state, out)  # the blend time
     if signal_mode != SIGNALS_NONE:  # 4. measured force from the two angles
         if signal_mode == SIGNALS_SYNTHESISED:  # the simulated force's angles (cantilever model) plus noise
             bending = dec_params[P_BENDING_COMPLIANCE] * (out[M_SIM_FZ] + dec_params[P_COUPLING] * out[M_SIM_FX]) \
@@ -262,6 +274,20 @@ def model_tick_kernel(proj,                                              # Proje
 
 
 @njit(cache=True)
+def _blend_jumps(friction, cx, cy, cz, state, out):
+    """The tip and the simulated force moved by the excesses of :mod:`arsurf.contact.jump_blend`."""
+    ex, ey, ez, gx, gy, gz = jb.blend_jumps_kernel(
+        friction[F_BLEND_TIME], friction[F_BLEND_SPEED], friction[F_PERIOD], out[M_TIP], out[M_TIP + 1],
+        out[M_TIP + 2], cx, cy, cz, out[M_SIM_FX], out[M_SIM_FY], out[M_SIM_FZ], state, S_JUMPS)
+    out[M_TIP] += ex
+    out[M_TIP + 1] += ey
+    out[M_TIP + 2] += ez
+    out[M_SIM_FX] += gx
+    out[M_SIM_FY] += gy
+    out[M_SIM_FZ] += gz
+
+
+@njit(cache=True)
 def _clear_output(out, cx, cy, cz):
     """Zeros; no angles (NaN); the tip at the target."""
     for k in range(M_SIZE):
@@ -282,6 +308,7 @@ def _forget_contact(state):
     state[S_CONTACTS + mc.T_COUNT] = 0.0
     state[S_CONTACTS + mc.T_LIFT] = math.nan
     fr.release(state, S_FRICTION)
+    jb.forget(state, S_JUMPS)
 
 
 @njit(cache=True)
@@ -588,7 +615,8 @@ class ARModel:
             "coupling_stiffness": coupling_stiffness, "jump_out_depth": contact.jump_out_depth(),
             "zero_load_depth": float(contact.depth(0.0)), "friction_law": float(law),
             "pull_off_force": abs(contact.pull_off_force()),
-            "shear_strength": 0.0 if shear_strength is None else shear_strength})
+            "shear_strength": 0.0 if shear_strength is None else shear_strength, "blend_time": 0.0,
+            "blend_speed": jb.BLEND_SPEED, "tick_period": math.nan})
         self.material = material
         self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
@@ -619,6 +647,25 @@ class ARModel:
             raise ContactError(f"`coupling_stiffness` must be > 0 N/m or inf (got {stiffness!r})")
         self._friction[F_COUPLING] = stiffness
         self._deepest_well = None  # adhesion_energy's bound includes the coupling's stretch
+
+    @property
+    def jump_blend(self) -> float:
+        """The blend time (s) over which the tip's jumps behind the coupling are rendered
+        (:mod:`arsurf.contact.jump_blend`); 0: in one tick (off, and until a loop gives its tick)."""
+        return float(self._friction[F_BLEND_TIME]) if math.isfinite(self._friction[F_PERIOD]) else 0.0
+
+    def set_jump_blend(self, blend_time: float, period: float) -> None:
+        """Render the tip's jumps over ``blend_time`` s (0: in one tick) in ticks of ``period`` s
+        (:mod:`arsurf.contact.jump_blend`). A haptic loop calls it before its first tick with its
+        own period (:class:`arsurf.haptics.loop.LoopConfig`'s ``jump_blend``); it needs the
+        coupling, and a model ticked outside a loop renders its jumps as they are."""
+        blend_time = _validation.non_negative(blend_time, "the jump blend time", ContactError, unit="s", hint="0: off")
+        period = float(period)
+        if not (math.isfinite(period) and period > 0.0):
+            raise ContactError(f"the tick period must be a finite time > 0 s (got {period!r})")
+        self._friction[F_BLEND_TIME] = blend_time
+        self._friction[F_PERIOD] = period
+        jb.forget(self.state, S_JUMPS)
 
     def adhesion_energy(self, with_map: bool = True) -> float:
         """Bound of the energy (J, at the probe) the adhesive contact gives back as a tip leaves it.

@@ -141,8 +141,9 @@ def _prepare(args, path, channel=None, inpaint: bool = True, **options):
 
 
 def _protection_flags(s) -> None:
-    """``--no-virtual-coupling`` and ``--no-passivity``: the loop's two protections are on unless
-    turned off here, and a session records which (``haptics.virtual_coupling``, ``haptics.passivity``)."""
+    """``--no-virtual-coupling``, ``--no-passivity`` and ``--no-jump-blend``: the loop's protections are
+    on unless turned off here, and a session records which (``haptics.virtual_coupling``,
+    ``haptics.passivity``, ``haptics.jump_blend``)."""
     g = s.add_argument_group("protections (on by default; turning one off is recorded in the session)")
     g.add_argument("--no-virtual-coupling", dest="virtual_coupling", action="store_false",
                    help="run without the virtual coupling (the spring, chosen from the device's limits and the "
@@ -150,12 +151,17 @@ def _protection_flags(s) -> None:
                         "stiffness, which can buzz on a rough scan")
     g.add_argument("--no-passivity", dest="passivity", action="store_false",
                    help="run without the passivity controller (the observer still logs the energy)")
+    g.add_argument("--no-jump-blend", dest="jump_blend", action="store_false",
+                   help="render a jump of the tip behind the coupling (a snap over an asperity) in one tick, a "
+                        "step of the force, instead of over 15 ms")
 
 
 def _protections(args) -> dict:
-    """The haptic settings of :func:`_protection_flags`: ``{"virtual_coupling": False}`` and/or
-    ``{"passivity": False}`` when turned off, else nothing (the defaults: on)."""
-    return {k: False for k in ("virtual_coupling", "passivity") if getattr(args, k, True) is False}
+    """The haptic settings of :func:`_protection_flags`: ``{"virtual_coupling": False}``,
+    ``{"passivity": False}`` and/or ``{"jump_blend": 0.0}`` when turned off, else nothing (the
+    defaults: on)."""
+    off = {k: False for k in ("virtual_coupling", "passivity") if getattr(args, k, True) is False}
+    return {**off, "jump_blend": 0.0} if getattr(args, "jump_blend", True) is False else off
 
 
 def _record_target(args):

@@ -85,8 +85,8 @@ def _bridge_setup(args):
                                 ("--realtime-priority" if args.realtime_priority else "--no-realtime-priority",
                                  args.realtime_priority))
                  if v is not None]
-        given += [f for f, on in (("--no-virtual-coupling", args.virtual_coupling), ("--no-passivity", args.passivity))
-                  if not on]
+        given += [f for f, on in (("--no-virtual-coupling", args.virtual_coupling), ("--no-passivity", args.passivity),
+                                  ("--no-jump-blend", args.jump_blend)) if not on]
         if given:
             raise HapticsError(f"{', '.join(given)} set up the UDP bridge's haptic loop; give --bridge-port PORT too")
         if args.frames < MIN_SCRIPTED_FRAMES:

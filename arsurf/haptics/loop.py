@@ -43,6 +43,7 @@ from numba import njit, typeof, types
 from numba.experimental import structref
 
 from arsurf._layout import Layout
+from arsurf.contact.jump_blend import BLEND_TIME
 from arsurf.status import BAD_BUTTONS
 from arsurf.errors import HapticsError
 from arsurf.haptics.coupling import FP_PARAMS, FP_STATE, DirectCoupling, ForcePositionCoupling, fp_step
@@ -337,7 +338,9 @@ class LoopConfig:
     measured force; ``filter_cutoff`` Hz of the first-order low-pass of the measured part and the
     contact normal (None: off);
     ``signal_noise`` rad rms added to synthesised angles; ``seed`` of that noise; ``passivity``
-    False: the passivity observer only logs the energy, its controller never damps.
+    False: the passivity observer only logs the energy, its controller never damps; ``jump_blend``
+    s over which a jump of the tip behind the virtual coupling reaches the hand
+    (:mod:`arsurf.contact.jump_blend`; 0: in one tick).
     """
 
     rate: float = 1000.0
@@ -347,6 +350,7 @@ class LoopConfig:
     signal_noise: float = 0.0
     seed: int = 0
     passivity: bool = True
+    jump_blend: float = BLEND_TIME
 
     def validate(self) -> None:
         if not (math.isfinite(self.rate) and 1.0 <= self.rate <= 20000.0):
@@ -357,6 +361,9 @@ class LoopConfig:
             raise HapticsError(f"blend must be in [0, 1] (got {self.blend!r}); it weighs the measured force")
         if self.signal_noise < 0 or not math.isfinite(self.signal_noise):
             raise HapticsError(f"signal_noise must be >= 0 rad (got {self.signal_noise!r})")
+        if not (isinstance(self.jump_blend, (int, float)) and math.isfinite(self.jump_blend) and self.jump_blend >= 0):
+            raise HapticsError(f"jump_blend must be a time >= 0 s (got {self.jump_blend!r}); 0 renders the tip's "
+                               "jumps in one tick")
 
 
 @dataclass(frozen=True)
@@ -456,6 +463,7 @@ class HapticLoop:
         # the stiffness chosen here from the device (N/m at the handle), None when the model came with its own
         self._vc_chosen = (_give_virtual_coupling(model, coupling, device_info, config.rate, virtual_coupling)
                            if self._mode == 0 else None)
+        model.set_jump_blend(config.jump_blend, self.dt)  # the coupled tip's jumps, over the blend time
         self.passivity = PassivityController(self.dt, max_damping, enabled=config.passivity,
                                              reserve=model.adhesion_energy() * coupling.energy_gain())
         # the measured part (FILTER_CHANNELS; module docstring, step 4)

@@ -63,11 +63,14 @@ def test_virtual_device_session_is_recorded_and_replays_exactly(capsys, tmp_path
     _replayed_exactly(capsys, path, tmp_path / "replay")
 
 
-@pytest.mark.parametrize("flags", [(), ("--no-virtual-coupling",), ("--no-passivity",)], ids=["default", "no-vc", "no-pc"])
+@pytest.mark.parametrize("flags", [(), ("--no-virtual-coupling",), ("--no-passivity",), ("--no-jump-blend",)],
+                         ids=["default", "no-vc", "no-pc", "no-jb"])
 def test_the_session_records_the_virtual_coupling_and_passivity_and_replays_with_them(capsys, tmp_path, flags):
-    """By default the loop has the virtual coupling of the device and rate and the passivity
-    controller, and the session says so; a flag turns one off, recorded too; either way the replay
-    rebuilds the loop that ran (the replay takes the recorded setting, not the default)."""
+    """By default the loop has the virtual coupling of the device and rate, the passivity
+    controller and the blend of the tip's jumps, and the session says so; a flag turns one off,
+    recorded too; either way the replay rebuilds the loop that ran (the replay takes the recorded
+    setting, not the default)."""
+    from arsurf.contact.jump_blend import BLEND_TIME
     from arsurf.haptics.gains import coupling_stiffness
 
     path = tmp_path / "s.h5"
@@ -76,6 +79,7 @@ def test_the_session_records_the_virtual_coupling_and_passivity_and_replays_with
     h = load_session(path).metadata["haptics"]
     vc, pc = "--no-virtual-coupling" not in flags, "--no-passivity" not in flags
     assert h["virtual_coupling"] is vc and h["passivity"] is pc
+    assert h["jump_blend"] == (0.0 if "--no-jump-blend" in flags else BLEND_TIME)
     if vc:
         assert h["coupling_stiffness"] == coupling_stiffness(make_device("virtual").info, 1000.0)
     else:

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from arsurf.assembly import BRIDGE_HAPTICS, BUNDLED_SCAN, PRESETS, build_loop, build_model, loop_metadata, make_model
 from arsurf.assembly import preset_metadata
-from arsurf.errors import HapticsError, SessionError
+from arsurf.errors import ContactError, HapticsError, SessionError
 from arsurf.haptics.coupling import DirectCoupling
 from arsurf.haptics.device import TOUCH_X, DeviceInfo
 from arsurf.haptics.gains import coupling_stiffness
@@ -26,6 +26,7 @@ from arsurf.haptics.virtual_device import HandModel, VirtualDevice
 from arsurf.scan.synthetic import rough
 from arsurf.spline.fit import fit_surface
 from arsurf.spline.surface import BSplineSurface
+from arsurf.model import F_PERIOD, MODEL_ARGS
 
 R, SCALE, GAIN = 20e-9, 1e-5, 1e5
 #: a stiffer, better damped device than the virtual one: its coupling differs from the demo's 66.7 N/m
@@ -89,6 +90,34 @@ def test_build_loop_and_the_bridge_settings_have_both_protections_and_record_the
     assert h["virtual_coupling"] is False and "coupling_stiffness" not in h and h["passivity"] is False
     with pytest.raises(SessionError, match="virtual_coupling must be true or false"):
         build_loop(_model(), dict(BRIDGE_HAPTICS, virtual_coupling="off"), STIFF, ORIGIN)
+
+
+def test_the_loop_blends_the_tip_s_jumps_by_default_and_a_session_replays_its_own_setting():
+    """The public loop gives its model the blend of the tip's jumps at its own tick
+    (arsurf.contact.jump_blend); 0 turns it off, recorded; a session recorded before the blend
+    existed (no ``jump_blend``) rendered its jumps in one tick and its model is rebuilt that way."""
+    from arsurf.contact.jump_blend import BLEND_TIME
+
+    model = _model()
+    assert model.jump_blend == 0.0  # outside a loop: no tick period, the tip is the balance
+    loop = build_loop(model, BRIDGE_HAPTICS, STIFF, ORIGIN)
+    assert loop.config.jump_blend == BLEND_TIME and model.jump_blend == BLEND_TIME
+    assert model.kernel_args()[MODEL_ARGS.index("friction")][F_PERIOD] == loop.dt
+    meta = preset_metadata(BUNDLED_SCAN, "viewer", haptics=dict(BRIDGE_HAPTICS))
+    setup = build_model(meta)
+    assert loop_metadata(meta, build_loop(setup.model, setup.config.haptics, STIFF, ORIGIN))["haptics"]["jump_blend"] \
+        == BLEND_TIME
+    assert build_model(meta).model.jump_blend == BLEND_TIME
+    legacy = dict(meta, haptics={k: v for k, v in meta["haptics"].items() if k != "jump_blend"})
+    assert build_model(legacy).model.jump_blend == 0.0
+    off = build_loop(_model(), dict(BRIDGE_HAPTICS, jump_blend=0.0), STIFF, ORIGIN)
+    assert off.model.jump_blend == 0.0 and loop_metadata({"haptics": {}}, off)["haptics"]["jump_blend"] == 0.0
+    with pytest.raises(HapticsError, match="jump_blend must be a time >= 0 s"):
+        LoopConfig(jump_blend=-0.01).validate()
+    with pytest.raises(SessionError, match="haptics.jump_blend must be a finite number"):
+        build_model(dict(meta, haptics=dict(meta["haptics"], jump_blend="15 ms")))
+    with pytest.raises(ContactError, match="the jump blend time must be >= 0"):
+        _model().set_jump_blend(math.nan, 1e-3)
 
 
 def test_the_bridge_loop_of_arsurf_view_has_the_coupling_of_its_device():

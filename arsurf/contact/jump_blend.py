@@ -1,0 +1,127 @@
+r"""A jump of the tip behind the coupling, rendered over the blend time instead of in one tick.
+
+The tip behind the virtual coupling (:mod:`arsurf.contact.proxy`, :mod:`arsurf.contact.multi_contact`)
+is where the contact balances the coupling at the hand's target: a function of the target, with no
+time in it. Where the hand drives the target into a thin asperity, the balance on the face the tip
+rests on ends at the asperity's top and the tip lands on the far face in one tick. A real tip on a
+soft lever snaps the same way (Prandtl 1928; Tomlinson 1929: the stick-slip of friction force
+microscopy), but a real tip has mass and damping, and its snap takes time. Rendered in one tick, the
+jump is a step of the force at the hand: on the feel table's rough surfaces (``bench/feel.py``),
+slides of 10 nm/s under 2-7 nm tips jumped 0.26-3.2 nm in one tick, steps of 11-40 mN at the hand,
+with 1-27 reversals and up to 6 % of the force above 100 Hz.
+
+The rendered tip is :math:`T = T^* + e`, :math:`T^*` the balance and e an *excess* that takes up
+the part of the balance's move faster than the hand's and then decays with the blend time
+:math:`\tau`. In a tick of length :math:`\Delta t` where the balance moves by :math:`\Delta T^*` and
+the target by :math:`\Delta C`,
+
+.. math:: e_k = e_{k-1}\, e^{-\Delta t/\tau} - \varphi\, j_k, \qquad
+          j_k = \Delta T^*\left(1 - \frac{r\,|\Delta C|}{|\Delta T^*|}\right)
+          \text{ where } |\Delta T^*| > r\,|\Delta C|, \text{ else } 0,
+
+with :math:`r` = :data:`JUMP_SPEED_RATIO`: a balance that follows the hand (a tip riding over the
+surface moves at most :math:`\sqrt{1+s^2}` times the hand on a slope s, within twice it up to
+60 degrees) is rendered as it is, and a jump (the hand moves pm, the balance nm) is spread over
+:math:`\tau`. Every force the tip carries (the contacts' loads, the friction) moves with it: the
+hand gets :math:`F = F^* + E`, the force's excess E taking up the same share :math:`\varphi\,(1 -
+r|\Delta C|/|\Delta T^*|)` of the force's change in that tick and decaying alike (behind the
+coupling alone, :math:`E = k_c e`). The force goes from the old balance's to the new one's as
+:math:`1 - e^{-t/\tau}` from the tick of the jump, with no step and no reversal, the same function
+of time at any loop rate (the decay is exact in :math:`\Delta t`). The excess is the coupling
+still pulling the tip back where it was, the way a damped tip's does during its snap; the energy
+the observer measures (:mod:`arsurf.haptics.passivity`) on the feel table is in docs/feel.rst.
+
+Only a slow hand's jumps are blended: :math:`\varphi = 1/(1 + (|\bar v|/v_b)^4)`, :math:`\bar v`
+the hand's velocity averaged over :math:`\tau` (exact first-order average: noise of the target
+averages out, and at any rate the same) and :math:`v_b` = :data:`BLEND_SPEED`. A jump can be told
+from the hand's motion only while the hand moves less than the jump in a tick: at 1000 nm/s a
+1 kHz tick is 1 nm, as large as the jumps, and a blend would then take a share of them that
+depends on the loop rate (on the feel table, 1 and 10 kHz runs of 100-1000 nm/s slides grew
+5-34 % apart; their force is texture, judged by rate convergence, not by its smoothness).
+
+Off (the tip is the balance) without a coupling, with :math:`\tau = 0`, or without the loop's
+tick period (a model ticked outside a haptic loop:
+:meth:`~arsurf.model.ARModel.set_jump_blend`).
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from arsurf._layout import Layout
+
+__all__ = ["BLEND_SPEED", "BLEND_TIME", "JUMP_SPEED_RATIO", "JUMP_STATE", "blend_jumps_kernel", "forget"]
+
+#: the blend time tau (s) a haptic loop gives its model (``haptics.jump_blend``): 15 ms puts the
+#: corner of the exponential at 1/(2 pi tau) = 11 Hz, a step's content above 100 Hz down ~10x
+BLEND_TIME = 0.015
+#: the hand speed v_b (m/s, at the probe) at which half a jump is blended (module docstring):
+#: above the feel table's slow slides (<= 10 nm/s, whose target moves up to 60 nm/s as the hand
+#: reacts to the force) and below its fast ones (>= 100 nm/s: a tenth of a nm per 1 kHz tick)
+BLEND_SPEED = 100e-9
+#: the balance moving more than this many times the target in a tick is a jump (module docstring)
+JUMP_SPEED_RATIO = 2.0
+#: the blend's state (in the model state): the excesses of the tip e (m) and of the force E (N), the
+#: last balance T* (m), target C (m) and force F* (N) (NaN: none) and the hand's velocity averaged
+#: over the blend time (m/s)
+JUMP_STATE = Layout("jump blend state", [("excess", 3), ("force_excess", 3), ("last_tip", 3), ("last_target", 3),
+                                         ("last_force", 3), ("hand_velocity", 3)])
+_E, _G, _T, _C, _F, _V = (JUMP_STATE.offset("excess"), JUMP_STATE.offset("force_excess"),
+                          JUMP_STATE.offset("last_tip"), JUMP_STATE.offset("last_target"),
+                          JUMP_STATE.offset("last_force"), JUMP_STATE.offset("hand_velocity"))
+STATE_SIZE = JUMP_STATE.size
+
+
+@njit(cache=True)
+def forget(state, at) -> None:
+    """No excess, no last balance: the next tick renders its balance as it is."""
+    for j in range(STATE_SIZE):
+        state[at + j] = math.nan
+
+
+@njit(cache=True)
+def blend_jumps_kernel(blend_time, blend_speed, period, tx, ty, tz, cx, cy, cz, fx, fy, fz, state, at):
+    r"""The excesses to add to the balance (``tx, ty, tz``, m) of the target (``cx, cy, cz``, m)
+    and to its force (``fx, fy, fz``, N) this tick (module docstring): ``blend_time`` :math:`\tau`
+    (s; 0: off), ``blend_speed`` :math:`v_b` (m/s), ``period`` the tick's :math:`\Delta t` (s; NaN:
+    off). Updates ``state[at:at + STATE_SIZE]`` (:data:`JUMP_STATE`). Returns ``(ex, ey, ez, gx, gy,
+    gz)``, the tip's e (m) and the force's E (N); zeros when off, on the first tick and once the
+    excesses have decayed."""
+    if not (blend_time > 0.0 and period > 0.0):
+        forget(state, at)
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    decay = math.exp(-period / blend_time)
+    ex, ey, ez = state[at + _E], state[at + _E + 1], state[at + _E + 2]
+    gx, gy, gz = state[at + _G], state[at + _G + 1], state[at + _G + 2]
+    if not (math.isfinite(ex) and math.isfinite(gx)):
+        ex = ey = ez = gx = gy = gz = 0.0
+    ex, ey, ez, gx, gy, gz = ex * decay, ey * decay, ez * decay, gx * decay, gy * decay, gz * decay
+    if math.isfinite(state[at + _T]):
+        jx, jy, jz = tx - state[at + _T], ty - state[at + _T + 1], tz - state[at + _T + 2]
+        hx, hy, hz = cx - state[at + _C], cy - state[at + _C + 1], cz - state[at + _C + 2]
+        vx, vy, vz = state[at + _V], state[at + _V + 1], state[at + _V + 2]
+        if not math.isfinite(vx):
+            vx, vy, vz = hx / period, hy / period, hz / period
+        vx += (1.0 - decay) * (hx / period - vx)
+        vy += (1.0 - decay) * (hy / period - vy)
+        vz += (1.0 - decay) * (hz / period - vz)
+        state[at + _V], state[at + _V + 1], state[at + _V + 2] = vx, vy, vz
+        moved = math.sqrt(jx * jx + jy * jy + jz * jz)
+        allowed = JUMP_SPEED_RATIO * math.sqrt(hx * hx + hy * hy + hz * hz)
+        if moved > allowed:
+            q = (vx * vx + vy * vy + vz * vz) / (blend_speed * blend_speed)
+            share = (1.0 - allowed / moved) / (1.0 + q * q)
+            ex -= share * jx
+            ey -= share * jy
+            ez -= share * jz
+            if math.isfinite(state[at + _F]):  # every force the tip carries moves with it
+                gx -= share * (fx - state[at + _F])
+                gy -= share * (fy - state[at + _F + 1])
+                gz -= share * (fz - state[at + _F + 2])
+    state[at + _E], state[at + _E + 1], state[at + _E + 2] = ex, ey, ez
+    state[at + _G], state[at + _G + 1], state[at + _G + 2] = gx, gy, gz
+    state[at + _T], state[at + _T + 1], state[at + _T + 2] = tx, ty, tz
+    state[at + _C], state[at + _C + 1], state[at + _C + 2] = cx, cy, cz
+    state[at + _F], state[at + _F + 1], state[at + _F + 2] = fx, fy, fz
+    return ex, ey, ez, gx, gy, gz

@@ -1,0 +1,101 @@
+"""The tip's jumps behind the coupling, rendered over the blend time (arsurf.contact.jump_blend)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from arsurf.contact.jump_blend import BLEND_SPEED, BLEND_TIME, JUMP_SPEED_RATIO, STATE_SIZE, blend_jumps_kernel
+
+TAU = BLEND_TIME
+JUMP = np.array([2e-9, 0.0, -1e-9])  # the balance lands 2.2 nm away
+K_C = 50.0  # N/m: the balance's force is the coupling's, K_C (T* - C)
+
+
+def _render(balance, target, period, blend_time=TAU, speed=BLEND_SPEED, forces=False):
+    """The rendered tip T = T* + e over the rows of ``balance`` and ``target`` (m), and with
+    ``forces`` the rendered force F* + E of a balance held by the coupling alone, F* = K_C (T* - C)."""
+    state = np.full(STATE_SIZE, np.nan)
+    out = np.empty_like(balance)
+    force = np.empty_like(balance)
+    for k, (t, c) in enumerate(zip(balance, target)):
+        f = K_C * (t - c)
+        e = blend_jumps_kernel(blend_time, speed, period, *t, *c, *f, state, 0)
+        out[k] = t + np.array(e[:3])
+        force[k] = f + np.array(e[3:])
+    return (out, force) if forces else out
+
+
+def _jump_at(n, k_jump, hand=(0.0, 0.0, 0.0), period=1e-3):
+    """A hand moving at ``hand`` m/s whose balance is 3 nm above it until tick ``k_jump``, then jumps by JUMP."""
+    t = np.arange(n)[:, None] * period
+    target = np.array([50e-9, 40e-9, 10e-9]) + t * np.array(hand)
+    balance = target + np.array([0.0, 0.0, 3e-9])
+    balance[k_jump:] += JUMP
+    return target, balance
+
+
+def test_a_jump_while_the_hand_is_still_reaches_the_hand_as_one_minus_an_exponential():
+    """T(t) = T*_old + D (1 - exp(-t/tau)) from the tick of the jump: no step, monotone."""
+    target, balance = _jump_at(80, 10)
+    tip, force = _render(balance, target, 1e-3, forces=True)
+    assert np.array_equal(tip[:10], balance[:10])  # before: the balance itself
+    np.testing.assert_allclose(force, K_C * (tip - target), rtol=0, atol=1e-12 * K_C * 1e-9)  # the force follows
+    t = (np.arange(80) - 10)[10:] * 1e-3
+    expected = balance[0] + JUMP[None, :] * (1.0 - np.exp(-t / TAU))[:, None]
+    np.testing.assert_allclose(tip[10:], expected, rtol=0, atol=1e-9 * 1e-9)
+    steps = np.linalg.norm(np.diff(tip, axis=0), axis=1)
+    assert steps.max() <= np.linalg.norm(JUMP) * (1.0 - math.exp(-1e-3 / TAU)) * (1 + 1e-9)
+    along = (tip - balance[0]) @ JUMP
+    assert np.all(np.diff(along) >= 0.0)  # no reversal
+
+
+@pytest.mark.parametrize("rate", [1000.0, 5000.0, 10000.0])
+def test_the_blend_is_the_same_function_of_time_at_any_loop_rate(rate):
+    period = 1.0 / rate
+    k = int(round(0.01 * rate))  # the jump at 10 ms
+    target, balance = _jump_at(int(round(0.08 * rate)), k, period=period)
+    tip = _render(balance, target, period)
+    for ms in (0.0, 5.0, 15.0, 40.0):
+        i = k + int(round(ms * 1e-3 * rate))
+        np.testing.assert_allclose(tip[i] - balance[i], -JUMP * math.exp(-ms * 1e-3 / TAU), rtol=1e-9, atol=1e-24)
+
+
+def test_a_tip_riding_over_the_surface_with_the_hand_is_rendered_as_it_is():
+    """A balance that moves with the hand, up a slope of 55 degrees (1.74x the hand's move in a
+    tick), is no jump: the tip is the balance."""
+    n = 200
+    target = np.array([50e-9, 40e-9, 10e-9]) + np.arange(n)[:, None] * np.array([10e-12, 0.0, 0.0])  # 10 nm/s
+    balance = target + np.array([0.0, 0.0, 3e-9])
+    balance[:, 2] += np.tan(math.radians(55.0)) * (target[:, 0] - target[0, 0])
+    assert np.array_equal(_render(balance, target, 1e-3), balance)
+
+
+def test_a_fast_hand_s_jumps_are_rendered_as_they_are():
+    """At 1000 nm/s a tick of the 1 kHz loop is 1 nm, as large as the jumps: a blend would take a
+    share of them that depends on the rate, so a fast hand's jumps are not blended."""
+    target, balance = _jump_at(100, 60, hand=(1e-6, 0.0, 0.0))
+    tip = _render(balance, target, 1e-3)
+    slow = 1.0 / (1.0 + (1e-6 / BLEND_SPEED) ** 4)
+    assert np.abs(tip - balance).max() <= slow * np.linalg.norm(JUMP)
+    assert np.abs(tip - balance).max() < 1e-4 * np.linalg.norm(JUMP)
+    still_target, still_balance = _jump_at(100, 60)
+    assert np.abs(_render(still_balance, still_target, 1e-3) - still_balance).max() > 0.9 * np.abs(JUMP).max()
+
+
+def test_only_the_part_of_a_move_faster_than_the_hand_s_is_blended():
+    """A tick where the hand moves h and the balance D > r h: the tip takes r h of it at once."""
+    state = np.full(STATE_SIZE, np.nan)
+    c0, t0 = np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 3e-9])
+    blend_jumps_kernel(TAU, math.inf, 1e-3, *t0, *c0, 0.0, 0.0, 0.0, state, 0)
+    h = np.array([0.1e-9, 0.0, 0.0])
+    e = np.array(blend_jumps_kernel(TAU, math.inf, 1e-3, *(t0 + JUMP), *(c0 + h), 0.0, 0.0, 0.0, state, 0))[:3]
+    taken = np.linalg.norm(JUMP + e)  # the rendered tip's move
+    assert taken == pytest.approx(JUMP_SPEED_RATIO * np.linalg.norm(h), rel=1e-12)
+
+
+@pytest.mark.parametrize("blend_time, period", [(0.0, 1e-3), (TAU, math.nan)])
+def test_off_without_a_blend_time_or_a_tick_period(blend_time, period):
+    target, balance = _jump_at(40, 10)
+    assert np.array_equal(_render(balance, target, period, blend_time=blend_time), balance)
