@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from arsurf.contact.jump_blend import BLEND_SPEED, BLEND_TIME, JUMP_SPEED_RATIO, STATE_SIZE, blend_jumps_kernel
+from arsurf.contact.jump_blend import (BLEND_SPEED, BLEND_TIME, HOP_EXCESS, JUMP_SPEED_RATIO, STATE_SIZE,
+                                      blend_jumps_kernel)
 
 TAU = BLEND_TIME
 JUMP = np.array([2e-9, 0.0, -1e-9])  # the balance lands 2.2 nm away
@@ -99,3 +100,20 @@ def test_only_the_part_of_a_move_faster_than_the_hand_s_is_blended():
 def test_off_without_a_blend_time_or_a_tick_period(blend_time, period):
     target, balance = _jump_at(40, 10)
     assert np.array_equal(_render(balance, target, period, blend_time=blend_time), balance)
+
+
+def test_hops_in_quick_succession_never_pile_up_more_excess_than_one_and_a_half_jumps():
+    """A contact set that keeps hopping (a minimum lost at a fold and reborn) while a blend is
+    still running: each new hop is blended by what is left, so the excess stays within
+    HOP_EXCESS times the largest jump. Piled up, the force followed each hop late, the hand's
+    response made the next one, and a still press gave the hand 5 E0 (seed 1 of the feel table)."""
+    rng = np.random.default_rng(3)
+    n = 400
+    target = np.tile(np.array([50e-9, 40e-9, 10e-9]), (n, 1))
+    steps = np.where(rng.random((n, 1)) < 0.3, rng.normal(0.0, 1e-9, (n, 3)), 0.0)  # a hop on 30 % of ticks
+    steps[:100] = np.where(np.arange(100)[:, None] % 2 == 0, np.array([1e-9, 0.0, 0.0]), 0.0)  # a staircase
+    balance = target + np.array([0.0, 0.0, 3e-9]) + np.cumsum(steps, axis=0)
+    tip = _render(balance, target, 1e-3)
+    largest = np.linalg.norm(steps, axis=1).max()
+    assert np.linalg.norm(tip - balance, axis=1).max() <= HOP_EXCESS * largest * (1 + 1e-9)
+    assert np.linalg.norm(tip - balance, axis=1).max() > 0.5 * largest  # and the hops are blended
