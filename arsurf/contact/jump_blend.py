@@ -101,7 +101,8 @@ def blend_jumps_kernel(blend_time, blend_speed, period, tx, ty, tz, cx, cy, cz, 
     gz)``, the tip's e (m) and the force's E (N); zeros when off, on the first tick and once the
     excesses have decayed."""
     if not (blend_time > 0.0 and period > 0.0):
-        forget(state, at)
+        if math.isfinite(state[at + _T]):  # clear once, not on each tick of a model outside a loop
+            forget(state, at)
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     decay = math.exp(-period / blend_time)
     ex, ey, ez = state[at + _E], state[at + _E + 1], state[at + _E + 2]
@@ -129,10 +130,9 @@ def blend_jumps_kernel(blend_time, blend_speed, period, tx, ty, tz, cx, cy, cz, 
             ex -= share * jx
             ey -= share * jy
             ez -= share * jz
-            if math.isfinite(state[at + _F]):  # every force the tip carries moves with it
-                gx -= share * (fx - state[at + _F])
-                gy -= share * (fy - state[at + _F + 1])
-                gz -= share * (fz - state[at + _F + 2])
+            gx -= share * (fx - state[at + _F])  # every force the tip carries moves with it
+            gy -= share * (fy - state[at + _F + 1])
+            gz -= share * (fz - state[at + _F + 2])
     state[at + _E], state[at + _E + 1], state[at + _E + 2] = ex, ey, ez
     state[at + _G], state[at + _G + 1], state[at + _G + 2] = gx, gy, gz
     state[at + _T], state[at + _T + 1], state[at + _T + 2] = tx, ty, tz
