@@ -36,11 +36,14 @@ runs on the generated ones, 25.8 M loop ticks). ``--jobs 2`` judges in two proce
 FILE`` appends each judged run to a JSON-lines file as it comes (units in the keys) and skips the
 runs already there (a stopped table resumes), ``--budget S`` starts no run after S seconds,
 ``--summarize FILE`` prints the pass counts per family, motion, rate and source and the worst runs
-of each criterion. ``--estimate`` prints the size and the time (from the table's own pace when
+of each criterion, ``--compare OLD NEW`` the runs two tables of the same plan pass differently and
+the measures of each beyond the pass count (mean rate error, reversals, energy beyond -E0: a change
+moves a few runs across each threshold either way). ``--estimate`` prints the size and the time (from the table's own pace when
 ``--out`` has rows, else a calibration run).
 
 Run: .venv/bin/python bench/feel.py [--quick] [--seconds 3] [--families N [--runs 2 1] [--seed S] [--estimate]
-     [--out rows.jsonl] [--jobs 2] [--budget 600]] [--summarize rows.jsonl] [--vtk-only [--parts] [--scans NAME ...]]
+     [--out rows.jsonl] [--jobs 2] [--budget 600]] [--summarize rows.jsonl] [--compare old.jsonl new.jsonl]
+     [--vtk-only [--parts] [--scans NAME ...]]
 (prints JSON)
 """
 from __future__ import annotations
@@ -191,6 +194,50 @@ def summarize(rows: list[dict], worst: int = 8) -> dict:
                                  lambda r: -min(_num(x) for x in np.atleast_1d(r["min_energy_over_E0"]))),
             "worst_rest_error": top([r for r in slow if r["rest_error"] is not None], lambda r: r["rest_error"]),
             "failed": [line(r) for r in rows if not r["ok"]]}
+
+
+def measures(rows: list[dict]) -> dict:
+    """The table beyond its pass count: a change to the loop moves a few runs across each threshold
+    either way (on the whole table, any change tried moved 3-10 of 1508), so what it did is read in
+    these. Rate pairs: mean and median rate error (%) and how many exceed the tolerance; still and
+    slow runs: the mean of each run's largest content above 100 Hz (% of the mean normal force), how
+    many exceed the buzz limit, reversals summed and the runs with any; every run: how many fell
+    below -E0 and by how much in all (E0)."""
+    from arsurf.haptics.feel import BUZZ_LIMIT
+
+    fast = [r for r in rows if r["kind"] == "fast"]
+    slow = [r for r in rows if r["kind"] == "slow"]
+    rate = np.array([_num(r["rate_error"]) for r in fast])
+    high = np.array([max(r["high_frequency_over_normal"]) for r in slow])
+    reversals = np.array([sum(r["reversals"]) for r in slow])
+    lowest = np.array([min(_num(x) for x in np.atleast_1d(r["min_energy_over_E0"])) for r in rows])
+    below = lowest[lowest < -1.0]
+
+    def pct(values, f):
+        return round(100.0 * float(f(values)), 3) if len(values) else None
+
+    return {"runs": len(rows), "pass": sum(bool(r["ok"]) for r in rows), "rate_pairs": len(fast),
+            "rate_error_mean_percent": pct(rate, np.mean), "rate_error_median_percent": pct(rate, np.median),
+            "rate_pairs_beyond_tolerance": int((rate > RATE_TOLERANCE).sum()), "slow_runs": len(slow),
+            "slow_high_frequency_mean_percent": pct(high, np.mean),
+            "slow_runs_beyond_buzz_limit": int((high > BUZZ_LIMIT).sum()),
+            "reversals_summed": int(reversals.sum()), "slow_runs_with_reversals": int((reversals > 0).sum()),
+            "runs_below_minus_E0": int(len(below)), "energy_beyond_minus_E0_summed_over_E0": round(float((below + 1.0).sum()), 3)}
+
+
+def compare(old: list[dict], new: list[dict]) -> dict:
+    """Two tables of the same plan (``--out`` files of the same ``--families``, ``--runs`` and
+    ``--seed``) on the runs both hold: the runs ``gained`` and ``lost`` (each as ``old line -> new
+    line``, :func:`line`) and the :func:`measures` of each."""
+    before = {r["key"]: r for r in old}
+    both = [r for r in new if r["key"] in before]
+    paired = [before[r["key"]] for r in both]
+
+    def moved(ok):
+        return [f"{line(a)} -> {line(b)}" for a, b in zip(paired, both) if bool(b["ok"]) == ok and bool(a["ok"]) != ok]
+
+    return {"runs_compared": len(both), "gained": moved(True), "lost": moved(False),
+            "old": measures(paired), "new": measures(both)}
 
 
 def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
@@ -375,6 +422,8 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=math.inf, metavar="SECONDS",
                     help="with --families: start no new run after this wall time (resume later with --out)")
     ap.add_argument("--summarize", metavar="JSONL", help="only the pass counts and worst runs of a table written by --out")
+    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only the runs two tables written by --out "
+                    "(same plan) pass differently, and the measures of each beyond the pass count")
     ap.add_argument("--bode", metavar="PNG", help="only the transparency estimate; write its Bode plot here")
     args = ap.parse_args()
     if args.summarize:
@@ -382,6 +431,13 @@ def main() -> None:
         if not rows:
             ap.error(f"--summarize: no judged runs in {args.summarize!r} (write them with --families N --out FILE)")
         print(json.dumps({"families": {"summary": summarize(rows)}}, indent=1))
+        return
+    if args.compare:
+        tables = [read_rows(f) for f in args.compare]
+        for f, rows in zip(args.compare, tables):
+            if not rows:
+                ap.error(f"--compare: no judged runs in {f!r} (write them with --families N --out FILE)")
+        print(json.dumps({"families": {"compare": compare(*tables)}}, indent=1))
         return
     if args.families is not None:
         if args.families < 0 or args.jobs < 1 or not args.budget > 0:
