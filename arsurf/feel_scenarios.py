@@ -181,7 +181,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                  signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None,
                  filter_cutoff: float | None | str = "preset", tip_radius: float | None = None,
                  coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf,
-                 force_gain: float | None = None, after_tick=None) -> FeelRun:
+                 force_gain: float | None = None, jump_blend: float | None = None, after_tick=None) -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
@@ -193,7 +193,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     (the rate convergence compares two rates through one coupling); ``heading`` rad from x: the
     direction of slides, strokes and circles; ``room`` m: a slide turns back this far from where
     it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
-    preset's); ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
+    preset's); ``jump_blend`` s: the loop's blend time of the tip's jumps (0: off; default: the
+    preset's, :mod:`arsurf.contact.jump_blend`); ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
     tick's tip centre and its target (the scaled stylus) (3,) m and the model (a benchmark times a
     peer's query at the tip, under the conditions the tick runs in, or reads the force field there).
     The surface is restored to rest afterwards."""
@@ -201,6 +202,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     h = dict(p.haptics)
     if force_gain is not None:
         h["force_gain"] = float(force_gain)
+    if jump_blend is not None:
+        h["jump_blend"] = float(jump_blend)
     scale, gain = float(h["scale"]), float(h["force_gain"])
     hand = _trajectory(motion, scale, heading, room)
     # the stylus starts where the hand does (a stroke 150 nm before the middle, a tap 3 nm up)

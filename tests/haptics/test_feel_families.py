@@ -15,7 +15,7 @@ import pytest
 
 from arsurf.feel_scenarios import (FAMILIES, LENGTH_RANGE, PIXEL_RANGE, RATE_TOLERANCE, RMS_RANGE, SLOW_MOTIONS,
                                    TIP_RANGE, GENERATED_PIXELS, _fold, _trajectory, clearance_height,
-                                   generated_surfaces, judge_run,
+                                   GeneratedSurface, generated_surfaces, judge_run,
                                    plan_runs, rate_convergence, rate_difference)
 
 SAMPLE = generated_surfaces(4, seed=27)
@@ -400,6 +400,54 @@ def test_two_tables_compare_by_the_runs_they_pass_differently_and_by_their_measu
     done = subprocess.run([sys.executable, str(script), "--compare", str(files[0]), str(tmp_path / "none.jsonl")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "no judged runs" in done.stderr
+
+
+def test_the_pair_bench_finds_where_two_rates_part_and_reruns_a_pair_as_the_table_judged_it(tmp_path):
+    """``bench/feel_pairs.py``: two records that differ in one 100 ms window put all of their squared
+    difference there, and the tips' separation is read where the 1 kHz probe passes; a pair of a
+    table is run again exactly as the table judged it (the same rate error), and once with the jump
+    blend off; a key the plan does not hold is refused in one line."""
+    import importlib.util
+    import subprocess
+    import sys
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    script = Path(__file__).resolve().parents[2] / "bench" / "feel_pairs.py"
+    spec = importlib.util.spec_from_file_location("bench_feel_pairs", script)
+    pairs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pairs)
+    t = np.arange(30000) * 1e-4  # 3 s at 10 kHz
+    probe = np.column_stack([100e-9 * t, 0 * t, 0 * t])  # a slide at 100 nm/s
+    force = np.column_stack([1e-3 * np.sin(2 * np.pi * 5 * t), 0 * t, 0.02 + 0 * t])
+    fast = SimpleNamespace(force=force, probe=probe, tip=probe + [0.0, 0.0, 3e-9])
+    slow = SimpleNamespace(force=force[::10].copy(), probe=probe[::10], tip=fast.tip[::10].copy())
+    same = pairs.parting(slow, fast)
+    assert same["worst_window_share"] == 0.0 and same["tips_apart_max_m"] == pytest.approx(0.0, abs=1e-18)
+    slow.force[2000:2100, 0] += 1e-3  # 2.0-2.1 s: one event
+    slow.tip[2000:2100, 2] += 0.5e-9
+    event = pairs.parting(slow, fast)
+    assert event["worst_window_share"] == pytest.approx(1.0) and event["tips_apart_max_m"] == pytest.approx(0.5e-9)
+    assert event["tips_apart_median_window_m"] == pytest.approx(0.0, abs=1e-18)
+
+    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
+    table = tmp_path / "rows.jsonl"
+    table.write_text(json.dumps({"key": key, "kind": "fast", "ok": False}) + "\n")
+    args = [sys.executable, str(script), str(table), "--families", "4", "--runs", "1", "1", "--seed", "5"]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (pair,) = json.loads(done.stdout)["pairs"]
+    default, off = pair["settings"]
+    run = next(r for r in _bench_feel().plan_table(4, 5, real=False, slow_runs=1, fast_runs=1)[0] if r["key"] == key)
+    judged = judge_run({k: v for k, v in run.items() if k != "generated"}, GeneratedSurface(**run["generated"]).surface(),
+                       run["tip_radius_m"])
+    assert default["rate_error"] == judged["rate_error"] and default["jump_blend_s"] == "default"
+    assert off["jump_blend_s"] == 0.0 and off["rate_error"] != default["rate_error"]  # the blend acts on this slide
+    for setting in (default, off):
+        assert 0.0 <= setting["worst_window_share"] <= 1.0 and 0.0 <= setting["tips_apart_max_m"] < 1e-9
+    table.write_text(json.dumps({"key": "5:9:9:none", "kind": "fast", "ok": False}) + "\n")
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1 and "not in the plan" in done.stderr
 
 
 def test_the_field_bench_reads_a_single_contact_as_a_gradient_behind_the_coupling(tmp_path):
