@@ -127,6 +127,33 @@ def plan_table(count: int, seed: int, real: bool = True, slow_runs: int = 2, fas
     return runs, unreadable
 
 
+def add_table_arguments(ap, families: int, runs: tuple[int, int], seed: int) -> None:
+    """The arguments of a diagnostic bench that runs a families table's rows again (``bench/feel_field.py``,
+    ``bench/feel_pairs.py``): the table, ``--all``, ``--limit`` and the plan it was written with."""
+    ap.add_argument("table", help="a families table (JSON lines) written by bench/feel.py --out")
+    ap.add_argument("--all", action="store_true", help="every run of its kind, not only the failing ones")
+    ap.add_argument("--limit", type=int, default=8, help="at most this many runs (default 8)")
+    ap.add_argument("--seed", type=int, default=seed)
+    ap.add_argument("--families", type=int, default=families)
+    ap.add_argument("--runs", type=int, nargs=2, default=runs)
+
+
+def table_runs(args, kind: str) -> list[dict]:
+    """The planned runs of the rows of ``kind`` (``"slow"`` or ``"fast"``) of ``args.table`` (the
+    failing ones, or ``args.all``), at most ``args.limit``, planned as ``args`` says
+    (:func:`add_table_arguments`; the real scans fitted only when a row is one). A key the plan
+    does not hold: SystemExit, one line."""
+    rows = [r for r in read_rows(args.table) if r.get("kind") == kind and (args.all or not r.get("ok"))]
+    rows = rows[:max(args.limit, 0)]
+    real = any(r.get("family") == "real" for r in rows)
+    planned = {r["key"]: r for r in plan_table(args.families, args.seed, real, *args.runs)[0]}
+    for row in rows:
+        if row.get("key") not in planned:
+            raise SystemExit(f"error: {row.get('key')!r} is not in the plan of --seed {args.seed} --families "
+                             f"{args.families} --runs {args.runs[0]} {args.runs[1]}: give the table's own")
+    return [planned[r["key"]] for r in rows]
+
+
 _SURFACES: dict = {}
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from feel import _surface, plan_table, read_rows  # noqa: E402  (the table's own runs and surfaces)
+from feel import _surface, add_table_arguments, table_runs  # noqa: E402  (the table's own runs and surfaces)
 
 from arsurf.contact import multi_contact as mc  # noqa: E402
 from arsurf.feel_scenarios import SLOW_SECONDS, run_slow  # noqa: E402
@@ -66,23 +66,9 @@ def diagnose(run: dict, friction: float | None) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("table", help="a families table (JSON lines) written by bench/feel.py --out")
-    ap.add_argument("--all", action="store_true", help="every still/slow run, not only the failing ones")
-    ap.add_argument("--limit", type=int, default=8, help="at most this many runs (default 8)")
-    ap.add_argument("--seed", type=int, default=11)
-    ap.add_argument("--families", type=int, default=40)
-    ap.add_argument("--runs", type=int, nargs=2, default=(2, 1))
-    args = ap.parse_args()
-    planned = {r["key"]: r for r in plan_table(args.families, args.seed, False, *args.runs)[0]}
-    rows = [r for r in read_rows(args.table) if r["kind"] == "slow" and (args.all or not r["ok"])]
-    out = []
-    for row in rows[:max(args.limit, 0)]:
-        run = planned.get(row["key"])
-        if run is None:
-            raise SystemExit(f"error: {row['key']!r} is not in the plan of --seed {args.seed} --families "
-                             f"{args.families} --runs {args.runs[0]} {args.runs[1]}: give the table's own")
-        out.append({"key": row["key"], "motion": run["motion"], "rate_hz": run["rate_hz"],
-                    "runs": [diagnose(run, None), diagnose(run, 0.0)]})
+    add_table_arguments(ap, families=40, runs=(2, 1), seed=11)
+    out = [{"key": run["key"], "motion": run["motion"], "rate_hz": run["rate_hz"],
+            "runs": [diagnose(run, None), diagnose(run, 0.0)]} for run in table_runs(ap.parse_args(), "slow")]
     json.dump({"what": "force field at failing still/slow family runs", "runs": out}, sys.stdout, indent=1)
     print()
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from feel import _surface, plan_table, read_rows  # noqa: E402  (the table's own runs and surfaces)
+from feel import _surface, add_table_arguments, table_runs  # noqa: E402  (the table's own runs and surfaces)
 
 from arsurf.feel_scenarios import FAST_SECONDS, _at_matched_instants, rate_convergence  # noqa: E402
 
@@ -62,25 +62,9 @@ def diagnose(run: dict, jump_blend: float | None) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("table", help="a families table (JSON lines) written by bench/feel.py --out")
-    ap.add_argument("--all", action="store_true", help="every rate pair, not only the failing ones")
-    ap.add_argument("--limit", type=int, default=8, help="at most this many pairs (default 8)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--families", type=int, default=240)
-    ap.add_argument("--runs", type=int, nargs=2, default=(4, 2))
-    args = ap.parse_args()
-    rows = [r for r in read_rows(args.table) if r.get("kind") == "fast" and (args.all or not r.get("ok"))]
-    rows = rows[:max(args.limit, 0)]
-    real = any(r.get("family") == "real" for r in rows)  # the real scans are fitted only when asked for
-    planned = {r["key"]: r for r in plan_table(args.families, args.seed, real, *args.runs)[0]}
-    out = []
-    for row in rows:
-        run = planned.get(row["key"])
-        if run is None:
-            raise SystemExit(f"error: {row['key']!r} is not in the plan of --seed {args.seed} --families "
-                             f"{args.families} --runs {args.runs[0]} {args.runs[1]}: give the table's own")
-        out.append({"key": row["key"], "motion": run["motion"], "source": run["source"],
-                    "settings": [diagnose(run, None), diagnose(run, 0.0)]})
+    add_table_arguments(ap, families=240, runs=(4, 2), seed=0)
+    out = [{"key": run["key"], "motion": run["motion"], "source": run["source"],
+            "settings": [diagnose(run, None), diagnose(run, 0.0)]} for run in table_runs(ap.parse_args(), "fast")]
     json.dump({"what": "where failing rate pairs of a families table part, with the jump blend and without",
                "pairs": out}, sys.stdout, indent=1)
     print()
