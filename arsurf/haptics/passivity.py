@@ -9,20 +9,35 @@ energy that has flowed from the hand into the virtual environment through the de
 
 exact for a force :math:`f_{k-1}` held (zero-order hold) while the handle moves from
 :math:`x_{k-1}` to :math:`x_k`: it uses the force the device actually applied (after saturation
-and ramps) and the handle's measured positions, no model. :math:`E_n \ge 0` is passivity. When
-:math:`E_n < 0` the *passivity controller* adds just the damping that dissipates the deficit
-over the next tick,
+and ramps) and the handle's measured positions, no model. Passivity is :math:`E_n \ge -E_0`,
+:math:`E_0` the energy the environment stores at the start: an adhesive contact holds a potential
+well below the zero of a tip far away, and gives that energy back passively at snap-in (without
+one, :math:`E_0 = 0`). The loop gives the
+controller the well's depth bound as ``reserve`` (:meth:`arsurf.model.ARModel.adhesion_energy`
+times the coupling's energy gain), so it damps only what the sampled loop creates beyond it: a
+controller that fights the adhesion's own energy damps every pull-off and chatters at its limit.
+
+The *passivity controller* adds the damping that keeps :math:`E \ge -E_0` after the coming tick
+too: the force :math:`f_n` about to be held gives the hand :math:`f_n\cdot v_n T` more at the
+measured velocity :math:`v_n` (Hannaford & Ryu's observer sums :math:`f(k)\,v(k)\,T` up to the
+current sample, the current force's power included), so
 
 .. math::
 
-    \alpha_n = \frac{-E_n}{T\,\lVert v_n\rVert^2}, \qquad f_n \leftarrow f_n - \alpha_n v_n ,
+    \alpha_n = \frac{f_n\cdot v_n\,T - E_n - E_0}{T\,\lVert v_n\rVert^2} \text{ where positive},
+    \qquad f_n \leftarrow f_n - \alpha_n v_n ,
 
-where :math:`E_n` is counted from the environment's own store of energy: an adhesive contact
-holds a potential well below the zero of a tip far away, and gives that energy back passively at
-snap-in (passivity is :math:`E_n \ge -E_0`, :math:`E_0` the energy initially stored). The loop
-gives the controller the well's depth bound as ``reserve`` (:meth:`arsurf.model.ARModel.adhesion_energy`
-times the coupling's energy gain), so it damps only what the sampled loop creates beyond it: a
-controller that fights the adhesion's own energy damps every pull-off and chatters at its limit.
+and then :math:`E_{n+1} \approx E_n - (f_n - \alpha_n v_n)\cdot v_n T = -E_0`. Damping only the
+deficit already observed (:math:`\alpha_n = -(E_n + E_0)/T\lVert v_n\rVert^2`, the held force's own
+output left out) cancels the coming tick's output at best: a compressed contact released into the
+hand overdrew the store by a tick's output every tick, and a release of a few ticks spent more
+than the whole store before the controller acted. On the feel table (``bench/feel.py``, seed 0) a
+1000 nm/s slide under a 10 nm tip over a surface of 2 nm correlation length gave the hand 213 times
+the store (:math:`-213\,E_0`, 1 kHz) in four ticks, as the tip came off an asperity it had been
+pressed 19.5 nm onto; counting the coming tick it keeps :math:`-0.41\,E_0`, and the energy below
+:math:`-E_0` summed over the table's 1 508 runs went from :math:`-292\,E_0` to :math:`-2.1\,E_0`
+(docs/feel.rst).
+
 The damping is limited to half the device's largest damping (:data:`DAMPING_FRACTION`: the controller's damper
 acts on the last measured velocity, a tick late, and at the device's full limit it chatters
 itself - measured on a stiff virtual wall, where half the limit keeps the wall passive and at
@@ -64,7 +79,8 @@ DAMPING_FRACTION = 0.5
 
 @njit(cache=True)
 def passivity_observe_control(params, state, x, v, force) -> int:
-    """Observe the energy of the last tick and damp ``force`` (3,) N in place if it is negative.
+    """Observe the energy of the last tick and damp ``force`` (3,) N in place where the energy
+    after the coming tick would go below -E0 (module docstring).
 
     ``x``, ``v`` (3,) handle position (m) and velocity (m/s). Returns :data:`~arsurf.status.PASSIVITY`
     when damping was added, else 0. Non-finite positions skip the observation (the energy stays)."""
@@ -82,11 +98,10 @@ def passivity_observe_control(params, state, x, v, force) -> int:
         state[S_ENERGY] += de
     for j in range(3):
         state[S_X + j] = x[j]
-    deficit = -params[P_RESERVE] - state[S_ENERGY]
-    if params[P_ON] == 0.0 or not deficit > 0.0:
-        return 0
     v2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    if not v2 > 0.0:
+    coming = (force[0] * v[0] + force[1] * v[1] + force[2] * v[2]) * params[P_DT]  # what f gives over the tick
+    deficit = -params[P_RESERVE] - state[S_ENERGY] + coming
+    if params[P_ON] == 0.0 or not deficit > 0.0 or not v2 > 0.0:
         return 0
     alpha = min(deficit / (params[P_DT] * v2), params[P_MAX_DAMPING])
     if not math.isfinite(alpha * v2):  # a vanishing speed with no damping limit: nothing sensible to add
@@ -125,8 +140,8 @@ class PassivityController:
     >>> f = np.array([1.0, 0.0, 0.0])
     >>> _ = pc.step([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], f); pc.applied(f)
     >>> flag = pc.step([1e-3, 0.0, 0.0], [1.0, 0.0, 0.0], f)   # the force pushed the hand along: 1 mJ out
-    >>> round(pc.energy, 6), round(pc.damping, 3), f.tolist()
-    (-0.001, 1.0, [0.0, 0.0, 0.0])
+    >>> round(pc.energy, 6), round(pc.damping, 3), f.tolist()       # and 1 mJ more if held: damped to -1 N
+    (-0.001, 2.0, [-1.0, 0.0, 0.0])
     """
 
     def __init__(self, dt: float, max_damping: float = math.inf, enabled: bool = True, reserve: float = 0.0):

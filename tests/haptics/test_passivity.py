@@ -38,19 +38,41 @@ def test_the_passivity_controller_keeps_a_too_stiff_wall_passive_and_at_rest():
 
 
 def test_the_passivity_controller_spends_the_adhesive_reserve_before_damping():
-    """E >= -E0 is passive for an environment that holds E0 (the adhesive well): no damping until
-    the observed energy goes below it, then just the damping that restores -E0 in one tick."""
-    pc = PassivityController(DT, max_damping=1e9, reserve=2e-3)
+    """E >= -E0 is passive for an environment that holds E0 (the adhesive well): no damping while
+    the observed energy and the coming tick's output stay above it, then just the damping that
+    brings the next observation back to -E0."""
+    pc = PassivityController(DT, max_damping=1e9, reserve=2.5e-3)
     f = np.array([1.0, 0.0, 0.0])
     pc.step([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], f)
     pc.applied(f)
-    assert pc.step([1e-3, 0.0, 0.0], [1.0, 0.0, 0.0], f) == 0 and f[0] == 1.0  # E = -1 mJ > -2 mJ
+    assert pc.step([1e-3, 0.0, 0.0], [1.0, 0.0, 0.0], f) == 0 and f[0] == 1.0  # E = -1 mJ, next -2 mJ
     pc.applied(f)
-    flag = pc.step([3e-3, 0.0, 0.0], [2.0, 0.0, 0.0], f)                          # E = -3 mJ
-    assert flag and pc.damping == pytest.approx(1e-3 / (DT * 4.0))
+    flag = pc.step([3e-3, 0.0, 0.0], [2.0, 0.0, 0.0], f)  # E = -3 mJ, and 2 mJ more if held
+    assert flag and pc.damping == pytest.approx((3e-3 + 2e-3 - 2.5e-3) / (DT * 4.0))
     assert f[0] == pytest.approx(1.0 - pc.damping * 2.0)
+    pc.applied(f)
+    pc.step([5e-3, 0.0, 0.0], [2.0, 0.0, 0.0], f.copy())
+    assert pc.energy == pytest.approx(-2.5e-3)
     with pytest.raises(HapticsError, match="reserve"):
         PassivityController(DT, reserve=-1.0)
+
+
+def test_the_controller_counts_the_coming_tick_so_a_released_spring_never_overdraws_the_reserve():
+    """A spring compressed 1 mm (K = 2 kN/m) pushes the hand out along +x at 50 mm/s: each held
+    force gives the hand f v T. A controller that damps only the deficit already observed (the
+    held force's work up to now) cancels the next tick's output at best, and the observed energy
+    stays one tick's output below -E0 all the way out (-0.1 mJ). Counting the coming tick at the
+    measured velocity, as Hannaford & Ryu's observer counts the current sample's power f(n) v(n) T,
+    the energy never goes below -E0 (E0 = 10 uJ)."""
+    pc = PassivityController(DT, max_damping=np.inf, reserve=1e-5)
+    v, lowest = 0.05, 0.0
+    for k in range(20):
+        x = k * v * DT
+        f = np.array([2000.0 * (1e-3 - x), 0.0, 0.0])
+        pc.step([x, 0.0, 0.0], [v, 0.0, 0.0], f)
+        pc.applied(f)
+        lowest = min(lowest, pc.energy)
+    assert lowest >= -1e-5 * (1 + 1e-9), lowest
 
 
 def test_the_adhesion_energy_bounds_the_work_of_the_adhesive_branch():
