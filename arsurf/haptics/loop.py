@@ -361,7 +361,8 @@ class LoopConfig:
             raise HapticsError(f"blend must be in [0, 1] (got {self.blend!r}); it weighs the measured force")
         if self.signal_noise < 0 or not math.isfinite(self.signal_noise):
             raise HapticsError(f"signal_noise must be >= 0 rad (got {self.signal_noise!r})")
-        if not (isinstance(self.jump_blend, (int, float)) and math.isfinite(self.jump_blend) and self.jump_blend >= 0):
+        if not (isinstance(self.jump_blend, (int, float)) and not isinstance(self.jump_blend, bool)
+                and math.isfinite(self.jump_blend) and self.jump_blend >= 0):  # True is not 1 s
             raise HapticsError(f"jump_blend must be a time >= 0 s (got {self.jump_blend!r}); 0 renders the tip's "
                                "jumps in one tick")
 

@@ -114,6 +114,8 @@ def test_the_loop_blends_the_tip_s_jumps_by_default_and_a_session_replays_its_ow
     assert off.model.jump_blend == 0.0 and loop_metadata({"haptics": {}}, off)["haptics"]["jump_blend"] == 0.0
     with pytest.raises(HapticsError, match="jump_blend must be a time >= 0 s"):
         LoopConfig(jump_blend=-0.01).validate()
+    with pytest.raises(HapticsError, match="jump_blend must be a time >= 0 s"):
+        LoopConfig(jump_blend=True).validate()  # a switch is not a time (the session's key refuses it too)
     with pytest.raises(SessionError, match="haptics.jump_blend must be a finite number"):
         build_model(dict(meta, haptics=dict(meta["haptics"], jump_blend="15 ms")))
     with pytest.raises(ContactError, match="the jump blend time must be >= 0"):
