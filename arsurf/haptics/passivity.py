@@ -12,10 +12,10 @@ exact for a force :math:`f_{k-1}` held (zero-order hold) while the handle moves 
 and ramps) and the handle's measured positions, no model. Passivity is :math:`E_n \ge -E_0`,
 :math:`E_0` the energy the environment stores at the start: an adhesive contact holds a potential
 well below the zero of a tip far away, and gives that energy back passively at snap-in (without
-one, :math:`E_0 = 0`). The loop gives the
-controller the well's depth bound as ``reserve`` (:meth:`arsurf.model.ARModel.adhesion_energy`
-times the coupling's energy gain), so it damps only what the sampled loop creates beyond it: a
-controller that fights the adhesion's own energy damps every pull-off and chatters at its limit.
+one, :math:`E_0 = 0`). The loop gives the controller the well's depth bound as ``reserve``
+(:meth:`arsurf.model.ARModel.adhesion_energy` times the coupling's energy gain), so it damps only
+what the sampled loop creates beyond it: a controller that fights the adhesion's own energy damps
+every pull-off and chatters at its limit.
 
 The *passivity controller* adds the damping that keeps :math:`E \ge -E_0` after the coming tick
 too: the force :math:`f_n` about to be held gives the hand :math:`f_n\cdot v_n T` more at the
