@@ -228,8 +228,9 @@ def measures(rows: list[dict]) -> dict:
     either way (on the whole table, any change tried moved 3-10 of 1508), so what it did is read in
     these. Rate pairs: mean and median rate error (%) and how many exceed the tolerance; still and
     slow runs: the mean of each run's largest content above 100 Hz (% of the mean normal force), how
-    many exceed the buzz limit, reversals summed and the runs with any; every run: how many fell
-    below -E0 and by how much in all (E0)."""
+    many exceed the buzz limit, reversals summed and the runs with any; every run: how many fail the
+    energy criterion (below -E0 beyond the score's tolerance), how many fell below -E0 at all and by
+    how much in all (E0)."""
     from arsurf.haptics.feel import BUZZ_LIMIT
 
     fast = [r for r in rows if r["kind"] == "fast"]
@@ -249,6 +250,7 @@ def measures(rows: list[dict]) -> dict:
             "slow_high_frequency_mean_percent": pct(high, np.mean),
             "slow_runs_beyond_buzz_limit": int((high > BUZZ_LIMIT).sum()),
             "reversals_summed": int(reversals.sum()), "slow_runs_with_reversals": int((reversals > 0).sum()),
+            "runs_failing_energy": sum(not r.get("energy_ok", True) for r in rows),
             "runs_below_minus_E0": int(len(below)), "energy_beyond_minus_E0_summed_over_E0": round(float((below + 1.0).sum()), 3)}
 
 

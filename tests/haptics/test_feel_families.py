@@ -392,7 +392,7 @@ def test_two_tables_compare_by_the_runs_they_pass_differently_and_by_their_measu
     """``bench/feel.py --compare OLD NEW``: the runs gained and lost between two tables of one plan
     (only the runs both hold), and each table's measures beyond its pass count: the rate pairs' mean
     and median error and how many exceed the tolerance, the slow runs' content above 100 Hz,
-    reversals, and the energy beyond -E0 summed."""
+    reversals, the runs failing the energy and the energy beyond -E0 summed."""
     import subprocess
     import sys
     from pathlib import Path
@@ -402,7 +402,7 @@ def test_two_tables_compare_by_the_runs_they_pass_differently_and_by_their_measu
     def fast(key, err, energy):
         return {"key": key, "kind": "fast", "surface": key, "motion": "slide-100", "heading_deg": 0.0,
                 "source": "simulated", "rate_error": err, "low_passed_error": err, "min_energy_over_E0": [energy, None],
-                "ok": err <= RATE_TOLERANCE and energy >= -1.0}
+                "energy_ok": energy >= -1.2, "ok": err <= RATE_TOLERANCE and energy >= -1.2}  # -1.2: as if a tolerance
 
     def slow(key, hf, rev):
         return {"key": key, "kind": "slow", "surface": key, "motion": "slide-10", "heading_deg": 0.0,
@@ -410,17 +410,19 @@ def test_two_tables_compare_by_the_runs_they_pass_differently_and_by_their_measu
                 "reversals": [rev, 0, 0], "min_energy_over_E0": -0.5, "rest_error": None, "ok": hf <= 0.02 and not rev}
 
     old = [fast("a", 0.20, -0.5), fast("b", 0.01, -3.0), slow("c", 0.03, 4), slow("d", 0.001, 0), fast("x", 0.0, 0.0)]
-    new = [fast("a", 0.02, -0.5), fast("b", 0.01, -1.5), slow("c", 0.01, 0), slow("d", 0.001, 2)]
+    new = [fast("a", 0.02, -0.5), fast("b", 0.01, -1.1), slow("c", 0.01, 0), slow("d", 0.001, 2)]
     c = feel.compare(old, new)
     assert c["runs_compared"] == 4
-    assert [g.split(" ")[0] for g in c["gained"]] == ["a", "c"] and [g.split(" ")[0] for g in c["lost"]] == ["d"]
-    assert c["old"]["pass"] == 1 and c["new"]["pass"] == 2  # "x", in the old table only, is not compared
+    assert [g.split(" ")[0] for g in c["gained"]] == ["a", "b", "c"] and [g.split(" ")[0] for g in c["lost"]] == ["d"]
+    assert c["old"]["pass"] == 1 and c["new"]["pass"] == 3  # "x", in the old table only, is not compared
     assert c["old"]["rate_error_mean_percent"] == pytest.approx(10.5) and c["new"]["rate_error_mean_percent"] == pytest.approx(1.5)
     assert c["old"]["rate_pairs_beyond_tolerance"] == 1 and c["new"]["rate_pairs_beyond_tolerance"] == 0
     assert (c["old"]["reversals_summed"], c["new"]["reversals_summed"]) == (4, 2)
     assert (c["old"]["slow_runs_beyond_buzz_limit"], c["new"]["slow_runs_beyond_buzz_limit"]) == (1, 0)
     assert c["old"]["energy_beyond_minus_E0_summed_over_E0"] == pytest.approx(-2.0)
-    assert c["new"]["energy_beyond_minus_E0_summed_over_E0"] == pytest.approx(-0.5)
+    assert c["new"]["energy_beyond_minus_E0_summed_over_E0"] == pytest.approx(-0.1)
+    assert (c["old"]["runs_failing_energy"], c["new"]["runs_failing_energy"]) == (1, 0)  # below -E0, within tolerance
+    assert (c["old"]["runs_below_minus_E0"], c["new"]["runs_below_minus_E0"]) == (1, 1)
     files = []
     for name, rows in (("old", old), ("new", new)):
         files.append(tmp_path / f"{name}.jsonl")
