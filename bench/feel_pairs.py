@@ -54,7 +54,7 @@ def diagnose(run: dict, jump_blend: float | None) -> dict:
     """One rate pair run again (``jump_blend`` None: the loop's default)."""
     r = rate_convergence(_surface(run), run["motion"], run["source"], FAST_SECONDS, tip_radius=run["tip_radius_m"],
                          heading=math.radians(run["heading_deg"]), room=run["room_m"], records=True,
-                         **({} if jump_blend is None else {"jump_blend": jump_blend}))
+                         jump_blend=jump_blend)
     energy = [x for x in r["min_energy_over_E0"] if math.isfinite(x)]
     return {"jump_blend_s": "default" if jump_blend is None else jump_blend, "rate_error": r["rate_error"],
             "min_energy_over_E0": min(energy) if energy else None, "ok": r["ok"], **parting(*r["runs"])}
