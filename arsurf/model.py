@@ -35,7 +35,9 @@ centre is not the target C itself but the point on C's normal line where the con
 balances the coupling spring; steps 2-4 use that tip, which the model reports (``tip``). Where
 that balance jumps while the hand moves slowly (a snap over an asperity), the reported tip and
 the simulated force follow the jump over the loop's blend time (:mod:`arsurf.contact.jump_blend`;
-only once a loop has given the model its tick, :meth:`ARModel.set_jump_blend`).
+only once a loop has given the model its tick, :meth:`ARModel.set_jump_blend`), and the tick in which
+it jumps is run again in steps of a 10 kHz tick, so that a slower loop meets the jump as a 10 kHz
+loop does.
 
 All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
 arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
@@ -136,9 +138,13 @@ F_BLEND_TIME, F_BLEND_SPEED = PROXY_PARAMS.offset("blend_time"), PROXY_PARAMS.of
 F_PERIOD = PROXY_PARAMS.offset("tick_period")
 #: the tick's scratch vector: the friction proxy's output (:data:`arsurf.contact.friction.FRICTION_OUT`),
 #: then the measured force's (:data:`arsurf.force.decoupling.MEASURED_SCRATCH`, whose first field is
-#: the blend, a decoupling output)
-SCRATCH_SIZE = max(fr.FRICTION_OUT.size, MEASURED_SCRATCH.size)
-_MEASURED = MEASURED_SCRATCH.offset("blend")
+#: the blend, a decoupling output), in one place; the model state and the dent record from before
+#: the tick, which a jump tick is run again from (:mod:`arsurf.contact.jump_blend`)
+TICK_SCRATCH = Layout("tick scratch", [("outputs", max(fr.FRICTION_OUT.size, MEASURED_SCRATCH.size)),
+                                       ("saved_state", MODEL_STATE.size), ("saved_dent", DENT_SIZE)])
+SCRATCH_SIZE = TICK_SCRATCH.size
+_MEASURED = TICK_SCRATCH.offset("outputs") + MEASURED_SCRATCH.offset("blend")
+_SAVED_STATE, _SAVED_DENT = TICK_SCRATCH.offset("saved_state"), TICK_SCRATCH.offset("saved_dent")
 #: the margin m of the contacts' weights, in Maugis-Dugdale depth scales: a contact counts fully once the
 #: pass between it and the closest point is m higher than it (:mod:`arsurf.contact.multi_contact`); contacts
 #: are followed down to m below the jump-out depth
@@ -161,6 +167,42 @@ def model_tick_kernel(proj,                                              # Proje
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, bending, torsion, signal_mode,
                       state, coll, scratch, ev, out):
+    """One model tick for the target tip centre ``(cx, cy, cz)``: :func:`_one_tick_kernel` (its
+    arguments and return), except that a tick in which the tip's balance behind the coupling jumps
+    (:func:`~arsurf.contact.jump_blend.jumped_kernel`) is run again from the state before it, in
+    :func:`~arsurf.contact.jump_blend.redo_steps` steps of the target's straight path from the last
+    tick's target, the signals given to the last step only: a slower loop meets the jump as a
+    10 kHz loop does (:mod:`arsurf.contact.jump_blend`, "A jump tick run again")."""
+    period = friction[F_PERIOD]
+    steps = jb.redo_steps(friction[F_BLEND_TIME], period) if friction[F_COUPLING] < math.inf else 1
+    saved = scratch[_SAVED_STATE:_SAVED_STATE + S_SIZE]
+    d0 = int(md_args[H_DENT])
+    dent = md_args[d0:d0 + DENT_SIZE]
+    if steps > 1:
+        saved[:] = state
+        scratch[_SAVED_DENT:_SAVED_DENT + DENT_SIZE] = dent
+    st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                          cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
+    if steps == 1 or not jb.jumped_kernel(saved, state, S_JUMPS):
+        return st
+    state[:] = saved
+    dent[:] = scratch[_SAVED_DENT:_SAVED_DENT + DENT_SIZE]
+    px, py, pz = jb.last_target(saved, S_JUMPS)
+    friction[F_PERIOD] = period / steps
+    for k in range(1, steps + 1):
+        w = k / steps
+        last = k == steps
+        st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
+                              deform, cx if last else px + w * (cx - px), cy if last else py + w * (cy - py),
+                              cz if last else pz + w * (cz - pz), bending, torsion,
+                              signal_mode if last else SIGNALS_NONE, state, coll, scratch, ev, out)
+    friction[F_PERIOD] = period
+    return st
+
+
+@njit(cache=True)
+def _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                     cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);
     writes ``out`` (:data:`MODEL_OUT`) and updates ``state`` (:data:`MODEL_STATE`). Returns the
     collision status (< 0: no answer; ``out`` then holds zero forces). ``md_args`` is the contact

@@ -48,6 +48,17 @@ force came 15 ms late, the hand's answer made the next hop, and the cycle gave t
 at rest after 1.5 s without the blend). With it that press is at rest after 1 s, no reversal (28
 without the blend).
 
+**A jump tick run again.** The share :math:`1 - r|\Delta C|/|\Delta T^*|` and the hand's
+velocity are measured over the tick, so a jump taken in one 1 ms tick is blended differently from
+the same jump met in ten 0.1 ms ticks: where the hand's answer to the force feeds back into the
+target, the 1 and 10 kHz paths part (on the feel table's seed 1, a 1000 nm/s circle caught in a pit
+gave a 1 kHz force 109 % away from the 10 kHz one, and the hand -12.9 E0). The model therefore runs
+a tick in which the balance jumps (:func:`jumped_kernel`) again from its state before the tick, in
+:func:`redo_steps` steps of at most :data:`REDO_STEP` (a 10 kHz tick) along the target's straight
+path from the last tick's target (:func:`arsurf.model.model_tick_kernel`): a 1 kHz loop then meets
+each jump as a 10 kHz loop does, to the last bit when the two start from the same state. Only jump
+ticks are run again (a few in a thousand on the feel table), so the median tick cost is unchanged.
+
 Off (the tip is the balance) without a coupling, with :math:`\tau = 0`, or without the loop's
 tick period (a model ticked outside a haptic loop:
 :meth:`~arsurf.model.ARModel.set_jump_blend`).
@@ -60,7 +71,8 @@ from numba import njit
 
 from arsurf._layout import Layout
 
-__all__ = ["BLEND_SPEED", "BLEND_TIME", "HOP_EXCESS", "JUMP_SPEED_RATIO", "JUMP_STATE", "blend_jumps_kernel", "forget"]
+__all__ = ["BLEND_SPEED", "BLEND_TIME", "HOP_EXCESS", "JUMP_SPEED_RATIO", "JUMP_STATE", "REDO_STEP", "blend_jumps_kernel",
+           "forget", "jumped_kernel", "last_target", "redo_steps"]
 
 #: the blend time tau (s) a haptic loop gives its model (``haptics.jump_blend``): 15 ms puts the
 #: corner of the exponential at 1/(2 pi tau) = 11 Hz, a step's content above 100 Hz down ~10x
@@ -71,6 +83,10 @@ BLEND_TIME = 0.015
 BLEND_SPEED = 100e-9
 #: the balance moving more than this many times the target in a tick is a jump (module docstring)
 JUMP_SPEED_RATIO = 2.0
+#: the longest step (s) in which a jump tick is run again (module docstring): a 10 kHz loop's tick
+REDO_STEP = 1e-4
+#: at most this many steps in one tick (a 312 Hz loop's tick at :data:`REDO_STEP`)
+REDO_MAX_STEPS = 32
 #: a hop while the excess of the last ones is still this many times the hop is rendered as it is
 #: (module docstring): the excess never exceeds it times the largest jump
 HOP_EXCESS = 1.5
@@ -90,6 +106,39 @@ def forget(state, at) -> None:
     """No excess, no last balance: the next tick renders its balance as it is."""
     for j in range(STATE_SIZE):
         state[at + j] = math.nan
+
+
+@njit(cache=True)
+def redo_steps(blend_time, period) -> int:
+    """The steps a jump tick of ``period`` s is run again in (module docstring): ceil(period /
+    :data:`REDO_STEP`), at most :data:`REDO_MAX_STEPS`; 1 (no redo) with the blend off."""
+    if not (blend_time > 0.0 and period > REDO_STEP):
+        return 1
+    return min(int(math.ceil(period / REDO_STEP - 1e-9)), REDO_MAX_STEPS)
+
+
+@njit(cache=True, inline="always")
+def _is_jump(moved, target_moved) -> bool:
+    """The balance moved by ``moved`` while the target moved ``target_moved`` (m): a jump."""
+    return moved > JUMP_SPEED_RATIO * target_moved
+
+
+@njit(cache=True)
+def last_target(state, at):
+    """The last tick's target ``(x, y, z)`` (m; NaN: none) in the blend state ``state[at:]``."""
+    return state[at + _C], state[at + _C + 1], state[at + _C + 2]
+
+
+@njit(cache=True)
+def jumped_kernel(before, state, at) -> bool:
+    """Whether the tick that took the blend state from ``before[at:]`` to ``state[at:]``
+    (:data:`JUMP_STATE`) saw a jump: its balance moved more than :data:`JUMP_SPEED_RATIO` times
+    its target. False when either tick had no balance."""
+    moved = target_moved = 0.0
+    for j in range(3):
+        moved += (state[at + _T + j] - before[at + _T + j]) ** 2
+        target_moved += (state[at + _C + j] - before[at + _C + j]) ** 2
+    return math.isfinite(moved) and math.isfinite(target_moved) and _is_jump(math.sqrt(moved), math.sqrt(target_moved))
 
 
 @njit(cache=True)
@@ -121,8 +170,9 @@ def blend_jumps_kernel(blend_time, blend_speed, period, tx, ty, tz, cx, cy, cz, 
         vz += (1.0 - decay) * (hz / period - vz)
         state[at + _V], state[at + _V + 1], state[at + _V + 2] = vx, vy, vz
         moved = math.sqrt(jx * jx + jy * jy + jz * jz)
-        allowed = JUMP_SPEED_RATIO * math.sqrt(hx * hx + hy * hy + hz * hz)
-        if moved > allowed:
+        target_moved = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if _is_jump(moved, target_moved):
+            allowed = JUMP_SPEED_RATIO * target_moved
             q = (vx * vx + vy * vy + vz * vz) / (blend_speed * blend_speed)
             share = (1.0 - allowed / moved) / (1.0 + q * q)
             left = math.sqrt(ex * ex + ey * ey + ez * ez) / moved  # a hop while the last one is still blended
