@@ -175,32 +175,38 @@ def model_tick_kernel(proj,                                              # Proje
     10 kHz loop does (:mod:`arsurf.contact.jump_blend`, "A jump tick run again")."""
     period = friction[F_PERIOD]
     steps = jb.redo_steps(friction[F_BLEND_TIME], period) if friction[F_COUPLING] < math.inf else 1
-    saved = scratch[_SAVED_STATE:_SAVED_STATE + S_SIZE]
     d0 = int(md_args[H_DENT])
-    dent = md_args[d0:d0 + DENT_SIZE]
-    if steps > 1:
-        saved[:] = state
-        scratch[_SAVED_DENT:_SAVED_DENT + DENT_SIZE] = dent
-    st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                          cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
-    if steps == 1 or not jb.jumped_kernel(saved, state, S_JUMPS):
-        return st
-    state[:] = saved
-    dent[:] = scratch[_SAVED_DENT:_SAVED_DENT + DENT_SIZE]
-    px, py, pz = jb.last_target(saved, S_JUMPS)
-    friction[F_PERIOD] = period / steps
-    for k in range(1, steps + 1):
-        w = k / steps
-        last = k == steps
+    if steps > 1:  # the state before the tick, which a jump tick is run again from
+        _copy(state, 0, scratch, _SAVED_STATE, S_SIZE)
+        _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
+    px = py = pz = 0.0
+    k = n = 1  # step k of n along the path
+    while k <= n:
+        last = k == n
+        w = k / n
         st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
                               deform, cx if last else px + w * (cx - px), cy if last else py + w * (cy - py),
                               cz if last else pz + w * (cz - pz), bending, torsion,
                               signal_mode if last else SIGNALS_NONE, state, coll, scratch, ev, out)
+        if n == 1 and steps > 1 and jb.jumped_kernel(scratch, _SAVED_STATE + S_JUMPS, state, S_JUMPS):
+            _copy(scratch, _SAVED_STATE, state, 0, S_SIZE)  # run again from the state before the tick
+            _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
+            px, py, pz = jb.last_target(state, S_JUMPS)
+            friction[F_PERIOD] = period / steps
+            k, n = 0, steps
+        k += 1
     friction[F_PERIOD] = period
     return st
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _copy(src, i, dst, j, size):
+    """``dst[j:j + size] = src[i:i + size]``."""
+    for m in range(size):
+        dst[j + m] = src[i + m]
+
+
+@njit(cache=True, inline="always")
 def _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                      cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);

@@ -130,14 +130,14 @@ def last_target(state, at):
 
 
 @njit(cache=True)
-def jumped_kernel(before, state, at) -> bool:
-    """Whether the tick that took the blend state from ``before[at:]`` to ``state[at:]``
+def jumped_kernel(before, at_before, state, at) -> bool:
+    """Whether the tick that took the blend state from ``before[at_before:]`` to ``state[at:]``
     (:data:`JUMP_STATE`) saw a jump: its balance moved more than :data:`JUMP_SPEED_RATIO` times
     its target. False when either tick had no balance."""
     moved = target_moved = 0.0
     for j in range(3):
-        moved += (state[at + _T + j] - before[at + _T + j]) ** 2
-        target_moved += (state[at + _C + j] - before[at + _C + j]) ** 2
+        moved += (state[at + _T + j] - before[at_before + _T + j]) ** 2
+        target_moved += (state[at + _C + j] - before[at_before + _C + j]) ** 2
     return math.isfinite(moved) and math.isfinite(target_moved) and _is_jump(math.sqrt(moved), math.sqrt(target_moved))
 
 

@@ -162,7 +162,7 @@ def test_a_1_khz_model_meets_each_jump_as_ten_10_khz_ticks_do():
             f_fine = fine.tick(start + (c - start) * i / 10 if i < 10 else c)[M_SIM_FX:M_SIM_FX + 3]
         if not np.abs(f_fine).max() > 0.0:
             continue
-        jumped = jumped_kernel(before, fine.state, S_JUMPS)
+        jumped = jumped_kernel(before, S_JUMPS, fine.state, S_JUMPS)
         assert jumped == np.array_equal(f, f_fine), (k, f, f_fine)
         jumps += jumped
         apart += np.abs(f - f_fine).max() > 1e-3 * np.abs(f_fine).max()
