@@ -161,7 +161,7 @@ MIN_SLIP_HORIZONTAL = 1e-3
 DEFAULT_SIGNAL_NOISE = 1e-7
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
@@ -177,26 +177,50 @@ def model_tick_kernel(proj,                                              # Proje
     steps = jb.redo_steps(friction[F_BLEND_TIME], period) if friction[F_COUPLING] < math.inf else 1
     d0 = int(md_args[H_DENT])
     if steps > 1:  # the state before the tick, which a jump tick is run again from
-        _copy(state, 0, scratch, _SAVED_STATE, S_SIZE)
+        _keep_state(state, scratch, _SAVED_STATE)
         _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
-    px = py = pz = 0.0
-    k = n = 1  # step k of n along the path
-    while k <= n:
-        last = k == n
-        w = k / n
+    st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                          cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
+    if steps > 1 and jb.jumped_kernel(scratch, _SAVED_STATE + S_JUMPS, state, S_JUMPS):
+        _keep_state(scratch, state, -_SAVED_STATE)  # run again from the state before the tick
+        _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
+        st = _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+                        cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
+    return st
+
+
+@njit(cache=True)
+def _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+               cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps):
+    """The tick to ``(cx, cy, cz)`` in ``steps`` ticks of the target's straight path from the last
+    tick's target (in ``state``), each ``steps`` times shorter, the signals given to the last one."""
+    period = friction[F_PERIOD]
+    px, py, pz = jb.last_target(state, S_JUMPS)
+    friction[F_PERIOD] = period / steps
+    st = 0
+    for k in range(1, steps + 1):
+        w = k / steps
+        last = k == steps
         st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
                               deform, cx if last else px + w * (cx - px), cy if last else py + w * (cy - py),
                               cz if last else pz + w * (cz - pz), bending, torsion,
                               signal_mode if last else SIGNALS_NONE, state, coll, scratch, ev, out)
-        if n == 1 and steps > 1 and jb.jumped_kernel(scratch, _SAVED_STATE + S_JUMPS, state, S_JUMPS):
-            _copy(scratch, _SAVED_STATE, state, 0, S_SIZE)  # run again from the state before the tick
-            _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
-            px, py, pz = jb.last_target(state, S_JUMPS)
-            friction[F_PERIOD] = period / steps
-            k, n = 0, steps
-        k += 1
     friction[F_PERIOD] = period
     return st
+
+
+@njit(cache=True, inline="always")
+def _keep_state(src, dst, shift):
+    """``dst[shift + k] = src[k]`` (``shift`` < 0: ``dst[k] = src[k - shift]``) over the model state
+    but the contact table's unused rows and its tracking starts, which the next tick writes before
+    it reads them (:func:`~arsurf.contact.multi_contact.find_contacts_kernel`): a tick's state kept
+    in a third of the copy."""
+    i, j = (0, shift) if shift >= 0 else (-shift, 0)
+    count = src[i + S_CONTACTS + mc.T_COUNT]
+    rows = S_CONTACTS + mc.T_ROWS + (int(count) * mc.C_SIZE if count > 0.0 else 0)
+    _copy(src, i, dst, j, rows)
+    tail = S_CONTACTS + mc.T_SCANNED
+    _copy(src, i + tail, dst, j + tail, S_SIZE - tail)
 
 
 @njit(cache=True, inline="always")
@@ -206,7 +230,7 @@ def _copy(src, i, dst, j, size):
         dst[j + m] = src[i + m]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                      cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);
