@@ -36,8 +36,8 @@ balances the coupling spring; steps 2-4 use that tip, which the model reports (`
 that balance jumps while the hand moves slowly (a snap over an asperity), the reported tip and
 the simulated force follow the jump over the loop's blend time (:mod:`arsurf.contact.jump_blend`;
 only once a loop has given the model its tick, :meth:`ARModel.set_jump_blend`), and the tick in which
-it jumps is run again in steps of a 10 kHz tick, so that a slower loop meets the jump as a 10 kHz
-loop does.
+it jumps, or a contact is found or lost, is run again in steps of a 10 kHz tick, so that a slower
+loop meets the event as a 10 kHz loop does.
 
 All of steps 1-4 run in one compiled call (:func:`model_tick_kernel`); :class:`ARModel` owns the
 arrays, validates once, and turns the output vector into a :class:`ModelTick` record.
@@ -169,9 +169,9 @@ def model_tick_kernel(proj,                                              # Proje
                       state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)``: :func:`_one_tick_kernel` (its
     arguments and return), except that a tick in which the tip's balance behind the coupling jumps
-    (:func:`~arsurf.contact.jump_blend.jumped_kernel`) is run again from the state before it, in
+    or a contact is found or lost (:func:`_to_run_again`) is run again from the state before it, in
     :func:`~arsurf.contact.jump_blend.redo_steps` steps of the target's straight path from the last
-    tick's target, the signals given to the last step only: a slower loop meets the jump as a
+    tick's target, the signals given to the last step only: a slower loop meets the event as a
     10 kHz loop does (:mod:`arsurf.contact.jump_blend`, "A jump tick run again")."""
     period = friction[F_PERIOD]
     steps = jb.redo_steps(friction[F_BLEND_TIME], period) if friction[F_COUPLING] < math.inf else 1
@@ -181,12 +181,23 @@ def model_tick_kernel(proj,                                              # Proje
         _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
     st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                           cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
-    if steps > 1 and jb.jumped_kernel(scratch, _SAVED_STATE + S_JUMPS, state, S_JUMPS):
+    if steps > 1 and _to_run_again(scratch, state):
         _keep_state(scratch, state, -_SAVED_STATE)  # run again from the state before the tick
         _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
         st = _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                         cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
     return st
+
+
+@njit(cache=True, inline="always")
+def _to_run_again(scratch, state) -> bool:
+    """Whether the tick that took the state kept in ``scratch`` to ``state`` is run again: the tip's
+    balance jumped (:func:`~arsurf.contact.jump_blend.jumped_kernel`), or a contact was found or lost
+    (the contact table's count changed) in a tick that has a last target to start from."""
+    before = _SAVED_STATE + S_CONTACTS + mc.T_COUNT
+    return jb.jumped_kernel(scratch, _SAVED_STATE + S_JUMPS, state, S_JUMPS) or (
+        scratch[before] >= 1.0 and scratch[before] != state[S_CONTACTS + mc.T_COUNT]
+        and math.isfinite(jb.last_target(scratch, _SAVED_STATE + S_JUMPS)[0]))
 
 
 @njit(cache=True)

@@ -56,8 +56,11 @@ gave a 1 kHz force 109 % away from the 10 kHz one, and the hand -12.9 E0). The m
 a tick in which the balance jumps (:func:`jumped_kernel`) again from its state before the tick, in
 :func:`redo_steps` steps of at most :data:`REDO_STEP` (a 10 kHz tick) along the target's straight
 path from the last tick's target (:func:`arsurf.model.model_tick_kernel`): a 1 kHz loop then meets
-each jump as a 10 kHz loop does, to the last bit when the two start from the same state. Only jump
-ticks are run again (a few in a thousand on the feel table), so the median tick cost is unchanged.
+each jump as a 10 kHz loop does, to the last bit when the two start from the same state. A tick in
+which a contact is found or lost (the contact table's count changes,
+:mod:`arsurf.contact.multi_contact`) is an event of the same kind, met in one 1 ms step, and is run
+again alike. Only those ticks are run again (a few in a thousand on the feel table), so the median
+tick cost is unchanged.
 
 Off (the tip is the balance) without a coupling, with :math:`\tau = 0`, or without the loop's
 tick period (a model ticked outside a haptic loop:

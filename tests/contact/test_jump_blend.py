@@ -127,17 +127,19 @@ def test_a_jump_tick_is_run_again_in_steps_of_a_10_khz_tick(rate, steps):
 
 def test_a_1_khz_model_meets_each_jump_as_ten_10_khz_ticks_do():
     """A target pressed 1 nm into a generated power-law surface (2.1 nm rms over 11 nm) and slid at
-    50 nm/s under a 4.6 nm tip behind a soft coupling: the balance snaps between asperities. Each
-    1 kHz tick is compared with ten 10 kHz ticks of a copy of the model along the same path. Where
-    the balance jumped over the tick, the 1 kHz tick's force is the 10 kHz one to the last bit (it
-    was run again in those steps); elsewhere it is not run again. Taken in one tick, the jumps'
-    forces were 0.1 % or more away from the 10 kHz ones on 53 of the 399 ticks; now on 6."""
+    50 nm/s under a 4.6 nm tip behind a soft coupling: the balance snaps between asperities and
+    contacts come and go. Each 1 kHz tick is compared with ten 10 kHz ticks of a copy of the model
+    along the same path. Where the balance jumped over the tick, or a contact was found or lost,
+    the 1 kHz tick's force is the 10 kHz one to the last bit (it was run again in those steps);
+    elsewhere it is not run again. Taken in one tick, the forces were 0.1 % or more away from the
+    10 kHz ones on 53 of the 399 ticks; 6 with only the jumps run again, 3 now."""
     import copy
 
     from arsurf.assembly import make_model
     from arsurf.contact.jump_blend import JUMP_STATE, jumped_kernel
     from arsurf.feel_scenarios import generated_surfaces
-    from arsurf.model import M_SIM_FX, S_JUMPS
+    from arsurf.contact.multi_contact import T_COUNT
+    from arsurf.model import M_SIM_FX, S_CONTACTS, S_JUMPS
 
     g = generated_surfaces(10, seed=0)[9]
     s = g.surface()
@@ -162,8 +164,9 @@ def test_a_1_khz_model_meets_each_jump_as_ten_10_khz_ticks_do():
             f_fine = fine.tick(start + (c - start) * i / 10 if i < 10 else c)[M_SIM_FX:M_SIM_FX + 3]
         if not np.abs(f_fine).max() > 0.0:
             continue
-        jumped = jumped_kernel(before, S_JUMPS, fine.state, S_JUMPS)
-        assert jumped == np.array_equal(f, f_fine), (k, f, f_fine)
-        jumps += jumped
+        count = S_CONTACTS + T_COUNT
+        again = jumped_kernel(before, S_JUMPS, fine.state, S_JUMPS) or before[count] != fine.state[count]
+        assert again == np.array_equal(f, f_fine), (k, f, f_fine)
+        jumps += again
         apart += np.abs(f - f_fine).max() > 1e-3 * np.abs(f_fine).max()
-    assert jumps > 100 and apart <= 12, (jumps, apart)
+    assert jumps > 100 and apart <= 6, (jumps, apart)
