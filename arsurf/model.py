@@ -177,12 +177,12 @@ def model_tick_kernel(proj,                                              # Proje
     steps = jb.redo_steps(friction[F_BLEND_TIME], period) if friction[F_COUPLING] < math.inf else 1
     d0 = int(md_args[H_DENT])
     if steps > 1:  # the state before the tick, which a jump tick is run again from
-        _keep_state(state, scratch, _SAVED_STATE)
+        _keep_state(state, 0, scratch, _SAVED_STATE)
         _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
     st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                           cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
     if steps > 1 and _to_run_again(scratch, state):
-        _keep_state(scratch, state, -_SAVED_STATE)  # run again from the state before the tick
+        _keep_state(scratch, _SAVED_STATE, state, 0)  # run again from the state before the tick
         _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
         st = _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                         cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
@@ -221,12 +221,10 @@ def _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, t
 
 
 @njit(cache=True, inline="always")
-def _keep_state(src, dst, shift):
-    """``dst[shift + k] = src[k]`` (``shift`` < 0: ``dst[k] = src[k - shift]``) over the model state
-    but the contact table's unused rows and its tracking starts, which the next tick writes before
-    it reads them (:func:`~arsurf.contact.multi_contact.find_contacts_kernel`): a tick's state kept
-    in a third of the copy."""
-    i, j = (0, shift) if shift >= 0 else (-shift, 0)
+def _keep_state(src, i, dst, j):
+    """``dst[j:j + S_SIZE] = src[i:i + S_SIZE]`` (a model state) but the contact table's unused rows
+    and its tracking starts, which the next tick writes before it reads them
+    (:func:`~arsurf.contact.multi_contact.find_contacts_kernel`): about a third of the copy."""
     count = src[i + S_CONTACTS + mc.T_COUNT]
     rows = S_CONTACTS + mc.T_ROWS + (int(count) * mc.C_SIZE if count > 0.0 else 0)
     _copy(src, i, dst, j, rows)

@@ -117,7 +117,7 @@ def redo_steps(blend_time, period) -> int:
     :data:`REDO_STEP`), at most :data:`REDO_MAX_STEPS`; 1 (no redo) with the blend off."""
     if not (blend_time > 0.0 and period > REDO_STEP):
         return 1
-    return min(int(math.ceil(period / REDO_STEP - 1e-9)), REDO_MAX_STEPS)
+    return min(int(math.ceil(period / REDO_STEP - 1e-9)), REDO_MAX_STEPS)  # a rounding above an integer
 
 
 @njit(cache=True, inline="always")
