@@ -1,0 +1,118 @@
+"""``bench/feel_steps.py``: the steps of the tip's balance along a swept target, put down to the
+contact-table event that made each (docs/feel.rst, "Where the balance steps")."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support.valleys import R, height_for, valley_model
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "feel_steps.py"
+
+
+@pytest.fixture(scope="module")
+def steps():
+    spec = importlib.util.spec_from_file_location("bench_feel_steps", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def on_both_slopes(steps):
+    """A tip in a valley narrower than it, resting on both slopes: the model, its target (m), and
+    its contact table's two rows."""
+    m = valley_model("sinusoid")
+    target = np.array([33.3e-9, 24e-9, height_for("sinusoid", 33e-9)])
+    m.step(target)
+    rows = steps._rows(m.state)
+    assert len(rows) == 2
+    return m, target, rows
+
+
+def test_a_contact_still_in_reach_that_left_the_table_was_not_followed(steps, on_both_slopes):
+    m, target, rows = on_both_slopes
+    assert steps.causes_of_step(m, target, rows, rows[:1], 0, 0, -1, -1) == ["not_followed"]
+    # the same minimum, seen from a target lifted out of the law's reach: it left below the floor
+    lifted = target + [0.0, 0.0, 3e-9]
+    assert steps.causes_of_step(m, lifted, rows, rows[:1], 0, 0, -1, -1) == ["below_floor"]
+
+
+def test_a_contact_whose_minimum_is_another_row_s_merged_and_one_with_none_near_is_gone(steps, on_both_slopes):
+    m, target, rows = on_both_slopes
+    h = 1e-9  # the valley's knot spacing (1 nm pixels)
+    u, v, d = rows[1]
+    beside = (u + 0.05 * h, v, d)  # inside the second contact's basin: Newton ends on row 1
+    # (row 1 is then also a contact the step found: the first cause is the one the step is put down to)
+    assert steps.causes_of_step(m, target, [rows[0], beside], rows, 0, 0, -1, -1) == ["merged", "found"]
+    far = (u + 12e-9, v, d)  # on the next valley's slope, 12 nm away: no minimum within half a knot
+    assert steps.causes_of_step(m, target, rows + [far], rows, 0, 0, -1, -1) == ["gone"]
+
+
+def test_a_minimum_the_target_is_behind_left_behind_the_target(steps):
+    """A target pressed 1.3 tip radii below the valley's bottom: the next valley's minimum, 8.8 nm
+    away, is deeper than R under it (the target is behind its patch, which the table does not
+    take): one that leaves the table left it behind the target."""
+    from arsurf.contact.newton import newton_foot
+
+    m = valley_model("sinusoid")
+    target = np.array([33.3e-9, 24e-9, height_for("sinusoid", 33e-9, depth=1.3 * R)])
+    m.step(target)
+    rows = steps._rows(m.state)
+    assert rows[0][2] > R  # the closest point is more than R deep: the target is inside the material
+    ctrl, ku, kv = m._live[1], m._live[2], m._live[3]
+    u, v, *_, signed, ok = newton_foot(ctrl, ku, kv, np.zeros((8, 3)), *target, rows[0][0] + 8e-9, rows[0][1], 1e-9)
+    assert ok and R - signed > R and abs(u - rows[0][0]) > 8e-9  # the next valley's minimum, behind the target
+    assert steps.causes_of_step(m, target, [rows[0], (u, v, R - signed)], rows[:1], 0, 0, -1, -1) == ["behind_target"]
+
+
+def test_the_other_causes_and_their_order(steps, on_both_slopes):
+    m, target, rows = on_both_slopes
+    assert steps.causes_of_step(m, target, rows[:1], rows, 0, 0, -1, -1) == ["found"]
+    assert steps.causes_of_step(m, target, rows, rows[::-1], 0, 0, -1, -1) == ["closest_hop"]
+    assert steps.causes_of_step(m, target, rows, rows, 0, 0, -1, 1) == ["second_reference"]
+    assert steps.causes_of_step(m, target, rows, rows, (0.0,), (1.0,), -1, -1) == ["scan"]
+    assert steps.causes_of_step(m, target, rows, rows, 0, 0, -1, -1) == ["steep"]
+    # several at once: the first in CAUSES' order
+    assert steps.causes_of_step(m, target, rows, rows[:1], (0.0,), (1.0,), -1, -1) == ["not_followed", "scan"]
+
+
+def test_a_sweep_along_a_smooth_valley_has_no_step_and_a_sweep_across_it_steps_where_the_table_does(steps):
+    """Along the sinusoid's valley (y) nothing changes: no step. Across it (x), from one slope over
+    the valley's bottom, the tip behind a 5 N/m coupling: the sweep reports the steps it finds with
+    their causes, and the shares of the summed step size add up to 1."""
+    m = valley_model("sinusoid", coupling=5.0)
+    start = np.array([33.3e-9, 10e-9, height_for("sinusoid", 33e-9)])
+    along = steps.sweep(m, start, math.pi / 2, 4e-9, 20e-12, 0.01)
+    assert along["touching_share"] == 1.0 and along["steps"] == 0 and along["causes"] == {}
+    assert along["median_step_N"] <= 1e-6 * along["median_force_N"]
+    m = valley_model("sinusoid", coupling=5.0)
+    across = steps.sweep(m, start - [2e-9, 0.0, 0.0], 0.0, 4e-9, 20e-12, 0.01)
+    assert across["median_force_N"] > 0.0 and across["touching_share"] == 1.0
+    assert set(across["causes"]) <= set(steps.CAUSES)
+    if across["steps"]:
+        assert sum(c["share_of_step_size"] for c in across["causes"].values()) == pytest.approx(1.0)
+
+
+def test_the_bench_sweeps_a_table_row_and_refuses_bad_arguments(tmp_path):
+    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
+    table = tmp_path / "rows.jsonl"
+    table.write_text(json.dumps({"key": key, "kind": "fast", "ok": False}) + "\n")
+    plan = ["--families", "4", "--runs", "1", "1", "--seed", "5"]
+    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--length", "1", "--step", "5"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (run,) = json.loads(done.stdout)["runs"]
+    assert run["key"] == key and run["motion"] == "slide-100"
+    assert run["median_force_N"] > 0.0 and 0.0 <= run["target_inside_share"] <= 1.0
+    assert run["steps"] == sum(c["count"] for c in run["causes"].values())
+    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--step", "0"], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1 and "positive" in done.stderr
