@@ -19,8 +19,8 @@ the first of these causes that the contact table shows across it:
 - ``merged``: a contact left whose minimum is now another row's;
 - ``below_floor``: a contact left whose minimum is still there, shallower than the interaction
   floor (an exit with no load, by the entry ramp);
-- ``gone``: a contact left whose minimum is no longer found within half a knot spacing (it died
-  at a fold, or moved that far in one step);
+- ``gone``: a contact left whose minimum Newton no longer finds within half a knot spacing of
+  where it was (a minimum flattening towards the fold where it dies: the run creeps and gives up);
 - ``found``: a contact entered (a scan, or a minimum born);
 - ``closest_hop``: the closest point (row 0) moved to another minimum;
 - ``second_reference``: the second reference of the weights changed;
@@ -58,7 +58,7 @@ from arsurf.model import CONTACT_MARGIN, F_JUMP_OUT, M_SIM_FX, S_CONTACTS  # noq
 
 CAUSES = ("behind_target", "not_followed", "merged", "below_floor", "gone", "found", "closest_hop",
           "second_reference", "scan", "steep")
-#: the press before the sweep: its length (s) and the tick the model is taken at
+#: the press before the sweep (s): the model is taken at its last tick
 PRESS_SECONDS = 1.5
 
 
@@ -95,7 +95,7 @@ def causes_of_step(model, target, before, after, scan_before, scan_after, second
     """The causes (in :data:`CAUSES` order) the contact table shows across one step of the sweep."""
     live_ctrl, live_rest, ku, kv, patch = model._live
     h = max(ku[4] - ku[3], kv[4] - kv[3])
-    radius = model.tip_radius
+    radius = model.tip_radius  # depth = R - signed distance
     floor = model._friction[F_JUMP_OUT] - CONTACT_MARGIN * model.contact.depth_scale
     ev = np.zeros((8, 3))
     found = set()
@@ -107,7 +107,7 @@ def causes_of_step(model, target, before, after, scan_before, scan_after, second
             found.add("gone")
         elif _near(uu, vv, after, 1e-3 * h):
             found.add("merged")
-        elif radius - signed > radius:
+        elif signed < 0.0:  # more than R deep: the target is behind its patch
             found.add("behind_target")
         elif radius - signed < floor:
             found.add("below_floor")
