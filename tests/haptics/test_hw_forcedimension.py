@@ -207,13 +207,20 @@ def test_axes_and_force_sign_at_rest(sim):
 def test_the_full_loop_records_positions_and_forces(sim, tmp_path):
     """The hand presses the stylus 3 mm down (the probe 30 nm into a flat sample) and holds: the
     loop pushes up until the handle rests where the device's force balances the hand's spring,
-    F_z = k_hand (p_hand - z), and the device applies the force the session recorded."""
-    reset(sim, hand=(0.0, 0.0, -0.003))
-    seen = {}
-    with device(max_force=4.0) as dev:
-        r = run(dev, tmp_path / "s.h5", 1.5, events=[(1.3, lambda: seen.update(state(sim)))])
-        last = state(sim)
-    assert r.error is None and r.complete
+    F_z = k_hand (p_hand - z), and the device applies the force the session recorded. A run the
+    machine stalled in (a tick more than 10 ms late, or the device's 20 ms watchdog tripped: the
+    handle is then pushed by the hand alone until the loop is back, and settles again) is run again,
+    up to three times: rest is asserted on an undisturbed run."""
+    for attempt in range(3):
+        reset(sim, hand=(0.0, 0.0, -0.003))
+        seen = {}
+        with device(max_force=4.0) as dev:
+            r = run(dev, tmp_path / f"s{attempt}.h5", 1.5, events=[(1.3, lambda: seen.update(state(sim)))])
+            last = state(sim)
+        assert r.error is None and r.complete
+        stalled = counters(sim)["watchdog_trips"] > 0 or np.diff(r.ticks["t"]).max() > 0.010
+        if not stalled:
+            break
     t = r.ticks
     assert len(t["t"]) > 1000  # 1.5 s at 1 kHz (a loaded machine skips some ticks)
     z, fz = t["stylus_position"][:, 2], t["device_force"][:, 2]
