@@ -62,16 +62,16 @@ CAUSES = ("behind_target", "not_followed", "merged", "below_floor", "gone", "fou
 PRESS_SECONDS = 1.5
 
 
-def pressed_model(surface, tip_radius):
+def pressed_model(surface, tip_radius, friction=None):
     """The model and the target (m) a 1 kHz default-loop press on ``surface`` leaves, with the
-    jump blend off."""
+    jump blend off (``friction``: the kinetic coefficient; None: the preset's)."""
     taken = {}
 
     def after(tip, probe, model):
         taken["model"], taken["target"] = model, probe.copy()
 
     run_scenario(surface, motion="press", source="simulated", rate=1000.0, seconds=PRESS_SECONDS,
-                 tip_radius=tip_radius, after_tick=after)
+                 tip_radius=tip_radius, friction=friction, after_tick=after)
     model = copy.deepcopy(taken["model"])
     model.set_jump_blend(0.0, 1e-3)
     return model, taken["target"]
