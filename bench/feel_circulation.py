@@ -6,12 +6,12 @@ gains on one side of a loop it gives back on the other. The model's force is not
 finite loop rather than at a point (``bench/feel_field.py`` reads the Jacobian's skew part there).
 
 For the surface of each run of a families table (``bench/feel.py --families ... --out FILE``; by
-default only the failing ones; each surface once), the surface is pressed with the default loop (the preset's press, simulated
-source, 1 kHz, 1.5 s, ``--friction``: by default none, so that the contact force alone is read),
-and the model the loop leaves is then driven by hand, with the jump blend off: its target goes
-twice round a circle of ``--radius`` nm through where the press left it, in each coordinate plane
-(xy, xz, yz), in ``--points`` steps a turn. Printed per surface (with the table keys of its runs)
-and plane, for the second turn:
+default only the failing ones; each surface once), the surface is pressed with the default loop
+(the preset's press, simulated source, 1 kHz, 1.5 s, ``--friction``: by default none, so that the
+contact force alone is read), and the model the loop leaves is then driven by hand, with the jump
+blend off: its target goes twice round a circle of ``--radius`` nm through where the press left
+it, in each coordinate plane (xy, xz, yz), in ``--points`` steps a turn. Printed per surface
+(with the table keys of its runs) and plane, for the second turn:
 
 - ``lap_work_J``: :math:`W = \\oint F\\cdot dC` (trapezoidal), the work the force does on the
   target in one turn (> 0: the hand that moves the target gains it; a gradient gives 0);
