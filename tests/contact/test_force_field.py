@@ -20,17 +20,9 @@ from arsurf.errors import ContactError, PositionError
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
-from tests.support.valleys import LEVER, R, height_for, valley_model
+from tests.support.valleys import LEVER, R, height_for, pressed_onto, valley_model
 
 LAW = MaugisDugdale(R, 50e9, 0.05)
-
-
-def _pressed(model, c, steps=20):
-    """The tip brought down onto ``c`` (m) from 4 nm above, a tick per 0.2 nm, then held there."""
-    for k in range(steps):
-        model.tick((c[0], c[1], c[2] + (steps - k) * 0.2e-9))
-    for _ in range(5):
-        model.tick(c)
 
 
 @pytest.mark.parametrize("coupling", [math.inf, 1.0, 20.0])
@@ -38,7 +30,7 @@ def test_on_one_contact_the_jacobian_is_the_series_stiffness_and_symmetric(coupl
     flat = fit_surface(synthetic.sinusoid(shape=(40, 40), pixel=1e-9, amplitude=0.0, period=10e-9))
     m = ARModel(flat, R, LAW, LEVER, friction=0.0, deform=False, coupling_stiffness=coupling)
     c = np.array([20e-9, 20e-9, R - 1.0e-9])  # the target 1 nm into the surface
-    _pressed(m, c)
+    pressed_onto(m, c)
     state = m.state.copy()
     jac = m.force_jacobian(c)
     np.testing.assert_array_equal(m.state, state)  # the contact history is untouched
@@ -64,7 +56,7 @@ def test_bad_arguments_are_refused():
 def test_in_a_valley_narrower_than_the_tip_the_force_is_a_gradient(offset):
     m = valley_model("sinusoid")
     c = np.array([33e-9 + offset, 24e-9, height_for("sinusoid", 33e-9, 2e-9)])  # both slopes ~2 nm deep
-    _pressed(m, c)
+    pressed_onto(m, c)
     jac = m.force_jacobian(c)
     skew, sym = 0.5 * (jac - jac.T), 0.5 * (jac + jac.T)
     assert np.linalg.norm(skew) <= 0.01 * np.linalg.norm(sym)
@@ -80,7 +72,7 @@ def test_sideways_the_hand_feels_about_the_coupling_not_the_valley_s_walls(kind,
     k_c = 5.0
     m = valley_model(kind, coupling=k_c)
     c = np.array([x_mid + 0.3e-9, 24e-9, height_for(kind, x_mid, 2e-9)])  # both walls ~2 nm deep
-    _pressed(m, c)
+    pressed_onto(m, c)
     jac = m.force_jacobian(c)
     stiffness = np.linalg.eigvalsh(-0.5 * (jac + jac.T))  # N/m, along the field's principal directions
     assert stiffness.max() <= 1.15 * k_c, stiffness

@@ -2,12 +2,10 @@
 (docs/feel.rst, "Where the rough runs' energy comes from")."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,25 +14,15 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
-from support.valleys import LEVER, R, height_for, valley_model
+from support.benches import BENCH as BENCHES, load_bench
+from support.valleys import LEVER, R, height_for, pressed_onto, valley_model
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "feel_circulation.py"
+BENCH = BENCHES / "feel_circulation.py"
 
 
 @pytest.fixture(scope="module")
 def circulation():
-    spec = importlib.util.spec_from_file_location("bench_feel_circulation", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def _pressed(model, c, steps=20):
-    """The tip brought down onto ``c`` (m) from 4 nm above, a tick per 0.2 nm, then held there."""
-    for k in range(steps):
-        model.tick((c[0], c[1], c[2] + (steps - k) * 0.2e-9))
-    for _ in range(5):
-        model.tick(c)
+    return load_bench("feel_circulation")
 
 
 def test_one_contact_on_a_flat_does_no_work_round_a_loop(circulation):
@@ -44,7 +32,7 @@ def test_one_contact_on_a_flat_does_no_work_round_a_loop(circulation):
     flat = fit_surface(synthetic.sinusoid(shape=(40, 40), pixel=1e-9, amplitude=0.0, period=10e-9))
     m = ARModel(flat, R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False, coupling_stiffness=5.0)
     c = np.array([20e-9, 20e-9, R - 1.0e-9])
-    _pressed(m, c)
+    pressed_onto(m, c)
     for plane in ("xz", "yz"):
         w = circulation.loop_work(m, c, 0.3e-9, plane, points=400)
         assert w["absolute_work_J"] > 0.0 and abs(w["circulation"]) <= 1e-9, w
@@ -62,7 +50,7 @@ def test_in_a_valley_narrower_than_the_tip_the_work_of_a_turn_is_the_curl_the_ja
     sign; along the valley (the sinusoid is straight along y) there is none."""
     m = valley_model("sinusoid", coupling=5.0)
     c = np.array([33.8e-9, 24e-9, height_for("sinusoid", 33e-9, 2e-9)])
-    _pressed(m, c)
+    pressed_onto(m, c)
     r = 0.1e-9
     jac = m.force_jacobian(c - [r, 0.0, 0.0])  # at the loop's centre; J[i, j] = dF_i/dC_j
     ccw = circulation.loop_work(m, c, r, "xz", points=800)

@@ -2,27 +2,23 @@
 contact-table event that made each (docs/feel.rst, "Where the balance steps")."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from support.benches import BENCH as BENCHES, load_bench
 from support.valleys import R, height_for, valley_model
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "feel_steps.py"
+BENCH = BENCHES / "feel_steps.py"
 
 
 @pytest.fixture(scope="module")
 def steps():
-    spec = importlib.util.spec_from_file_location("bench_feel_steps", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("feel_steps")
 
 
 @pytest.fixture(scope="module")

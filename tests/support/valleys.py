@@ -51,3 +51,12 @@ def height_for(kind: str, x_mid: float, depth: float = 0.4e-9) -> float:
         c = collide(s, (x_mid, 24e-9, z), R)
         z -= (depth - c.depth) / c.normal[2]
     return z
+
+
+def pressed_onto(model, c, steps: int = 20) -> None:
+    """The tip brought down onto ``c`` (m) from ``steps`` x 0.2 nm above, a tick per 0.2 nm, then
+    held there for five ticks."""
+    for k in range(steps):
+        model.tick((c[0], c[1], c[2] + (steps - k) * 0.2e-9))
+    for _ in range(5):
+        model.tick(c)
