@@ -628,13 +628,9 @@ def test_the_benchmark_s_rough_patch_rests_on_many_contacts_and_its_parts_call_t
     one (the collision, finding and weighing the contacts, the lift, the sideways step): the patch
     must rest the tip on several minima (the row's premise) and the parts must drive the kernels
     as they are (a changed kernel signature broke the row unseen). No timing is asserted."""
-    import importlib.util
-    from pathlib import Path
+    from tests.support.benches import load_bench
 
-    path = Path(__file__).resolve().parents[2] / "bench" / "haptic_loop.py"
-    spec = importlib.util.spec_from_file_location("bench_haptic_loop", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("haptic_loop")
     _, model, points = bench._rough_patch(60)
     counts = []
     for p in points:

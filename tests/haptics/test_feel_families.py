@@ -393,14 +393,9 @@ def test_a_slow_slide_pressed_among_a_dozen_contacts_does_not_buzz_at_1_khz():
 
 def _bench_feel():
     """bench/feel.py as a module (a script, not a package)."""
-    import importlib.util
-    from pathlib import Path
+    from support.benches import load_bench
 
-    path = Path(__file__).resolve().parents[2] / "bench" / "feel.py"
-    spec = importlib.util.spec_from_file_location("bench_feel", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("feel")
 
 
 def _run_diagnostic(name: str, table, row: dict):
@@ -503,14 +498,11 @@ def test_the_pair_bench_finds_where_two_rates_part_and_reruns_a_pair_as_the_tabl
     difference there, and the tips' separation is read where the 1 kHz probe passes; a pair of a
     table is run again exactly as the table judged it (the same rate error), and once with the jump
     blend off; a key the plan does not hold is refused in one line."""
-    import importlib.util
-    from pathlib import Path
     from types import SimpleNamespace
 
-    script = Path(__file__).resolve().parents[2] / "bench" / "feel_pairs.py"
-    spec = importlib.util.spec_from_file_location("bench_feel_pairs", script)
-    pairs = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(pairs)
+    from support.benches import load_bench
+
+    pairs = load_bench("feel_pairs")
     t = np.arange(30000) * 1e-4  # 3 s at 10 kHz
     probe = np.column_stack([100e-9 * t, 0 * t, 0 * t])  # a slide at 100 nm/s
     force = np.column_stack([1e-3 * np.sin(2 * np.pi * 5 * t), 0 * t, 0.02 + 0 * t])
