@@ -99,7 +99,10 @@ def test_axes_and_force_sign_at_rest(sim):
     """Hand at (10, 20, -5) mm in the HD frame: arsurf (10, 5, 20) mm. +0.5 N along arsurf y (away
     from the operator) is -z in HD and moves the handle 0.5/k_hand away."""
     reset(sim, hand=(0.010, 0.020, -0.005))
-    with device() as dev:
+    # the force is read after the loop has stopped: a command older than the servo's 10 ms default
+    # is rightly dropped (test_the_servo_thread_drops_a_stale_command), and on a loaded machine this
+    # thread may be descheduled that long between the loop's end and the reading below
+    with device(command_timeout=1.0) as dev:
         s = dev.read_state()
         np.testing.assert_allclose(s.position, [0.010, 0.005, 0.020], atol=1e-6)
         push = np.array([0.0, 0.5, 0.0])
