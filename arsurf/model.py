@@ -827,7 +827,7 @@ class ARModel:
         loop's force gain over its scale). A skew-symmetric part means the force is not the
         gradient of any potential: moved around a small loop of area A in the (i, j) plane the tip
         is given the work :math:`(J_{ji} - J_{ij})\,A` per turn (Stokes), energy that the haptic
-        loop's passivity controller then has to take out (docs/feel.rst, "Where the rough runs'
+        loop's passivity controller then has to take out (docs/feel-log.rst, "Where the rough runs'
         energy comes from")."""
         c = np.asarray(center, dtype=np.float64).reshape(-1)
         step = float(step)

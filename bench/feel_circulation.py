@@ -2,7 +2,7 @@
 
 A force that is the gradient of a potential does no net work round a closed path: what a hand
 gains on one side of a loop it gives back on the other. The model's force is not one everywhere
-(docs/feel.rst, "Where the rough runs' energy comes from"): this measures by how much, over a
+(docs/feel-log.rst, "Where the rough runs' energy comes from"): this measures by how much, over a
 finite loop rather than at a point (``bench/feel_field.py`` reads the Jacobian's skew part there).
 
 For the surface of each run of a families table (``bench/feel.py --families ... --out FILE``; by

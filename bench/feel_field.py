@@ -9,7 +9,7 @@ virtual-coupling stiffness k_c (N/m at the probe's scale): the eigenvalues of th
 -(J + J^T)/2 and the norm of the skew part (J - J^T)/2, with the contacts the tip rests on. A
 coupling at the passivity bound renders at most k_c; a skew part is a force that is not a
 gradient: moved round a loop the tip is given energy, the pressing hand's drift finds it, and
-the passivity controller (whose damping can only take out b v^2) falls behind (docs/feel.rst,
+the passivity controller (whose damping can only take out b v^2) falls behind (docs/feel-log.rst,
 "Where the rough runs' energy comes from").
 
 Run: .venv/bin/python bench/feel_field.py TABLE.jsonl [--all] [--limit N] [--seed S --families N --runs 2 1]

@@ -8,7 +8,7 @@ and the lowest energy of the two runs (E0), the share of the squared difference 
 worst 100 ms (one event: a jump the two rates took differently), and how far the two rendered
 tips are apart where the 1 kHz loop sampled the path (nm; the largest, and the median of each
 100 ms's largest: paths that parted stay apart). The pass count of a table moves by a few runs with
-any change to the loop (docs/feel.rst, "The blend and the loop rate"); these say why a pair fails.
+any change to the loop (docs/feel-log.rst, "The blend and the loop rate"); these say why a pair fails.
 
 Run: .venv/bin/python bench/feel_pairs.py TABLE.jsonl [--all] [--limit N] [--seed S --families N --runs 4 2]
 (prints JSON; the seed, families and runs must be those the table was written with)

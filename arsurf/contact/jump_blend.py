@@ -29,7 +29,7 @@ coupling alone, :math:`E = k_c e`). The force goes from the old balance's to the
 :math:`1 - e^{-t/\tau}` from the tick of the jump, with no step and no reversal, the same function
 of time at any loop rate (the decay is exact in :math:`\Delta t`). The excess is the coupling
 still pulling the tip back where it was, the way a damped tip's does during its snap; the energy
-the observer measures (:mod:`arsurf.haptics.passivity`) on the feel table is in docs/feel.rst.
+the observer measures (:mod:`arsurf.haptics.passivity`) on the feel table is in docs/feel-log.rst.
 
 Only a slow hand's jumps are blended: :math:`\varphi = 1/(1 + (|\bar v|/v_b)^4)`, :math:`\bar v`
 the hand's velocity averaged over :math:`\tau` (exact first-order average: noise of the target

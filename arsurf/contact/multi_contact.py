@@ -37,7 +37,7 @@ hand's path was sampled at 1 or at 10 kHz (a single discovery start per tick, in
 found a minimum one tick and missed it the next depending on the step: the same point reached
 by steps of 0.01 or 1 nm felt forces up to 35 % apart on rough Gaussian surfaces, and a 1 kHz
 slide at 1000 nm/s differed from the same slide at 10 kHz by 39 %;
-tests/contact/test_multi_contact.py, docs/feel.rst).
+tests/contact/test_multi_contact.py, docs/feel-log.rst).
 Every converged end whose depth :math:`\delta_i = R - (C - S_i)\cdot n_i` (along its own normal
 :math:`n_i`, out of the sample) is within the interaction range and at most R is a contact (a
 minimum with :math:`(C - S_i)\cdot n_i < 0` has the centre behind its patch, inside the

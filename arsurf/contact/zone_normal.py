@@ -10,7 +10,7 @@ of a groove inside one contact zone) the closest point wanders over the patch wi
 travel, minima being born and dying under it, and its normal turns with it - on a power-law
 surface under a 7.0 nm tip the closest point hopped 0.5 nm to and fro inside one hollow and the
 normal turned by 0.15 rad each time: 15 nN steps of a 120 nN force in a 1 nm/s slide, which only the
-loop's low-passed normal had hidden (:mod:`arsurf.haptics.loop`; docs/feel.rst).
+loop's low-passed normal had hidden (:mod:`arsurf.haptics.loop`; docs/feel-log.rst).
 
 So each contact pushes along the resultant of a distributed interaction over the patch around
 its point (u_c, v_c): the elastic-foundation (Winkler) picture of the contact, in which the
@@ -49,7 +49,7 @@ normal, reached at d = 0.
 Measured (``bench/feel.py``, the generated families), with the loop's low-passed normal removed
 as well: on 120 surfaces of a seed the table had not been tuned on (seed 1), 732 -> 753 of 788
 runs passed, tick-to-tick reversals 348 -> 198, energy below the passive store summed -400 ->
--32 E0 (docs/feel.rst). A 7 x 7 stencil passed 759 but cost a tick up to 1 us more.
+-32 E0 (docs/feel-log.rst). A 7 x 7 stencil passed 759 but cost a tick up to 1 us more.
 """
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ r"""The haptic rendering loop: one deterministic, compiled tick from stylus to d
    low-pass on the whole force gave the hand ~35 nJ per 2 Hz tap), and so does a lagging
    direction - the force once turned with a 50 Hz low-passed contact normal, and a tip pressed
    into a valley narrower than itself, whose walls turn the normal within a fraction of a
-   nanometre, swung across it at ~10 Hz and gave the hand 5-9 times the passive store (docs/feel.rst).
+   nanometre, swung across it at ~10 Hz and gave the hand 5-9 times the passive store (docs/feel-log.rst).
    A closest point that jumps is the model's to smooth, not the loop's
    (:mod:`arsurf.contact.zone_normal`);
 5. **coupling**: direct, :math:`F_h = K_f \odot F` ([Alabdulmuhsin] Eq. 9-10), or force-position with the

@@ -36,7 +36,7 @@ than the whole store before the controller acted. On the feel table (``bench/fee
 the store (:math:`-213\,E_0`, 1 kHz) in four ticks, as the tip came off an asperity it had been
 pressed 19.5 nm onto; counting the coming tick it keeps :math:`-0.41\,E_0`, and the energy below
 :math:`-E_0` summed over the table's 1 508 runs went from :math:`-292\,E_0` to :math:`-2.1\,E_0`
-(docs/feel.rst).
+(docs/feel-log.rst).
 
 The damping is limited to half the device's largest damping (:data:`DAMPING_FRACTION`: the controller's damper
 acts on the last measured velocity, a tick late, and at the device's full limit it chatters

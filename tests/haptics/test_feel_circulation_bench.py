@@ -1,5 +1,5 @@
 """``bench/feel_circulation.py``: the work the contact force does round a closed loop of the target
-(docs/feel.rst, "Where the rough runs' energy comes from")."""
+(docs/feel-log.rst, "Where the rough runs' energy comes from")."""
 from __future__ import annotations
 
 import json
@@ -56,7 +56,7 @@ def test_in_a_valley_narrower_than_the_tip_the_work_of_a_turn_is_the_curl_the_ja
     ccw = circulation.loop_work(m, c, r, "xz", points=800)
     cw = circulation.loop_work(m, c, r, "xz", points=800, sense=-1)
     assert ccw["lap_work_J"] == pytest.approx((jac[2, 0] - jac[0, 2]) * math.pi * r * r, rel=0.05)
-    assert abs(ccw["circulation"]) >= 1e-3, ccw  # this model's valley: ~1 % of the work (docs/feel.rst)
+    assert abs(ccw["circulation"]) >= 1e-3, ccw  # this model's valley: ~1 % of the work (docs/feel-log.rst)
     assert ccw["memory"] <= 1e-6 and cw["memory"] <= 1e-6
     assert cw["lap_work_J"] == pytest.approx(-ccw["lap_work_J"], rel=1e-3)
     along = circulation.loop_work(m, c, r, "yz", points=800)

@@ -1,5 +1,5 @@
 """``bench/feel_steps.py``: the steps of the tip's balance along a swept target, put down to the
-contact-table event that made each (docs/feel.rst, "Where the balance steps")."""
+contact-table event that made each (docs/feel-log.rst, "Where the balance steps")."""
 from __future__ import annotations
 
 import json

@@ -76,7 +76,7 @@ def test_the_filter_delays_the_measured_part_only_never_the_contact_s_force():
     on every tick, its direction included, while the contact normal turns as the tip slides over
     the sinusoid. (The force once turned with a 50 Hz low-passed normal; a lagging direction is an
     active element: pressed into a valley narrower than the tip the hand swung across it at ~10 Hz
-    and gained 5-9 times the passive store, docs/feel.rst.)"""
+    and gained 5-9 times the passive store, docs/feel-log.rst.)"""
     from arsurf.haptics.loop import LOOP_OUT
 
     s, model, dev, loop = _setup()
