@@ -161,15 +161,27 @@ def sweep(model, start, heading: float, length: float, step: float, threshold: f
                            "share_of_step_size": sum(v) / total} for c, v in per.items() if v}}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_table_arguments(ap, families=240, runs=(4, 2), seed=0)
+def add_sweep_arguments(ap) -> None:
+    """The sweep's arguments (module docstring; ``bench/zone_energy.py`` sweeps alike)."""
     ap.add_argument("--length", type=float, default=20.0, help="nm swept (default 20)")
     ap.add_argument("--step", type=float, default=1.0, help="pm per step (default 1)")
     ap.add_argument("--threshold", type=float, default=0.01, help="a step: this fraction of the median force")
-    args = ap.parse_args()
+
+
+def sweep_arguments_error(args) -> str | None:
+    """What is wrong with the sweep's arguments, in one line, or None."""
     if not (args.length > 0 and args.step > 0 and args.threshold > 0 and args.length * 1e3 / args.step <= 1e6):
-        sys.exit("feel_steps: --length, --step and --threshold must be positive, with at most 1e6 steps")
+        return "--length, --step and --threshold must be positive, with at most 1e6 steps"
+    return None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_table_arguments(ap, families=240, runs=(4, 2), seed=0)
+    add_sweep_arguments(ap)
+    args = ap.parse_args()
+    if (error := sweep_arguments_error(args)) is not None:
+        sys.exit(f"feel_steps: {error}")
     out = []
     for kind in ("slow", "fast"):
         for run in table_runs(args, kind):

@@ -1,0 +1,185 @@
+"""The tip's energy summed over the surface (arsurf.contact.zone_energy): on a flat the rigid
+sphere's exact load, a force that is the gradient of the energy (and a Hessian that is its
+derivative), and - in the valley narrower than the tip where the several-contact model's force is
+not a gradient (tests/contact/test_force_field.py) - no work round a loop and a force continuous
+across the middle; behind a virtual coupling, the proxy tip at the balance of the two."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from arsurf.contact.maugis_dugdale import MaugisDugdale
+from arsurf.contact.zone_energy import (ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel, zone_law_kernel,
+                                        zone_proxy_kernel)
+from arsurf.errors import ContactError, SurfaceError
+from arsurf.scan import synthetic
+from arsurf.spline.fit import fit_surface
+from arsurf.spline.surface import BSplineSurface
+from tests.support.valleys import R, height_for, valley_surface
+
+LAW = ZoneLaw.from_law(MaugisDugdale(R, 50e9, 0.05))
+
+
+@pytest.fixture(scope="module")
+def flat():
+    return surface_lattice(fit_surface(synthetic.sinusoid(shape=(60, 60), pixel=1e-9, amplitude=0.0,
+                                                          period=10e-9)), per_knot=4)
+
+
+def sphere_on_flat(depth):
+    """The law summed over a flat by rings (the integral the lattice approximates): each ring at
+    lateral r pushes along the line to the centre, (R - depth) / d of it upwards."""
+    h = R - depth
+
+    def ring(r):
+        d = math.hypot(r, h)
+        return 2.0 * math.pi * r * zone_law_kernel(d - R, *LAW.args)[1] * h / d
+
+    edge = math.sqrt(max(R * R - h * h, 0.0))  # where the gap closes: the pressure's kink
+    reach = math.sqrt((R + LAW.interaction_range) ** 2 - h * h)
+    return quad(ring, 0.0, reach, points=[edge] if edge > 0 else None, limit=200, epsabs=0.0, epsrel=1e-11)[0]
+
+
+@pytest.mark.parametrize("depth", [-0.15e-9, 0.0, 0.2e-9, 0.5e-9, 1.0e-9])
+def test_on_a_flat_the_tip_feels_the_law_summed_over_its_cap(flat, depth):
+    energy, force = zone_energy(flat, LAW, (30e-9, 30.1e-9, R - depth))
+    exact = LAW.flat_load(depth)
+    assert sphere_on_flat(depth) == pytest.approx(exact, rel=1e-7)  # 2 pi (R - d) phi(-d), exactly
+    assert force[2] == pytest.approx(exact, rel=2e-3)  # the lattice's quadrature, 0.25 nm apart
+    assert np.abs(force[:2]).max() <= 1e-3 * abs(exact)
+    if depth >= 0.0:  # Hertz with the Dugdale adhesion's -2 pi R w, times (1 - depth / R)
+        dmt = 4.0 / 3.0 * LAW.effective_modulus * math.sqrt(R) * depth ** 1.5 - 2.0 * math.pi * R * LAW.work_of_adhesion
+        assert exact == pytest.approx(dmt * (1.0 - depth / R), rel=1e-12)
+
+
+def test_out_of_reach_the_tip_feels_nothing(flat):
+    energy, force = zone_energy(flat, LAW, (30e-9, 30e-9, R + 1.01 * LAW.interaction_range))
+    assert energy == 0.0 and not force.any()
+
+
+def test_the_force_is_the_gradient_of_the_energy_on_a_rough_surface():
+    rough = surface_lattice(fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=1.5e-9,
+                                                        correlation_length=2.5e-9, seed=3)), per_knot=3)
+    z = float(rough.points[:, :, 2].max())
+    h = 1e-12
+    for c in ([16e-9, 15e-9, z + R - 1.0e-9], [14e-9, 17.5e-9, z + R - 2.5e-9], [18e-9, 16e-9, z + R - 0.1e-9]):
+        c = np.array(c)
+        force = zone_energy(rough, LAW, c)[1]
+        grad = [(zone_energy(rough, LAW, c + h * e)[0] - zone_energy(rough, LAW, c - h * e)[0]) / (2 * h)
+                for e in np.eye(3)]
+        np.testing.assert_allclose(-np.array(grad), force, rtol=1e-5, atol=1e-6 * np.linalg.norm(force))
+
+
+def test_the_hessian_is_the_derivative_of_the_force():
+    rough = surface_lattice(fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=1.5e-9,
+                                                        correlation_length=2.5e-9, seed=3)), per_knot=3)
+    z = float(rough.points[:, :, 2].max())
+    h = 1e-13
+    for c in ([16e-9, 15e-9, z + R - 1.0e-9], [14e-9, 17.5e-9, z + R - 2.5e-9]):
+        c = np.array(c)
+        hess, out = np.empty((3, 3)), np.empty(4)
+        zone_energy_kernel(*rough.kernel_args(), *c, *LAW.args, out, hess)
+        jac = np.column_stack([(zone_energy(rough, LAW, c + h * e)[1] - zone_energy(rough, LAW, c - h * e)[1]) / (2 * h)
+                               for e in np.eye(3)])
+        np.testing.assert_allclose(hess, -jac, atol=1e-4 * np.linalg.norm(jac))
+        assert np.array_equal(hess, hess.T)
+
+
+def test_behind_a_coupling_the_proxy_rests_where_the_spring_balances_the_law(flat):
+    """A target 3 nm into a flat behind a 5 N/m coupling: the tip, brought down from 1 nm above,
+    settles where k (T - C) is the law's load at its depth (a 1-D root of the exact flat load)."""
+    from scipy.optimize import brentq
+
+    k, target = 5.0, np.array([30e-9, 30.1e-9, R - 3e-9])
+    tip, out = np.array([30e-9, 30.1e-9, R + 1e-9]), np.empty(4)
+    iterations = zone_proxy_kernel(*flat.kernel_args(), *target, k, *LAW.args, tip, out)
+    assert 0 < iterations <= 20
+    np.testing.assert_allclose(out[1:], k * (tip - target), atol=1e-6 * k * R)  # the balance
+    depth = brentq(lambda d: LAW.flat_load(d) - k * (R - d - target[2]), -LAW.interaction_range, R / 2)
+    assert R - tip[2] == pytest.approx(depth, abs=1e-12)  # within a picometre: the lattice's quadrature
+    assert zone_proxy_kernel(*flat.kernel_args(), *target, k, *LAW.args, tip, out) == 0  # already there
+
+
+@pytest.fixture(scope="module")
+def valley():
+    return surface_lattice(valley_surface("sinusoid"), per_knot=4)
+
+
+@pytest.mark.parametrize("offset", [0.3e-9, 0.8e-9, 1.5e-9])
+def test_in_the_valley_narrower_than_the_tip_a_loop_gives_no_work(valley, offset):
+    """Where the several-contact model's force does ~1 % of its absolute work as net work round a
+    0.1 nm loop across the valley and up its walls (tests/haptics/test_feel_circulation_bench.py;
+    its Jacobian's skew part is 8.9-11.8 % of the symmetric part, tests/contact/test_force_field.py),
+    the zone energy's force gives back all it takes, to the quadrature's rounding."""
+    c = np.array([33e-9 + offset, 24e-9, height_for("sinusoid", 33e-9, 2e-9)])
+    t = np.linspace(0.0, 2.0 * np.pi, 4001)
+    path = c + 0.1e-9 * np.column_stack([np.cos(t), np.zeros_like(t), np.sin(t)])  # the xz plane
+    forces = np.array([zone_energy(valley, LAW, p)[1] for p in path])
+    mid = 0.5 * (forces[1:] + forces[:-1])  # the trapezoidal rule along the path
+    work = np.einsum("ij,ij->i", mid, np.diff(path, axis=0))
+    assert abs(work.sum()) <= 1e-6 * np.abs(work).sum()
+    energy = [zone_energy(valley, LAW, p)[0] for p in path[::1000]]
+    assert abs(energy[0] - energy[-1]) == 0.0  # the same point, the same energy: no memory
+
+
+def test_across_the_valley_the_force_turns_without_a_step(valley):
+    """Sweeping the tip across the middle of the valley, where the closest point hops from one wall
+    to the other: both walls push at once, and the force turns continuously."""
+    z = height_for("sinusoid", 33e-9, 2e-9)
+    xs = 33e-9 + np.linspace(-1.5e-9, 1.5e-9, 3001)  # 1 pm steps
+    forces = np.array([zone_energy(valley, LAW, (x, 24e-9, z))[1] for x in xs])
+    steps = np.linalg.norm(np.diff(forces, axis=0), axis=1)
+    assert steps.max() <= 1e-3 * np.linalg.norm(forces, axis=1).min()
+    angle = np.arctan2(forces[:, 0], forces[:, 2])
+    assert angle[0] > 0.01 > -0.01 > angle[-1]  # pushed back towards the middle from either side
+    assert np.all(np.diff(angle) < 0.0)  # turning one way, through the middle
+
+
+def test_bad_inputs_are_refused_in_one_line(flat):
+    with pytest.raises(ContactError, match="center"):
+        zone_energy(flat, LAW, (0.0, math.nan, 1e-9))
+    with pytest.raises(ContactError, match="effective_modulus"):
+        ZoneLaw(R, -1.0, 0.05, 1e8)
+    with pytest.raises(ContactError, match="work_of_adhesion"):
+        ZoneLaw(R, 50e9, math.inf, 1e8)
+    surface = valley_surface("sinusoid")
+    for bad in (0, 65, 2.5, True):
+        with pytest.raises(SurfaceError, match="per_knot"):
+            surface_lattice(surface, bad)
+    ctrl = surface.control_points.copy()
+    ctrl[:, :, 0] += 1e-10 * np.arange(ctrl.shape[1])  # x now varies along v too: not a height field
+    skewed = BSplineSurface(ctrl, surface.knots_u, surface.knots_v)
+    with pytest.raises(SurfaceError, match="height-field"):
+        surface_lattice(skewed)
+
+
+def test_behind_a_coupling_the_proxy_crosses_the_valley_without_a_step_and_gives_back_its_work(valley):
+    """The target swept across the valley narrower than the tip behind a 5 N/m coupling (the
+    setting of test_force_field.py's sideways test), the tip followed from where it was: the
+    force the hand gets, k (T - C), turns without a step, and round a closed loop of the target
+    it does no net work (the proxy stays on one minimum: its force is the gradient of the
+    coupled energy's minimum over the tip)."""
+    k = 5.0
+    z = height_for("sinusoid", 33e-9, 2e-9) - 1e-9
+    tip, out = np.array([31.5e-9, 24e-9, z + 10e-9]), np.empty(4)
+
+    def hand_force(target):
+        iterations = zone_proxy_kernel(*valley.kernel_args(), *target, k, *LAW.args, tip, out)
+        assert iterations >= 0
+        return k * (tip - target)
+
+    xs = 33e-9 + np.linspace(-1.5e-9, 1.5e-9, 3001)
+    forces = np.array([hand_force(np.array([x, 24e-9, z])) for x in xs])
+    steps = np.linalg.norm(np.diff(forces, axis=0), axis=1)
+    assert steps.max() <= 1e-3 * np.linalg.norm(forces, axis=1).min()
+    t = np.linspace(0.0, 2.0 * np.pi, 2001)
+    c = np.array([33.8e-9, 24e-9, z])
+    path = c + 0.3e-9 * np.column_stack([np.cos(t), np.zeros_like(t), np.sin(t)])
+    hand_force(path[0])
+    loop = np.array([hand_force(p) for p in path])
+    mid = 0.5 * (loop[1:] + loop[:-1])
+    work = np.einsum("ij,ij->i", mid, np.diff(path, axis=0))
+    assert abs(work.sum()) <= 1e-5 * np.abs(work).sum()
