@@ -49,7 +49,8 @@ from feel_steps import add_sweep_arguments, pressed_model, sweep_arguments_error
 
 from arsurf.assembly import PRESETS  # noqa: E402
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
-from arsurf.contact.zone_energy import ZoneLaw, surface_lattice, zone_energy_kernel, zone_proxy_kernel  # noqa: E402
+from arsurf.contact.zone_energy import (Z_FORCE, Z_SIZE, ZoneLaw, surface_lattice, zone_energy_kernel,  # noqa: E402
+                                        zone_proxy_kernel)
 from arsurf.errors import SurfaceError  # noqa: E402
 from arsurf.model import M_SIM_FX, M_TIP  # noqa: E402
 
@@ -58,14 +59,14 @@ from arsurf.model import M_SIM_FX, M_TIP  # noqa: E402
 def _zone_sweep(points, areas, xs, ys, boxes, path, radius, e_star, sigma0, h0, forces, counts):
     """The zone energy's force at each point of ``path`` (n, 3) m into ``forces`` (n, 3) N, and the
     number of samples in reach into ``counts``."""
-    out = np.empty(4)
+    out = np.empty(Z_SIZE)
     none = np.empty((0, 0))
     for k in range(path.shape[0]):
         counts[k] = zone_energy_kernel(points, areas, xs, ys, boxes, path[k, 0], path[k, 1], path[k, 2], radius,
                                        e_star, sigma0, h0, out, none)
-        forces[k, 0] = out[1]
-        forces[k, 1] = out[2]
-        forces[k, 2] = out[3]
+        forces[k, 0] = out[Z_FORCE]
+        forces[k, 1] = out[Z_FORCE + 1]
+        forces[k, 2] = out[Z_FORCE + 2]
 
 
 @njit(cache=True)
@@ -73,13 +74,13 @@ def _proxy_sweep(points, areas, xs, ys, boxes, targets, stiffness, radius, e_sta
                  iterations):
     """The zone proxy along ``targets`` (n, 3) m from ``tip`` (3,) m: the force on the tip (N) and
     the tip (m) at each, and the Newton iterations."""
-    out = np.empty(4)
+    out = np.empty(Z_SIZE)
     for k in range(targets.shape[0]):
         iterations[k] = zone_proxy_kernel(points, areas, xs, ys, boxes, targets[k, 0], targets[k, 1], targets[k, 2],
                                           stiffness, radius, e_star, sigma0, h0, tip, out)
-        forces[k, 0] = out[1]
-        forces[k, 1] = out[2]
-        forces[k, 2] = out[3]
+        forces[k, 0] = out[Z_FORCE]
+        forces[k, 1] = out[Z_FORCE + 1]
+        forces[k, 2] = out[Z_FORCE + 2]
         tips[k, 0] = tip[0]
         tips[k, 1] = tip[1]
         tips[k, 2] = tip[2]

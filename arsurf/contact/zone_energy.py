@@ -54,11 +54,16 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import surface_points
 
-__all__ = ["SurfaceLattice", "ZoneLaw", "surface_lattice", "zone_energy", "zone_energy_kernel", "zone_law_kernel",
+__all__ = ["SurfaceLattice", "ZONE_OUT", "ZoneLaw", "surface_lattice", "zone_energy", "zone_energy_kernel", "zone_law_kernel",
            "zone_proxy_kernel"]
+
+#: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
+ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
+Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
 
 #: lattice samples per block side: a block is skipped when its bounding box lies beyond reach
 BLOCK = 8
@@ -152,7 +157,7 @@ def zone_energy_kernel(points, areas, xs, ys, boxes, tx, ty, tz, radius, e_star,
     r"""E(T) and F(T) of the module docstring at T = (tx, ty, tz) (m) over the lattice ``points``
     (nu, nv, 3) m, ``areas`` (nu, nv) m^2, its rows' x and columns' y (``xs``, ``ys``, sorted: a
     height-field net) and its blocks' bounding boxes ``boxes`` (nbu, nbv, 6: x, y, z lows then
-    highs). Writes ``out[0]`` E (J) and ``out[1:4]`` F (N); returns the number of samples within
+    highs). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of samples within
     reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
     :math:`\sum_k A_k [-p'(g_k)\,u u^T - p(g_k)/d_k\,(I - u u^T)]`, u the unit vector from the
     sample to T, with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
@@ -205,10 +210,10 @@ def zone_energy_kernel(points, areas, xs, ys, boxes, tx, ty, tz, radius, e_star,
                         hess[1, 1] += c * ey * ey
                         hess[1, 2] += c * ey * ez
                         hess[2, 2] += c * ez * ez
-    out[0] = energy
-    out[1] = fx
-    out[2] = fy
-    out[3] = fz
+    out[Z_ENERGY] = energy
+    out[Z_FORCE] = fx
+    out[Z_FORCE + 1] = fy
+    out[Z_FORCE + 2] = fz
     if want:
         hess[1, 0] = hess[0, 1]
         hess[2, 0] = hess[0, 2]
@@ -237,20 +242,20 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
     f falls (a gradient step where the Newton step does not descend), until the gradient is below
     :data:`PROXY_TOL` of the coupling's force at one tip radius. As the god-object's proxy
     (Zilles & Salisbury 1995) the tip moves from where it was and stops where the forces balance;
-    on a conservative E it settles, and a snap is its minimum ending. ``out``: E (J) and F (N) at the
-    tip, as :func:`zone_energy_kernel`'s. Returns the iterations (negative: not converged in
+    on a conservative E it settles, and a snap is its minimum ending. ``out`` (:data:`ZONE_OUT`): E
+    (J) and F (N) at the tip. Returns the iterations (negative: not converged in
     :data:`PROXY_ITERATIONS`)."""
     hess = np.empty((3, 3))
-    trial = np.empty(4)
+    trial = np.empty(Z_SIZE)
     none = np.empty((0, 0))
     tol = PROXY_TOL * stiffness * radius
     cap = PROXY_STEP * radius
     zone_energy_kernel(points, areas, xs, ys, boxes, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
-    value = out[0] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
+    value = out[Z_ENERGY] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
     for it in range(PROXY_ITERATIONS):
-        gx = -out[1] + stiffness * (tip[0] - cx)
-        gy = -out[2] + stiffness * (tip[1] - cy)
-        gz = -out[3] + stiffness * (tip[2] - cz)
+        gx = -out[Z_FORCE] + stiffness * (tip[0] - cx)
+        gy = -out[Z_FORCE + 1] + stiffness * (tip[1] - cy)
+        gz = -out[Z_FORCE + 2] + stiffness * (tip[2] - cz)
         if math.sqrt(gx * gx + gy * gy + gz * gz) <= tol:
             return it
         for q in range(3):
@@ -266,7 +271,7 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
         for _ in range(40):  # Armijo: halve until f falls by at least a tenth of what the slope promises
             px, py, pz = tip[0] + t * sx, tip[1] + t * sy, tip[2] + t * sz
             zone_energy_kernel(points, areas, xs, ys, boxes, px, py, pz, radius, e_star, sigma0, h0, trial, none)
-            f = trial[0] + 0.5 * stiffness * ((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
+            f = trial[Z_ENERGY] + 0.5 * stiffness * ((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
             if f <= value + 0.1 * t * slope:
                 break
             t *= 0.5
@@ -354,6 +359,6 @@ def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, n
     c = np.asarray(center, dtype=np.float64)
     if c.shape != (3,) or not np.isfinite(c).all():
         raise ContactError(f"`center` must be 3 finite coordinates in m (got {center!r})")
-    out = np.empty(4)
+    out = ZONE_OUT.zeros()
     zone_energy_kernel(*lattice.kernel_args(), c[0], c[1], c[2], *law.args, out, np.empty((0, 0)))
-    return float(out[0]), out[1:].copy()
+    return float(out[Z_ENERGY]), out[Z_FORCE:Z_FORCE + 3].copy()

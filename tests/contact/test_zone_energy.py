@@ -12,8 +12,8 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel, zone_law_kernel,
-                                        zone_proxy_kernel)
+from arsurf.contact.zone_energy import (Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel,
+                                        zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
@@ -80,7 +80,7 @@ def test_the_hessian_is_the_derivative_of_the_force():
     h = 1e-13
     for c in ([16e-9, 15e-9, z + R - 1.0e-9], [14e-9, 17.5e-9, z + R - 2.5e-9]):
         c = np.array(c)
-        hess, out = np.empty((3, 3)), np.empty(4)
+        hess, out = np.empty((3, 3)), ZONE_OUT.zeros()
         zone_energy_kernel(*rough.kernel_args(), *c, *LAW.args, out, hess)
         jac = np.column_stack([(zone_energy(rough, LAW, c + h * e)[1] - zone_energy(rough, LAW, c - h * e)[1]) / (2 * h)
                                for e in np.eye(3)])
@@ -94,10 +94,10 @@ def test_behind_a_coupling_the_proxy_rests_where_the_spring_balances_the_law(fla
     from scipy.optimize import brentq
 
     k, target = 5.0, np.array([30e-9, 30.1e-9, R - 3e-9])
-    tip, out = np.array([30e-9, 30.1e-9, R + 1e-9]), np.empty(4)
+    tip, out = np.array([30e-9, 30.1e-9, R + 1e-9]), ZONE_OUT.zeros()
     iterations = zone_proxy_kernel(*flat.kernel_args(), *target, k, *LAW.args, tip, out)
     assert 0 < iterations <= 20
-    np.testing.assert_allclose(out[1:], k * (tip - target), atol=1e-6 * k * R)  # the balance
+    np.testing.assert_allclose(out[Z_FORCE:Z_FORCE + 3], k * (tip - target), atol=1e-6 * k * R)  # the balance
     depth = brentq(lambda d: LAW.flat_load(d) - k * (R - d - target[2]), -LAW.interaction_range, R / 2)
     assert R - tip[2] == pytest.approx(depth, abs=1e-12)  # within a picometre: the lattice's quadrature
     assert zone_proxy_kernel(*flat.kernel_args(), *target, k, *LAW.args, tip, out) == 0  # already there
@@ -164,7 +164,7 @@ def test_behind_a_coupling_the_proxy_crosses_the_valley_without_a_step_and_gives
     coupled energy's minimum over the tip)."""
     k = 5.0
     z = height_for("sinusoid", 33e-9, 2e-9) - 1e-9
-    tip, out = np.array([31.5e-9, 24e-9, z + 10e-9]), np.empty(4)
+    tip, out = np.array([31.5e-9, 24e-9, z + 10e-9]), ZONE_OUT.zeros()
 
     def hand_force(target):
         iterations = zone_proxy_kernel(*valley.kernel_args(), *target, k, *LAW.args, tip, out)
