@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,10 +12,9 @@ from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
-from support.benches import BENCH as BENCHES, load_bench
+from support.benches import SLIDE_KEY, load_bench, run_on_row
 from support.valleys import LEVER, R, height_for, pressed_onto, valley_model
 
-BENCH = BENCHES / "feel_circulation.py"
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +61,9 @@ def test_in_a_valley_narrower_than_the_tip_the_work_of_a_turn_is_the_curl_the_ja
 
 
 def test_the_bench_reads_a_table_row_and_refuses_bad_arguments(tmp_path):
-    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
-    table = tmp_path / "rows.jsonl"
-    table.write_text(json.dumps({"key": key, "kind": "fast", "ok": False}) + "\n")
-    plan = ["--families", "4", "--runs", "1", "1", "--seed", "5"]
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--points", "64"], capture_output=True,
-                          text=True, timeout=300)
+    key, table = SLIDE_KEY, tmp_path / "rows.jsonl"
+    row = {"key": key, "kind": "fast", "ok": False}
+    done = run_on_row("feel_circulation.py", table, row, "--points", "64", timeout=300)
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert out["radius_m"] == pytest.approx(3e-9) and out["friction"] == 0.0
@@ -80,6 +74,5 @@ def test_the_bench_reads_a_table_row_and_refuses_bad_arguments(tmp_path):
         assert w["median_force_N"] > 0.0 and w["absolute_work_J"] > 0.0
         assert abs(w["lap_work_J"]) <= w["absolute_work_J"] and math.isclose(
             w["circulation"], w["lap_work_J"] / w["absolute_work_J"], rel_tol=1e-12)
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--radius", "-1"], capture_output=True,
-                          text=True, timeout=60)
+    done = run_on_row("feel_circulation.py", table, row, "--radius", "-1", timeout=60)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "--radius" in done.stderr

@@ -17,6 +17,7 @@ from arsurf.feel_scenarios import (FAMILIES, LENGTH_RANGE, PIXEL_RANGE, RATE_TOL
                                    TIP_RANGE, GENERATED_PIXELS, _fold, _trajectory, clearance_height,
                                    GeneratedSurface, generated_surfaces, judge_run,
                                    plan_runs, rate_convergence, rate_difference)
+from support.benches import SLIDE_KEY, run_on_row
 
 SAMPLE = generated_surfaces(4, seed=27)
 
@@ -398,18 +399,6 @@ def _bench_feel():
     return load_bench("feel")
 
 
-def _run_diagnostic(name: str, table, row: dict):
-    """``bench/<name>`` on a table of the one ``row``, planned as ``plan_table(4, 5, runs 1 1)``."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    table.write_text(json.dumps(row) + "\n")
-    script = Path(__file__).resolve().parents[2] / "bench" / name
-    return subprocess.run([sys.executable, str(script), str(table), "--families", "4", "--runs", "1", "1", "--seed", "5"],
-                          capture_output=True, text=True, timeout=300)
-
-
 def test_the_whole_table_streams_its_rows_and_resumes_where_it_stopped(tmp_path, monkeypatch):
     """``bench/feel.py --families --out``: every judged run is one JSON line (no NaN, units in the
     keys), a line cut short by a stopped run is skipped, and a second call judges only the runs not
@@ -516,8 +505,8 @@ def test_the_pair_bench_finds_where_two_rates_part_and_reruns_a_pair_as_the_tabl
     assert event["worst_window_share"] == pytest.approx(1.0) and event["tips_apart_max_m"] == pytest.approx(0.5e-9)
     assert event["tips_apart_median_window_m"] == pytest.approx(0.0, abs=1e-18)
 
-    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
-    done = _run_diagnostic("feel_pairs.py", tmp_path / "rows.jsonl", {"key": key, "kind": "fast", "ok": False})
+    key = SLIDE_KEY
+    done = run_on_row("feel_pairs.py", tmp_path / "rows.jsonl", {"key": key, "kind": "fast", "ok": False})
     assert done.returncode == 0, done.stderr
     (pair,) = json.loads(done.stdout)["pairs"]
     default, off = pair["settings"]
@@ -528,7 +517,7 @@ def test_the_pair_bench_finds_where_two_rates_part_and_reruns_a_pair_as_the_tabl
     assert off["jump_blend_s"] == 0.0 and off["rate_error"] != default["rate_error"]  # the blend acts on this slide
     for setting in (default, off):
         assert 0.0 <= setting["worst_window_share"] <= 1.0 and 0.0 <= setting["tips_apart_max_m"] < 1e-9
-    done = _run_diagnostic("feel_pairs.py", tmp_path / "rows.jsonl", {"key": "5:9:9:none", "kind": "fast", "ok": False})
+    done = run_on_row("feel_pairs.py", tmp_path / "rows.jsonl", {"key": "5:9:9:none", "kind": "fast", "ok": False})
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "not in the plan" in done.stderr
 
 
@@ -538,12 +527,12 @@ def test_the_field_bench_reads_a_single_contact_as_a_gradient_behind_the_couplin
     than nothing and, the contact in series with the coupling, softer than the coupling; a key the
     plan does not hold is refused in one line."""
     key = "5:2:0:step#606100190 h=18.2nm l=83nm px=7.98nm R=4.25nm"  # plan_table(4, 5, runs 1 1): a press
-    done = _run_diagnostic("feel_field.py", tmp_path / "rows.jsonl", {"key": key, "kind": "slow", "ok": False})
+    done = run_on_row("feel_field.py", tmp_path / "rows.jsonl", {"key": key, "kind": "slow", "ok": False})
     assert done.returncode == 0, done.stderr
     (run,) = json.loads(done.stdout)["runs"]
     assert run["key"] == key and [v["friction"] for v in run["runs"]] == ["preset", 0.0]
     for field in run["runs"][1]["fields"]:
         assert len(field["contacts"]) == 1 and field["skew_over_k_c"] <= 1e-3
         assert 0.05 < max(field["stiffness_over_k_c"]) < 1.0
-    done = _run_diagnostic("feel_field.py", tmp_path / "rows.jsonl", {"key": "5:9:9:none", "kind": "slow", "ok": False})
+    done = run_on_row("feel_field.py", tmp_path / "rows.jsonl", {"key": "5:9:9:none", "kind": "slow", "ok": False})
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "not in the plan" in done.stderr

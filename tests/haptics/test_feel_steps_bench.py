@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from support.benches import BENCH as BENCHES, load_bench
+from support.benches import SLIDE_KEY, load_bench, run_on_row
 from support.valleys import R, height_for, valley_model
 
-BENCH = BENCHES / "feel_steps.py"
 
 
 @pytest.fixture(scope="module")
@@ -98,19 +95,15 @@ def test_a_sweep_along_a_smooth_valley_has_no_step_and_a_sweep_across_it_steps_w
 
 
 def test_the_bench_sweeps_a_table_row_and_refuses_bad_arguments(tmp_path):
-    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
-    table = tmp_path / "rows.jsonl"
-    table.write_text(json.dumps({"key": key, "kind": "fast", "ok": False}) + "\n")
-    plan = ["--families", "4", "--runs", "1", "1", "--seed", "5"]
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--length", "1", "--step", "5"],
-                          capture_output=True, text=True, timeout=300)
+    key, table = SLIDE_KEY, tmp_path / "rows.jsonl"
+    row = {"key": key, "kind": "fast", "ok": False}
+    done = run_on_row("feel_steps.py", table, row, "--length", "1", "--step", "5", timeout=300)
     assert done.returncode == 0, done.stderr
     (run,) = json.loads(done.stdout)["runs"]
     assert run["key"] == key and run["motion"] == "slide-100"
     assert run["median_force_N"] > 0.0 and 0.0 <= run["target_inside_share"] <= 1.0
     assert run["steps"] == sum(c["count"] for c in run["causes"].values())
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--step", "0"], capture_output=True,
-                          text=True, timeout=60)
+    done = run_on_row("feel_steps.py", table, row, "--step", "0", timeout=60)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "positive" in done.stderr
 
 

@@ -3,15 +3,12 @@ swept where a families table fails (docs/feel.rst, "The next step")."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from support.benches import BENCH as BENCHES, load_bench
+from support.benches import SLIDE_KEY, load_bench, run_on_row
 
-BENCH = BENCHES / "zone_energy.py"
 
 
 def test_a_step_is_a_change_beyond_the_threshold_of_the_median_force():
@@ -25,12 +22,9 @@ def test_a_step_is_a_change_beyond_the_threshold_of_the_median_force():
 
 
 def test_the_bench_reads_a_table_row_and_refuses_bad_arguments(tmp_path):
-    key = "5:1:1:power-law#613753790 h=0.599nm l=7.15nm px=0.944nm R=2.26nm"  # plan_table(4, 5, runs 1 1): slide-100
-    table = tmp_path / "rows.jsonl"
-    table.write_text(json.dumps({"key": key, "kind": "fast", "ok": False}) + "\n")
-    plan = ["--families", "4", "--runs", "1", "1", "--seed", "5"]
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--length", "0.2"], capture_output=True,
-                          text=True, timeout=300)
+    key, table = SLIDE_KEY, tmp_path / "rows.jsonl"
+    row = {"key": key, "kind": "fast", "ok": False}
+    done = run_on_row("zone_energy.py", table, row, "--length", "0.2", timeout=300)
     assert done.returncode == 0, done.stderr
     (run,) = json.loads(done.stdout)["runs"]
     assert run["key"] == key and run["coupling_N_per_m"] > 0.0
@@ -42,6 +36,5 @@ def test_the_bench_reads_a_table_row_and_refuses_bad_arguments(tmp_path):
     zone = run["rigid"]["zone"]
     assert zone["lattice_spacing_m"] <= 2.26e-9 / 8 and zone["samples_in_reach_median"] > 0
     assert zone["evaluation_us"] > 0.0 and zone["vtk_query_us"] > 0.0
-    done = subprocess.run([sys.executable, str(BENCH), str(table), *plan, "--per-knot", "0"], capture_output=True,
-                          text=True, timeout=60)
+    done = run_on_row("zone_energy.py", table, row, "--per-knot", "0", timeout=60)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "--per-knot" in done.stderr
