@@ -7,8 +7,9 @@ contact that enters or leaves steps it (docs/feel.rst, "What still fails, and wh
 is the building block of the other way, which has no contacts to find and no gates: the tip sphere
 (centre T, radius R, rigid) interacts with every element of the surface through a law of energy
 per unit area :math:`\varphi(g)` of the gap :math:`g = \lVert S - T\rVert - R` along the line to
-the centre (the Derjaguin approximation; Johnson, *Contact Mechanics*, 1985, sec. 5.2 for the
-rigid sphere, sec. 5.8 for adhesion):
+the centre (the Derjaguin approximation: Derjaguin, "Untersuchungen über die Reibung und
+Adhäsion, IV. Theorie des Anhaftens kleiner Teilchen", Kolloid-Z. 69, 155-164, 1934, the force
+between curved bodies from the energy per area of flat ones):
 
 .. math::
 
