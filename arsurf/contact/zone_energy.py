@@ -45,7 +45,8 @@ The energy per area is :math:`\varphi = \varphi_r + \varphi_a`, :math:`\varphi_r
 beyond: continuous with its derivative, so the force is continuous in T.
 
 Not wired into :class:`~arsurf.model.ARModel` yet: ``bench/zone_energy.py`` measures it against
-the model on the surfaces where the feel still fails (docs/feel.rst, "The next step").
+the model on the surfaces where the feel still fails, and ``bench/zone_feel.py`` judges those runs
+with it as the loop's contact (docs/feel.rst, "The next step").
 """
 from __future__ import annotations
 

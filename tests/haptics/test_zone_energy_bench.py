@@ -38,3 +38,16 @@ def test_the_bench_reads_a_table_row_and_refuses_bad_arguments(tmp_path):
     assert zone["evaluation_us"] > 0.0 and zone["vtk_query_us"] > 0.0
     done = run_on_row("zone_energy.py", table, row, "--per-knot", "0", timeout=60)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "--per-knot" in done.stderr
+
+
+def test_the_feel_bench_judges_a_table_row_with_the_zone_proxy_and_refuses_bad_arguments(tmp_path):
+    """``bench/zone_feel.py``: the row judged again, each loop's contact the zone energy's proxy; on
+    this smooth slide both loops pass, and the zone loop's 1 and 10 kHz forces agree."""
+    row = {"key": SLIDE_KEY, "kind": "fast", "ok": True, "rate_error": 0.001}
+    done = run_on_row("zone_feel.py", tmp_path / "rows.jsonl", row, "--all")
+    assert done.returncode == 0, done.stderr
+    (run,) = json.loads(done.stdout)["runs"]
+    assert run["key"] == SLIDE_KEY and run["motion"] == "slide-100" and run["table"]["rate_error"] == 0.001
+    assert run["zone"]["ok"] and 0.0 <= run["zone"]["rate_error"] <= 0.05
+    done = run_on_row("zone_feel.py", tmp_path / "rows.jsonl", row, "--per-knot", "65", timeout=60)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1 and "--per-knot" in done.stderr
