@@ -11,8 +11,12 @@ the measured source's decoupling and its filter (every run is read as the simula
 jump blend, the friction, the dent, the start-up ramp. So it says what the contact energy alone
 gives the hand, not what the product would.
 
+With ``--control`` the runs are judged instead with the model as the contact and the same things
+left out (the simulated source, no friction; the model's own jump blend kept): what those
+omissions alone do.
+
 Printed per run: the table's verdict and measures, and the zone loop's (``ok``, content above
-100 Hz, reversals, energy over E0 or the rate error), and the median microseconds of a zone tick.
+100 Hz, reversals, energy over E0 or the rate error), or the control's.
 
 Run: .venv/bin/python bench/zone_feel.py TABLE.jsonl [--all] [--limit N] [--per-knot K]
 [--seed S --families N --runs 4 2] (prints JSON; the seed, families and runs must be those the table
@@ -100,6 +104,19 @@ def judged_with_zone(run: dict, surface, per_knot: int) -> dict:
         scenarios.build_loop = real
 
 
+def judged_as_control(run: dict, surface) -> dict:
+    """``judge_run`` of ``run`` with the model as the contact, read as the simulated source and
+    without friction (module docstring)."""
+    import functools
+
+    real = scenarios.run_scenario
+    scenarios.run_scenario = functools.partial(real, friction=0.0)
+    try:
+        return scenarios.judge_run({**run, "source": "simulated"}, surface, run["tip_radius_m"])
+    finally:
+        scenarios.run_scenario = real
+
+
 def _measures(row: dict) -> dict:
     return {k: row[k] for k in MEASURES if k in row}
 
@@ -108,6 +125,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_table_arguments(ap, families=240, runs=(4, 2), seed=0)
     ap.add_argument("--per-knot", type=int, default=2, help="lattice samples per knot interval, at least (default 2)")
+    ap.add_argument("--control", action="store_true",
+                    help="judge with the model as the contact, with the same things left out")
     args = ap.parse_args()
     if not 1 <= args.per_knot <= 64:
         sys.exit("zone_feel: --per-knot must be in [1, 64]")
@@ -118,7 +137,10 @@ def main() -> None:
             row = {"key": run["key"], "kind": kind, "motion": run["motion"], "rate_hz": run.get("rate_hz"),
                    "table": _measures(table[run["key"]])}
             try:
-                row["zone"] = _measures(judged_with_zone(run, _surface(run), args.per_knot))
+                if args.control:
+                    row["control"] = _measures(judged_as_control(run, _surface(run)))
+                else:
+                    row["zone"] = _measures(judged_with_zone(run, _surface(run), args.per_knot))
             except SurfaceError as exc:  # a lattice too fine for the machine: said in the row, not fatal
                 row["error"] = str(exc)
             out.append(row)

@@ -49,5 +49,9 @@ def test_the_feel_bench_judges_a_table_row_with_the_zone_proxy_and_refuses_bad_a
     (run,) = json.loads(done.stdout)["runs"]
     assert run["key"] == SLIDE_KEY and run["motion"] == "slide-100" and run["table"]["rate_error"] == 0.001
     assert run["zone"]["ok"] and 0.0 <= run["zone"]["rate_error"] <= 0.05
+    done = run_on_row("zone_feel.py", tmp_path / "rows.jsonl", row, "--all", "--control")
+    assert done.returncode == 0, done.stderr
+    (control,) = json.loads(done.stdout)["runs"]
+    assert "zone" not in control and control["control"]["ok"]  # the model, friction off: passes here too
     done = run_on_row("zone_feel.py", tmp_path / "rows.jsonl", row, "--per-knot", "65", timeout=60)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "--per-knot" in done.stderr
