@@ -84,16 +84,15 @@ def zone_step(loop, model, lattice, law):
 
 def judged_with_zone(run: dict, surface, per_knot: int) -> dict:
     """``judge_run`` of ``run`` with every loop's contact the zone proxy's (module docstring)."""
-    lattices = {}
+    lattice = []  # built once, at the first loop: the run's surface at rest
     real = scenarios.build_loop
 
     def build(model, haptics, info, origin, **kw):
         loop = real(model, haptics, info, origin, **kw)
-        key = id(model.rest_surface)
-        if key not in lattices:
+        if not lattice:
             per = max(per_knot, math.ceil(min(surface.spacing) / (model.tip_radius / 8.0)))
-            lattices[key] = surface_lattice(model.rest_surface, per)
-        loop.step = zone_step(loop, model, lattices[key], ZoneLaw.from_law(model.contact))
+            lattice.append(surface_lattice(model.rest_surface, per))
+        loop.step = zone_step(loop, model, lattice[0], ZoneLaw.from_law(model.contact))
         return loop
 
     scenarios.build_loop = build
