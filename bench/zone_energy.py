@@ -86,6 +86,12 @@ def _proxy_sweep(points, areas, xs, ys, boxes, targets, stiffness, radius, e_sta
         tips[k, 2] = tip[2]
 
 
+def bench_lattice(surface, tip_radius: float, per_knot: int):
+    """The lattice the zone benches sum over: at least ``per_knot`` samples per knot interval and
+    at most an eighth of the tip radius apart."""
+    return surface_lattice(surface, max(per_knot, math.ceil(min(surface.spacing) / (tip_radius / 8.0))))
+
+
 def step_figures(force: np.ndarray, threshold: float) -> dict:
     """The median of |F| where it is not 0 and the steps beyond ``threshold`` of it (module docstring)."""
     magnitude = np.linalg.norm(force, axis=1)
@@ -108,9 +114,7 @@ def compare(surface, tip_radius: float, heading: float, length: float, step: flo
     offsets = np.outer(np.arange(n) * step, direction)
     p = PRESETS["demo"]
     law = ZoneLaw.from_law(MaugisDugdale(tip_radius, p.effective_modulus, p.work_of_adhesion))
-    knot = min(surface.spacing)
-    per = max(per_knot, math.ceil(knot / (tip_radius / 8.0)))
-    lattice = surface_lattice(surface, per)
+    lattice = bench_lattice(surface, tip_radius, per_knot)
     k = model.coupling_stiffness
     coupled = copy.deepcopy(model)  # tick reuses its array: each row copied
     coupled_force = np.array([coupled.tick(c)[M_SIM_FX:M_SIM_FX + 3].copy() for c in target + offsets])

@@ -249,7 +249,7 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
     :data:`PROXY_ITERATIONS`)."""
     hess = np.empty((3, 3))
     trial = np.empty(Z_SIZE)
-    none = np.empty((0, 0))
+    trial_hess = np.empty((3, 3))  # each trial's Hessian: an accepted step needs no sum again
     tol = PROXY_TOL * stiffness * radius
     cap = PROXY_STEP * radius
     zone_energy_kernel(points, areas, xs, ys, boxes, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
@@ -272,7 +272,8 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
         t = 1.0
         for _ in range(40):  # Armijo: halve until f falls by at least a tenth of what the slope promises
             px, py, pz = tip[0] + t * sx, tip[1] + t * sy, tip[2] + t * sz
-            zone_energy_kernel(points, areas, xs, ys, boxes, px, py, pz, radius, e_star, sigma0, h0, trial, none)
+            zone_energy_kernel(points, areas, xs, ys, boxes, px, py, pz, radius, e_star, sigma0, h0, trial,
+                               trial_hess)
             f = trial[Z_ENERGY] + 0.5 * stiffness * ((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
             if f <= value + 0.1 * t * slope:
                 break
@@ -281,7 +282,8 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
             return -(it + 1)  # no step lowers f: at its floating-point floor
         tip[0], tip[1], tip[2] = px, py, pz
         value = f
-        zone_energy_kernel(points, areas, xs, ys, boxes, px, py, pz, radius, e_star, sigma0, h0, out, hess)
+        out[:] = trial
+        hess[:, :] = trial_hess
     return -PROXY_ITERATIONS
 
 
