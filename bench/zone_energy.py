@@ -49,20 +49,20 @@ from feel_steps import add_sweep_arguments, pressed_model, sweep_arguments_error
 
 from arsurf.assembly import PRESETS  # noqa: E402
 from arsurf.contact.maugis_dugdale import MaugisDugdale  # noqa: E402
-from arsurf.contact.zone_energy import (Z_FORCE, Z_SIZE, ZoneLaw, surface_lattice, zone_energy_kernel,  # noqa: E402
+from arsurf.contact.zone_energy import (Z_FORCE, Z_SIZE, ZoneLaw, lattice_for, zone_energy_kernel,  # noqa: E402
                                         zone_proxy_kernel)
 from arsurf.errors import SurfaceError  # noqa: E402
 from arsurf.model import M_SIM_FX, M_TIP  # noqa: E402
 
 
 @njit(cache=True)
-def _zone_sweep(points, areas, xs, ys, boxes, path, radius, e_star, sigma0, h0, forces, counts):
+def _zone_sweep(lat, path, radius, e_star, sigma0, h0, forces, counts):
     """The zone energy's force at each point of ``path`` (n, 3) m into ``forces`` (n, 3) N, and the
     number of samples in reach into ``counts``."""
     out = np.empty(Z_SIZE)
     none = np.empty((0, 0))
     for k in range(path.shape[0]):
-        counts[k] = zone_energy_kernel(points, areas, xs, ys, boxes, path[k, 0], path[k, 1], path[k, 2], radius,
+        counts[k] = zone_energy_kernel(lat, path[k, 0], path[k, 1], path[k, 2], radius,
                                        e_star, sigma0, h0, out, none)
         forces[k, 0] = out[Z_FORCE]
         forces[k, 1] = out[Z_FORCE + 1]
@@ -70,13 +70,13 @@ def _zone_sweep(points, areas, xs, ys, boxes, path, radius, e_star, sigma0, h0, 
 
 
 @njit(cache=True)
-def _proxy_sweep(points, areas, xs, ys, boxes, targets, stiffness, radius, e_star, sigma0, h0, tip, forces, tips,
+def _proxy_sweep(lat, targets, stiffness, radius, e_star, sigma0, h0, tip, forces, tips,
                  iterations):
     """The zone proxy along ``targets`` (n, 3) m from ``tip`` (3,) m: the force on the tip (N) and
     the tip (m) at each, and the Newton iterations."""
     out = np.empty(Z_SIZE)
     for k in range(targets.shape[0]):
-        iterations[k] = zone_proxy_kernel(points, areas, xs, ys, boxes, targets[k, 0], targets[k, 1], targets[k, 2],
+        iterations[k] = zone_proxy_kernel(lat, targets[k, 0], targets[k, 1], targets[k, 2],
                                           stiffness, radius, e_star, sigma0, h0, tip, out)
         forces[k, 0] = out[Z_FORCE]
         forces[k, 1] = out[Z_FORCE + 1]
@@ -84,12 +84,6 @@ def _proxy_sweep(points, areas, xs, ys, boxes, targets, stiffness, radius, e_sta
         tips[k, 0] = tip[0]
         tips[k, 1] = tip[1]
         tips[k, 2] = tip[2]
-
-
-def bench_lattice(surface, tip_radius: float, per_knot: int):
-    """The lattice the zone benches sum over: at least ``per_knot`` samples per knot interval and
-    at most an eighth of the tip radius apart."""
-    return surface_lattice(surface, max(per_knot, math.ceil(min(surface.spacing) / (tip_radius / 8.0))))
 
 
 def step_figures(force: np.ndarray, threshold: float) -> dict:
@@ -114,7 +108,7 @@ def compare(surface, tip_radius: float, heading: float, length: float, step: flo
     offsets = np.outer(np.arange(n) * step, direction)
     p = PRESETS["demo"]
     law = ZoneLaw.from_law(MaugisDugdale(tip_radius, p.effective_modulus, p.work_of_adhesion))
-    lattice = bench_lattice(surface, tip_radius, per_knot)
+    lattice = lattice_for(surface, tip_radius, per_knot)
     k = model.coupling_stiffness
     coupled = copy.deepcopy(model)  # tick reuses its array: each row copied
     coupled_force = np.array([coupled.tick(c)[M_SIM_FX:M_SIM_FX + 3].copy() for c in target + offsets])

@@ -34,10 +34,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from feel import _surface, add_table_arguments, read_rows, table_runs  # noqa: E402
-from zone_energy import bench_lattice  # noqa: E402
 
 import arsurf.feel_scenarios as scenarios  # noqa: E402
-from arsurf.contact.zone_energy import Z_SIZE, ZoneLaw, zone_proxy_kernel  # noqa: E402
+from arsurf.contact.zone_energy import Z_SIZE, ZoneLaw, lattice_for, zone_proxy_kernel  # noqa: E402
 from arsurf.errors import SurfaceError  # noqa: E402
 from arsurf.haptics.loop import LOOP_OUT  # noqa: E402
 from arsurf.haptics.safety import SAFETY_PARAMS  # noqa: E402
@@ -91,7 +90,7 @@ def judged_with_zone(run: dict, surface, per_knot: int) -> dict:
     def build(model, haptics, info, origin, **kw):
         loop = real(model, haptics, info, origin, **kw)
         if not lattice:
-            lattice.append(bench_lattice(model.rest_surface, model.tip_radius, per_knot))
+            lattice.append(lattice_for(model.rest_surface, model.tip_radius, per_knot))
         loop.step = zone_step(loop, model, lattice[0], ZoneLaw.from_law(model.contact))
         return loop
 

@@ -17,7 +17,9 @@ between curved bodies from the energy per area of flat ones):
     F = -\nabla_T E = \sum_k A_k\,p(g_k)\,\frac{T - S_k}{\lVert T - S_k\rVert}, \qquad p = -\varphi',
 
 over samples :math:`S_k` fixed on a uniform (u, v) lattice of the rest surface, :math:`A_k =
-\lVert S_u \times S_v\rVert\,h_u h_v` the area each stands for (:func:`surface_lattice`). The force
+\lVert S_u \times S_v\rVert\,h_u h_v` the area each stands for (:func:`surface_lattice`; sampled a
+tile at a time where the tip reaches, so a lattice finer than the scan costs memory only where
+the tip has been). The force
 is the gradient of E by construction (the samples do not move with T): no work round a closed
 path, and continuous wherever p is; several asperities under a wide tip push at once, each with
 its own share, and no event of the contact set exists to step the force.
@@ -58,16 +60,18 @@ from numba import njit
 
 from arsurf._layout import Layout
 from arsurf.errors import ContactError, SurfaceError
-from arsurf.spline.basis import surface_points
+from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
-__all__ = ["SurfaceLattice", "ZONE_OUT", "ZoneLaw", "surface_lattice", "zone_energy", "zone_energy_kernel", "zone_law_kernel",
-           "zone_proxy_kernel"]
+__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "no_lattice", "surface_lattice", "zone_energy",
+           "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
 
 #: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
 ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
 Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
 
-#: lattice samples per block side: a block is skipped when its bounding box lies beyond reach
+#: lattice samples per tile side: a tile is sampled the first time the tip reaches it
+TILE = 16
+#: samples per block side within a tile: a block is skipped when its bounding box lies beyond reach
 BLOCK = 8
 #: the repulsion's gap in its stiffness is held at least this fraction of the range (:func:`zone_energy_kernel`)
 HESSIAN_FLOOR = 1e-3
@@ -77,8 +81,17 @@ PROXY_STEP = 0.05
 PROXY_TOL = 1e-6
 #: and gives up after this many steps
 PROXY_ITERATIONS = 200
-#: largest number of lattice samples :func:`surface_lattice` builds (about 1.6 GB while it is built)
-MAX_SAMPLES = 20_000_000
+#: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
+SPACING_PER_RADIUS = 1.0 / 8.0
+#: tiles the pool of :func:`surface_lattice` holds by default (8.4 kB each)
+DEFAULT_POOL = 512
+#: and at most
+MAX_POOL = 65_536
+#: largest number of tiles a lattice has (24 bytes each: 96 MB, a billion samples)
+MAX_TILES = 4_000_000
+#: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
+(L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR, L_BOX,
+ L_CLOCK) = range(18)
 
 
 @dataclass(frozen=True)
@@ -155,63 +168,77 @@ def _first_at_least(xs, x):
 
 
 @njit(cache=True)
-def zone_energy_kernel(points, areas, xs, ys, boxes, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
-    r"""E(T) and F(T) of the module docstring at T = (tx, ty, tz) (m) over the lattice ``points``
-    (nu, nv, 3) m, ``areas`` (nu, nv) m^2, its rows' x and columns' y (``xs``, ``ys``, sorted: a
-    height-field net) and its blocks' bounding boxes ``boxes`` (nbu, nbv, 6: x, y, z lows then
-    highs). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of samples within
-    reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
+def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
+    r"""E(T) and F(T) of the module docstring at T = (tx, ty, tz) (m) over the lattice ``lat``
+    (:attr:`SurfaceLattice.arrays`: its tiles in reach are sampled the first time they are needed,
+    :func:`_tile_slot`). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of
+    samples within reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
     :math:`\sum_k A_k [-p'(g_k)\,u u^T - p(g_k)/d_k\,(I - u u^T)]`, u the unit vector from the
     sample to T, with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
     :math:`p' \propto 1/\sqrt{-g}` (a sample at the contact's edge: an infinite but integrable
     stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step)."""
+    xs, ys, zlo, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZLO], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
     want = hess.shape[0] == 3
     if want:
         hess[:, :] = 0.0
     reach = radius + h0
+    nu, nv = xs.shape[0], ys.shape[0]
     i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
-    i1 = min(_first_at_least(xs, tx + reach) + 1, xs.shape[0])
+    i1 = min(_first_at_least(xs, tx + reach) + 1, nu)
     j0 = max(_first_at_least(ys, ty - reach) - 1, 0)
-    j1 = min(_first_at_least(ys, ty + reach) + 1, ys.shape[0])
+    j1 = min(_first_at_least(ys, ty + reach) + 1, nv)
     energy = fx = fy = fz = 0.0
     n = 0
-    for bi in range(i0 // BLOCK, (i1 + BLOCK - 1) // BLOCK):
-        for bj in range(j0 // BLOCK, (j1 + BLOCK - 1) // BLOCK):
-            b = boxes[bi, bj]
-            dx = max(b[0] - tx, 0.0, tx - b[3])
-            dy = max(b[1] - ty, 0.0, ty - b[4])
-            dz = max(b[2] - tz, 0.0, tz - b[5])
+    for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
+        for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
+            # the tile's box from its control points' heights (the convex hull): beyond reach, never sampled
+            a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
+            b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
+            dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
+            dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
+            dz = max(zlo[ti, tj] - tz, 0.0, tz - zhi[ti, tj])
             if dx * dx + dy * dy + dz * dz >= reach * reach:
                 continue
-            for i in range(max(bi * BLOCK, i0), min((bi + 1) * BLOCK, i1)):
-                for j in range(max(bj * BLOCK, j0), min((bj + 1) * BLOCK, j1)):
-                    ex = tx - points[i, j, 0]
-                    ey = ty - points[i, j, 1]
-                    ez = tz - points[i, j, 2]
-                    d = math.sqrt(ex * ex + ey * ey + ez * ez)
-                    g = d - radius
-                    if g >= h0 or d == 0.0:
+            s = _tile_slot(lat, ti, tj)
+            for qa in range(2):
+                for qb in range(2):
+                    b = box[s, qa, qb]
+                    dx = max(b[0] - tx, 0.0, tx - b[3])
+                    dy = max(b[1] - ty, 0.0, ty - b[4])
+                    dz = max(b[2] - tz, 0.0, tz - b[5])
+                    if dx * dx + dy * dy + dz * dz >= reach * reach:
                         continue
-                    phi, p = zone_law_kernel(g, radius, e_star, sigma0, h0)
-                    a = areas[i, j]
-                    energy += a * phi
-                    f = a * p / d
-                    fx += f * ex
-                    fy += f * ey
-                    fz += f * ez
-                    n += 1
-                    if want:  # a (-p' u u^T - p/d (I - u u^T)), u = e/d
-                        radial = -a * _pressure_slope(g, radius, e_star, sigma0, h0) / (d * d)
-                        hess[0, 0] -= f
-                        hess[1, 1] -= f
-                        hess[2, 2] -= f
-                        c = radial + f / (d * d)
-                        hess[0, 0] += c * ex * ex
-                        hess[0, 1] += c * ex * ey
-                        hess[0, 2] += c * ex * ez
-                        hess[1, 1] += c * ey * ey
-                        hess[1, 2] += c * ey * ez
-                        hess[2, 2] += c * ez * ez
+                    for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
+                        row = (s * TILE + i - a0) * TILE - b0  # the pool's flat index of sample (i, j): row + j
+                        for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
+                            k = row + j
+                            ex = tx - pts[k, 0]
+                            ey = ty - pts[k, 1]
+                            ez = tz - pts[k, 2]
+                            d = math.sqrt(ex * ex + ey * ey + ez * ez)
+                            g = d - radius
+                            if g >= h0 or d == 0.0:
+                                continue
+                            phi, pr = zone_law_kernel(g, radius, e_star, sigma0, h0)
+                            area = ar[k]
+                            energy += area * phi
+                            f = area * pr / d
+                            fx += f * ex
+                            fy += f * ey
+                            fz += f * ez
+                            n += 1
+                            if want:  # a (-p' u u^T - p/d (I - u u^T)), u = e/d
+                                radial = -area * _pressure_slope(g, radius, e_star, sigma0, h0) / (d * d)
+                                hess[0, 0] -= f
+                                hess[1, 1] -= f
+                                hess[2, 2] -= f
+                                c = radial + f / (d * d)
+                                hess[0, 0] += c * ex * ex
+                                hess[0, 1] += c * ex * ey
+                                hess[0, 2] += c * ex * ez
+                                hess[1, 1] += c * ey * ey
+                                hess[1, 2] += c * ey * ez
+                                hess[2, 2] += c * ez * ez
     out[Z_ENERGY] = energy
     out[Z_FORCE] = fx
     out[Z_FORCE + 1] = fy
@@ -221,6 +248,66 @@ def zone_energy_kernel(points, areas, xs, ys, boxes, tx, ty, tz, radius, e_star,
         hess[2, 0] = hess[0, 2]
         hess[2, 1] = hess[1, 2]
     return n
+
+
+@njit(cache=True, inline="always")
+def _tile_slot(lat, ti, tj) -> int:
+    """The pool slot holding tile (``ti``, ``tj``) of the lattice ``lat``, sampled first if it is
+    not held (:func:`_take_slot`). A tile's samples are the same whenever it is sampled, so the
+    energy does not depend on what the pool holds."""
+    clock = lat[L_CLOCK]
+    clock[0] += 1
+    s = lat[L_SLOT_OF][ti, tj]
+    if s < 0:
+        s = _take_slot(lat, ti, tj)
+    lat[L_STAMP][s] = clock[0]
+    return s
+
+
+@njit(cache=True)
+def _take_slot(lat, ti, tj) -> int:
+    """Tile (``ti``, ``tj``) sampled (:func:`_sample_tile`) into the pool's least recently used slot."""
+    slot_of, tile_of, stamp = lat[L_SLOT_OF], lat[L_TILE_OF], lat[L_STAMP]
+    s = 0
+    for q in range(1, stamp.shape[0]):
+        if stamp[q] < stamp[s]:
+            s = q
+    if tile_of[s, 0] >= 0:
+        slot_of[tile_of[s, 0], tile_of[s, 1]] = -1
+    _sample_tile(lat, ti, tj, s)
+    slot_of[ti, tj] = s
+    tile_of[s, 0], tile_of[s, 1] = ti, tj
+    return s
+
+
+@njit(cache=True)
+def _sample_tile(lat, ti, tj, s):
+    """Tile (``ti``, ``tj``)'s samples of the rest surface, their areas (module docstring) and its
+    blocks' bounding boxes into pool slot ``s`` (a block past the lattice's edge gets an empty box)."""
+    ctrl, ku, kv, us, vs = lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_US], lat[L_VS]
+    wu, wv, pts, ar, box = lat[L_WU], lat[L_WV], lat[L_PTS], lat[L_AR], lat[L_BOX]
+    ev = np.empty((6, 3))
+    box[s, :, :, :3] = math.inf
+    box[s, :, :, 3:] = -math.inf
+    for a in range(TILE):
+        i = ti * TILE + a
+        if i >= us.shape[0]:
+            break
+        for b in range(TILE):
+            j = tj * TILE + b
+            if j >= vs.shape[0]:
+                break
+            surface_point(ctrl, ku, kv, us[i], vs[j], 1, ev)
+            nx = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
+            ny = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
+            nz = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
+            k = (s * TILE + a) * TILE + b
+            ar[k] = math.sqrt(nx * nx + ny * ny + nz * nz) * wu[i] * wv[j]
+            q = box[s, a // BLOCK, b // BLOCK]
+            for c in range(3):
+                pts[k, c] = ev[0, c]
+                q[c] = min(q[c], ev[0, c])
+                q[3 + c] = max(q[3 + c], ev[0, c])
 
 
 @njit(cache=True)
@@ -235,7 +322,7 @@ def _pressure_slope(g, radius, e_star, sigma0, h0):
 
 
 @njit(cache=True)
-def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, tip,
+def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, tip,
                       out) -> int:
     r"""The tip behind a virtual coupling: from ``tip`` (3,) m (the last tick's, or a point above the
     surface), the nearest minimum of :math:`f(T) = E(T) + \tfrac12 k\lVert T - C\rVert^2`, C the
@@ -252,7 +339,7 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
     trial_hess = np.empty((3, 3))  # each trial's Hessian: an accepted step needs no sum again
     tol = PROXY_TOL * stiffness * radius
     cap = PROXY_STEP * radius
-    zone_energy_kernel(points, areas, xs, ys, boxes, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
+    zone_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
     value = out[Z_ENERGY] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
     for it in range(PROXY_ITERATIONS):
         gx = -out[Z_FORCE] + stiffness * (tip[0] - cx)
@@ -272,7 +359,7 @@ def zone_proxy_kernel(points, areas, xs, ys, boxes, cx, cy, cz, stiffness, radiu
         t = 1.0
         for _ in range(40):  # Armijo: halve until f falls by at least a tenth of what the slope promises
             px, py, pz = tip[0] + t * sx, tip[1] + t * sy, tip[2] + t * sz
-            zone_energy_kernel(points, areas, xs, ys, boxes, px, py, pz, radius, e_star, sigma0, h0, trial,
+            zone_energy_kernel(lat, px, py, pz, radius, e_star, sigma0, h0, trial,
                                trial_hess)
             f = trial[Z_ENERGY] + 0.5 * stiffness * ((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
             if f <= value + 0.1 * t * slope:
@@ -305,56 +392,107 @@ def _solve3(m, bx, by, bz):
 
 @dataclass(frozen=True)
 class SurfaceLattice:
-    """Samples of a surface on a uniform (u, v) lattice (:func:`surface_lattice`): ``points``
-    (nu, nv, 3) m, ``areas`` (nu, nv) m^2, ``xs`` (nu,) and ``ys`` (nv,) m the rows' x and the
-    columns' y, ``boxes`` (nbu, nbv, 6) m the blocks' bounding boxes, ``spacing`` (hu, hv) m."""
+    """Samples of a surface on a uniform (u, v) lattice (:func:`surface_lattice`), sampled a tile
+    at a time where the tip reaches. ``arrays`` is what the kernels take (their ``lat``; the
+    ``L_*`` indices): the rest net and its knots, the lattice's u and v, its rows' x and columns' y
+    (m), the trapezoidal weights along u and v, each tile's height bounds (m), and the pool of
+    sampled tiles (points m, areas m^2, blocks' boxes m) with its bookkeeping. ``shape`` is the
+    lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
-    points: np.ndarray
-    areas: np.ndarray
-    xs: np.ndarray
-    ys: np.ndarray
-    boxes: np.ndarray
+    arrays: tuple
+    shape: tuple[int, int]
     spacing: tuple[float, float]
 
     def kernel_args(self) -> tuple:
-        """``(points, areas, xs, ys, boxes)`` for :func:`zone_energy_kernel`."""
-        return (self.points, self.areas, self.xs, self.ys, self.boxes)
+        """``(arrays,)``: the ``lat`` argument of :func:`zone_energy_kernel` and :func:`zone_proxy_kernel`."""
+        return (self.arrays,)
+
+    @property
+    def sampled_tiles(self) -> int:
+        """How many tiles the pool holds now."""
+        return int((self.arrays[L_TILE_OF][:, 0] >= 0).sum())
 
 
-def surface_lattice(surface, per_knot: int = 4) -> SurfaceLattice:
+def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> SurfaceLattice:
     """The rest surface of ``surface`` (a height-field :class:`~arsurf.spline.surface.BSplineSurface`)
     sampled ``per_knot`` times per knot interval along u and v (spacing h), each sample standing for
     the area :math:`\\lVert S_u \\times S_v\\rVert h_u h_v` (the lattice's edge samples for half of
-    it along that edge, the trapezoidal rule)."""
+    it along that edge, the trapezoidal rule). The samples are taken a tile of
+    :data:`TILE` x :data:`TILE` at a time, the first time the tip reaches the tile, into a pool of
+    ``pool`` tiles (the least recently used one given up for a new one): the memory is the pool's,
+    whatever the scan's size, and a tile is sampled the same every time, so the energy is one
+    function of the tip wherever the pool stands."""
     if not (isinstance(per_knot, (int, np.integer)) and not isinstance(per_knot, bool) and 1 <= per_knot <= 64):
         raise SurfaceError(f"`per_knot` must be an integer in [1, 64] (got {per_knot!r})")
+    if not (isinstance(pool, (int, np.integer)) and not isinstance(pool, bool) and 1 <= pool <= MAX_POOL):
+        raise SurfaceError(f"`pool` must be an integer in [1, {MAX_POOL}] tiles (got {pool!r})")
     if not surface.is_height_field_net:
         raise SurfaceError("the zone energy needs a height-field net (x along u, y along v): a fitted scan's")
-    ctrl = surface.rest_control_points
+    ctrl = np.ascontiguousarray(surface.rest_control_points)
     ku, kv = surface.knots_u, surface.knots_v
     (u0, u1), (v0, v1) = surface.domain
     nu = (ctrl.shape[0] - 3) * per_knot + 1
     nv = (ctrl.shape[1] - 3) * per_knot + 1
-    if nu * nv > MAX_SAMPLES:
-        raise SurfaceError(f"a lattice of {nu} x {nv} samples is beyond {MAX_SAMPLES}: lower `per_knot`")
+    ntu, ntv = -(-nu // TILE), -(-nv // TILE)
+    if ntu * ntv > MAX_TILES:
+        raise SurfaceError(f"a lattice of {nu} x {nv} samples has {ntu * ntv} tiles, beyond {MAX_TILES}: "
+                           "lower `per_knot`")
     us, vs = np.linspace(u0, u1, nu), np.linspace(v0, v1, nv)
-    uu, vv = (a.ravel() for a in np.meshgrid(us, vs, indexing="ij"))
-    ev = np.empty((3, uu.size, 3))
-    surface_points(np.ascontiguousarray(ctrl), ku, kv, uu, vv, 1, ev)
-    points = np.ascontiguousarray(ev[0].reshape(nu, nv, 3))
     hu, hv = (u1 - u0) / (nu - 1), (v1 - v0) / (nv - 1)
-    areas = np.linalg.norm(np.cross(ev[1], ev[2]), axis=1).reshape(nu, nv) * hu * hv
-    areas[[0, -1], :] *= 0.5
-    areas[:, [0, -1]] *= 0.5
-    nbu, nbv = -(-nu // BLOCK), -(-nv // BLOCK)
-    boxes = np.empty((nbu, nbv, 6))
-    for bi in range(nbu):
-        for bj in range(nbv):
-            block = points[bi * BLOCK:(bi + 1) * BLOCK, bj * BLOCK:(bj + 1) * BLOCK].reshape(-1, 3)
-            boxes[bi, bj, :3] = block.min(axis=0)
-            boxes[bi, bj, 3:] = block.max(axis=0)
-    return SurfaceLattice(points, areas, np.ascontiguousarray(points[:, 0, 0]), np.ascontiguousarray(points[0, :, 1]),
-                          boxes, (float(points[1, 0, 0] - points[0, 0, 0]), float(points[0, 1, 1] - points[0, 0, 1])))
+    wu, wv = np.full(nu, hu), np.full(nv, hv)
+    wu[[0, -1]] *= 0.5
+    wv[[0, -1]] *= 0.5
+    ev = np.empty((1, nu + nv, 3))
+    surface_points_serial(ctrl, ku, kv, np.concatenate([us, np.full(nv, u0)]), np.concatenate([np.full(nu, v0), vs]),
+                          0, ev)
+    xs, ys = np.ascontiguousarray(ev[0, :nu, 0]), np.ascontiguousarray(ev[0, nu:, 1])
+    zlo, zhi = np.empty((ntu, ntv)), np.empty((ntu, ntv))
+    _tile_heights(np.ascontiguousarray(ctrl[:, :, 2]), basis_matrix_rows(ku, us)[0], basis_matrix_rows(kv, vs)[0],
+                  zlo, zhi)
+    arrays = (ctrl, ku, kv, us, vs, xs, ys, wu, wv, zlo, zhi,
+              np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
+              np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty((pool, 2, 2, 6)),
+              np.zeros(1, np.int64))
+    return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
+
+
+@njit(cache=True)
+def _tile_heights(z, cols_u, cols_v, zlo, zhi):
+    """Each tile's lowest and highest control point over the 4 x 4 patches its samples lie on
+    (``cols_u``, ``cols_v``: the first control row and column of each lattice row and column), one
+    row and column wider each side: the tile lies within their heights (the convex hull)."""
+    nu, nv = cols_u.shape[0], cols_v.shape[0]
+    for ti in range(zlo.shape[0]):
+        r0 = max(cols_u[ti * TILE] - 1, 0)
+        r1 = min(cols_u[min((ti + 1) * TILE, nu) - 1] + 4, z.shape[0] - 1)
+        for tj in range(zlo.shape[1]):
+            c0 = max(cols_v[tj * TILE] - 1, 0)
+            c1 = min(cols_v[min((tj + 1) * TILE, nv) - 1] + 4, z.shape[1] - 1)
+            lo, hi = math.inf, -math.inf
+            for r in range(r0, r1 + 1):
+                for c in range(c0, c1 + 1):
+                    lo = min(lo, z[r, c])
+                    hi = max(hi, z[r, c])
+            zlo[ti, tj] = lo
+            zhi[ti, tj] = hi
+
+
+def lattice_for(surface, tip_radius: float, per_knot: int = 2, pool: int = DEFAULT_POOL) -> SurfaceLattice:
+    """The lattice of ``surface`` a tip of ``tip_radius`` (m) is summed over: at least ``per_knot``
+    samples per knot interval and at most :data:`SPACING_PER_RADIUS` of the tip radius apart (the
+    rule the zone benches were measured with, docs/feel.rst)."""
+    if not (isinstance(tip_radius, (int, float)) and math.isfinite(tip_radius) and tip_radius > 0.0):
+        raise ContactError(f"`tip_radius` must be a finite number > 0 m (got {tip_radius!r})")
+    finest = math.ceil(min(surface.spacing) / (SPACING_PER_RADIUS * tip_radius))
+    return surface_lattice(surface, min(max(per_knot, finest), 64), pool)
+
+
+def no_lattice() -> tuple:
+    """The kernels' ``lat`` of no lattice (every array empty, of the types a lattice's are): what a
+    model without the zone energy passes its compiled tick."""
+    f1, i2 = np.empty(0), np.empty((0, 0), np.int64)
+    return (np.empty((0, 0, 3)), f1, f1, f1, f1, f1, f1, f1, f1, np.empty((0, 0)), np.empty((0, 0)), i2, i2,
+            np.empty(0, np.int64), np.empty((0, 3)), f1, np.empty((0, 2, 2, 6)), np.zeros(1, np.int64))
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:

@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel,
+from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel,
                                         zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.scan import synthetic
@@ -27,6 +27,17 @@ LAW = ZoneLaw.from_law(MaugisDugdale(R, 50e9, 0.05))
 def flat():
     return surface_lattice(fit_surface(synthetic.sinusoid(shape=(60, 60), pixel=1e-9, amplitude=0.0,
                                                           period=10e-9)), per_knot=4)
+
+
+@pytest.fixture(scope="module")
+def rough_surface():
+    return fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=1.5e-9, correlation_length=2.5e-9, seed=3))
+
+
+def top(surface, lattice) -> float:
+    """The highest sample of ``lattice`` on ``surface`` (m)."""
+    uu, vv = np.meshgrid(lattice.arrays[L_US], lattice.arrays[L_VS])
+    return float(surface.evaluate(uu, vv)[..., 2].max())
 
 
 def sphere_on_flat(depth):
@@ -60,10 +71,9 @@ def test_out_of_reach_the_tip_feels_nothing(flat):
     assert energy == 0.0 and not force.any()
 
 
-def test_the_force_is_the_gradient_of_the_energy_on_a_rough_surface():
-    rough = surface_lattice(fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=1.5e-9,
-                                                        correlation_length=2.5e-9, seed=3)), per_knot=3)
-    z = float(rough.points[:, :, 2].max())
+def test_the_force_is_the_gradient_of_the_energy_on_a_rough_surface(rough_surface):
+    rough = surface_lattice(rough_surface, per_knot=3)
+    z = top(rough_surface, rough)
     h = 1e-12
     for c in ([16e-9, 15e-9, z + R - 1.0e-9], [14e-9, 17.5e-9, z + R - 2.5e-9], [18e-9, 16e-9, z + R - 0.1e-9]):
         c = np.array(c)
@@ -73,10 +83,9 @@ def test_the_force_is_the_gradient_of_the_energy_on_a_rough_surface():
         np.testing.assert_allclose(-np.array(grad), force, rtol=1e-5, atol=1e-6 * np.linalg.norm(force))
 
 
-def test_the_hessian_is_the_derivative_of_the_force():
-    rough = surface_lattice(fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=1.5e-9,
-                                                        correlation_length=2.5e-9, seed=3)), per_knot=3)
-    z = float(rough.points[:, :, 2].max())
+def test_the_hessian_is_the_derivative_of_the_force(rough_surface):
+    rough = surface_lattice(rough_surface, per_knot=3)
+    z = top(rough_surface, rough)
     h = 1e-13
     for c in ([16e-9, 15e-9, z + R - 1.0e-9], [14e-9, 17.5e-9, z + R - 2.5e-9]):
         c = np.array(c)
@@ -138,6 +147,53 @@ def test_across_the_valley_the_force_turns_without_a_step(valley):
     assert np.all(np.diff(angle) < 0.0)  # turning one way, through the middle
 
 
+def test_the_tiles_give_the_whole_lattice_sum_whatever_the_pool_holds(rough_surface):
+    """The lattice is sampled a tile at a time where the tip reaches: along a path across many
+    tiles the energy and force equal the sum over every sample of the lattice taken at once (by
+    numpy, here), and are the same to the bit with a pool of one tile (each tile sampled again
+    every time it is needed) as with the default pool."""
+    lattice, single = surface_lattice(rough_surface, per_knot=3), surface_lattice(rough_surface, per_knot=3, pool=1)
+    nu, nv = lattice.shape
+    uu, vv = np.meshgrid(lattice.arrays[L_US], lattice.arrays[L_VS], indexing="ij")
+    s, su, sv = rough_surface.evaluate(uu, vv, 1)
+    points = s.reshape(-1, 3)
+    weights = np.outer(np.r_[0.5, np.ones(nu - 2), 0.5], np.r_[0.5, np.ones(nv - 2), 0.5]).ravel()
+    areas = np.linalg.norm(np.cross(su, sv), axis=-1).ravel() * weights \
+        * np.diff(lattice.arrays[L_US][:2]) * np.diff(lattice.arrays[L_VS][:2])
+    z = top(rough_surface, lattice)
+    path = np.column_stack([np.linspace(4e-9, 28e-9, 25), np.linspace(27e-9, 5e-9, 25), np.full(25, z + R - 3e-9)])
+    touched = 0
+    for c in path:
+        e = c - points
+        d = np.linalg.norm(e, axis=1)
+        near = np.nonzero(d - R < LAW.interaction_range)[0]
+        law = np.array([zone_law_kernel(g, *LAW.args) for g in d[near] - R]).reshape(-1, 2)
+        energy = float((areas[near] * law[:, 0]).sum())
+        force = ((areas[near] * law[:, 1] / d[near])[:, None] * e[near]).sum(axis=0)
+        tiled, again = zone_energy(lattice, LAW, c), zone_energy(single, LAW, c)
+        assert tiled[0] == pytest.approx(energy, rel=1e-12, abs=1e-40)
+        np.testing.assert_allclose(tiled[1], force, rtol=1e-12, atol=1e-12 * np.abs(force).max(initial=0.0))
+        assert again[0] == tiled[0] and np.array_equal(again[1], tiled[1])
+        touched += near.size > 0
+    assert touched >= 20 and single.sampled_tiles == 1 and lattice.sampled_tiles > 4
+
+
+def test_a_lattice_beyond_memory_is_sampled_only_where_the_tip_is():
+    """A 600 x 600 net sampled 16 times per knot interval is a lattice of 9553 x 9553 samples
+    (3 GB of points and areas at once); pressed in one place, the tip samples a few tiles of it and feels the flat's
+    exact load: the tiles within reach of its sphere, at most those over the disc where the sphere
+    reaches the flat, widened by a tile's diagonal."""
+    surface = BSplineSurface.from_heights(np.zeros((600, 600)), (0.0, 600e-9), (0.0, 600e-9))
+    lattice = surface_lattice(surface, per_knot=16)
+    assert lattice.shape == (9553, 9553)
+    depth = 0.5e-9
+    energy, force = zone_energy(lattice, LAW, (300.3e-9, 299.1e-9, R - depth))
+    assert force[2] == pytest.approx(LAW.flat_load(depth), rel=2e-3)
+    disc = math.sqrt((R + LAW.interaction_range) ** 2 - (R - depth) ** 2)
+    tile = TILE * lattice.spacing[0]
+    assert 1 <= lattice.sampled_tiles <= math.pi * (disc + math.sqrt(2.0) * tile) ** 2 / tile ** 2 < 1e-3 * 9553 ** 2 / TILE ** 2
+
+
 def test_bad_inputs_are_refused_in_one_line(flat):
     with pytest.raises(ContactError, match="center"):
         zone_energy(flat, LAW, (0.0, math.nan, 1e-9))
@@ -149,6 +205,8 @@ def test_bad_inputs_are_refused_in_one_line(flat):
     for bad in (0, 65, 2.5, True):
         with pytest.raises(SurfaceError, match="per_knot"):
             surface_lattice(surface, bad)
+        with pytest.raises(SurfaceError, match="pool"):
+            surface_lattice(surface, pool=bad if bad != 65 else 10**9)
     ctrl = surface.control_points.copy()
     ctrl[:, :, 0] += 1e-10 * np.arange(ctrl.shape[1])  # x now varies along v too: not a height field
     skewed = BSplineSurface(ctrl, surface.knots_u, surface.knots_v)
