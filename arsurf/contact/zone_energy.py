@@ -4,39 +4,45 @@ r"""The energy of the whole tip on the surface: a local law summed over every su
 Maugis-Dugdale contact and gates the loads with weights. Its force is not the gradient of an
 energy: a weight that gates a load without its stored energy makes the force circulate, and a
 contact that enters or leaves steps it (docs/feel.rst, "What still fails, and why"). This module
-is the building block of the other way, which has no contacts to find and no gates: the tip sphere
-(centre T, radius R, rigid) interacts with every element of the surface through a law of energy
-per unit area :math:`\varphi(g)` of the gap :math:`g = \lVert S - T\rVert - R` along the line to
-the centre (the Derjaguin approximation: Derjaguin, "Untersuchungen über die Reibung und
-Adhäsion, IV. Theorie des Anhaftens kleiner Teilchen", Kolloid-Z. 69, 155-164, 1934, the force
-between curved bodies from the energy per area of flat ones):
+is the building block of the other way, which has no contacts to find and no gates: the tip
+(apex at height :math:`T_z - R` under its centre T, rigid) interacts with every element of the
+surface through a law of energy per unit area :math:`\varphi(g)` of the gap between them (the
+Derjaguin approximation: Derjaguin, "Untersuchungen über die Reibung und Adhäsion, IV. Theorie
+des Anhaftens kleiner Teilchen", Kolloid-Z. 69, 155-164, 1934, the force between curved bodies
+from the energy per area of flat ones). The tip is Hertz's paraboloid of radius R, the shape the
+Maugis-Dugdale law itself is solved for (Maugis, J. Colloid Interface Sci. 150, 243, 1992), and
+the gap is the height between it and the surface:
 
 .. math::
 
+    g_k = T_z - R + \frac{(T_x - S_{k,x})^2 + (T_y - S_{k,y})^2}{2R} - S_{k,z}, \qquad
     E(T) = \sum_k A_k\,\varphi(g_k), \qquad
-    F = -\nabla_T E = \sum_k A_k\,p(g_k)\,\frac{T - S_k}{\lVert T - S_k\rVert}, \qquad p = -\varphi',
+    F = -\nabla_T E = \sum_k A_k\,p(g_k) \begin{pmatrix} (T_x - S_{k,x})/R \\ (T_y - S_{k,y})/R \\ 1
+    \end{pmatrix}, \qquad p = -\varphi',
 
 over samples :math:`S_k` fixed on a uniform (u, v) lattice of the rest surface, :math:`A_k =
-\lVert S_u \times S_v\rVert\,h_u h_v` the area each stands for (:func:`surface_lattice`; sampled a
-tile at a time where the tip reaches, so a lattice finer than the scan costs memory only where
-the tip has been). The force
-is the gradient of E by construction (the samples do not move with T): no work round a closed
-path, and continuous wherever p is; several asperities under a wide tip push at once, each with
-its own share, and no event of the contact set exists to step the force.
+|x_u y_v - x_v y_u|\,h_u h_v` the projected area each stands for (:func:`surface_lattice`;
+sampled a tile at a time where the tip reaches, so a lattice finer than the scan costs memory
+only where the tip has been). Each element pushes along the tip's normal above it. The force is
+the gradient of E by construction (the samples do not move with T): no work round a closed path,
+and continuous wherever p is; several asperities under a wide tip push at once, each with its own
+share, and no event of the contact set exists to step the force.
 
-**The law.** On a flat pressed :math:`\delta` deep, the ring of the flat between gaps g and
-g + dg has area :math:`2\pi (R + g)\,dg` and pushes along the line to the centre, whose normal
-component is :math:`(R - \delta)/(R + g)`, so a rigid sphere summing p feels exactly
+**The law.** On a flat pressed :math:`\delta` deep, the ring of the flat at radius r has the gap
+:math:`g = -\delta + r^2/2R` and area :math:`2\pi r\,dr = 2\pi R\,dg`, and the rings' lateral
+pushes cancel, so the tip feels exactly
 
-.. math:: P(\delta) = 2\pi (R - \delta) \int_{-\delta}^{\infty} p(g)\,dg = 2\pi (R - \delta)\,\varphi(-\delta) .
+.. math:: P(\delta) = 2\pi R \int_{-\delta}^{\infty} p(g)\,dg = 2\pi R\,\varphi(-\delta)
 
-The repulsion :math:`p_r(g) = E^*\sqrt{-g}/(\pi\sqrt R)` for g < 0 gives Hertz,
-:math:`\tfrac43 E^* \sqrt R\,\delta^{3/2}`; the adhesion is a Dugdale stress spread over the
-interaction range :math:`h_0 = w/\sigma_0` as a smooth bump, :math:`p_a(g) = -2\sigma_0
+at any depth (a sphere's gap along the line to its centre loses the factor :math:`1 - \delta/R`
+and its load vanishes as its cap reaches the equator: a 2 nm tip pressed by the hand's load went
+through the surface). The repulsion :math:`p_r(g) = E^*\sqrt{-g}/(\pi\sqrt R)` for g < 0 gives
+Hertz, :math:`\tfrac43 E^* \sqrt R\,\delta^{3/2}`; the adhesion is a Dugdale stress spread over
+the interaction range :math:`h_0 = w/\sigma_0` as a smooth bump, :math:`p_a(g) = -2\sigma_0
 \sin^2(\pi g/h_0)` for 0 < g < :math:`h_0` (the box of Maugis 1992 with continuous edges, the
-same work w), which adds :math:`-2\pi R w` once the gap closes. So on a flat the load is, to
-order :math:`\delta/R`, the Derjaguin-Muller-Toporov limit of Maugis-Dugdale with the law's own
-E*, w and :math:`\sigma_0`: :math:`P(\delta) = \tfrac43 E^*\sqrt R\,\delta^{3/2} - 2\pi R w` for
+same work w), which adds :math:`-2\pi R w` once the gap closes. So on a flat the load is exactly
+the Derjaguin-Muller-Toporov limit of Maugis-Dugdale with the law's own E*, w and
+:math:`\sigma_0`: :math:`P(\delta) = \tfrac43 E^*\sqrt R\,\delta^{3/2} - 2\pi R w` for
 :math:`\delta \ge 0`. A Johnson-Kendall-Roberts-like law (large Maugis parameter) has a
 hysteresis loop, which no energy has; this law is its conservative limit with the same
 constants, and its pull-off is :math:`2\pi R w` (JKR: :math:`1.5\pi R w`).
@@ -46,9 +52,10 @@ The energy per area is :math:`\varphi = \varphi_r + \varphi_a`, :math:`\varphi_r
 :math:`-\sigma_0 (h_0 - g) - \sigma_0 h_0 \sin(2\pi g/h_0)/(2\pi)` on (0, :math:`h_0`) and 0
 beyond: continuous with its derivative, so the force is continuous in T.
 
-Not wired into :class:`~arsurf.model.ARModel` yet: ``bench/zone_energy.py`` measures it against
-the model on the surfaces where the feel still fails, and ``bench/zone_feel.py`` judges those runs
-with it as the loop's contact (docs/feel.rst, "The next step").
+:class:`~arsurf.model.ARModel` takes it as its contact with ``zone_energy=True`` (not yet the
+default); ``bench/zone_energy.py`` measures it against the model on the surfaces where the feel
+still fails, and ``bench/feel.py --zone-energy`` judges the feel tables with it (docs/feel.rst,
+"The next step").
 """
 from __future__ import annotations
 
@@ -91,7 +98,7 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR, L_BOX,
- L_CLOCK) = range(18)
+ L_CLOCK, L_TOP) = range(19)
 
 
 @dataclass(frozen=True)
@@ -125,11 +132,10 @@ class ZoneLaw:
         return self.work_of_adhesion / self.dugdale_stress
 
     def flat_load(self, depth: float) -> float:
-        r"""The load (N, > 0 compressive) the law gives a rigid sphere pressed ``depth`` (m; < 0: a
-        gap) into a flat: :math:`2\pi (R - \delta)\,\varphi(-\delta)` (module docstring), exact
-        for a depth below R."""
+        r"""The load (N, > 0 compressive) the law gives the tip pressed ``depth`` (m; < 0: a gap)
+        into a flat: :math:`2\pi R\,\varphi(-\delta)` (module docstring), exact at any depth."""
         phi = zone_law_kernel(-float(depth), *self.args)[0]
-        return 2.0 * math.pi * (self.tip_radius - depth) * phi
+        return 2.0 * math.pi * self.tip_radius * phi
 
     @property
     def args(self) -> tuple[float, float, float, float]:
@@ -173,72 +179,68 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
     (:attr:`SurfaceLattice.arrays`: its tiles in reach are sampled the first time they are needed,
     :func:`_tile_slot`). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of
     samples within reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
-    :math:`\sum_k A_k [-p'(g_k)\,u u^T - p(g_k)/d_k\,(I - u u^T)]`, u the unit vector from the
-    sample to T, with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
+    :math:`\sum_k A_k [-p'(g_k)\,\nabla g_k \nabla g_k^T - p(g_k)\,\mathrm{diag}(1/R, 1/R, 0)]`,
+    with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
     :math:`p' \propto 1/\sqrt{-g}` (a sample at the contact's edge: an infinite but integrable
-    stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step)."""
+    stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step). A sample is in reach
+    where the gap is below h0: within :math:`\sqrt{2R(h_0 + R - T_z + z)}` of T across, z its height."""
     xs, ys, zlo, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZLO], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
     want = hess.shape[0] == 3
     if want:
         hess[:, :] = 0.0
-    reach = radius + h0
-    nu, nv = xs.shape[0], ys.shape[0]
-    i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
-    i1 = min(_first_at_least(xs, tx + reach) + 1, nu)
-    j0 = max(_first_at_least(ys, ty - reach) - 1, 0)
-    j1 = min(_first_at_least(ys, ty + reach) + 1, nv)
     energy = fx = fy = fz = 0.0
     n = 0
-    for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
-        for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
-            # the tile's box from its control points' heights (the convex hull): beyond reach, never sampled
-            a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
-            b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
-            dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
-            dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
-            dz = max(zlo[ti, tj] - tz, 0.0, tz - zhi[ti, tj])
-            if dx * dx + dy * dy + dz * dz >= reach * reach:
-                continue
-            s = _tile_slot(lat, ti, tj)
-            for qa in range(2):
-                for qb in range(2):
-                    b = box[s, qa, qb]
-                    dx = max(b[0] - tx, 0.0, tx - b[3])
-                    dy = max(b[1] - ty, 0.0, ty - b[4])
-                    dz = max(b[2] - tz, 0.0, tz - b[5])
-                    if dx * dx + dy * dy + dz * dz >= reach * reach:
-                        continue
-                    for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
-                        row = (s * TILE + i - a0) * TILE - b0  # the pool's flat index of sample (i, j): row + j
-                        for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
-                            k = row + j
-                            ex = tx - pts[k, 0]
-                            ey = ty - pts[k, 1]
-                            ez = tz - pts[k, 2]
-                            d = math.sqrt(ex * ex + ey * ey + ez * ez)
-                            g = d - radius
-                            if g >= h0 or d == 0.0:
-                                continue
-                            phi, pr = zone_law_kernel(g, radius, e_star, sigma0, h0)
-                            area = ar[k]
-                            energy += area * phi
-                            f = area * pr / d
-                            fx += f * ex
-                            fy += f * ey
-                            fz += f * ez
-                            n += 1
-                            if want:  # a (-p' u u^T - p/d (I - u u^T)), u = e/d
-                                radial = -area * _pressure_slope(g, radius, e_star, sigma0, h0) / (d * d)
-                                hess[0, 0] -= f
-                                hess[1, 1] -= f
-                                hess[2, 2] -= f
-                                c = radial + f / (d * d)
-                                hess[0, 0] += c * ex * ex
-                                hess[0, 1] += c * ex * ey
-                                hess[0, 2] += c * ex * ez
-                                hess[1, 1] += c * ey * ey
-                                hess[1, 2] += c * ey * ez
-                                hess[2, 2] += c * ez * ez
+    two_r = 2.0 * radius
+    base = h0 + radius - tz  # a sample of height z is in reach within sqrt(2R (base + z)) across
+    if base + lat[L_TOP][0] > 0.0:
+        reach = math.sqrt(two_r * (base + lat[L_TOP][0]))
+        nu, nv = xs.shape[0], ys.shape[0]
+        i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
+        i1 = min(_first_at_least(xs, tx + reach) + 1, nu)
+        j0 = max(_first_at_least(ys, ty - reach) - 1, 0)
+        j1 = min(_first_at_least(ys, ty + reach) + 1, nv)
+        for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
+            for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
+                # the tile's heights bound by its control points' (the convex hull): beyond reach, never sampled
+                a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
+                b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
+                dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
+                dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
+                if dx * dx + dy * dy >= two_r * (base + zhi[ti, tj]):
+                    continue
+                s = _tile_slot(lat, ti, tj)
+                for qa in range(2):
+                    for qb in range(2):
+                        b = box[s, qa, qb]
+                        dx = max(b[0] - tx, 0.0, tx - b[3])
+                        dy = max(b[1] - ty, 0.0, ty - b[4])
+                        if dx * dx + dy * dy >= two_r * (base + b[5]):
+                            continue
+                        for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
+                            row = (s * TILE + i - a0) * TILE - b0  # the pool's flat index of sample (i, j): row + j
+                            for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
+                                k = row + j
+                                ex = (tx - pts[k, 0]) / radius  # the gap's gradient: (ex, ey, 1)
+                                ey = (ty - pts[k, 1]) / radius
+                                g = tz - radius + 0.5 * radius * (ex * ex + ey * ey) - pts[k, 2]
+                                if g >= h0:
+                                    continue
+                                phi, pr = zone_law_kernel(g, radius, e_star, sigma0, h0)
+                                area = ar[k]
+                                energy += area * phi
+                                f = area * pr
+                                fx += f * ex
+                                fy += f * ey
+                                fz += f
+                                n += 1
+                                if want:  # a (-p' grad g grad g^T - p diag(1/R, 1/R, 0))
+                                    c = -area * _pressure_slope(g, radius, e_star, sigma0, h0)
+                                    hess[0, 0] += c * ex * ex - f / radius
+                                    hess[0, 1] += c * ex * ey
+                                    hess[0, 2] += c * ex
+                                    hess[1, 1] += c * ey * ey - f / radius
+                                    hess[1, 2] += c * ey
+                                    hess[2, 2] += c
     out[Z_ENERGY] = energy
     out[Z_FORCE] = fx
     out[Z_FORCE + 1] = fy
@@ -298,11 +300,8 @@ def _sample_tile(lat, ti, tj, s):
             if j >= vs.shape[0]:
                 break
             surface_point(ctrl, ku, kv, us[i], vs[j], 1, ev)
-            nx = ev[1, 1] * ev[2, 2] - ev[1, 2] * ev[2, 1]
-            ny = ev[1, 2] * ev[2, 0] - ev[1, 0] * ev[2, 2]
-            nz = ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]
             k = (s * TILE + a) * TILE + b
-            ar[k] = math.sqrt(nx * nx + ny * ny + nz * nz) * wu[i] * wv[j]
+            ar[k] = abs(ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]) * wu[i] * wv[j]  # projected
             q = box[s, a // BLOCK, b // BLOCK]
             for c in range(3):
                 pts[k, c] = ev[0, c]
@@ -395,8 +394,9 @@ class SurfaceLattice:
     """Samples of a surface on a uniform (u, v) lattice (:func:`surface_lattice`), sampled a tile
     at a time where the tip reaches. ``arrays`` is what the kernels take (their ``lat``; the
     ``L_*`` indices): the rest net and its knots, the lattice's u and v, its rows' x and columns' y
-    (m), the trapezoidal weights along u and v, each tile's height bounds (m), and the pool of
-    sampled tiles (points m, areas m^2, blocks' boxes m) with its bookkeeping. ``shape`` is the
+    (m), the trapezoidal weights along u and v, each tile's height bounds (m), the pool of
+    sampled tiles (points m, projected areas m^2, blocks' boxes m) with its bookkeeping, and the
+    highest bound (m). ``shape`` is the
     lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
     arrays: tuple
@@ -416,7 +416,7 @@ class SurfaceLattice:
 def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> SurfaceLattice:
     """The rest surface of ``surface`` (a height-field :class:`~arsurf.spline.surface.BSplineSurface`)
     sampled ``per_knot`` times per knot interval along u and v (spacing h), each sample standing for
-    the area :math:`\\lVert S_u \\times S_v\\rVert h_u h_v` (the lattice's edge samples for half of
+    the projected area :math:`|x_u y_v - x_v y_u|\\,h_u h_v` (the lattice's edge samples for half of
     it along that edge, the trapezoidal rule). The samples are taken a tile of
     :data:`TILE` x :data:`TILE` at a time, the first time the tip reaches the tile, into a pool of
     ``pool`` tiles (the least recently used one given up for a new one): the memory is the pool's,
@@ -452,7 +452,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
     arrays = (ctrl, ku, kv, us, vs, xs, ys, wu, wv, zlo, zhi,
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty((pool, 2, 2, 6)),
-              np.zeros(1, np.int64))
+              np.zeros(1, np.int64), np.array([zhi.max()]))
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 
 
@@ -492,7 +492,8 @@ def no_lattice() -> tuple:
     model without the zone energy passes its compiled tick."""
     f1, i2 = np.empty(0), np.empty((0, 0), np.int64)
     return (np.empty((0, 0, 3)), f1, f1, f1, f1, f1, f1, f1, f1, np.empty((0, 0)), np.empty((0, 0)), i2, i2,
-            np.empty(0, np.int64), np.empty((0, 3)), f1, np.empty((0, 2, 2, 6)), np.zeros(1, np.int64))
+            np.empty(0, np.int64), np.empty((0, 3)), f1, np.empty((0, 2, 2, 6)), np.zeros(1, np.int64),
+            np.full(1, -np.inf))
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:

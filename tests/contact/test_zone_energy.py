@@ -1,5 +1,5 @@
 """The tip's energy summed over the surface (arsurf.contact.zone_energy): on a flat the rigid
-sphere's exact load, a force that is the gradient of the energy (and a Hessian that is its
+tip's exact load (the DMT limit, at any depth), a force that is the gradient of the energy (and a Hessian that is its
 derivative), and - in the valley narrower than the tip where the several-contact model's force is
 not a gradient (tests/contact/test_force_field.py) - no work round a loop and a force continuous
 across the middle; behind a virtual coupling, the proxy tip at the balance of the two."""
@@ -40,17 +40,14 @@ def top(surface, lattice) -> float:
     return float(surface.evaluate(uu, vv)[..., 2].max())
 
 
-def sphere_on_flat(depth):
-    """The law summed over a flat by rings (the integral the lattice approximates): each ring at
-    lateral r pushes along the line to the centre, (R - depth) / d of it upwards."""
-    h = R - depth
-
+def tip_on_flat(depth):
+    """The law summed over a flat by rings (the integral the lattice approximates): the ring at
+    radius r has the gap -depth + r^2 / 2R and pushes up with its whole pressure."""
     def ring(r):
-        d = math.hypot(r, h)
-        return 2.0 * math.pi * r * zone_law_kernel(d - R, *LAW.args)[1] * h / d
+        return 2.0 * math.pi * r * zone_law_kernel(-depth + r * r / (2.0 * R), *LAW.args)[1]
 
-    edge = math.sqrt(max(R * R - h * h, 0.0))  # where the gap closes: the pressure's kink
-    reach = math.sqrt((R + LAW.interaction_range) ** 2 - h * h)
+    edge = math.sqrt(max(2.0 * R * depth, 0.0))  # where the gap closes: the pressure's kink
+    reach = math.sqrt(2.0 * R * (depth + LAW.interaction_range))
     return quad(ring, 0.0, reach, points=[edge] if edge > 0 else None, limit=200, epsabs=0.0, epsrel=1e-11)[0]
 
 
@@ -58,12 +55,12 @@ def sphere_on_flat(depth):
 def test_on_a_flat_the_tip_feels_the_law_summed_over_its_cap(flat, depth):
     energy, force = zone_energy(flat, LAW, (30e-9, 30.1e-9, R - depth))
     exact = LAW.flat_load(depth)
-    assert sphere_on_flat(depth) == pytest.approx(exact, rel=1e-7)  # 2 pi (R - d) phi(-d), exactly
+    assert tip_on_flat(depth) == pytest.approx(exact, rel=1e-7)  # 2 pi R phi(-d), exactly
     assert force[2] == pytest.approx(exact, rel=2e-3)  # the lattice's quadrature, 0.25 nm apart
     assert np.abs(force[:2]).max() <= 1e-3 * abs(exact)
-    if depth >= 0.0:  # Hertz with the Dugdale adhesion's -2 pi R w, times (1 - depth / R)
+    if depth >= 0.0:  # Hertz with the Dugdale adhesion's -2 pi R w: the DMT limit, at any depth
         dmt = 4.0 / 3.0 * LAW.effective_modulus * math.sqrt(R) * depth ** 1.5 - 2.0 * math.pi * R * LAW.work_of_adhesion
-        assert exact == pytest.approx(dmt * (1.0 - depth / R), rel=1e-12)
+        assert exact == pytest.approx(dmt, rel=1e-12)
 
 
 def test_out_of_reach_the_tip_feels_nothing(flat):
@@ -158,18 +155,18 @@ def test_the_tiles_give_the_whole_lattice_sum_whatever_the_pool_holds(rough_surf
     s, su, sv = rough_surface.evaluate(uu, vv, 1)
     points = s.reshape(-1, 3)
     weights = np.outer(np.r_[0.5, np.ones(nu - 2), 0.5], np.r_[0.5, np.ones(nv - 2), 0.5]).ravel()
-    areas = np.linalg.norm(np.cross(su, sv), axis=-1).ravel() * weights \
+    areas = np.abs(su[..., 0] * sv[..., 1] - su[..., 1] * sv[..., 0]).ravel() * weights \
         * np.diff(lattice.arrays[L_US][:2]) * np.diff(lattice.arrays[L_VS][:2])
     z = top(rough_surface, lattice)
     path = np.column_stack([np.linspace(4e-9, 28e-9, 25), np.linspace(27e-9, 5e-9, 25), np.full(25, z + R - 3e-9)])
     touched = 0
     for c in path:
-        e = c - points
-        d = np.linalg.norm(e, axis=1)
-        near = np.nonzero(d - R < LAW.interaction_range)[0]
-        law = np.array([zone_law_kernel(g, *LAW.args) for g in d[near] - R]).reshape(-1, 2)
+        grad = np.column_stack([(c[:2] - points[:, :2]) / R, np.ones(len(points))])  # the gap's gradient
+        gap = c[2] - R + 0.5 * R * (grad[:, :2] ** 2).sum(axis=1) - points[:, 2]
+        near = np.nonzero(gap < LAW.interaction_range)[0]
+        law = np.array([zone_law_kernel(g, *LAW.args) for g in gap[near]]).reshape(-1, 2)
         energy = float((areas[near] * law[:, 0]).sum())
-        force = ((areas[near] * law[:, 1] / d[near])[:, None] * e[near]).sum(axis=0)
+        force = ((areas[near] * law[:, 1])[:, None] * grad[near]).sum(axis=0)
         tiled, again = zone_energy(lattice, LAW, c), zone_energy(single, LAW, c)
         assert tiled[0] == pytest.approx(energy, rel=1e-12, abs=1e-40)
         np.testing.assert_allclose(tiled[1], force, rtol=1e-12, atol=1e-12 * np.abs(force).max(initial=0.0))
@@ -180,16 +177,16 @@ def test_the_tiles_give_the_whole_lattice_sum_whatever_the_pool_holds(rough_surf
 
 def test_a_lattice_beyond_memory_is_sampled_only_where_the_tip_is():
     """A 600 x 600 net sampled 16 times per knot interval is a lattice of 9553 x 9553 samples
-    (3 GB of points and areas at once); pressed in one place, the tip samples a few tiles of it and feels the flat's
-    exact load: the tiles within reach of its sphere, at most those over the disc where the sphere
-    reaches the flat, widened by a tile's diagonal."""
+    (3 GB of points and areas at once); pressed in one place, the tip samples a few tiles of it
+    and feels the flat's exact load: the tiles within reach, at most those over the disc where the
+    gap is below the range, widened by a tile's diagonal."""
     surface = BSplineSurface.from_heights(np.zeros((600, 600)), (0.0, 600e-9), (0.0, 600e-9))
     lattice = surface_lattice(surface, per_knot=16)
     assert lattice.shape == (9553, 9553)
     depth = 0.5e-9
     energy, force = zone_energy(lattice, LAW, (300.3e-9, 299.1e-9, R - depth))
     assert force[2] == pytest.approx(LAW.flat_load(depth), rel=2e-3)
-    disc = math.sqrt((R + LAW.interaction_range) ** 2 - (R - depth) ** 2)
+    disc = math.sqrt(2.0 * R * (LAW.interaction_range + depth))
     tile = TILE * lattice.spacing[0]
     assert 1 <= lattice.sampled_tiles <= math.pi * (disc + math.sqrt(2.0) * tile) ** 2 / tile ** 2 < 1e-3 * 9553 ** 2 / TILE ** 2
 
