@@ -181,7 +181,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                  signal_noise: float = SIGNAL_NOISE, seed: int = 7, max_rate: float | None = None,
                  filter_cutoff: float | None | str = "preset", tip_radius: float | None = None,
                  coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf,
-                 force_gain: float | None = None, jump_blend: float | None = None, after_tick=None) -> FeelRun:
+                 force_gain: float | None = None, jump_blend: float | None = None, after_tick=None,
+                 zone_energy: bool = False) -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
@@ -194,7 +195,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     direction of slides, strokes and circles; ``room`` m: a slide turns back this far from where
     it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
     preset's); ``jump_blend`` s: the loop's blend time of the tip's jumps (0: off; default: the
-    preset's, :mod:`arsurf.contact.jump_blend`); ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
+    preset's, :mod:`arsurf.contact.jump_blend`); ``zone_energy``: the model's contact the energy of
+    the whole tip (:class:`~arsurf.model.ARModel`'s); ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
     tick's tip centre and its target (the scaled stylus) (3,) m and the model (a benchmark times a
     peer's query at the tip, under the conditions the tick runs in, or reads the force field there).
     The surface is restored to rest afterwards."""
@@ -212,7 +214,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     model = make_model(surface, tip_radius=radius, effective_modulus=p.effective_modulus,
                        work_of_adhesion=p.work_of_adhesion, cantilever=p.cantilever,
                        friction=p.friction if friction is None else friction, static_friction=static_friction,
-                       signal_noise=0.0 if source == "simulated" else signal_noise)  # the loop's, below
+                       signal_noise=0.0 if source == "simulated" else signal_noise,  # the loop's, below
+                       zone_energy=zone_energy)
     if coupling and coupling_rate is not None:  # the model's own coupling: the loop keeps it
         from arsurf.haptics.gains import coupling_stiffness
 
@@ -221,7 +224,16 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     x, y = (0.5 * (u0 + u1), 0.5 * (v0 + v1)) if at is None else at
     back = 150e-9 if motion == "stroke" else 0.0  # a stroke comes down 150 nm before the middle
     x0, y0 = x - back * math.cos(heading), y - back * math.sin(heading)
-    origin = (x, y, clearance_height(surface, x0, y0, radius) + 2e-9)  # 2 nm above the tip's first touch
+    z0 = clearance_height(surface, x0, y0, radius)
+    if zone_energy:  # the zone energy's tip is its sphere on a cone, which may reach asperities beside it
+        from arsurf.contact.zone_energy import ZoneLaw, zone_energy as zone_force
+
+        law = ZoneLaw.from_law(model.contact)
+        for _ in range(1000):
+            if not zone_force(model.zone_lattice, law, (x0, y0, z0))[1].any():
+                break
+            z0 += 0.5e-9
+    origin = (x, y, z0 + 2e-9)  # 2 nm above the tip's first touch
     h.update(rate=float(rate), source=source, signal_noise=0.0 if source == "simulated" else signal_noise,
              virtual_coupling=bool(coupling), passivity=passivity, seed=seed)  # the coupling: from dev, rate
     if max_rate is not None:
@@ -537,18 +549,19 @@ def run_slow(run: dict, surface, tip_radius, **options) -> FeelRun:
                         room=run["room_m"], **options)
 
 
-def judge_run(run: dict, surface, tip_radius) -> dict:
+def judge_run(run: dict, surface, tip_radius, **options) -> dict:
     """One planned run (:func:`plan_runs`) with the default loop, judged by the family criteria
     (issue 27 §3). A still or slow run: content above 100 Hz <= 2 % of the mean normal force on
     each axis after 1 s, no tick-to-tick reversal above 1 % of the peak, observed energy >= -E0
     (:func:`energy_ok`), and for a press the device force at rest within :data:`REST_TOLERANCE`
-    of K_f F (``rest_error``). A faster run: :func:`rate_convergence`. ``ok`` when all hold."""
+    of K_f F (``rest_error``). A faster run: :func:`rate_convergence`. ``ok`` when all hold.
+    ``options``: more of :func:`run_scenario`'s (``zone_energy``...)."""
     heading = math.radians(run["heading_deg"])
     if run["kind"] == "fast":
         r = rate_convergence(surface, run["motion"], run["source"], FAST_SECONDS, tip_radius=tip_radius,
-                             heading=heading, room=run["room_m"])
+                             heading=heading, room=run["room_m"], **options)
         return {**run, **r}
-    res = run_slow(run, surface, tip_radius)
+    res = run_slow(run, surface, tip_radius, **options)
     s = res.score
     tail = slice(-max(1, int(0.2 * run["rate_hz"])), None)
     gain = float(_preset("demo").haptics["force_gain"])

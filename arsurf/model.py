@@ -59,6 +59,7 @@ from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
                                          local_contact_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
+from arsurf.contact import zone_energy as ze
 from arsurf.contact.side import keep_side_kernel
 from arsurf.contact.zone_normal import zone_normal_kernel
 from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
@@ -98,7 +99,7 @@ M_SIZE = MODEL_OUT.size
 #: the model's arrays and settings in the order of :func:`model_tick_kernel`'s arguments (less the
 #: per-tick target and signals): what :meth:`ARModel.kernel_args` returns, in the loop's struct by
 #: these names (:data:`arsurf.haptics.loop.LOOP_FIELDS`)
-MODEL_ARGS = ("proj", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params", "tip_radius", "friction",
+MODEL_ARGS = ("proj", "zone_energy", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params", "tip_radius", "friction",
               "deform", "model_state", "coll", "dec", "ev", "mout")
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
@@ -107,10 +108,10 @@ SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: target centre is behind (NaN: none; :mod:`arsurf.contact.side`), the contact table
 #: (:data:`arsurf.contact.multi_contact.CONTACT_TABLE`), the friction anchor (:data:`arsurf.contact.friction.FRICTION_STATE`),
 #: the coupling solve's memo (:data:`arsurf.contact.proxy.MD_MEMO`), the jump blend's
-#: (:data:`arsurf.contact.jump_blend.JUMP_STATE`)
+#: (:data:`arsurf.contact.jump_blend.JUMP_STATE`), the zone energy's tip (m; NaN: none)
 MODEL_STATE = Layout("model state", [("hint_uv", 2), ("interacting", 1), ("tip_depth", 1), ("side", 3),
                                      ("contacts", mc.CONTACT_TABLE.size), ("friction", fr.STATE_SIZE),
-                                     ("coupling_memo", MD_MEMO.size), ("jumps", jb.STATE_SIZE)])
+                                     ("coupling_memo", MD_MEMO.size), ("jumps", jb.STATE_SIZE), ("zone_tip", 3)])
 S_HINT_U, S_INTERACTING = MODEL_STATE.offset("hint_uv"), MODEL_STATE.offset("interacting")
 S_HINT_V = S_HINT_U + 1
 S_TIP_DEPTH, S_CONTACTS = MODEL_STATE.offset("tip_depth"), MODEL_STATE.offset("contacts")
@@ -118,6 +119,7 @@ S_FRICTION = MODEL_STATE.offset("friction")
 S_SIDE = MODEL_STATE.offset("side")
 S_MEMO = MODEL_STATE.offset("coupling_memo")
 S_JUMPS = MODEL_STATE.offset("jumps")
+S_ZONE_TIP = MODEL_STATE.offset("zone_tip")
 S_SIZE = MODEL_STATE.size
 #: the proxy parameter vector: mu_s, mu_k, tangential stiffness per contact radius (N/m per m,
 #: Mindlin: ratio * 2 E*), coupling stiffness (N/m; inf: none), the contact law's jump-out and
@@ -163,6 +165,7 @@ DEFAULT_SIGNAL_NOISE = 1e-7
 
 @njit(cache=True, inline="always")
 def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
+                      zone_energy,                                       # the zone energy's (lattice, law), or none
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, bending, torsion, signal_mode,
@@ -179,13 +182,13 @@ def model_tick_kernel(proj,                                              # Proje
     if steps > 1:  # the state before the tick, which a jump tick is run again from
         _keep_state(state, 0, scratch, _SAVED_STATE)
         _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
-    st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                          cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
+    st = _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
+                          deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
     if steps > 1 and _to_run_again(scratch, state):
         _keep_state(scratch, _SAVED_STATE, state, 0)  # run again from the state before the tick
         _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
-        st = _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                        cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
+        st = _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
+                        deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
     return st
 
 
@@ -201,7 +204,7 @@ def _to_run_again(scratch, state) -> bool:
 
 
 @njit(cache=True)
-def _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
+def _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
                cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps):
     """The tick to ``(cx, cy, cz)`` in ``steps`` ticks of the target's straight path from the last
     tick's target (in ``state``), each ``steps`` times shorter, the signals given to the last one."""
@@ -212,8 +215,8 @@ def _run_again(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, t
     for k in range(1, steps + 1):
         w = k / steps
         last = k == steps
-        st = _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                              deform, cx if last else px + w * (cx - px), cy if last else py + w * (cy - py),
+        st = _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius,
+                              friction, deform, cx if last else px + w * (cx - px), cy if last else py + w * (cy - py),
                               cz if last else pz + w * (cz - pz), bending, torsion,
                               signal_mode if last else SIGNALS_NONE, state, coll, scratch, ev, out)
     friction[F_PERIOD] = period
@@ -240,8 +243,8 @@ def _copy(src, i, dst, j, size):
 
 
 @njit(cache=True)
-def _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-                     cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
+def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
+                     deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);
     writes ``out`` (:data:`MODEL_OUT`) and updates ``state`` (:data:`MODEL_STATE`). Returns the
     collision status (< 0: no answer; ``out`` then holds zero forces). ``md_args`` is the contact
@@ -273,47 +276,54 @@ def _one_tick_kernel(proj, live_ctrl, live_rest, ku, kv, patch, md_args, dec_par
                                        local_pull_off_kernel(md_args, md))
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
     floor = friction[F_JUMP_OUT] - margin
-    # the closest contact's depth under the tip: the one contact's behind the coupling at this target
-    # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
-    # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
-    coupled = coupled_depth_kernel(
-        coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
-        friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
-        md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
-    d1 = coupled[3] if math.isfinite(coupled[3]) else coll[pj.OUT_DEPTH]
-    # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
-    # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
-    # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
-    # (in contact, in closed form from the contact radius there; on the cohesive branch by a solve)
-    zone = md_zone_radius(coupled[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
-        if coupled[1] > 0.0 and d1 == coupled[3] else \
-        md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
-                                  md[A_T_FOLD], md[A_DELTA_FOLD])
-    # the contact pushes along the resultant over its zone, not the normal at the closest point alone
-    zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
-                       coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
-    # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
-    count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
-                                    state, S_CONTACTS, coll)
-    _copy_collision(coll, out)
-    if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
-        # behind the coupling along the total normal; each contact pushes along the resultant over its zone
-        mc.zone_normals_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH] - d1,
-                               md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
-                               md[A_DELTA_FOLD], state, S_CONTACTS, count)
-        mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
-                                 state, S_CONTACTS, count)
-        out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
-                                                                   margin)
-    nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
-    # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
-    rx = ry = rz = 0.0
-    if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
-        md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
-                                                          state, out)
+    if zone_energy[0][ze.L_US].shape[0] > 0:  # the energy of the whole tip (arsurf.contact.zone_energy): one contact
+        _copy_collision(coll, out)
+        count = 1
+        md_st, a, load, depth, rx, ry, rz = _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll,
+                                                          out)
+        nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     else:
-        md_st, a, load, depth = _contact_mechanics(coupled, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
-        state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
+        # the closest contact's depth under the tip: the one contact's behind the coupling at this target
+        # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
+        # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
+        coupled = coupled_depth_kernel(
+            coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
+            friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
+            md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
+        d1 = coupled[3] if math.isfinite(coupled[3]) else coll[pj.OUT_DEPTH]
+        # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
+        # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
+        # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
+        # (in contact, in closed form from the contact radius there; on the cohesive branch by a solve)
+        zone = md_zone_radius(coupled[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
+            if coupled[1] > 0.0 and d1 == coupled[3] else \
+            md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                      md[A_T_FOLD], md[A_DELTA_FOLD])
+        # the contact pushes along the resultant over its zone, not the normal at the closest point alone
+        zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
+                           coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
+        # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
+        count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
+                                        state, S_CONTACTS, coll)
+        _copy_collision(coll, out)
+        if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
+            # behind the coupling along the total normal; each contact pushes along the resultant over its zone
+            mc.zone_normals_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH] - d1,
+                                   md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
+                                   md[A_DELTA_FOLD], state, S_CONTACTS, count)
+            mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
+                                     state, S_CONTACTS, count)
+            out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
+                                                                       margin)
+        nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
+        # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
+        rx = ry = rz = 0.0
+        if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
+            md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
+                                                              state, out)
+        else:
+            md_st, a, load, depth = _contact_mechanics(coupled, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
+            state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
@@ -390,6 +400,8 @@ def _forget_contact(state):
     state[S_CONTACTS + mc.T_LIFT] = math.nan
     fr.release(state, S_FRICTION)
     jb.forget(state, S_JUMPS)
+    for j in range(3):
+        state[S_ZONE_TIP + j] = math.nan
 
 
 @njit(cache=True)
@@ -445,6 +457,62 @@ def _contact_mechanics(answer, target_depth, tip_radius, cx, cy, cz, state, out)
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
     return md_st, a, load, depth
+
+
+@njit(cache=True)
+def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll, out):
+    r"""Step 2 with the energy of the whole tip (:mod:`arsurf.contact.zone_energy`; ``zone_energy``
+    its ``(lattice, (E*, sigma0, h0))``): the tip behind the coupling moved from where it was (the
+    state's; at first the target, or out along the normal from the closest point when the target is
+    within a tip radius of the surface) to the nearest minimum of
+    :math:`E(T) + \tfrac12 k\lVert T - C\rVert^2` (:func:`~arsurf.contact.zone_energy.zone_proxy_kernel`;
+    without a coupling the tip is the target), and the force on it, F. Its direction gives the
+    normal, :func:`_summed_normal` of F about the closest point's normal n (n at no load); the tip's
+    depth is the target's less the tip's lift along n; the status is contact below depth 0,
+    cohesive where the law still pulls, separated where it gives nothing, and the contact radius the
+    law's own (Hertz, :math:`a = \sqrt{R\delta}`). Writes the tip, depth, radius, status, normal
+    and load (F along that normal) and the hysteresis state; returns ``(status, a, load, depth)``
+    and the part of F off the normal, as :func:`_sum_contacts`."""
+    lat, law = zone_energy
+    e_star, sigma0, h0 = law[0], law[1], law[2]
+    k = friction[F_COUPLING]
+    nx, ny, nz = coll[pj.OUT_NX], coll[pj.OUT_NY], coll[pj.OUT_NZ]
+    t = S_ZONE_TIP
+    if not math.isfinite(state[t]):  # from outside the material
+        lift = 0.0 if coll[pj.OUT_DISTANCE] >= tip_radius else tip_radius + h0 - coll[pj.OUT_DISTANCE]
+        state[t], state[t + 1], state[t + 2] = cx + lift * nx, cy + lift * ny, cz + lift * nz
+    zone = np.empty(ze.Z_SIZE)
+    if k < math.inf:
+        ze.zone_proxy_kernel(lat, cx, cy, cz, k, tip_radius, e_star, sigma0, h0, state[t:t + 3], zone)
+    else:
+        state[t], state[t + 1], state[t + 2] = cx, cy, cz
+        ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone, np.empty((0, 0)))
+    fx, fy, fz = zone[ze.Z_FORCE], zone[ze.Z_FORCE + 1], zone[ze.Z_FORCE + 2]
+    ox, oy, oz = state[t] - cx, state[t + 1] - cy, state[t + 2] - cz
+    depth = coll[pj.OUT_DEPTH] - (ox * nx + oy * ny + oz * nz)
+    along = fx * nx + fy * ny + fz * nz
+    mx, my, mz, _, _ = _summed_normal(nx, ny, nz, along, fx - along * nx, fy - along * ny, fz - along * nz,
+                                      md[A_LOAD_SCALE], 0.0, 0.0)
+    load = fx * mx + fy * my + fz * mz
+    if fx == 0.0 and fy == 0.0 and fz == 0.0:
+        md_st, a = SEPARATED, 0.0
+    elif depth > 0.0:
+        md_st, a = CONTACT, math.sqrt(tip_radius * depth)
+    else:
+        md_st, a = COHESIVE, 0.0
+    out[M_NX], out[M_NY], out[M_NZ] = mx, my, mz
+    out[M_TIP], out[M_TIP + 1], out[M_TIP + 2] = state[t], state[t + 1], state[t + 2]
+    out[M_COUPLED] = 1.0 if k < math.inf else 0.0
+    out[M_DISTANCE] = tip_radius - depth
+    out[M_DEPTH] = depth
+    out[M_MD_STATUS] = md_st
+    out[M_RADIUS] = a
+    out[M_LOAD] = load
+    out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
+    interacting = md_st != SEPARATED
+    state[S_INTERACTING] = 1.0 if interacting else 0.0
+    state[S_TIP_DEPTH] = depth if interacting else math.nan
+    return md_st, a, load, depth, fx - load * mx, fy - load * my, fz - load * mz
 
 
 @njit(cache=True)
@@ -614,6 +682,12 @@ class ARModel:
     signal_noise : float, rad rms, optional
         Noise on each measured angle; the measured force trusts the directional decoupling less
         as its noise gain grows (:data:`FADE_CONDITION`). Default :data:`DEFAULT_SIGNAL_NOISE`.
+    zone_energy : bool
+        The contact as the energy of the whole tip (:mod:`arsurf.contact.zone_energy`, the law's
+        E*, w and Dugdale stress summed over the surface under the tip; the tip behind the
+        coupling at the nearest minimum of that energy plus the coupling's, :func:`_zone_contact`)
+        instead of the Maugis-Dugdale contacts at the minima of the distance. Default False
+        (docs/feel.rst, "The next step": measured, not yet the default); no material map.
 
     Examples
     --------
@@ -632,7 +706,7 @@ class ARModel:
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
                  static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
                  signal_noise: float | None = None, friction_law: str = "adhesive",
-                 shear_strength: float | None = None):
+                 shear_strength: float | None = None, zone_energy: bool = False):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -688,6 +762,16 @@ class ARModel:
         self.deform = bool(deform)
         proj = pj.projector(self.rest_surface)
         self._proj_args = proj.kernel_args()
+        if not isinstance(zone_energy, bool):
+            raise ContactError(f"`zone_energy` must be True or False (got {zone_energy!r})")
+        if zone_energy and material is not None:
+            raise ContactError("the zone energy sums the reference law over the surface: it takes no material map yet")
+        self.zone_energy = zone_energy
+        # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0))
+        zone_law = ze.ZoneLaw.from_law(contact)
+        self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius) if zone_energy else None
+        self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy \
+            else (ze.no_lattice(), np.empty(0))
         # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level
         self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
         self._friction = PROXY_PARAMS.pack({
@@ -698,6 +782,8 @@ class ARModel:
             "pull_off_force": abs(contact.pull_off_force()),
             "shear_strength": 0.0 if shear_strength is None else shear_strength, "blend_time": 0.0,
             "blend_speed": jb.BLEND_SPEED, "tick_period": math.nan})
+        if zone_energy:  # the friction's adhesive normal mu (P + |P_c|) with the zone law's pull-off
+            self._friction[F_PULL_OFF] = zone_law.pull_off_force()
         self.material = material
         self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
@@ -756,13 +842,19 @@ class ARModel:
         deepest depth where the tip can still be held, :math:`\\min(\\delta_{out}, -h_0)`, and the
         zero-load depth :math:`\\delta_0`; the virtual coupling stretches by at most
         :math:`|P_c|/k_c` more: :math:`E_0 = |P_c|\\,(\\delta_0 - \\min(\\delta_{out}, -h_0) + |P_c|/k_c)`.
-        It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`).
+        It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`). With
+        the zone energy as the contact the law's own: its pull :math:`2\\pi R w` from the range's
+        end to its zero-load depth (:class:`~arsurf.contact.zone_energy.ZoneLaw`).
 
         With a material map the well is the deepest of the local laws the tick can meet: the
         bound is taken over the map's pixels and the points half-way between them
         (:func:`~arsurf.contact.material_map.deepest_well_kernel`), computed once (~3 s for a
         1024² map) and kept; ``with_map=False`` gives the reference law's alone."""
         c = self.contact
+        if self.zone_energy:  # the zone law's well on a flat: its pull 2 pi R w from -h0 to its zero-load depth
+            z = ze.ZoneLaw.from_law(c)
+            pc = z.pull_off_force()
+            return pc * (z.zero_load_depth() + z.interaction_range + pc / self.coupling_stiffness)
         pc = abs(c.pull_off_force())
         if pc == 0.0:
             return 0.0
@@ -795,7 +887,7 @@ class ARModel:
         the decoupling, tip radius, friction, deform, state and the scratch and output vectors.
         The arrays are the model's own (updated in place by every tick)."""
         live_ctrl, live_rest, ku, kv, patch = self._live
-        values = {"proj": self._proj_args, "live_ctrl": live_ctrl, "live_rest": live_rest, "ku": ku, "kv": kv,
+        values = {"proj": self._proj_args, "zone_energy": self._zone_energy, "live_ctrl": live_ctrl, "live_rest": live_rest, "ku": ku, "kv": kv,
                   "patch": patch, "md_args": self._md_args, "dec_params": self._dec, "tip_radius": self.tip_radius,
                   "friction": self._friction, "deform": self.deform, "model_state": self.state, "coll": self._coll,
                   "dec": self._scratch, "ev": self._ev, "mout": self.out}
@@ -811,7 +903,7 @@ class ARModel:
             b, t = signals
             mode = SIGNALS_GIVEN
         live_ctrl, live_rest, ku, kv, patch = self._live
-        model_tick_kernel(self._proj_args, live_ctrl, live_rest, ku, kv, patch,
+        model_tick_kernel(self._proj_args, self._zone_energy, live_ctrl, live_rest, ku, kv, patch,
                           self._md_args, self._dec, self.tip_radius, self._friction, self.deform,
                           float(cx), float(cy), float(cz), float(b), float(t), mode, self.state, self._coll,
                           self._scratch, self._ev, self.out)

@@ -25,8 +25,8 @@ from arsurf.contact.maugis_dugdale import md_contact_hysteresis_kernel
 from arsurf.contact.proxy import MD_MEMO, coupled_depth_kernel
 from arsurf.feel_scenarios import clearance_height, run_scenario
 from arsurf.haptics.virtual_device import VirtualDevice
-from arsurf.model import (F_COUPLING, F_JUMP_OUT, F_ZERO_LOAD, S_INTERACTING, S_TIP_DEPTH, SIGNALS_SYNTHESISED,
-                          model_tick_kernel)
+from arsurf.model import (F_COUPLING, F_JUMP_OUT, F_ZERO_LOAD, MODEL_ARGS, S_INTERACTING, S_TIP_DEPTH,
+                          SIGNALS_SYNTHESISED, model_tick_kernel)
 
 
 @njit
@@ -34,14 +34,14 @@ def _model_loop(a, probes, inputs, cycles):
     """The model tick at each probe (cycles per call); ``inputs`` rows get what the coupling
     solve was given: the target depth, the previous tip depth, interacting (1/0), and the
     collision status."""
-    state, coll = a[11], a[12]
+    state, coll = a[12], a[13]
     for k in range(probes.shape[0]):
         inputs[k, 1] = state[S_TIP_DEPTH]
         inputs[k, 2] = state[S_INTERACTING]
         t0 = _cycles()
-        st = model_tick_kernel(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9], a[10],
+        st = model_tick_kernel(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9], a[10], a[11],
                                probes[k, 0], probes[k, 1], probes[k, 2], 0.0, 0.0, SIGNALS_SYNTHESISED,
-                               a[11], a[12], a[13], a[14], a[15])
+                               a[12], a[13], a[14], a[15], a[16])
         cycles[k] = _cycles() - t0
         inputs[k, 0] = coll[pj.OUT_DEPTH]
         inputs[k, 3] = st
@@ -106,10 +106,11 @@ def tick_parts(surface, seconds: float = 2.0) -> dict:
         model_us = cyc * us
         model.reset()
         coll_cyc = np.empty(n, np.int64)
-        _collision_loop(args[0], probes, model.tip_radius, np.empty_like(args[12]), coll_cyc)
+        coll = args[MODEL_ARGS.index("coll")]
+        _collision_loop(args[0], probes, model.tip_radius, np.empty_like(coll), coll_cyc)
     finally:
         model.reset()
-    f = model.kernel_args()[9]
+    f = model.kernel_args()[MODEL_ARGS.index("friction")]
     law = np.asarray(model.contact.kernel_args, float)
     md_cyc, solve_cyc = np.empty(n, np.int64), np.empty(n, np.int64)
     _coupling_loop(inputs, f[F_COUPLING], f[F_JUMP_OUT], f[F_ZERO_LOAD], law, MD_MEMO.full(np.nan), md_cyc, solve_cyc)

@@ -175,7 +175,8 @@ def judge_planned(run: dict) -> dict:
 
     t0 = time.perf_counter()
     keep = {k: v for k, v in run.items() if k not in ("generated", "scan")}
-    row = judge_run(keep, _surface(run), run["tip_radius_m"])
+    options = {"zone_energy": True} if run.get("zone_energy") else {}
+    row = judge_run(keep, _surface(run), run["tip_radius_m"], **options)
     return _jsonable({**row, "wall_s": time.perf_counter() - t0})
 
 
@@ -270,16 +271,20 @@ def compare(old: list[dict], new: list[dict]) -> dict:
 
 
 def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
-             estimate_only: bool = False, out=None, jobs: int = 1, budget: float = math.inf) -> dict:
+             estimate_only: bool = False, out=None, jobs: int = 1, budget: float = math.inf,
+             zone_energy: bool = False) -> dict:
     """The generated table (``count`` surfaces, seeded) and every real scan the project opens, judged
     in ``jobs`` processes, each row appended to the JSON-lines file ``out`` as it is judged; the
     runs already in ``out`` are skipped (a stopped table resumes where it was). No new run starts
     after ``budget`` s of wall time (the runs under way are dropped, to be done on resuming).
     Prints the size and a time estimate (calibrated on a short run, over ``jobs`` processes)
-    first; returns the summary of every row in ``out`` (:func:`summarize`) or of this run's."""
+    first; returns the summary of every row in ``out`` (:func:`summarize`) or of this run's.
+    ``zone_energy``: every model's contact the energy of the whole tip (each row says so)."""
     import time
 
     runs, unreadable = plan_table(count, seed, real, slow_runs, fast_runs)
+    if zone_energy:
+        runs = [{**r, "zone_energy": True} for r in runs]
     planned = {r["key"]: r for r in runs}
     judged = [r for r in read_rows(out) if r.get("key") in planned]
     done = {r["key"] for r in judged}
@@ -447,6 +452,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="seed of the generated families")
     ap.add_argument("--out", metavar="JSONL", help="with --families: append each judged run here as a JSON line; "
                     "the runs already in it are skipped (resume)")
+    ap.add_argument("--zone-energy", action="store_true",
+                    help="with --families: the models' contact the energy of the whole tip (ARModel zone_energy)")
     ap.add_argument("--jobs", type=int, default=1, help="with --families: processes judging runs (default 1)")
     ap.add_argument("--budget", type=float, default=math.inf, metavar="SECONDS",
                     help="with --families: start no new run after this wall time (resume later with --out)")
@@ -474,7 +481,8 @@ def main() -> None:
                      f"{args.budget})")
         print(json.dumps({"families": families(args.families, args.seed, real=not args.quick, slow_runs=args.runs[0],
                                                fast_runs=args.runs[1], estimate_only=args.estimate, out=args.out,
-                                               jobs=args.jobs, budget=args.budget)}, indent=1))
+                                               jobs=args.jobs, budget=args.budget,
+                                               zone_energy=args.zone_energy)}, indent=1))
         return
     surfaces = {}
     for name in REAL:

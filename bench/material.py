@@ -27,7 +27,7 @@ from arsurf.contact.maugis_dugdale import LAMBDA_TRANSITION  # noqa: E402
 from arsurf.force.cantilever import Cantilever  # noqa: E402
 from arsurf.haptics.loop import HapticLoop, LoopConfig  # noqa: E402
 from arsurf.haptics.virtual_device import HandModel, VirtualDevice  # noqa: E402
-from arsurf.model import ARModel  # noqa: E402
+from arsurf.model import MODEL_ARGS, ARModel  # noqa: E402
 from arsurf.scan.scan import Scan  # noqa: E402
 from arsurf.scan.synthetic import sinusoid  # noqa: E402
 from arsurf.spline.fit import fit_surface  # noqa: E402
@@ -93,7 +93,7 @@ def main() -> None:
         a_rounds.append(time_calls(ticker(*plain[:2]), args.ticks, warmup=10))
         b_rounds.append(time_calls(ticker(*mapped[:2]), args.ticks, warmup=10))
     # the lookup alone, compiled, at points along a slide (the tick's own call)
-    cv = mapped[2].kernel_args()[6]
+    cv = mapped[2].kernel_args()[MODEL_ARGS.index("md_args")]
     n = 200_000
     xs = np.linspace(0.2e-6, 1.8e-6, n)
     ys = 1e-6 + 0.3e-6 * np.sin(xs / 1e-7)

@@ -4,47 +4,49 @@ r"""The energy of the whole tip on the surface: a local law summed over every su
 Maugis-Dugdale contact and gates the loads with weights. Its force is not the gradient of an
 energy: a weight that gates a load without its stored energy makes the force circulate, and a
 contact that enters or leaves steps it (docs/feel.rst, "What still fails, and why"). This module
-is the building block of the other way, which has no contacts to find and no gates: the tip
-(apex at height :math:`T_z - R` under its centre T, rigid) interacts with every element of the
-surface through a law of energy per unit area :math:`\varphi(g)` of the gap between them (the
-Derjaguin approximation: Derjaguin, "Untersuchungen über die Reibung und Adhäsion, IV. Theorie
-des Anhaftens kleiner Teilchen", Kolloid-Z. 69, 155-164, 1934, the force between curved bodies
-from the energy per area of flat ones). The tip is Hertz's paraboloid of radius R, the shape the
-Maugis-Dugdale law itself is solved for (Maugis, J. Colloid Interface Sci. 150, 243, 1992), and
-the gap is the height between it and the surface:
+is the building block of the other way, which has no contacts to find and no gates: the rigid
+tip interacts with every element of the surface through a law of energy per unit area
+:math:`\varphi(g)` of the gap between them (the Derjaguin approximation: Derjaguin,
+"Untersuchungen über die Reibung und Adhäsion, IV. Theorie des Anhaftens kleiner Teilchen",
+Kolloid-Z. 69, 155-164, 1934, the force between curved bodies from the energy per area of flat
+ones). The gap is the height between the tip's surface and the surface element below it: the tip
+is its sphere (centre T, radius R) continued, where the sphere's slope reaches it, into the cone
+of half-angle :data:`CONE_HALF_ANGLE` a silicon tip's sphere sits on; so a tip rises
+:math:`s(r) = R - \sqrt{R^2 - r^2}` above its apex at a distance r across for
+:math:`r < r_0 = R\cos\alpha`, and :math:`s(r_0) + (r - r_0)\cot\alpha` beyond:
 
 .. math::
 
-    g_k = T_z - R + \frac{(T_x - S_{k,x})^2 + (T_y - S_{k,y})^2}{2R} - S_{k,z}, \qquad
+    g_k = T_z - R + s(r_k) - S_{k,z}, \quad r_k = \lVert (T - S_k)_{xy}\rVert, \qquad
     E(T) = \sum_k A_k\,\varphi(g_k), \qquad
-    F = -\nabla_T E = \sum_k A_k\,p(g_k) \begin{pmatrix} (T_x - S_{k,x})/R \\ (T_y - S_{k,y})/R \\ 1
-    \end{pmatrix}, \qquad p = -\varphi',
+    F = -\nabla_T E = \sum_k A_k\,p(g_k) \begin{pmatrix} s'(r_k)\,(T - S_k)_{xy}/r_k \\ 1 \end{pmatrix},
+    \qquad p = -\varphi',
 
 over samples :math:`S_k` fixed on a uniform (u, v) lattice of the rest surface, :math:`A_k =
 |x_u y_v - x_v y_u|\,h_u h_v` the projected area each stands for (:func:`surface_lattice`;
 sampled a tile at a time where the tip reaches, so a lattice finer than the scan costs memory
-only where the tip has been). Each element pushes along the tip's normal above it. The force is
-the gradient of E by construction (the samples do not move with T): no work round a closed path,
-and continuous wherever p is; several asperities under a wide tip push at once, each with its own
-share, and no event of the contact set exists to step the force.
+only where the tip has been). Each element pushes along the tip's normal above it, whose tilt
+the cone bounds (a gap along the line to the centre loses the load as the cap reaches the
+equator, :math:`P \propto R - \delta`: a 2 nm tip pressed by the hand's load went through the
+surface; a paraboloid keeps Hertz's load at any depth but is wider than the sphere and touches
+asperities beside it that the sphere does not, so a hand started clear of the sphere started in
+contact). The force is the gradient of E by construction (the samples do not move with T): no
+work round a closed path, and continuous wherever p is; several asperities under a wide tip push
+at once, each with its own share, and no event of the contact set exists to step the force.
 
-**The law.** On a flat pressed :math:`\delta` deep, the ring of the flat at radius r has the gap
-:math:`g = -\delta + r^2/2R` and area :math:`2\pi r\,dr = 2\pi R\,dg`, and the rings' lateral
-pushes cancel, so the tip feels exactly
-
-.. math:: P(\delta) = 2\pi R \int_{-\delta}^{\infty} p(g)\,dg = 2\pi R\,\varphi(-\delta)
-
-at any depth (a sphere's gap along the line to its centre loses the factor :math:`1 - \delta/R`
-and its load vanishes as its cap reaches the equator: a 2 nm tip pressed by the hand's load went
-through the surface). The repulsion :math:`p_r(g) = E^*\sqrt{-g}/(\pi\sqrt R)` for g < 0 gives
-Hertz, :math:`\tfrac43 E^* \sqrt R\,\delta^{3/2}`; the adhesion is a Dugdale stress spread over
-the interaction range :math:`h_0 = w/\sigma_0` as a smooth bump, :math:`p_a(g) = -2\sigma_0
-\sin^2(\pi g/h_0)` for 0 < g < :math:`h_0` (the box of Maugis 1992 with continuous edges, the
-same work w), which adds :math:`-2\pi R w` once the gap closes. So on a flat the load is exactly
-the Derjaguin-Muller-Toporov limit of Maugis-Dugdale with the law's own E*, w and
-:math:`\sigma_0`: :math:`P(\delta) = \tfrac43 E^*\sqrt R\,\delta^{3/2} - 2\pi R w` for
-:math:`\delta \ge 0`. A Johnson-Kendall-Roberts-like law (large Maugis parameter) has a
-hysteresis loop, which no energy has; this law is its conservative limit with the same
+**The law.** On a flat pressed :math:`\delta` deep the rings at r have the gap
+:math:`-\delta + s(r)`, push straight up (their lateral pushes cancel), and the tip feels
+:math:`P(\delta) = 2\pi \int_0^\infty r\,p(-\delta + s(r))\,dr` (:meth:`ZoneLaw.flat_load`);
+under the sphere :math:`r\,dr = (R - \delta - g)\,dg`, so to order :math:`\delta/R` it is
+:math:`2\pi R\,\varphi(-\delta)`. The repulsion :math:`p_r(g) = E^*\sqrt{-g}/(\pi\sqrt R)` for
+g < 0 gives Hertz, :math:`\tfrac43 E^* \sqrt R\,\delta^{3/2}`; the adhesion is a Dugdale stress
+spread over the interaction range :math:`h_0 = w/\sigma_0` as a smooth bump, :math:`p_a(g) =
+-2\sigma_0 \sin^2(\pi g/h_0)` for 0 < g < :math:`h_0` (the box of Maugis 1992 with continuous
+edges, the same work w), which adds :math:`-2\pi R w` once the gap closes. So on a flat the load
+is, to order :math:`\delta/R`, the Derjaguin-Muller-Toporov limit of Maugis-Dugdale with the
+law's own E*, w and :math:`\sigma_0`: :math:`P(\delta) = \tfrac43 E^*\sqrt R\,\delta^{3/2} -
+2\pi R w` for :math:`\delta \ge 0`. A Johnson-Kendall-Roberts-like law (large Maugis parameter)
+has a hysteresis loop, which no energy has; this law is its conservative limit with the same
 constants, and its pull-off is :math:`2\pi R w` (JKR: :math:`1.5\pi R w`).
 
 The energy per area is :math:`\varphi = \varphi_r + \varphi_a`, :math:`\varphi_r =
@@ -76,6 +78,8 @@ __all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "no_l
 ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
 Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
 
+#: the half-angle (rad) of the cone the tip's sphere continues into (module docstring): 15 degrees
+CONE_HALF_ANGLE = math.radians(15.0)
 #: lattice samples per tile side: a tile is sampled the first time the tip reaches it
 TILE = 16
 #: samples per block side within a tile: a block is skipped when its bounding box lies beyond reach
@@ -133,9 +137,32 @@ class ZoneLaw:
 
     def flat_load(self, depth: float) -> float:
         r"""The load (N, > 0 compressive) the law gives the tip pressed ``depth`` (m; < 0: a gap)
-        into a flat: :math:`2\pi R\,\varphi(-\delta)` (module docstring), exact at any depth."""
-        phi = zone_law_kernel(-float(depth), *self.args)[0]
-        return 2.0 * math.pi * self.tip_radius * phi
+        into a flat: :math:`2\pi \int_0^\infty r\,p(-\delta + s(r))\,dr` (module docstring), by
+        quadrature to 1e-10."""
+        from scipy.integrate import quad
+
+        rho0, cap, slope = _cone(self.tip_radius)
+        depth, h0 = float(depth), self.interaction_range
+        if depth + h0 <= 0.0:
+            return 0.0
+
+        def ring(r):
+            rise = self.tip_radius - math.sqrt(self.tip_radius ** 2 - r * r) if r < rho0 else cap + (r - rho0) * slope
+            return 2.0 * math.pi * r * zone_law_kernel(rise - depth, *self.args)[1]
+
+        reach = _across(depth + h0, self.tip_radius, rho0, cap, slope)
+        kinks = [r for r in (_across(depth, self.tip_radius, rho0, cap, slope) if depth > 0 else 0.0, rho0)
+                 if 0.0 < r < reach]
+        return quad(ring, 0.0, reach, points=kinks or None, limit=400, epsabs=0.0, epsrel=1e-10)[0]
+
+    def pull_off_force(self) -> float:
+        r"""The largest pull of the law on a flat (N, > 0): :math:`2\pi R w` (module docstring)."""
+        return 2.0 * math.pi * self.tip_radius * self.work_of_adhesion
+
+    def zero_load_depth(self) -> float:
+        r"""The depth (m) at which the law's load on a flat is 0, where Hertz's repulsion balances
+        :math:`2\pi R w`: :math:`(3\pi w \sqrt R / 2E^*)^{2/3}`."""
+        return (1.5 * math.pi * self.work_of_adhesion * math.sqrt(self.tip_radius) / self.effective_modulus) ** (2 / 3)
 
     @property
     def args(self) -> tuple[float, float, float, float]:
@@ -190,10 +217,10 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
         hess[:, :] = 0.0
     energy = fx = fy = fz = 0.0
     n = 0
-    two_r = 2.0 * radius
-    base = h0 + radius - tz  # a sample of height z is in reach within sqrt(2R (base + z)) across
+    rho0, cap, slope = _cone(radius)
+    base = h0 + radius - tz  # a sample of height z is in reach within _across(base + z) of T
     if base + lat[L_TOP][0] > 0.0:
-        reach = math.sqrt(two_r * (base + lat[L_TOP][0]))
+        reach = _across(base + lat[L_TOP][0], radius, rho0, cap, slope)
         nu, nv = xs.shape[0], ys.shape[0]
         i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
         i1 = min(_first_at_least(xs, tx + reach) + 1, nu)
@@ -206,7 +233,8 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                 b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
                 dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
                 dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
-                if dx * dx + dy * dy >= two_r * (base + zhi[ti, tj]):
+                if base + zhi[ti, tj] <= 0.0 or dx * dx + dy * dy >= _across(base + zhi[ti, tj], radius, rho0, cap,
+                                                                             slope) ** 2:
                     continue
                 s = _tile_slot(lat, ti, tj)
                 for qa in range(2):
@@ -214,17 +242,27 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                         b = box[s, qa, qb]
                         dx = max(b[0] - tx, 0.0, tx - b[3])
                         dy = max(b[1] - ty, 0.0, ty - b[4])
-                        if dx * dx + dy * dy >= two_r * (base + b[5]):
+                        if base + b[5] <= 0.0 or dx * dx + dy * dy >= _across(base + b[5], radius, rho0, cap,
+                                                                              slope) ** 2:
                             continue
                         for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
                             row = (s * TILE + i - a0) * TILE - b0  # the pool's flat index of sample (i, j): row + j
                             for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
                                 k = row + j
-                                ex = (tx - pts[k, 0]) / radius  # the gap's gradient: (ex, ey, 1)
-                                ey = (ty - pts[k, 1]) / radius
-                                g = tz - radius + 0.5 * radius * (ex * ex + ey * ey) - pts[k, 2]
+                                dx = tx - pts[k, 0]
+                                dy = ty - pts[k, 1]
+                                r2 = dx * dx + dy * dy
+                                if r2 < rho0 * rho0:  # under the sphere: the rise R - sqrt(R^2 - r^2)
+                                    root = math.sqrt(radius * radius - r2)
+                                    rise, q, q1 = radius - root, 1.0 / root, 1.0 / (root * root * root)
+                                else:  # under the cone
+                                    rho = math.sqrt(r2)
+                                    rise, q = cap + (rho - rho0) * slope, slope / rho
+                                    q1 = -q / r2
+                                g = tz - radius + rise - pts[k, 2]
                                 if g >= h0:
                                     continue
+                                ex, ey = q * dx, q * dy  # the gap's gradient: (ex, ey, 1)
                                 phi, pr = zone_law_kernel(g, radius, e_star, sigma0, h0)
                                 area = ar[k]
                                 energy += area * phi
@@ -233,12 +271,12 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                                 fy += f * ey
                                 fz += f
                                 n += 1
-                                if want:  # a (-p' grad g grad g^T - p diag(1/R, 1/R, 0))
+                                if want:  # a (-p' grad g grad g^T - p hess g), hess g = q I + q1 d d^T across
                                     c = -area * _pressure_slope(g, radius, e_star, sigma0, h0)
-                                    hess[0, 0] += c * ex * ex - f / radius
-                                    hess[0, 1] += c * ex * ey
+                                    hess[0, 0] += c * ex * ex - f * (q + q1 * dx * dx)
+                                    hess[0, 1] += c * ex * ey - f * q1 * dx * dy
                                     hess[0, 2] += c * ex
-                                    hess[1, 1] += c * ey * ey - f / radius
+                                    hess[1, 1] += c * ey * ey - f * (q + q1 * dy * dy)
                                     hess[1, 2] += c * ey
                                     hess[2, 2] += c
     out[Z_ENERGY] = energy
@@ -250,6 +288,22 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
         hess[2, 0] = hess[0, 2]
         hess[2, 1] = hess[1, 2]
     return n
+
+
+@njit(cache=True, inline="always")
+def _cone(radius):
+    """``(rho0, cap, slope)``: where the tip's sphere meets its cone (m across), the sphere's rise
+    there (m) and the cone's slope (:data:`CONE_HALF_ANGLE`; module docstring)."""
+    a = CONE_HALF_ANGLE
+    return radius * math.cos(a), radius * (1.0 - math.sin(a)), math.cos(a) / math.sin(a)
+
+
+@njit(cache=True, inline="always")
+def _across(rise, radius, rho0, cap, slope):
+    """How far across (m) the tip's surface rises ``rise`` (m, > 0) above its apex."""
+    if rise <= cap:
+        return math.sqrt(rise * (2.0 * radius - rise))
+    return rho0 + (rise - cap) / slope
 
 
 @njit(cache=True, inline="always")

@@ -161,7 +161,7 @@ def loop_model_kernel(a, buttons):
     else:
         mode, b, t = SIGNALS_NONE, 0.0, 0.0
     mout = a.mout
-    st = model_tick_kernel(a.proj, a.live_ctrl, a.live_rest, a.ku, a.kv, a.patch, a.md_args, a.dec_params,
+    st = model_tick_kernel(a.proj, a.zone_energy, a.live_ctrl, a.live_rest, a.ku, a.kv, a.patch, a.md_args, a.dec_params,
                            a.tip_radius, a.friction, a.deform, probe[0], probe[1], probe[2], b, t, mode,
                            a.model_state, a.coll, a.dec, a.ev, a.mout)
     out[L_COLLIDE_STATUS] = st

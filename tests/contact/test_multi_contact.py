@@ -297,7 +297,7 @@ def test_the_decoupling_reads_the_summed_normal_force_as_normal_not_as_friction(
     live_ctrl, live_rest, ku, kv, patch = m._live
     errors = []
     for k, x in enumerate(np.linspace(30e-9, 36e-9, 600)):
-        mdl.model_tick_kernel(m._proj_args, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
+        mdl.model_tick_kernel(m._proj_args, m._zone_energy, live_ctrl, live_rest, ku, kv, patch, m._md_args, m._dec, m.tip_radius,
                               m._friction, m.deform, x, 24e-9 + k * 0.01e-9, z, 0.0, 0.0, mdl.SIGNALS_SYNTHESISED,
                               m.state, m._coll, m._scratch, m._ev, m.out)
         sim, meas = m.out[mdl.M_SIM_FX:mdl.M_SIM_FZ + 1], m.out[mdl.M_MEAS_FX:mdl.M_MEAS_FZ + 1]

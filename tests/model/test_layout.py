@@ -94,11 +94,13 @@ def test_the_model_arrays_are_its_layouts():
     assert MODEL_STATE.width("friction") == fr.FRICTION_STATE.size
 
 
-def test_the_model_tick_writes_exactly_its_layouts():
+@pytest.mark.parametrize("zone_energy", [False, True])
+def test_the_model_tick_writes_exactly_its_layouts(zone_energy):
     """The tick (collision, friction, measured force) writes every element of its output and
     stays inside each vector: padding after each one keeps its sentinel over a pressing, sliding
-    stroke with synthesised signals."""
-    m = _model(coupling_stiffness=5.0)
+    stroke with synthesised signals (the contacts at the minima of the distance, or the energy of
+    the whole tip)."""
+    m = _model(coupling_stiffness=5.0, zone_energy=zone_energy)
     a = dict(zip(MODEL_ARGS, m.kernel_args()))
     out_p, out = padded(MODEL_OUT)
     st_p, state = padded(MODEL_STATE, np.nan)
@@ -110,7 +112,7 @@ def test_the_model_tick_writes_exactly_its_layouts():
     for k in range(200):
         out[:] = SENTINEL
         x = 70e-9 + 0.2e-9 * k
-        st = model_tick_kernel(a["proj"], a["live_ctrl"], a["live_rest"], a["ku"], a["kv"], a["patch"], a["md_args"],
+        st = model_tick_kernel(a["proj"], a["zone_energy"], a["live_ctrl"], a["live_rest"], a["ku"], a["kv"], a["patch"], a["md_args"],
                                a["dec_params"], a["tip_radius"], a["friction"], a["deform"], x, 70e-9, 19.0e-9,
                                1e-8, -1e-8, 2, state, coll, scratch, a["ev"], out)
         assert st >= 0 and not np.any(out == SENTINEL)                      # every field written

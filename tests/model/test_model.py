@@ -126,10 +126,11 @@ def test_the_signal_noise_reaches_the_kernel_from_the_model_and_the_session_meta
     (haptics.signal_noise, 0 = noise-free), the same for the live model and its replay."""
     from arsurf.assembly import _model_parts
     from arsurf.errors import SessionError
-    from arsurf.model import DEFAULT_SIGNAL_NOISE, P_SIGNAL_NOISE
+    from arsurf.model import DEFAULT_SIGNAL_NOISE, MODEL_ARGS, P_SIGNAL_NOISE
 
-    assert ARModel(flat, R, md, LEVER).kernel_args()[7][P_SIGNAL_NOISE] == DEFAULT_SIGNAL_NOISE
-    assert ARModel(flat, R, md, LEVER, signal_noise=2e-7).kernel_args()[7][P_SIGNAL_NOISE] == 2e-7
+    dec = MODEL_ARGS.index("dec_params")
+    assert ARModel(flat, R, md, LEVER).kernel_args()[dec][P_SIGNAL_NOISE] == DEFAULT_SIGNAL_NOISE
+    assert ARModel(flat, R, md, LEVER, signal_noise=2e-7).kernel_args()[dec][P_SIGNAL_NOISE] == 2e-7
     with pytest.raises(ContactError, match="signal_noise"):
         ARModel(flat, R, md, LEVER, signal_noise=-1e-7)
     meta = {"tip_radius": R, "friction": 0.2, "cantilever": {"length": 450e-6, "width": 50e-6, "thickness": 2.5e-6,

@@ -36,10 +36,11 @@ def with_heights(scan, profile):
     return dataclasses.replace(scan, heights=np.broadcast_to(profile, scan.heights.shape).copy())
 
 
-def valley_model(kind: str, coupling: float = math.inf) -> ARModel:
-    """A model on :func:`valley_surface` (a 50 GPa, 0.05 J/m² law; no friction, no dent)."""
+def valley_model(kind: str, coupling: float = math.inf, zone_energy: bool = False) -> ARModel:
+    """A model on :func:`valley_surface` (a 50 GPa, 0.05 J/m² law; no friction, no dent; its
+    contact the energy of the whole tip with ``zone_energy``)."""
     return ARModel(valley_surface(kind), R, MaugisDugdale(R, 50e9, 0.05), LEVER, friction=0.0, deform=False,
-                   coupling_stiffness=coupling)
+                   coupling_stiffness=coupling, zone_energy=zone_energy)
 
 
 def height_for(kind: str, x_mid: float, depth: float = 0.4e-9) -> float:
