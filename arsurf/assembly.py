@@ -276,7 +276,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
                      control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
                      calibration: Mapping | None = None, haptics: Mapping | None = None,
                      loop_rate: float | None = None, material=None, friction_law: str = DEFAULT_FRICTION_LAW,
-                     shear_strength: float | None = None, **extra) -> dict:
+                     shear_strength: float | None = None, zone_energy: bool = False, **extra) -> dict:
     """The metadata dict of a session, checked and JSON-ready.
 
     Parameters
@@ -298,6 +298,9 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
         ``"area"`` (tau pi a^2, with ``shear_strength`` in Pa) or ``"compressive"`` (mu max(P, 0)).
     deform : bool
         Whether the model dents the surface.
+    zone_energy : bool
+        The model's contact the energy of the whole tip (:class:`~arsurf.model.ARModel`; recorded
+        only when True).
     calibration, haptics : dict, optional
         Free JSON objects (:func:`build_loop` reads ``haptics``).
     loop_rate : float, Hz, optional
@@ -342,6 +345,8 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
             "haptics": dict(haptics or {}), "loop_rate": loop_rate, **extra}
     if shear_strength is not None:
         meta["shear_strength"] = shear_strength
+    if zone_energy is not False:
+        meta["zone_energy"] = zone_energy
     if material is not None:
         meta["material"] = _material_meta(material, scan_meta["path"])
     return check_metadata(_jsonable(meta, "metadata")).to_metadata()
@@ -501,6 +506,7 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
             float(h.get("force_gain", _DEMO_HAPTICS["force_gain"])) * float(h.get("scale", _DEMO_HAPTICS["scale"])))
         noise = h.get("signal_noise")
         noise = None if noise is None else float(noise)
+        zone = False if c.zone_energy is UNSET else c.zone_energy
     except (ArsurfError, TypeError, ValueError) as exc:
         raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
     if not (math.isfinite(friction) and friction >= 0.0):
@@ -516,8 +522,11 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         raise SessionError(f"metadata haptics.coupling_stiffness must be > 0 N/m (got {k_vc!r})")
     if noise is not None and not (math.isfinite(noise) and noise >= 0.0):
         raise SessionError(f"metadata haptics.signal_noise must be >= 0 rad (got {noise!r})")
+    if not isinstance(zone, bool):
+        raise SessionError(f"metadata zone_energy must be true or false (got {zone!r})")
     return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe,
-                                       signal_noise=noise, friction_law=law, shear_strength=shear), bool(c.deform)
+                                       signal_noise=noise, friction_law=law, shear_strength=shear,
+                                       zone_energy=zone), bool(c.deform)
 
 
 # ---------------------------------------------------------------------------------------------

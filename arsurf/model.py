@@ -99,8 +99,8 @@ M_SIZE = MODEL_OUT.size
 #: the model's arrays and settings in the order of :func:`model_tick_kernel`'s arguments (less the
 #: per-tick target and signals): what :meth:`ARModel.kernel_args` returns, in the loop's struct by
 #: these names (:data:`arsurf.haptics.loop.LOOP_FIELDS`)
-MODEL_ARGS = ("proj", "zone_energy", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params", "tip_radius", "friction",
-              "deform", "model_state", "coll", "dec", "ev", "mout")
+MODEL_ARGS = ("proj", "zone_energy", "live_ctrl", "live_rest", "ku", "kv", "patch", "md_args", "dec_params",
+              "tip_radius", "friction", "deform", "model_state", "coll", "dec", "ev", "mout")
 # how the measured angles reach the model tick
 SIGNALS_NONE, SIGNALS_GIVEN, SIGNALS_SYNTHESISED = 0, 1, 2
 #: the model state vector (``ARModel.state``): the collision's warm-start hint (u, v), the
@@ -182,13 +182,14 @@ def model_tick_kernel(proj,                                              # Proje
     if steps > 1:  # the state before the tick, which a jump tick is run again from
         _keep_state(state, 0, scratch, _SAVED_STATE)
         _copy(md_args, d0, scratch, _SAVED_DENT, DENT_SIZE)
-    st = _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                          deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
+    st = _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius,
+                          friction, deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out)
     if steps > 1 and _to_run_again(scratch, state):
         _keep_state(scratch, _SAVED_STATE, state, 0)  # run again from the state before the tick
         _copy(scratch, _SAVED_DENT, md_args, d0, DENT_SIZE)
-        st = _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
-                        deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps)
+        st = _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius,
+                        friction, deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out,
+                        steps)
     return st
 
 
@@ -204,8 +205,8 @@ def _to_run_again(scratch, state) -> bool:
 
 
 @njit(cache=True)
-def _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction, deform,
-               cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps):
+def _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
+               deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps):
     """The tick to ``(cx, cy, cz)`` in ``steps`` ticks of the target's straight path from the last
     tick's target (in ``state``), each ``steps`` times shorter, the signals given to the last one."""
     period = friction[F_PERIOD]
@@ -279,51 +280,13 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
     if zone_energy[0][ze.L_US].shape[0] > 0:  # the energy of the whole tip (arsurf.contact.zone_energy): one contact
         _copy_collision(coll, out)
         count = 1
-        md_st, a, load, depth, rx, ry, rz = _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll,
-                                                          out)
-        nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
+        md_st, a, load, depth, rx, ry, rz = _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state,
+                                                          coll, out)
     else:
-        # the closest contact's depth under the tip: the one contact's behind the coupling at this target
-        # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
-        # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
-        coupled = coupled_depth_kernel(
-            coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
-            friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
-            md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
-        d1 = coupled[3] if math.isfinite(coupled[3]) else coll[pj.OUT_DEPTH]
-        # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
-        # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
-        # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
-        # (in contact, in closed form from the contact radius there; on the cohesive branch by a solve)
-        zone = md_zone_radius(coupled[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
-            if coupled[1] > 0.0 and d1 == coupled[3] else \
-            md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
-                                      md[A_T_FOLD], md[A_DELTA_FOLD])
-        # the contact pushes along the resultant over its zone, not the normal at the closest point alone
-        zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
-                           coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
-        # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
-        count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
-                                        state, S_CONTACTS, coll)
-        _copy_collision(coll, out)
-        if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
-            # behind the coupling along the total normal; each contact pushes along the resultant over its zone
-            mc.zone_normals_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH] - d1,
-                                   md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
-                                   md[A_DELTA_FOLD], state, S_CONTACTS, count)
-            mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
-                                     state, S_CONTACTS, count)
-            out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
-                                                                       margin)
-        nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
-        # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
-        rx = ry = rz = 0.0
-        if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
-            md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
-                                                              state, out)
-        else:
-            md_st, a, load, depth = _contact_mechanics(coupled, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
-            state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
+        count, md_st, a, load, depth, rx, ry, rz = _contacts_at_minima(
+            live_rest, ku, kv, ev, md, friction, tip_radius, floor, margin, prev_u, prev_v, cx, cy, cz, state, coll,
+            out)
+    nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
     if deform:  # 3. record the dent of the live net, O(1): the net moves to it when read (Deformer.sync)
@@ -362,6 +325,56 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
             out[M_MEAS_FX + j] = scratch[_MEASURED + dc.O_FORCE + j]
         out[M_CONDITION] = scratch[_MEASURED + dc.O_CONDITION]
     return st
+
+
+@njit(cache=True, inline="always")
+def _contacts_at_minima(live_rest, ku, kv, ev, md, friction, tip_radius, floor, margin, prev_u, prev_v, cx, cy, cz,
+                        state, coll, out):
+    """Steps 1-2 of the tick past the collision with the contacts at the minima of the distance
+    (:mod:`arsurf.contact.multi_contact`): writes the collision, the total normal, the tip, depth,
+    radius, status and load into ``out``; returns ``(count, status, a, load, depth)`` and the part of
+    the summed normal force off the total normal (0 for one contact)."""
+    # the closest contact's depth under the tip: the one contact's behind the coupling at this target
+    # (a function of where the target is; last tick's lift, which the zone once used, fed the zone
+    # back into the weights and the lift: a target held still got forces 0.3-1.5x apart tick to tick)
+    coupled = coupled_depth_kernel(
+        coll[pj.OUT_DEPTH], state[S_TIP_DEPTH], state[S_INTERACTING] > 0.5, friction[F_COUPLING],
+        friction[F_JUMP_OUT], friction[F_ZERO_LOAD], md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE],
+        md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD], state[S_MEMO:S_MEMO + MEMO_SIZE])
+    d1 = coupled[3] if math.isfinite(coupled[3]) else coll[pj.OUT_DEPTH]
+    # its Dugdale zone there, continuous where the contact radius reaches 0 (the cohesive zone holds the
+    # tip down to the jump-out depth; a zone stepping from c to 0 there flipped the merge of the minima
+    # inside it, and the force, every tick as the lift moved d1 by pm: 2781 reversals in a 3 s slide)
+    # (in contact, in closed form from the contact radius there; on the cohesive branch by a solve)
+    zone = md_zone_radius(coupled[1], d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LAMBDA]) \
+        if coupled[1] > 0.0 and d1 == coupled[3] else \
+        md_zone_from_depth_kernel(d1, md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA],
+                                  md[A_T_FOLD], md[A_DELTA_FOLD])
+    # the contact pushes along the resultant over its zone, not the normal at the closest point alone
+    zone_normal_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH], zone,
+                       coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
+    # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
+    count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
+                                    state, S_CONTACTS, coll)
+    _copy_collision(coll, out)
+    if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
+        # behind the coupling along the total normal; each contact pushes along the resultant over its zone
+        mc.zone_normals_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, coll[pj.OUT_DEPTH] - d1,
+                               md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD],
+                               md[A_DELTA_FOLD], state, S_CONTACTS, count)
+        mc.weigh_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, margin, zone, friction[F_JUMP_OUT],
+                                 state, S_CONTACTS, count)
+        out[M_NX], out[M_NY], out[M_NZ] = mc.total_normal_kernel(state, S_CONTACTS, count, friction[F_JUMP_OUT],
+                                                                   margin)
+    # 2. contact mechanics with hysteresis, at the tip behind the coupling (on the target's normal line)
+    rx = ry = rz = 0.0
+    if count > 1:  # each contact's own law at its own depth under the one rigid tip, all behind the coupling
+        md_st, a, load, depth, rx, ry, rz = _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz,
+                                                          state, out)
+    else:
+        md_st, a, load, depth = _contact_mechanics(coupled, coll[pj.OUT_DEPTH], tip_radius, cx, cy, cz, state, out)
+        state[S_CONTACTS + mc.T_LIFT] = coll[pj.OUT_DEPTH] - depth
+    return count, md_st, a, load, depth, rx, ry, rz
 
 
 @njit(cache=True)
@@ -488,6 +501,8 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
         state[t], state[t + 1], state[t + 2] = cx, cy, cz
         ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone, np.empty((0, 0)))
     fx, fy, fz = zone[ze.Z_FORCE], zone[ze.Z_FORCE + 1], zone[ze.Z_FORCE + 2]
+    if fx == 0.0 and fy == 0.0 and fz == 0.0:  # out of reach: the coupled minimum is the target itself, exactly
+        state[t], state[t + 1], state[t + 2] = cx, cy, cz  # (no rounding carried from the path to the contact)
     ox, oy, oz = state[t] - cx, state[t + 1] - cy, state[t + 2] - cz
     depth = coll[pj.OUT_DEPTH] - (ox * nx + oy * ny + oz * nz)
     along = fx * nx + fy * ny + fz * nz
@@ -887,7 +902,8 @@ class ARModel:
         the decoupling, tip radius, friction, deform, state and the scratch and output vectors.
         The arrays are the model's own (updated in place by every tick)."""
         live_ctrl, live_rest, ku, kv, patch = self._live
-        values = {"proj": self._proj_args, "zone_energy": self._zone_energy, "live_ctrl": live_ctrl, "live_rest": live_rest, "ku": ku, "kv": kv,
+        values = {"proj": self._proj_args, "zone_energy": self._zone_energy, "live_ctrl": live_ctrl,
+                  "live_rest": live_rest, "ku": ku, "kv": kv,
                   "patch": patch, "md_args": self._md_args, "dec_params": self._dec, "tip_radius": self.tip_radius,
                   "friction": self._friction, "deform": self.deform, "model_state": self.state, "coll": self._coll,
                   "dec": self._scratch, "ev": self._ev, "mout": self.out}

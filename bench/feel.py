@@ -362,8 +362,9 @@ def _tick_cost(surface, tip_radius) -> float:
     return (time.perf_counter() - t0) / 6000.0
 
 
-def vtk_ratio(surface, rounds: int = 3) -> dict:
-    """Tick median vs one VTK closest-point query at the same tip positions (slide at 100 nm/s).
+def vtk_ratio(surface, rounds: int = 3, zone_energy: bool = False) -> dict:
+    """Tick median vs one VTK closest-point query at the same tip positions (slide at 100 nm/s;
+    ``zone_energy``: the model's contact the energy of the whole tip).
 
     Two timings of the peer, same run: ``vtk_query_median_us`` times the round's tip positions
     back to back after the round (the peer alone in a tight loop: its locator stays in the CPU's
@@ -374,7 +375,7 @@ def vtk_ratio(surface, rounds: int = 3) -> dict:
     ticks, queries, inter = [], [], []
     for _ in range(rounds):
         beside = []
-        run = run_scenario(surface, motion="slide-100", source="blended", seconds=2.0,
+        run = run_scenario(surface, motion="slide-100", source="blended", seconds=2.0, zone_energy=zone_energy,
                            after_tick=lambda tip, probe, model: beside.append(one((float(tip[0]), float(tip[1]), float(tip[2])))))
         ticks.append(float(np.median(run.tick_ns)) * 1e-3)
         queries.append(float(np.median(query(run.tip)[0])) * 1e6)
@@ -453,7 +454,8 @@ def main() -> None:
     ap.add_argument("--out", metavar="JSONL", help="with --families: append each judged run here as a JSON line; "
                     "the runs already in it are skipped (resume)")
     ap.add_argument("--zone-energy", action="store_true",
-                    help="with --families: the models' contact the energy of the whole tip (ARModel zone_energy)")
+                    help="with --families or --vtk-only: the models' contact the energy of the whole tip "
+                         "(ARModel zone_energy)")
     ap.add_argument("--jobs", type=int, default=1, help="with --families: processes judging runs (default 1)")
     ap.add_argument("--budget", type=float, default=math.inf, metavar="SECONDS",
                     help="with --families: start no new run after this wall time (resume later with --out)")
@@ -506,7 +508,7 @@ def main() -> None:
             except Exception as exc:  # noqa: BLE001 - a file the demo cannot prepare: said, not fatal
                 rows[path.name] = {"error": f"{type(exc).__name__}: {exc}"[:200]}
                 continue
-            rows[path.name] = {"control_points": list(s.shape), **vtk_ratio(s)}
+            rows[path.name] = {"control_points": list(s.shape), **vtk_ratio(s, zone_energy=args.zone_energy)}
             r = rows[path.name]
             if args.parts:
                 from _tick_parts import tick_parts

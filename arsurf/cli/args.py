@@ -156,6 +156,14 @@ def _protection_flags(s) -> None:
                         "step of the force, instead of over 15 ms")
 
 
+def _contact_flag(s) -> None:
+    """``--zone-energy``: the model's contact the energy of the whole tip (recorded in the session)."""
+    s.add_argument("--zone-energy", action="store_true",
+                   help="the model's contact the energy of the whole tip summed over the surface "
+                        "(arsurf.contact.zone_energy) instead of Maugis-Dugdale contacts at the minima of the "
+                        "distance; measured, not yet the default (docs/feel.rst)")
+
+
 def _protections(args) -> dict:
     """The haptic settings of :func:`_protection_flags`: ``{"virtual_coupling": False}``,
     ``{"passivity": False}`` and/or ``{"jump_blend": 0.0}`` when turned off, else nothing (the

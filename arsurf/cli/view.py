@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 import time
 
-from arsurf.cli.args import (_count, _nm, _picture_size, _positive, _prepare, _processing_flags,
+from arsurf.cli.args import (_contact_flag, _count, _nm, _picture_size, _positive, _prepare, _processing_flags,
                               _protection_flags, _protections, _record_target)
 from arsurf.cli.live import _realtime_flags
 
@@ -41,6 +41,7 @@ def register(sub) -> None:
     _realtime_flags(s, "the haptic loop thread of --bridge-port")
     s.add_argument("--scale", type=float, default=1e-5, help="probe metres per stylus metre with --bridge-port")
     _protection_flags(s)
+    _contact_flag(s)
     s.add_argument("--record", metavar="FILE", help="with --bridge-port: record the haptic loop's session to FILE "
                    "(.h5, must not exist), replayable with `arsurf replay FILE --scan SCAN`")
     s.add_argument("--tubes", action="store_true",
@@ -191,7 +192,8 @@ def _bridge_view(args, bridge, record) -> int:
     scan_path = args.scan or str(BUNDLED_SCAN)
     meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
                            sigma=args.sigma_nm * 1e-9, haptics={**BRIDGE_HAPTICS, "scale": args.scale, "virtual_coupling": True,
-                                                                  "passivity": True, **_protections(args)})
+                                                                  "passivity": True, **_protections(args)},
+                           zone_energy=args.zone_energy)
     setup = build_model(meta)
     realtime = choose_realtime(args.realtime_priority)
     meta["realtime"] = realtime.to_metadata()

@@ -71,8 +71,8 @@ from arsurf._layout import Layout
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
-__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "no_lattice", "surface_lattice", "zone_energy",
-           "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
+__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "no_lattice", "surface_lattice",
+           "zone_energy", "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
 
 #: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
 ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
@@ -101,8 +101,8 @@ MAX_POOL = 65_536
 #: largest number of tiles a lattice has (24 bytes each: 96 MB, a billion samples)
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
-(L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR, L_BOX,
- L_CLOCK, L_TOP) = range(19)
+(L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
+ L_BOX, L_CLOCK, L_TOP) = range(19)
 
 
 @dataclass(frozen=True)
@@ -482,7 +482,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
         raise SurfaceError(f"`pool` must be an integer in [1, {MAX_POOL}] tiles (got {pool!r})")
     if not surface.is_height_field_net:
         raise SurfaceError("the zone energy needs a height-field net (x along u, y along v): a fitted scan's")
-    ctrl = np.ascontiguousarray(surface.rest_control_points)
+    ctrl = np.array(surface.rest_control_points, order="C")  # a writable copy: a read-only one is another numba type
     ku, kv = surface.knots_u, surface.knots_v
     (u0, u1), (v0, v1) = surface.domain
     nu = (ctrl.shape[0] - 3) * per_knot + 1

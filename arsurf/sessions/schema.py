@@ -55,6 +55,9 @@ key                         JSON value
                             for P > 0 only; absent: this law, the one sessions recorded before
                             the key existed ran with), :mod:`arsurf.contact.friction`
 ``shear_strength``          Pa, the interfacial shear strength tau of the ``"area"`` law
+``zone_energy``             optional: true, the model's contact was the energy of the whole tip
+                            (:mod:`arsurf.contact.zone_energy`; absent: the contacts at the
+                            minima of the distance)
 ``deform``                  bool, the model dented the surface
 ``cantilever``              the :class:`~arsurf.force.cantilever.Cantilever` constructor
                             arguments (length, width, thickness, tip_height, youngs_modulus,

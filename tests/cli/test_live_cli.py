@@ -87,6 +87,21 @@ def test_the_session_records_the_virtual_coupling_and_passivity_and_replays_with
     _replayed_exactly(capsys, path, tmp_path / "replay")
 
 
+def test_a_session_with_the_zone_energy_as_the_contact_records_it_and_replays_exactly(capsys, tmp_path):
+    """``--zone-energy``: the model's contact the energy of the whole tip (arsurf.contact.zone_energy),
+    recorded in the session (absent without the flag), the pressing hand pushed back up, and the
+    replay rebuilds that contact: the forces again to the bit."""
+    path = tmp_path / "z.h5"
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.6", "--record", str(path), "--zone-energy")
+    assert rc == 0, err
+    s = load_session(path)
+    assert s.metadata["zone_energy"] is True
+    t = s.ticks
+    pressing = t["in_contact"] == 1
+    assert pressing.sum() > 50 and np.median(t["device_force"][pressing, 2]) > 0.0
+    _replayed_exactly(capsys, path, tmp_path / "replay")
+
+
 def test_a_nanonis_session_reads_the_measured_force_and_replays(capsys, tmp_path):
     """The simulated Nanonis controller (a virtual AFM over a flat sample, tip at (5, 5) um) with the
     scan's origin at (4.49, 4.49, 0) um: the scan's middle, whose height is ~0 after levelling, is

@@ -12,8 +12,8 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy, zone_energy_kernel,
-                                        zone_law_kernel, zone_proxy_kernel)
+from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy,
+                                        zone_energy_kernel, zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
@@ -201,7 +201,8 @@ def test_a_lattice_beyond_memory_is_sampled_only_where_the_tip_is():
     assert force[2] == pytest.approx(LAW.flat_load(depth), rel=2e-3)
     disc = math.sqrt(2.0 * R * (LAW.interaction_range + depth))
     tile = TILE * lattice.spacing[0]
-    assert 1 <= lattice.sampled_tiles <= math.pi * (disc + math.sqrt(2.0) * tile) ** 2 / tile ** 2 < 1e-3 * 9553 ** 2 / TILE ** 2
+    bound = math.pi * (disc + math.sqrt(2.0) * tile) ** 2 / tile ** 2
+    assert 1 <= lattice.sampled_tiles <= bound < 1e-3 * 9553 ** 2 / TILE ** 2
 
 
 def test_bad_inputs_are_refused_in_one_line(flat):
