@@ -784,7 +784,8 @@ class ARModel:
         self.zone_energy = zone_energy
         # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0))
         zone_law = ze.ZoneLaw.from_law(contact)
-        self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius) if zone_energy else None
+        self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range) \
+            if zone_energy else None
         self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy \
             else (ze.no_lattice(), np.empty(0))
         # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level

@@ -108,7 +108,7 @@ def compare(surface, tip_radius: float, heading: float, length: float, step: flo
     offsets = np.outer(np.arange(n) * step, direction)
     p = PRESETS["demo"]
     law = ZoneLaw.from_law(MaugisDugdale(tip_radius, p.effective_modulus, p.work_of_adhesion))
-    lattice = lattice_for(surface, tip_radius, per_knot)
+    lattice = lattice_for(surface, tip_radius, law.interaction_range, per_knot)
     k = model.coupling_stiffness
     coupled = copy.deepcopy(model)  # tick reuses its array: each row copied
     coupled_force = np.array([coupled.tick(c)[M_SIM_FX:M_SIM_FX + 3].copy() for c in target + offsets])

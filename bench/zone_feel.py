@@ -90,7 +90,8 @@ def judged_with_zone(run: dict, surface, per_knot: int) -> dict:
     def build(model, haptics, info, origin, **kw):
         loop = real(model, haptics, info, origin, **kw)
         if not lattice:
-            lattice.append(lattice_for(model.rest_surface, model.tip_radius, per_knot))
+            lattice.append(lattice_for(model.rest_surface, model.tip_radius, ZoneLaw.from_law(model.contact).interaction_range,
+                                       per_knot))
         loop.step = zone_step(loop, model, lattice[0], ZoneLaw.from_law(model.contact))
         return loop
 

@@ -12,7 +12,8 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, surface_lattice, zone_energy,
+from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
+                                        zone_energy,
                                         zone_energy_kernel, zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.scan import synthetic
@@ -205,6 +206,19 @@ def test_a_lattice_beyond_memory_is_sampled_only_where_the_tip_is():
     assert 1 <= lattice.sampled_tiles <= bound < 1e-3 * 9553 ** 2 / TILE ** 2
 
 
+@pytest.mark.parametrize("pixel, radius", [(0.0156e-9, 20e-9), (0.3e-9, 7e-9), (6.4e-9, 2e-9), (2e-9, 50e-9)])
+def test_the_lattice_resolves_the_tip_and_its_contact_not_finer(pixel, radius):
+    """The lattice a tip is summed over: at most R/8 apart and twice per pixel, but no finer than an
+    eighth of the zone where a flat at zero load interacts, sqrt(2 R h0) (an STM image of 0.016 nm
+    pixels under a 20 nm tip)."""
+    law = ZoneLaw.from_law(MaugisDugdale(radius, 50e9, 0.05))
+    surface = BSplineSurface.from_heights(np.zeros((400, 400)), (0.0, 399 * pixel), (0.0, 399 * pixel))
+    knot = surface.spacing[0]
+    h = lattice_for(surface, radius, law.interaction_range).spacing[0]
+    wanted = min(radius / 8.0, max(knot / 2.0, math.sqrt(2.0 * radius * law.interaction_range) / 8.0))
+    assert wanted / 1.1 <= h <= wanted * (1 + 1e-9)  # the nearest whole number of samples across the scan
+
+
 def test_bad_inputs_are_refused_in_one_line(flat):
     with pytest.raises(ContactError, match="center"):
         zone_energy(flat, LAW, (0.0, math.nan, 1e-9))
@@ -213,7 +227,7 @@ def test_bad_inputs_are_refused_in_one_line(flat):
     with pytest.raises(ContactError, match="work_of_adhesion"):
         ZoneLaw(R, 50e9, math.inf, 1e8)
     surface = valley_surface("sinusoid")
-    for bad in (0, 65, 2.5, True):
+    for bad in (0, 65, -1.0, math.nan, True):
         with pytest.raises(SurfaceError, match="per_knot"):
             surface_lattice(surface, bad)
         with pytest.raises(SurfaceError, match="pool"):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import ZoneLaw, lattice_for, zone_energy
+from arsurf.contact.zone_energy import ZoneLaw, zone_energy
 from arsurf.errors import ContactError
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
@@ -50,7 +50,7 @@ def test_behind_a_coupling_the_tip_rests_where_the_spring_balances_the_law(flat)
     np.testing.assert_allclose(t.simulated_force, k * (t.tip - target), rtol=1e-6, atol=1e-6 * k * R)
     assert t.coupled and t.depth == pytest.approx(R - t.tip[2], abs=1e-15)
     # the lattice's sum at the tip, the law's exact load within the quadrature of a 0.2 nm deep cap
-    summed = zone_energy(lattice_for(m.rest_surface, R), law, t.tip)[1]
+    summed = zone_energy(m.zone_lattice, law, t.tip)[1]
     np.testing.assert_allclose(t.simulated_force, summed, rtol=1e-12)
     assert t.load == pytest.approx(law.flat_load(t.depth), rel=0.02)
 
