@@ -702,7 +702,7 @@ class ARModel:
         E*, w and Dugdale stress summed over the surface under the tip; the tip behind the
         coupling at the nearest minimum of that energy plus the coupling's, :func:`_zone_contact`)
         instead of the Maugis-Dugdale contacts at the minima of the distance. Default False
-        (docs/feel.rst, "The next step": measured, not yet the default); no material map.
+        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default); no material map.
 
     Examples
     --------

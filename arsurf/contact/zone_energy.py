@@ -57,7 +57,7 @@ beyond: continuous with its derivative, so the force is continuous in T.
 :class:`~arsurf.model.ARModel` takes it as its contact with ``zone_energy=True`` (not yet the
 default); ``bench/zone_energy.py`` measures it against the model on the surfaces where the feel
 still fails, and ``bench/feel.py --zone-energy`` judges the feel tables with it (docs/feel.rst,
-"The next step").
+"The energy of the whole tip").
 """
 from __future__ import annotations
 

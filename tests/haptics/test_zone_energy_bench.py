@@ -1,5 +1,5 @@
 """``bench/zone_energy.py``: the model's force and the zone energy's (arsurf.contact.zone_energy)
-swept where a families table fails (docs/feel.rst, "The next step")."""
+swept where a families table fails (docs/feel-log.rst, "The tip's energy summed over the surface")."""
 from __future__ import annotations
 
 import json
