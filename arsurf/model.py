@@ -453,23 +453,32 @@ def _contact_mechanics(answer, target_depth, tip_radius, cx, cy, cz, state, out)
     (a = load = 0 for a failed solve)."""
     md_st, a, load, depth, coupled = answer
     lift = target_depth - depth
-    out[M_TIP] = cx + lift * out[M_NX]
-    out[M_TIP + 1] = cy + lift * out[M_NY]
-    out[M_TIP + 2] = cz + lift * out[M_NZ]
+    if md_st < 0:
+        a = 0.0
+        load = 0.0
+    _record_contact(cx + lift * out[M_NX], cy + lift * out[M_NY], cz + lift * out[M_NZ], coupled, tip_radius, depth,
+                    md_st, a, load, state, out)
+    return md_st, a, load, depth
+
+
+@njit(cache=True, inline="always")
+def _record_contact(tx, ty, tz, coupled, tip_radius, depth, md_st, a, load, state, out):
+    """Step 2's outputs: the tip (tx, ty, tz) m behind the coupling (``coupled``: the coupling
+    equation solved), its depth (m), status, contact radius (m) and load (N) into ``out``, and the
+    hysteresis memory (interacting: in contact or cohesive) into ``state``."""
+    out[M_TIP] = tx
+    out[M_TIP + 1] = ty
+    out[M_TIP + 2] = tz
     out[M_COUPLED] = 1.0 if coupled else 0.0
     out[M_DISTANCE] = tip_radius - depth
     out[M_DEPTH] = depth
     out[M_MD_STATUS] = md_st
-    if md_st < 0:
-        a = 0.0
-        load = 0.0
-    interacting = md_st == CONTACT or md_st == COHESIVE
-    state[S_INTERACTING] = 1.0 if interacting else 0.0
-    state[S_TIP_DEPTH] = depth if interacting else math.nan
     out[M_RADIUS] = a
     out[M_LOAD] = load
     out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
-    return md_st, a, load, depth
+    interacting = md_st == CONTACT or md_st == COHESIVE
+    state[S_INTERACTING] = 1.0 if interacting else 0.0
+    state[S_TIP_DEPTH] = depth if interacting else math.nan
 
 
 @njit(cache=True)
@@ -516,17 +525,7 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
     else:
         md_st, a = COHESIVE, 0.0
     out[M_NX], out[M_NY], out[M_NZ] = mx, my, mz
-    out[M_TIP], out[M_TIP + 1], out[M_TIP + 2] = state[t], state[t + 1], state[t + 2]
-    out[M_COUPLED] = 1.0 if k < math.inf else 0.0
-    out[M_DISTANCE] = tip_radius - depth
-    out[M_DEPTH] = depth
-    out[M_MD_STATUS] = md_st
-    out[M_RADIUS] = a
-    out[M_LOAD] = load
-    out[M_IN_CONTACT] = 1.0 if md_st == CONTACT else 0.0
-    interacting = md_st != SEPARATED
-    state[S_INTERACTING] = 1.0 if interacting else 0.0
-    state[S_TIP_DEPTH] = depth if interacting else math.nan
+    _record_contact(state[t], state[t + 1], state[t + 2], k < math.inf, tip_radius, depth, md_st, a, load, state, out)
     return md_st, a, load, depth, fx - load * mx, fy - load * my, fz - load * mz
 
 
@@ -551,19 +550,7 @@ def _sum_contacts(md, friction, tip_radius, count, margin, cx, cy, cz, state, ou
         ox, oy, oz, fx, fy, fz = mc.coupled_offset_kernel(
             state, t, count, nx, ny, nz, friction[F_COUPLING], lift, fx, fy, fz, friction[F_JUMP_OUT], margin,
             md[A_DEPTH_SCALE], md[A_RADIUS_SCALE], md[A_LOAD_SCALE], md[A_LAMBDA], md[A_T_FOLD], md[A_DELTA_FOLD])
-    out[M_TIP] = cx + ox
-    out[M_TIP + 1] = cy + oy
-    out[M_TIP + 2] = cz + oz
-    out[M_COUPLED] = 1.0 if coupled else 0.0
-    out[M_DISTANCE] = tip_radius - d0
-    out[M_DEPTH] = d0
-    out[M_MD_STATUS] = st0
-    out[M_RADIUS] = a0
-    out[M_LOAD] = load
-    out[M_IN_CONTACT] = 1.0 if st0 == CONTACT else 0.0
-    interacting = st0 == CONTACT or st0 == COHESIVE
-    state[S_INTERACTING] = 1.0 if interacting else 0.0
-    state[S_TIP_DEPTH] = d0 if interacting else math.nan
+    _record_contact(cx + ox, cy + oy, cz + oz, coupled, tip_radius, d0, st0, a0, load, state, out)
     return st0, a0, load, d0, fx - load * nx, fy - load * ny, fz - load * nz
 
 
