@@ -154,12 +154,13 @@ def test_measured_force_keeps_its_friction_where_the_directional_decoupling_turn
     surf = BSplineSurface.from_heights(np.tile(z, (64, 1)).T, (0.0, x[-1]), (0.0, x[-1]))
     m = make_model(surf, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER,
                    friction=0.2, deform=False)
-    (proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, state, coll, decout, ev, out) = m.kernel_args()
+    (proj, zone, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, state, coll, decout, ev,
+     out) = m.kernel_args()
     worst, conds = 0.0, []
     for k in range(400):  # along x, the slip direction turning through the beam axis at k = 200
         cx = 60e-9 + 0.25e-9 * k
         cz = float(surf.evaluate(cx, 128e-9)[2]) + 20e-9 - 1.5e-9
-        model_tick_kernel(proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
+        model_tick_kernel(proj, zone, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
                           128e-9 + 1e-12 * (k - 200) ** 2, cz, 0.0, 0.0, SIGNALS_SYNTHESISED, state, coll, decout,
                           ev, out)
         if out[M_IN_CONTACT] > 0.5 and k > 5:
@@ -189,13 +190,14 @@ def test_photodiode_noise_is_not_amplified_where_the_friction_direction_sweeps_t
     surf = BSplineSurface.from_heights(np.tile(z, (64, 1)).T, (0.0, x[-1]), (0.0, x[-1]))
     m = make_model(surf, tip_radius=20e-9, effective_modulus=10e9, work_of_adhesion=0.1, cantilever=LEVER,
                    friction=mu, deform=False, signal_noise=sigma)
-    (proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, state, coll, decout, ev, out) = m.kernel_args()
+    (proj, zone, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, state, coll, decout, ev,
+     out) = m.kernel_args()
     noise = np.random.default_rng(1).standard_normal((400, 2)) * sigma
     err, cond, load = [], [], []
     for k in range(400):  # along x, the slip direction turning through the beam axis at k = 200
         cx = 60e-9 + 0.25e-9 * k
         cz = float(surf.evaluate(cx, 128e-9)[2]) + 20e-9 - 1.5e-9
-        model_tick_kernel(proj, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
+        model_tick_kernel(proj, zone, ctrl, rest, ku, kv, patch, md, dec, radius, fric, deform, cx,
                           128e-9 + 1e-12 * (k - 200) ** 2, cz, noise[k, 0], noise[k, 1], SIGNALS_SYNTHESISED, state,
                           coll, decout, ev, out)
         if out[M_IN_CONTACT] > 0.5 and k > 5:
