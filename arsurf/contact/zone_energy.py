@@ -149,7 +149,7 @@ class ZoneLaw:
             return 0.0
 
         def ring(r):
-            rise = self.tip_radius - math.sqrt(self.tip_radius ** 2 - r * r) if r < rho0 else cap + (r - rho0) * slope
+            rise = _rise(r * r, self.tip_radius, rho0, cap, slope)[0]
             return 2.0 * math.pi * r * zone_law_kernel(rise - depth, *self.args)[1]
 
         reach = _across(depth + h0, self.tip_radius, rho0, cap, slope)
@@ -208,11 +208,11 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
     (:attr:`SurfaceLattice.arrays`: its tiles in reach are sampled the first time they are needed,
     :func:`_tile_slot`). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of
     samples within reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
-    :math:`\sum_k A_k [-p'(g_k)\,\nabla g_k \nabla g_k^T - p(g_k)\,\mathrm{diag}(1/R, 1/R, 0)]`,
+    :math:`\sum_k A_k [-p'(g_k)\,\nabla g_k \nabla g_k^T - p(g_k)\,\nabla^2 g_k]`,
     with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
     :math:`p' \propto 1/\sqrt{-g}` (a sample at the contact's edge: an infinite but integrable
-    stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step). A sample is in reach
-    where the gap is below h0: within :math:`\sqrt{2R(h_0 + R - T_z + z)}` of T across, z its height."""
+    stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step). A sample of height z is
+    in reach where the gap is below h0: within :func:`_across` of :math:`h_0 + R - T_z + z` of T."""
     xs, ys, zlo, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZLO], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
     want = hess.shape[0] == 3
     if want:
@@ -253,14 +253,7 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                                 k = row + j
                                 dx = tx - pts[k, 0]
                                 dy = ty - pts[k, 1]
-                                r2 = dx * dx + dy * dy
-                                if r2 < rho0 * rho0:  # under the sphere: the rise R - sqrt(R^2 - r^2)
-                                    root = math.sqrt(radius * radius - r2)
-                                    rise, q, q1 = radius - root, 1.0 / root, 1.0 / (root * root * root)
-                                else:  # under the cone
-                                    rho = math.sqrt(r2)
-                                    rise, q = cap + (rho - rho0) * slope, slope / rho
-                                    q1 = -q / r2
+                                rise, q, q1 = _rise(dx * dx + dy * dy, radius, rho0, cap, slope)
                                 g = tz - radius + rise - pts[k, 2]
                                 if g >= h0:
                                     continue
@@ -298,6 +291,19 @@ def _cone(radius):
     there (m) and the cone's slope (:data:`CONE_HALF_ANGLE`; module docstring)."""
     a = CONE_HALF_ANGLE
     return radius * math.cos(a), radius * (1.0 - math.sin(a)), math.cos(a) / math.sin(a)
+
+
+@njit(cache=True, inline="always")
+def _rise(r2, radius, rho0, cap, slope):
+    """``(s, s'/r, (s'/r)'/r)``: how far the tip's surface rises above its apex (m) at ``r2`` (m^2)
+    across, under its sphere :math:`R - \\sqrt{R^2 - r^2}` or its cone (module docstring), and
+    what the gap's gradient and Hessian across need of it."""
+    if r2 < rho0 * rho0:
+        root = math.sqrt(radius * radius - r2)
+        return radius - root, 1.0 / root, 1.0 / (root * root * root)
+    rho = math.sqrt(r2)
+    q = slope / rho
+    return cap + (rho - rho0) * slope, q, -q / r2
 
 
 @njit(cache=True, inline="always")
