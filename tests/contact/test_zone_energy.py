@@ -226,6 +226,10 @@ def test_bad_inputs_are_refused_in_one_line(flat):
         ZoneLaw(R, -1.0, 0.05, 1e8)
     with pytest.raises(ContactError, match="work_of_adhesion"):
         ZoneLaw(R, 50e9, math.inf, 1e8)
+    with pytest.raises(ContactError, match="tip_radius"):
+        lattice_for(valley_surface("sinusoid"), -1e-9)
+    with pytest.raises(ContactError, match="interaction_range"):
+        lattice_for(valley_surface("sinusoid"), R, math.nan)
     surface = valley_surface("sinusoid")
     for bad in (0, 65, -1.0, math.nan, True):
         with pytest.raises(SurfaceError, match="per_knot"):
