@@ -510,7 +510,8 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
         state[t], state[t + 1], state[t + 2] = cx, cy, cz
         ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone, np.empty((0, 0)))
     fx, fy, fz = zone[ze.Z_FORCE], zone[ze.Z_FORCE + 1], zone[ze.Z_FORCE + 2]
-    if fx == 0.0 and fy == 0.0 and fz == 0.0:  # out of reach: the coupled minimum is the target itself, exactly
+    reached = fx != 0.0 or fy != 0.0 or fz != 0.0
+    if not reached:  # out of reach: the coupled minimum is the target itself, exactly
         state[t], state[t + 1], state[t + 2] = cx, cy, cz  # (no rounding carried from the path to the contact)
     ox, oy, oz = state[t] - cx, state[t + 1] - cy, state[t + 2] - cz
     depth = coll[pj.OUT_DEPTH] - (ox * nx + oy * ny + oz * nz)
@@ -518,7 +519,7 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
     mx, my, mz, _, _ = _summed_normal(nx, ny, nz, along, fx - along * nx, fy - along * ny, fz - along * nz,
                                       md[A_LOAD_SCALE], 0.0, 0.0)
     load = fx * mx + fy * my + fz * mz
-    if fx == 0.0 and fy == 0.0 and fz == 0.0:
+    if not reached:
         md_st, a = SEPARATED, 0.0
     elif depth > 0.0:
         md_st, a = CONTACT, math.sqrt(tip_radius * depth)
