@@ -80,10 +80,14 @@ Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"),
 
 #: the half-angle (rad) of the cone the tip's sphere continues into (module docstring): 15 degrees
 CONE_HALF_ANGLE = math.radians(15.0)
+_COS_CONE, _SIN_CONE = math.cos(CONE_HALF_ANGLE), math.sin(CONE_HALF_ANGLE)
 #: lattice samples per tile side: a tile is sampled the first time the tip reaches it
 TILE = 16
 #: samples per block side within a tile: a block is skipped when its bounding box lies beyond reach
 BLOCK = 8
+#: the relative margin of a block's reach (and of the tip's coordinates) when its rows and columns are read
+#: from the lattice's x and y (a sample's own are the same to rounding, ~1e-16 relative)
+WINDOW_SLACK = 1e-9
 #: the repulsion's gap in its stiffness is held at least this fraction of the range (:func:`zone_energy_kernel`)
 HESSIAN_FLOOR = 1e-3
 #: the proxy's step is at most this fraction of the tip radius (:func:`zone_proxy_kernel`)
@@ -104,7 +108,7 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
- L_BOX, L_CLOCK, L_TOP) = range(19)
+ L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL) = range(22)
 
 
 @dataclass(frozen=True)
@@ -176,17 +180,26 @@ class ZoneLaw:
 def zone_law_kernel(g, radius, e_star, sigma0, h0):
     r"""``(phi, p)``: the energy per area (J/m^2) and the pressure (Pa, > 0 repulsive) at gap ``g``
     (m) of the module docstring's law."""
-    phi = p = 0.0
+    phi, p, _ = _law(g, e_star / (math.pi * math.sqrt(radius)), sigma0, h0, 0.0)
+    return phi, p
+
+
+@njit(cache=True, inline="always")
+def _law(g, stiff, sigma0, h0, floor):
+    r"""``(phi, p, dp/dg)`` of the law at gap ``g`` (m): J/m^2, Pa, Pa/m; ``stiff`` is
+    :math:`E^*/\pi\sqrt R` (the repulsion :math:`p_r = \mathrm{stiff}\,\sqrt{-g}`), and the
+    repulsion's slope :math:`\propto 1/\sqrt{-g}` is held finite with :math:`\sqrt{-g}` at least
+    ``floor`` (m^1/2; :func:`zone_energy_kernel`). One square root or one sine and cosine a call
+    (:math:`\sin 2x = 2\sin x\cos x`)."""
     if g < 0.0:
         s = math.sqrt(-g)
-        k = e_star / (math.pi * math.sqrt(radius))
-        phi = 2.0 / 3.0 * k * s * s * s - sigma0 * h0
-        p = k * s
-    elif g < h0:
+        return 2.0 / 3.0 * stiff * s * s * s - sigma0 * h0, stiff * s, -0.5 * stiff / max(s, floor)
+    if g < h0:
         x = math.pi * g / h0
-        phi = -sigma0 * (h0 - g) - sigma0 * h0 * math.sin(2.0 * x) / (2.0 * math.pi)
-        p = -2.0 * sigma0 * math.sin(x) ** 2
-    return phi, p
+        sn, cs = math.sin(x), math.cos(x)
+        return (-sigma0 * (h0 - g) - sigma0 * h0 * sn * cs / math.pi, -2.0 * sigma0 * sn * sn,
+                -4.0 * sigma0 * math.pi / h0 * sn * cs)
+    return 0.0, 0.0, 0.0
 
 
 @njit(cache=True)
@@ -202,7 +215,7 @@ def _first_at_least(xs, x):
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
     r"""E(T) and F(T) of the module docstring at T = (tx, ty, tz) (m) over the lattice ``lat``
     (:attr:`SurfaceLattice.arrays`: its tiles in reach are sampled the first time they are needed,
@@ -213,13 +226,16 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
     :math:`p' \propto 1/\sqrt{-g}` (a sample at the contact's edge: an infinite but integrable
     stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step). A sample of height z is
     in reach where the gap is below h0: within :func:`_across` of :math:`h_0 + R - T_z + z` of T."""
-    xs, ys, zlo, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZLO], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
+    # every array taken from the tuple once: an array view made in a loop costs two atomic reference counts
+    xs, ys, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
+    slot_of, stamp, clock = lat[L_SLOT_OF], lat[L_STAMP], lat[L_CLOCK]
     want = hess.shape[0] == 3
     if want:
         hess[:, :] = 0.0
     energy = fx = fy = fz = 0.0
     n = 0
     rho0, cap, slope = _cone(radius)
+    stiff, floor = e_star / (math.pi * math.sqrt(radius)), math.sqrt(HESSIAN_FLOOR * h0)
     base = h0 + radius - tz  # a sample of height z is in reach within _across(base + z) of T
     if base + lat[L_TOP][0] > 0.0:
         reach = _across(base + lat[L_TOP][0], radius, rho0, cap, slope)
@@ -238,18 +254,34 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                 if base + zhi[ti, tj] <= 0.0 or dx * dx + dy * dy >= _across(base + zhi[ti, tj], radius, rho0, cap,
                                                                              slope) ** 2:
                     continue
-                s = _tile_slot(lat, ti, tj)
+                s = _held_slot(slot_of, stamp, clock, ti, tj)
+                if s < 0:  # sampled the first time it is needed; a tile is the same whenever it is sampled, so the
+                    s = _take_slot(lat, ti, tj)  # energy does not depend on what the pool holds
+                    stamp[s] = clock[0]
                 for qa in range(2):
                     for qb in range(2):
-                        b = box[s, qa, qb]
-                        dx = max(b[0] - tx, 0.0, tx - b[3])
-                        dy = max(b[1] - ty, 0.0, ty - b[4])
-                        if base + b[5] <= 0.0 or dx * dx + dy * dy >= _across(base + b[5], radius, rho0, cap,
-                                                                              slope) ** 2:
+                        if base + box[s, qa, qb, 5] <= 0.0:
                             continue
+                        near = _across(base + box[s, qa, qb, 5], radius, rho0, cap, slope)  # none of the block beyond
+                        dx = max(box[s, qa, qb, 0] - tx, 0.0, tx - box[s, qa, qb, 3])
+                        dy = max(box[s, qa, qb, 1] - ty, 0.0, ty - box[s, qa, qb, 4])
+                        if dx * dx + dy * dy >= near * near:
+                            continue
+                        near += WINDOW_SLACK * (near + abs(tx) + abs(ty))  # a sample's x, y: its row's, column's
+
+                        jb0, jb1 = max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)
                         for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
+                            dx = abs(tx - xs[i])
+                            if dx >= near:
+                                continue
+                            half = math.sqrt(near * near - dx * dx)  # the row's samples within reach: |y - ty| < half
+                            ja, jz = jb0, jb1
+                            while ja < jz and ys[ja] <= ty - half:
+                                ja += 1
+                            while jz > ja and ys[jz - 1] >= ty + half:
+                                jz -= 1
                             row = (s * TILE + i - a0) * TILE - b0  # the pool's flat index of sample (i, j): row + j
-                            for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
+                            for j in range(ja, jz):
                                 k = row + j
                                 dx = tx - pts[k, 0]
                                 dy = ty - pts[k, 1]
@@ -258,7 +290,7 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                                 if g >= h0:
                                     continue
                                 ex, ey = q * dx, q * dy  # the gap's gradient: (ex, ey, 1)
-                                phi, pr = zone_law_kernel(g, radius, e_star, sigma0, h0)
+                                phi, pr, dp = _law(g, stiff, sigma0, h0, floor)
                                 area = ar[k]
                                 energy += area * phi
                                 f = area * pr
@@ -267,7 +299,7 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                                 fz += f
                                 n += 1
                                 if want:  # a (-p' grad g grad g^T - p hess g), hess g = q I + q1 d d^T across
-                                    c = -area * _pressure_slope(g, radius, e_star, sigma0, h0)
+                                    c = -area * dp
                                     hess[0, 0] += c * ex * ex - f * (q + q1 * dx * dx)
                                     hess[0, 1] += c * ex * ey - f * q1 * dx * dy
                                     hess[0, 2] += c * ex
@@ -289,8 +321,7 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
 def _cone(radius):
     """``(rho0, cap, slope)``: where the tip's sphere meets its cone (m across), the sphere's rise
     there (m) and the cone's slope (:data:`CONE_HALF_ANGLE`; module docstring)."""
-    a = CONE_HALF_ANGLE
-    return radius * math.cos(a), radius * (1.0 - math.sin(a)), math.cos(a) / math.sin(a)
+    return radius * _COS_CONE, radius * (1.0 - _SIN_CONE), _COS_CONE / _SIN_CONE
 
 
 @njit(cache=True, inline="always")
@@ -315,16 +346,14 @@ def _across(rise, radius, rho0, cap, slope):
 
 
 @njit(cache=True, inline="always")
-def _tile_slot(lat, ti, tj) -> int:
-    """The pool slot holding tile (``ti``, ``tj``) of the lattice ``lat``, sampled first if it is
-    not held (:func:`_take_slot`). A tile's samples are the same whenever it is sampled, so the
-    energy does not depend on what the pool holds."""
-    clock = lat[L_CLOCK]
+def _held_slot(slot_of, stamp, clock, ti, tj) -> int:
+    """The pool slot holding tile (``ti``, ``tj``), marked used now; -1 when the pool does not hold
+    it (:func:`_take_slot` samples it). ``slot_of``, ``stamp``, ``clock``: the lattice's arrays of
+    those names, passed alone (the whole ``lat`` passed costs an atomic reference count an array)."""
     clock[0] += 1
-    s = lat[L_SLOT_OF][ti, tj]
-    if s < 0:
-        s = _take_slot(lat, ti, tj)
-    lat[L_STAMP][s] = clock[0]
+    s = slot_of[ti, tj]
+    if s >= 0:
+        stamp[s] = clock[0]
     return s
 
 
@@ -372,17 +401,6 @@ def _sample_tile(lat, ti, tj, s):
 
 
 @njit(cache=True)
-def _pressure_slope(g, radius, e_star, sigma0, h0):
-    """dp/dg (Pa/m) of the law at gap ``g`` (m), the repulsion's held finite at the contact's edge
-    (:func:`zone_energy_kernel`)."""
-    if g < 0.0:
-        return -0.5 * e_star / (math.pi * math.sqrt(radius) * math.sqrt(max(-g, HESSIAN_FLOOR * h0)))
-    if g < h0:
-        return -2.0 * sigma0 * math.pi / h0 * math.sin(2.0 * math.pi * g / h0)
-    return 0.0
-
-
-@njit(cache=True)
 def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, tip,
                       out) -> int:
     r"""The tip behind a virtual coupling: from ``tip`` (3,) m (the last tick's, or a point above the
@@ -395,12 +413,19 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
     on a conservative E it settles, and a snap is its minimum ending. ``out`` (:data:`ZONE_OUT`): E
     (J) and F (N) at the tip. Returns the iterations (negative: not converged in
     :data:`PROXY_ITERATIONS`)."""
-    hess = np.empty((3, 3))
-    trial = np.empty(Z_SIZE)
-    trial_hess = np.empty((3, 3))  # each trial's Hessian: an accepted step needs no sum again
+    work, memo, trial = lat[L_WORK], lat[L_MEMO], lat[L_TRIAL]
+    hess, trial_hess = work[0], work[1]  # each trial's Hessian: an accepted step needs no sum again
     tol = PROXY_TOL * stiffness * radius
     cap = PROXY_STEP * radius
-    zone_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
+    if tip[0] == memo[0] and tip[1] == memo[1] and tip[2] == memo[2]:  # where the last call ended: E is known
+        for q in range(Z_SIZE):
+            out[q] = memo[3 + q]
+        for q in range(3):
+            for r in range(3):
+                hess[q, r] = work[2, q, r]
+    else:
+        zone_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
+        _remember(lat, tip, out, hess)
     value = out[Z_ENERGY] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
     for it in range(PROXY_ITERATIONS):
         gx = -out[Z_FORCE] + stiffness * (tip[0] - cx)
@@ -432,7 +457,22 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
         value = f
         out[:] = trial
         hess[:, :] = trial_hess
+        _remember(lat, tip, out, hess)
     return -PROXY_ITERATIONS
+
+
+@njit(cache=True, inline="always")
+def _remember(lat, tip, out, hess):
+    """E, F and the Hessian at ``tip`` kept in the lattice (``L_MEMO`` and the third matrix of
+    ``L_WORK``): the next :func:`zone_proxy_kernel` call that starts there needs no sum. Exact: the
+    energy is one function of the tip (the lattice's samples never change)."""
+    memo, work = lat[L_MEMO], lat[L_WORK]
+    memo[0], memo[1], memo[2] = tip[0], tip[1], tip[2]
+    for q in range(Z_SIZE):
+        memo[3 + q] = out[q]
+    for q in range(3):
+        for r in range(3):
+            work[2, q, r] = hess[q, r]
 
 
 @njit(cache=True)
@@ -457,8 +497,8 @@ class SurfaceLattice:
     at a time where the tip reaches. ``arrays`` is what the kernels take (their ``lat``; the
     ``L_*`` indices): the rest net and its knots, the lattice's u and v, its rows' x and columns' y
     (m), the trapezoidal weights along u and v, each tile's height bounds (m), the pool of
-    sampled tiles (points m, projected areas m^2, blocks' boxes m) with its bookkeeping, and the
-    highest bound (m). ``shape`` is the
+    sampled tiles (points m, projected areas m^2, blocks' boxes m) with its bookkeeping, the
+    highest bound (m), and the proxy's memo and scratch (:func:`_remember`). ``shape`` is the
     lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
     arrays: tuple
@@ -516,7 +556,8 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
     arrays = (ctrl, ku, kv, us, vs, xs, ys, wu, wv, zlo, zhi,
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty((pool, 2, 2, 6)),
-              np.zeros(1, np.int64), np.array([zhi.max()]))
+              np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan), np.empty((3, 3, 3)),
+              np.empty(Z_SIZE))
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 
 
@@ -565,7 +606,7 @@ def no_lattice() -> tuple:
     f1, i2 = np.empty(0), np.empty((0, 0), np.int64)
     return (np.empty((0, 0, 3)), f1, f1, f1, f1, f1, f1, f1, f1, np.empty((0, 0)), np.empty((0, 0)), i2, i2,
             np.empty(0, np.int64), np.empty((0, 3)), f1, np.empty((0, 2, 2, 6)), np.zeros(1, np.int64),
-            np.full(1, -np.inf))
+            np.full(1, -np.inf), np.full(3 + Z_SIZE, np.nan), np.empty((0, 3, 3)), np.empty(0))
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:

@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
+from arsurf.contact.zone_energy import (L_MEMO, L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
                                         zone_energy,
                                         zone_energy_kernel, zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
@@ -114,6 +114,28 @@ def test_behind_a_coupling_the_proxy_rests_where_the_spring_balances_the_law(fla
     depth = brentq(lambda d: LAW.flat_load(d) - k * (R - d - target[2]), -LAW.interaction_range, R / 2)
     assert R - tip[2] == pytest.approx(depth, abs=1e-12)  # within a picometre: the lattice's quadrature
     assert zone_proxy_kernel(*flat.kernel_args(), *target, k, *LAW.args, tip, out) == 0  # already there
+
+
+def test_the_proxy_started_where_it_ended_reads_its_memo_and_moves_as_from_a_fresh_lattice(rough_surface):
+    """Two ticks of the proxy on a rough surface, the second's target moved 0.1 nm: the second
+    call starts where the first ended and reads E, F and the Hessian there from the lattice's memo
+    instead of summing them; the tip and force are the same to the bit as from a lattice that
+    never saw the first call (the energy is one function of the tip)."""
+    lattice = lattice_for(rough_surface, R, LAW.interaction_range)
+    k, start = 5.0, np.array([16e-9, 16e-9, top(rough_surface, lattice) + R + 1e-9])
+    target = start - [0.0, 0.0, 4e-9]
+    tip, out = start.copy(), ZONE_OUT.zeros()
+    assert zone_proxy_kernel(*lattice.kernel_args(), *target, k, *LAW.args, tip, out) > 0
+    assert np.array_equal(lattice.arrays[L_MEMO][:3], tip)  # remembered where it ended
+    moved = target + [0.1e-9, 0.0, 0.0]
+    fresh = lattice_for(rough_surface, R, LAW.interaction_range)
+    results = []
+    for lat in (lattice, fresh):
+        t, o = tip.copy(), ZONE_OUT.zeros()
+        results.append((zone_proxy_kernel(*lat.kernel_args(), *moved, k, *LAW.args, t, o), t, o))
+    (n1, t1, o1), (n2, t2, o2) = results
+    assert n1 == n2 > 0 and np.array_equal(t1, t2) and np.array_equal(o1, o2)
+    assert not np.array_equal(t1, tip)  # it moved
 
 
 @pytest.fixture(scope="module")
