@@ -165,7 +165,7 @@ DEFAULT_SIGNAL_NOISE = 1e-7
 
 @njit(cache=True, inline="always")
 def model_tick_kernel(proj,                                              # Projector.kernel_args() of the rest surface
-                      zone_energy,                                       # the zone energy's (lattice, law), or none
+                      zone_energy,                                       # the zone energy's (lattice, law), or None
                       live_ctrl, live_rest, ku, kv, patch,               # deformation of the live surface
                       md_args, dec_params, tip_radius, friction, deform,
                       cx, cy, cz, bending, torsion, signal_mode,
@@ -277,7 +277,7 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
                                        local_pull_off_kernel(md_args, md))
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
     floor = friction[F_JUMP_OUT] - margin
-    if zone_energy[0][ze.L_US].shape[0] > 0:  # the energy of the whole tip (arsurf.contact.zone_energy): one contact
+    if zone_energy is not None:  # the energy of the whole tip (arsurf.contact.zone_energy): one contact
         _copy_collision(coll, out)
         count = 1
         md_st, a, load, depth, rx, ry, rz = _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state,
@@ -775,7 +775,7 @@ class ARModel:
         self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range) \
             if zone_energy else None
         self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy \
-            else (ze.no_lattice(), np.empty(0))
+            else None
         # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level
         self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
         self._friction = PROXY_PARAMS.pack({

@@ -71,7 +71,7 @@ from arsurf._layout import Layout
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
-__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "no_lattice", "surface_lattice",
+__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "surface_lattice",
            "zone_energy", "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
 
 #: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
@@ -598,15 +598,6 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     zone = math.sqrt(2.0 * tip_radius * interaction_range)
     spacing = min(SPACING_PER_RADIUS * tip_radius, max(pixel / per_knot, SPACING_PER_ZONE * zone))
     return surface_lattice(surface, min(pixel / spacing, 64.0), pool)
-
-
-def no_lattice() -> tuple:
-    """The kernels' ``lat`` of no lattice (every array empty, of the types a lattice's are): what a
-    model without the zone energy passes its compiled tick."""
-    f1, i2 = np.empty(0), np.empty((0, 0), np.int64)
-    return (np.empty((0, 0, 3)), f1, f1, f1, f1, f1, f1, f1, f1, np.empty((0, 0)), np.empty((0, 0)), i2, i2,
-            np.empty(0, np.int64), np.empty((0, 3)), f1, np.empty((0, 2, 2, 6)), np.zeros(1, np.int64),
-            np.full(1, -np.inf), np.full(3 + Z_SIZE, np.nan), np.empty((0, 3, 3)), np.empty(0))
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:
