@@ -505,7 +505,8 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
         state[t], state[t + 1], state[t + 2] = cx + lift * nx, cy + lift * ny, cz + lift * nz
     zone = np.empty(ze.Z_SIZE)
     if k < math.inf:
-        ze.zone_proxy_kernel(lat, cx, cy, cz, k, tip_radius, e_star, sigma0, h0, state[t:t + 3], zone)
+        ze.zone_proxy_kernel(lat, cx, cy, cz, k, tip_radius, e_star, sigma0, h0, state[t:t + 3], zone,
+                             ze.TRACKING_REDUCTION)
     else:
         state[t], state[t + 1], state[t + 2] = cx, cy, cz
         ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone, np.empty((0, 0)))

@@ -71,7 +71,7 @@ from arsurf._layout import Layout
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
-__all__ = ["SurfaceLattice", "TILE", "ZONE_OUT", "ZoneLaw", "lattice_for", "surface_lattice",
+__all__ = ["SurfaceLattice", "TILE", "TRACKING_REDUCTION", "ZONE_OUT", "ZoneLaw", "lattice_for", "surface_lattice",
            "zone_energy", "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
 
 #: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
@@ -96,6 +96,9 @@ PROXY_STEP = 0.05
 PROXY_TOL = 1e-6
 #: and gives up after this many steps
 PROXY_ITERATIONS = 200
+#: a haptic tick's proxy returns once a whole Newton step leaves this fraction of the gradient it
+#: started from (:func:`zone_proxy_kernel`)
+TRACKING_REDUCTION = 0.1
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
 #: and need not be finer than this fraction of its zone of interaction at zero load
@@ -401,8 +404,8 @@ def _sample_tile(lat, ti, tj, s):
 
 
 @njit(cache=True)
-def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, tip,
-                      out) -> int:
+def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, tip, out,
+                      reduction=0.0) -> int:
     r"""The tip behind a virtual coupling: from ``tip`` (3,) m (the last tick's, or a point above the
     surface), the nearest minimum of :math:`f(T) = E(T) + \tfrac12 k\lVert T - C\rVert^2`, C the
     target (cx, cy, cz) m and k the coupling ``stiffness`` (N/m), into ``tip`` in place: Newton's
@@ -412,7 +415,15 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
     (Zilles & Salisbury 1995) the tip moves from where it was and stops where the forces balance;
     on a conservative E it settles, and a snap is its minimum ending. ``out`` (:data:`ZONE_OUT`): E
     (J) and F (N) at the tip. Returns the iterations (negative: not converged in
-    :data:`PROXY_ITERATIONS`)."""
+    :data:`PROXY_ITERATIONS`).
+
+    ``reduction`` > 0: it also returns, unconverged, once a whole Newton step (neither capped nor
+    halved) has brought the gradient below ``reduction`` of its size at the start. A haptic loop
+    passes :data:`TRACKING_REDUCTION`: the tip tracks its minimum, a target moving less than a
+    step a tick costs one sum a tick (the one at the step's end: the start's is remembered), the
+    tip lags its minimum by at most that fraction of one tick's motion, and the next tick takes
+    the rest of the way; an approach, a snap or a jump of the target still runs within the tick.
+    Every step lowers f."""
     work, memo, trial = lat[L_WORK], lat[L_MEMO], lat[L_TRIAL]
     hess, trial_hess = work[0], work[1]  # each trial's Hessian: an accepted step needs no sum again
     tol = PROXY_TOL * stiffness * radius
@@ -425,18 +436,23 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
                 hess[q, r] = work[2, q, r]
     else:
         zone_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
-        _remember(lat, tip, out, hess)
+        _remember(memo, work, tip, out, hess)
     value = out[Z_ENERGY] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
+    start = math.nan
     for it in range(PROXY_ITERATIONS):
         gx = -out[Z_FORCE] + stiffness * (tip[0] - cx)
         gy = -out[Z_FORCE + 1] + stiffness * (tip[1] - cy)
         gz = -out[Z_FORCE + 2] + stiffness * (tip[2] - cz)
-        if math.sqrt(gx * gx + gy * gy + gz * gz) <= tol:
+        norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+        if norm <= tol:
             return it
+        if it == 0:
+            start = norm
         for q in range(3):
             hess[q, q] += stiffness
         sx, sy, sz = _solve3(hess, -gx, -gy, -gz)
-        if not (sx * gx + sy * gy + sz * gz < 0.0):  # not a descent direction: down the gradient
+        newton = sx * gx + sy * gy + sz * gz < 0.0
+        if not newton:  # not a descent direction: down the gradient
             sx, sy, sz = -gx / stiffness, -gy / stiffness, -gz / stiffness
         size = math.sqrt(sx * sx + sy * sy + sz * sz)
         if size > cap:
@@ -455,18 +471,26 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
             return -(it + 1)  # no step lowers f: at its floating-point floor
         tip[0], tip[1], tip[2] = px, py, pz
         value = f
-        out[:] = trial
-        hess[:, :] = trial_hess
-        _remember(lat, tip, out, hess)
+        for q in range(Z_SIZE):
+            out[q] = trial[q]
+        _remember(memo, work, tip, out, trial_hess)
+        for q in range(3):
+            for r in range(3):
+                hess[q, r] = trial_hess[q, r]
+        if newton and t == 1.0 and size <= cap and reduction > 0.0:
+            gx = -out[Z_FORCE] + stiffness * (tip[0] - cx)
+            gy = -out[Z_FORCE + 1] + stiffness * (tip[1] - cy)
+            gz = -out[Z_FORCE + 2] + stiffness * (tip[2] - cz)
+            if gx * gx + gy * gy + gz * gz <= (reduction * start) ** 2:
+                return it + 1
     return -PROXY_ITERATIONS
 
 
 @njit(cache=True, inline="always")
-def _remember(lat, tip, out, hess):
-    """E, F and the Hessian at ``tip`` kept in the lattice (``L_MEMO`` and the third matrix of
-    ``L_WORK``): the next :func:`zone_proxy_kernel` call that starts there needs no sum. Exact: the
-    energy is one function of the tip (the lattice's samples never change)."""
-    memo, work = lat[L_MEMO], lat[L_WORK]
+def _remember(memo, work, tip, out, hess):
+    """E, F and the Hessian at ``tip`` kept in the lattice's ``memo`` (``L_MEMO``) and the third
+    matrix of its ``work`` (``L_WORK``): the next :func:`zone_proxy_kernel` call that starts there
+    needs no sum. Exact: the energy is one function of the tip (the lattice's samples never change)."""
     memo[0], memo[1], memo[2] = tip[0], tip[1], tip[2]
     for q in range(Z_SIZE):
         memo[3 + q] = out[q]

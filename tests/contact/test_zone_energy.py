@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_MEMO, L_US, L_VS, TILE, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
+from arsurf.contact.zone_energy import (L_MEMO, L_US, L_VS, PROXY_TOL, TILE, TRACKING_REDUCTION, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
                                         zone_energy,
                                         zone_energy_kernel, zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
@@ -136,6 +136,33 @@ def test_the_proxy_started_where_it_ended_reads_its_memo_and_moves_as_from_a_fre
     (n1, t1, o1), (n2, t2, o2) = results
     assert n1 == n2 > 0 and np.array_equal(t1, t2) and np.array_equal(o1, o2)
     assert not np.array_equal(t1, tip)  # it moved
+
+
+def test_tracking_the_proxy_leaves_a_tenth_of_the_gradient_a_tick_and_converges_at_rest(rough_surface):
+    """A haptic tick's proxy (reduction TRACKING_REDUCTION) from a converged tip, the target moved
+    0.2 nm across a rough surface: it returns after whole steps that left at most a tenth of the
+    gradient it started from; ticks at the same target then take it to the minimum the
+    converging proxy finds (to the tolerance's nanometre fraction)."""
+    lattice = lattice_for(rough_surface, R, LAW.interaction_range)
+    k = 5.0
+    target = np.array([16e-9, 16e-9, top(rough_surface, lattice) + R - 3e-9])
+    tip, out = target + [0.0, 0.0, 4e-9], ZONE_OUT.zeros()
+    assert zone_proxy_kernel(*lattice.kernel_args(), *target, k, *LAW.args, tip, out) > 0  # converged
+
+    def gradient(t, o, c):
+        return np.linalg.norm(k * (t - c) - o[Z_FORCE:Z_FORCE + 3])
+
+    moved = target + [0.2e-9, 0.0, 0.0]
+    before = gradient(tip, out, moved)
+    converging = zone_proxy_kernel(*lattice.kernel_args(), *moved, k, *LAW.args, tip.copy(), out.copy())
+    steps = zone_proxy_kernel(*lattice.kernel_args(), *moved, k, *LAW.args, tip, out, TRACKING_REDUCTION)
+    assert 0 < steps < converging and gradient(tip, out, moved) <= TRACKING_REDUCTION * before
+    for _ in range(20):
+        zone_proxy_kernel(*lattice.kernel_args(), *moved, k, *LAW.args, tip, out, TRACKING_REDUCTION)
+    full, full_out = tip.copy(), out.copy()
+    zone_proxy_kernel(*lattice.kernel_args(), *moved, k, *LAW.args, full, full_out)  # converging: no further step
+    assert np.linalg.norm(full - tip) <= 1e-6 * R
+    assert gradient(tip, out, moved) <= PROXY_TOL * k * R
 
 
 @pytest.fixture(scope="module")
