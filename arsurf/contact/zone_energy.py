@@ -98,7 +98,7 @@ PROXY_TOL = 1e-6
 PROXY_ITERATIONS = 200
 #: a haptic tick's proxy returns once a whole Newton step leaves this fraction of the gradient it
 #: started from (:func:`zone_proxy_kernel`)
-TRACKING_REDUCTION = 0.1
+TRACKING_REDUCTION = 0.01
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
 #: and need not be finer than this fraction of its zone of interaction at zero load
