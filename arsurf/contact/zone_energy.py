@@ -271,7 +271,6 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                         if dx * dx + dy * dy >= near * near:
                             continue
                         near += WINDOW_SLACK * (near + abs(tx) + abs(ty))  # a sample's x, y: its row's, column's
-
                         jb0, jb1 = max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)
                         for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
                             dx = abs(tx - xs[i])
