@@ -222,7 +222,7 @@ def _first_at_least(xs, x):
 def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
     r"""E(T) and F(T) of the module docstring at T = (tx, ty, tz) (m) over the lattice ``lat``
     (:attr:`SurfaceLattice.arrays`: its tiles in reach are sampled the first time they are needed,
-    :func:`_tile_slot`). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of
+    :func:`_held_slot`, :func:`_take_slot`). Writes ``out`` (:data:`ZONE_OUT`): E (J) and F (N); returns the number of
     samples within reach (g < h0). ``hess`` (3, 3), unless empty, gets E's Hessian (N/m),
     :math:`\sum_k A_k [-p'(g_k)\,\nabla g_k \nabla g_k^T - p(g_k)\,\nabla^2 g_k]`,
     with :math:`-g` held at least :data:`HESSIAN_FLOOR` h0 in the repulsion's
