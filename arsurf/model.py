@@ -57,12 +57,12 @@ from arsurf.contact import jump_blend as jb
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
 from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
-                                         local_contact_kernel, local_pull_off_kernel)
+                                         local_law_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact import zone_energy as ze
 from arsurf.contact.side import keep_side_kernel
 from arsurf.contact.zone_normal import zone_normal_kernel
-from arsurf.contact.maugis_dugdale import (A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
+from arsurf.contact.maugis_dugdale import (MD_ARGS, A_DELTA_FOLD, A_DEPTH_SCALE, A_LAMBDA, A_LOAD_SCALE, A_RADIUS_SCALE,
                                            A_T_FOLD, MaugisDugdale, md_zone_from_depth_kernel, md_zone_radius)
 from arsurf.contact.newton import EVALUATION_ROWS
 from arsurf.contact.proxy import MD_MEMO, MEMO_SIZE, coupled_depth_kernel
@@ -141,12 +141,15 @@ F_PERIOD = PROXY_PARAMS.offset("tick_period")
 #: the tick's scratch vector: the friction proxy's output (:data:`arsurf.contact.friction.FRICTION_OUT`),
 #: then the measured force's (:data:`arsurf.force.decoupling.MEASURED_SCRATCH`, whose first field is
 #: the blend, a decoupling output), in one place; the model state and the dent record from before
-#: the tick, which a jump tick is run again from (:mod:`arsurf.contact.jump_blend`)
+#: the tick, which a jump tick is run again from (:mod:`arsurf.contact.jump_blend`); the zone energy's
+#: output (:data:`arsurf.contact.zone_energy.ZONE_OUT`) and the contacts' discovery's work
 TICK_SCRATCH = Layout("tick scratch", [("outputs", max(fr.FRICTION_OUT.size, MEASURED_SCRATCH.size)),
-                                       ("saved_state", MODEL_STATE.size), ("saved_dent", DENT_SIZE)])
+                                       ("saved_state", MODEL_STATE.size), ("saved_dent", DENT_SIZE),
+                                       ("zone", ze.Z_SIZE), ("discovery", mc.DISCOVERY_WORK)])
 SCRATCH_SIZE = TICK_SCRATCH.size
 _MEASURED = TICK_SCRATCH.offset("outputs") + MEASURED_SCRATCH.offset("blend")
 _SAVED_STATE, _SAVED_DENT = TICK_SCRATCH.offset("saved_state"), TICK_SCRATCH.offset("saved_dent")
+_ZONE, _DISCOVERY = TICK_SCRATCH.offset("zone"), TICK_SCRATCH.offset("discovery")
 #: the margin m of the contacts' weights, in Maugis-Dugdale depth scales: a contact counts fully once the
 #: pass between it and the closest point is m higher than it (:mod:`arsurf.contact.multi_contact`); contacts
 #: are followed down to m below the jump-out depth
@@ -161,6 +164,8 @@ MIN_SLIP_HORIZONTAL = 1e-3
 #: angles as well. The loop's configured photodiode noise replaces it when the loop synthesises the
 #: signals (metadata ``haptics.signal_noise``; 0 declares noise-free signals).
 DEFAULT_SIGNAL_NOISE = 1e-7
+#: the Maugis-Dugdale kernel arguments' length (a law in the contact vector)
+_MD_SIZE = MD_ARGS.size
 
 
 @njit(cache=True, inline="always")
@@ -271,21 +276,23 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
     keep_side_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, prev_u, prev_v, state, S_SIDE, coll)
     state[S_HINT_U], state[S_HINT_V] = coll[pj.OUT_U], coll[pj.OUT_V]
     # the contact law where the tip touches: a material map's local E* and w, else the reference
-    md, stiffness, jump_out, zero_load, local = local_contact_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
+    at, stiffness, jump_out, zero_load, local = local_law_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
+    md = md_args[at:at + _MD_SIZE]
     if local:
-        friction = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
-                                       local_pull_off_kernel(md_args, md))
+        f0 = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
+                                 local_pull_off_kernel(md_args, md))
+        friction = md_args[f0:f0 + friction.size]
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
     floor = friction[F_JUMP_OUT] - margin
     if zone_energy is not None:  # the energy of the whole tip (arsurf.contact.zone_energy): one contact
         _copy_collision(coll, out)
         count = 1
         md_st, a, load, depth, rx, ry, rz = _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state,
-                                                          coll, out)
+                                                          coll, scratch, out)
     else:
         count, md_st, a, load, depth, rx, ry, rz = _contacts_at_minima(
             live_rest, ku, kv, ev, md, friction, tip_radius, floor, margin, prev_u, prev_v, cx, cy, cz, state, coll,
-            out)
+            scratch, out)
     nx, ny, nz = out[M_NX], out[M_NY], out[M_NZ]
     if a > SMALL_CONTACT_LIMIT * tip_radius:  # the law assumes a << R (contact.mechanics.SMALL_CONTACT_LIMIT)
         out[M_MODEL_FLAGS] = BEYOND_MODEL
@@ -329,7 +336,7 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
 
 @njit(cache=True, inline="always")
 def _contacts_at_minima(live_rest, ku, kv, ev, md, friction, tip_radius, floor, margin, prev_u, prev_v, cx, cy, cz,
-                        state, coll, out):
+                        state, coll, scratch, out):
     """Steps 1-2 of the tick past the collision with the contacts at the minima of the distance
     (:mod:`arsurf.contact.multi_contact`): writes the collision, the total normal, the tip, depth,
     radius, status and load into ``out``; returns ``(count, status, a, load, depth)`` and the part of
@@ -355,7 +362,7 @@ def _contacts_at_minima(live_rest, ku, kv, ev, md, friction, tip_radius, floor, 
                        coll[pj.OUT_U], coll[pj.OUT_V], coll[pj.OUT_NX:pj.OUT_NX + 3])
     # every local minimum of the distance in reach: a tip wider than a valley rests on several asperities
     count = mc.find_contacts_kernel(live_rest, ku, kv, ev, cx, cy, cz, tip_radius, floor, margin, prev_u, prev_v,
-                                    state, S_CONTACTS, coll)
+                                    state, S_CONTACTS, coll, scratch[_DISCOVERY:_DISCOVERY + mc.DISCOVERY_WORK])
     _copy_collision(coll, out)
     if count > 1:  # weighed (minima inside the closest contact's disc are one contact); the tip moves
         # behind the coupling along the total normal; each contact pushes along the resultant over its zone
@@ -421,16 +428,15 @@ def _forget_contact(state):
 def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load, pull_off):
     """The proxy parameters under a material map's local law: the model's, with the local
     tangential stiffness, the local jump-out and zero-load depths and pull-off force magnitude,
-    written in the contact vector's scratch section."""
+    written in the contact vector's scratch section; returns their offset there."""
     f0 = int(md_args[H_FRICTION])
-    local = md_args[f0:f0 + friction.size]
     for k in range(friction.size):
-        local[k] = friction[k]
-    local[F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
-    local[F_JUMP_OUT] = jump_out
-    local[F_ZERO_LOAD] = zero_load
-    local[F_PULL_OFF] = pull_off
-    return local
+        md_args[f0 + k] = friction[k]
+    md_args[f0 + F_KT_PER_A] = friction[F_KT_PER_A] * stiffness
+    md_args[f0 + F_JUMP_OUT] = jump_out
+    md_args[f0 + F_ZERO_LOAD] = zero_load
+    md_args[f0 + F_PULL_OFF] = pull_off
+    return f0
 
 
 @njit(cache=True)
@@ -482,7 +488,7 @@ def _record_contact(tx, ty, tz, coupled, tip_radius, depth, md_st, a, load, stat
 
 
 @njit(cache=True)
-def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll, out):
+def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll, scratch, out):
     r"""Step 2 with the energy of the whole tip (:mod:`arsurf.contact.zone_energy`; ``zone_energy``
     its ``(lattice, (E*, sigma0, h0))``): the tip behind the coupling moved from where it was (the
     state's; at first the target, or out along the normal from the closest point when the target is
@@ -503,13 +509,14 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
     if not math.isfinite(state[t]):  # from outside the material
         lift = 0.0 if coll[pj.OUT_DISTANCE] >= tip_radius else tip_radius + h0 - coll[pj.OUT_DISTANCE]
         state[t], state[t + 1], state[t + 2] = cx + lift * nx, cy + lift * ny, cz + lift * nz
-    zone = np.empty(ze.Z_SIZE)
+    zone = scratch[_ZONE:_ZONE + ze.Z_SIZE]
     if k < math.inf:
         ze.zone_proxy_kernel(lat, cx, cy, cz, k, tip_radius, e_star, sigma0, h0, state[t:t + 3], zone,
                              ze.TRACKING_REDUCTION)
     else:
         state[t], state[t + 1], state[t + 2] = cx, cy, cz
-        ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone, np.empty((0, 0)))
+        ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone,
+                              scratch[_ZONE:_ZONE].reshape((0, 0)))  # no Hessian
     fx, fy, fz = zone[ze.Z_FORCE], zone[ze.Z_FORCE + 1], zone[ze.Z_FORCE + 2]
     reached = fx != 0.0 or fy != 0.0 or fz != 0.0
     if not reached:  # out of reach: the coupled minimum is the target itself, exactly

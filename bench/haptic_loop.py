@@ -168,6 +168,7 @@ def tick_parts(model: ARModel, points) -> dict:
 
     a = dict(zip(am.MODEL_ARGS, model.kernel_args()))
     state, coll, ev, fr = a["model_state"], a["coll"], a["ev"], a["friction"]
+    work = np.empty(mc.DISCOVERY_WORK)
     rest, ku, kv, law, r = a["live_rest"], a["ku"], a["kv"], model.contact.kernel_args, model.tip_radius
     m = am.CONTACT_MARGIN * law[0]
     t = {k: [] for k in ("tick", "collision", "find_contacts", "weigh_contacts", "lift", "sideways_step")}
@@ -186,7 +187,7 @@ def tick_parts(model: ARModel, points) -> dict:
         x, y, z = (float(v) for v in p)
         timed("collision", pj.collide_any, a["proj"], x, y, z, r, state[am.S_HINT_U], state[am.S_HINT_V], coll)
         n = timed("find_contacts", mc.find_contacts_kernel, rest, ku, kv, ev, x, y, z, r, fr[am.F_JUMP_OUT] - m, m,
-                  state[am.S_HINT_U], state[am.S_HINT_V], state, S_CONTACTS, coll)
+                  state[am.S_HINT_U], state[am.S_HINT_V], state, S_CONTACTS, coll, work)
         zone = md_zone_from_depth_kernel(coll[pj.OUT_DEPTH], *law)
         timed("weigh_contacts", mc.weigh_contacts_kernel, rest, ku, kv, ev, x, y, z, r, m, zone, fr[am.F_JUMP_OUT],
               state, S_CONTACTS, n)

@@ -94,6 +94,7 @@ __all__ = [
     "field_values",
     "contact_vector",
     "local_contact_kernel",
+    "local_law_kernel",
     "material_map_from_file",
     "mechanical_channels",
 ]
@@ -251,14 +252,23 @@ def local_contact_kernel(cv, u, v):
     to a = 0, the fold is left to :func:`~arsurf.contact.maugis_dugdale.md_solve_depth` (found when
     a depth needs it) and the jump-out depth is bounded by ``FOLD_LOWER_BOUND``.
     """
+    at, ratio, jump, zero, here = local_law_kernel(cv, u, v)
+    return cv[at:at + _MD_SIZE], ratio, jump, zero, here
+
+
+@njit(cache=True)
+def local_law_kernel(cv, u, v):
+    """:func:`local_contact_kernel` with the law's offset in ``cv`` in place of the law itself
+    (:data:`C_REF` or :data:`C_LOCAL`): no array returned, so a caller compiled without reference
+    counts (the tick, docs/kernels.rst) can call it."""
     ref = cv[C_REF:C_REF + _MD_SIZE]
     if cv[H_ON] == 0.0:
-        return ref, 1.0, 0.0, 0.0, False
+        return C_REF, 1.0, 0.0, 0.0, False
     le, lw = _field_pair(cv, u - cv[H_X0], v - cv[H_Y0])
     le = min(max(le, cv[H_LO_E]), cv[H_HI_E]) + cv[H_OFF_E]
     lw = min(max(lw, cv[H_LO_W]), cv[H_HI_W]) + cv[H_OFF_W]
     if le == 0.0 and lw == 0.0:
-        return ref, 1.0, 0.0, 0.0, False
+        return C_REF, 1.0, 0.0, 0.0, False
     local = cv[C_LOCAL:C_LOCAL + _MD_SIZE]
     c1 = math.exp((lw - le) / 3.0)   # (r_w / r_E)^(1/3)
     c2 = c1 * c1
@@ -284,7 +294,7 @@ def local_contact_kernel(cv, u, v):
         local[A_T_FOLD] = math.nan  # the fold, found by md_solve_depth if a depth below Delta0 needs it
         local[A_DELTA_FOLD] = d0
         jump = FOLD_LOWER_BOUND
-    return local, math.exp(le), jump * local[A_DEPTH_SCALE], zero * local[A_DEPTH_SCALE], True
+    return C_LOCAL, math.exp(le), jump * local[A_DEPTH_SCALE], zero * local[A_DEPTH_SCALE], True
 
 
 def critical_point_table(lam_lo: float, lam_hi: float) -> tuple[np.ndarray, float, float]:

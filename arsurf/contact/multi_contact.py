@@ -309,6 +309,9 @@ DISCOVERY_STARTS = 12
 #: ... taken in order of distance from this many of the closest minima, passing over those next to a
 #: contact already in the table
 DISCOVERY_CANDIDATES = 48
+#: the discovery's scratch (:func:`find_contacts_kernel`'s ``work``): the nodes' squared distances,
+#: then the candidates' (distance, a, b)
+DISCOVERY_WORK = DISCOVERY_NODES + 3 * DISCOVERY_CANDIDATES
 #: a discovery start's Newton stays within this many knot spacings of it (in u and v): the net's
 #: minimum stands for the surface's minimum next to it, not for one Newton's path reaches farther away
 START_REACH = 2.0
@@ -319,12 +322,13 @@ SCAN_EVERY = 4.0
 
 
 @njit(cache=True)
-def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
+def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count, work):
     """Add the contacts Newton finds from the local minima of the control net's distance to the tip
     centre within reach (module docstring, "Finding the contacts"): control point (i, j) stands
     at its Greville abscissae, where the undeformed surface passes near it; of the
     :data:`DISCOVERY_CANDIDATES` closest of those minima, in order, those not next to a contact in
-    the table (within one node) are run, :data:`DISCOVERY_STARTS` at most. Returns the new count."""
+    the table (within one node) are run, :data:`DISCOVERY_STARTS` at most; ``work`` holds
+    :data:`DISCOVERY_WORK` floats. Returns the new count."""
     nu = ctrl.shape[0]
     nv = ctrl.shape[1]
     reach = radius - floor + 2.0 * h
@@ -341,22 +345,25 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
         stride += 1
     ni = (i1 - i0) // stride + 1
     nj = (j1 - j0) // stride + 1
-    d2 = np.empty((ni, nj))
-    for a in range(ni):
+    for a in range(ni):  # work[a nj + b]: node (a, b)'s squared distance
         for b in range(nj):
             i = i0 + a * stride
             j = j0 + b * stride
             dx = ctrl[i, j, 0] - cx
             dy = ctrl[i, j, 1] - cy
             dz = ctrl[i, j, 2] - cz
-            d2[a, b] = dx * dx + dy * dy + dz * dz
-    best_d = np.full(DISCOVERY_CANDIDATES, np.inf)
-    best_a = np.zeros(DISCOVERY_CANDIDATES, np.int64)
-    best_b = np.zeros(DISCOVERY_CANDIDATES, np.int64)
+            work[a * nj + b] = dx * dx + dy * dy + dz * dz
+    best_d = work[DISCOVERY_NODES:DISCOVERY_NODES + DISCOVERY_CANDIDATES]
+    best_a = work[DISCOVERY_NODES + DISCOVERY_CANDIDATES:DISCOVERY_NODES + 2 * DISCOVERY_CANDIDATES]
+    best_b = work[DISCOVERY_NODES + 2 * DISCOVERY_CANDIDATES:DISCOVERY_WORK]
+    for k in range(DISCOVERY_CANDIDATES):
+        best_d[k] = math.inf
+        best_a[k] = 0.0
+        best_b[k] = 0.0
     r2 = reach * reach
     for a in range(ni):
         for b in range(nj):
-            d = d2[a, b]
+            d = work[a * nj + b]
             if not d <= r2:
                 continue
             low = True
@@ -364,7 +371,7 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
                 for db in range(-1, 2):
                     if (da == 0 and db == 0) or not (0 <= a + da < ni and 0 <= b + db < nj):
                         continue
-                    e = d2[a + da, b + db]
+                    e = work[(a + da) * nj + b + db]
                     if e < d or (e == d and (da < 0 or (da == 0 and db < 0))):
                         low = False
             if not low:
@@ -384,8 +391,8 @@ def _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count):
     for k in range(DISCOVERY_CANDIDATES):
         if runs == DISCOVERY_STARTS or not math.isfinite(best_d[k]):
             break
-        u = greville_at(ku, i0 + best_a[k] * stride)
-        v = greville_at(kv, j0 + best_b[k] * stride)
+        u = greville_at(ku, i0 + int(best_a[k]) * stride)
+        v = greville_at(kv, j0 + int(best_b[k]) * stride)
         followed = False
         for i in range(count):  # a node next to a contact in the table is that contact's: no run
             r = _row(at, i)
@@ -424,14 +431,15 @@ def pair_weight(own, other, margin):
 
 
 @njit(cache=True)
-def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, prev_u, prev_v, tab, at, coll):
+def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, prev_u, prev_v, tab, at, coll, work):
     """Fill the contact table ``tab[at:at + TABLE_SIZE]`` (:data:`CONTACT_TABLE`) for the tip
     centre (cx, cy, cz) of radius ``radius`` (m): row 0 the collision answer ``coll``
     (:data:`~arsurf.contact.layout.COLLISION_OUT`), then the other local minima of the distance
     deeper than ``floor`` (m; the law's interaction floor), row 0 with weight 1 and the others 0
     (their weights: :func:`weigh_contacts_kernel`; ``margin`` m sets how often the net is
     scanned, :data:`SCAN_EVERY`). ``ctrl, ku, kv``: the rest net; ``ev`` (>= 6, 3) scratch;
-    ``prev_u, prev_v`` the previous closest point (NaN: none).
+    ``prev_u, prev_v`` the previous closest point (NaN: none); ``work`` (:data:`DISCOVERY_WORK`)
+    scratch.
 
     Returns the number of contacts."""
     h = max(ku[4] - ku[3], kv[4] - kv[3])
@@ -468,7 +476,7 @@ def find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, margin, pr
         s0 = at + T_SCANNED
         since = math.sqrt((cx - tab[s0]) ** 2 + (cy - tab[s0 + 1]) ** 2 + (cz - tab[s0 + 2]) ** 2)
         if old == 0 or not since < SCAN_EVERY * margin:
-            count = _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count)
+            count = _discover(ctrl, ku, kv, ev, cx, cy, cz, radius, floor, h, tab, at, count, work)
             tab[s0] = cx
             tab[s0 + 1] = cy
             tab[s0 + 2] = cz

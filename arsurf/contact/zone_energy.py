@@ -111,7 +111,7 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
- L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL) = range(22)
+ L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV) = range(23)
 
 
 @dataclass(frozen=True)
@@ -381,7 +381,7 @@ def _sample_tile(lat, ti, tj, s):
     blocks' bounding boxes into pool slot ``s`` (a block past the lattice's edge gets an empty box)."""
     ctrl, ku, kv, us, vs = lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_US], lat[L_VS]
     wu, wv, pts, ar, box = lat[L_WU], lat[L_WV], lat[L_PTS], lat[L_AR], lat[L_BOX]
-    ev = np.empty((6, 3))
+    ev = lat[L_EV]
     box[s, :, :, :3] = math.inf
     box[s, :, :, 3:] = -math.inf
     for a in range(TILE):
@@ -521,7 +521,8 @@ class SurfaceLattice:
     ``L_*`` indices): the rest net and its knots, the lattice's u and v, its rows' x and columns' y
     (m), the trapezoidal weights along u and v, each tile's height bounds (m), the pool of
     sampled tiles (points m, projected areas m^2, blocks' boxes m) with its bookkeeping, the
-    highest bound (m), and the proxy's memo and scratch (:func:`_remember`). ``shape`` is the
+    highest bound (m), the proxy's memo and scratch (:func:`_remember`) and the sampling's (a tile
+    is sampled without allocating, in the tick). ``shape`` is the
     lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
     arrays: tuple
@@ -580,7 +581,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty((pool, 2, 2, 6)),
               np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan), np.empty((3, 3, 3)),
-              np.empty(Z_SIZE))
+              np.empty(Z_SIZE), np.empty((6, 3)))
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 
 

@@ -140,13 +140,14 @@ def test_the_collision_s_warm_record_stands_for_newton_from_the_previous_point(k
                             48e-9 + np.cumsum(rng.normal(0.0, 0.05e-9, 600)),
                             R + 2.5e-9 + 0.3e-9 * np.sin(np.arange(600) / 17.0)])
     pu = pv = np.nan
+    work = np.empty(mc.DISCOVERY_WORK)
     counts, closest = [], []
     for cx, cy, cz in walk:
         assert collide_any(proj, cx, cy, cz, R, pu, pv, coll) >= 0
         hidden = coll.copy()
         hidden[ly.OUT_WARM_U] = hidden[ly.OUT_WARM_V] = np.nan
-        a = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, fast, 0, coll)
-        b = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, slow, 0, hidden)
+        a = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, fast, 0, coll, work)
+        b = mc.find_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, -2e-9, 0.1e-9, pu, pv, slow, 0, hidden, work)
         assert a == b
         for tab in (fast, slow):
             mc.weigh_contacts_kernel(ctrl, ku, kv, ev, cx, cy, cz, R, 0.1e-9, 0.0, -1.9e-9, tab, 0, a)
