@@ -209,7 +209,7 @@ def _to_run_again(scratch, state) -> bool:
         and math.isfinite(jb.last_target(scratch, _SAVED_STATE + S_JUMPS)[0]))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _run_again(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
                deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out, steps):
     """The tick to ``(cx, cy, cz)`` in ``steps`` ticks of the target's straight path from the last
@@ -248,7 +248,7 @@ def _copy(src, i, dst, j, size):
         dst[j + m] = src[i + m]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_args, dec_params, tip_radius, friction,
                      deform, cx, cy, cz, bending, torsion, signal_mode, state, coll, scratch, ev, out):
     """One model tick for the target tip centre ``(cx, cy, cz)`` (module docstring, steps 1-4);
@@ -424,7 +424,7 @@ def _forget_contact(state):
         state[S_ZONE_TIP + j] = math.nan
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load, pull_off):
     """The proxy parameters under a material map's local law: the model's, with the local
     tangential stiffness, the local jump-out and zero-load depths and pull-off force magnitude,

@@ -225,7 +225,7 @@ def _no_local_minimum_at(ev, su, sv, du, dv, kuu0, kuu1, kuv0, kuv1, kvv0, kvv1,
     return bound < -1e-9 * jw * jw
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _piece_memo(ctrl, ku, kv, work, e, node, pid, version, tree_id, nx, ny, nz, u0, u1, v0, v1):
     """The row of piece ``pid`` of cell ``node`` in the piece memo of ``work`` (layout.py), filled
     first if absent: :func:`net_curvature` of its net ``work[e:e+16]`` along the cell normal n,
@@ -253,7 +253,7 @@ def _piece_memo(ctrl, ku, kv, work, e, node, pid, version, tree_id, nx, ny, nz, 
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _search_subdivided(ctrl, ku, kv, mu, mv, nodes, node, work, a, b, cx, cy, cz, bu, bv, bd2, bconv,
                        lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Closest point in knot cell (a, b) when D is not certified convex there.
@@ -393,7 +393,7 @@ def _finish(ev, cx, cy, cz, u, v, out):
     return status
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _visit_leaf(ctrl, ku, kv, mu, mv, nodes, curv, nj0, work, node, near2, far2, lift, cx, cy, cz,
                 bu, bv, bd2, bconv, bi, bj, lo_u, hi_u, lo_v, hi_v, tol_u, tol_v, h):
     """Search knot cell ``node`` (a leaf of the pyramid) for a point closer than the best.
@@ -539,7 +539,7 @@ def sort_candidates(work, first, n, scratch):
         work[b + 1, 1] = kd
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, hint_u, hint_v, out):
     """Global closest point of the surface to (cx, cy, cz); writes ``out`` (OUT_SIZE,), returns a status.
 
@@ -750,7 +750,7 @@ def project_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, 
     return status
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def collide_kernel(ctrl, ku, kv, mu, mv, nodes, curv, levels, work, cx, cy, cz, radius, hint_u, hint_v, out):
     """Tip sphere (centre, radius) against the surface: :func:`project_kernel` plus the depth.
 
@@ -807,7 +807,7 @@ def _tile_span(grid, ti, tj):
     return i0, j0, min(t, grid[G_NCU] - i0), min(t, grid[G_NCV] - j0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def build_tile(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, tile_slot, slot_info, ti, tj):
     """Build the hull pyramid of tile (ti, tj) into a slot of the pool (the least recently used
     one when the pool is full, whose tile is forgotten); returns the slot, or -1 - slot when the
@@ -874,7 +874,7 @@ def _lateral2(ku, kv, grid, ti, tj, slack, cx, cy):
     return dx * dx + dy * dy
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def tiled_project_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
                          slot_info, tmp, cx, cy, cz, hint_u, hint_v, out):
     """:func:`project_kernel` over a surface cut into tiles whose pyramids are built on demand.
@@ -991,7 +991,7 @@ def _inside_tile(ku, kv, i0, j0, ni, nj, ncu, ncv, u, v) -> bool:
             and (lo_v < v or (j0 == 0 and lo_v <= v)) and (v < hi_v or (j0 + nj == ncv and v <= hi_v)))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def tiled_collide_kernel(ctrl, ku, kv, mu, mv, pnodes, pcurv, plevels, pwork, prows, bez, grid, slack, tile_slot,
                          slot_info, tmp, cx, cy, cz, radius, hint_u, hint_v, out):
     """:func:`collide_kernel` on a tiled projector (:func:`tiled_project_kernel`)."""
@@ -1012,7 +1012,7 @@ def collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
     return tiled_collide_kernel(*proj, cx, cy, cz, radius, hint_u, hint_v, out)
 
 
-@overload(collide_any, jit_options={"cache": True})
+@overload(collide_any, jit_options={"cache": True, "_nrt": False})
 def _collide_any(proj, cx, cy, cz, radius, hint_u, hint_v, out):
     if len(proj) == 9:
         def one(proj, cx, cy, cz, radius, hint_u, hint_v, out):
@@ -1032,7 +1032,7 @@ def project_any(proj, cx, cy, cz, hint_u, hint_v, out):
     return tiled_project_kernel(*proj, cx, cy, cz, hint_u, hint_v, out)
 
 
-@overload(project_any, jit_options={"cache": True})
+@overload(project_any, jit_options={"cache": True, "_nrt": False})
 def _project_any(proj, cx, cy, cz, hint_u, hint_v, out):
     if len(proj) == 9:
         def one(proj, cx, cy, cz, hint_u, hint_v, out):

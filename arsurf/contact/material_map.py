@@ -256,7 +256,7 @@ def local_contact_kernel(cv, u, v):
     return cv[at:at + _MD_SIZE], ratio, jump, zero, here
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def local_law_kernel(cv, u, v):
     """:func:`local_contact_kernel` with the law's offset in ``cv`` in place of the law itself
     (:data:`C_REF` or :data:`C_LOCAL`): no array returned, so a caller compiled without reference
