@@ -195,10 +195,12 @@ def test_axes_and_force_sign_at_rest(sim):
         s = dev.read_state()
         np.testing.assert_allclose(s.position, [0.020, -0.010, -0.005], atol=1e-6)
         push = np.array([1.0, 0.0, 0.0])
-        sched = Scheduler(lambda st, inputs, dt: push, None, rate=1000.0, source=dev.read_state,
-                          sink=dev.command_force)
+        read = []  # the handle as the loop read it, under the push: once the loop stops nothing commands
+        # the force, and a stop that outlasts the firmware's 20 ms watchdog (29 ms measured) turns it off
+        sched = Scheduler(lambda st, inputs, dt: push, None, rate=1000.0,
+                          source=lambda: read.append(dev.read_state()) or read[-1], sink=dev.command_force)
         sched.run_for(1.0)
-        s = dev.read_state()
+        s = read[-1]
         np.testing.assert_allclose(state(sim)["commanded"], [0.0, 1.0, 0.0])
         np.testing.assert_allclose(s.position, [0.020 + 1.0 / 200.0, -0.010, -0.005], atol=2e-4)
         assert abs(s.velocity).max() < 5e-3
