@@ -42,6 +42,8 @@ import numpy as np
 from numba import njit, typeof, types
 from numba.experimental import structref
 
+from arsurf import _structs
+
 from arsurf._layout import Layout
 from arsurf.contact.jump_blend import BLEND_TIME
 from arsurf.status import BAD_BUTTONS
@@ -108,7 +110,7 @@ LOOP_FIELDS = ("x", "v", "dt", "ext", "noise", "source", "blend", "coupling_mode
                *MODEL_ARGS, "prev_probe", "out", "check_params", "check_state", "noise_block")
 
 
-@structref.register
+@_structs.register  # the compiled tick reads its fields without counting references
 class _LoopArraysType(types.StructRef):
     def preprocess_fields(self, fields):
         return tuple((name, types.unliteral(t)) for name, t in fields)
@@ -118,7 +120,8 @@ class LoopArrays(structref.StructRefProxy):
     """The compiled tick's arrays and settings (:data:`LOOP_FIELDS`) as one numba struct, built
     once per loop: a tick from Python passes one reference instead of the ~40 arrays and settings
     (16 of them the projector's arrays; ~2 µs of unboxing per tick), and with them the sample
-    check's and the noise block's, so that a tick passes only the sample's two arrays besides."""
+    check's and the noise block's, so that a tick passes only the sample's two arrays besides.
+    The tick's kernels read its fields without counting references (:mod:`arsurf._structs`)."""
 
 
 structref.define_proxy(LoopArrays, _LoopArraysType, list(LOOP_FIELDS))
@@ -139,6 +142,13 @@ def loop_model_kernel(a, buttons):
 
     Writes ``a.out[L_PROBE:L_F_FILT]`` and ``a.mout``, sets ``a.prev_probe`` to the new probe
     position; returns the collision status."""
+    return _model_step(a, buttons)
+
+
+@njit(cache=True, _nrt=False)
+def _model_step(a, buttons):
+    """:func:`loop_model_kernel`'s work, compiled without reference counts: the entry point from Python
+    counts the struct's reference, the body reads its fields borrowed (:mod:`arsurf._structs`)."""
     out = a.out
     prev_probe = a.prev_probe
     fp_state = a.fp_state
@@ -239,7 +249,14 @@ def loop_tick_kernel(a, buttons, now, age):
     This is :func:`loop_model_kernel` followed by :func:`loop_output_kernel` (inlined): one
     compiled call from Python, while a loop with a scene calls the two halves separately around
     the scene's step."""
-    loop_model_kernel(a, buttons)
+    return _tick_step(a, buttons, now, age)
+
+
+@njit(cache=True, _nrt=False)
+def _tick_step(a, buttons, now, age):
+    """:func:`loop_tick_kernel`'s work, compiled without reference counts: the entry point from Python
+    counts the struct's reference, the body reads its fields borrowed (:mod:`arsurf._structs`)."""
+    _model_step(a, buttons)
     return loop_output_kernel(a, buttons, now, age)
 
 
@@ -266,6 +283,13 @@ def loop_sample_tick_kernel(a, position, velocity, stamp, buttons, now, row):
 
     Two arrays and four numbers per call: each array argument costs ~0.1-0.2 µs to unbox from
     Python, so everything that does not come with the sample lives in ``a``."""
+    return _sample_tick_step(a, position, velocity, stamp, buttons, now, row)
+
+
+@njit(cache=True, _nrt=False)
+def _sample_tick_step(a, position, velocity, stamp, buttons, now, row):
+    """:func:`loop_sample_tick_kernel`'s work, compiled without reference counts: the entry point from Python
+    counts the struct's reference, the body reads its fields borrowed (:mod:`arsurf._structs`)."""
     check_state = a.check_state
     bad = sample_check_step(a.check_params, check_state, position, velocity, stamp, now)
     x = a.x
@@ -284,7 +308,7 @@ def loop_sample_tick_kernel(a, position, velocity, stamp, buttons, now, row):
         noise = a.noise_block
         a.noise[0] = noise[row, 0]
         a.noise[1] = noise[row, 1]
-    loop_tick_kernel(a, buttons, now, age)
+    _tick_step(a, buttons, now, age)
     return bad
 
 

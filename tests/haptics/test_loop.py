@@ -246,3 +246,46 @@ def test_the_one_call_tick_takes_any_input_the_checked_tick_takes_bit_for_bit():
         dev.command_force(f)
     assert twin._fused is None and loop._fused is not None
     assert len(checked) == 5                                            # the first tick, 300, 301, 640, 900
+
+
+def test_the_compiled_tick_reads_the_loops_struct_without_leaving_a_reference():
+    """The loop's kernels are compiled without reference counts and read the fields of the loop's
+    struct borrowed (arsurf._structs): through both paths (the one-call tick and the checked
+    one) the struct keeps its own reference count, and NRT gives back every block and reference
+    a step takes - 300 steps take exactly 300 times what one does (the sample's two arrays)."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    def stats():
+        s = rtsys.get_allocation_stats()
+        return np.array([s.alloc, s.free, s.mi_alloc, s.mi_free])
+
+    _, _, dev, loop = _setup(source="blended", noise=1e-8, seed=2)
+
+    def checked_step():  # a strided position takes the checked path
+        st = dev.read_state()
+        strided = np.empty(6)[::2]
+        strided[:] = st.position
+        loop.step(DeviceState(strided, st.velocity.copy(), st.buttons, st.timestamp), st.timestamp)
+
+    _run(dev, loop, 5)  # both paths compiled, the entry point found
+    checked_step()
+    refs = loop._packed._meminfo.refcount
+    enabled = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        s0 = stats()
+        _run(dev, loop, 1)
+        s1 = stats()
+        _run(dev, loop, 300)
+        s2 = stats()
+        checked_step()
+        s3 = stats()
+    finally:
+        if not enabled:
+            _nrt_python.memsys_disable_stats()
+    one, many = s1 - s0, s2 - s1
+    np.testing.assert_array_equal(many, 300 * one)
+    assert many[0] == many[1] and many[2] == many[3]
+    assert (s3 - s2)[0] == (s3 - s2)[1] and (s3 - s2)[2] == (s3 - s2)[3]
+    assert loop._packed._meminfo.refcount == refs
+    assert loop.out[8:11].any()                                         # it touched

@@ -188,7 +188,7 @@ def test_the_loop_struct_is_its_one_declaration():
     src = inspect.getsource(lp)
     read = set(re.findall(r"\ba\.([a-z_]+)", src))
     assert read <= set(lp.LOOP_FIELDS), read - set(lp.LOOP_FIELDS)
-    call = re.search(r"model_tick_kernel\((.*?)\)\n", inspect.getsource(lp.loop_model_kernel), re.S).group(1)
+    call = re.search(r"model_tick_kernel\((.*?)\)\n", inspect.getsource(lp._model_step), re.S).group(1)
     names = [w.strip()[2:] for w in call.split(",") if w.strip().startswith("a.")]
     assert names == list(MODEL_ARGS)
     per_tick = ("cx", "cy", "cz", "bending", "torsion", "signal_mode")

@@ -24,7 +24,7 @@ PACKAGES = {"arsurf": ROOT / "arsurf", "arsurf_viewer": ROOT / "viewer"}
 LAYERS = [
     ("foundation", ["arsurf", "arsurf.errors", "arsurf.config", "arsurf._validation", "arsurf.status", "arsurf.data.*",
                     "arsurf._logging", "arsurf.units", "arsurf._display", "arsurf._layout", "arsurf._files",
-                    "arsurf._h5safe", "arsurf._figure_style"]),
+                    "arsurf._h5safe", "arsurf._figure_style", "arsurf._structs"]),
     ("scan", ["arsurf.scan.*"]),
     ("spline", ["arsurf.spline.*"]),
     ("meshes", ["arsurf.export", "arsurf.meshes"]),
