@@ -4,11 +4,11 @@
 typing of its fields, reading and writing them) with one difference: a function compiled with
 ``_nrt=False`` reads a field *borrowed*, without taking a reference to it. Numba's own reading
 takes one (an atomic increment, and a decrement when the field's variable dies) and needs the
-reference-counting runtime to find the struct's payload; a haptic tick reading ~45 arrays from
-its struct spent ~0.25 us a tick on those counts alone (docs/kernels.rst, "The model tick counts
-no references"). Borrowing is safe for the same reason as the rest of such a kernel: the caller
-holds the struct, and the struct its fields, for the whole call; the kernel never writes a field
-(only into the arrays the fields are).
+reference-counting runtime to find the struct's payload: 24 fields read cost ~250 ns a call in a
+micro-benchmark, and the haptic loop's tick, which reads ~45, is 0.4-0.7 us faster without
+(docs/performance.rst, "The model tick without reference counts"). Borrowing is safe for the
+same reason as the rest of such a kernel: the caller holds the struct, and the struct its fields,
+for the whole call; the kernel never writes a field (only into the arrays the fields are).
 
 The payload is found as numba finds it (``NRT_MemInfo_data_fast``): the ``data`` member of the
 MemInfo, in numba's own declaration of its layout (``numba.core.runtime.nrtdynmod``).

@@ -43,7 +43,6 @@ from numba import njit, typeof, types
 from numba.experimental import structref
 
 from arsurf import _structs
-
 from arsurf._layout import Layout
 from arsurf.contact.jump_blend import BLEND_TIME
 from arsurf.status import BAD_BUTTONS
