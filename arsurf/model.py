@@ -56,8 +56,8 @@ from arsurf.contact import friction as fr
 from arsurf.contact import jump_blend as jb
 from arsurf.contact import projection as pj
 from arsurf.contact.deformation import DENT_SIZE, record_dent_kernel
-from arsurf.contact.material_map import (H_DENT, H_FRICTION, contact_vector, deepest_well_kernel,
-                                         local_law_kernel, local_pull_off_kernel)
+from arsurf.contact.material_map import (C_REF, H_DENT, H_FRICTION, H_HI_W, H_LO_E, H_OFF_E, H_OFF_W, contact_vector,
+                                         deepest_well_kernel, local_law_kernel, local_pull_off_kernel)
 from arsurf.contact import multi_contact as mc
 from arsurf.contact import zone_energy as ze
 from arsurf.contact.side import keep_side_kernel
@@ -278,9 +278,10 @@ def _one_tick_kernel(proj, zone_energy, live_ctrl, live_rest, ku, kv, patch, md_
     # the contact law where the tip touches: a material map's local E* and w, else the reference
     at, stiffness, jump_out, zero_load, local = local_law_kernel(md_args, coll[pj.OUT_U], coll[pj.OUT_V])
     md = md_args[at:at + _MD_SIZE]
-    if local:
-        f0 = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load,
-                                 local_pull_off_kernel(md_args, md))
+    if local:  # the pull-off: the local Maugis-Dugdale law's, or the zone law's 2 pi R w with the local w
+        pull_off = local_pull_off_kernel(md_args, md) if zone_energy is None else \
+            friction[F_PULL_OFF] * md[A_LOAD_SCALE] / md_args[C_REF + A_LOAD_SCALE]
+        f0 = _local_proxy_params(md_args, friction, stiffness, jump_out, zero_load, pull_off)
         friction = md_args[f0:f0 + friction.size]
     margin = CONTACT_MARGIN * md[A_DEPTH_SCALE]
     floor = friction[F_JUMP_OUT] - margin
@@ -698,7 +699,8 @@ class ARModel:
         E*, w and Dugdale stress summed over the surface under the tip; the tip behind the
         coupling at the nearest minimum of that energy plus the coupling's, :func:`_zone_contact`)
         instead of the Maugis-Dugdale contacts at the minima of the distance. Default False
-        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default); no material map.
+        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default). With a
+        material map each surface element sums its own local law.
 
     Examples
     --------
@@ -775,15 +777,7 @@ class ARModel:
         self._proj_args = proj.kernel_args()
         if not isinstance(zone_energy, bool):
             raise ContactError(f"`zone_energy` must be True or False (got {zone_energy!r})")
-        if zone_energy and material is not None:
-            raise ContactError("the zone energy sums the reference law over the surface: it takes no material map yet")
         self.zone_energy = zone_energy
-        # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0))
-        zone_law = ze.ZoneLaw.from_law(contact)
-        self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range) \
-            if zone_energy else None
-        self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy \
-            else None
         # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level
         self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
         self._friction = PROXY_PARAMS.pack({
@@ -794,12 +788,18 @@ class ARModel:
             "pull_off_force": abs(contact.pull_off_force()),
             "shear_strength": 0.0 if shear_strength is None else shear_strength, "blend_time": 0.0,
             "blend_speed": jb.BLEND_SPEED, "tick_period": math.nan})
+        zone_law = ze.ZoneLaw.from_law(contact)
         if zone_energy:  # the friction's adhesive normal mu (P + |P_c|) with the zone law's pull-off
             self._friction[F_PULL_OFF] = zone_law.pull_off_force()
         self.material = material
         self._deepest_well = None  # the map's deepest adhesive well (J): adhesion_energy, once
         # the contact vector: reference law, material map, scratch for a local friction vector and the dent's profile
         self._md_args = contact_vector(material, contact, self._friction.size, DENT_SIZE)
+        # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0)),
+        # each sample with the map's local law
+        self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range,
+                                           material=self._md_args) if zone_energy else None
+        self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy else None
         # validates the height-field rest net; the tick records its dent in the contact vector
         self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))
         self._live = (live_ctrl, live_rest, ku, kv, self._deformer.patch)
@@ -856,7 +856,8 @@ class ARModel:
         :math:`|P_c|/k_c` more: :math:`E_0 = |P_c|\\,(\\delta_0 - \\min(\\delta_{out}, -h_0) + |P_c|/k_c)`.
         It is the store of a passive adhesive environment (:mod:`arsurf.haptics.passivity`). With
         the zone energy as the contact the law's own: its pull :math:`2\\pi R w` from the range's
-        end to its zero-load depth (:class:`~arsurf.contact.zone_energy.ZoneLaw`).
+        end to its zero-load depth (:class:`~arsurf.contact.zone_energy.ZoneLaw`); with a material
+        map the law of its softest E* and largest w, whose energy lies below every element's.
 
         With a material map the well is the deepest of the local laws the tick can meet: the
         bound is taken over the map's pixels and the points half-way between them
@@ -865,6 +866,12 @@ class ARModel:
         c = self.contact
         if self.zone_energy:  # the zone law's well on a flat: its pull 2 pi R w from -h0 to its zero-load depth
             z = ze.ZoneLaw.from_law(c)
+            if self.material is not None and with_map:  # the softest E* and the largest w bound every element's
+                cv = self._md_args
+                soft = min(math.exp(cv[H_LO_E] + cv[H_OFF_E]), 1.0)
+                sticky = max(math.exp(cv[H_HI_W] + cv[H_OFF_W]), 1.0)
+                z = ze.ZoneLaw(z.tip_radius, z.effective_modulus * soft, z.work_of_adhesion * sticky,
+                               z.dugdale_stress * sticky)
             pc = z.pull_off_force()
             return pc * (z.zero_load_depth() + z.interaction_range + pc / self.coupling_stiffness)
         pc = abs(c.pull_off_force())

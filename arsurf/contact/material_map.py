@@ -50,6 +50,12 @@ In the tick (:func:`local_contact_kernel`)
     Where both ratios are exactly 1 (a uniform map, or the reference point) the reference law's
     own arguments are used: a uniform map reproduces the constant model bit for bit.
 
+With the energy of the whole tip (:mod:`arsurf.contact.zone_energy`)
+    Each lattice sample reads the two ratios where it lies (:func:`local_ratios_kernel`) once,
+    when its tile is sampled, and sums the reference law's repulsion scaled by :math:`r_E` and
+    its adhesion by :math:`r_w`; the tick's friction takes the local :math:`2\pi R w` at the
+    closest point.
+
 Examples
 --------
 >>> import numpy as np
@@ -95,6 +101,7 @@ __all__ = [
     "contact_vector",
     "local_contact_kernel",
     "local_law_kernel",
+    "local_ratios_kernel",
     "material_map_from_file",
     "mechanical_channels",
 ]
@@ -257,16 +264,23 @@ def local_contact_kernel(cv, u, v):
 
 
 @njit(cache=True, _nrt=False)
+def local_ratios_kernel(cv, x, y):
+    """``(ln(E*/E*_ref), ln(w/w_ref))`` at (x, y) (m, the height's frame) against the reference
+    law of the contact vector ``cv`` (:func:`contact_vector`): the map's two fields clamped to the
+    range of their pixels; ``(0, 0)`` without a map."""
+    if cv[H_ON] == 0.0:
+        return 0.0, 0.0
+    le, lw = _field_pair(cv, x - cv[H_X0], y - cv[H_Y0])
+    return min(max(le, cv[H_LO_E]), cv[H_HI_E]) + cv[H_OFF_E], min(max(lw, cv[H_LO_W]), cv[H_HI_W]) + cv[H_OFF_W]
+
+
+@njit(cache=True, _nrt=False)
 def local_law_kernel(cv, u, v):
     """:func:`local_contact_kernel` with the law's offset in ``cv`` in place of the law itself
     (:data:`C_REF` or :data:`C_LOCAL`): no array returned, so a caller compiled without reference
     counts (the tick, docs/kernels.rst) can call it."""
     ref = cv[C_REF:C_REF + _MD_SIZE]
-    if cv[H_ON] == 0.0:
-        return C_REF, 1.0, 0.0, 0.0, False
-    le, lw = _field_pair(cv, u - cv[H_X0], v - cv[H_Y0])
-    le = min(max(le, cv[H_LO_E]), cv[H_HI_E]) + cv[H_OFF_E]
-    lw = min(max(lw, cv[H_LO_W]), cv[H_HI_W]) + cv[H_OFF_W]
+    le, lw = local_ratios_kernel(cv, u, v)
     if le == 0.0 and lw == 0.0:
         return C_REF, 1.0, 0.0, 0.0, False
     local = cv[C_LOCAL:C_LOCAL + _MD_SIZE]

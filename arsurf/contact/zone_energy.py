@@ -54,6 +54,14 @@ The energy per area is :math:`\varphi = \varphi_r + \varphi_a`, :math:`\varphi_r
 :math:`-\sigma_0 (h_0 - g) - \sigma_0 h_0 \sin(2\pi g/h_0)/(2\pi)` on (0, :math:`h_0`) and 0
 beyond: continuous with its derivative, so the force is continuous in T.
 
+**Material maps.** With a map (:mod:`arsurf.contact.material_map`) each element sums its own
+law, the map's E* and w where it lies: the repulsion is linear in E* and the adhesion in
+:math:`\sigma_0` at a fixed range :math:`h_0` (as the map's laws keep it), so a sample's
+repulsion and adhesion are the reference law's scaled by :math:`E^*/E^*_{ref}` and
+:math:`w/w_{ref}`, read once when its tile is sampled (:func:`surface_lattice`). A uniform map
+is the model without one to the bit, and the force is still the gradient of one energy across a
+boundary of materials.
+
 :class:`~arsurf.model.ARModel` takes it as its contact with ``zone_energy=True`` (not yet the
 default); ``bench/zone_energy.py`` measures it against the model on the surfaces where the feel
 still fails, and ``bench/feel.py --zone-energy`` judges the feel tables with it (docs/feel.rst,
@@ -68,6 +76,7 @@ import numpy as np
 from numba import njit
 
 from arsurf._layout import Layout
+from arsurf.contact.material_map import C_BODY, local_ratios_kernel
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
@@ -103,6 +112,8 @@ TRACKING_REDUCTION = 0.01
 SPACING_PER_RADIUS = 1.0 / 8.0
 #: and need not be finer than this fraction of its zone of interaction at zero load
 SPACING_PER_ZONE = 1.0 / 8.0
+#: samples per knot interval at most (:func:`lattice_for`; a scan's pixels wider than 64 spacings get a coarser lattice)
+MAX_PER_KNOT = 64.0
 #: tiles the pool of :func:`surface_lattice` holds by default (8.4 kB each)
 DEFAULT_POOL = 512
 #: and at most
@@ -111,7 +122,7 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
- L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV) = range(23)
+ L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP) = range(25)
 
 
 @dataclass(frozen=True)
@@ -164,6 +175,21 @@ class ZoneLaw:
                  if 0.0 < r < reach]
         return quad(ring, 0.0, reach, points=kinks or None, limit=400, epsabs=0.0, epsrel=1e-10)[0]
 
+    def flat_depth(self, load: float) -> float:
+        r"""The depth (m, >= 0) at which the tip pressed into a flat feels ``load`` (N; from the
+        load at depth 0, about :math:`-2\pi R w`, up): :meth:`flat_load` inverted (Brent's method,
+        to 1e-12 of the depth)."""
+        from scipy.optimize import brentq
+
+        load = float(load)
+        if not (math.isfinite(load) and load >= self.flat_load(0.0)):
+            raise ContactError(f"`load` must be a finite load >= {self.flat_load(0.0)!r} N, the law's at depth 0 "
+                               f"(got {load!r})")
+        hi = max(self.zero_load_depth(), 1e-3 * self.tip_radius)
+        while self.flat_load(hi) < load:
+            hi *= 2.0
+        return brentq(lambda d: self.flat_load(d) - load, 0.0, hi, xtol=1e-12 * hi, rtol=1e-12)
+
     def pull_off_force(self) -> float:
         r"""The largest pull of the law on a flat (N, > 0): :math:`2\pi R w` (module docstring)."""
         return 2.0 * math.pi * self.tip_radius * self.work_of_adhesion
@@ -183,26 +209,28 @@ class ZoneLaw:
 def zone_law_kernel(g, radius, e_star, sigma0, h0):
     r"""``(phi, p)``: the energy per area (J/m^2) and the pressure (Pa, > 0 repulsive) at gap ``g``
     (m) of the module docstring's law."""
-    phi, p, _ = _law(g, e_star / (math.pi * math.sqrt(radius)), sigma0, h0, 0.0)
-    return phi, p
+    rep, adh, p, _ = _law(g, e_star / (math.pi * math.sqrt(radius)), sigma0, h0, 0.0)
+    return rep + adh, p
 
 
 @njit(cache=True, inline="always")
 def _law(g, stiff, sigma0, h0, floor):
-    r"""``(phi, p, dp/dg)`` of the law at gap ``g`` (m): J/m^2, Pa, Pa/m; ``stiff`` is
+    r"""``(phi_r, phi_a, p, dp/dg)`` of the law at gap ``g`` (m): the repulsion's and the adhesion's
+    energy per area (J/m^2), the pressure (Pa) and its slope (Pa/m), which are the repulsion's for
+    g < 0 and the adhesion's beyond (a material map scales them apart); ``stiff`` is
     :math:`E^*/\pi\sqrt R` (the repulsion :math:`p_r = \mathrm{stiff}\,\sqrt{-g}`), and the
     repulsion's slope :math:`\propto 1/\sqrt{-g}` is held finite with :math:`\sqrt{-g}` at least
     ``floor`` (m^1/2; :func:`zone_energy_kernel`). One square root or one sine and cosine a call
     (:math:`\sin 2x = 2\sin x\cos x`)."""
     if g < 0.0:
         s = math.sqrt(-g)
-        return 2.0 / 3.0 * stiff * s * s * s - sigma0 * h0, stiff * s, -0.5 * stiff / max(s, floor)
+        return 2.0 / 3.0 * stiff * s * s * s, -sigma0 * h0, stiff * s, -0.5 * stiff / max(s, floor)
     if g < h0:
         x = math.pi * g / h0
         sn, cs = math.sin(x), math.cos(x)
-        return (-sigma0 * (h0 - g) - sigma0 * h0 * sn * cs / math.pi, -2.0 * sigma0 * sn * sn,
+        return (0.0, -sigma0 * (h0 - g) - sigma0 * h0 * sn * cs / math.pi, -2.0 * sigma0 * sn * sn,
                 -4.0 * sigma0 * math.pi / h0 * sn * cs)
-    return 0.0, 0.0, 0.0
+    return 0.0, 0.0, 0.0, 0.0
 
 
 @njit(cache=True)
@@ -230,7 +258,7 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
     stiffness; :func:`zone_proxy_kernel` uses the Hessian only for its step). A sample of height z is
     in reach where the gap is below h0: within :func:`_across` of :math:`h_0 + R - T_z + z` of T."""
     # every array taken from the tuple once: an array view made in a loop costs two atomic reference counts
-    xs, ys, zhi, pts, ar, box = lat[L_XS], lat[L_YS], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_BOX]
+    xs, ys, zhi, pts, ar, adh, box = lat[L_XS], lat[L_YS], lat[L_ZHI], lat[L_PTS], lat[L_AR], lat[L_ADH], lat[L_BOX]
     slot_of, stamp, clock = lat[L_SLOT_OF], lat[L_STAMP], lat[L_CLOCK]
     want = hess.shape[0] == 3
     if want:
@@ -292,9 +320,11 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
                                 if g >= h0:
                                     continue
                                 ex, ey = q * dx, q * dy  # the gap's gradient: (ex, ey, 1)
-                                phi, pr, dp = _law(g, stiff, sigma0, h0, floor)
-                                area = ar[k]
-                                energy += area * phi
+                                phi_r, phi_a, pr, dp = _law(g, stiff, sigma0, h0, floor)
+                                area, ra = ar[k], adh[k]  # the repulsion's area, the adhesion's per it
+                                energy += area * (phi_r + ra * phi_a)
+                                if g >= 0.0:  # the pressure is the adhesion's
+                                    area *= ra
                                 f = area * pr
                                 fx += f * ex
                                 fy += f * ey
@@ -377,11 +407,13 @@ def _take_slot(lat, ti, tj) -> int:
 
 @njit(cache=True)
 def _sample_tile(lat, ti, tj, s):
-    """Tile (``ti``, ``tj``)'s samples of the rest surface, their areas (module docstring) and its
-    blocks' bounding boxes into pool slot ``s`` (a block past the lattice's edge gets an empty box)."""
+    r"""Tile (``ti``, ``tj``)'s samples of the rest surface, their areas (module docstring; with a
+    material map the repulsion's area :math:`A\,E^*/E^*_{ref}` and the adhesion's per it,
+    :math:`(w/w_{ref})/(E^*/E^*_{ref})`, else A and 1) and its blocks' bounding boxes into pool
+    slot ``s`` (a block past the lattice's edge gets an empty box)."""
     ctrl, ku, kv, us, vs = lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_US], lat[L_VS]
-    wu, wv, pts, ar, box = lat[L_WU], lat[L_WV], lat[L_PTS], lat[L_AR], lat[L_BOX]
-    ev = lat[L_EV]
+    wu, wv, pts, ar, adh, box = lat[L_WU], lat[L_WV], lat[L_PTS], lat[L_AR], lat[L_ADH], lat[L_BOX]
+    ev, cv = lat[L_EV], lat[L_MAP]
     box[s, :, :, :3] = math.inf
     box[s, :, :, 3:] = -math.inf
     for a in range(TILE):
@@ -394,7 +426,9 @@ def _sample_tile(lat, ti, tj, s):
                 break
             surface_point(ctrl, ku, kv, us[i], vs[j], 1, ev)
             k = (s * TILE + a) * TILE + b
-            ar[k] = abs(ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]) * wu[i] * wv[j]  # projected
+            le, lw = local_ratios_kernel(cv, ev[0, 0], ev[0, 1])
+            ar[k] = abs(ev[1, 0] * ev[2, 1] - ev[1, 1] * ev[2, 0]) * wu[i] * wv[j] * math.exp(le)  # projected
+            adh[k] = math.exp(lw - le)
             q = box[s, a // BLOCK, b // BLOCK]
             for c in range(3):
                 pts[k, c] = ev[0, c]
@@ -520,9 +554,10 @@ class SurfaceLattice:
     at a time where the tip reaches. ``arrays`` is what the kernels take (their ``lat``; the
     ``L_*`` indices): the rest net and its knots, the lattice's u and v, its rows' x and columns' y
     (m), the trapezoidal weights along u and v, each tile's height bounds (m), the pool of
-    sampled tiles (points m, projected areas m^2, blocks' boxes m) with its bookkeeping, the
-    highest bound (m), the proxy's memo and scratch (:func:`_remember`) and the sampling's (a tile
-    is sampled without allocating, in the tick). ``shape`` is the
+    sampled tiles (points m, the repulsion's areas m^2 and the adhesion's per them, blocks' boxes
+    m) with its bookkeeping, the highest bound (m), the proxy's memo and scratch
+    (:func:`_remember`), the sampling's (a tile is sampled without allocating, in the tick) and the
+    contact vector of a material map (:func:`surface_lattice`). ``shape`` is the
     lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
     arrays: tuple
@@ -539,7 +574,7 @@ class SurfaceLattice:
         return int((self.arrays[L_TILE_OF][:, 0] >= 0).sum())
 
 
-def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> SurfaceLattice:
+def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, material=None) -> SurfaceLattice:
     """The rest surface of ``surface`` (a height-field :class:`~arsurf.spline.surface.BSplineSurface`)
     sampled ``per_knot`` times per knot interval along u and v (a number: 0.5 is a sample every
     second knot; spacing h), each sample standing for
@@ -548,10 +583,13 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
     :data:`TILE` x :data:`TILE` at a time, the first time the tip reaches the tile, into a pool of
     ``pool`` tiles (the least recently used one given up for a new one): the memory is the pool's,
     whatever the scan's size, and a tile is sampled the same every time, so the energy is one
-    function of the tip wherever the pool stands."""
+    function of the tip wherever the pool stands. ``material``: a contact vector with a material
+    map (:func:`~arsurf.contact.material_map.contact_vector`; kept, read-only): each sample then
+    sums its own law, the reference law's repulsion scaled by the local :math:`E^*/E^*_{ref}` and
+    its adhesion by :math:`w/w_{ref}` (the range h0 the same, as the map's laws keep it)."""
     if not (isinstance(per_knot, (int, float, np.integer, np.floating)) and not isinstance(per_knot, bool)
-            and 0.0 < per_knot <= 64):
-        raise SurfaceError(f"`per_knot` must be a number in (0, 64] (got {per_knot!r})")
+            and 0.0 < per_knot <= MAX_PER_KNOT):
+        raise SurfaceError(f"`per_knot` must be a number in (0, {MAX_PER_KNOT:g}] (got {per_knot!r})")
     if not (isinstance(pool, (int, np.integer)) and not isinstance(pool, bool) and 1 <= pool <= MAX_POOL):
         raise SurfaceError(f"`pool` must be an integer in [1, {MAX_POOL}] tiles (got {pool!r})")
     if not surface.is_height_field_net:
@@ -570,6 +608,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
     wu, wv = np.full(nu, hu), np.full(nv, hv)
     wu[[0, -1]] *= 0.5
     wv[[0, -1]] *= 0.5
+    cv = _map_vector(material)
     ev = np.empty((1, nu + nv, 3))
     surface_points_serial(ctrl, ku, kv, np.concatenate([us, np.full(nv, u0)]), np.concatenate([np.full(nu, v0), vs]),
                           0, ev)
@@ -579,10 +618,20 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL) -> Sur
                   zlo, zhi)
     arrays = (ctrl, ku, kv, us, vs, xs, ys, wu, wv, zlo, zhi,
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
-              np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty((pool, 2, 2, 6)),
-              np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan), np.empty((3, 3, 3)),
-              np.empty(Z_SIZE), np.empty((6, 3)))
+              np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty(pool * TILE * TILE),
+              np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan),
+              np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv)
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
+
+
+def _map_vector(material) -> np.ndarray:
+    """The lattice's copy of a contact vector (``material``), or one that says "no map"."""
+    if material is None:
+        return np.zeros(C_BODY)
+    cv = np.asarray(material)
+    if cv.dtype != np.float64 or cv.ndim != 1 or cv.size < C_BODY:
+        raise ContactError("`material` must be a contact vector (arsurf.contact.material_map.contact_vector)")
+    return np.array(cv, order="C")  # a writable copy: a read-only one is another numba type
 
 
 @njit(cache=True)
@@ -607,12 +656,12 @@ def _tile_heights(z, cols_u, cols_v, zlo, zhi):
 
 
 def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_knot: int = 2,
-                pool: int = DEFAULT_POOL) -> SurfaceLattice:
+                pool: int = DEFAULT_POOL, material=None) -> SurfaceLattice:
     r"""The lattice of ``surface`` a tip of ``tip_radius`` R (m) with a law of ``interaction_range``
     h0 (m) is summed over: samples h apart, at most :data:`SPACING_PER_RADIUS` R, and ``per_knot``
     per knot interval unless that is finer than :data:`SPACING_PER_ZONE` of the zone where a flat
     at zero load interacts, :math:`\sqrt{2 R h_0}` (a 20 nm tip on a 0.016 nm-pixel STM image
-    summed 260 000 samples where 400 resolve its contact)."""
+    summed 260 000 samples where 400 resolve its contact). ``material``: as :func:`surface_lattice`'s."""
     if not (isinstance(tip_radius, (int, float)) and math.isfinite(tip_radius) and tip_radius > 0.0):
         raise ContactError(f"`tip_radius` must be a finite number > 0 m (got {tip_radius!r})")
     if not (isinstance(interaction_range, (int, float)) and math.isfinite(interaction_range)
@@ -621,7 +670,7 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     pixel = min(surface.spacing)
     zone = math.sqrt(2.0 * tip_radius * interaction_range)
     spacing = min(SPACING_PER_RADIUS * tip_radius, max(pixel / per_knot, SPACING_PER_ZONE * zone))
-    return surface_lattice(surface, min(pixel / spacing, 64.0), pool)
+    return surface_lattice(surface, min(pixel / spacing, MAX_PER_KNOT), pool, material)
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:

@@ -29,17 +29,25 @@ def register(sub) -> None:
     MaterialConversion.cli_arguments(p, tip_radius_nm=TIP_RADIUS * 1e9)
     p.add_argument("--material-sigma-nm", type=float, default=None, metavar="NM",
                    help="Gaussian smoothing of the material map, nm (default: half the tip radius)")
+    p.add_argument("--zone-energy", action="store_true",
+                   help="with --material: the model's contact the energy of the whole tip, each surface element with "
+                        "the map's local law (arsurf.contact.zone_energy; measured, not yet the default)")
     p.set_defaults(func=_cmd)
 
 
 def _cmd(args) -> int:
+    if args.zone_energy and args.material is None:
+        from arsurf.errors import ContactError
+
+        raise ContactError("--zone-energy runs the material demo: give --material FILE too")
     if args.material is not None:
         from arsurf.contact.material_conversion import MaterialConversion
 
         summary = run_material_demo(args.out, args.material, MaterialConversion.from_cli(args),
                                     MaterialConversion.cli_channels(args), images=not args.no_images,
                                     handle_signals=True,
-                                    sigma=None if args.material_sigma_nm is None else args.material_sigma_nm * 1e-9)
+                                    sigma=None if args.material_sigma_nm is None else args.material_sigma_nm * 1e-9,
+                                    zone_energy=args.zone_energy)
     else:
         summary = run_demo(args.out, args.scan, args.seconds, images=not args.no_images, handle_signals=True,
                            figure_format=args.figure_format, dpi=args.dpi)

@@ -144,8 +144,9 @@ def press_measures(t, depth, load, in_contact, windows: dict, reference=("soft",
 
 
 def run_material_demo(out_dir, scan_path, conversion, channels=None, images: bool = True, progress=None,
-                      handle_signals: bool = False, sigma: float | None = None, units=None) -> dict:
-    """``arsurf demo --material``: the haptic loop on a PeakForce QNM file, pressing where the
+                      handle_signals: bool = False, sigma: float | None = None, units=None,
+                      zone_energy: bool = False) -> dict:
+    r"""``arsurf demo --material``: the haptic loop on a PeakForce QNM file, pressing where the
     sample is softest, stiffest and stickiest; the hand feels the difference.
 
     The model is the demo's (lever, haptic settings, virtual coupling) with the tip radius of
@@ -159,10 +160,14 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     map and must give back every contact). ``summary.json`` compares, per spot, the local E* and
     w, the peak load the hand felt, the indentation at one reference load and the pull-off with
     the Maugis-Dugdale predictions of the local law; PNG views colour the surface by modulus and
-    adhesion.
+    adhesion. ``zone_energy``: the model's contact the energy of the whole tip, each surface element
+    with its local law (:mod:`arsurf.contact.zone_energy`; recorded in the session), and the summary
+    adds that law's predictions (``zone_*``: its indentation on a flat, its pull-off
+    :math:`2\pi R w`).
     """
     from arsurf.contact.material_map import material_map_from_file
     from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.contact.zone_energy import ZoneLaw
     from arsurf.replay.replay import replay
     from arsurf.sessions.journal import journal_path
     from arsurf.sessions.reader import load_session
@@ -191,7 +196,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     law = material.contact_law()
     meta = preset_metadata(scan_path, DEMO, tip_radius=R, material=material,
                            contact={"effective_modulus": law.effective_modulus, "work_of_adhesion": law.work_of_adhesion,
-                                    "dugdale_stress": law.dugdale_stress})
+                                    "dugdale_stress": law.dugdale_stress}, zone_energy=bool(zone_energy))
     setup = build_model(meta)  # rebuilds the map from the file and checks its hash: what replay does
     scan, surface, model = setup.scan, setup.surface, setup.model
     spots = pick_spots(model.material, scan, R)
@@ -240,6 +245,11 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
             "md_pull_off_load_control_N": md.pull_off_force(),
             "md_jump_out_load_displacement_control_N": md.critical_points().jump_out_load,
         }
+        if zone_energy:  # the zone law of the local E* and w (the DMT limit of the same constants)
+            zone = ZoneLaw.from_law(md)
+            spots_out[k]["zone_indentation_at_reference_load_m"] = zone.flat_depth(ref) if math.isfinite(ref) \
+                else math.nan
+            spots_out[k]["zone_pull_off_N"] = -zone.pull_off_force()
     for k, v in spots_out.items():
         progress(f"{k:6s}: peak load {v['peak_load_N'] * 1e9:8.2f} nN (hand {v['peak_hand_force_N']:.3g} N), "
                  f"indentation at {ref * 1e9:.2f} nN {v['indentation_at_reference_load_m'] * 1e9:.3f} nm (MD "
@@ -252,7 +262,7 @@ def run_material_demo(out_dir, scan_path, conversion, channels=None, images: boo
     pngs = _render_material(viewer, views, model.material, out) if viewer is not None else []
     s_, h_ = spots_out["soft"], spots_out["stiff"]
     summary = {  # SI, the unit in every key (arsurf.units)
-        "scan": str(scan_path), "n_ticks": n, "rate_Hz": RATE, "tip_radius_m": R,
+        "scan": str(scan_path), "n_ticks": n, "rate_Hz": RATE, "tip_radius_m": R, "zone_energy": bool(zone_energy),
         "material": material.summary(), "reference_load_N": ref, "spots": spots_out,
         "passivity_reserve_probe_J": model.adhesion_energy(),   # the map's deepest well (at the probe)
         "reference_law_adhesion_energy_J": model.adhesion_energy(with_map=False),   # the median law's alone

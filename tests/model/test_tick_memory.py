@@ -1,7 +1,7 @@
 """The compiled model tick allocates nothing and leaves no reference behind (docs/kernels.rst,
 "Reference counts"): a slide across valleys narrower than the tip (the contacts found and
-discovered again as the tip moves), with a material map, with the energy of the whole tip; each
-with the virtual coupling, which may run a tick again in steps."""
+discovered again as the tip moves), with a material map, with the energy of the whole tip (with
+and without a map); each with the virtual coupling, which may run a tick again in steps."""
 from __future__ import annotations
 
 import numpy as np
@@ -35,7 +35,7 @@ def _valley_slide(n=400):
     return np.column_stack([x, np.full(n, 24e-9), np.full(n, z)])
 
 
-def _mapped_model():
+def _mapped_model(zone_energy=False):
     """A flat 128 nm square whose modulus steps 2 -> 20 GPa at x = 64 nm (the map's own law)."""
     n, h = 64, 2e-9
     x = np.arange(n) * h
@@ -45,7 +45,7 @@ def _mapped_model():
                                                           "adhesion": chan(np.full((n, n), 3e-9), "Adhesion", "N")},
                            MaterialConversion(R))
     return ARModel(fit_surface(Scan(np.zeros((n, n)), h, h)), R, m.contact_law(), LEVER, material=m,
-                   coupling_stiffness=3.0)
+                   coupling_stiffness=3.0, zone_energy=zone_energy)
 
 
 def _mapped_slide(n=400):
@@ -57,6 +57,7 @@ CASES = {
     "valleys": (lambda: valley_model("sinusoid", coupling=5.0), _valley_slide),
     "material map": (_mapped_model, _mapped_slide),
     "zone energy": (lambda: valley_model("sinusoid", coupling=5.0, zone_energy=True), _valley_slide),
+    "zone energy with a material map": (lambda: _mapped_model(zone_energy=True), _mapped_slide),
 }
 
 
