@@ -110,7 +110,9 @@ PROXY_ITERATIONS = 200
 TRACKING_REDUCTION = 0.01
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
-#: and need not be finer than this fraction of its zone of interaction at zero load
+#: and this fraction of its zone of interaction at zero load: the law's load on a flat within ~1 % for tips of
+#: 2-50 nm (h0 0.29 nm, pixels of 0.25-4 nm, bench/zone_quadrature.py; at R/8 alone 25-147 % off, the adhesive
+#: ring unresolved)
 SPACING_PER_ZONE = 1.0 / 8.0
 #: samples per knot interval at most (:func:`lattice_for`; a scan's pixels wider than 64 spacings get a coarser lattice)
 MAX_PER_KNOT = 64.0
@@ -658,10 +660,12 @@ def _tile_heights(z, cols_u, cols_v, zlo, zhi):
 def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_knot: int = 2,
                 pool: int = DEFAULT_POOL, material=None) -> SurfaceLattice:
     r"""The lattice of ``surface`` a tip of ``tip_radius`` R (m) with a law of ``interaction_range``
-    h0 (m) is summed over: samples h apart, at most :data:`SPACING_PER_RADIUS` R, and ``per_knot``
-    per knot interval unless that is finer than :data:`SPACING_PER_ZONE` of the zone where a flat
-    at zero load interacts, :math:`\sqrt{2 R h_0}` (a 20 nm tip on a 0.016 nm-pixel STM image
-    summed 260 000 samples where 400 resolve its contact). ``material``: as :func:`surface_lattice`'s."""
+    h0 (m) is summed over: samples h apart, at most :data:`SPACING_PER_RADIUS` R and
+    :data:`SPACING_PER_ZONE` of the zone where a flat at zero load interacts,
+    :math:`\sqrt{2 R h_0}`, whatever the scan's pixels: the adhesion's ring is that narrow
+    (``bench/zone_quadrature.py``), and a 20 nm tip on a 0.016 nm-pixel STM image would sum 260 000
+    samples where 400 resolve its contact; at most :data:`MAX_PER_KNOT` per knot interval
+    (``per_knot`` without adhesion, h0 = 0). ``material``: as :func:`surface_lattice`'s."""
     if not (isinstance(tip_radius, (int, float)) and math.isfinite(tip_radius) and tip_radius > 0.0):
         raise ContactError(f"`tip_radius` must be a finite number > 0 m (got {tip_radius!r})")
     if not (isinstance(interaction_range, (int, float)) and math.isfinite(interaction_range)
@@ -669,7 +673,7 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
         raise ContactError(f"`interaction_range` must be a finite number >= 0 m (got {interaction_range!r})")
     pixel = min(surface.spacing)
     zone = math.sqrt(2.0 * tip_radius * interaction_range)
-    spacing = min(SPACING_PER_RADIUS * tip_radius, max(pixel / per_knot, SPACING_PER_ZONE * zone))
+    spacing = min(SPACING_PER_RADIUS * tip_radius, SPACING_PER_ZONE * zone if zone > 0.0 else pixel / per_knot)
     return surface_lattice(surface, min(pixel / spacing, MAX_PER_KNOT), pool, material)
 
 
