@@ -69,6 +69,7 @@ still fails, and ``bench/feel.py --zone-energy`` judges the feel tables with it 
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -79,6 +80,8 @@ from arsurf._layout import Layout
 from arsurf.contact.material_map import C_BODY, local_ratios_kernel
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SurfaceLattice", "TILE", "TRACKING_REDUCTION", "ZONE_OUT", "ZoneLaw", "lattice_for", "surface_lattice",
            "zone_energy", "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
@@ -110,8 +113,8 @@ PROXY_ITERATIONS = 200
 TRACKING_REDUCTION = 0.01
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
-#: and this fraction of its zone of interaction at zero load: the law's load on a flat within ~1 % for tips of
-#: 2-50 nm (h0 0.29 nm, pixels of 0.25-4 nm, bench/zone_quadrature.py; at R/8 alone 25-147 % off, the adhesive
+#: and this fraction of its zone of interaction at zero load: the law's load on a flat within ~2 % for tips of
+#: 2-50 nm (h0 0.29 nm, pixels of 0.25-4 nm, bench/zone_quadrature.py; at R/8 alone 5-147 % off, the adhesive
 #: ring unresolved)
 SPACING_PER_ZONE = 1.0 / 8.0
 #: samples per knot interval at most (:func:`lattice_for`; a scan's pixels wider than 64 spacings get a coarser lattice)
@@ -674,6 +677,10 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     pixel = min(surface.spacing)
     zone = math.sqrt(2.0 * tip_radius * interaction_range)
     spacing = min(SPACING_PER_RADIUS * tip_radius, SPACING_PER_ZONE * zone if zone > 0.0 else pixel / per_knot)
+    if pixel / spacing > MAX_PER_KNOT:
+        log.warning("the zone energy's lattice is %.3g nm apart, not %.3g nm: knots %.3g nm apart take at most %g "
+                    "samples; the law is summed less well (docs/feel.rst, \"The lattice's quadrature\")",
+                    pixel / MAX_PER_KNOT * 1e9, spacing * 1e9, pixel * 1e9, MAX_PER_KNOT)
     return surface_lattice(surface, min(pixel / spacing, MAX_PER_KNOT), pool, material)
 
 

@@ -267,6 +267,17 @@ def test_the_lattice_resolves_the_tip_and_its_contact_not_finer(pixel, radius):
     assert wanted / 1.1 <= h <= wanted * (1 + 1e-9)  # the nearest whole number of samples across the scan
 
 
+def test_knots_wider_than_64_spacings_get_a_coarser_lattice_and_say_so(caplog):
+    """Knots of ~100 nm under a 20 nm tip (the 2022 gsf scan's): 64 samples a knot, not 0.43 nm apart."""
+    law = ZoneLaw.from_law(MaugisDugdale(20e-9, 10e9, 0.1))
+    surface = BSplineSurface.from_heights(np.zeros((12, 12)), (0.0, 11 * 100e-9), (0.0, 11 * 100e-9))
+    with caplog.at_level("WARNING", logger="arsurf.contact.zone_energy"):
+        h = lattice_for(surface, 20e-9, law.interaction_range).spacing[0]
+    assert h == pytest.approx(surface.spacing[0] / 64, rel=0.05)
+    coarse = f"{surface.spacing[0] / 64 * 1e9:.3g} nm apart, not 0.427 nm"
+    assert len(caplog.records) == 1 and coarse in caplog.records[0].getMessage()
+
+
 @pytest.mark.parametrize("pixel", [1e-9, 4e-9])
 @pytest.mark.parametrize("radius", [5e-9, 20e-9])
 def test_the_model_s_lattice_sums_the_law_on_a_flat(pixel, radius):
