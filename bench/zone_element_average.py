@@ -38,7 +38,7 @@ OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.3, 0.17), (0.77, 0.21))
 POINT, BOX, TRAPEZOID = 0, 1, 2
 
 
-@njit(cache=True)
+@njit
 def _laws(g, stiff, sig, h0):
     """(Phi2, Phi, phi) of the zone law at gap g: its second and first antiderivative and itself."""
     pi = math.pi
@@ -57,7 +57,7 @@ def _laws(g, stiff, sig, h0):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit
 def _mean(g, a, b, stiff, sig, h0):
     """Mean of phi(g + s + t), |s| <= a, |t| <= b."""
     if a < b:
@@ -70,7 +70,7 @@ def _mean(g, a, b, stiff, sig, h0):
             - _laws(g - a + b, stiff, sig, h0)[0] + _laws(g - a - b, stiff, sig, h0)[0]) / (4 * a * b)
 
 
-@njit(cache=True)
+@njit
 def _energy(tx, ty, tz, radius, stiff, sig, h0, h, n, mode, curvature):
     rho0, cap, slope = _cone(radius)
     e = 0.0

@@ -27,7 +27,7 @@ from arsurf.scan.scan import Scan
 from arsurf.spline.fit import fit_surface
 
 
-@njit(cache=True)
+@njit
 def _engine(lat, x, y, z, radius, e_star, sigma0, h0, out, hess, reps):
     n = 0
     for k in range(reps):
@@ -35,7 +35,7 @@ def _engine(lat, x, y, z, radius, e_star, sigma0, h0, out, hess, reps):
     return n
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(fastmath=True, error_model="numpy")  # not cached: a cached function shows no assembly
 def _vector_row(xs, ys, zs, ar, tx, ty, tz, radius, stiff, sig, h0, rho0, cap, slope, floor):
     e = fx = fy = fz = 0.0
     h00 = h01 = h02 = h11 = h12 = h22 = 0.0
@@ -74,7 +74,7 @@ def _vector_row(xs, ys, zs, ar, tx, ty, tz, radius, stiff, sig, h0, rho0, cap, s
     return e + fx + fy + fz + h00 + h01 + h02 + h11 + h12 + h22
 
 
-@njit(cache=True)
+@njit
 def _vector(xs, ys, zs, ar, tx, ty, tz, radius, stiff, sig, h0, rho0, cap, slope, floor, reps):
     t = 0.0
     for _ in range(reps):
