@@ -602,9 +602,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
     ctrl = np.array(surface.rest_control_points, order="C")  # a writable copy: a read-only one is another numba type
     ku, kv = surface.knots_u, surface.knots_v
     (u0, u1), (v0, v1) = surface.domain
-    nu = max(math.ceil((ctrl.shape[0] - 3) * per_knot - 1e-9), 2) + 1  # (a whole number of intervals, at
-    nv = max(math.ceil((ctrl.shape[1] - 3) * per_knot - 1e-9), 2) + 1  # least per_knot per knot interval)
-    ntu, ntv = -(-nu // TILE), -(-nv // TILE)
+    nu, nv, ntu, ntv = _lattice_size(ctrl.shape[0], ctrl.shape[1], per_knot)
     if ntu * ntv > MAX_TILES:
         raise SurfaceError(f"a lattice of {nu} x {nv} samples has {ntu * ntv} tiles, beyond {MAX_TILES}: "
                            "lower `per_knot`")
@@ -627,6 +625,15 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
               np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan),
               np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv)
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
+
+
+def _lattice_size(cu: int, cv: int, per_knot: float) -> tuple[int, int, int, int]:
+    """``(nu, nv, ntu, ntv)``: the samples and tiles along u and v of a lattice of ``per_knot``
+    samples a knot interval over a net of ``cu`` x ``cv`` control points (a whole number of
+    intervals, at least ``per_knot`` a knot interval)."""
+    nu = max(math.ceil((cu - 3) * per_knot - 1e-9), 2) + 1
+    nv = max(math.ceil((cv - 3) * per_knot - 1e-9), 2) + 1
+    return nu, nv, -(-nu // TILE), -(-nv // TILE)
 
 
 def _map_vector(material) -> np.ndarray:
@@ -667,8 +674,9 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     :data:`SPACING_PER_ZONE` of the zone where a flat at zero load interacts,
     :math:`\sqrt{2 R h_0}`, whatever the scan's pixels: the adhesion's ring is that narrow
     (``bench/zone_quadrature.py``), and a 20 nm tip on a 0.016 nm-pixel STM image would sum 260 000
-    samples where 400 resolve its contact; at most :data:`MAX_PER_KNOT` per knot interval
-    (``per_knot`` without adhesion, h0 = 0). ``material``: as :func:`surface_lattice`'s."""
+    samples where 400 resolve its contact; at most :data:`MAX_PER_KNOT` per knot interval and
+    :data:`MAX_TILES` tiles, coarser beyond them with a warning (``per_knot`` without adhesion, h0
+    = 0). ``material``: as :func:`surface_lattice`'s."""
     if not (isinstance(tip_radius, (int, float)) and math.isfinite(tip_radius) and tip_radius > 0.0):
         raise ContactError(f"`tip_radius` must be a finite number > 0 m (got {tip_radius!r})")
     if not (isinstance(interaction_range, (int, float)) and math.isfinite(interaction_range)
@@ -677,11 +685,18 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     pixel = min(surface.spacing)
     zone = math.sqrt(2.0 * tip_radius * interaction_range)
     spacing = min(SPACING_PER_RADIUS * tip_radius, SPACING_PER_ZONE * zone if zone > 0.0 else pixel / per_knot)
-    if pixel / spacing > MAX_PER_KNOT:
-        log.warning("the zone energy's lattice is %.3g nm apart, not %.3g nm: knots %.3g nm apart take at most %g "
-                    "samples; the law is summed less well (docs/feel.rst, \"The lattice's quadrature\")",
-                    pixel / MAX_PER_KNOT * 1e9, spacing * 1e9, pixel * 1e9, MAX_PER_KNOT)
-    return surface_lattice(surface, min(pixel / spacing, MAX_PER_KNOT), pool, material)
+    cu, cv = surface.control_points.shape[:2]
+    cap, why = MAX_PER_KNOT, f"knots {pixel * 1e9:.3g} nm apart take at most {MAX_PER_KNOT:g} samples"
+    most = 0.999 * TILE * math.sqrt(MAX_TILES / ((cu - 3) * (cv - 3)))  # the samples a knot within MAX_TILES
+    while math.prod(_lattice_size(cu, cv, most)[2:]) > MAX_TILES:
+        most *= 0.99
+    if most < cap:
+        cap, why = most, f"{cu - 3} x {cv - 3} knot intervals take at most {MAX_TILES} tiles of samples"
+    lattice = surface_lattice(surface, min(pixel / spacing, cap), pool, material)
+    if pixel / spacing > cap:
+        log.warning("the zone energy's lattice is %.3g nm apart, not %.3g nm: %s; the law is summed less well "
+                    "(docs/feel.rst, \"The lattice's quadrature\")", lattice.spacing[0] * 1e9, spacing * 1e9, why)
+    return lattice
 
 
 def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, np.ndarray]:

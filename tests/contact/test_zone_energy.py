@@ -278,6 +278,24 @@ def test_knots_wider_than_64_spacings_get_a_coarser_lattice_and_say_so(caplog):
     assert len(caplog.records) == 1 and coarse in caplog.records[0].getMessage()
 
 
+def test_a_scan_too_wide_for_the_tiles_gets_a_coarser_lattice_and_says_so(caplog, monkeypatch):
+    """A scan whose lattice would have more than MAX_TILES tiles (a 1024^2 scan of 25 nm pixels under
+    a 20 nm tip: 14 million) is summed on the finest lattice within them, with a warning, not refused
+    (here MAX_TILES lowered to 10 000 on a 60^2 net)."""
+    import arsurf.contact.zone_energy as ze
+
+    monkeypatch.setattr(ze, "MAX_TILES", 10_000)
+    law = ZoneLaw.from_law(MaugisDugdale(20e-9, 10e9, 0.1))
+    surface = BSplineSurface.from_heights(np.zeros((60, 60)), (0.0, 59 * 25e-9), (0.0, 59 * 25e-9))
+    with caplog.at_level("WARNING", logger="arsurf.contact.zone_energy"):
+        lattice = lattice_for(surface, 20e-9, law.interaction_range)
+    tiles = -(-lattice.shape[0] // TILE) * -(-lattice.shape[1] // TILE)
+    assert 0.9 * 10_000 <= tiles <= 10_000  # as fine as the tiles allow
+    (record,) = caplog.records
+    assert f"{lattice.spacing[0] * 1e9:.3g} nm apart, not 0.427 nm" in record.getMessage()
+    assert "at most 10000 tiles" in record.getMessage()
+
+
 @pytest.mark.parametrize("pixel", [1e-9, 4e-9])
 @pytest.mark.parametrize("radius", [5e-9, 20e-9])
 def test_the_model_s_lattice_sums_the_law_on_a_flat(pixel, radius):
