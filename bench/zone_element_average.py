@@ -32,29 +32,35 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import ZoneLaw, _cone, _rise
+from arsurf.contact.zone_energy import ZoneLaw, _cone, _law, _rise
 
 OFFSETS = ((0.0, 0.0), (0.5, 0.5), (0.3, 0.17), (0.77, 0.21))
 POINT, BOX, TRAPEZOID = 0, 1, 2
 
 
 @njit
-def _laws(g, stiff, sig, h0):
-    """(Phi2, Phi, phi) of the zone law at gap g: its second and first antiderivative and itself."""
+def _phi(g, stiff, sig, h0):
+    """The zone law's energy per area at gap g: the engine's own (:func:`~arsurf.contact.zone_energy._law`)."""
+    rep, adh, _, _ = _law(g, stiff, sig, h0, 0.0)
+    return rep + adh
+
+
+@njit
+def _antiderivatives(g, stiff, sig, h0):
+    """(Phi2, Phi): the zone law's second and first antiderivative in g, both 0 beyond h0."""
     pi = math.pi
     if g < 0.0:
         s = math.sqrt(-g)
         s5 = s * s * s * s * s
         p2 = 8.0 / 105.0 * stiff * s5 * s * s - sig * h0 ** 3 * (1.0 / 6.0 - 1.0 / (4 * pi * pi)) \
             + sig * h0 * h0 * g / 2 - sig * h0 * g * g / 2
-        return p2, -4.0 / 15.0 * stiff * s5 + sig * h0 * h0 / 2 - sig * h0 * g, 2.0 / 3.0 * stiff * s * s * s - sig * h0
+        return p2, -4.0 / 15.0 * stiff * s5 + sig * h0 * h0 / 2 - sig * h0 * g
     if g < h0:
         x = pi * g / h0
         sn, cs = math.sin(x), math.cos(x)
         p2 = -(sig * (h0 - g) ** 3 / 6 - sig * h0 * h0 * (h0 - g) / (4 * pi * pi) - sig * h0 ** 3 * 2 * sn * cs / (8 * pi ** 3))
-        return (p2, sig * (h0 - g) ** 2 / 2 - sig * h0 * h0 * 2 * sn * sn / (4 * pi * pi),
-                -sig * (h0 - g) - sig * h0 * sn * cs / pi)
-    return 0.0, 0.0, 0.0
+        return p2, sig * (h0 - g) ** 2 / 2 - sig * h0 * h0 * 2 * sn * sn / (4 * pi * pi)
+    return 0.0, 0.0
 
 
 @njit
@@ -63,11 +69,12 @@ def _mean(g, a, b, stiff, sig, h0):
     if a < b:
         a, b = b, a
     if a < 1e-3 * h0:
-        return _laws(g, stiff, sig, h0)[2]
+        return _phi(g, stiff, sig, h0)
     if b < 1e-3 * h0:
-        return (_laws(g + a, stiff, sig, h0)[1] - _laws(g - a, stiff, sig, h0)[1]) / (2 * a)
-    return (_laws(g + a + b, stiff, sig, h0)[0] - _laws(g + a - b, stiff, sig, h0)[0]
-            - _laws(g - a + b, stiff, sig, h0)[0] + _laws(g - a - b, stiff, sig, h0)[0]) / (4 * a * b)
+        return (_antiderivatives(g + a, stiff, sig, h0)[1] - _antiderivatives(g - a, stiff, sig, h0)[1]) / (2 * a)
+    p2 = _antiderivatives
+    return (p2(g + a + b, stiff, sig, h0)[0] - p2(g + a - b, stiff, sig, h0)[0]
+            - p2(g - a + b, stiff, sig, h0)[0] + p2(g - a - b, stiff, sig, h0)[0]) / (4 * a * b)
 
 
 @njit
@@ -83,7 +90,7 @@ def _energy(tx, ty, tz, radius, stiff, sig, h0, h, n, mode, curvature):
                 g += h * h / 24.0 * (2 * q + q1 * (dx * dx + dy * dy))
             gx, gy = q * dx, q * dy
             if mode == POINT:
-                e += h * h * _laws(g, stiff, sig, h0)[2]
+                e += h * h * _phi(g, stiff, sig, h0)
             elif mode == BOX:
                 e += h * h * _mean(g, 0.5 * h * math.sqrt(gx * gx + gy * gy), 0.0, stiff, sig, h0)
             else:
