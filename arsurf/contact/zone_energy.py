@@ -186,14 +186,14 @@ class ZoneLaw:
         to 1e-12 of the depth)."""
         from scipy.optimize import brentq
 
-        load = float(load)
-        if not (math.isfinite(load) and load >= self.flat_load(0.0)):
+        if not (isinstance(load, (int, float, np.integer, np.floating)) and not isinstance(load, bool)
+                and math.isfinite(load) and load >= self.flat_load(0.0)):
             raise ContactError(f"`load` must be a finite load >= {self.flat_load(0.0)!r} N, the law's at depth 0 "
                                f"(got {load!r})")
         hi = max(self.zero_load_depth(), 1e-3 * self.tip_radius)
         while self.flat_load(hi) < load:
             hi *= 2.0
-        return brentq(lambda d: self.flat_load(d) - load, 0.0, hi, xtol=1e-12 * hi, rtol=1e-12)
+        return brentq(lambda d: self.flat_load(d) - float(load), 0.0, hi, xtol=1e-12 * hi, rtol=1e-12)
 
     def pull_off_force(self) -> float:
         r"""The largest pull of the law on a flat (N, > 0): :math:`2\pi R w` (module docstring)."""

@@ -319,6 +319,11 @@ def test_the_model_s_lattice_sums_the_law_on_a_flat(pixel, radius):
 def test_bad_inputs_are_refused_in_one_line(flat):
     with pytest.raises(ContactError, match="center"):
         zone_energy(flat, LAW, (0.0, math.nan, 1e-9))
+    with pytest.raises(ContactError, match="contact vector"):  # a material map's, or nothing
+        surface_lattice(valley_surface("sinusoid"), material=np.zeros(3))
+    for bad in (math.nan, -1.0, "1 nN"):  # below the load at depth 0 (about -2 pi R w), or not a load
+        with pytest.raises(ContactError, match="load"):
+            LAW.flat_depth(bad)
     with pytest.raises(ContactError, match="effective_modulus"):
         ZoneLaw(R, -1.0, 0.05, 1e8)
     with pytest.raises(ContactError, match="work_of_adhesion"):
