@@ -89,6 +89,8 @@ __all__ = ["SurfaceLattice", "TILE", "TRACKING_REDUCTION", "ZONE_OUT", "ZoneLaw"
 #: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
 ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
 Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
+#: where the proxy's memo (``L_MEMO``: the summed point, its E and F) keeps the point it published
+_PUBLISHED = 3 + Z_SIZE
 
 #: the half-angle (rad) of the cone the tip's sphere continues into (module docstring): 15 degrees
 CONE_HALF_ANGLE = math.radians(15.0)
@@ -111,6 +113,9 @@ PROXY_ITERATIONS = 200
 #: a haptic tick's proxy returns once a whole Newton step leaves this fraction of the gradient it
 #: started from (:func:`zone_proxy_kernel`)
 TRACKING_REDUCTION = 0.01
+#: ... or once the Newton step its residual gradient asks for is at most this share of the step
+#: just taken (the Hessian barely changed along it), taking that last step on the quadratic model
+CORRECTION_SHARE = 0.5
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
 #: and this fraction of its zone of interaction at zero load: the law's load on a flat within ~2 % for tips of
@@ -456,17 +461,26 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
     :data:`PROXY_ITERATIONS`).
 
     ``reduction`` > 0: it also returns, unconverged, once a whole Newton step (neither capped nor
-    halved) has brought the gradient below ``reduction`` of its size at the start. A haptic loop
-    passes :data:`TRACKING_REDUCTION`: the tip tracks its minimum, a target moving less than a
-    step a tick costs one sum a tick (the one at the step's end: the start's is remembered), the
-    tip lags its minimum by at most that fraction of one tick's motion, and the next tick takes
-    the rest of the way; an approach, a snap or a jump of the target still runs within the tick.
-    Every step lowers f."""
+    halved) has brought the gradient below ``reduction`` of its size at the start, or has left a
+    gradient r whose own Newton step :math:`s = -(H + kI)^{-1} r` on the Hessian summed at the
+    step's end descends and is at most :data:`CORRECTION_SHARE` of the step: the tip is then
+    published at P + s, where the quadratic model of f about the summed point P is at its minimum,
+    with that model's energy and force, :math:`E - F\cdot s + \tfrac12 s^T H s` and
+    :math:`F - H s` (which balance the coupling there exactly), and no second sum is taken. The
+    memo keeps P with its exact E, F and Hessian and the published point: a call that starts from
+    the published point starts from P (the quadratic model's Newton step from P + s and from P
+    land on the same point). A haptic loop passes :data:`TRACKING_REDUCTION`: the tip tracks its
+    minimum, a target moving less than a step a tick costs one sum a tick (the one at the step's
+    end: the start's is remembered), the published tip is off the minimum by the quadratic model's
+    error (second order in the step's residual), and the next tick takes the rest of the way; an
+    approach, a snap or a jump of the target still runs within the tick. Every step lowers f."""
     work, memo, trial = lat[L_WORK], lat[L_MEMO], lat[L_TRIAL]
     hess, trial_hess = work[0], work[1]  # each trial's Hessian: an accepted step needs no sum again
     tol = PROXY_TOL * stiffness * radius
     cap = PROXY_STEP * radius
-    if tip[0] == memo[0] and tip[1] == memo[1] and tip[2] == memo[2]:  # where the last call ended: E is known
+    if ((tip[0] == memo[0] and tip[1] == memo[1] and tip[2] == memo[2])
+            or (tip[0] == memo[_PUBLISHED] and tip[1] == memo[_PUBLISHED + 1] and tip[2] == memo[_PUBLISHED + 2])):
+        tip[0], tip[1], tip[2] = memo[0], memo[1], memo[2]  # where the last call ended (or its summed point): E is known
         for q in range(Z_SIZE):
             out[q] = memo[3 + q]
         for q in range(3):
@@ -486,9 +500,7 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
             return it
         if it == 0:
             start = norm
-        for q in range(3):
-            hess[q, q] += stiffness
-        sx, sy, sz = _solve3(hess, -gx, -gy, -gz)
+        sx, sy, sz = _solve3(hess, stiffness, -gx, -gy, -gz)
         newton = sx * gx + sy * gy + sz * gz < 0.0
         if not newton:  # not a descent direction: down the gradient
             sx, sy, sz = -gx / stiffness, -gy / stiffness, -gz / stiffness
@@ -521,7 +533,36 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
             gz = -out[Z_FORCE + 2] + stiffness * (tip[2] - cz)
             if gx * gx + gy * gy + gz * gz <= (reduction * start) ** 2:
                 return it + 1
+            if _publish_model_minimum(memo, trial_hess, stiffness, gx, gy, gz, size, tip, out):
+                return it + 1
     return -PROXY_ITERATIONS
+
+
+@njit(cache=True, inline="always")
+def _publish_model_minimum(memo, h, stiffness, gx, gy, gz, step, tip, out) -> bool:
+    r"""The tracking proxy's last step taken on the quadratic model of f about ``tip`` (P, just
+    summed: ``out`` its E and F, ``h`` its Hessian, g = (gx, gy, gz) f's gradient there), when it
+    can be trusted: :math:`s = -(h + kI)^{-1} g` descends and is at most :data:`CORRECTION_SHARE`
+    of the ``step`` (m) that led to P. Then ``tip`` becomes P + s and ``out`` the model's
+    :math:`E - F\cdot s + 	frac12 s^T h s` and :math:`F - h s`, the memo records P + s as the
+    point published from P, and it returns True (:func:`zone_proxy_kernel`)."""
+    sx, sy, sz = _solve3(h, stiffness, -gx, -gy, -gz)
+    size = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if not (sx * gx + sy * gy + sz * gz < 0.0 and size <= CORRECTION_SHARE * step):
+        return False
+    hx = h[0, 0] * sx + h[0, 1] * sy + h[0, 2] * sz
+    hy = h[1, 0] * sx + h[1, 1] * sy + h[1, 2] * sz
+    hz = h[2, 0] * sx + h[2, 1] * sy + h[2, 2] * sz
+    out[Z_ENERGY] += -(out[Z_FORCE] * sx + out[Z_FORCE + 1] * sy + out[Z_FORCE + 2] * sz) \
+        + 0.5 * (sx * hx + sy * hy + sz * hz)
+    out[Z_FORCE] -= hx
+    out[Z_FORCE + 1] -= hy
+    out[Z_FORCE + 2] -= hz
+    tip[0] += sx
+    tip[1] += sy
+    tip[2] += sz
+    memo[_PUBLISHED], memo[_PUBLISHED + 1], memo[_PUBLISHED + 2] = tip[0], tip[1], tip[2]
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -532,24 +573,26 @@ def _remember(memo, work, tip, out, hess):
     memo[0], memo[1], memo[2] = tip[0], tip[1], tip[2]
     for q in range(Z_SIZE):
         memo[3 + q] = out[q]
+    memo[_PUBLISHED], memo[_PUBLISHED + 1], memo[_PUBLISHED + 2] = math.nan, math.nan, math.nan
     for q in range(3):
         for r in range(3):
             work[2, q, r] = hess[q, r]
 
 
 @njit(cache=True)
-def _solve3(m, bx, by, bz):
-    """x with m x = b for a 3 x 3 ``m`` (Cramer's rule); NaNs for a singular one."""
-    d = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-         + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+def _solve3(m, shift, bx, by, bz):
+    """x with (m + shift I) x = b for a 3 x 3 ``m`` (Cramer's rule); NaNs for a singular one."""
+    m00, m11, m22 = m[0, 0] + shift, m[1, 1] + shift, m[2, 2] + shift
+    d = (m00 * (m11 * m22 - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m22 - m[1, 2] * m[2, 0])
+         + m[0, 2] * (m[1, 0] * m[2, 1] - m11 * m[2, 0]))
     if d == 0.0:
         return math.nan, math.nan, math.nan
-    x = (bx * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (by * m[2, 2] - m[1, 2] * bz)
-         + m[0, 2] * (by * m[2, 1] - m[1, 1] * bz)) / d
-    y = (m[0, 0] * (by * m[2, 2] - m[1, 2] * bz) - bx * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+    x = (bx * (m11 * m22 - m[1, 2] * m[2, 1]) - m[0, 1] * (by * m22 - m[1, 2] * bz)
+         + m[0, 2] * (by * m[2, 1] - m11 * bz)) / d
+    y = (m00 * (by * m22 - m[1, 2] * bz) - bx * (m[1, 0] * m22 - m[1, 2] * m[2, 0])
          + m[0, 2] * (m[1, 0] * bz - by * m[2, 0])) / d
-    z = (m[0, 0] * (m[1, 1] * bz - by * m[2, 1]) - m[0, 1] * (m[1, 0] * bz - by * m[2, 0])
-         + bx * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])) / d
+    z = (m00 * (m11 * bz - by * m[2, 1]) - m[0, 1] * (m[1, 0] * bz - by * m[2, 0])
+         + bx * (m[1, 0] * m[2, 1] - m11 * m[2, 0])) / d
     return x, y, z
 
 
@@ -622,7 +665,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
     arrays = (ctrl, ku, kv, us, vs, xs, ys, wu, wv, zlo, zhi,
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty(pool * TILE * TILE),
-              np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(3 + Z_SIZE, math.nan),
+              np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(_PUBLISHED + 3, math.nan),
               np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv)
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 

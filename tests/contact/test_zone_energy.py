@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_MEMO, L_US, L_VS, PROXY_TOL, TILE, TRACKING_REDUCTION, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
+from arsurf.contact.zone_energy import (CORRECTION_SHARE, L_MEMO, L_US, L_VS, PROXY_TOL, TILE, TRACKING_REDUCTION, Z_FORCE, ZONE_OUT, ZoneLaw, lattice_for, surface_lattice,
                                         zone_energy,
                                         zone_energy_kernel, zone_law_kernel, zone_proxy_kernel)
 from arsurf.errors import ContactError, SurfaceError
@@ -141,7 +141,7 @@ def test_the_proxy_started_where_it_ended_reads_its_memo_and_moves_as_from_a_fre
 def test_tracking_the_proxy_leaves_a_hundredth_of_the_gradient_a_tick_and_converges_at_rest(rough_surface):
     """A haptic tick's proxy (reduction TRACKING_REDUCTION) from a converged tip, the target moved
     0.2 nm across a rough surface: it returns after whole steps that left at most a hundredth of the
-    gradient it started from; ticks at the same target then take it to the minimum the
+    gradient it started from (or none, where it published the quadratic model's minimum); ticks at the same target then take it to the minimum the
     converging proxy finds (to the tolerance's nanometre fraction)."""
     lattice = lattice_for(rough_surface, R, LAW.interaction_range)
     k = 5.0
@@ -163,6 +163,47 @@ def test_tracking_the_proxy_leaves_a_hundredth_of_the_gradient_a_tick_and_conver
     zone_proxy_kernel(*lattice.kernel_args(), *moved, k, *LAW.args, full, full_out)  # converging: no further step
     assert np.linalg.norm(full - tip) <= 1e-6 * R
     assert gradient(tip, out, moved) <= PROXY_TOL * k * R
+
+
+def test_tracking_the_proxy_sums_once_a_tick_and_publishes_the_quadratic_models_minimum(rough_surface):
+    """A haptic loop's ticks across the rough surface, the target moving 0.1 nm a tick at a load of
+    ~40 nN: each tick sums the energy once (one step from the point summed the tick before, whose
+    E, F and Hessian are remembered) and publishes the minimum of the quadratic model about the
+    point it summed, where the force balances the coupling (to rounding); it agrees with the
+    minimum the converging proxy finds to a thousandth of the force, as the quadratic model's
+    error (second order in the step's residual) says; and a call from the published tip starts
+    from the summed point, as one from that point on a lattice that never saw the call."""
+    lattice = lattice_for(rough_surface, R, LAW.interaction_range)
+    k = 50.0
+    target = np.array([14e-9, 16e-9, top(rough_surface, lattice) + R - 3e-9])
+    tip, out = target + [0.0, 0.0, 4e-9], ZONE_OUT.zeros()
+    assert zone_proxy_kernel(*lattice.kernel_args(), *target, k, *LAW.args, tip, out) > 0  # converged
+    reference = lattice_for(rough_surface, R, LAW.interaction_range)
+    full, full_out = tip.copy(), out.copy()
+    published = 0
+    for tick in range(40):
+        target = target + [0.1e-9, 0.02e-9, 0.0]
+        assert zone_proxy_kernel(*lattice.kernel_args(), *target, k, *LAW.args, tip, out, TRACKING_REDUCTION) == 1
+        force = out[Z_FORCE:Z_FORCE + 3]
+        summed = lattice.arrays[L_MEMO][:3]
+        if not np.array_equal(tip, summed):  # published off the summed point: balanced there
+            published += 1
+            np.testing.assert_allclose(force, k * (tip - target), rtol=0.0, atol=1e-12 * np.linalg.norm(force))
+            assert np.linalg.norm(tip - summed) <= CORRECTION_SHARE * 0.11e-9
+        zone_proxy_kernel(*reference.kernel_args(), *target, k, *LAW.args, full, full_out)
+        assert np.linalg.norm(force - full_out[Z_FORCE:Z_FORCE + 3]) <= 1e-3 * np.linalg.norm(force)
+        assert np.linalg.norm(full - tip) <= 1e-3 * np.linalg.norm(force) / k
+    assert published >= 20 and np.linalg.norm(force) > 2e-8
+
+    summed = lattice.arrays[L_MEMO][:3].copy()
+    fresh = lattice_for(rough_surface, R, LAW.interaction_range)
+    moved = target + [0.1e-9, 0.0, 0.0]
+    runs = []
+    for lat, start in ((lattice, tip), (fresh, summed)):
+        t, o = start.copy(), ZONE_OUT.zeros()
+        runs.append((zone_proxy_kernel(*lat.kernel_args(), *moved, k, *LAW.args, t, o), t, o))
+    (n1, t1, o1), (n2, t2, o2) = runs
+    assert n1 == n2 > 0 and np.array_equal(t1, t2) and np.array_equal(o1, o2)
 
 
 @pytest.fixture(scope="module")
