@@ -115,7 +115,7 @@ PROXY_ITERATIONS = 200
 TRACKING_REDUCTION = 0.01
 #: ... or once the Newton step its residual gradient asks for is at most this share of the step
 #: just taken (the Hessian barely changed along it), taking that last step on the quadratic model
-CORRECTION_SHARE = 0.5
+CORRECTION_SHARE = 0.1
 #: the lattice a tip is summed over is at most this fraction of its radius apart (:func:`lattice_for`)
 SPACING_PER_RADIUS = 1.0 / 8.0
 #: and this fraction of its zone of interaction at zero load: the law's load on a flat within ~2 % for tips of
