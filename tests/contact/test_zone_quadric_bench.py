@@ -1,0 +1,20 @@
+"""The closed-form zone contact measured against the lattice (bench/zone_quadric.py; docs/feel-log.rst,
+"One sum of the lattice a tick"): on a scan smooth under the tip the law over the quadratic gap
+about its minimum, with the sphere's own shape to the next order, gives the lattice's load within
+its quadrature's 2 %, and the sphere's factor is what brings it there from the paraboloid's."""
+from __future__ import annotations
+
+import json
+
+from tests.support.benches import load_bench
+from tests.support.real_scans import real_scan_path
+
+
+def test_one_term_gives_the_lattice_s_load_on_a_smooth_scan(capsys):
+    name = real_scan_path("2018-02-09_1506_PH_dt20nmwindow1_Z_C.gsf").name
+    load_bench("zone_quadric").main(["--scans", name, "--points", "6"])
+    (row,) = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    sphere, paraboloid = row["sphere"], row["paraboloid"]
+    assert row["tips"] == 6 and sphere["lattice_fz_median_N"] > 2e-8
+    assert sphere["fz_difference_max"] < 0.02 and sphere["fx_difference_over_fz_max"] < 0.01
+    assert paraboloid["fz_difference_median"] > 3 * sphere["fz_difference_median"]
