@@ -544,7 +544,7 @@ def _publish_model_minimum(memo, h, stiffness, gx, gy, gz, step, tip, out) -> bo
     summed: ``out`` its E and F, ``h`` its Hessian, g = (gx, gy, gz) f's gradient there), when it
     can be trusted: :math:`s = -(h + kI)^{-1} g` descends and is at most :data:`CORRECTION_SHARE`
     of the ``step`` (m) that led to P. Then ``tip`` becomes P + s and ``out`` the model's
-    :math:`E - F\cdot s + 	frac12 s^T h s` and :math:`F - h s`, the memo records P + s as the
+    :math:`E - F\cdot s + \tfrac12 s^T h s` and :math:`F - h s`, the memo records P + s as the
     point published from P, and it returns True (:func:`zone_proxy_kernel`)."""
     sx, sy, sz = _solve3(h, stiffness, -gx, -gy, -gz)
     size = math.sqrt(sx * sx + sy * sy + sz * sz)
