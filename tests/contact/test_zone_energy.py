@@ -141,8 +141,9 @@ def test_the_proxy_started_where_it_ended_reads_its_memo_and_moves_as_from_a_fre
 def test_tracking_the_proxy_leaves_a_hundredth_of_the_gradient_a_tick_and_converges_at_rest(rough_surface):
     """A haptic tick's proxy (reduction TRACKING_REDUCTION) from a converged tip, the target moved
     0.2 nm across a rough surface: it returns after whole steps that left at most a hundredth of the
-    gradient it started from (or none, where it published the quadratic model's minimum); ticks at the same target then take it to the minimum the
-    converging proxy finds (to the tolerance's nanometre fraction)."""
+    gradient it started from (or none, where it published the quadratic model's minimum); ticks at
+    the same target then take it to the minimum the converging proxy finds (to the tolerance's
+    nanometre fraction)."""
     lattice = lattice_for(rough_surface, R, LAW.interaction_range)
     k = 5.0
     target = np.array([16e-9, 16e-9, top(rough_surface, lattice) + R - 3e-9])
