@@ -164,6 +164,65 @@ def cubic_basis(knots, i, u):
             -g0, g0 - g1, g1 - g2, g2)
 
 
+@njit(cache=True, inline="always")
+def third_derivatives(knots, i):
+    """The third derivatives of the 4 cubic basis functions nonzero on span i, constant on it:
+    :math:`(-1, 3, -3, 1)/h^3` on an interior span (from :func:`uniform_basis`), and on the
+    clamped ends the change of the (linear) second derivatives across the span over its width."""
+    n = knots.size - 4
+    ih = 1.0 / (knots[i + 1] - knots[i])
+    if 5 <= i <= n - 3:
+        c = ih * ih * ih
+        return -c, 3.0 * c, -3.0 * c, c
+    a = cubic_basis(knots, i, knots[i])
+    b = cubic_basis(knots, i, knots[i + 1])
+    return (b[8] - a[8]) * ih, (b[9] - a[9]) * ih, (b[10] - a[10]) * ih, (b[11] - a[11]) * ih
+
+
+@njit(cache=True)
+def height_jet(ctrl, ku, kv, u, v):
+    """A height-field net's point and height derivatives to third order at (u, v) (clamped):
+    ``(x, y, x_u, y_v, z, z_u, z_v, z_uu, z_uv, z_vv, z_uuu, z_uuv, z_uvv, z_vvv)``, x depending
+    on u only and y on v only (a fitted scan's net), so the height's derivatives in x and y are
+    these over powers of x_u and y_v. One pass over the 4x4 patch; allocates nothing."""
+    iu, bu = basis_at(ku, u)
+    iv, bv = basis_at(kv, v)
+    tu = third_derivatives(ku, iu + 3)
+    tv = third_derivatives(kv, iv + 3)
+    x = y = xu = yv = 0.0
+    z = zu = zv = zuu = zuv = zvv = zuuu = zuuv = zuvv = zvvv = 0.0
+    for b in range(4):
+        j = iv + b
+        r0 = r1 = r2 = r3 = rx = rxu = 0.0  # z contracted along u to each order; x and x_u
+        for a in range(4):
+            pz = ctrl[iu + a, j, 2]
+            r0 += bu[a] * pz
+            r1 += bu[4 + a] * pz
+            r2 += bu[8 + a] * pz
+            r3 += tu[a] * pz
+            rx += bu[a] * ctrl[iu + a, j, 0]
+            rxu += bu[4 + a] * ctrl[iu + a, j, 0]
+        m0, m1, m2, m3 = bv[b], bv[4 + b], bv[8 + b], tv[b]
+        x += m0 * rx
+        xu += m0 * rxu
+        py = 0.0  # y at this column, along u
+        for a in range(4):
+            py += bu[a] * ctrl[iu + a, j, 1]
+        y += m0 * py
+        yv += m1 * py
+        z += m0 * r0
+        zu += m0 * r1
+        zv += m1 * r0
+        zuu += m0 * r2
+        zuv += m1 * r1
+        zvv += m2 * r0
+        zuuu += m0 * r3
+        zuuv += m1 * r2
+        zuvv += m2 * r1
+        zvvv += m3 * r0
+    return x, y, xu, yv, z, zu, zv, zuu, zuv, zvv, zuuu, zuuv, zuvv, zvvv
+
+
 @njit(cache=True)
 def basis_row(knots, u, out):
     """Write the 4 basis values at u into ``out`` and return the first column index (span - 3)."""
