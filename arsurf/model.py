@@ -516,8 +516,8 @@ def _zone_contact(zone_energy, md, friction, tip_radius, cx, cy, cz, state, coll
                              ze.TRACKING_REDUCTION)
     else:
         state[t], state[t + 1], state[t + 2] = cx, cy, cz
-        ze.zone_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone,
-                              scratch[_ZONE:_ZONE].reshape((0, 0)))  # no Hessian
+        ze.tip_energy_kernel(lat, cx, cy, cz, tip_radius, e_star, sigma0, h0, zone,
+                             scratch[_ZONE:_ZONE].reshape((0, 0)))  # no Hessian
     fx, fy, fz = zone[ze.Z_FORCE], zone[ze.Z_FORCE + 1], zone[ze.Z_FORCE + 2]
     reached = fx != 0.0 or fy != 0.0 or fz != 0.0
     if not reached:  # out of reach: the coupled minimum is the target itself, exactly
@@ -699,8 +699,13 @@ class ARModel:
         E*, w and Dugdale stress summed over the surface under the tip; the tip behind the
         coupling at the nearest minimum of that energy plus the coupling's, :func:`_zone_contact`)
         instead of the Maugis-Dugdale contacts at the minima of the distance. Default False
-        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default). With a
-        material map each surface element sums its own local law.
+        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default). Where the
+        contact is smooth and alone, the energy in closed form over it, joined smoothly to the sum
+        (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`). With a material map each surface
+        element sums its own local law (always the sum).
+    zone_closed_form : bool
+        With ``zone_energy``, the closed form where it can be trusted (default True); False: the
+        lattice's sum everywhere (the reference it is measured against).
 
     Examples
     --------
@@ -719,7 +724,7 @@ class ARModel:
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
                  static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
                  signal_noise: float | None = None, friction_law: str = "adhesive",
-                 shear_strength: float | None = None, zone_energy: bool = False):
+                 shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = True):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)
@@ -778,6 +783,8 @@ class ARModel:
         if not isinstance(zone_energy, bool):
             raise ContactError(f"`zone_energy` must be True or False (got {zone_energy!r})")
         self.zone_energy = zone_energy
+        if not isinstance(zone_closed_form, bool):
+            raise ContactError(f"`zone_closed_form` must be True or False (got {zone_closed_form!r})")
         # the measured force's parameters (MEASURED_PARAMS): the decoupling's, then the signal noise level
         self._dec = np.append(decoupling_parameters(cantilever, min_speed=MIN_SLIP_HORIZONTAL), signal_noise)
         self._friction = PROXY_PARAMS.pack({
@@ -798,7 +805,7 @@ class ARModel:
         # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0)),
         # each sample with the map's local law
         self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range,
-                                           material=self._md_args) if zone_energy else None
+                                           material=self._md_args, closed_form=zone_closed_form) if zone_energy else None
         self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy else None
         # validates the height-field rest net; the tick records its dent in the contact vector
         self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))

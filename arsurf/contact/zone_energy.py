@@ -59,20 +59,20 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from arsurf._layout import Layout
-from arsurf.contact.material_map import C_BODY, local_ratios_kernel
-from arsurf.contact.zone_law import CONE_HALF_ANGLE, ZoneLaw, _across, _cone, _law, _rise, zone_law_kernel
+from arsurf.contact.material_map import C_BODY, H_ON, local_ratios_kernel
+from arsurf.contact.zone_quadric import (CHECK_RADIUS, Q_CHECK, Q_GAP, Q_MOTION, Q_POINT, Q_SLOPE, Q_WEIGHT, QUADRIC_OUT, RING_WIDTH,
+                                         quadric_contact_kernel, smootherstep)
+from arsurf.contact.zone_law import (CONE_HALF_ANGLE, Z_ENERGY, Z_FORCE, Z_SIZE, ZONE_OUT, ZoneLaw, _across, _cone, _law,
+                                     _rise, zone_law_kernel)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CONE_HALF_ANGLE", "SurfaceLattice", "TILE", "TRACKING_REDUCTION", "ZONE_OUT", "ZoneLaw", "lattice_for", "surface_lattice",
+__all__ = ["CONE_HALF_ANGLE", "SurfaceLattice", "TILE", "TRACKING_REDUCTION", "ZONE_OUT", "ZoneLaw", "isolation_kernel",
+           "lattice_for", "surface_lattice", "tip_energy_kernel",
            "zone_energy", "zone_energy_kernel", "zone_law_kernel", "zone_proxy_kernel"]
 
-#: what :func:`zone_energy_kernel` writes: the energy E (J) and the force F on the tip (N)
-ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
-Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
 #: where the proxy's memo (``L_MEMO``: the summed point, its E and F) keeps the point it published
 _PUBLISHED = 3 + Z_SIZE
 
@@ -83,6 +83,9 @@ BLOCK = 8
 #: the relative margin of a block's reach (and of the tip's coordinates) when its rows and columns are read
 #: from the lattice's x and y (a sample's own are the same to rounding, ~1e-16 relative)
 WINDOW_SLACK = 1e-9
+#: the gap (a fraction of h0) over which a lone one-term contact fades as another point of the surface comes
+#: within h0 + it of the tip (:func:`isolation_kernel`)
+ISOLATION_MARGIN = 1.0
 #: the repulsion's gap in its stiffness is held at least this fraction of the range (:func:`zone_energy_kernel`)
 HESSIAN_FLOOR = 1e-3
 #: the proxy's step is at most this fraction of the tip radius (:func:`zone_proxy_kernel`)
@@ -113,7 +116,7 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
- L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP) = range(25)
+ L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP, L_QUAD, L_JOIN, L_JOIN_WORK, L_JOIN_OUT) = range(29)
 
 
 @njit(cache=True)
@@ -127,6 +130,54 @@ def _first_at_least(xs, x):
         else:
             hi = mid
     return lo
+
+
+@njit(cache=True, inline="always")
+def _window(xs, ys, tx, ty, reach):
+    """``(i0, i1, j0, j1)``: the lattice's rows and columns within ``reach`` (m) of (tx, ty), one more each side."""
+    i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
+    i1 = min(_first_at_least(xs, tx + reach) + 1, xs.shape[0])
+    j0 = max(_first_at_least(ys, ty - reach) - 1, 0)
+    j1 = min(_first_at_least(ys, ty + reach) + 1, ys.shape[0])
+    return i0, i1, j0, j1
+
+
+@njit(cache=True, inline="always")
+def _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius) -> int:
+    """The pool slot of tile (``ti``, ``tj``) when a sample of it may lie within reach of the tip at
+    (tx, ty) (a sample of height z is where the tip's surface rises ``base`` + z: :func:`zone_energy_kernel`),
+    sampled the first time it is needed; -1 when the tile's heights, bound by its control points' (the
+    convex hull), keep it beyond reach: then it is never sampled. A tile is the same whenever it is
+    sampled, so the energy does not depend on what the pool holds."""
+    rho0, cap, slope = _cone(radius)
+    nu, nv = xs.shape[0], ys.shape[0]
+    a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
+    b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
+    dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
+    dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
+    if base + zhi[ti, tj] <= 0.0 or dx * dx + dy * dy >= _across(base + zhi[ti, tj], radius, rho0, cap, slope) ** 2:
+        return -1
+    s = _held_slot(slot_of, stamp, clock, ti, tj)
+    if s < 0:
+        s = _take_slot(lat, ti, tj)
+        stamp[s] = clock[0]
+    return s
+
+
+@njit(cache=True, inline="always")
+def _block_reach(box, s, qa, qb, tx, ty, base, radius):
+    """How far across (m) from (tx, ty) a sample of block (``qa``, ``qb``) of pool slot ``s`` may lie
+    within reach, by the block's highest sample (with :data:`WINDOW_SLACK`: a sample's x, y are its
+    row's and column's); -1 when none of the block can."""
+    if base + box[s, qa, qb, 5] <= 0.0:
+        return -1.0
+    rho0, cap, slope = _cone(radius)
+    near = _across(base + box[s, qa, qb, 5], radius, rho0, cap, slope)
+    dx = max(box[s, qa, qb, 0] - tx, 0.0, tx - box[s, qa, qb, 3])
+    dy = max(box[s, qa, qb, 1] - ty, 0.0, ty - box[s, qa, qb, 4])
+    if dx * dx + dy * dy >= near * near:
+        return -1.0
+    return near + WINDOW_SLACK * (near + abs(tx) + abs(ty))
 
 
 @njit(cache=True, error_model="numpy")
@@ -152,36 +203,18 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
     stiff, floor = e_star / (math.pi * math.sqrt(radius)), math.sqrt(HESSIAN_FLOOR * h0)
     base = h0 + radius - tz  # a sample of height z is in reach within _across(base + z) of T
     if base + lat[L_TOP][0] > 0.0:
-        reach = _across(base + lat[L_TOP][0], radius, rho0, cap, slope)
-        nu, nv = xs.shape[0], ys.shape[0]
-        i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
-        i1 = min(_first_at_least(xs, tx + reach) + 1, nu)
-        j0 = max(_first_at_least(ys, ty - reach) - 1, 0)
-        j1 = min(_first_at_least(ys, ty + reach) + 1, nv)
+        i0, i1, j0, j1 = _window(xs, ys, tx, ty, _across(base + lat[L_TOP][0], radius, rho0, cap, slope))
         for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
             for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
-                # the tile's heights bound by its control points' (the convex hull): beyond reach, never sampled
-                a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
-                b0, b1 = tj * TILE, min((tj + 1) * TILE, nv) - 1
-                dx = max(xs[a0] - tx, 0.0, tx - xs[a1])
-                dy = max(ys[b0] - ty, 0.0, ty - ys[b1])
-                if base + zhi[ti, tj] <= 0.0 or dx * dx + dy * dy >= _across(base + zhi[ti, tj], radius, rho0, cap,
-                                                                             slope) ** 2:
+                s = _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
+                if s < 0:
                     continue
-                s = _held_slot(slot_of, stamp, clock, ti, tj)
-                if s < 0:  # sampled the first time it is needed; a tile is the same whenever it is sampled, so the
-                    s = _take_slot(lat, ti, tj)  # energy does not depend on what the pool holds
-                    stamp[s] = clock[0]
+                a0, b0 = ti * TILE, tj * TILE
                 for qa in range(2):
                     for qb in range(2):
-                        if base + box[s, qa, qb, 5] <= 0.0:
+                        near = _block_reach(box, s, qa, qb, tx, ty, base, radius)
+                        if near < 0.0:
                             continue
-                        near = _across(base + box[s, qa, qb, 5], radius, rho0, cap, slope)  # none of the block beyond
-                        dx = max(box[s, qa, qb, 0] - tx, 0.0, tx - box[s, qa, qb, 3])
-                        dy = max(box[s, qa, qb, 1] - ty, 0.0, ty - box[s, qa, qb, 4])
-                        if dx * dx + dy * dy >= near * near:
-                            continue
-                        near += WINDOW_SLACK * (near + abs(tx) + abs(ty))  # a sample's x, y: its row's, column's
                         jb0, jb1 = max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)
                         for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
                             dx = abs(tx - xs[i])
@@ -229,6 +262,149 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
         hess[1, 0] = hess[0, 1]
         hess[2, 0] = hess[0, 2]
         hess[2, 1] = hess[1, 2]
+    return n
+
+
+@njit(cache=True, error_model="numpy")
+def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
+    r"""How far the one-term contact of ``quad`` (:data:`~arsurf.contact.zone_quadric.QUADRIC_OUT`, at
+    the tip centre T = (tx, ty, tz) m) is from any other: the least, over the lattice's samples, of
+    :math:`f_k = g_k + \Lambda\,\chi(r_k)`, :math:`g_k` the sample's gap, :math:`r_k` its distance
+    from the minimum :math:`x^*`, :math:`\chi` 1 within the check circle :math:`r_c` and fading to 0
+    over :data:`~arsurf.contact.zone_quadric.RING_WIDTH` of it beyond (a smooth step), and
+    :math:`\Lambda = 2 h_0 + \Delta - g_0` (:math:`\Delta` = :data:`ISOLATION_MARGIN` h0) so that a
+    sample within the circle, whose gap is at least :math:`g_0`, is never the least below
+    :math:`h_0 + \Delta`. Returns it (m), capped at :math:`h_0 + \Delta` (nothing else within that gap),
+    with its gradient in T into ``grad`` (its first 3): the least sample's
+    :math:`\nabla g_k + \chi\nabla\Lambda + \Lambda\chi'\nabla r_k`-terms, the circle moving with
+    :math:`x^*` and :math:`g_0`. Continuous in T (the least of continuous functions), it visits only
+    the samples in reach of that gap outside the circle: for a lone contact, a thin ring."""
+    xs, ys, zhi, pts, box = lat[L_XS], lat[L_YS], lat[L_ZHI], lat[L_PTS], lat[L_BOX]
+    slot_of, stamp, clock = lat[L_SLOT_OF], lat[L_STAMP], lat[L_CLOCK]
+    margin = ISOLATION_MARGIN * h0
+    best = h0 + margin
+    grad[0] = grad[1] = grad[2] = 0.0
+    px, py, g0, check = quad[Q_POINT], quad[Q_POINT + 1], quad[Q_GAP], quad[Q_CHECK]
+    mxx, mxy, myx, myy = quad[Q_MOTION], quad[Q_MOTION + 1], quad[Q_MOTION + 2], quad[Q_MOTION + 3]
+    nx, ny = -quad[Q_SLOPE], -quad[Q_SLOPE + 1]  # grad g0 = (nx, ny, 1)
+    lam = 2.0 * h0 + margin - g0 if check > 0.0 else 0.0
+    grc = -(CHECK_RADIUS * CHECK_RADIUS * radius / check) if check > 0.0 else 0.0  # grad r_c = grc (nx, ny, 1)
+    inner = check * check
+    rho0, cap, slope = _cone(radius)
+    base = best + radius - tz  # a sample of height z may be below the gap `best` within _across(base + z) of T
+    if base + lat[L_TOP][0] <= 0.0:
+        return best
+    i0, i1, j0, j1 = _window(xs, ys, tx, ty, _across(base + lat[L_TOP][0], radius, rho0, cap, slope))
+    for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
+        for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
+            s = _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
+            if s < 0:
+                continue
+            a0, b0 = ti * TILE, tj * TILE
+            for qa in range(2):
+                for qb in range(2):
+                    near = _block_reach(box, s, qa, qb, tx, ty, base, radius)
+                    if near < 0.0:
+                        continue
+                    fx = max(abs(box[s, qa, qb, 0] - px), abs(box[s, qa, qb, 3] - px))
+                    fy = max(abs(box[s, qa, qb, 1] - py), abs(box[s, qa, qb, 4] - py))
+                    if fx * fx + fy * fy < inner:
+                        continue  # the whole block within the circle
+                    for i in range(max(a0 + qa * BLOCK, i0), min(a0 + (qa + 1) * BLOCK, i1)):
+                        if abs(tx - xs[i]) >= near:
+                            continue
+                        row = (s * TILE + i - a0) * TILE - b0
+                        for j in range(max(b0 + qb * BLOCK, j0), min(b0 + (qb + 1) * BLOCK, j1)):
+                            k = row + j
+                            ox, oy = pts[k, 0] - px, pts[k, 1] - py
+                            r2 = ox * ox + oy * oy
+                            if r2 < inner:
+                                continue
+                            dx, dy = tx - pts[k, 0], ty - pts[k, 1]
+                            rise, q, _ = _rise(dx * dx + dy * dy, radius, rho0, cap, slope)
+                            g = tz - radius + rise - pts[k, 2]
+                            if g >= best:  # f >= g
+                                continue
+                            chi, t = 0.0, 0.0
+                            if check > 0.0:
+                                r = math.sqrt(r2)
+                                t = (r - check) / (RING_WIDTH * check)
+                                chi = 1.0 - smootherstep(t)[0]
+                            f = g + lam * chi
+                            if f >= best:
+                                continue
+                            best = f
+                            gx, gy, gz = q * dx, q * dy, 1.0  # grad g
+                            if chi > 0.0:
+                                # chi grad lam, grad lam = -(nx, ny, 1); lam chi' grad t,
+                                # grad t = (grad r r_c - r grad r_c) / (w r_c^2), grad r_xy = -(u^T X)
+                                r = math.sqrt(r2)
+                                ux, uy = ox / r, oy / r
+                                c = -lam * smootherstep(t)[1] / (RING_WIDTH * check * check)
+                                grx = -(ux * mxx + uy * myx)
+                                gry = -(ux * mxy + uy * myy)
+                                gx += -chi * nx + c * (grx * check - r * grc * nx)
+                                gy += -chi * ny + c * (gry * check - r * grc * ny)
+                                gz += -chi + c * (-r * grc)
+                            grad[0], grad[1], grad[2] = gx, gy, gz
+    return best
+
+
+@njit(cache=True, error_model="numpy")
+def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
+    r"""The energy of the whole tip E (J) and the force F (N) at T = (tx, ty, tz) (m) into ``out``
+    (:data:`ZONE_OUT`; ``hess`` as :func:`zone_energy_kernel`'s): the lattice's sum
+    (:func:`zone_energy_kernel`), or, on a lattice made with ``closed_form``, the one term of
+    :mod:`arsurf.contact.zone_quadric` where it can be trusted, joined to the sum by a weight
+    :math:`w(T)`,
+
+    .. math::
+
+        E = w E_1 + (1 - w) E_\Sigma, \qquad
+        F = w F_1 + (1 - w) F_\Sigma - (E_1 - E_\Sigma)\nabla w,
+
+    w the one term's own (its fit on a ring, the room on the sphere and the scan) times the smooth
+    step of :func:`isolation_kernel`'s least gap elsewhere from :math:`h_0` (0) to :math:`h_0 +
+    \Delta` (1): one energy, its force its gradient; the sum is taken only where w < 1. The
+    Hessian is joined without the weight's derivatives (it steers a proxy's step only). Returns the
+    lattice's samples in reach, or -1 where the one term alone was used."""
+    quad, work, part = lat[L_QUAD], lat[L_JOIN_WORK], lat[L_JOIN_OUT]
+    if lat[L_JOIN][0] == 0:
+        return zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess)
+    want = hess.shape[0] == 3
+    qh = work[0] if want else hess
+    w, gwx, gwy, gwz = 0.0, 0.0, 0.0, 0.0
+    if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], tx, ty, tz, radius, e_star, sigma0, h0, quad,
+                              qh) >= 0 and quad[Q_WEIGHT] > 0.0:
+        margin = ISOLATION_MARGIN * h0
+        least = isolation_kernel(lat, tx, ty, tz, radius, h0, quad, part)  # its gradient into part[:3]
+        grad = part
+        wi, si = smootherstep((least - h0) / margin)
+        wq = quad[Q_WEIGHT]
+        w = wq * wi
+        gwx = quad[Q_WEIGHT + 1] * wi + wq * si / margin * grad[0]
+        gwy = quad[Q_WEIGHT + 2] * wi + wq * si / margin * grad[1]
+        gwz = quad[Q_WEIGHT + 3] * wi + wq * si / margin * grad[2]
+    if w >= 1.0:
+        for q in range(Z_SIZE):
+            out[q] = quad[q]
+        if want:
+            for a in range(3):
+                for b in range(3):
+                    hess[a, b] = qh[a, b]
+        return -1
+    n = zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess)
+    if w <= 0.0:
+        return n
+    diff = quad[Z_ENERGY] - out[Z_ENERGY]
+    out[Z_ENERGY] += w * diff
+    out[Z_FORCE] += w * (quad[Z_FORCE] - out[Z_FORCE]) - diff * gwx
+    out[Z_FORCE + 1] += w * (quad[Z_FORCE + 1] - out[Z_FORCE + 1]) - diff * gwy
+    out[Z_FORCE + 2] += w * (quad[Z_FORCE + 2] - out[Z_FORCE + 2]) - diff * gwz
+    if want:
+        for a in range(3):
+            for b in range(3):
+                hess[a, b] += w * (qh[a, b] - hess[a, b])
     return n
 
 
@@ -332,7 +508,7 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
             for r in range(3):
                 hess[q, r] = work[2, q, r]
     else:
-        zone_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
+        tip_energy_kernel(lat, tip[0], tip[1], tip[2], radius, e_star, sigma0, h0, out, hess)
         _remember(memo, work, tip, out, hess)
     value = out[Z_ENERGY] + 0.5 * stiffness * ((tip[0] - cx) ** 2 + (tip[1] - cy) ** 2 + (tip[2] - cz) ** 2)
     start = math.nan
@@ -356,7 +532,7 @@ def zone_proxy_kernel(lat, cx, cy, cz, stiffness, radius, e_star, sigma0, h0, ti
         t = 1.0
         for _ in range(40):  # Armijo: halve until f falls by at least a tenth of what the slope promises
             px, py, pz = tip[0] + t * sx, tip[1] + t * sy, tip[2] + t * sz
-            zone_energy_kernel(lat, px, py, pz, radius, e_star, sigma0, h0, trial,
+            tip_energy_kernel(lat, px, py, pz, radius, e_star, sigma0, h0, trial,
                                trial_hess)
             f = trial[Z_ENERGY] + 0.5 * stiffness * ((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
             if f <= value + 0.1 * t * slope:
@@ -467,7 +643,8 @@ class SurfaceLattice:
         return int((self.arrays[L_TILE_OF][:, 0] >= 0).sum())
 
 
-def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, material=None) -> SurfaceLattice:
+def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, material=None,
+                    closed_form: bool = False) -> SurfaceLattice:
     """The rest surface of ``surface`` (a height-field :class:`~arsurf.spline.surface.BSplineSurface`)
     sampled ``per_knot`` times per knot interval along u and v (a number: 0.5 is a sample every
     second knot; spacing h), each sample standing for
@@ -479,7 +656,12 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
     function of the tip wherever the pool stands. ``material``: a contact vector with a material
     map (:func:`~arsurf.contact.material_map.contact_vector`; kept, read-only): each sample then
     sums its own law, the reference law's repulsion scaled by the local :math:`E^*/E^*_{ref}` and
-    its adhesion by :math:`w/w_{ref}` (the range h0 the same, as the map's laws keep it)."""
+    its adhesion by :math:`w/w_{ref}` (the range h0 the same, as the map's laws keep it).
+    ``closed_form``: where the contact is smooth and alone, the energy in closed form over it
+    (:func:`tip_energy_kernel`, :mod:`arsurf.contact.zone_quadric`) instead of the lattice's sum;
+    not with a material map."""
+    if not isinstance(closed_form, bool):
+        raise SurfaceError(f"`closed_form` must be True or False (got {closed_form!r})")
     if not (isinstance(per_knot, (int, float, np.integer, np.floating)) and not isinstance(per_knot, bool)
             and 0.0 < per_knot <= MAX_PER_KNOT):
         raise SurfaceError(f"`per_knot` must be a number in (0, {MAX_PER_KNOT:g}] (got {per_knot!r})")
@@ -511,7 +693,8 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
               np.full((ntu, ntv), -1, np.int64), np.full((pool, 2), -1, np.int64), np.zeros(pool, np.int64),
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty(pool * TILE * TILE),
               np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(_PUBLISHED + 3, math.nan),
-              np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv)
+              np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv, QUADRIC_OUT.full(math.nan),
+              np.array([int(closed_form and cv[H_ON] == 0.0)]), np.empty((2, 3, 3)), np.empty(Z_SIZE))
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 
 
@@ -556,7 +739,7 @@ def _tile_heights(z, cols_u, cols_v, zlo, zhi):
 
 
 def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_knot: int = 2,
-                pool: int = DEFAULT_POOL, material=None) -> SurfaceLattice:
+                pool: int = DEFAULT_POOL, material=None, closed_form: bool = False) -> SurfaceLattice:
     r"""The lattice of ``surface`` a tip of ``tip_radius`` R (m) with a law of ``interaction_range``
     h0 (m) is summed over: samples h apart, at most :data:`SPACING_PER_RADIUS` R and
     :data:`SPACING_PER_ZONE` of the zone where a flat at zero load interacts,
@@ -564,7 +747,7 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
     (``bench/zone_quadrature.py``), and a 20 nm tip on a 0.016 nm-pixel STM image would sum 260 000
     samples where 400 resolve its contact; at most :data:`MAX_PER_KNOT` per knot interval and
     :data:`MAX_TILES` tiles, coarser beyond them with a warning (``per_knot`` without adhesion, h0
-    = 0). ``material``: as :func:`surface_lattice`'s."""
+    = 0). ``material``, ``closed_form``: as :func:`surface_lattice`'s."""
     if not (isinstance(tip_radius, (int, float)) and math.isfinite(tip_radius) and tip_radius > 0.0):
         raise ContactError(f"`tip_radius` must be a finite number > 0 m (got {tip_radius!r})")
     if not (isinstance(interaction_range, (int, float)) and math.isfinite(interaction_range)
@@ -580,7 +763,7 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
         most *= 0.99
     if most < cap:
         cap, why = most, f"{cu - 3} x {cv - 3} knot intervals take at most {MAX_TILES} tiles of samples"
-    lattice = surface_lattice(surface, min(pixel / spacing, cap), pool, material)
+    lattice = surface_lattice(surface, min(pixel / spacing, cap), pool, material, closed_form)
     if pixel / spacing > cap:
         log.warning("the zone energy's lattice is %.3g nm apart, not %.3g nm: %s; the law is summed less well "
                     "(docs/feel.rst, \"The lattice's quadrature\")", lattice.spacing[0] * 1e9, spacing * 1e9, why)
@@ -594,5 +777,5 @@ def zone_energy(lattice: SurfaceLattice, law: ZoneLaw, center) -> tuple[float, n
     if c.shape != (3,) or not np.isfinite(c).all():
         raise ContactError(f"`center` must be 3 finite coordinates in m (got {center!r})")
     out = ZONE_OUT.zeros()
-    zone_energy_kernel(*lattice.kernel_args(), c[0], c[1], c[2], *law.args, out, np.empty((0, 0)))
+    tip_energy_kernel(*lattice.kernel_args(), c[0], c[1], c[2], *law.args, out, np.empty((0, 0)))
     return float(out[Z_ENERGY]), out[Z_FORCE:Z_FORCE + 3].copy()

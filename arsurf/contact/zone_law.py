@@ -34,9 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from arsurf._layout import Layout
 from arsurf.errors import ContactError
 
-__all__ = ["CONE_HALF_ANGLE", "ZoneLaw", "zone_law_kernel"]
+__all__ = ["CONE_HALF_ANGLE", "ZONE_OUT", "ZoneLaw", "zone_law_kernel"]
+
+#: what the zone energy's kernels write (:mod:`arsurf.contact.zone_energy`, :mod:`arsurf.contact.zone_quadric`): the
+#: energy E (J) and the force F on the tip (N)
+ZONE_OUT = Layout("zone energy output", [("energy", 1), ("force", 3)])
+Z_ENERGY, Z_FORCE, Z_SIZE = ZONE_OUT.offset("energy"), ZONE_OUT.offset("force"), ZONE_OUT.size
 
 #: the half-angle (rad) of the cone the tip's sphere continues into (module docstring): 15 degrees
 CONE_HALF_ANGLE = math.radians(15.0)

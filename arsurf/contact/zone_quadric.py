@@ -66,18 +66,35 @@ import math
 import numpy as np
 from numba import njit
 
-from arsurf.contact.zone_energy import ZONE_OUT, Z_ENERGY, Z_FORCE
-from arsurf.contact.zone_law import _COS_CONE, _law
+from arsurf.contact.zone_law import _COS_CONE, Z_ENERGY, Z_FORCE, ZONE_OUT, _law
 from arsurf.errors import ContactError
 from arsurf.spline.basis import height_jet
 
 __all__ = ["QUADRIC_OUT", "law_moments", "quadric_contact", "quadric_contact_kernel"]
 
-#: what :func:`quadric_contact_kernel` writes: E (J) and F (N) as :data:`~arsurf.contact.zone_energy.ZONE_OUT`,
+#: what :func:`quadric_contact_kernel` writes: E (J) and F (N) as :data:`~arsurf.contact.zone_law.ZONE_OUT`,
 #: then the least gap g0 (m), where it lies (u, v: the net's parameters, also where the next call starts) and
 #: det M (m^-2)
-QUADRIC_OUT = ZONE_OUT.extended("quadric contact output", [("gap", 1), ("uv", 2), ("curvature", 1)])
-Q_GAP, Q_UV, Q_DET = QUADRIC_OUT.offset("gap"), QUADRIC_OUT.offset("uv"), QUADRIC_OUT.offset("curvature")
+QUADRIC_OUT = ZONE_OUT.extended("quadric contact output", [
+    ("gap", 1), ("uv", 2), ("curvature", 1), ("point", 2), ("motion", 4), ("slope", 2), ("check_radius", 1),
+    ("weight", 4)])
+(Q_GAP, Q_UV, Q_DET, Q_POINT, Q_MOTION, Q_SLOPE, Q_CHECK, Q_WEIGHT) = (QUADRIC_OUT.offset(f) for f in QUADRIC_OUT.fields[2:])
+#: the circle about the minimum on which the fit is checked, in units of the zone's radius on a flat at the same
+#: least gap, :math:`\sqrt{2R(h_0 - g_0)}` (the zone within it while the gap's smaller curvature is at least
+#: 1/(c^2 R), 0.44/R)
+CHECK_RADIUS = 1.5
+#: points on that circle
+RING_POINTS = 12
+#: beyond that circle a ring this fraction of it wide, where a lattice's samples fade into view (zone_energy)
+RING_WIDTH = 0.25
+#: the surface's rms deviation from its second-order Taylor polynomial on the zone's edge, over the gap's range
+#: h0 - g0, below which the one term is trusted wholly (not at all above twice it)
+FIT_TOLERANCE = 0.03
+#: the gap (a fraction of h0) above h0 that every point of the check circle keeps for the one term to be
+#: trusted wholly (it fades to nothing as one reaches h0)
+CLEAR_MARGIN = 1.0
+#: the margins (fractions of R) over which the one term fades as its circle nears the tip's cone or the scan's edge
+ROOM_MARGIN = 0.1
 #: Newton's method for the gap's minimum stops when its step is below this fraction of R (g0 then to ~1e-18 R)
 MINIMUM_TOL = 1e-9
 #: and fails after this many steps
@@ -125,18 +142,25 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
     caller's to replace)."""
     want = hess.shape[0] == 3
     out[Z_ENERGY] = out[Z_FORCE] = out[Z_FORCE + 1] = out[Z_FORCE + 2] = 0.0
+    out[Q_WEIGHT] = out[Q_WEIGHT + 1] = out[Q_WEIGHT + 2] = out[Q_WEIGHT + 3] = 0.0
     if want:
         hess[:, :] = 0.0
+    # from the last minimum, or from under the tip where there is none within the tip's reach (x affine in u,
+    # y in v: a point's parameters are its coordinates mapped)
+    u0, u1, v0, v1 = ku[3], ku[ku.shape[0] - 4], kv[3], kv[kv.shape[0] - 4]
+    x0, x1 = ctrl[0, 0, 0], ctrl[ctrl.shape[0] - 1, 0, 0]
+    y0, y1 = ctrl[0, 0, 1], ctrl[0, ctrl.shape[1] - 1, 1]
     u, v = out[Q_UV], out[Q_UV + 1]
-    if not (math.isfinite(u) and math.isfinite(v)):  # under the tip: x affine in u, y in v
-        u0, u1, v0, v1 = ku[3], ku[ku.shape[0] - 4], kv[3], kv[kv.shape[0] - 4]
-        x0, x1 = ctrl[0, 0, 0], ctrl[ctrl.shape[0] - 1, 0, 0]
-        y0, y1 = ctrl[0, 0, 1], ctrl[0, ctrl.shape[1] - 1, 1]
+    ox = x0 + (u - u0) / (u1 - u0) * (x1 - x0) - tx
+    oy = y0 + (v - v0) / (v1 - v0) * (y1 - y0) - ty
+    if not ox * ox + oy * oy < _COS_CONE * _COS_CONE * radius * radius:  # NaN too
         u = min(max(u0 + (tx - x0) / (x1 - x0) * (u1 - u0), u0), u1)
         v = min(max(v0 + (ty - y0) / (y1 - y0) * (v1 - v0), v0), v1)
     steps, found = 0, False
     r2 = radius * radius
-    while steps < MINIMUM_ITERATIONS:
+    x = y = xu = yv = z = zu = zv = zuu = zuv = zvv = zuuu = zuuv = zuvv = zvvv = 0.0
+    dx = dy = rho = rho2 = zx = zy = i3 = mxx = mxy = myy = det = 0.0
+    for it in range(MINIMUM_ITERATIONS + 1):
         x, y, xu, yv, z, zu, zv, zuu, zuv, zvv, zuuu, zuuv, zuvv, zvvv = height_jet(ctrl, ku, kv, u, v)
         dx, dy = x - tx, y - ty
         rho2 = r2 - dx * dx - dy * dy
@@ -149,13 +173,19 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
         mxy = dx * dy * i3 - zuv / (xu * yv)
         myy = 1.0 / rho + dy * dy * i3 - zvv / (yv * yv)
         det = mxx * myy - mxy * mxy
-        if not (det > 0.0 and mxx > 0.0):
-            return NO_MINIMUM
-        gx, gy = dx / rho - zx, dy / rho - zy
-        sx, sy = -(myy * gx - mxy * gy) / det, -(mxx * gy - mxy * gx) / det
-        size = math.sqrt(sx * sx + sy * sy)
+        convex = det > 0.0 and mxx > 0.0
         if found:
+            if not convex:
+                return NO_MINIMUM  # a saddle or a maximum of the gap
             break  # the point just evaluated is the minimum, to MINIMUM_TOL
+        if it == MINIMUM_ITERATIONS:
+            return NOT_CONVERGED
+        gx, gy = dx / rho - zx, dy / rho - zy
+        if convex:
+            sx, sy = -(myy * gx - mxy * gy) / det, -(mxx * gy - mxy * gx) / det
+        else:  # down the gap's slope, on the scale of the sphere's curvature
+            sx, sy = -rho * gx, -rho * gy
+        size = math.sqrt(sx * sx + sy * sy)
         if size > MINIMUM_STEP * radius:
             sx *= MINIMUM_STEP * radius / size
             sy *= MINIMUM_STEP * radius / size
@@ -163,39 +193,44 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
         u += sx / xu
         v += sy / yv
         found = size < MINIMUM_TOL * radius
-    if not found:
-        return NOT_CONVERGED
     out[Q_UV], out[Q_UV + 1] = u, v
     if dx * dx + dy * dy >= (_COS_CONE * radius) ** 2:
         return ON_THE_CONE
     g0 = tz - rho - z
     out[Q_GAP], out[Q_DET] = g0, det
-    if g0 >= h0:
-        return steps
-    # the sphere's Hessian S, its derivatives dS/dd_c, and the surface's third derivatives in x, y
+    # the sphere's Hessian S and the minimum's motion X = dx*/dT_xy = M^-1 S (rows: x*, columns: T)
     sxx, sxy, syy = 1.0 / rho + dx * dx * i3, dx * dy * i3, 1.0 / rho + dy * dy * i3
-    i5 = 3.0 * i3 / rho2
+    ixx, ixy, iyy = myy / det, -mxy / det, mxx / det
+    xxx, xxy = ixx * sxx + ixy * sxy, ixx * sxy + ixy * syy
+    xyx, xyy = ixy * sxx + iyy * sxy, ixy * sxy + iyy * syy
+    out[Q_POINT], out[Q_POINT + 1] = x, y
+    out[Q_MOTION], out[Q_MOTION + 1], out[Q_MOTION + 2], out[Q_MOTION + 3] = xxx, xxy, xyx, xyy
+    out[Q_SLOPE], out[Q_SLOPE + 1] = zx, zy
+    cx, cy = 1.0 / xu, 1.0 / yv
+    h_xxx, h_xxy, h_xyy, h_yyy = zuuu * cx * cx * cx, zuuv * cx * cx * cy, zuvv * cx * cy * cy, zvvv * cy * cy * cy
     # dS_ab/dd_c = (delta_ab d_c + delta_ac d_b + delta_bc d_a) / rho^3 + 3 d_a d_b d_c / rho^5
+    i5 = 3.0 * i3 / rho2
     s_xxx = 3.0 * dx * i3 + i5 * dx * dx * dx
     s_xxy = dy * i3 + i5 * dx * dx * dy
     s_xyy = dx * i3 + i5 * dx * dy * dy
     s_yyy = 3.0 * dy * i3 + i5 * dy * dy * dy
-    cx, cy = 1.0 / xu, 1.0 / yv
-    h_xxx, h_xxy, h_xyy, h_yyy = zuuu * cx * cx * cx, zuuv * cx * cx * cy, zuvv * cx * cy * cy, zvvv * cy * cy * cy
-    # dM/dx_l (l = x, y) at fixed T, and dM/dT_k = sum_l dM/dx_l X_lk - dS/dd_k, X = M^-1 S
+    # dM/dx_l (l = x, y) at fixed T; dM/dT_k = sum_l dM/dx_l X_lk - dS/dd_k
     axx_x, axy_x, ayy_x = s_xxx - h_xxx, s_xxy - h_xxy, s_xyy - h_xyy
     axx_y, axy_y, ayy_y = s_xxy - h_xxy, s_xyy - h_xyy, s_yyy - h_yyy
-    ixx, ixy, iyy = myy / det, -mxy / det, mxx / det  # M^-1
-    xxx, xxy = ixx * sxx + ixy * sxy, ixx * sxy + ixy * syy  # X = M^-1 S: rows l, columns k
-    xyx, xyy = ixy * sxx + iyy * sxy, ixy * sxy + iyy * syy
-    ddet = np.empty(2)  # d det M / dT_x, dT_y
-    for k in range(2):
-        lx = xxx if k == 0 else xxy
-        ly = xyx if k == 0 else xyy
-        dmxx = axx_x * lx + axx_y * ly - (s_xxx if k == 0 else s_xxy)
-        dmxy = axy_x * lx + axy_y * ly - (s_xxy if k == 0 else s_xyy)
-        dmyy = ayy_x * lx + ayy_y * ly - (s_xyy if k == 0 else s_yyy)
-        ddet[k] = myy * dmxx - 2.0 * mxy * dmxy + mxx * dmyy
+    dxx_x, dxy_x, dyy_x = axx_x * xxx + axx_y * xyx - s_xxx, axy_x * xxx + axy_y * xyx - s_xxy, \
+        ayy_x * xxx + ayy_y * xyx - s_xyy
+    dxx_y, dxy_y, dyy_y = axx_x * xxy + axx_y * xyy - s_xxy, axy_x * xxy + axy_y * xyy - s_xyy, \
+        ayy_x * xxy + ayy_y * xyy - s_yyy
+    reach = CHECK_RADIUS * math.sqrt(2.0 * radius * max(h0 - g0, 0.0))
+    out[Q_CHECK] = reach
+    model = (tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0, mxx, mxy, myy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y,
+             xxx, xxy, xyx, xyy)
+    _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out)
+    if g0 >= h0:
+        return steps
+    # d det M = tr(adj M dM)
+    ddx = myy * dxx_x - 2.0 * mxy * dxy_x + mxx * dyy_x
+    ddy = myy * dxx_y - 2.0 * mxy * dxy_y + mxx * dyy_y
     i0, i1 = law_moments(g0, radius, e_star, sigma0, h0)
     j = (1.0 + g0 / radius) * i0 - i1 / radius
     phi_r, phi_a, p, _ = _law(g0, e_star / (math.pi * math.sqrt(radius)), sigma0, h0, 0.0)
@@ -206,8 +241,8 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
     b = math.pi * j / (det * root)  # the det term: grad E = a J' n - b grad det
     nx, ny = -zx, -zy
     out[Z_ENERGY] = a * j
-    out[Z_FORCE] = -(a * j1 * nx - b * ddet[0])
-    out[Z_FORCE + 1] = -(a * j1 * ny - b * ddet[1])
+    out[Z_FORCE] = -(a * j1 * nx - b * ddx)
+    out[Z_FORCE + 1] = -(a * j1 * ny - b * ddy)
     out[Z_FORCE + 2] = -a * j1
     if want:
         j2 = p - phi / radius
@@ -218,15 +253,190 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
         c = math.pi * j1 / (det * root)
         e = 1.5 * math.pi * j / (det * det * root)
         n = (nx, ny, 1.0)
-        gd = (ddet[0], ddet[1], 0.0)
+        gd = (ddx, ddy, 0.0)
         for r in range(3):
-            for s in range(3):
-                hess[r, s] = a * j2 * n[r] * n[s] - c * (n[r] * gd[s] + gd[r] * n[s]) + e * gd[r] * gd[s]
+            for q in range(3):
+                hess[r, q] = a * j2 * n[r] * n[q] - c * (n[r] * gd[q] + gd[r] * n[q]) + e * gd[r] * gd[q]
         hess[0, 0] += a * j1 * vxx
         hess[0, 1] += a * j1 * vxy
         hess[1, 0] += a * j1 * vxy
         hess[1, 1] += a * j1 * vyy
     return steps
+
+
+@njit(cache=True, inline="always")
+def smootherstep(t):
+    """``(S(t), S'(t))``: :math:`6t^5 - 15t^4 + 10t^3` on [0, 1], 0 below and 1 above; its first and second
+    derivatives vanish at both ends (Perlin 2002), so a weight made of it joins two energies with a force
+    continuous and a stiffness continuous."""
+    if t <= 0.0:
+        return 0.0, 0.0
+    if t >= 1.0:
+        return 1.0, 0.0
+    return t * t * t * (t * (6.0 * t - 15.0) + 10.0), 30.0 * t * t * (1.0 - t) * (1.0 - t)
+
+
+@njit(cache=True)
+def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
+    r"""How far the one term can be trusted, into ``out``'s weight (1: wholly, 0: not) and its gradient
+    in T (1/m): the product of smooth steps (:func:`smootherstep`), each of a quantity whose
+    gradient in T is exact, so the weight's is:
+
+    - the fit: the one term is exact for a gap :math:`G = g_0 + q + q^2/2R`, :math:`q = \tfrac12
+      \xi^T M \xi` (elliptic contours, the sphere's own quartic about its apex: the factor of the
+      module docstring); the deviation :math:`\delta = G - g_0 - q - q^2/2R` on
+      :data:`RING_POINTS` points of the zone's edge, :math:`\sqrt{2R(h_0 - g_0)}` from :math:`x^*`,
+      over the gap's range :math:`h_0 - g_0` (:func:`_ring_fit`), below :data:`FIT_TOLERANCE` (1)
+      to twice it (0);
+    - nothing else near: on the check circle, :data:`CHECK_RADIUS` times as far, the gap at least
+      :math:`h_0` + :data:`CLEAR_MARGIN` h0 (:func:`_ring_clear`; beyond the circle
+      :func:`~arsurf.contact.zone_energy.isolation_kernel` asks the same of the lattice);
+    - the sphere: the zone, from the tip's axis, within the sphere's part of the tip
+      (:math:`|x^* - T_{xy}| + r_c/c < R\cos\alpha`), by a margin :data:`ROOM_MARGIN` R
+      (beyond it the cone, which a lattice's samples see);
+    - the scan: the check circle and its ring a margin :data:`ROOM_MARGIN` R inside the net's edges.
+
+    ``model``: T, the minimum's (u, v), x_u, y_v, x*, slope, g0, M, dM/dT_x, dM/dT_y and X = dx*/dT.
+    The circles move with :math:`x^*` (X) and their radii with :math:`g_0` (:math:`\nabla r_c =
+    -(c^2 R / r_c)\,n`, :math:`n = (-\nabla z, 1)`)."""
+    tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
+    xxx, xxy, xyx, xyy = model[21], model[22], model[23], model[24]
+    nx, ny = -zx, -zy  # grad g0 = (nx, ny, 1)
+    grc = -(CHECK_RADIUS * CHECK_RADIUS * radius / reach) if reach > 0.0 else 0.0  # grad r_c = grc (nx, ny, 1)
+    zone = reach / CHECK_RADIUS  # the zone's radius on a flat
+    # the sphere's room: |d| + r_c / c below R cos(alpha)
+    dx, dy = x - tx, y - ty
+    dist = math.sqrt(dx * dx + dy * dy)
+    w1, s1 = smootherstep((_COS_CONE * radius - dist - zone) / (ROOM_MARGIN * radius))
+    g1x = g1y = g1z = 0.0
+    if s1 != 0.0:  # d|d|/dT_xy = (d / |d|)^T (X - I)
+        ex, ey = (dx / dist, dy / dist) if dist > 0.0 else (0.0, 0.0)
+        k = -s1 / (ROOM_MARGIN * radius)
+        g1x = k * (ex * (xxx - 1.0) + ey * xyx + grc * nx / CHECK_RADIUS)
+        g1y = k * (ex * xxy + ey * (xyy - 1.0) + grc * ny / CHECK_RADIUS)
+        g1z = k * grc / CHECK_RADIUS
+    # the scan's room: the circle inside the net's edges (x along u, y along v)
+    x0, x1 = ctrl[0, 0, 0], ctrl[ctrl.shape[0] - 1, 0, 0]
+    y0, y1 = ctrl[0, 0, 1], ctrl[0, ctrl.shape[1] - 1, 1]
+    edge, ax, ay = x - x0, 1.0, 0.0
+    if x1 - x < edge:
+        edge, ax, ay = x1 - x, -1.0, 0.0
+    if y - y0 < edge:
+        edge, ax, ay = y - y0, 0.0, 1.0
+    if y1 - y < edge:
+        edge, ax, ay = y1 - y, 0.0, -1.0
+    w2, s2 = smootherstep((edge - (1.0 + RING_WIDTH) * reach) / (ROOM_MARGIN * radius))
+    g2x = g2y = g2z = 0.0
+    if s2 != 0.0:
+        k = s2 / (ROOM_MARGIN * radius)
+        g2x = k * (ax * xxx + ay * xyx - (1.0 + RING_WIDTH) * grc * nx)
+        g2y = k * (ax * xxy + ay * xyy - (1.0 + RING_WIDTH) * grc * ny)
+        g2z = -k * (1.0 + RING_WIDTH) * grc
+    # the fit: within the zone (its edge), and between it and the check circle (no other contact there)
+    w3, g3x, g3y, g3z = 1.0, 0.0, 0.0, 0.0
+    w4, g4x, g4y, g4z = 1.0, 0.0, 0.0, 0.0
+    if w1 * w2 > 0.0 and h0 > g0:
+        w3, g3x, g3y, g3z = _ring_fit(ctrl, ku, kv, model, radius, h0, zone, grc / CHECK_RADIUS, FIT_TOLERANCE)
+        if w3 > 0.0:
+            w4, g4x, g4y, g4z = _ring_clear(ctrl, ku, kv, model, radius, h0, reach, grc)
+    w12, w34 = w1 * w2, w3 * w4
+    out[Q_WEIGHT] = w12 * w34
+    out[Q_WEIGHT + 1] = (g1x * w2 + w1 * g2x) * w34 + w12 * (g3x * w4 + w3 * g4x)
+    out[Q_WEIGHT + 2] = (g1y * w2 + w1 * g2y) * w34 + w12 * (g3y * w4 + w3 * g4y)
+    out[Q_WEIGHT + 3] = (g1z * w2 + w1 * g2z) * w34 + w12 * (g3z * w4 + w3 * g4z)
+
+
+@njit(cache=True, inline="always")
+def _deviation(ctrl, ku, kv, model, radius, ring, grr, angle):
+    r"""``(delta, d delta/dT, G, dG/dT)``: :math:`\delta = G - g_0 - q - q^2/2R` (:func:`_fit_weight`) at
+    :math:`p = x^* + \xi`, :math:`\xi = r e` on the circle of radius ``ring`` (m; its gradient
+    ``grr`` (nx, ny, 1)) at ``angle``: :math:`dG(p)/dT_{xy} = \gamma^T X - (p - T)/\rho_p`,
+    :math:`dG/dT_z = 1`, :math:`\gamma = \nabla_x G(p)`, plus :math:`\gamma\cdot e\,\nabla r`;
+    :math:`dq/dT = \tfrac12\xi^T (dM/dT)\xi + \xi^T M e\,\nabla r`; :math:`dg_0/dT = n`."""
+    tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
+    mxx, mxy, myy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y = model[12:21]
+    xxx, xxy, xyx, xyy = model[21], model[22], model[23], model[24]
+    nx, ny, r2 = -zx, -zy, radius * radius
+    ex, ey = math.cos(angle), math.sin(angle)
+    px, py = ring * ex, ring * ey
+    at = height_jet(ctrl, ku, kv, u + px / xu, v + py / yv)
+    ox, oy = x + px - tx, y + py - ty
+    rho = math.sqrt(max(r2 - ox * ox - oy * oy, 1e-30 * r2))
+    cx, cy = ox / rho - at[5] / xu, oy / rho - at[6] / yv  # grad_x G at p
+    mx, my = mxx * px + mxy * py, mxy * px + myy * py
+    q = 0.5 * (px * mx + py * my)
+    delta = tz - rho - at[4] - g0 - q - q * q / (2.0 * radius)
+    along = cx * ex + cy * ey  # dG/dr
+    dqr = mx * ex + my * ey  # dq/dr
+    f = 1.0 + q / radius
+    dqx = 0.5 * (dxx_x * px * px + 2.0 * dxy_x * px * py + dyy_x * py * py) + dqr * grr * nx
+    dqy = 0.5 * (dxx_y * px * px + 2.0 * dxy_y * px * py + dyy_y * py * py) + dqr * grr * ny
+    gx = cx * xxx + cy * xyx - ox / rho + along * grr * nx  # grad G(p)
+    gy = cx * xxy + cy * xyy - oy / rho + along * grr * ny
+    gz = 1.0 + along * grr
+    return delta, gx - nx - f * dqx, gy - ny - f * dqy, gz - 1.0 - f * dqr * grr, tz - rho - at[4], gx, gy, gz
+
+
+@njit(cache=True)
+def _ring_clear(ctrl, ku, kv, model, radius, h0, ring, grr):
+    r"""``(w, dw/dT)``: 1 while the gap on :data:`RING_POINTS` points of the check circle (radius
+    ``ring`` m, its gradient ``grr`` (nx, ny, 1)) is at least :math:`h_0 + \Delta`, 0 where it
+    reaches :math:`h_0` (:func:`smootherstep` of the least, :math:`\Delta` =
+    :data:`CLEAR_MARGIN` h0): nothing else within the law's range there, as
+    :func:`~arsurf.contact.zone_energy.isolation_kernel` asks of the lattice beyond it."""
+    least, lx, ly, lz = math.inf, 0.0, 0.0, 0.0
+    for k in range(RING_POINTS):
+        _, _, _, _, gap, gx, gy, gz = _deviation(ctrl, ku, kv, model, radius, ring, grr,
+                                                 2.0 * math.pi * k / RING_POINTS)
+        if gap < least:
+            least, lx, ly, lz = gap, gx, gy, gz
+    margin = CLEAR_MARGIN * h0
+    w, slope = smootherstep((least - h0) / margin)
+    return w, slope / margin * lx, slope / margin * ly, slope / margin * lz
+
+
+@njit(cache=True)
+def _ring_fit(ctrl, ku, kv, model, radius, h0, ring, grr, tolerance):
+    r"""``(w, dw/dT)``: 1 while the deviation :math:`\delta` (:func:`_deviation`) on
+    :data:`RING_POINTS` points of the circle of radius ``ring`` (m; its gradient ``grr`` (nx, ny, 1))
+    about the minimum, over the gap's range :math:`h_0 - g_0`, measures below ``tolerance``, 0
+    above twice it. Its even part (the mean of opposite points) shifts the zone's edge at first
+    order; its odd part (a cubic: the sphere's own about a minimum off its apex, on a slope) moves
+    the edge as much each way and changes the area at second order: the measure is
+    :math:`\nu = \mathrm{rms}(\delta_{even})/(h_0 - g_0) + (\mathrm{rms}(\delta_{odd})/(h_0 - g_0))^2`."""
+    g0 = model[11]
+    nx, ny, span = -model[9], -model[10], h0 - g0
+    half = RING_POINTS // 2
+    ee = ex_ = ey_ = ez_ = 0.0  # sum of e^2 and e grad e (even parts)
+    oo = ox_ = oy_ = oz_ = 0.0  # sum of o^2 and o grad o (odd parts)
+    for k in range(half):
+        angle = 2.0 * math.pi * k / RING_POINTS
+        a, ax, ay, az, _, _, _, _ = _deviation(ctrl, ku, kv, model, radius, ring, grr, angle)
+        b, bx, by, bz, _, _, _, _ = _deviation(ctrl, ku, kv, model, radius, ring, grr, angle + math.pi)
+        e, o = 0.5 * (a + b), 0.5 * (a - b)
+        ee += e * e
+        ex_ += e * 0.5 * (ax + bx)
+        ey_ += e * 0.5 * (ay + by)
+        ez_ += e * 0.5 * (az + bz)
+        oo += o * o
+        ox_ += o * 0.5 * (ax - bx)
+        oy_ += o * 0.5 * (ay - by)
+        oz_ += o * 0.5 * (az - bz)
+    count = half
+    rms = math.sqrt(ee / count)
+    odd = oo / (count * span * span)  # (rms(odd) / span)^2
+    nu = rms / span + odd
+    w, slope = smootherstep(2.0 - nu / tolerance)
+    if slope == 0.0:
+        return w, 0.0, 0.0, 0.0
+    k = -slope / tolerance
+    # grad (rms / span) = (sum e grad e) / (count rms span) + (rms / span^2) n;
+    # grad odd = 2 (sum o grad o) / (count span^2) + 2 odd n / span   (grad span = -n)
+    c = 1.0 / (count * rms * span) if rms > 0.0 else 0.0
+    c2 = 2.0 / (count * span * span)
+    lin = rms / (span * span) + 2.0 * odd / span
+    return (w, k * (c * ex_ + c2 * ox_ + lin * nx), k * (c * ey_ + c2 * oy_ + lin * ny),
+            k * (c * ez_ + c2 * oz_ + lin))
 
 
 def quadric_contact(surface, law, center, start=None) -> tuple[float, np.ndarray, int]:

@@ -13,13 +13,14 @@ from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.contact.zone_energy import ZoneLaw, surface_lattice, zone_energy, zone_law_kernel
-from arsurf.contact.zone_quadric import (NO_MINIMUM, QUADRIC_OUT, Q_DET, Q_GAP, Q_UV, law_moments, quadric_contact,
+from arsurf.contact.zone_quadric import (NO_MINIMUM, QUADRIC_OUT, Q_DET, Q_GAP, Q_UV, Q_WEIGHT, law_moments, quadric_contact,
                                          quadric_contact_kernel)
 from arsurf.errors import ContactError
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.basis import height_jet, surface_point
 from arsurf.spline.fit import fit_surface
+from tests.support.valleys import R as VALLEY_R, height_for, valley_surface
 
 R = 10e-9
 LAW = ZoneLaw.from_law(MaugisDugdale(R, 50e9, 0.05))
@@ -138,14 +139,15 @@ def test_on_a_surface_rough_under_the_contact_the_one_term_is_not_the_sum(rough)
     assert max(off) > 0.1  # the lattice stays needed there
 
 
-def test_no_minimum_is_said(flat):
-    # a sphere centred below the surface's reach: no point of the sphere's lower half above the net's
+def test_over_a_valley_narrower_than_the_tip_no_minimum_is_said(flat):
+    # the gap's stationary point over the valley's bottom is a saddle: the sphere touches the walls
+    valley = valley_surface("sinusoid")
+    law = ZoneLaw.from_law(MaugisDugdale(VALLEY_R, 50e9, 0.05))
     out = QUADRIC_OUT.full(math.nan)
-    out[Q_UV:Q_UV + 2] = (2e-9, 2e-9)  # 28 nm from the tip: beyond its sphere
-    ctrl = np.array(flat.rest_control_points, order="C")
-    status = quadric_contact_kernel(ctrl, flat.knots_u, flat.knots_v, 30e-9, 30e-9, R, *LAW.args, out,
-                                    np.empty((0, 0)))
-    assert status == NO_MINIMUM and not out[:4].any()
+    ctrl = np.array(valley.rest_control_points, order="C")
+    status = quadric_contact_kernel(ctrl, valley.knots_u, valley.knots_v, 33e-9, 24e-9, height_for("sinusoid", 33e-9),
+                                    *law.args, out, np.empty((0, 0)))
+    assert status == NO_MINIMUM and not out[:4].any() and out[Q_WEIGHT] == 0.0
     with pytest.raises(ContactError, match="center"):
         quadric_contact(flat, LAW, (0.0, math.nan, 0.0))
 
