@@ -132,7 +132,7 @@ def _first_at_least(xs, x):
     return lo
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _window(xs, ys, tx, ty, reach):
     """``(i0, i1, j0, j1)``: the lattice's rows and columns within ``reach`` (m) of (tx, ty), one more each side."""
     i0 = max(_first_at_least(xs, tx - reach) - 1, 0)
@@ -142,13 +142,15 @@ def _window(xs, ys, tx, ty, reach):
     return i0, i1, j0, j1
 
 
-@njit(cache=True, inline="always")
-def _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius) -> int:
+@njit(cache=True)
+def _tile_in_reach(xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius) -> int:
     """The pool slot of tile (``ti``, ``tj``) when a sample of it may lie within reach of the tip at
-    (tx, ty) (a sample of height z is where the tip's surface rises ``base`` + z: :func:`zone_energy_kernel`),
-    sampled the first time it is needed; -1 when the tile's heights, bound by its control points' (the
-    convex hull), keep it beyond reach: then it is never sampled. A tile is the same whenever it is
-    sampled, so the energy does not depend on what the pool holds."""
+    (tx, ty) (a sample of height z is where the tip's surface rises ``base`` + z: :func:`zone_energy_kernel`);
+    -1 when the tile's heights, bound by its control points' (the convex hull), keep it beyond reach:
+    then it is never sampled; -2 when the pool does not hold it yet (the caller samples it,
+    :func:`_take_slot`: the whole ``lat`` passed to a call costs an atomic reference count an array,
+    so only then). A tile is the same whenever it is sampled, so the energy does not depend on what
+    the pool holds."""
     rho0, cap, slope = _cone(radius)
     nu, nv = xs.shape[0], ys.shape[0]
     a0, a1 = ti * TILE, min((ti + 1) * TILE, nu) - 1
@@ -158,13 +160,10 @@ def _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base
     if base + zhi[ti, tj] <= 0.0 or dx * dx + dy * dy >= _across(base + zhi[ti, tj], radius, rho0, cap, slope) ** 2:
         return -1
     s = _held_slot(slot_of, stamp, clock, ti, tj)
-    if s < 0:
-        s = _take_slot(lat, ti, tj)
-        stamp[s] = clock[0]
-    return s
+    return s if s >= 0 else -2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _block_reach(box, s, qa, qb, tx, ty, base, radius):
     """How far across (m) from (tx, ty) a sample of block (``qa``, ``qb``) of pool slot ``s`` may lie
     within reach, by the block's highest sample (with :data:`WINDOW_SLACK`: a sample's x, y are its
@@ -206,8 +205,11 @@ def zone_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -
         i0, i1, j0, j1 = _window(xs, ys, tx, ty, _across(base + lat[L_TOP][0], radius, rho0, cap, slope))
         for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
             for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
-                s = _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
-                if s < 0:
+                s = _tile_in_reach(xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
+                if s == -2:  # sampled the first time it is needed
+                    s = _take_slot(lat, ti, tj)
+                    stamp[s] = clock[0]
+                elif s < 0:
                     continue
                 a0, b0 = ti * TILE, tj * TILE
                 for qa in range(2):
@@ -297,8 +299,11 @@ def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
     i0, i1, j0, j1 = _window(xs, ys, tx, ty, _across(base + lat[L_TOP][0], radius, rho0, cap, slope))
     for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
         for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
-            s = _tile_in_reach(lat, xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
-            if s < 0:
+            s = _tile_in_reach(xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
+            if s == -2:  # sampled the first time it is needed
+                s = _take_slot(lat, ti, tj)
+                stamp[s] = clock[0]
+            elif s < 0:
                 continue
             a0, b0 = ti * TILE, tj * TILE
             for qa in range(2):
