@@ -551,7 +551,7 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
                deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf,
                material=None, signal_noise: float | None = None, friction_law: str = DEFAULT_FRICTION_LAW,
-               shear_strength: float | None = None, zone_energy: bool = False):
+               shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = False):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -581,6 +581,8 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
         Noise of the measured angles (:class:`~arsurf.model.ARModel`; default: unknown).
     zone_energy : bool
         The contact as the energy of the whole tip (:class:`~arsurf.model.ARModel`'s; default False).
+    zone_closed_form : bool
+        With ``zone_energy``, its closed form where trusted (:class:`~arsurf.model.ARModel`'s; default False).
     """
     contact = ContactConfig(tip_radius, effective_modulus, work_of_adhesion, dugdale_stress, friction,
                             static_friction, deform, friction_law, UNSET if shear_strength is None else shear_strength)
@@ -590,7 +592,8 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     radius, md, lever, kwargs, dent = _parts(
         contact, CantileverConfig.from_metadata(dict(LEVER if cantilever is None else cantilever)), haptics)
     return ARModel(surface, radius, md, lever, deform=dent, material=material,
-                   **dict(kwargs, coupling_stiffness=coupling_stiffness, zone_energy=zone_energy))
+                   **dict(kwargs, coupling_stiffness=coupling_stiffness, zone_energy=zone_energy,
+                          zone_closed_form=zone_closed_form))
 
 
 def build_model(metadata: Mapping | SessionConfig, scan_path: str | os.PathLike | None = None) -> ModelSetup:

@@ -699,13 +699,14 @@ class ARModel:
         E*, w and Dugdale stress summed over the surface under the tip; the tip behind the
         coupling at the nearest minimum of that energy plus the coupling's, :func:`_zone_contact`)
         instead of the Maugis-Dugdale contacts at the minima of the distance. Default False
-        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default). Where the
-        contact is smooth and alone, the energy in closed form over it, joined smoothly to the sum
-        (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`). With a material map each surface
-        element sums its own local law (always the sum).
+        (docs/feel.rst, "The energy of the whole tip": measured, not yet the default). With a
+        material map each surface element sums its own local law (always the sum).
     zone_closed_form : bool
-        With ``zone_energy``, the closed form where it can be trusted (default True); False: the
-        lattice's sum everywhere (the reference it is measured against).
+        With ``zone_energy``, the energy in closed form where its checks trust it, joined smoothly
+        to the lattice's sum (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`); a fifth of the
+        sum's tick on smooth scans. Default False: measured, not yet safe on every surface (a
+        roughness at the pixel's scale can hide a second minimum inside the contact from its
+        checks: docs/feel.rst, "The energy of the whole tip in one term").
 
     Examples
     --------
@@ -724,7 +725,7 @@ class ARModel:
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
                  static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
                  signal_noise: float | None = None, friction_law: str = "adhesive",
-                 shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = True):
+                 shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = False):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)

@@ -22,9 +22,11 @@ central differences) against the lattice's :func:`~arsurf.contact.zone_energy.zo
 own error on a flat is 0.8-1.7 %, ``bench/zone_quadrature.py``), with the paraboloid's area alone
 (without the factor) beside it, on the scans whose zone-energy tick is over 3x one VTK query and
 on ``sample_0.spm``; a scan rough under the tip shows where the lattice stays needed. And what
-one term costs, compiled (the minimum by Newton's method on the spline's second derivatives, the
-weighted integral in closed form: :func:`one_term_energy`), against one sum of the lattice
-(without its Hessian) at the same tips, each in a compiled loop, the rounds alternated.
+one term costs in the engine (:mod:`arsurf.contact.zone_quadric`: the minimum by Newton's method on
+the spline, the weighted integral in closed form, the checks of its weight), and the energy joined
+to the lattice where they trust it (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`), against
+one sum of the lattice (all without a Hessian) at the same tips, each in a compiled loop, the rounds
+alternated.
 
 Run: .venv/bin/python bench/zone_quadric.py [--scans NAME ...] [--points 20] (prints JSON, one
 line per scan; Python evaluations, a few seconds a scan)
@@ -45,9 +47,10 @@ from scipy.optimize import minimize
 
 from arsurf.assembly import PRESETS
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import ZONE_OUT, ZoneLaw, lattice_for, zone_energy, zone_energy_kernel, zone_law_kernel
+from arsurf.contact.zone_energy import (ZONE_OUT, ZoneLaw, lattice_for, tip_energy_kernel, zone_energy, zone_energy_kernel,
+                                        zone_law_kernel)
+from arsurf.contact.zone_quadric import QUADRIC_OUT, quadric_contact_kernel
 from arsurf.feel_scenarios import prepared_surface, run_scenario
-from arsurf.spline.basis import surface_point
 
 SCANS = Path(os.environ.get("ARSURF_REAL_SCANS", Path(__file__).resolve().parents[2] / "shared" / "scans-real"))
 DEFAULT_SCANS = ("2018-02-09_1506_PH_dt20nmwindow1_Z_C.gsf", "AR_20211011.ibw", "Park_20210916_034.tiff",
@@ -91,67 +94,18 @@ def quadric_energy(surface, law: ZoneLaw, tip, sphere: bool = True) -> float:
 
 
 @njit  # not cached: a bench's cached function breaks its own run as a script (docs/benchmarks.rst)
-def _weighted_law_integral(g0, radius, e_star, sigma0, h0):
-    r""":math:`\int_{g_0}^{h_0} \varphi(g)\,(1 - (g - g_0)/R)\,dg` in closed form (the module docstring's
-    law: :math:`\varphi = \tfrac23 k(-g)^{3/2} - w` below 0, :math:`k = E^*/\pi\sqrt R`;
-    :math:`-\sigma_0(h_0 - g) - \sigma_0 h_0 \sin(2\pi g/h_0)/2\pi` on (0, h0)), as
-    :math:`c_0 \int\varphi - \int g\varphi/R` with :math:`c_0 = 1 + g_0/R`."""
-    stiff, w = e_star / (math.pi * math.sqrt(radius)), sigma0 * h0
-    c0 = 1.0 + g0 / radius
-    total = 0.0
-    if g0 < 0.0:  # over [g0, 0], t = -g in [0, d]
-        d = -g0
-        i0 = 2.0 / 3.0 * stiff * 0.4 * d ** 2.5 - w * d  # int phi dg
-        i1 = -(2.0 / 3.0 * stiff * d ** 3.5 / 3.5) + w * d * d / 2.0  # int g phi dg
-        total += c0 * i0 - i1 / radius
-    a = max(g0, 0.0)
-    if a < h0:  # over [a, h0]: phi = -sigma0 (h0 - g) - sigma0 h0 sin(q g) / (2 pi), q = 2 pi / h0
-        q = 2.0 * math.pi / h0
-        i0 = -sigma0 * (h0 - a) ** 2 / 2.0 + sigma0 * h0 / (2.0 * math.pi) * (math.cos(q * h0) - math.cos(q * a)) / q
-        lin = -sigma0 * (h0 * (h0 * h0 - a * a) / 2.0 - (h0 ** 3 - a ** 3) / 3.0)  # int -sigma0 (h0 - g) g dg
-        # int g sin(q g) dg = sin(q g)/q^2 - g cos(q g)/q
-        gs = (math.sin(q * h0) / q ** 2 - h0 * math.cos(q * h0) / q) - (math.sin(q * a) / q ** 2 - a * math.cos(q * a) / q)
-        i1 = lin - sigma0 * h0 / (2.0 * math.pi) * gs
-        total += c0 * i0 - i1 / radius
-    return total
-
-
-@njit  # not cached (above)
-def one_term_energy(ctrl, ku, kv, u, v, tx, ty, tz, radius, e_star, sigma0, h0, ev):
-    """E (J) of the module docstring's formula, compiled: the gap's minimum by Newton's method on
-    the spline's height (from the net's point (``u``, ``v``) under the tip; ``ev`` (6, 3) scratch),
-    M from the sphere's and the surface's second derivatives there, and the law's weighted integral
-    in closed form. A height-field net: x depends on u only, y on v only."""
-    g0, det = 0.0, 0.0
-    for _ in range(20):
-        surface_point(ctrl, ku, kv, u, v, 2, ev)
-        xu, yv = ev[1, 0], ev[2, 1]
-        zx, zy = ev[1, 2] / xu, ev[2, 2] / yv
-        zxx = (ev[3, 2] - zx * ev[3, 0]) / (xu * xu)
-        zxy = ev[4, 2] / (xu * yv)
-        zyy = (ev[5, 2] - zy * ev[5, 1]) / (yv * yv)
-        dx, dy = ev[0, 0] - tx, ev[0, 1] - ty
-        root = math.sqrt(radius * radius - dx * dx - dy * dy)
-        g0 = tz - root - ev[0, 2]
-        gx, gy = dx / root - zx, dy / root - zy
-        i3 = 1.0 / (root * root * root)
-        mxx, mxy, myy = 1.0 / root + dx * dx * i3 - zxx, dx * dy * i3 - zxy, 1.0 / root + dy * dy * i3 - zyy
-        det = mxx * myy - mxy * mxy
-        sx, sy = -(myy * gx - mxy * gy) / det, -(mxx * gy - mxy * gx) / det
-        u += sx / xu
-        v += sy / yv
-        if sx * sx + sy * sy < 1e-18 * radius * radius:  # 1e-9 R: g0 to 1e-18 R
-            break
-    if g0 >= h0 or not det > 0.0:
-        return 0.0
-    return 2.0 * math.pi * _weighted_law_integral(g0, radius, e_star, sigma0, h0) / math.sqrt(det)
-
-
-@njit  # not cached (above)
-def _one_terms(ctrl, ku, kv, us, vs, tips, radius, e_star, sigma0, h0, ev, energies):
+def _one_terms(ctrl, ku, kv, tips, radius, e_star, sigma0, h0, quad, empty, energies):
     for k in range(tips.shape[0]):
-        energies[k] = one_term_energy(ctrl, ku, kv, us[k], vs[k], tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star,
-                                      sigma0, h0, ev)
+        quadric_contact_kernel(ctrl, ku, kv, tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star, sigma0, h0, quad,
+                               empty)
+        energies[k] = quad[0]
+
+
+@njit  # not cached (above)
+def _joined(lat, tips, radius, e_star, sigma0, h0, out, empty, energies):
+    for k in range(tips.shape[0]):
+        tip_energy_kernel(lat, tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star, sigma0, h0, out, empty)
+        energies[k] = out[0]
 
 
 @njit  # not cached (above)
@@ -162,29 +116,33 @@ def _lattice_sums(lat, tips, radius, e_star, sigma0, h0, out, empty, energies):
 
 
 def time_against_the_lattice(surface, law: ZoneLaw, lattice, tips, rounds: int = 7) -> dict:
-    """Time (us) of one compiled one-term energy and of one lattice sum (no Hessian) at the same
-    ``tips``, each over all of them in a compiled loop, the rounds alternated (the median round),
-    and the two energies' largest difference."""
+    """Time (us) of the engine's one term with its checks (:func:`~arsurf.contact.zone_quadric.quadric_contact_kernel`),
+    of the energy joined to the lattice where they trust it (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`
+    on a lattice made with ``closed_form``) and of one lattice sum, all without a Hessian, at the same ``tips``,
+    each over all of them in a compiled loop, the rounds alternated (the median round); the one term's largest
+    energy difference from the sum, and the share of tips the joined energy took from the one term alone."""
     ctrl = np.array(surface.rest_control_points, order="C")
-    ku, kv = surface.knots_u, surface.knots_v
-    (u0, u1), (v0, v1) = surface.domain
-    corner = surface.evaluate(np.array([u0, u1]), np.array([v0, v1]))
+    joined = lattice_for(surface, law.tip_radius, law.interaction_range, closed_form=True)
     tips = np.ascontiguousarray(tips)
-    us = u0 + (tips[:, 0] - corner[0, 0]) * (u1 - u0) / (corner[1, 0] - corner[0, 0])
-    vs = v0 + (tips[:, 1] - corner[0, 1]) * (v1 - v0) / (corner[1, 1] - corner[0, 1])
-    ev, out, empty = np.empty((6, 3)), ZONE_OUT.zeros(), np.empty((0, 0))
-    one, summed = np.empty(len(tips)), np.empty(len(tips))
-    times = {"one": [], "sum": []}
+    quad, out, empty = QUADRIC_OUT.full(math.nan), ZONE_OUT.zeros(), np.empty((0, 0))
+    one, both, summed = np.empty(len(tips)), np.empty(len(tips)), np.empty(len(tips))
+    times = {"one": [], "joined": [], "sum": []}
     for _ in range(rounds + 1):  # the first compiles
         t0 = time.perf_counter()
-        _one_terms(ctrl, ku, kv, us, vs, tips, *law.args, ev, one)
+        _one_terms(ctrl, surface.knots_u, surface.knots_v, tips, *law.args, quad, empty, one)
         t1 = time.perf_counter()
-        _lattice_sums(*lattice.kernel_args(), tips, *law.args, out, empty, summed)
+        _joined(joined.arrays, tips, *law.args, out, empty, both)
         t2 = time.perf_counter()
+        _lattice_sums(*lattice.kernel_args(), tips, *law.args, out, empty, summed)
+        t3 = time.perf_counter()
         times["one"].append((t1 - t0) / len(tips))
-        times["sum"].append((t2 - t1) / len(tips))
+        times["joined"].append((t2 - t1) / len(tips))
+        times["sum"].append((t3 - t2) / len(tips))
+    alone = sum(tip_energy_kernel(joined.arrays, *t, *law.args, out, empty) == -1 for t in tips)
     return {"one_term_us": 1e6 * float(np.median(times["one"][1:])),
+            "joined_us": 1e6 * float(np.median(times["joined"][1:])),
             "lattice_sum_us": 1e6 * float(np.median(times["sum"][1:])),
+            "one_term_share": alone / len(tips),
             "compiled_energy_difference_max": float(np.max(np.abs(one - summed) / np.abs(summed)))}
 
 

@@ -53,11 +53,27 @@ def _mapped_slide(n=400):
     return np.column_stack([x, np.full(n, 60e-9), np.full(n, R - 1e-9)])
 
 
+def _closed_form_model():
+    """A wave 4 nm peak to peak, 60 nm long, under the zone energy in closed form (the one term on its slopes)."""
+    from arsurf.contact.maugis_dugdale import MaugisDugdale
+    from arsurf.scan import synthetic
+
+    wave = fit_surface(synthetic.sinusoid(shape=(96, 96), pixel=1e-9, amplitude=2e-9, period=60e-9, angle=0.6))
+    return ARModel(wave, R, MaugisDugdale(R, 50e9, 0.05), LEVER, coupling_stiffness=3.0, zone_energy=True,
+                   zone_closed_form=True)
+
+
+def _wave_slide(n=400):
+    x = np.linspace(30e-9, 60e-9, n)
+    return np.column_stack([x, np.full(n, 48e-9), np.full(n, R + 0.5e-9)])
+
+
 CASES = {
     "valleys": (lambda: valley_model("sinusoid", coupling=5.0), _valley_slide),
     "material map": (_mapped_model, _mapped_slide),
     "zone energy": (lambda: valley_model("sinusoid", coupling=5.0, zone_energy=True), _valley_slide),
     "zone energy with a material map": (lambda: _mapped_model(zone_energy=True), _mapped_slide),
+    "zone energy in closed form": (_closed_form_model, _wave_slide),
 }
 
 

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import ZoneLaw, zone_energy
+from arsurf.contact.zone_energy import L_QUAD, ZoneLaw, zone_energy
+from arsurf.contact.zone_quadric import Q_WEIGHT
 from arsurf.errors import ContactError
+from arsurf.feel_scenarios import clearance_height
 from arsurf.model import ARModel
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
@@ -91,3 +93,22 @@ def test_bad_settings_are_refused_in_one_line(flat):
         ARModel(flat, R, LAW, LEVER, zone_energy="yes")
     with pytest.raises(ContactError, match="MaterialMap"):  # a material map or nothing
         ARModel(flat, R, LAW, LEVER, zone_energy=True, material=object())
+
+
+def test_in_closed_form_the_slide_feels_the_lattice_s_force_where_the_contact_is_smooth():
+    """ARModel(zone_energy=True, zone_closed_form=True) on a wave smooth under a 20 nm tip: the one term
+    carries the slide, within its accuracy of the lattice's force."""
+    wave = fit_surface(synthetic.sinusoid(shape=(96, 96), pixel=1e-9, amplitude=2e-9, period=80e-9, angle=0.6))
+    closed, summed = (ARModel(wave, R, LAW, LEVER, friction=0.0, deform=False, coupling_stiffness=5.0,
+                              zone_energy=True, zone_closed_form=form) for form in (True, False))
+    forces, alone = [], 0
+    for x in np.linspace(35e-9, 60e-9, 120):  # 1 nm below where the sphere would touch: along the wave
+        target = (x, 48e-9, clearance_height(wave, x, 48e-9, R, samples=61) - 1.0e-9)
+        forces.append((closed.step(target).simulated_force, summed.step(target).simulated_force))
+        alone += closed.zone_lattice.arrays[L_QUAD][Q_WEIGHT] == 1.0  # the one term's weight at the tick's tip
+    a, b = (np.array(f) for f in zip(*forces))
+    assert np.abs(b[:, 2]).min() > 2e-9  # pressed all along (the coupling, 5 N/m, 1 nm deep)
+    assert np.abs(a - b).max() <= 0.015 * np.abs(b).max()
+    assert alone >= 0.8 * len(forces)
+    with pytest.raises(ContactError, match="zone_closed_form"):
+        ARModel(wave, R, LAW, LEVER, zone_energy=True, zone_closed_form=1)
