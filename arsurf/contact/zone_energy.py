@@ -37,6 +37,13 @@ at once, each with its own share, and no event of the contact set exists to step
 **The law** and the tip's profile s(r) are :mod:`arsurf.contact.zone_law`'s: Hertz's repulsion and a
 smoothed Dugdale adhesion, the Derjaguin-Muller-Toporov limit of Maugis-Dugdale on a flat.
 
+**Its closed form.** On a lattice made with ``closed_form`` (``ARModel(zone_closed_form=True)``)
+:func:`tip_energy_kernel` takes, where the contact is smooth and alone, the law integrated in
+closed form over the quadratic gap about its minimum (:mod:`arsurf.contact.zone_quadric`), joined
+to the lattice's sum in one energy by a weight whose gradient is exact; :func:`isolation_kernel`
+asks the lattice beyond the one term's check circle whether any other point of the surface comes
+near the tip. Not yet the default (docs/feel.rst, "The energy of the whole tip in one term").
+
 **Material maps.** With a map (:mod:`arsurf.contact.material_map`) each element sums its own
 law, the map's E* and w where it lies: the repulsion is linear in E* and the adhesion in
 :math:`\sigma_0` at a fixed range :math:`h_0` (as the map's laws keep it), so a sample's
@@ -60,10 +67,10 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.material_map import C_BODY, H_ON, local_ratios_kernel
-from arsurf.contact.zone_quadric import (CHECK_RADIUS, Q_CHECK, Q_GAP, Q_MOTION, Q_POINT, Q_SLOPE, Q_WEIGHT, QUADRIC_OUT, RING_WIDTH,
-                                         quadric_contact_kernel, smootherstep)
 from arsurf.contact.zone_law import (CONE_HALF_ANGLE, Z_ENERGY, Z_FORCE, Z_SIZE, ZONE_OUT, ZoneLaw, _across, _cone, _law,
                                      _rise, zone_law_kernel)
+from arsurf.contact.zone_quadric import (CHECK_RADIUS, CLEAR_MARGIN, Q_CHECK, Q_GAP, Q_MOTION, Q_POINT, Q_SLOPE, Q_WEIGHT,
+                                         QUADRIC_OUT, RING_WIDTH, quadric_contact_kernel, smootherstep)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
@@ -83,9 +90,6 @@ BLOCK = 8
 #: the relative margin of a block's reach (and of the tip's coordinates) when its rows and columns are read
 #: from the lattice's x and y (a sample's own are the same to rounding, ~1e-16 relative)
 WINDOW_SLACK = 1e-9
-#: the gap (a fraction of h0) over which a lone one-term contact fades as another point of the surface comes
-#: within h0 + it of the tip (:func:`isolation_kernel`)
-ISOLATION_MARGIN = 1.0
 #: the repulsion's gap in its stiffness is held at least this fraction of the range (:func:`zone_energy_kernel`)
 HESSIAN_FLOOR = 1e-3
 #: the proxy's step is at most this fraction of the tip radius (:func:`zone_proxy_kernel`)
@@ -274,7 +278,7 @@ def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
     :math:`f_k = g_k + \Lambda\,\chi(r_k)`, :math:`g_k` the sample's gap, :math:`r_k` its distance
     from the minimum :math:`x^*`, :math:`\chi` 1 within the check circle :math:`r_c` and fading to 0
     over :data:`~arsurf.contact.zone_quadric.RING_WIDTH` of it beyond (a smooth step), and
-    :math:`\Lambda = 2 h_0 + \Delta - g_0` (:math:`\Delta` = :data:`ISOLATION_MARGIN` h0) so that a
+    :math:`\Lambda = 2 h_0 + \Delta - g_0` (:math:`\Delta` = :data:`CLEAR_MARGIN` h0) so that a
     sample within the circle, whose gap is at least :math:`g_0`, is never the least below
     :math:`h_0 + \Delta`. Returns it (m), capped at :math:`h_0 + \Delta` (nothing else within that gap),
     with its gradient in T into ``grad`` (its first 3): the least sample's
@@ -283,7 +287,7 @@ def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
     the samples in reach of that gap outside the circle: for a lone contact, a thin ring."""
     xs, ys, zhi, pts, box = lat[L_XS], lat[L_YS], lat[L_ZHI], lat[L_PTS], lat[L_BOX]
     slot_of, stamp, clock = lat[L_SLOT_OF], lat[L_STAMP], lat[L_CLOCK]
-    margin = ISOLATION_MARGIN * h0
+    margin = CLEAR_MARGIN * h0
     best = h0 + margin
     grad[0] = grad[1] = grad[2] = 0.0
     px, py, g0, check = quad[Q_POINT], quad[Q_POINT + 1], quad[Q_GAP], quad[Q_CHECK]
@@ -297,6 +301,8 @@ def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
     if base + lat[L_TOP][0] <= 0.0:
         return best
     i0, i1, j0, j1 = _window(xs, ys, tx, ty, _across(base + lat[L_TOP][0], radius, rho0, cap, slope))
+    # the tiles and blocks as zone_energy_kernel visits them (not a shared helper: one that took the whole
+    # lattice to sample a tile would cost a reference count an array on every tile)
     for ti in range(i0 // TILE, (i1 + TILE - 1) // TILE):
         for tj in range(j0 // TILE, (j1 + TILE - 1) // TILE):
             s = _tile_in_reach(xs, ys, zhi, slot_of, stamp, clock, ti, tj, tx, ty, base, radius)
@@ -342,7 +348,7 @@ def isolation_kernel(lat, tx, ty, tz, radius, h0, quad, grad) -> float:
                             gx, gy, gz = q * dx, q * dy, 1.0  # grad g
                             if chi > 0.0:
                                 # chi grad lam, grad lam = -(nx, ny, 1); lam chi' grad t,
-                                # grad t = (grad r r_c - r grad r_c) / (w r_c^2), grad r_xy = -(u^T X)
+                                # grad t = (grad r r_c - r grad r_c) / (RING_WIDTH r_c^2), grad r_xy = -(u^T X)
                                 r = math.sqrt(r2)
                                 ux, uy = ox / r, oy / r
                                 c = -lam * smootherstep(t)[1] / (RING_WIDTH * check * check)
@@ -368,7 +374,7 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
         E = w E_1 + (1 - w) E_\Sigma, \qquad
         F = w F_1 + (1 - w) F_\Sigma - (E_1 - E_\Sigma)\nabla w,
 
-    w the one term's own (its fit on a ring, the room on the sphere and the scan) times the smooth
+    w the one term's own (its fit on two circles, the room on the sphere and the scan) times the smooth
     step of :func:`isolation_kernel`'s least gap elsewhere from :math:`h_0` (0) to :math:`h_0 +
     \Delta` (1): one energy, its force its gradient; the sum is taken only where w < 1. The
     Hessian is joined without the weight's derivatives (it steers a proxy's step only). Returns the
@@ -381,15 +387,14 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     w, gwx, gwy, gwz = 0.0, 0.0, 0.0, 0.0
     if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], tx, ty, tz, radius, e_star, sigma0, h0, quad,
                               qh) >= 0 and quad[Q_WEIGHT] > 0.0:
-        margin = ISOLATION_MARGIN * h0
+        margin = CLEAR_MARGIN * h0
         least = isolation_kernel(lat, tx, ty, tz, radius, h0, quad, part)  # its gradient into part[:3]
-        grad = part
         wi, si = smootherstep((least - h0) / margin)
         wq = quad[Q_WEIGHT]
         w = wq * wi
-        gwx = quad[Q_WEIGHT + 1] * wi + wq * si / margin * grad[0]
-        gwy = quad[Q_WEIGHT + 2] * wi + wq * si / margin * grad[1]
-        gwz = quad[Q_WEIGHT + 3] * wi + wq * si / margin * grad[2]
+        gwx = quad[Q_WEIGHT + 1] * wi + wq * si / margin * part[0]
+        gwy = quad[Q_WEIGHT + 2] * wi + wq * si / margin * part[1]
+        gwz = quad[Q_WEIGHT + 3] * wi + wq * si / margin * part[2]
     if w >= 1.0:
         for q in range(Z_SIZE):
             out[q] = quad[q]
@@ -630,8 +635,10 @@ class SurfaceLattice:
     (m), the trapezoidal weights along u and v, each tile's height bounds (m), the pool of
     sampled tiles (points m, the repulsion's areas m^2 and the adhesion's per them, blocks' boxes
     m) with its bookkeeping, the highest bound (m), the proxy's memo and scratch
-    (:func:`_remember`), the sampling's (a tile is sampled without allocating, in the tick) and the
-    contact vector of a material map (:func:`surface_lattice`). ``shape`` is the
+    (:func:`_remember`), the sampling's (a tile is sampled without allocating, in the tick), the
+    contact vector of a material map (:func:`surface_lattice`), and the closed form's: its output
+    and state (:data:`~arsurf.contact.zone_quadric.QUADRIC_OUT`), whether it is on, and its scratch
+    (:func:`tip_energy_kernel`). ``shape`` is the
     lattice's (nu, nv), ``spacing`` (hu, hv) m its rows' and columns' spacing at the first sample."""
 
     arrays: tuple

@@ -54,10 +54,13 @@ J'}{(\det M)^{3/2}}(n \nabla\det M^T + \nabla\det M\,n^T) + \frac{3\pi J}{2 (\de
 M)^{5/2}}\nabla\det M\,\nabla\det M^T`, with :math:`\nabla n` the value function's Hessian
 :math:`S - S M^{-1} S` across (zero along :math:`T_z`).
 
-The term holds where the gap is near its quadratic over the whole zone of interaction (a single
+The term holds where the gap is near its model over the whole zone of interaction (a single
 smooth contact, on the tip's sphere): :func:`quadric_contact_kernel` says when it cannot find that
 minimum (no minimum, M not positive definite, or the minimum past the sphere onto the cone), and
-the caller keeps the lattice there.
+how far it can be trusted, a weight whose gradient in T is exact (:func:`_fit_weight`); the caller
+joins it to a lattice's sum by that weight (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`).
+Its checks look at 24 points: a roughness finer than their spacing can hide a second minimum of
+the gap inside the zone from them (docs/feel.rst, "The energy of the whole tip in one term").
 """
 from __future__ import annotations
 
@@ -73,22 +76,25 @@ from arsurf.spline.basis import height_jet
 __all__ = ["QUADRIC_OUT", "law_moments", "quadric_contact", "quadric_contact_kernel"]
 
 #: what :func:`quadric_contact_kernel` writes: E (J) and F (N) as :data:`~arsurf.contact.zone_law.ZONE_OUT`,
-#: then the least gap g0 (m), where it lies (u, v: the net's parameters, also where the next call starts) and
-#: det M (m^-2)
+#: then the least gap g0 (m), where it lies (u, v: the net's parameters, also where the next call starts),
+#: det M (m^-2), the minimum x* (m), its motion X = dx*/dT_xy (row-major), the surface's slope there, the check
+#: circle's radius (m) and the weight with its gradient in T (1/m; :func:`_fit_weight`)
 QUADRIC_OUT = ZONE_OUT.extended("quadric contact output", [
     ("gap", 1), ("uv", 2), ("curvature", 1), ("point", 2), ("motion", 4), ("slope", 2), ("check_radius", 1),
     ("weight", 4)])
-(Q_GAP, Q_UV, Q_DET, Q_POINT, Q_MOTION, Q_SLOPE, Q_CHECK, Q_WEIGHT) = (QUADRIC_OUT.offset(f) for f in QUADRIC_OUT.fields[2:])
-#: the circle about the minimum on which the fit is checked, in units of the zone's radius on a flat at the same
-#: least gap, :math:`\sqrt{2R(h_0 - g_0)}` (the zone within it while the gap's smaller curvature is at least
-#: 1/(c^2 R), 0.44/R)
+(Q_GAP, Q_UV, Q_DET, Q_POINT, Q_MOTION, Q_SLOPE, Q_CHECK, Q_WEIGHT) = (QUADRIC_OUT.offset(f)
+                                                                       for f in QUADRIC_OUT.fields[2:])
+#: the check circle about the minimum, where the gap must stay clear of h0 and beyond which a lattice is asked the
+#: same (zone_energy.isolation_kernel), in units of the zone's radius on a flat at the same least gap,
+#: :math:`\sqrt{2R(h_0 - g_0)}` (the zone within it while the gap's smaller curvature is at least 1/(c^2 R), 0.44/R)
 CHECK_RADIUS = 1.5
-#: points on that circle
+#: points on each of the two circles checked (the zone's edge and the check circle)
 RING_POINTS = 12
-#: beyond that circle a ring this fraction of it wide, where a lattice's samples fade into view (zone_energy)
+#: beyond the check circle a ring this fraction of it wide, where a lattice's samples fade into view (zone_energy)
 RING_WIDTH = 0.25
-#: the surface's rms deviation from its second-order Taylor polynomial on the zone's edge, over the gap's range
-#: h0 - g0, below which the one term is trusted wholly (not at all above twice it)
+#: the gap's deviation from the one term's model on the zone's edge, over the gap's range h0 - g0 (its even part's
+#: rms plus the square of its odd part's: :func:`_ring_fit`), below which the one term is trusted wholly (not at
+#: all above twice it)
 FIT_TOLERANCE = 0.03
 #: the gap (a fraction of h0) above h0 that every point of the check circle keeps for the one term to be
 #: trusted wholly (it fades to nothing as one reaches h0)
@@ -135,11 +141,12 @@ def law_moments(g0, radius, e_star, sigma0, h0):
 def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
     r"""E(T) and F(T) of the module docstring at the tip centre T = (tx, ty, tz) (m) over the
     height-field net (``ctrl``, ``ku``, ``kv``). The gap's minimum by Newton's method from
-    ``out``'s (u, v) (:data:`QUADRIC_OUT`; NaN: from under the tip), each step at most
-    :data:`MINIMUM_STEP` R. Writes ``out``: E (J), F (N), g0 (m), the minimum's (u, v), det M
-    (m^-2); ``hess`` (3, 3), unless empty, E's Hessian (N/m, module docstring). Returns Newton's
-    steps, or :data:`NO_MINIMUM`, :data:`NOT_CONVERGED`, :data:`ON_THE_CONE` (E and F then 0, the
-    caller's to replace)."""
+    ``out``'s (u, v) (:data:`QUADRIC_OUT`; NaN, or beyond the tip's reach: from under the tip),
+    each step at most :data:`MINIMUM_STEP` R, down the gap's slope where M is not positive
+    definite. Writes ``out`` (:data:`QUADRIC_OUT`): E (J), F (N), g0 (m), the minimum's (u, v) and
+    the rest, the weight with its gradient last; ``hess`` (3, 3), unless empty, E's Hessian (N/m,
+    module docstring). Returns Newton's steps, or :data:`NO_MINIMUM`, :data:`NOT_CONVERGED`,
+    :data:`ON_THE_CONE` (E, F and the weight then 0, the caller's to replace)."""
     want = hess.shape[0] == 3
     out[Z_ENERGY] = out[Z_FORCE] = out[Z_FORCE + 1] = out[Z_FORCE + 2] = 0.0
     out[Q_WEIGHT] = out[Q_WEIGHT + 1] = out[Q_WEIGHT + 2] = out[Q_WEIGHT + 3] = 0.0
@@ -286,8 +293,8 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
       \xi^T M \xi` (elliptic contours, the sphere's own quartic about its apex: the factor of the
       module docstring); the deviation :math:`\delta = G - g_0 - q - q^2/2R` on
       :data:`RING_POINTS` points of the zone's edge, :math:`\sqrt{2R(h_0 - g_0)}` from :math:`x^*`,
-      over the gap's range :math:`h_0 - g_0` (:func:`_ring_fit`), below :data:`FIT_TOLERANCE` (1)
-      to twice it (0);
+      over the gap's range :math:`h_0 - g_0` (its even part's rms, its odd part's squared:
+      :func:`_ring_fit`), below :data:`FIT_TOLERANCE` (1) to twice it (0);
     - nothing else near: on the check circle, :data:`CHECK_RADIUS` times as far, the gap at least
       :math:`h_0` + :data:`CLEAR_MARGIN` h0 (:func:`_ring_clear`; beyond the circle
       :func:`~arsurf.contact.zone_energy.isolation_kernel` asks the same of the lattice);

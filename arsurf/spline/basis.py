@@ -193,7 +193,7 @@ def height_jet(ctrl, ku, kv, u, v):
     z = zu = zv = zuu = zuv = zvv = zuuu = zuuv = zuvv = zvvv = 0.0
     for b in range(4):
         j = iv + b
-        r0 = r1 = r2 = r3 = rx = rxu = 0.0  # z contracted along u to each order; x and x_u
+        r0 = r1 = r2 = r3 = rx = rxu = ry = 0.0  # z contracted along u to each order; x, x_u and y
         for a in range(4):
             pz = ctrl[iu + a, j, 2]
             r0 += bu[a] * pz
@@ -202,14 +202,12 @@ def height_jet(ctrl, ku, kv, u, v):
             r3 += tu[a] * pz
             rx += bu[a] * ctrl[iu + a, j, 0]
             rxu += bu[4 + a] * ctrl[iu + a, j, 0]
+            ry += bu[a] * ctrl[iu + a, j, 1]
         m0, m1, m2, m3 = bv[b], bv[4 + b], bv[8 + b], tv[b]
         x += m0 * rx
         xu += m0 * rxu
-        py = 0.0  # y at this column, along u
-        for a in range(4):
-            py += bu[a] * ctrl[iu + a, j, 1]
-        y += m0 * py
-        yv += m1 * py
+        y += m0 * ry
+        yv += m1 * ry
         z += m0 * r0
         zu += m0 * r1
         zv += m1 * r0

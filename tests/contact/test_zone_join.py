@@ -10,18 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (L_QUAD, ZONE_OUT, ZoneLaw, isolation_kernel, lattice_for, tip_energy_kernel,
-                                        zone_energy)
+from arsurf.contact.zone_energy import L_QUAD, ZONE_OUT, isolation_kernel, lattice_for, tip_energy_kernel, zone_energy
 from arsurf.contact.zone_quadric import Q_WEIGHT, quadric_contact
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
+from tests.contact.test_zone_quadric import H0, LAW, R  # a 10 nm tip, 50 GPa, 0.05 J/m^2
 from tests.support.valleys import with_heights
-
-R = 10e-9
-LAW = ZoneLaw.from_law(MaugisDugdale(R, 50e9, 0.05))
-H0 = LAW.interaction_range
 
 
 @pytest.fixture(scope="module")
