@@ -196,7 +196,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
     preset's); ``jump_blend`` s: the loop's blend time of the tip's jumps (0: off; default: the
     preset's, :mod:`arsurf.contact.jump_blend`); ``zone_energy``: the model's contact the energy of
-    the whole tip (:class:`~arsurf.model.ARModel`'s), ``zone_closed_form`` with its closed form; ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
+    the whole tip (:class:`~arsurf.model.ARModel`'s), ``zone_closed_form`` with its closed form;
+    ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
     tick's tip centre and its target (the scaled stylus) (3,) m and the model (a benchmark times a
     peer's query at the tip, under the conditions the tick runs in, or reads the force field there).
     The surface is restored to rest afterwards."""

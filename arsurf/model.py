@@ -806,7 +806,8 @@ class ARModel:
         # the energy of the whole tip as the contact (arsurf.contact.zone_energy), or none: (lattice, (E*, sigma0, h0)),
         # each sample with the map's local law
         self.zone_lattice = ze.lattice_for(self.rest_surface, tip_radius, zone_law.interaction_range,
-                                           material=self._md_args, closed_form=zone_closed_form) if zone_energy else None
+                                           material=self._md_args,
+                                           closed_form=zone_closed_form) if zone_energy else None
         self._zone_energy = (self.zone_lattice.arrays, np.array(zone_law.args[1:])) if zone_energy else None
         # validates the height-field rest net; the tick records its dent in the contact vector
         self._deformer = Deformer(surface, record=self._md_args, at=int(self._md_args[H_DENT]))

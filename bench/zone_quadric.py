@@ -47,8 +47,8 @@ from scipy.optimize import minimize
 
 from arsurf.assembly import PRESETS
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (ZONE_OUT, ZoneLaw, lattice_for, tip_energy_kernel, zone_energy, zone_energy_kernel,
-                                        zone_law_kernel)
+from arsurf.contact.zone_energy import (ZONE_OUT, ZoneLaw, lattice_for, tip_energy_kernel, zone_energy,
+                                        zone_energy_kernel, zone_law_kernel)
 from arsurf.contact.zone_quadric import QUADRIC_OUT, quadric_contact_kernel
 from arsurf.feel_scenarios import prepared_surface, run_scenario
 

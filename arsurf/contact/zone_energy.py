@@ -67,10 +67,10 @@ import numpy as np
 from numba import njit
 
 from arsurf.contact.material_map import C_BODY, H_ON, local_ratios_kernel
-from arsurf.contact.zone_law import (CONE_HALF_ANGLE, Z_ENERGY, Z_FORCE, Z_SIZE, ZONE_OUT, ZoneLaw, _across, _cone, _law,
-                                     _rise, zone_law_kernel)
-from arsurf.contact.zone_quadric import (CHECK_RADIUS, CLEAR_MARGIN, Q_CHECK, Q_GAP, Q_MOTION, Q_POINT, Q_SLOPE, Q_WEIGHT,
-                                         QUADRIC_OUT, RING_WIDTH, quadric_contact_kernel, smootherstep)
+from arsurf.contact.zone_law import (CONE_HALF_ANGLE, Z_ENERGY, Z_FORCE, Z_SIZE, ZONE_OUT, ZoneLaw, _across, _cone,
+                                     _law, _rise, zone_law_kernel)
+from arsurf.contact.zone_quadric import (CHECK_RADIUS, CLEAR_MARGIN, Q_CHECK, Q_GAP, Q_MOTION, Q_POINT, Q_SLOPE,
+                                         Q_WEIGHT, QUADRIC_OUT, RING_WIDTH, quadric_contact_kernel, smootherstep)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
 
@@ -120,7 +120,8 @@ MAX_POOL = 65_536
 MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
- L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP, L_QUAD, L_JOIN, L_JOIN_WORK, L_JOIN_OUT) = range(29)
+ L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP, L_QUAD, L_JOIN, L_JOIN_WORK,
+ L_JOIN_OUT) = range(29)
 
 
 @njit(cache=True)

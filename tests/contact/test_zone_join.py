@@ -15,8 +15,8 @@ from arsurf.contact.zone_quadric import Q_WEIGHT, quadric_contact
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
-from tests.contact.test_zone_quadric import H0, LAW, R  # a 10 nm tip, 50 GPa, 0.05 J/m^2
 from tests.support.valleys import with_heights
+from tests.support.zone_law import H0, LAW, R
 
 
 @pytest.fixture(scope="module")

@@ -13,18 +13,16 @@ from scipy.integrate import quad
 
 from arsurf.contact.maugis_dugdale import MaugisDugdale
 from arsurf.contact.zone_energy import ZoneLaw, surface_lattice, zone_energy, zone_law_kernel
-from arsurf.contact.zone_quadric import (NO_MINIMUM, QUADRIC_OUT, Q_DET, Q_GAP, Q_UV, Q_WEIGHT, law_moments, quadric_contact,
-                                         quadric_contact_kernel)
+from arsurf.contact.zone_quadric import (NO_MINIMUM, QUADRIC_OUT, Q_DET, Q_GAP, Q_UV, Q_WEIGHT, law_moments,
+                                         quadric_contact, quadric_contact_kernel)
 from arsurf.errors import ContactError
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.basis import height_jet, surface_point
 from arsurf.spline.fit import fit_surface
 from tests.support.valleys import R as VALLEY_R, height_for, valley_surface
+from tests.support.zone_law import H0, LAW, R
 
-R = 10e-9
-LAW = ZoneLaw.from_law(MaugisDugdale(R, 50e9, 0.05))
-H0 = LAW.interaction_range
 
 
 @pytest.fixture(scope="module")
