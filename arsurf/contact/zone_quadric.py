@@ -69,7 +69,7 @@ import math
 import numpy as np
 from numba import njit
 
-from arsurf.contact.zone_law import _COS_CONE, Z_ENERGY, Z_FORCE, ZONE_OUT, _law
+from arsurf.contact.zone_law import _COS_CONE, Z_ENERGY, Z_FORCE, ZONE_OUT, _cone, _law, _rise
 from arsurf.errors import ContactError
 from arsurf.spline.basis import height_jet
 
@@ -357,31 +357,34 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
 def _deviation(ctrl, ku, kv, model, radius, ring, grr, angle):
     r"""``(delta, d delta/dT, G, dG/dT)``: :math:`\delta = G - g_0 - q - q^2/2R` (:func:`_fit_weight`) at
     :math:`p = x^* + \xi`, :math:`\xi = r e` on the circle of radius ``ring`` (m; its gradient
-    ``grr`` (nx, ny, 1)) at ``angle``: :math:`dG(p)/dT_{xy} = \gamma^T X - (p - T)/\rho_p`,
+    ``grr`` (nx, ny, 1)) at ``angle``, G under the tip's own profile (its sphere, then its cone:
+    :func:`~arsurf.contact.zone_law._rise`): :math:`dG(p)/dT_{xy} = \gamma^T X - s'(r)(p - T)/r`,
     :math:`dG/dT_z = 1`, :math:`\gamma = \nabla_x G(p)`, plus :math:`\gamma\cdot e\,\nabla r`;
     :math:`dq/dT = \tfrac12\xi^T (dM/dT)\xi + \xi^T M e\,\nabla r`; :math:`dg_0/dT = n`."""
     tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
     mxx, mxy, myy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y = model[12:21]
     xxx, xxy, xyx, xyy = model[21], model[22], model[23], model[24]
-    nx, ny, r2 = -zx, -zy, radius * radius
+    nx, ny = -zx, -zy
     ex, ey = math.cos(angle), math.sin(angle)
     px, py = ring * ex, ring * ey
     at = height_jet(ctrl, ku, kv, u + px / xu, v + py / yv)
     ox, oy = x + px - tx, y + py - ty
-    rho = math.sqrt(max(r2 - ox * ox - oy * oy, 1e-30 * r2))
-    cx, cy = ox / rho - at[5] / xu, oy / rho - at[6] / yv  # grad_x G at p
+    rho0, cap, slope = _cone(radius)  # the tip's own profile: its sphere, then its cone (a check circle may reach it)
+    rise, sr, _ = _rise(ox * ox + oy * oy, radius, rho0, cap, slope)
+    gap = tz - radius + rise - at[4]
+    cx, cy = sr * ox - at[5] / xu, sr * oy - at[6] / yv  # grad_x G at p
     mx, my = mxx * px + mxy * py, mxy * px + myy * py
     q = 0.5 * (px * mx + py * my)
-    delta = tz - rho - at[4] - g0 - q - q * q / (2.0 * radius)
+    delta = gap - g0 - q - q * q / (2.0 * radius)
     along = cx * ex + cy * ey  # dG/dr
     dqr = mx * ex + my * ey  # dq/dr
     f = 1.0 + q / radius
     dqx = 0.5 * (dxx_x * px * px + 2.0 * dxy_x * px * py + dyy_x * py * py) + dqr * grr * nx
     dqy = 0.5 * (dxx_y * px * px + 2.0 * dxy_y * px * py + dyy_y * py * py) + dqr * grr * ny
-    gx = cx * xxx + cy * xyx - ox / rho + along * grr * nx  # grad G(p)
-    gy = cx * xxy + cy * xyy - oy / rho + along * grr * ny
+    gx = cx * xxx + cy * xyx - sr * ox + along * grr * nx  # grad G(p)
+    gy = cx * xxy + cy * xyy - sr * oy + along * grr * ny
     gz = 1.0 + along * grr
-    return delta, gx - nx - f * dqx, gy - ny - f * dqy, gz - 1.0 - f * dqr * grr, tz - rho - at[4], gx, gy, gz
+    return delta, gx - nx - f * dqx, gy - ny - f * dqy, gz - 1.0 - f * dqr * grr, gap, gx, gy, gz
 
 
 @njit(cache=True)

@@ -172,3 +172,23 @@ def test_the_height_jet_is_the_splines(rough):
         dv = (second(u, v + h) - second(u, v - h)) / (2 * h)
         scale = np.abs(jet[10:]).max()
         assert jet[10:] == pytest.approx([du[0], du[1], du[2], dv[2]], abs=1e-5 * scale)
+
+
+@pytest.mark.parametrize("ring", [0.5 * R, 1.1 * R, 1.3 * R])  # on the sphere, and past it on the cone
+def test_the_checks_see_the_gap_under_the_tip_s_own_profile(flat, ring):
+    # on a flat at z = 0, the minimum under the tip's axis: the gap at a point of a check circle is the
+    # lattice's (the sphere, then the cone: zone_law._rise), and it does not change as tip and minimum move
+    # together; a check circle may reach past the sphere (1.5 zones across, deep under a small tip)
+    from arsurf.contact.zone_law import _cone, _rise
+    from arsurf.contact.zone_quadric import _deviation
+
+    ctrl = np.array(flat.rest_control_points, order="C")
+    tz = R - 3e-9
+    u, v = 30e-9, 30e-9  # the net's parameters are its coordinates
+    model = (30e-9, 30e-9, tz, u, v, 1.0, 1.0, 30e-9, 30e-9, 0.0, 0.0, tz - R, 1 / R, 0.0, 1 / R,
+             0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+    for angle in (0.0, 1.0, 2.5):
+        out = _deviation(ctrl, flat.knots_u, flat.knots_v, model, R, ring, 0.0, angle)
+        gap, grad = out[4], np.array(out[5:8])
+        assert gap == pytest.approx(tz - R + _rise(ring * ring, R, *_cone(R))[0], rel=1e-9)
+        assert np.allclose(grad, [0.0, 0.0, 1.0], atol=1e-9)
