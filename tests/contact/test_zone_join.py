@@ -116,3 +116,10 @@ def test_a_smooth_lone_contact_is_the_one_term(summed):
 def test_far_above_the_surface_the_joined_energy_is_zero(joined):
     out, used = energy(joined, (60e-9, 60e-9, 40e-9))
     assert used == -1 and not out.any()
+
+
+def test_closed_form_is_asked_for_in_one_line(hills):
+    from arsurf.errors import SurfaceError
+
+    with pytest.raises(SurfaceError, match="`closed_form` must be True or False"):
+        lattice_for(hills, R, H0, closed_form="yes")
