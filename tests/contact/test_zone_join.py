@@ -12,6 +12,7 @@ import pytest
 
 from arsurf.contact.zone_energy import L_QUAD, ZONE_OUT, isolation_kernel, lattice_for, tip_energy_kernel, zone_energy
 from arsurf.contact.zone_quadric import Q_WEIGHT, quadric_contact
+from arsurf.errors import SurfaceError
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.fit import fit_surface
@@ -119,7 +120,5 @@ def test_far_above_the_surface_the_joined_energy_is_zero(joined):
 
 
 def test_closed_form_is_asked_for_in_one_line(hills):
-    from arsurf.errors import SurfaceError
-
     with pytest.raises(SurfaceError, match="`closed_form` must be True or False"):
         lattice_for(hills, R, H0, closed_form="yes")
