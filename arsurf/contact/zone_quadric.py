@@ -289,9 +289,10 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
     in T (1/m): the product of smooth steps (:func:`smootherstep`), each of a quantity whose
     gradient in T is exact, so the weight's is:
 
-    - the fit: the one term is exact for a gap :math:`G = g_0 + q + q^2/2R`, :math:`q = \tfrac12
-      \xi^T M \xi` (elliptic contours, the sphere's own quartic about its apex: the factor of the
-      module docstring); the deviation :math:`\delta = G - g_0 - q - q^2/2R` on
+    - the fit: the one term is exact for a gap :math:`G = g_0 + s(q)`, :math:`s(q) = R - \sqrt{R^2 -
+      2Rq}`, :math:`q = \tfrac12 \xi^T M \xi` (elliptic contours, each as far in gap as the sphere's
+      own profile over a flat: the area within s is :math:`2\pi(s - s^2/2R)/\sqrt{\det M}`, the
+      factor of the module docstring); the deviation :math:`\delta = G - g_0 - s(q)` on
       :data:`RING_POINTS` points of the zone's edge, :math:`\sqrt{2R(h_0 - g_0)}` from :math:`x^*`,
       over the gap's range :math:`h_0 - g_0` (its even part's rms, its odd part's squared:
       :func:`_ring_fit`), below :data:`FIT_TOLERANCE` (1) to twice it (0);
@@ -355,12 +356,14 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
 
 @njit(cache=True, inline="always")
 def _deviation(ctrl, ku, kv, model, radius, ring, grr, angle):
-    r"""``(delta, d delta/dT, G, dG/dT)``: :math:`\delta = G - g_0 - q - q^2/2R` (:func:`_fit_weight`) at
+    r"""``(delta, d delta/dT, G, dG/dT)``: :math:`\delta = G - g_0 - s(q)` (:func:`_fit_weight`) at
     :math:`p = x^* + \xi`, :math:`\xi = r e` on the circle of radius ``ring`` (m; its gradient
     ``grr`` (nx, ny, 1)) at ``angle``, G under the tip's own profile (its sphere, then its cone:
     :func:`~arsurf.contact.zone_law._rise`): :math:`dG(p)/dT_{xy} = \gamma^T X - s'(r)(p - T)/r`,
     :math:`dG/dT_z = 1`, :math:`\gamma = \nabla_x G(p)`, plus :math:`\gamma\cdot e\,\nabla r`;
-    :math:`dq/dT = \tfrac12\xi^T (dM/dT)\xi + \xi^T M e\,\nabla r`; :math:`dg_0/dT = n`."""
+    :math:`dq/dT = \tfrac12\xi^T (dM/dT)\xi + \xi^T M e\,\nabla r`; :math:`dg_0/dT = n`;
+    :math:`s'(q) = R/\sqrt{R^2 - 2Rq}`. Where :math:`2q \ge R` (past the sphere's equator) there is
+    no model: the deviation is then the whole rise, its gradient left out (the weight is 0 long before)."""
     tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
     mxx, mxy, myy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y = model[12:21]
     xxx, xxy, xyx, xyy = model[21], model[22], model[23], model[24]
@@ -375,15 +378,19 @@ def _deviation(ctrl, ku, kv, model, radius, ring, grr, angle):
     cx, cy = sr * ox - at[5] / xu, sr * oy - at[6] / yv  # grad_x G at p
     mx, my = mxx * px + mxy * py, mxy * px + myy * py
     q = 0.5 * (px * mx + py * my)
-    delta = gap - g0 - q - q * q / (2.0 * radius)
     along = cx * ex + cy * ey  # dG/dr
-    dqr = mx * ex + my * ey  # dq/dr
-    f = 1.0 + q / radius
-    dqx = 0.5 * (dxx_x * px * px + 2.0 * dxy_x * px * py + dyy_x * py * py) + dqr * grr * nx
-    dqy = 0.5 * (dxx_y * px * px + 2.0 * dxy_y * px * py + dyy_y * py * py) + dqr * grr * ny
     gx = cx * xxx + cy * xyx - sr * ox + along * grr * nx  # grad G(p)
     gy = cx * xxy + cy * xyy - sr * oy + along * grr * ny
     gz = 1.0 + along * grr
+    root = radius * (radius - 2.0 * q)
+    if root <= 0.0:  # past the sphere's equator in q: no model
+        return gap - g0, 0.0, 0.0, 0.0, gap, gx, gy, gz
+    root = math.sqrt(root)
+    delta = gap - g0 - (radius - root)
+    dqr = mx * ex + my * ey  # dq/dr
+    f = radius / root  # s'(q)
+    dqx = 0.5 * (dxx_x * px * px + 2.0 * dxy_x * px * py + dyy_x * py * py) + dqr * grr * nx
+    dqy = 0.5 * (dxx_y * px * px + 2.0 * dxy_y * px * py + dyy_y * py * py) + dqr * grr * ny
     return delta, gx - nx - f * dqx, gy - ny - f * dqy, gz - 1.0 - f * dqr * grr, gap, gx, gy, gz
 
 

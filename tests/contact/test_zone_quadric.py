@@ -192,3 +192,18 @@ def test_the_checks_see_the_gap_under_the_tip_s_own_profile(flat, ring):
         gap, grad = out[4], np.array(out[5:8])
         assert gap == pytest.approx(tz - R + _rise(ring * ring, R, *_cone(R))[0], rel=1e-9)
         assert np.allclose(grad, [0.0, 0.0, 1.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("depth", [0.5e-9, 1.5e-9, 2.5e-9])  # down to a quarter of R under the apex's level
+def test_on_a_flat_the_one_term_is_trusted_however_deep(flat, depth):
+    # the one term is the law summed over the sphere exactly, so its checks must find no deviation on a flat
+    # at any depth the sphere's room allows: the fit's model is the sphere's own profile over q,
+    # g0 + R - sqrt(R^2 - 2 R q), not its quartic truncation g0 + q + q^2/2R (a third of R deep, that
+    # truncation alone is 10 % of the gap's range off on the zone's edge)
+    out = QUADRIC_OUT.full(math.nan)
+    ctrl = np.array(flat.rest_control_points, order="C")
+    status = quadric_contact_kernel(ctrl, flat.knots_u, flat.knots_v, 30e-9, 30.3e-9, R - depth, *LAW.args, out,
+                                    np.empty((0, 0)))
+    assert status >= 0
+    assert out[Q_WEIGHT] == 1.0
+    assert not out[Q_WEIGHT + 1:Q_WEIGHT + 4].any()
