@@ -47,7 +47,7 @@ from scipy.optimize import minimize
 
 from arsurf.assembly import PRESETS
 from arsurf.contact.maugis_dugdale import MaugisDugdale
-from arsurf.contact.zone_energy import (ZONE_OUT, ZoneLaw, lattice_for, tip_energy_kernel, zone_energy,
+from arsurf.contact.zone_energy import (L_CURV, ZONE_OUT, ZoneLaw, lattice_for, tip_energy_kernel, zone_energy,
                                         zone_energy_kernel, zone_law_kernel)
 from arsurf.contact.zone_quadric import QUADRIC_OUT, quadric_contact_kernel
 from arsurf.feel_scenarios import prepared_surface, run_scenario
@@ -94,9 +94,9 @@ def quadric_energy(surface, law: ZoneLaw, tip, sphere: bool = True) -> float:
 
 
 @njit  # not cached: a bench's cached function breaks its own run as a script (docs/benchmarks.rst)
-def _one_terms(ctrl, ku, kv, tips, radius, e_star, sigma0, h0, quad, empty, energies):
+def _one_terms(ctrl, ku, kv, curv, curv_ku, curv_kv, tips, radius, e_star, sigma0, h0, quad, empty, energies):
     for k in range(tips.shape[0]):
-        quadric_contact_kernel(ctrl, ku, kv, tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star, sigma0, h0, quad,
+        quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star, sigma0, h0, quad,
                                empty)
         energies[k] = quad[0]
 
@@ -129,7 +129,7 @@ def time_against_the_lattice(surface, law: ZoneLaw, lattice, tips, rounds: int =
     times = {"one": [], "joined": [], "sum": []}
     for _ in range(rounds + 1):  # the first compiles
         t0 = time.perf_counter()
-        _one_terms(ctrl, surface.knots_u, surface.knots_v, tips, *law.args, quad, empty, one)
+        _one_terms(ctrl, surface.knots_u, surface.knots_v, *joined.arrays[L_CURV:L_CURV + 3], tips, *law.args, quad, empty, one)
         t1 = time.perf_counter()
         _joined(joined.arrays, tips, *law.args, out, empty, both)
         t2 = time.perf_counter()

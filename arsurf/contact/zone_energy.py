@@ -73,6 +73,7 @@ from arsurf.contact.zone_quadric import (CHECK_RADIUS, CLEAR_MARGIN, Q_CHECK, Q_
                                          Q_WEIGHT, QUADRIC_OUT, RING_WIDTH, quadric_contact_kernel, smootherstep)
 from arsurf.errors import ContactError, SurfaceError
 from arsurf.spline.basis import basis_matrix_rows, surface_point, surface_points_serial
+from arsurf.spline.curvature import curvature_net
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +122,7 @@ MAX_TILES = 4_000_000
 #: the indices of the kernels' ``lat`` (:attr:`SurfaceLattice.arrays`)
 (L_CTRL, L_KU, L_KV, L_US, L_VS, L_XS, L_YS, L_WU, L_WV, L_ZLO, L_ZHI, L_SLOT_OF, L_TILE_OF, L_STAMP, L_PTS, L_AR,
  L_ADH, L_BOX, L_CLOCK, L_TOP, L_MEMO, L_WORK, L_TRIAL, L_EV, L_MAP, L_QUAD, L_JOIN, L_JOIN_WORK,
- L_JOIN_OUT) = range(29)
+ L_JOIN_OUT, L_CURV, L_CURV_KU, L_CURV_KV) = range(32)
 
 
 @njit(cache=True)
@@ -378,7 +379,9 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     w the one term's own (its fit on two circles, the room on the sphere and the scan) times the smooth
     step of :func:`isolation_kernel`'s least gap elsewhere from :math:`h_0` (0) to :math:`h_0 +
     \Delta` (1): one energy, its force its gradient; the sum is taken only where w < 1. The
-    Hessian is joined without the weight's derivatives (it steers a proxy's step only). Returns the
+    Hessian is joined with the weight's first derivatives, :math:`w H_1 + (1 - w) H_\Sigma +
+    \nabla w\,\nabla(E_1 - E_\Sigma)^T + \nabla(E_1 - E_\Sigma)\,\nabla w^T`, not its second (it steers a
+    proxy's step and its quadratic model of the last step: :func:`zone_proxy_kernel`). Returns the
     lattice's samples in reach, or -1 where the one term alone was used."""
     quad, work, part = lat[L_QUAD], lat[L_JOIN_WORK], lat[L_JOIN_OUT]
     if lat[L_JOIN][0] == 0:
@@ -386,7 +389,7 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     want = hess.shape[0] == 3
     qh = work[0] if want else hess
     w, gwx, gwy, gwz = 0.0, 0.0, 0.0, 0.0
-    if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], tx, ty, tz, radius, e_star, sigma0, h0, quad,
+    if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_CURV], lat[L_CURV_KU], lat[L_CURV_KV], tx, ty, tz, radius, e_star, sigma0, h0, quad,
                               qh) >= 0 and quad[Q_WEIGHT] > 0.0:
         margin = CLEAR_MARGIN * h0
         least = isolation_kernel(lat, tx, ty, tz, radius, h0, quad, part)  # its gradient into part[:3]
@@ -408,14 +411,16 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     if w <= 0.0:
         return n
     diff = quad[Z_ENERGY] - out[Z_ENERGY]
+    fx, fy, fz = quad[Z_FORCE] - out[Z_FORCE], quad[Z_FORCE + 1] - out[Z_FORCE + 1], quad[Z_FORCE + 2] - out[Z_FORCE + 2]
     out[Z_ENERGY] += w * diff
-    out[Z_FORCE] += w * (quad[Z_FORCE] - out[Z_FORCE]) - diff * gwx
-    out[Z_FORCE + 1] += w * (quad[Z_FORCE + 1] - out[Z_FORCE + 1]) - diff * gwy
-    out[Z_FORCE + 2] += w * (quad[Z_FORCE + 2] - out[Z_FORCE + 2]) - diff * gwz
-    if want:
+    out[Z_FORCE] += w * fx - diff * gwx
+    out[Z_FORCE + 1] += w * fy - diff * gwy
+    out[Z_FORCE + 2] += w * fz - diff * gwz
+    if want:  # + grad w grad(E1 - E_sum)^T and its transpose, grad(E1 - E_sum) = -(F1 - F_sum)
+        gw, df = (gwx, gwy, gwz), (fx, fy, fz)
         for a in range(3):
             for b in range(3):
-                hess[a, b] += w * (qh[a, b] - hess[a, b])
+                hess[a, b] += w * (qh[a, b] - hess[a, b]) - (gw[a] * df[b] + df[a] * gw[b])
     return n
 
 
@@ -657,7 +662,7 @@ class SurfaceLattice:
 
 
 def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, material=None,
-                    closed_form: bool = False) -> SurfaceLattice:
+                    closed_form: bool = False, reach: float | None = None) -> SurfaceLattice:
     """The rest surface of ``surface`` (a height-field :class:`~arsurf.spline.surface.BSplineSurface`)
     sampled ``per_knot`` times per knot interval along u and v (a number: 0.5 is a sample every
     second knot; spacing h), each sample standing for
@@ -672,9 +677,13 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
     its adhesion by :math:`w/w_{ref}` (the range h0 the same, as the map's laws keep it).
     ``closed_form``: where the contact is smooth and alone, the energy in closed form over it
     (:func:`tip_energy_kernel`, :mod:`arsurf.contact.zone_quadric`) instead of the lattice's sum;
-    not with a material map."""
+    not with a material map. ``reach`` (m; with ``closed_form``): the tip's radius, over which its
+    check bounds the surface's third derivative (:func:`~arsurf.spline.curvature.curvature_net`)."""
     if not isinstance(closed_form, bool):
         raise SurfaceError(f"`closed_form` must be True or False (got {closed_form!r})")
+    if closed_form and not (isinstance(reach, (int, float)) and not isinstance(reach, bool) and math.isfinite(reach)
+                            and reach > 0.0):
+        raise SurfaceError(f"the closed form needs `reach`, the tip's radius, a finite number > 0 m (got {reach!r})")
     if not (isinstance(per_knot, (int, float, np.integer, np.floating)) and not isinstance(per_knot, bool)
             and 0.0 < per_knot <= MAX_PER_KNOT):
         raise SurfaceError(f"`per_knot` must be a number in (0, {MAX_PER_KNOT:g}] (got {per_knot!r})")
@@ -695,6 +704,7 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
     wu[[0, -1]] *= 0.5
     wv[[0, -1]] *= 0.5
     cv = _map_vector(material)
+    joined = closed_form and cv[H_ON] == 0.0
     ev = np.empty((1, nu + nv, 3))
     surface_points_serial(ctrl, ku, kv, np.concatenate([us, np.full(nv, u0)]), np.concatenate([np.full(nu, v0), vs]),
                           0, ev)
@@ -707,7 +717,8 @@ def surface_lattice(surface, per_knot: int = 4, pool: int = DEFAULT_POOL, materi
               np.empty((pool * TILE * TILE, 3)), np.empty(pool * TILE * TILE), np.empty(pool * TILE * TILE),
               np.empty((pool, 2, 2, 6)), np.zeros(1, np.int64), np.array([zhi.max()]), np.full(_PUBLISHED + 3, math.nan),
               np.empty((3, 3, 3)), np.empty(Z_SIZE), np.empty((6, 3)), cv, QUADRIC_OUT.full(math.nan),
-              np.array([int(closed_form and cv[H_ON] == 0.0)]), np.empty((2, 3, 3)), np.empty(Z_SIZE))
+              np.array([int(joined)]), np.empty((2, 3, 3)), np.empty(Z_SIZE),
+              *(curvature_net(ctrl, ku, kv, reach) if joined else (np.zeros((0, 0, 4)), ku, kv)))
     return SurfaceLattice(arrays, (nu, nv), (float(xs[1] - xs[0]), float(ys[1] - ys[0])))
 
 
@@ -776,7 +787,7 @@ def lattice_for(surface, tip_radius: float, interaction_range: float = 0.0, per_
         most *= 0.99
     if most < cap:
         cap, why = most, f"{cu - 3} x {cv - 3} knot intervals take at most {MAX_TILES} tiles of samples"
-    lattice = surface_lattice(surface, min(pixel / spacing, cap), pool, material, closed_form)
+    lattice = surface_lattice(surface, min(pixel / spacing, cap), pool, material, closed_form, tip_radius)
     if pixel / spacing > cap:
         log.warning("the zone energy's lattice is %.3g nm apart, not %.3g nm: %s; the law is summed less well "
                     "(docs/feel.rst, \"The lattice's quadrature\")", lattice.spacing[0] * 1e9, spacing * 1e9, why)

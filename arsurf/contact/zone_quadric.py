@@ -72,6 +72,7 @@ from numba import njit
 from arsurf.contact.zone_law import _COS_CONE, Z_ENERGY, Z_FORCE, ZONE_OUT, _cone, _law, _rise
 from arsurf.errors import ContactError
 from arsurf.spline.basis import height_jet
+from arsurf.spline.curvature import curvature_jet, curvature_net
 
 __all__ = ["QUADRIC_OUT", "law_moments", "quadric_contact", "quadric_contact_kernel"]
 
@@ -96,6 +97,9 @@ RING_WIDTH = 0.25
 #: rms plus the square of its odd part's: :func:`_ring_fit`), below which the one term is trusted wholly (not at
 #: all above twice it)
 FIT_TOLERANCE = 0.03
+#: the measure of a second minimum inside the zone (:func:`_remainder_weight`) up to which the one term is trusted
+#: wholly (not at all above twice it)
+REMAINDER_TOLERANCE = 2.0
 #: the gap (a fraction of h0) above h0 that every point of the check circle keeps for the one term to be
 #: trusted wholly (it fades to nothing as one reaches h0)
 CLEAR_MARGIN = 1.0
@@ -138,9 +142,10 @@ def law_moments(g0, radius, e_star, sigma0, h0):
 
 
 @njit(cache=True, error_model="numpy")
-def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
+def quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
     r"""E(T) and F(T) of the module docstring at the tip centre T = (tx, ty, tz) (m) over the
-    height-field net (``ctrl``, ``ku``, ``kv``). The gap's minimum by Newton's method from
+    height-field net (``ctrl``, ``ku``, ``kv``; ``curv``, ``curv_ku``, ``curv_kv`` its curvature's own
+    fields, :func:`~arsurf.spline.curvature.curvature_net`). The gap's minimum by Newton's method from
     ``out``'s (u, v) (:data:`QUADRIC_OUT`; NaN, or beyond the tip's reach: from under the tip),
     each step at most :data:`MINIMUM_STEP` R, down the gap's slope where M is not positive
     definite. Writes ``out`` (:data:`QUADRIC_OUT`): E (J), F (N), g0 (m), the minimum's (u, v) and
@@ -165,10 +170,10 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
         v = min(max(v0 + (ty - y0) / (y1 - y0) * (v1 - v0), v0), v1)
     steps, found = 0, False
     r2 = radius * radius
-    x = y = xu = yv = z = zu = zv = zuu = zuv = zvv = zuuu = zuuv = zuvv = zvvv = 0.0
+    x = y = xu = yv = z = zu = zv = zuu = zuv = zvv = 0.0
     dx = dy = rho = rho2 = zx = zy = i3 = mxx = mxy = myy = det = 0.0
     for it in range(MINIMUM_ITERATIONS + 1):
-        x, y, xu, yv, z, zu, zv, zuu, zuv, zvv, zuuu, zuuv, zuvv, zvvv = height_jet(ctrl, ku, kv, u, v)
+        x, y, xu, yv, z, zu, zv, zuu, zuv, zvv = height_jet(ctrl, ku, kv, u, v)[:10]
         dx, dy = x - tx, y - ty
         rho2 = r2 - dx * dx - dy * dy
         if rho2 <= 0.0:
@@ -204,48 +209,54 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
     if dx * dx + dy * dy >= (_COS_CONE * radius) ** 2:
         return ON_THE_CONE
     g0 = tz - rho - z
-    out[Q_GAP], out[Q_DET] = g0, det
-    # the sphere's Hessian S and the minimum's motion X = dx*/dT_xy = M^-1 S (rows: x*, columns: T)
+    # the energy's curvature from the curvature's own C2 field (its slopes continuous across knot lines);
+    # the minimum and its motion from the spline's own (exact)
+    (hxx, hxy, hyy, bound, hxx_x, hxy_x, hyy_x, bound_x, hxx_y, hxy_y, hyy_y,
+     bound_y) = curvature_jet(curv, curv_ku, curv_kv, u, v, xu, yv)
     sxx, sxy, syy = 1.0 / rho + dx * dx * i3, dx * dy * i3, 1.0 / rho + dy * dy * i3
+    kxx, kxy, kyy = sxx - hxx, sxy - hxy, syy - hyy
+    curved = kxx * kyy - kxy * kxy
+    if not (curved > 0.0 and kxx > 0.0):
+        return NO_MINIMUM
+    out[Q_GAP], out[Q_DET] = g0, curved
+    # the sphere's Hessian S and the minimum's motion X = dx*/dT_xy = M^-1 S (rows: x*, columns: T)
     ixx, ixy, iyy = myy / det, -mxy / det, mxx / det
     xxx, xxy = ixx * sxx + ixy * sxy, ixx * sxy + ixy * syy
     xyx, xyy = ixy * sxx + iyy * sxy, ixy * sxy + iyy * syy
     out[Q_POINT], out[Q_POINT + 1] = x, y
     out[Q_MOTION], out[Q_MOTION + 1], out[Q_MOTION + 2], out[Q_MOTION + 3] = xxx, xxy, xyx, xyy
     out[Q_SLOPE], out[Q_SLOPE + 1] = zx, zy
-    cx, cy = 1.0 / xu, 1.0 / yv
-    h_xxx, h_xxy, h_xyy, h_yyy = zuuu * cx * cx * cx, zuuv * cx * cx * cy, zuvv * cx * cy * cy, zvvv * cy * cy * cy
     # dS_ab/dd_c = (delta_ab d_c + delta_ac d_b + delta_bc d_a) / rho^3 + 3 d_a d_b d_c / rho^5
     i5 = 3.0 * i3 / rho2
     s_xxx = 3.0 * dx * i3 + i5 * dx * dx * dx
     s_xxy = dy * i3 + i5 * dx * dx * dy
     s_xyy = dx * i3 + i5 * dx * dy * dy
     s_yyy = 3.0 * dy * i3 + i5 * dy * dy * dy
-    # dM/dx_l (l = x, y) at fixed T; dM/dT_k = sum_l dM/dx_l X_lk - dS/dd_k
-    axx_x, axy_x, ayy_x = s_xxx - h_xxx, s_xxy - h_xxy, s_xyy - h_xyy
-    axx_y, axy_y, ayy_y = s_xxy - h_xxy, s_xyy - h_xyy, s_yyy - h_yyy
+    # dK/dx_l (l = x, y) at fixed T, K = S - H~ the energy's curvature; dK/dT_k = sum_l dK/dx_l X_lk - dS/dd_k
+    axx_x, axy_x, ayy_x = s_xxx - hxx_x, s_xxy - hxy_x, s_xyy - hyy_x
+    axx_y, axy_y, ayy_y = s_xxy - hxx_y, s_xyy - hxy_y, s_yyy - hyy_y
     dxx_x, dxy_x, dyy_x = axx_x * xxx + axx_y * xyx - s_xxx, axy_x * xxx + axy_y * xyx - s_xxy, \
         ayy_x * xxx + ayy_y * xyx - s_xyy
     dxx_y, dxy_y, dyy_y = axx_x * xxy + axx_y * xyy - s_xxy, axy_x * xxy + axy_y * xyy - s_xyy, \
         ayy_x * xxy + ayy_y * xyy - s_yyy
     reach = CHECK_RADIUS * math.sqrt(2.0 * radius * max(h0 - g0, 0.0))
     out[Q_CHECK] = reach
-    model = (tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0, mxx, mxy, myy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y,
-             xxx, xxy, xyx, xyy)
+    model = (tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0, kxx, kxy, kyy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y,
+             xxx, xxy, xyx, xyy, bound, bound_x, bound_y)
     _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out)
     if g0 >= h0:
         return steps
-    # d det M = tr(adj M dM)
-    ddx = myy * dxx_x - 2.0 * mxy * dxy_x + mxx * dyy_x
-    ddy = myy * dxx_y - 2.0 * mxy * dxy_y + mxx * dyy_y
+    # d det K = tr(adj K dK)
+    ddx = kyy * dxx_x - 2.0 * kxy * dxy_x + kxx * dyy_x
+    ddy = kyy * dxx_y - 2.0 * kxy * dxy_y + kxx * dyy_y
     i0, i1 = law_moments(g0, radius, e_star, sigma0, h0)
     j = (1.0 + g0 / radius) * i0 - i1 / radius
     phi_r, phi_a, p, _ = _law(g0, e_star / (math.pi * math.sqrt(radius)), sigma0, h0, 0.0)
     phi = phi_r + phi_a
     j1 = -phi + i0 / radius
-    root = math.sqrt(det)
+    root = math.sqrt(curved)
     a = 2.0 * math.pi / root  # E = a J
-    b = math.pi * j / (det * root)  # the det term: grad E = a J' n - b grad det
+    b = math.pi * j / (curved * root)  # the det term: grad E = a J' n - b grad det
     nx, ny = -zx, -zy
     out[Z_ENERGY] = a * j
     out[Z_FORCE] = -(a * j1 * nx - b * ddx)
@@ -257,8 +268,8 @@ def quadric_contact_kernel(ctrl, ku, kv, tx, ty, tz, radius, e_star, sigma0, h0,
         vxx = sxx - (sxx * xxx + sxy * xyx)
         vxy = sxy - (sxx * xxy + sxy * xyy)
         vyy = syy - (sxy * xxy + syy * xyy)
-        c = math.pi * j1 / (det * root)
-        e = 1.5 * math.pi * j / (det * det * root)
+        c = math.pi * j1 / (curved * root)
+        e = 1.5 * math.pi * j / (curved * curved * root)
         n = (nx, ny, 1.0)
         gd = (ddx, ddy, 0.0)
         for r in range(3):
@@ -340,6 +351,12 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
         g2x = k * (ax * xxx + ay * xyx - (1.0 + RING_WIDTH) * grc * nx)
         g2y = k * (ax * xxy + ay * xyy - (1.0 + RING_WIDTH) * grc * ny)
         g2z = -k * (1.0 + RING_WIDTH) * grc
+    # no second minimum within the zone: the surface's third derivative bounded over it
+    w5, g5x, g5y, g5z = 1.0, 0.0, 0.0, 0.0
+    if w1 * w2 > 0.0 and h0 > g0:
+        w5, g5x, g5y, g5z = _remainder_weight(model, h0)
+        g1x, g1y, g1z = g1x * w5 + w1 * g5x, g1y * w5 + w1 * g5y, g1z * w5 + w1 * g5z  # (w1 w5 as w1 below)
+        w1 *= w5
     # the fit: within the zone (its edge), and between it and the check circle (no other contact there)
     w3, g3x, g3y, g3z = 1.0, 0.0, 0.0, 0.0
     w4, g4x, g4y, g4z = 1.0, 0.0, 0.0, 0.0
@@ -352,6 +369,52 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
     out[Q_WEIGHT + 1] = (g1x * w2 + w1 * g2x) * w34 + w12 * (g3x * w4 + w3 * g4x)
     out[Q_WEIGHT + 2] = (g1y * w2 + w1 * g2y) * w34 + w12 * (g3y * w4 + w3 * g4y)
     out[Q_WEIGHT + 3] = (g1z * w2 + w1 * g2z) * w34 + w12 * (g3z * w4 + w3 * g4z)
+
+
+@njit(cache=True)
+def _remainder_weight(model, h0):
+    r"""``(w, dw/dT)``: 1 while the surface's third derivative, bounded by B over the tip's reach
+    about :math:`x^*` (:func:`~arsurf.spline.curvature.curvature_net`), is too small to make a
+    second minimum of the gap inside the zone, 0 well past that. About :math:`x^*` the gap's
+    gradient is :math:`K\xi + r`, :math:`|r| \le \tfrac12 B|\xi|^2`, so it vanishes nowhere
+    else within :math:`|\xi| < 2\lambda/B`, :math:`\lambda` the least curvature of the gap (of
+    K); the zone reaches :math:`\sqrt{2(h_0 - g_0)/\lambda}`; the measure is their ratio,
+    :math:`c = B\sqrt{(h_0 - g_0)/2}\,\lambda^{-3/2}`, no other minimum while c < 1.
+    B is a bound (the largest over the reach and a basis function's 4 x 4 spans, the third
+    derivative's norm), about twice the third derivative met on the real scans' maps; so the one
+    term is trusted wholly to c = :data:`REMAINDER_TOLERANCE` and not at all from twice it. The
+    least curvature is smoothed, :math:`\lambda = m - \sqrt{d^2 + K_{xy}^2 + (\epsilon m)^2}`
+    (m, d the half sum and difference of the diagonal, :math:`\epsilon` = 1e-3), so that its
+    gradient exists where K is isotropic (on a flat)."""
+    tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
+    kxx, kxy, kyy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y = model[12:21]
+    xxx, xxy, xyx, xyy, bound, bound_x, bound_y = model[21:28]
+    span = h0 - g0
+    m, d = 0.5 * (kxx + kyy), 0.5 * (kxx - kyy)
+    eps = 1e-3
+    root = math.sqrt(d * d + kxy * kxy + eps * eps * m * m)
+    lam = m - root
+    if lam <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    half = math.sqrt(0.5 * span)
+    c = bound * half * lam ** -1.5
+    w, slope = smootherstep(2.0 - c / REMAINDER_TOLERANCE)
+    if slope == 0.0:
+        return w, 0.0, 0.0, 0.0
+    # grad lam from dK/dT (T_z moves neither x* nor K); grad B = (B_x, B_y) X; grad span = -(nx, ny, 1)
+    dm_x, dm_y = 0.5 * (dxx_x + dyy_x), 0.5 * (dxx_y + dyy_y)
+    dd_x, dd_y = 0.5 * (dxx_x - dyy_x), 0.5 * (dxx_y - dyy_y)
+    dlx = dm_x - (d * dd_x + kxy * dxy_x + eps * eps * m * dm_x) / root
+    dly = dm_y - (d * dd_y + kxy * dxy_y + eps * eps * m * dm_y) / root
+    dbx, dby = bound_x * xxx + bound_y * xyx, bound_x * xxy + bound_y * xyy
+    a = half * lam ** -1.5  # dc/dB
+    e = bound * lam ** -1.5 / (4.0 * half)  # dc/dspan
+    f = -1.5 * c / lam  # dc/dlam
+    cx = a * dbx + e * zx + f * dlx  # grad span = (zx, zy, -1)
+    cy = a * dby + e * zy + f * dly
+    cz = -e
+    k = -slope / REMAINDER_TOLERANCE
+    return w, k * cx, k * cy, k * cz
 
 
 @njit(cache=True, inline="always")
@@ -471,6 +534,7 @@ def quadric_contact(surface, law, center, start=None) -> tuple[float, np.ndarray
     if start is not None:
         out[Q_UV:Q_UV + 2] = np.asarray(start, dtype=np.float64)
     ctrl = np.array(surface.rest_control_points, order="C")
-    status = quadric_contact_kernel(ctrl, surface.knots_u, surface.knots_v, c[0], c[1], c[2], *law.args, out,
+    ku, kv = surface.knots_u, surface.knots_v
+    status = quadric_contact_kernel(ctrl, ku, kv, *curvature_net(ctrl, ku, kv, law.tip_radius), c[0], c[1], c[2], *law.args, out,
                                     np.empty((0, 0)))
     return float(out[Z_ENERGY]), out[Z_FORCE:Z_FORCE + 3].copy(), int(status)

@@ -122,3 +122,22 @@ def test_far_above_the_surface_the_joined_energy_is_zero(joined):
 def test_closed_form_is_asked_for_in_one_line(hills):
     with pytest.raises(SurfaceError, match="`closed_form` must be True or False"):
         lattice_for(hills, R, H0, closed_form="yes")
+
+
+def test_in_the_blend_the_hessian_carries_the_weight_s_slope(hills, joined):
+    # the joined Hessian steers the tracking proxy's step and its quadratic model of the last one; in the blend
+    # it keeps the terms of the weight's first derivatives, grad w grad(E1 - E_sum)^T and its transpose
+    # (the weight's second derivatives left out): nearer the force's own derivative than w H1 + (1 - w) H_sum
+    errors = []
+    for tip in tips(hills, 80, seed=3):
+        out, hess = ZONE_OUT.zeros(), np.zeros((3, 3))
+        tip_energy_kernel(joined.arrays, *tip, *LAW.args, out, hess)
+        w = joined.arrays[L_QUAD][Q_WEIGHT]
+        if not 0.05 < w < 0.95:
+            continue
+        h = 2e-13
+        numeric = np.array([-(energy(joined, tip + h * e)[0][1:4] - energy(joined, tip - h * e)[0][1:4]) / (2 * h)
+                            for e in np.eye(3)])
+        errors.append(np.abs(hess - numeric).max() / np.abs(numeric).max())
+    assert len(errors) >= 5
+    assert np.median(errors) <= 0.01  # 0.6 % (1.7 % without the weight's terms)

@@ -19,6 +19,7 @@ from arsurf.errors import ContactError
 from arsurf.feel_scenarios import clearance_height
 from arsurf.scan import synthetic
 from arsurf.spline.basis import height_jet, surface_point
+from arsurf.spline.curvature import curvature_net
 from arsurf.spline.fit import fit_surface
 from tests.support.valleys import R as VALLEY_R, height_for, valley_surface
 from tests.support.zone_law import H0, LAW, R
@@ -40,6 +41,12 @@ def smooth():
 def rough():
     """Asperities 2 nm high, 3 nm apart: rough under a 10 nm tip's contact."""
     return fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=2e-9, correlation_length=3e-9, seed=5))
+
+
+def net(surface):
+    """The kernel's net arguments: control points, knots and the curvature's own net."""
+    ctrl = np.array(surface.rest_control_points, order="C")
+    return (ctrl, surface.knots_u, surface.knots_v, *curvature_net(ctrl, surface.knots_u, surface.knots_v, R))
 
 
 def pressed(surface, x, y, depth):
@@ -67,7 +74,7 @@ def test_on_a_flat_the_one_term_is_the_law_summed_over_the_sphere(flat, depth):
 def test_out_of_reach_the_one_term_is_zero(flat):
     out = QUADRIC_OUT.full(math.nan)
     ctrl = np.array(flat.rest_control_points, order="C")
-    status = quadric_contact_kernel(ctrl, flat.knots_u, flat.knots_v, 30e-9, 30e-9, R + 1.01 * H0, *LAW.args, out,
+    status = quadric_contact_kernel(*net(flat), 30e-9, 30e-9, R + 1.01 * H0, *LAW.args, out,
                                     np.empty((0, 0)))
     assert status >= 0 and out[Q_GAP] == pytest.approx(1.01 * H0, rel=1e-9)
     assert not out[:4].any()
@@ -90,7 +97,7 @@ def test_the_hessian_is_near_the_forces_derivative(smooth):
     tip = pressed(smooth, 45e-9, 45e-9, 1.0e-9)
     out, hess = QUADRIC_OUT.full(math.nan), np.empty((3, 3))
     ctrl = np.array(smooth.rest_control_points, order="C")
-    quadric_contact_kernel(ctrl, smooth.knots_u, smooth.knots_v, *tip, *LAW.args, out, hess)
+    quadric_contact_kernel(*net(smooth), *tip, *LAW.args, out, hess)
     h = 1e-12
     numeric = np.array([-(quadric_contact(smooth, LAW, tip + h * e)[1] - quadric_contact(smooth, LAW, tip - h * e)[1])
                         / (2 * h) for e in np.eye(3)])
@@ -102,7 +109,7 @@ def test_the_minimum_is_found_again_from_where_it_was(smooth):
     tip = pressed(smooth, 40e-9, 50e-9, 0.8e-9)
     out = QUADRIC_OUT.full(math.nan)
     ctrl = np.array(smooth.rest_control_points, order="C")
-    args = (ctrl, smooth.knots_u, smooth.knots_v, *tip, *LAW.args)
+    args = (*net(smooth), *tip, *LAW.args)
     first = quadric_contact_kernel(*args, out, np.empty((0, 0)))
     again = out.copy()
     second = quadric_contact_kernel(*args, again, np.empty((0, 0)))
@@ -143,7 +150,7 @@ def test_over_a_valley_narrower_than_the_tip_no_minimum_is_said(flat):
     law = ZoneLaw.from_law(MaugisDugdale(VALLEY_R, 50e9, 0.05))
     out = QUADRIC_OUT.full(math.nan)
     ctrl = np.array(valley.rest_control_points, order="C")
-    status = quadric_contact_kernel(ctrl, valley.knots_u, valley.knots_v, 33e-9, 24e-9, height_for("sinusoid", 33e-9),
+    status = quadric_contact_kernel(*net(valley), 33e-9, 24e-9, height_for("sinusoid", 33e-9),
                                     *law.args, out, np.empty((0, 0)))
     assert status == NO_MINIMUM and not out[:4].any() and out[Q_WEIGHT] == 0.0
     with pytest.raises(ContactError, match="center"):
@@ -202,8 +209,24 @@ def test_on_a_flat_the_one_term_is_trusted_however_deep(flat, depth):
     # truncation alone is 10 % of the gap's range off on the zone's edge)
     out = QUADRIC_OUT.full(math.nan)
     ctrl = np.array(flat.rest_control_points, order="C")
-    status = quadric_contact_kernel(ctrl, flat.knots_u, flat.knots_v, 30e-9, 30.3e-9, R - depth, *LAW.args, out,
+    status = quadric_contact_kernel(*net(flat), 30e-9, 30.3e-9, R - depth, *LAW.args, out,
                                     np.empty((0, 0)))
     assert status >= 0
     assert out[Q_WEIGHT] == 1.0
     assert not out[Q_WEIGHT + 1:Q_WEIGHT + 4].any()
+
+
+def test_the_force_is_continuous_where_the_minimum_crosses_a_knot_line():
+    # a tip sliding 1 nm in 2 pm steps over a surface rough at its 0.5 nm knots: the gap's minimum crosses knot
+    # lines, where the spline's third derivatives step; the energy's curvature is read from the curvature's own C2
+    # field, so the force has no step there (with the spline's own curvature: a step 160 times the force's change
+    # over a step elsewhere)
+    surface = fit_surface(synthetic.rough(shape=(64, 64), pixel=0.5e-9, rms=0.4e-9, correlation_length=4e-9, seed=2))
+    z = pressed(surface, 14e-9, 16e-9, 0.8e-9)[2]
+    forces = []
+    for x in 14e-9 + 2e-12 * np.arange(500):
+        energy, force, status = quadric_contact(surface, LAW, (x, 16e-9, z))
+        assert status >= 0
+        forces.append(force)
+    steps = np.linalg.norm(np.diff(np.array(forces), axis=0), axis=1)
+    assert steps.max() <= 4.0 * np.median(steps)

@@ -2,7 +2,8 @@
 "One sum of the lattice a tick"): on a scan smooth under the tip the law over the quadratic gap
 about its minimum, with the sphere's own shape to the next order, gives the lattice's load within
 its quadrature's 2 %, and the sphere's factor is what brings it there from the paraboloid's; compiled
-(Newton's method on the spline, the law's weighted integral in closed form) it is the same energy."""
+(Newton's method on the spline, the law's weighted integral in closed form) it is the same energy
+but for the curvature's own field."""
 from __future__ import annotations
 
 import json
@@ -19,5 +20,7 @@ def test_one_term_gives_the_lattice_s_load_on_a_smooth_scan(capsys):
     assert row["tips"] == 6 and sphere["lattice_fz_median_N"] > 2e-8
     assert sphere["fz_difference_max"] < 0.02 and sphere["fx_difference_over_fz_max"] < 0.01
     assert paraboloid["fz_difference_median"] > 3 * sphere["fz_difference_median"]
-    # compiled (Newton on the spline, the integral in closed form): the same energy as by quadrature
-    assert abs(row["cost"]["compiled_energy_difference_max"] - sphere["energy_difference_max"]) < 1e-4
+    # compiled (Newton on the spline, the integral in closed form): the same energy as by quadrature, but for the
+    # curvature, read from its own C2 field (arsurf.spline.curvature) rather than the spline's at the minimum
+    # (5e-4 of the energy apart here)
+    assert abs(row["cost"]["compiled_energy_difference_max"] - sphere["energy_difference_max"]) < 1e-3
