@@ -276,7 +276,8 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
                      control_shape: tuple[int, int] | None = None, smoothing: float = 0.0,
                      calibration: Mapping | None = None, haptics: Mapping | None = None,
                      loop_rate: float | None = None, material=None, friction_law: str = DEFAULT_FRICTION_LAW,
-                     shear_strength: float | None = None, zone_energy: bool = False, **extra) -> dict:
+                     shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = True,
+                     **extra) -> dict:
     """The metadata dict of a session, checked and JSON-ready.
 
     Parameters
@@ -301,6 +302,9 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
     zone_energy : bool
         The model's contact the energy of the whole tip (:class:`~arsurf.model.ARModel`; recorded
         only when True).
+    zone_closed_form : bool
+        With ``zone_energy``, its closed form where trusted (:class:`~arsurf.model.ARModel`'s;
+        default True; recorded with ``zone_energy``, true or false).
     calibration, haptics : dict, optional
         Free JSON objects (:func:`build_loop` reads ``haptics``).
     loop_rate : float, Hz, optional
@@ -347,6 +351,7 @@ def session_metadata(*, scan: Mapping | str | os.PathLike, tip_radius: float, co
         meta["shear_strength"] = shear_strength
     if zone_energy is not False:
         meta["zone_energy"] = zone_energy
+        meta["zone_closed_form"] = zone_closed_form
     if material is not None:
         meta["material"] = _material_meta(material, scan_meta["path"])
     return check_metadata(_jsonable(meta, "metadata")).to_metadata()
@@ -507,6 +512,7 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         noise = h.get("signal_noise")
         noise = None if noise is None else float(noise)
         zone = False if c.zone_energy is UNSET else c.zone_energy
+        closed = False if c.zone_closed_form is UNSET else c.zone_closed_form  # recorded before it was: the sum
     except (ArsurfError, TypeError, ValueError) as exc:
         raise SessionError(f"the session metadata does not describe a valid model: {exc}") from exc
     if not (math.isfinite(friction) and friction >= 0.0):
@@ -524,9 +530,11 @@ def _parts(contact: ContactConfig, cantilever: CantileverConfig, haptics: Haptic
         raise SessionError(f"metadata haptics.signal_noise must be >= 0 rad (got {noise!r})")
     if not isinstance(zone, bool):
         raise SessionError(f"metadata zone_energy must be true or false (got {zone!r})")
+    if not isinstance(closed, bool):
+        raise SessionError(f"metadata zone_closed_form must be true or false (got {closed!r})")
     return tip_radius, md, lever, dict(friction=friction, static_friction=static, coupling_stiffness=k_probe,
                                        signal_noise=noise, friction_law=law, shear_strength=shear,
-                                       zone_energy=zone), bool(c.deform)
+                                       zone_energy=zone, zone_closed_form=closed), bool(c.deform)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -551,7 +559,7 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
                dugdale_stress: float | None = None, cantilever: Mapping | None = None, friction: float = 0.2,
                deform: bool = True, static_friction: float | None = None, coupling_stiffness: float = math.inf,
                material=None, signal_noise: float | None = None, friction_law: str = DEFAULT_FRICTION_LAW,
-               shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = False):
+               shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = True):
     """The :class:`~arsurf.model.ARModel` on a fitted ``surface`` (the last step of :func:`build_model`).
 
     Parameters
@@ -582,7 +590,7 @@ def make_model(surface, *, tip_radius: float, effective_modulus: float, work_of_
     zone_energy : bool
         The contact as the energy of the whole tip (:class:`~arsurf.model.ARModel`'s; default False).
     zone_closed_form : bool
-        With ``zone_energy``, its closed form where trusted (:class:`~arsurf.model.ARModel`'s; default False).
+        With ``zone_energy``, its closed form where trusted (:class:`~arsurf.model.ARModel`'s; default True).
     """
     contact = ContactConfig(tip_radius, effective_modulus, work_of_adhesion, dugdale_stress, friction,
                             static_friction, deform, friction_law, UNSET if shear_strength is None else shear_strength)

@@ -157,8 +157,10 @@ class ContactConfig:
     coefficients (``static_friction`` UNSET: the kinetic one), ``deform`` (the model dents), the
     friction law (``friction_law``: ``"adhesive"``, ``"area"`` or ``"compressive"``,
     :mod:`arsurf.contact.friction`; UNSET, a session recorded before the law was recorded: the
-    compressive law it ran with), the area law's ``shear_strength`` (Pa) and ``zone_energy`` (the
-    model's contact the energy of the whole tip, :class:`~arsurf.model.ARModel`; UNSET: False)."""
+    compressive law it ran with), the area law's ``shear_strength`` (Pa), ``zone_energy`` (the
+    model's contact the energy of the whole tip, :class:`~arsurf.model.ARModel`; UNSET: False) and
+    ``zone_closed_form`` (with it, its closed form where trusted; UNSET, a session recorded before
+    the key existed: False, the lattice's sum it ran with)."""
 
     tip_radius: float
     effective_modulus: float
@@ -170,6 +172,7 @@ class ContactConfig:
     friction_law: str = UNSET
     shear_strength: float | None = UNSET
     zone_energy: bool = UNSET
+    zone_closed_form: bool = UNSET
 
     @classmethod
     def from_metadata(cls, meta: Mapping) -> "ContactConfig":
@@ -180,7 +183,8 @@ class ContactConfig:
             _need(c, k, "contact")
         return cls(meta["tip_radius"], c["effective_modulus"], c["work_of_adhesion"], c.get("dugdale_stress"),
                    meta["friction"], meta.get("static_friction", UNSET), meta.get("deform", True),
-                   meta.get("friction_law", UNSET), meta.get("shear_strength", UNSET), meta.get("zone_energy", UNSET))
+                   meta.get("friction_law", UNSET), meta.get("shear_strength", UNSET), meta.get("zone_energy", UNSET),
+                   meta.get("zone_closed_form", UNSET))
 
     def law(self) -> dict:
         """The ``contact`` object of the metadata."""
@@ -191,7 +195,7 @@ class ContactConfig:
         """The top-level keys this record writes (``contact`` among them)."""
         out = {"tip_radius": self.tip_radius, "contact": self.law(), "friction": self.friction,
                "deform": self.deform}
-        for key in ("static_friction", "friction_law", "shear_strength", "zone_energy"):
+        for key in ("static_friction", "friction_law", "shear_strength", "zone_energy", "zone_closed_form"):
             if getattr(self, key) is not UNSET:
                 out[key] = getattr(self, key)
         return out
@@ -415,8 +419,8 @@ class SessionConfig:
         material = None if spec is None else MaterialConfig.from_metadata(spec, material_roles)
         device = None if meta.get("device") is None else DeviceConfig.from_metadata(meta["device"])
         named = {"scan", "tip_radius", "contact", "friction", "static_friction", "deform", "friction_law",
-                 "shear_strength", "zone_energy", "cantilever", "haptics", "material", "device", "tubes", "calibration",
-                 "loop_rate"}
+                 "shear_strength", "zone_energy", "zone_closed_form", "cantilever", "haptics", "material", "device",
+                 "tubes", "calibration", "loop_rate"}
         return cls(scan, contact, lever, haptics, material, device, meta.get("tubes"),
                    MappingProxyType(dict(meta.get("calibration") or {})), meta.get("loop_rate"),
                    MappingProxyType({k: v for k, v in meta.items() if k not in named}))

@@ -182,7 +182,7 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
                  filter_cutoff: float | None | str = "preset", tip_radius: float | None = None,
                  coupling_rate: float | None = None, heading: float = 0.0, room: float = math.inf,
                  force_gain: float | None = None, jump_blend: float | None = None, after_tick=None,
-                 zone_energy: bool = False, zone_closed_form: bool = False) -> FeelRun:
+                 zone_energy: bool = False, zone_closed_form: bool = True) -> FeelRun:
     """Run one scenario on ``surface`` (module docstring) and score the device force.
 
     ``at`` (x, y) m: the middle of the motion (default: the middle of the surface; a stroke
@@ -196,7 +196,8 @@ def run_scenario(surface, *, motion: str = "press", source: str = "simulated", r
     it started (a fast slide on a small scan); ``force_gain`` hand N per probe N (default: the
     preset's); ``jump_blend`` s: the loop's blend time of the tip's jumps (0: off; default: the
     preset's, :mod:`arsurf.contact.jump_blend`); ``zone_energy``: the model's contact the energy of
-    the whole tip (:class:`~arsurf.model.ARModel`'s), ``zone_closed_form`` with its closed form;
+    the whole tip (:class:`~arsurf.model.ARModel`'s), ``zone_closed_form`` with its closed form where
+    trusted (default; False: the lattice's sum everywhere);
     ``after_tick(tip, probe, model)``: called after each tick, outside its timing, with the
     tick's tip centre and its target (the scaled stylus) (3,) m and the model (a benchmark times a
     peer's query at the tip, under the conditions the tick runs in, or reads the force field there).

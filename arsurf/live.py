@@ -84,7 +84,7 @@ def parse_instrument(spec: str) -> tuple:
 
 def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: float, measured: bool,
                   virtual_coupling: bool = True, passivity: bool = True, jump_blend: float = BLEND_TIME,
-                  zone_energy: bool = False) -> dict:
+                  zone_energy: bool = False, zone_closed_form: bool = True) -> dict:
     """Session metadata of a live session: the viewer preset (Si tip on polystyrene) with the
     bridge loop's haptic settings (:data:`arsurf.assembly.BRIDGE_HAPTICS`) at ``scale`` probe m
     per stylus m; ``measured``: the force read from the instrument's signals. The virtual
@@ -92,11 +92,11 @@ def live_metadata(scan, *, tip_radius: float, level: str, sigma: float, scale: f
     :mod:`arsurf.contact.jump_blend`) are on unless turned off here (recorded either way;
     the coupling's stiffness is the one the loop chooses from the device,
     :func:`arsurf.assembly.loop_metadata`). ``zone_energy``: the model's contact the energy of the
-    whole tip (:class:`~arsurf.model.ARModel`)."""
+    whole tip (:class:`~arsurf.model.ARModel`), ``zone_closed_form`` in closed form where trusted."""
     haptics = dict(BRIDGE_HAPTICS, scale=scale, source="measured" if measured else "simulated",
                    virtual_coupling=bool(virtual_coupling), passivity=bool(passivity), jump_blend=float(jump_blend))
     return preset_metadata(scan, "viewer", tip_radius=tip_radius, level=level, sigma=sigma, haptics=haptics,
-                           zone_energy=bool(zone_energy))
+                           zone_energy=bool(zone_energy), zone_closed_form=bool(zone_closed_form))
 
 
 def bridge_loop(model, haptics=None, *, host: str = "127.0.0.1", port: int = 47474, key: bytes | None = None,

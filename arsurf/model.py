@@ -703,10 +703,10 @@ class ARModel:
         material map each surface element sums its own local law (always the sum).
     zone_closed_form : bool
         With ``zone_energy``, the energy in closed form where its checks trust it, joined smoothly
-        to the lattice's sum (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`); a fifth of the
-        sum's tick on smooth scans. Default False: measured, not yet safe on every surface (a
-        roughness at the pixel's scale can hide a second minimum inside the contact from its
-        checks: docs/feel.rst, "The energy of the whole tip in one term").
+        to the lattice's sum (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`); a quarter of
+        the sum's tick on smooth scans, the same runs of the feel tables passed (docs/feel.rst,
+        "The energy of the whole tip in one term"). Default True; False sums the lattice
+        everywhere.
 
     Examples
     --------
@@ -725,7 +725,7 @@ class ARModel:
                  cantilever: Cantilever, friction: float = 0.2, deform: bool = True, *,
                  static_friction: float | None = None, coupling_stiffness: float = math.inf, material=None,
                  signal_noise: float | None = None, friction_law: str = "adhesive",
-                 shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = False):
+                 shear_strength: float | None = None, zone_energy: bool = False, zone_closed_form: bool = True):
         if not isinstance(surface, BSplineSurface):
             raise ContactError(f"surface must be an arsurf BSplineSurface (got {type(surface).__name__})")
         tip_radius = float(tip_radius)

@@ -176,8 +176,8 @@ def judge_planned(run: dict) -> dict:
     t0 = time.perf_counter()
     keep = {k: v for k, v in run.items() if k not in ("generated", "scan")}
     options = {"zone_energy": True} if run.get("zone_energy") else {}
-    if run.get("zone_closed_form"):
-        options["zone_closed_form"] = True
+    if run.get("zone_energy"):
+        options["zone_closed_form"] = run.get("zone_closed_form", True)
     row = judge_run(keep, _surface(run), run["tip_radius_m"], **options)
     return _jsonable({**row, "wall_s": time.perf_counter() - t0})
 
@@ -274,20 +274,20 @@ def compare(old: list[dict], new: list[dict]) -> dict:
 
 def families(count: int, seed: int, real: bool = True, slow_runs: int = 2, fast_runs: int = 1,
              estimate_only: bool = False, out=None, jobs: int = 1, budget: float = math.inf,
-             zone_energy: bool = False, closed_form: bool = False) -> dict:
+             zone_energy: bool = False, closed_form: bool = True) -> dict:
     """The generated table (``count`` surfaces, seeded) and every real scan the project opens, judged
     in ``jobs`` processes, each row appended to the JSON-lines file ``out`` as it is judged; the
     runs already in ``out`` are skipped (a stopped table resumes where it was). No new run starts
     after ``budget`` s of wall time (the runs under way are dropped, to be done on resuming).
     Prints the size and a time estimate (calibrated on a short run, over ``jobs`` processes)
     first; returns the summary of every row in ``out`` (:func:`summarize`) or of this run's.
-    ``zone_energy``: every model's contact the energy of the whole tip, ``closed_form`` with its closed form
-    (each row says so)."""
+    ``zone_energy``: every model's contact the energy of the whole tip, ``closed_form`` with its closed form where
+    trusted (default; False: the lattice's sum everywhere; each row says which)."""
     import time
 
     runs, unreadable = plan_table(count, seed, real, slow_runs, fast_runs)
     if zone_energy:
-        runs = [{**r, "zone_energy": True, **({"zone_closed_form": True} if closed_form else {})} for r in runs]
+        runs = [{**r, "zone_energy": True, "zone_closed_form": closed_form} for r in runs]
     planned = {r["key"]: r for r in runs}
     judged = [r for r in read_rows(out) if r.get("key") in planned]
     done = {r["key"] for r in judged}
@@ -365,9 +365,10 @@ def _tick_cost(surface, tip_radius) -> float:
     return (time.perf_counter() - t0) / 6000.0
 
 
-def vtk_ratio(surface, rounds: int = 3, zone_energy: bool = False, closed_form: bool = False) -> dict:
+def vtk_ratio(surface, rounds: int = 3, zone_energy: bool = False, closed_form: bool = True) -> dict:
     """Tick median vs one VTK closest-point query at the same tip positions (slide at 100 nm/s;
-    ``zone_energy``: the model's contact the energy of the whole tip, ``closed_form`` with its closed form).
+    ``zone_energy``: the model's contact the energy of the whole tip, ``closed_form`` with its closed form where
+    trusted, the default).
 
     Two timings of the peer, same run: ``vtk_query_median_us`` times the round's tip positions
     back to back after the round (the peer alone in a tight loop: its locator stays in the CPU's
@@ -460,8 +461,9 @@ def main() -> None:
     ap.add_argument("--zone-energy", action="store_true",
                     help="with --families or --vtk-only: the models' contact the energy of the whole tip "
                          "(ARModel zone_energy)")
-    ap.add_argument("--closed-form", action="store_true",
-                    help="with --zone-energy: its closed form where trusted (ARModel zone_closed_form)")
+    ap.add_argument("--zone-sum", action="store_true",
+                    help="with --zone-energy: the lattice's sum everywhere, not its closed form where trusted "
+                         "(ARModel zone_closed_form=False)")
     ap.add_argument("--jobs", type=int, default=1, help="with --families: processes judging runs (default 1)")
     ap.add_argument("--budget", type=float, default=math.inf, metavar="SECONDS",
                     help="with --families: start no new run after this wall time (resume later with --out)")
@@ -490,7 +492,7 @@ def main() -> None:
         print(json.dumps({"families": families(args.families, args.seed, real=not args.quick, slow_runs=args.runs[0],
                                                fast_runs=args.runs[1], estimate_only=args.estimate, out=args.out,
                                                jobs=args.jobs, budget=args.budget,
-                                               zone_energy=args.zone_energy, closed_form=args.closed_form)},
+                                               zone_energy=args.zone_energy, closed_form=not args.zone_sum)},
                          indent=1))
         return
     surfaces = {}
@@ -516,7 +518,7 @@ def main() -> None:
                 rows[path.name] = {"error": f"{type(exc).__name__}: {exc}"[:200]}
                 continue
             rows[path.name] = {"control_points": list(s.shape), **vtk_ratio(s, zone_energy=args.zone_energy,
-                                                                                     closed_form=args.closed_form)}
+                                                                                     closed_form=not args.zone_sum)}
             r = rows[path.name]
             if args.parts:
                 from _tick_parts import tick_parts

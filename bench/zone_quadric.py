@@ -96,8 +96,8 @@ def quadric_energy(surface, law: ZoneLaw, tip, sphere: bool = True) -> float:
 @njit  # not cached: a bench's cached function breaks its own run as a script (docs/benchmarks.rst)
 def _one_terms(ctrl, ku, kv, curv, curv_ku, curv_kv, tips, radius, e_star, sigma0, h0, quad, empty, energies):
     for k in range(tips.shape[0]):
-        quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tips[k, 0], tips[k, 1], tips[k, 2], radius, e_star, sigma0, h0, quad,
-                               empty)
+        quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tips[k, 0], tips[k, 1], tips[k, 2], radius,
+                               e_star, sigma0, h0, quad, empty)
         energies[k] = quad[0]
 
 
@@ -129,7 +129,8 @@ def time_against_the_lattice(surface, law: ZoneLaw, lattice, tips, rounds: int =
     times = {"one": [], "joined": [], "sum": []}
     for _ in range(rounds + 1):  # the first compiles
         t0 = time.perf_counter()
-        _one_terms(ctrl, surface.knots_u, surface.knots_v, *joined.arrays[L_CURV:L_CURV + 3], tips, *law.args, quad, empty, one)
+        _one_terms(ctrl, surface.knots_u, surface.knots_v, *joined.arrays[L_CURV:L_CURV + 3], tips, *law.args, quad,
+                   empty, one)
         t1 = time.perf_counter()
         _joined(joined.arrays, tips, *law.args, out, empty, both)
         t2 = time.perf_counter()

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from arsurf.cli.args import (_contact_flag, _count, _nm, _positive, _processing_flags,
+from arsurf.cli.args import (_contact_flag, _contact_options, _count, _nm, _positive, _processing_flags,
                               _protection_flags, _protections, _record_target)
 
 #: ``arsurf live`` device flags: (argparse dest, flag, the adapters' option, SI factor or None)
@@ -160,7 +160,7 @@ def cmd_live(args) -> int:
     scan_path = args.scan or str(BUNDLED_SCAN)
     meta = live_metadata(scan_path, tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
                          sigma=args.sigma_nm * 1e-9, scale=args.scale, measured=args.instrument is not None,
-                         zone_energy=args.zone_energy, **_protections(args))
+                         **_contact_options(args), **_protections(args))
     setup = build_model(meta)
     instrument = photodiode = frame = None
     if args.instrument is not None:

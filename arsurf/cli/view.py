@@ -8,8 +8,8 @@ from __future__ import annotations
 import sys
 import time
 
-from arsurf.cli.args import (_contact_flag, _count, _nm, _picture_size, _positive, _prepare, _processing_flags,
-                              _protection_flags, _protections, _record_target)
+from arsurf.cli.args import (_contact_flag, _contact_options, _count, _nm, _picture_size, _positive, _prepare,
+                              _processing_flags, _protection_flags, _protections, _record_target)
 from arsurf.cli.live import _realtime_flags
 
 #: frames of the scripted offscreen path (approach, indent, slide, retract: one at least each);
@@ -193,7 +193,7 @@ def _bridge_view(args, bridge, record) -> int:
     meta = preset_metadata(scan_path, "viewer", tip_radius=args.tip_radius_nm * 1e-9, level=args.level,
                            sigma=args.sigma_nm * 1e-9, haptics={**BRIDGE_HAPTICS, "scale": args.scale, "virtual_coupling": True,
                                                                   "passivity": True, **_protections(args)},
-                           zone_energy=args.zone_energy)
+                           **_contact_options(args))
     setup = build_model(meta)
     realtime = choose_realtime(args.realtime_priority)
     meta["realtime"] = realtime.to_metadata()

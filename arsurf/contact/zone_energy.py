@@ -389,8 +389,8 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     want = hess.shape[0] == 3
     qh = work[0] if want else hess
     w, gwx, gwy, gwz = 0.0, 0.0, 0.0, 0.0
-    if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_CURV], lat[L_CURV_KU], lat[L_CURV_KV], tx, ty, tz, radius, e_star, sigma0, h0, quad,
-                              qh) >= 0 and quad[Q_WEIGHT] > 0.0:
+    if quadric_contact_kernel(lat[L_CTRL], lat[L_KU], lat[L_KV], lat[L_CURV], lat[L_CURV_KU], lat[L_CURV_KV],
+                              tx, ty, tz, radius, e_star, sigma0, h0, quad, qh) >= 0 and quad[Q_WEIGHT] > 0.0:
         margin = CLEAR_MARGIN * h0
         least = isolation_kernel(lat, tx, ty, tz, radius, h0, quad, part)  # its gradient into part[:3]
         wi, si = smootherstep((least - h0) / margin)
@@ -411,7 +411,8 @@ def tip_energy_kernel(lat, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) ->
     if w <= 0.0:
         return n
     diff = quad[Z_ENERGY] - out[Z_ENERGY]
-    fx, fy, fz = quad[Z_FORCE] - out[Z_FORCE], quad[Z_FORCE + 1] - out[Z_FORCE + 1], quad[Z_FORCE + 2] - out[Z_FORCE + 2]
+    fx, fy = quad[Z_FORCE] - out[Z_FORCE], quad[Z_FORCE + 1] - out[Z_FORCE + 1]
+    fz = quad[Z_FORCE + 2] - out[Z_FORCE + 2]
     out[Z_ENERGY] += w * diff
     out[Z_FORCE] += w * fx - diff * gwx
     out[Z_FORCE + 1] += w * fy - diff * gwy

@@ -35,7 +35,7 @@ Hessian :math:`\delta_{ab}/\rho + d_a d_b/\rho^3` (:math:`d = x^* - T_{xy}`), no
         + \frac{3 d_a d_b d_c}{\rho^5},
 
 :math:`\partial \det M/\partial T_k = \mathrm{tr}(\mathrm{adj}(M)\,dM/dT_k)`, which needs the
-surface's third derivatives (:func:`~arsurf.spline.basis.height_jet`); then
+slope of the surface's curvature :math:`\partial H_z/\partial x`; then
 
 .. math::
 
@@ -43,9 +43,14 @@ surface's third derivatives (:func:`~arsurf.spline.basis.height_jet`); then
         - \frac{J(g_0)}{2 (\det M)^{3/2}}\,\nabla_T \det M\right), \qquad
     J' = -\varphi(g_0) + \frac{I_0}{R}, \quad J'' = p(g_0) - \frac{\varphi(g_0)}{R}.
 
-A bicubic spline's third derivatives step where :math:`x^*` crosses a knot line, and so does the
-second term: by the change of the surface's third derivative over a knot interval, which on a
-scan smoothed over several pixels is small against the first term's.
+A bicubic spline's curvature is only continuous: its slope steps where :math:`x^*` crosses a knot
+line, and E would have a kink there, F a step (2.9 nN, 160 times its change over a 2 pm step
+elsewhere, on a surface rough at its 0.5 nm knots under a 10 nm tip). So in :math:`\det M` (and
+only there) :math:`H_z` is the curvature's own C2 field (:mod:`arsurf.spline.curvature`: the
+variation-diminishing spline of each second derivative on knots twice as dense), the curvature
+averaged over about a knot interval, and :math:`\partial H_z/\partial x` its slope; the minimum
+and its motion :math:`M^{-1}S` keep the spline's own. The force is then continuous, and still the
+exact gradient of the E it belongs to.
 
 **The Hessian** (for a proxy's Newton step) keeps the terms of first order in
 :math:`\nabla\det M` and leaves out its second derivatives (the surface's fourth):
@@ -59,8 +64,9 @@ smooth contact, on the tip's sphere): :func:`quadric_contact_kernel` says when i
 minimum (no minimum, M not positive definite, or the minimum past the sphere onto the cone), and
 how far it can be trusted, a weight whose gradient in T is exact (:func:`_fit_weight`); the caller
 joins it to a lattice's sum by that weight (:func:`~arsurf.contact.zone_energy.tip_energy_kernel`).
-Its checks look at 24 points: a roughness finer than their spacing can hide a second minimum of
-the gap inside the zone from them (docs/feel.rst, "The energy of the whole tip in one term").
+Its checks look at 24 points, and beyond them at a bound of the surface's third derivative over the
+tip's reach, which says where a second minimum of the gap could hide inside the zone between those
+points (:func:`_remainder_weight`).
 """
 from __future__ import annotations
 
@@ -142,7 +148,8 @@ def law_moments(g0, radius, e_star, sigma0, h0):
 
 
 @njit(cache=True, error_model="numpy")
-def quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tx, ty, tz, radius, e_star, sigma0, h0, out, hess) -> int:
+def quadric_contact_kernel(ctrl, ku, kv, curv, curv_ku, curv_kv, tx, ty, tz, radius, e_star, sigma0, h0, out,
+                           hess) -> int:
     r"""E(T) and F(T) of the module docstring at the tip centre T = (tx, ty, tz) (m) over the
     height-field net (``ctrl``, ``ku``, ``kv``; ``curv``, ``curv_ku``, ``curv_kv`` its curvature's own
     fields, :func:`~arsurf.spline.curvature.curvature_net`). The gap's minimum by Newton's method from
@@ -313,9 +320,13 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
     - the sphere: the zone, from the tip's axis, within the sphere's part of the tip
       (:math:`|x^* - T_{xy}| + r_c/c < R\cos\alpha`), by a margin :data:`ROOM_MARGIN` R
       (beyond it the cone, which a lattice's samples see);
-    - the scan: the check circle and its ring a margin :data:`ROOM_MARGIN` R inside the net's edges.
+    - the scan: the check circle and its ring a margin :data:`ROOM_MARGIN` R inside the net's edges;
+    - no second minimum inside the zone between the checks' points: the surface's third derivative,
+      bounded over the tip's reach, too small to make one (:func:`_remainder_weight`).
 
-    ``model``: T, the minimum's (u, v), x_u, y_v, x*, slope, g0, M, dM/dT_x, dM/dT_y and X = dx*/dT.
+    ``model``: T, the minimum's (u, v), x_u, y_v, x*, slope, g0, M, dM/dT_x, dM/dT_y, X = dx*/dT
+    and the third derivative's bound B (1/m^2) with its slope in x (M the energy's: the curvature's
+    own field, module docstring).
     The circles move with :math:`x^*` (X) and their radii with :math:`g_0` (:math:`\nabla r_c =
     -(c^2 R / r_c)\,n`, :math:`n = (-\nabla z, 1)`)."""
     tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
@@ -535,6 +546,6 @@ def quadric_contact(surface, law, center, start=None) -> tuple[float, np.ndarray
         out[Q_UV:Q_UV + 2] = np.asarray(start, dtype=np.float64)
     ctrl = np.array(surface.rest_control_points, order="C")
     ku, kv = surface.knots_u, surface.knots_v
-    status = quadric_contact_kernel(ctrl, ku, kv, *curvature_net(ctrl, ku, kv, law.tip_radius), c[0], c[1], c[2], *law.args, out,
-                                    np.empty((0, 0)))
+    status = quadric_contact_kernel(ctrl, ku, kv, *curvature_net(ctrl, ku, kv, law.tip_radius), c[0], c[1], c[2],
+                                    *law.args, out, np.empty((0, 0)))
     return float(out[Z_ENERGY]), out[Z_FORCE:Z_FORCE + 3].copy(), int(status)

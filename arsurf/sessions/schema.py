@@ -58,6 +58,10 @@ key                         JSON value
 ``zone_energy``             optional: true, the model's contact was the energy of the whole tip
                             (:mod:`arsurf.contact.zone_energy`; absent: the contacts at the
                             minima of the distance)
+``zone_closed_form``        optional, with ``zone_energy``: true, that energy was taken in closed
+                            form where its checks trusted it (:mod:`arsurf.contact.zone_quadric`);
+                            false or absent (sessions recorded before the key), the lattice's sum
+                            everywhere
 ``deform``                  bool, the model dented the surface
 ``cantilever``              the :class:`~arsurf.force.cantilever.Cantilever` constructor
                             arguments (length, width, thickness, tip_height, youngs_modulus,

@@ -95,7 +95,7 @@ def test_a_session_with_the_zone_energy_as_the_contact_records_it_and_replays_ex
     rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.6", "--record", str(path), "--zone-energy")
     assert rc == 0, err
     s = load_session(path)
-    assert s.metadata["zone_energy"] is True
+    assert s.metadata["zone_energy"] is True and s.metadata["zone_closed_form"] is True  # its closed form by default
     t = s.ticks
     pressing = t["in_contact"] == 1
     assert pressing.sum() > 50 and np.median(t["device_force"][pressing, 2]) > 0.0
@@ -303,3 +303,10 @@ def test_a_bad_realtime_priority_is_one_line(capsys, bad):
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.count("\n") == 1
     assert "argument --realtime-priority: must be an integer in [0, 99]" in err, err
+
+
+def test_the_zone_sum_without_the_zone_energy_is_refused_in_one_line(capsys):
+    rc, out, err = _live(capsys, "--device", "virtual", "--seconds", "0.1", "--zone-sum")
+    assert rc == 2 and "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert "--zone-sum sums the zone energy's lattice everywhere: give --zone-energy too" in last
