@@ -77,7 +77,7 @@ from numba import njit
 
 from arsurf.contact.zone_law import _COS_CONE, Z_ENERGY, Z_FORCE, ZONE_OUT, _cone, _law, _rise
 from arsurf.errors import ContactError
-from arsurf.spline.basis import height_jet
+from arsurf.spline.basis import height_jet, height_slope
 from arsurf.spline.curvature import curvature_jet, curvature_net
 
 __all__ = ["QUADRIC_OUT", "law_moments", "quadric_contact", "quadric_contact_kernel"]
@@ -444,12 +444,12 @@ def _deviation(ctrl, ku, kv, model, radius, ring, grr, angle):
     nx, ny = -zx, -zy
     ex, ey = math.cos(angle), math.sin(angle)
     px, py = ring * ex, ring * ey
-    at = height_jet(ctrl, ku, kv, u + px / xu, v + py / yv)
+    at = height_slope(ctrl, ku, kv, u + px / xu, v + py / yv)
     ox, oy = x + px - tx, y + py - ty
     rho0, cap, slope = _cone(radius)  # the tip's own profile: its sphere, then its cone (a check circle may reach it)
     rise, sr, _ = _rise(ox * ox + oy * oy, radius, rho0, cap, slope)
-    gap = tz - radius + rise - at[4]
-    cx, cy = sr * ox - at[5] / xu, sr * oy - at[6] / yv  # grad_x G at p
+    gap = tz - radius + rise - at[0]
+    cx, cy = sr * ox - at[1] / xu, sr * oy - at[2] / yv  # grad_x G at p
     mx, my = mxx * px + mxy * py, mxy * px + myy * py
     q = 0.5 * (px * mx + py * my)
     along = cx * ex + cy * ey  # dG/dr

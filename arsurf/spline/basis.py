@@ -222,6 +222,27 @@ def height_jet(ctrl, ku, kv, u, v):
 
 
 @njit(cache=True)
+def height_slope(ctrl, ku, kv, u, v):
+    """A height-field net's height and its parameter derivatives at (u, v) (clamped): ``(z, z_u,
+    z_v)``, the first three of :func:`height_jet`'s height terms at a quarter of its work. One pass
+    over the 4x4 patch; allocates nothing."""
+    iu, bu = basis_at(ku, u)
+    iv, bv = basis_at(kv, v)
+    z = zu = zv = 0.0
+    for b in range(4):
+        j = iv + b
+        r0 = r1 = 0.0
+        for a in range(4):
+            pz = ctrl[iu + a, j, 2]
+            r0 += bu[a] * pz
+            r1 += bu[4 + a] * pz
+        z += bv[b] * r0
+        zu += bv[b] * r1
+        zv += bv[4 + b] * r0
+    return z, zu, zv
+
+
+@njit(cache=True)
 def basis_row(knots, u, out):
     """Write the 4 basis values at u into ``out`` and return the first column index (span - 3)."""
     u = clamp(u, knots)

@@ -65,3 +65,15 @@ def test_knot_errors_are_clear():
         clamped_uniform_knots(5, 1.0, 1.0)
     with pytest.raises(SurfaceError, match="not a clamped uniform"):
         check_clamped_uniform(np.array([0, 0, 0, 0, 0.3, 1, 1, 1, 1.0]), "knots_u")
+
+
+def test_the_height_slope_is_the_jet_s():
+    from arsurf.scan import synthetic
+    from arsurf.spline.basis import height_jet, height_slope
+    from arsurf.spline.fit import fit_surface
+
+    s = fit_surface(synthetic.rough(shape=(24, 24), pixel=1e-9, rms=1e-9, correlation_length=4e-9, seed=1))
+    ctrl = np.array(s.rest_control_points, order="C")
+    for u, v in ((0.0, 0.0), (3.3e-9, 17.2e-9), (11.0e-9, 11.0e-9), (23e-9, 5.5e-9)):  # ends and interior
+        jet = height_jet(ctrl, s.knots_u, s.knots_v, u, v)
+        assert np.allclose(height_slope(ctrl, s.knots_u, s.knots_v, u, v), jet[4:7], rtol=1e-12, atol=1e-25)
