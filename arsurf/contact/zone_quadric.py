@@ -391,13 +391,14 @@ def _remainder_weight(model, h0):
     else within :math:`|\xi| < 2\lambda/B`, :math:`\lambda` the least curvature of the gap (of
     K); the zone reaches :math:`\sqrt{2(h_0 - g_0)/\lambda}`; the measure is their ratio,
     :math:`c = B\sqrt{(h_0 - g_0)/2}\,\lambda^{-3/2}`, no other minimum while c < 1.
-    B is a bound (the largest over the reach and a basis function's 4 x 4 spans, the third
-    derivative's norm), about twice the third derivative met on the real scans' maps; so the one
-    term is trusted wholly to c = :data:`REMAINDER_TOLERANCE` and not at all from twice it. The
+    B is a bound (the third derivative's norm, the largest over the reach and the 4 x 4 spans of
+    a basis function of the field), about twice the third derivative met on the real scans' maps;
+    so the one term is trusted wholly to c = :data:`REMAINDER_TOLERANCE` and not at all from twice
+    it. The
     least curvature is smoothed, :math:`\lambda = m - \sqrt{d^2 + K_{xy}^2 + (\epsilon m)^2}`
     (m, d the half sum and difference of the diagonal, :math:`\epsilon` = 1e-3), so that its
     gradient exists where K is isotropic (on a flat)."""
-    tx, ty, tz, u, v, xu, yv, x, y, zx, zy, g0 = model[:12]
+    zx, zy, g0 = model[9], model[10], model[11]
     kxx, kxy, kyy, dxx_x, dxy_x, dyy_x, dxx_y, dxy_y, dyy_y = model[12:21]
     xxx, xxy, xyx, xyy, bound, bound_x, bound_y = model[21:28]
     span = h0 - g0
