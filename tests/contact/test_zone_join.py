@@ -141,3 +141,22 @@ def test_in_the_blend_the_hessian_carries_the_weight_s_slope(hills, joined):
         errors.append(np.abs(hess - numeric).max() / np.abs(numeric).max())
     assert len(errors) >= 5
     assert np.median(errors) <= 0.01  # 0.6 % (1.7 % without the weight's terms)
+
+
+def test_a_second_minimum_inside_the_zone_between_the_checks_points_hands_the_tip_to_the_lattice():
+    # a flat on 0.5 nm pixels with a bump 0.4 nm high and 0.6 nm wide 2.5 nm from where a 10 nm tip presses 1 nm: the
+    # gap over the bump is about its least, a second contact inside the 5 nm zone; the checks' 12 points
+    # on the zone's edge and on the circle beyond do not reach it, the bound of the surface's third derivative does
+    x = np.arange(96) * 0.5e-9
+    bump = 0.4e-9 * np.exp(-(((x[:, None] - 24e-9 - 2.5e-9 * math.cos(0.26)) ** 2
+                              + (x[None, :] - 24e-9 - 2.5e-9 * math.sin(0.26)) ** 2) / (2 * (0.6e-9) ** 2)))
+    surface = fit_surface(with_heights(synthetic.sinusoid(shape=(96, 96), pixel=0.5e-9, amplitude=0.0), bump))
+    joined, plain = lattice_for(surface, R, H0, closed_form=True), lattice_for(surface, R, H0)
+    tip = np.array([24e-9, 24e-9, R - 1e-9])
+    (e1, one, _), (e_sum, summed_here) = quadric_contact(surface, LAW, tip), zone_energy(plain, LAW, tip)
+    # the one term misses the bump: 3 % of the energy, a lateral force 2-5 % of the load where the sum's is 0.4 %
+    assert abs(e1 - e_sum) > 0.02 * abs(e_sum)
+    assert np.linalg.norm(one[:2] - summed_here[:2]) > 0.02 * summed_here[2]
+    out, used = energy(joined, tip)
+    assert used >= 0 and joined.arrays[L_QUAD][Q_WEIGHT] == 0.0  # (1.0 with the checks' points alone)
+    assert np.array_equal(out[1:4], summed_here)
