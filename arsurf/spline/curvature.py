@@ -38,6 +38,8 @@ __all__ = ["MAX_FIELD_POINTS", "REFINEMENT", "curvature_jet", "curvature_net"]
 REFINEMENT = 2
 #: but not beyond this many control points (32 bytes each: 128 MB), once as dense then
 MAX_FIELD_POINTS = 1 << 22
+#: the field's control values are evaluated this many at a time (the evaluation's rows: 9 MB)
+CHUNK = 1 << 16
 
 
 def curvature_net(ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
@@ -57,14 +59,19 @@ def curvature_net(ctrl: np.ndarray, ku: np.ndarray, kv: np.ndarray,
     refine = REFINEMENT if ((nu - 3) * REFINEMENT + 3) * ((nv - 3) * REFINEMENT + 3) <= MAX_FIELD_POINTS else 1
     fu = clamped_uniform_knots((nu - 3) * refine + 3, ku[3], ku[nu])
     fv = clamped_uniform_knots((nv - 3) * refine + 3, kv[3], kv[nv])
-    uu, vv = np.meshgrid(greville(fu), greville(fv), indexing="ij")
-    rows = np.empty((6, uu.size, 3))
-    surface_points_serial(np.ascontiguousarray(ctrl, dtype=np.float64), ku, kv, uu.ravel(), vv.ravel(), 2, rows)
-    xu, yv = rows[1, :, 0], rows[2, :, 1]
-    net = np.empty(uu.shape + (4,))
-    net[:, :, 0] = (rows[3, :, 2] / (xu * xu)).reshape(uu.shape)
-    net[:, :, 1] = (rows[4, :, 2] / (xu * yv)).reshape(uu.shape)
-    net[:, :, 2] = (rows[5, :, 2] / (yv * yv)).reshape(uu.shape)
+    gu, gv = greville(fu), greville(fv)
+    net = np.empty((gu.size, gv.size, 4))
+    flat = net.reshape(-1, 4)
+    points = np.ascontiguousarray(ctrl, dtype=np.float64)
+    rows = np.empty((6, min(CHUNK, flat.shape[0]), 3))  # evaluated a chunk at a time: 144 bytes a point
+    for k0 in range(0, flat.shape[0], CHUNK):
+        k = np.arange(k0, min(k0 + CHUNK, flat.shape[0]))
+        r = rows[:, :k.size]
+        surface_points_serial(points, ku, kv, gu[k // gv.size], gv[k % gv.size], 2, r)
+        xu, yv = r[1, :, 0], r[2, :, 1]
+        flat[k0:k0 + k.size, 0] = r[3, :, 2] / (xu * xu)
+        flat[k0:k0 + k.size, 1] = r[4, :, 2] / (xu * yv)
+        flat[k0:k0 + k.size, 2] = r[5, :, 2] / (yv * yv)
     net[:, :, 3] = _third_derivative_bound(ctrl, ku, kv, reach, refine)
     return net, fu, fv
 

@@ -108,3 +108,12 @@ def test_the_bound_holds_the_third_derivative_within_its_reach(rough):
         assert max(sizes) <= bound
         tight.append(max(sizes) / bound)
     assert np.median(tight) > 0.2  # a bound, not a wall: within a few times what is met
+
+
+def test_the_field_is_the_same_evaluated_in_chunks(rough, monkeypatch):
+    import arsurf.spline.curvature as curvature
+
+    ctrl = np.array(rough.rest_control_points, order="C")
+    whole = curvature_net(ctrl, rough.knots_u, rough.knots_v, REACH)[0]
+    monkeypatch.setattr(curvature, "CHUNK", 7)  # chunks that cut rows of the net
+    assert np.array_equal(curvature_net(ctrl, rough.knots_u, rough.knots_v, REACH)[0], whole)
