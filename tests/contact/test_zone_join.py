@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from arsurf.contact.zone_energy import L_QUAD, ZONE_OUT, isolation_kernel, lattice_for, tip_energy_kernel, zone_energy
+from arsurf.contact.zone_energy import (L_QUAD, ZONE_OUT, isolation_kernel, lattice_for, surface_lattice,
+                                        tip_energy_kernel, zone_energy)
 from arsurf.contact.zone_quadric import Q_WEIGHT, quadric_contact
 from arsurf.errors import SurfaceError
 from arsurf.feel_scenarios import clearance_height
@@ -122,6 +123,9 @@ def test_far_above_the_surface_the_joined_energy_is_zero(joined):
 def test_closed_form_is_asked_for_in_one_line(hills):
     with pytest.raises(SurfaceError, match="`closed_form` must be True or False"):
         lattice_for(hills, R, H0, closed_form="yes")
+    for reach in (None, 0.0, math.nan, True):  # its check's reach, the tip's radius (lattice_for passes it)
+        with pytest.raises(SurfaceError, match="the closed form needs `reach`"):
+            surface_lattice(hills, 2, closed_form=True, reach=reach)
 
 
 def test_in_the_blend_the_hessian_carries_the_weight_s_slope(hills, joined):
