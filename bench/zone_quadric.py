@@ -28,8 +28,13 @@ to the lattice where they trust it (:func:`~arsurf.contact.zone_energy.tip_energ
 one sum of the lattice (all without a Hessian) at the same tips, each in a compiled loop, the rounds
 alternated.
 
+And, with ``--families N``, the engine's joined energy against the lattice on generated rough
+surfaces under their own tips: how often the one term is trusted alone, and how well it then does
+(:func:`family_accuracy`).
+
 Run: .venv/bin/python bench/zone_quadric.py [--scans NAME ...] [--points 20] (prints JSON, one
-line per scan; Python evaluations, a few seconds a scan)
+line per scan; Python evaluations, a few seconds a scan); [--families 60 --points 10 --seed 7]
+(one line; a few minutes)
 """
 from __future__ import annotations
 
@@ -176,11 +181,60 @@ def compare(name: str, points: int) -> dict:
     return out
 
 
+def family_accuracy(count: int, seed: int, points: int) -> dict:
+    """The engine's joined energy on ``count`` generated Gaussian and power-law surfaces
+    (:func:`~arsurf.feel_scenarios.generated_surfaces`, ``seed``), ``points`` tips each pressed
+    0.2-2 nm below first touch in the middle of the scan, under each surface's own tip (the demo's
+    law): the share of tips the one term takes alone (weight 1) and there its force's difference
+    from the lattice's (over the larger of that force and the pull-off 1.5 pi R w), median, 90th
+    percentile and largest."""
+    from arsurf.contact.materials import default_dugdale_stress
+    from arsurf.contact.zone_energy import L_QUAD
+    from arsurf.contact.zone_quadric import Q_GAP, Q_WEIGHT
+    from arsurf.feel_scenarios import clearance_height, generated_surfaces
+
+    p = PRESETS["demo"]
+    alone, other = [], 0
+    for g in generated_surfaces(count, seed, families=("gaussian", "power-law")):
+        surface, radius = g.surface(), g.tip_radius
+        law = ZoneLaw(radius, p.effective_modulus, p.work_of_adhesion, default_dugdale_stress(p.work_of_adhesion))
+        joined = lattice_for(surface, radius, law.interaction_range, closed_form=True)
+        summed = lattice_for(surface, radius, law.interaction_range)
+        (u0, u1), (v0, v1) = surface.domain
+        rng = np.random.default_rng(g.seed)
+        out = ZONE_OUT.zeros()
+        for _ in range(points):
+            x = rng.uniform(u0 + 0.3 * (u1 - u0), u1 - 0.3 * (u1 - u0))
+            y = rng.uniform(v0 + 0.3 * (v1 - v0), v1 - 0.3 * (v1 - v0))
+            tip = np.array([x, y, clearance_height(surface, x, y, radius, samples=101) - rng.uniform(0.2e-9, 2e-9)])
+            used = tip_energy_kernel(joined.arrays, *tip, *law.args, out, np.empty((0, 0)))
+            if not joined.arrays[L_QUAD][Q_GAP] < law.interaction_range:
+                continue  # out of the law's reach
+            force = zone_energy(summed, law, tip)[1]
+            scale = max(float(np.linalg.norm(force)), 1.5 * math.pi * radius * p.work_of_adhesion)
+            if used == -1:
+                alone.append(float(np.linalg.norm(out[1:4] - force)) / scale)
+            else:
+                other += 1
+    a = np.array(alone) if alone else np.full(1, math.nan)
+    return {"families": count, "seed": seed, "tips": len(alone) + other,
+            "one_term_share": len(alone) / max(len(alone) + other, 1),
+            "one_term_force_difference": {"median": float(np.median(a)), "p90": float(np.percentile(a, 90)),
+                                          "max": float(a.max())}}
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scans", nargs="+", default=list(DEFAULT_SCANS))
     parser.add_argument("--points", type=int, default=20)
+    parser.add_argument("--families", type=int, default=0,
+                        help="instead: the joined energy's accuracy on this many generated surfaces "
+                             "(--points tips each)")
+    parser.add_argument("--seed", type=int, default=7, help="with --families: their seed")
     args = parser.parse_args(argv)
+    if args.families:
+        print(json.dumps(family_accuracy(args.families, args.seed, args.points)), flush=True)
+        return
     for name in args.scans:
         print(json.dumps(compare(name, args.points)), flush=True)
 

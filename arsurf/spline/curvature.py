@@ -34,7 +34,8 @@ from arsurf.spline.knots import clamped_uniform_knots, greville
 __all__ = ["MAX_FIELD_POINTS", "REFINEMENT", "curvature_jet", "curvature_net"]
 
 #: the field's knots are this many times as dense as the net's: the curvature averaged over about a knot interval
-#: rather than three (measured against the zone energy's lattice: bench/zone_quadric.py, docs/feel-log.rst)
+#: rather than three (measured against the zone energy's lattice, ``bench/zone_quadric.py --families`` and the real
+#: scans' slides: docs/feel-log.rst, "The closed form that loses no run")
 REFINEMENT = 2
 #: but not beyond this many control points (32 bytes each: 128 MB), once as dense then
 MAX_FIELD_POINTS = 1 << 22
