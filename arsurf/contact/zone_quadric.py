@@ -362,24 +362,23 @@ def _fit_weight(ctrl, ku, kv, model, reach, radius, h0, out):
         g2x = k * (ax * xxx + ay * xyx - (1.0 + RING_WIDTH) * grc * nx)
         g2y = k * (ax * xxy + ay * xyy - (1.0 + RING_WIDTH) * grc * ny)
         g2z = -k * (1.0 + RING_WIDTH) * grc
-    # no second minimum within the zone: the surface's third derivative bounded over it
-    w5, g5x, g5y, g5z = 1.0, 0.0, 0.0, 0.0
-    if w1 * w2 > 0.0 and h0 > g0:
-        w5, g5x, g5y, g5z = _remainder_weight(model, h0)
-        g1x, g1y, g1z = g1x * w5 + w1 * g5x, g1y * w5 + w1 * g5y, g1z * w5 + w1 * g5z  # (w1 w5 as w1 below)
-        w1 *= w5
-    # the fit: within the zone (its edge), and between it and the check circle (no other contact there)
-    w3, g3x, g3y, g3z = 1.0, 0.0, 0.0, 0.0
-    w4, g4x, g4y, g4z = 1.0, 0.0, 0.0, 0.0
-    if w1 * w2 > 0.0 and h0 > g0:
-        w3, g3x, g3y, g3z = _ring_fit(ctrl, ku, kv, model, radius, h0, zone, grc / CHECK_RADIUS, FIT_TOLERANCE)
-        if w3 > 0.0:
-            w4, g4x, g4y, g4z = _ring_clear(ctrl, ku, kv, model, radius, h0, reach, grc)
-    w12, w34 = w1 * w2, w3 * w4
-    out[Q_WEIGHT] = w12 * w34
-    out[Q_WEIGHT + 1] = (g1x * w2 + w1 * g2x) * w34 + w12 * (g3x * w4 + w3 * g4x)
-    out[Q_WEIGHT + 2] = (g1y * w2 + w1 * g2y) * w34 + w12 * (g3y * w4 + w3 * g4y)
-    out[Q_WEIGHT + 3] = (g1z * w2 + w1 * g2z) * w34 + w12 * (g3z * w4 + w3 * g4z)
+    w, gx, gy, gz = _product(w1, g1x, g1y, g1z, w2, g2x, g2y, g2z)
+    if w > 0.0 and h0 > g0:
+        # no second minimum within the zone (the surface's third derivative bounded over it), the fit within the
+        # zone (its edge), and nothing else between it and the check circle
+        w, gx, gy, gz = _product(w, gx, gy, gz, *_remainder_weight(model, h0))
+        if w > 0.0:
+            w3, g3x, g3y, g3z = _ring_fit(ctrl, ku, kv, model, radius, h0, zone, grc / CHECK_RADIUS, FIT_TOLERANCE)
+            w, gx, gy, gz = _product(w, gx, gy, gz, w3, g3x, g3y, g3z)
+            if w3 > 0.0:
+                w, gx, gy, gz = _product(w, gx, gy, gz, *_ring_clear(ctrl, ku, kv, model, radius, h0, reach, grc))
+    out[Q_WEIGHT], out[Q_WEIGHT + 1], out[Q_WEIGHT + 2], out[Q_WEIGHT + 3] = w, gx, gy, gz
+
+
+@njit(cache=True)
+def _product(a, ax, ay, az, b, bx, by, bz):
+    """``(ab, grad(ab))`` of two weights given with their gradients in T."""
+    return a * b, ax * b + a * bx, ay * b + a * by, az * b + a * bz
 
 
 @njit(cache=True)
